@@ -1,0 +1,148 @@
+"""ROS 2 messages in CDR, without ROS: build, encode and decode the bus's messages.
+
+Every payload on the bus is a standard ROS 2 message serialised as CDR by the
+``rosbags`` type store, so the same bytes go into MCAP recordings and open in
+Foxglove or ROS 2 tools. Times on the bus are integer nanoseconds of simulated time.
+"""
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+T = TYPESTORE.types
+
+_Time = T["builtin_interfaces/msg/Time"]
+_Header = T["std_msgs/msg/Header"]
+_Vector3 = T["geometry_msgs/msg/Vector3"]
+_Point = T["geometry_msgs/msg/Point"]
+_Quaternion = T["geometry_msgs/msg/Quaternion"]
+_Pose = T["geometry_msgs/msg/Pose"]
+_Twist = T["geometry_msgs/msg/Twist"]
+
+#: Zenoh attachment: sequence number, sim-time stamp (ns), both uint64 little-endian.
+ATTACHMENT = struct.Struct("<QQ")
+
+_EMPTY = np.zeros(0, dtype=np.float64)
+_ZERO_COV = np.zeros(36, dtype=np.float64)
+
+
+class CodecError(ValueError):
+    """A payload that is not a valid message of the expected type."""
+
+
+def encode(msg) -> bytes:
+    """CDR bytes of a rosbags message (its type is its ``__msgtype__``)."""
+    return bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
+
+
+def decode(data: bytes, msgtype: str):
+    """Decode CDR bytes as ``msgtype``; raise :class:`CodecError` on any malformed input."""
+    try:
+        return TYPESTORE.deserialize_cdr(memoryview(data), msgtype)
+    except Exception as exc:  # rosbags raises SerdeError, struct.error, UnicodeDecodeError...
+        raise CodecError(f"not a valid {msgtype}: {exc}") from None
+
+
+def attachment(seq: int, t_ns: int) -> bytes:
+    return ATTACHMENT.pack(seq & 0xFFFFFFFFFFFFFFFF, t_ns)
+
+
+def parse_attachment(data: bytes | None) -> tuple[int, int] | None:
+    """(seq, t_ns) from an attachment, or None if absent or malformed."""
+    if data is None or len(data) != ATTACHMENT.size:
+        return None
+    return ATTACHMENT.unpack(data)
+
+
+# ---------------------------------------------------------------- time
+def time_msg(t_ns: int):
+    return _Time(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000))
+
+
+def stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def header(t_ns: int, frame_id: str = ""):
+    return _Header(stamp=time_msg(t_ns), frame_id=frame_id)
+
+
+def yaw_to_quaternion(yaw: float):
+    return _Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
+
+
+def quaternion_to_yaw(q) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+# ---------------------------------------------------------------- message builders
+def clock(t_ns: int):
+    return T["rosgraph_msgs/msg/Clock"](clock=time_msg(t_ns))
+
+
+def twist_stamped(t_ns: int, linear_mps: float, angular_radps: float, frame_id: str = "base_link"):
+    return T["geometry_msgs/msg/TwistStamped"](
+        header=header(t_ns, frame_id),
+        twist=_Twist(linear=_Vector3(x=float(linear_mps), y=0.0, z=0.0),
+                     angular=_Vector3(x=0.0, y=0.0, z=float(angular_radps))))
+
+
+def joint_state(t_ns: int, names, position=(), velocity=(), effort=()):
+    return T["sensor_msgs/msg/JointState"](
+        header=header(t_ns),
+        name=list(names),
+        position=np.asarray(position, dtype=np.float64),
+        velocity=np.asarray(velocity, dtype=np.float64),
+        effort=np.asarray(effort, dtype=np.float64))
+
+
+def point_stamped(t_ns: int, x: float, y: float, z: float, frame_id: str = "world"):
+    return T["geometry_msgs/msg/PointStamped"](
+        header=header(t_ns, frame_id), point=_Point(x=float(x), y=float(y), z=float(z)))
+
+
+def odometry(t_ns: int, x: float, y: float, yaw: float, linear_mps: float, angular_radps: float,
+             frame_id: str = "odom", child_frame_id: str = "base_link", z: float = 0.0,
+             quaternion=None):
+    """nav_msgs/Odometry of a planar pose (or a full orientation if ``quaternion`` is given)."""
+    q = yaw_to_quaternion(yaw) if quaternion is None else _Quaternion(
+        x=float(quaternion[0]), y=float(quaternion[1]), z=float(quaternion[2]), w=float(quaternion[3]))
+    PoseWC = T["geometry_msgs/msg/PoseWithCovariance"]
+    TwistWC = T["geometry_msgs/msg/TwistWithCovariance"]
+    return T["nav_msgs/msg/Odometry"](
+        header=header(t_ns, frame_id),
+        child_frame_id=child_frame_id,
+        pose=PoseWC(pose=_Pose(position=_Point(x=float(x), y=float(y), z=float(z)), orientation=q),
+                    covariance=_ZERO_COV),
+        twist=TwistWC(twist=_Twist(linear=_Vector3(x=float(linear_mps), y=0.0, z=0.0),
+                                   angular=_Vector3(x=0.0, y=0.0, z=float(angular_radps))),
+                      covariance=_ZERO_COV))
+
+
+def msg_stamp_ns(msg) -> int | None:
+    """Sim-time stamp of a message in ns (header stamp, or the clock of a Clock)."""
+    h = getattr(msg, "header", None)
+    if h is not None:
+        return stamp_ns(h.stamp)
+    c = getattr(msg, "clock", None)
+    return stamp_ns(c) if c is not None else None
+
+
+def summarize(msg, max_items: int = 6):
+    """A readable nested dict of a message with large arrays summarised."""
+    if isinstance(msg, np.ndarray):
+        if msg.size <= max_items:
+            return msg.tolist()
+        return f"<{msg.dtype}[{msg.size}] min={np.nanmin(msg):.4g} max={np.nanmax(msg):.4g}>" \
+            if msg.dtype.kind == "f" else f"<{msg.dtype}[{msg.size}]>"
+    if isinstance(msg, list):
+        if len(msg) > max_items:
+            return [summarize(m) for m in msg[:max_items]] + [f"... {len(msg)} items"]
+        return [summarize(m) for m in msg]
+    if hasattr(msg, "__dataclass_fields__"):
+        return {k: summarize(getattr(msg, k)) for k in msg.__dataclass_fields__ if k != "__msgtype__"}
+    return msg

@@ -1,0 +1,63 @@
+"""One queue for everything a process receives, in arrival order.
+
+Zenoh delivers samples from one peer in the order they were sent; callback
+subscribers that all feed one queue keep that order across keys, which the
+lockstep protocol relies on (a tick's sensors arrive before its ``sim/clock``).
+"""
+from __future__ import annotations
+
+import queue
+from dataclasses import dataclass
+
+import zenoh
+
+
+@dataclass(slots=True)
+class Event:
+    tag: str             # what the subscriber was declared for
+    key: str             # the concrete key
+    payload: bytes
+    attachment: bytes | None
+    alive: bool = True   # liveliness: token appeared (True) or vanished (False)
+
+
+class Inbox:
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self.queue: queue.SimpleQueue[Event] = queue.SimpleQueue()
+        self._handles: list = []
+
+    def subscribe(self, key: str, tag: str) -> None:
+        q = self.queue
+
+        def cb(sample: zenoh.Sample) -> None:
+            att = sample.attachment
+            q.put(Event(tag, str(sample.key_expr), sample.payload.to_bytes(),
+                        att.to_bytes() if att is not None else None))
+
+        self._handles.append(self.session.declare_subscriber(key, cb))
+
+    def watch_liveliness(self, key: str, tag: str) -> None:
+        """Events for tokens on ``key`` appearing (alive=True) and vanishing (alive=False),
+        including the ones already there."""
+        q = self.queue
+
+        def cb(sample: zenoh.Sample) -> None:
+            q.put(Event(tag, str(sample.key_expr), b"", None,
+                        sample.kind == zenoh.SampleKind.PUT))
+
+        self._handles.append(self.session.liveliness().declare_subscriber(key, cb, history=True))
+
+    def get(self, timeout: float | None = None) -> Event | None:
+        try:
+            return self.queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        for h in self._handles:
+            try:
+                h.undeclare()
+            except Exception:
+                pass
+        self._handles.clear()

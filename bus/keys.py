@@ -1,0 +1,149 @@
+"""The key catalog: every Zenoh key of the simulation is spelled here and nowhere else.
+
+Keys are ``[<namespace>/]sim/...`` for the simulation's own keys and
+``[<namespace>/]<robot>/<topic>`` for a robot's topics. A namespace lets several
+simulations share one Zenoh network without clashing.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
+
+# Names that would be read as the simulation's own key space.
+RESERVED = {"sim"}
+
+
+class BadName(ValueError):
+    """A robot name, node name or namespace that cannot be part of a key."""
+
+
+def check_name(name: str, what: str = "name") -> str:
+    """Return ``name`` if it is a safe key segment, else raise ``ValueError``.
+
+    Refused: empty names, ``*``, ``**``, ``$``, ``/``, whitespace and anything
+    that would change the meaning of a key expression.
+    """
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        raise BadName(
+            f"invalid {what} {name!r}: use a letter then letters, digits, '_' or '-' "
+            "(no '/', '*', '$', spaces; at most 64 characters)")
+    if name in RESERVED:
+        raise BadName(f"invalid {what} {name!r}: reserved")
+    return name
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One robot topic: key suffix, ROS 2 message type, who publishes it."""
+
+    suffix: str
+    msgtype: str
+    source: str  # "plant", "controller" or "node" (a bus node other than the plant)
+    rate: str
+    units: str
+    frame: str
+
+
+#: Per-robot topics. ``source == "node"`` topics are produced by bus nodes in
+#: lockstep, so a consumer waits for them; the plant's topics arrive before
+#: ``sim/clock`` of the same tick.
+TOPICS: dict[str, Topic] = {
+    "cmd_vel": Topic("cmd_vel", "geometry_msgs/msg/TwistStamped", "controller",
+                     "every control tick (or any rate in realtime)",
+                     "m/s, rad/s", "base_link"),
+    "wheel_cmd": Topic("wheel_cmd", "sensor_msgs/msg/JointState", "controller",
+                       "every control tick (or any rate in realtime)",
+                       "rad/s (velocity field)", "-"),
+    "joint_states": Topic("joint_states", "sensor_msgs/msg/JointState", "plant",
+                          "every control tick", "rad, rad/s", "-"),
+    "gps": Topic("gps", "geometry_msgs/msg/PointStamped", "plant",
+                 "every control tick", "m", "world"),
+    "ground_truth": Topic("ground_truth", "nav_msgs/msg/Odometry", "plant",
+                          "every control tick", "m, rad, m/s, rad/s", "world -> base_link"),
+    "scan": Topic("scan", "sensor_msgs/msg/LaserScan", "plant", "10 Hz", "m, rad", "laser"),
+    "camera/image": Topic("camera/image", "sensor_msgs/msg/Image", "plant", "30 Hz",
+                          "rgb8", "camera"),
+    "camera/info": Topic("camera/info", "sensor_msgs/msg/CameraInfo", "plant", "with image",
+                         "px", "camera"),
+    "odom": Topic("odom", "nav_msgs/msg/Odometry", "node", "every control tick",
+                  "m, rad, m/s, rad/s", "odom -> base_link"),
+}
+
+CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
+
+
+class Keys:
+    """Key names for one simulation (one namespace)."""
+
+    def __init__(self, namespace: str = "") -> None:
+        if namespace:
+            check_name(namespace, "namespace")
+        self.namespace = namespace
+        self._prefix = f"{namespace}/" if namespace else ""
+
+    def _k(self, rest: str) -> str:
+        return self._prefix + rest
+
+    # -- the simulation's own keys
+    @property
+    def clock(self) -> str:
+        return self._k("sim/clock")
+
+    @property
+    def reset(self) -> str:
+        return self._k("sim/reset")
+
+    @property
+    def info(self) -> str:
+        return self._k("sim/info")
+
+    @property
+    def stop(self) -> str:
+        return self._k("sim/stop")
+
+    def alive(self, node: str = "*") -> str:
+        return self._k(f"sim/alive/{node}")
+
+    def sync(self, node: str = "*") -> str:
+        return self._k(f"sim/sync/{node}")
+
+    def ack(self, node: str = "*") -> str:
+        return self._k(f"sim/ack/{node}")
+
+    @property
+    def all(self) -> str:
+        """Every key of this simulation (for recorders and observers)."""
+        return self._k("**")
+
+    # -- robot topics
+    def topic(self, robot: str, name: str) -> str:
+        if name not in TOPICS:
+            raise BadName(f"unknown topic {name!r}; known: {', '.join(TOPICS)}")
+        return self._k(f"{robot}/{TOPICS[name].suffix}")
+
+    def robot_topic_of(self, key: str) -> tuple[str, str] | None:
+        """Split a concrete key into (robot, topic name), or None if it is not a robot topic."""
+        if self._prefix:
+            if not key.startswith(self._prefix):
+                return None
+            key = key[len(self._prefix):]
+        robot, _, suffix = key.partition("/")
+        if robot in RESERVED or not suffix:
+            return None
+        for name, t in TOPICS.items():
+            if t.suffix == suffix:
+                return robot, name
+        return None
+
+    def node_of(self, key: str) -> str:
+        """The last segment of a membership key (``.../sim/sync/<node>``)."""
+        return str(key).rsplit("/", 1)[-1]
+
+    def msgtype_of(self, key: str) -> str | None:
+        """The ROS 2 message type carried on a concrete key, if it is one of ours."""
+        if key == self.clock:
+            return CLOCK_TYPE
+        rt = self.robot_topic_of(key)
+        return TOPICS[rt[1]].msgtype if rt else None

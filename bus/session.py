@@ -1,0 +1,102 @@
+"""Zenoh sessions with safe defaults.
+
+The plant opens a *router* session listening on exactly one endpoint (loopback
+TCP by default, or a unix socket); every other node opens a *client* session
+connected to it, so messages between nodes are routed through the plant's
+session and nothing else listens anywhere. Multicast and gossip scouting are off.
+A user's own Zenoh JSON5 config (router, TLS, remote machines) replaces these
+defaults unchanged.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import zenoh
+
+from .keys import Keys, check_name
+
+DEFAULT_ENDPOINT = os.environ.get("DIFFBOT_ENDPOINT", "tcp/127.0.0.1:7450")
+
+#: Lease after which a frozen (not killed) peer is declared gone, ms.
+DEFAULT_LEASE_MS = 1000
+
+
+class BusConfigError(ValueError):
+    """A bad endpoint or Zenoh configuration file."""
+
+
+def make_config(role: str, endpoint: str = DEFAULT_ENDPOINT, config_file: str | None = None,
+                lease_ms: int = DEFAULT_LEASE_MS) -> zenoh.Config:
+    """Zenoh configuration for ``role`` ("plant" listens, anything else connects).
+
+    With ``config_file`` the user's file is used as it is: their config, their rules.
+    """
+    if config_file:
+        if not os.path.isfile(config_file):
+            raise BusConfigError(f"{config_file}: no such Zenoh config file")
+        try:
+            return zenoh.Config.from_file(config_file)
+        except Exception as exc:  # zenoh.ZError
+            raise BusConfigError(f"{config_file}: not a valid Zenoh config: {exc}") from None
+    conf = zenoh.Config()
+
+    def put(key: str, value) -> None:
+        conf.insert_json5(key, json.dumps(value))
+
+    put("scouting/multicast/enabled", False)
+    put("scouting/gossip/enabled", False)
+    put("transport/link/tx/lease", int(lease_ms))
+    put("transport/link/tx/keep_alive", 4)
+    put("timestamping/enabled", False)
+    try:
+        if role == "plant":
+            put("mode", "router")
+            put("listen/endpoints", [endpoint])
+            put("connect/endpoints", [])
+        else:
+            put("mode", "client")
+            put("listen/endpoints", [])
+            put("connect/endpoints", [endpoint])
+            # Try for a while before giving up on a plant that is still starting.
+            put("connect/timeout_ms", 15000)
+            put("connect/exit_on_failure", True)
+            put("connect/retry", {"period_init_ms": 50, "period_max_ms": 500,
+                                  "period_increase_factor": 1.5})
+    except Exception as exc:
+        raise BusConfigError(f"bad endpoint {endpoint!r}: {exc}") from None
+    return conf
+
+
+def open_session(role: str, endpoint: str = DEFAULT_ENDPOINT,
+                 config_file: str | None = None) -> zenoh.Session:
+    conf = make_config(role, endpoint, config_file)
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:
+        where = config_file or endpoint
+        if role == "plant":
+            raise BusConfigError(f"cannot listen on {where}: {exc}") from None
+        raise BusConfigError(f"cannot reach the plant at {where}: {exc} "
+                             "(is `diffbot plant` running with the same --endpoint?)") from None
+
+
+def add_bus_args(parser: argparse.ArgumentParser) -> None:
+    """The bus options every diffbot process takes."""
+    g = parser.add_argument_group("bus")
+    g.add_argument("--endpoint", default=DEFAULT_ENDPOINT,
+                   help="Zenoh endpoint the plant listens on and others connect to "
+                        f"(default {DEFAULT_ENDPOINT}; e.g. unixsock-stream//tmp/diffbot.sock)")
+    g.add_argument("--zenoh-config", metavar="FILE", default=None,
+                   help="use this Zenoh JSON5 config file as it is (router, TLS, remote peers)")
+    g.add_argument("--namespace", default="",
+                   help="prefix for every key, so several simulations share one Zenoh network")
+
+
+def keys_from_args(args: argparse.Namespace) -> Keys:
+    return Keys(args.namespace)
+
+
+def validate_node_name(name: str) -> str:
+    return check_name(name, "node name")

@@ -1,0 +1,115 @@
+"""Scenario files: which world, which processes, which analysis.
+
+A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
+
+    [scenario]
+    world = "living_room"      # world name or path
+    mode = "lockstep"          # lockstep | realtime | fast
+    duration_s = 300.0        # upper bound in simulated time (optional)
+    analysis = "square"        # what to plot and summarise afterwards
+    robot = "robot1"           # the robot the analysis looks at
+
+    [[process]]
+    name = "square_path_robot1"
+    command = ["controller", "square_path", "--robot", "robot1"]   # diffbot arguments
+    required = true            # its death ends the run (default true)
+    ends_run = false           # its normal exit ends the run successfully
+    sync = true                # a lockstep member the plant waits for (default true)
+    interactive = false        # keeps the terminal (teleop)
+
+Errors are ``file:key: reason`` (:class:`plant.world.WorldError`), exit 2.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+from plant.world import WorldError, _Table, tomllib
+
+SCENARIOS_DIR = os.path.join(os.path.dirname(__file__), "scenarios")
+ANALYSES = ("square", "drive-test", "none")
+
+
+@dataclass
+class ProcessSpec:
+    name: str
+    command: list[str]
+    required: bool = True
+    ends_run: bool = False
+    sync: bool = True
+    interactive: bool = False
+
+
+@dataclass
+class ScenarioSpec:
+    name: str
+    path: str
+    description: str = ""
+    world: str = "living_room"
+    mode: str = "lockstep"
+    duration_s: float | None = None
+    analysis: str = "none"
+    robot: str = "robot1"
+    processes: list[ProcessSpec] = field(default_factory=list)
+
+
+def scenario_path(name_or_path: str) -> str:
+    if os.path.isfile(name_or_path):
+        return name_or_path
+    p = os.path.join(SCENARIOS_DIR, f"{name_or_path}.toml")
+    if os.path.isfile(p):
+        return p
+    known = ", ".join(n for n, _ in list_scenarios())
+    raise WorldError(f"{name_or_path}: no such scenario (shipped: {known})")
+
+
+def load_scenario(name_or_path: str) -> ScenarioSpec:
+    path = scenario_path(name_or_path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise WorldError(f"{path}: not valid TOML: {exc}") from None
+    top = _Table(path, "", data)
+    s = top.table("scenario")
+    spec = ScenarioSpec(name=os.path.splitext(os.path.basename(path))[0], path=path)
+    spec.description = s.string("description", "")
+    spec.world = s.string("world", "living_room")
+    spec.mode = s.string("mode", "lockstep", choices=("lockstep", "realtime", "fast"))
+    spec.duration_s = s.number("duration_s", -1.0)
+    if spec.duration_s == -1.0:
+        spec.duration_s = None
+    elif spec.duration_s <= 0:
+        s.fail("duration_s", f"must be > 0, got {spec.duration_s:g}")
+    spec.analysis = s.string("analysis", "none", choices=ANALYSES)
+    spec.robot = s.string("robot", "robot1")
+    s.done()
+    names = set()
+    for t in top.tables("process"):
+        name = t.string("name")
+        if name in names or name == "plant":
+            t.fail("name", f"duplicate or reserved process name {name!r}")
+        names.add(name)
+        cmd = t.raw("command")
+        if not isinstance(cmd, list) or not cmd or not all(isinstance(c, str) for c in cmd):
+            t.fail("command", "expected a non-empty list of strings (diffbot arguments)")
+        spec.processes.append(ProcessSpec(
+            name=name, command=list(cmd), required=t.boolean("required", True),
+            ends_run=t.boolean("ends_run", False), sync=t.boolean("sync", True),
+            interactive=t.boolean("interactive", False)))
+        t.done()
+    top.done()
+    return spec
+
+
+def list_scenarios() -> list[tuple[str, str]]:
+    out = []
+    for f in sorted(os.listdir(SCENARIOS_DIR)):
+        if f.endswith(".toml"):
+            try:
+                with open(os.path.join(SCENARIOS_DIR, f), "rb") as fh:
+                    desc = tomllib.load(fh).get("scenario", {}).get("description", "")
+            except Exception:
+                desc = ""
+            out.append((f[:-5], desc))
+    return out

@@ -1,0 +1,424 @@
+"""The plant process: owns simulated time, steps DART, publishes sensors, applies commands.
+
+Modes (see ARCHITECTURE.md, "Time and synchronisation"):
+
+* **lockstep** — each tick the plant publishes the sensors due, then ``sim/clock``;
+  it steps on once every lockstep member (liveliness ``sim/sync/<node>``) has
+  acked the tick. A member that dies leaves the set at once; a frozen one when
+  its lease runs out.
+* **realtime** — paced to the wall clock times ``--rate``; the last command is
+  held; a robot whose command is older than its ``cmd_timeout_s`` is stopped.
+* **fast** — free running, nobody is waited for.
+
+Bad commands (undecodable, NaN/inf, absurd speeds, unknown joints) are counted
+and logged at a limited rate; they never reach the physics.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import zenoh
+
+from bus import codec
+from bus.inbox import Inbox
+from bus.keys import Keys
+from bus.log import RejectCounter, setup_logging
+from bus.node import write_json
+from bus.session import BusConfigError, add_bus_args, open_session
+
+from .sim import RobotState, Simulation
+from .world import WorldError, WorldSpec, load_world
+
+MODES = ("lockstep", "realtime", "fast")
+
+#: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
+ABSURD_FACTOR = 10.0
+
+
+@dataclass
+class Command:
+    kind: str          # "twist" or "wheels"
+    a: float
+    b: float
+    t_ns: int          # sim time when received
+    wall: float        # monotonic wall time when received
+
+
+class Plant:
+    """The plant's bus side around a :class:`Simulation`."""
+
+    def __init__(self, spec: WorldSpec, session: zenoh.Session, keys: Keys, mode: str, log,
+                 rate: float = 1.0, expect: tuple[str, ...] = (), duration_s: float | None = None,
+                 join_timeout_s: float = 30.0) -> None:
+        self.spec = spec
+        self.session = session
+        self.keys = keys
+        self.mode = mode
+        self.log = log
+        self.rate = rate
+        self.expect = tuple(expect)
+        self.duration_ns = None if duration_s is None else int(round(duration_s * 1e9))
+        self.join_timeout_s = join_timeout_s
+        self.sim = Simulation(spec)
+        self.seed = spec.seed
+        self.rejects = RejectCounter(log)
+        self.stop_event = threading.Event()
+        self.members: set[str] = set()
+        self.members_seen: set[str] = set()
+        self.acks: dict[str, int] = {}
+        self.commands: dict[str, Command] = {}
+        self.published: dict[str, int] = {}
+        self.ticks = 0
+        self.timing = {"publish_s": 0.0, "wait_s": 0.0, "physics_s": 0.0}
+        self.wall_start = 0.0
+        self.wall_end = 0.0
+        self._seq = 0
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self.inbox = Inbox(session)
+        self._robot_of_cmd: dict[str, tuple[str, str]] = {}
+        for name in self.sim.robots:
+            for topic in ("cmd_vel", "wheel_cmd"):
+                key = keys.topic(name, topic)
+                self._robot_of_cmd[key] = (name, topic)
+                self.inbox.subscribe(key, "cmd")
+        self.inbox.subscribe(keys.ack(), "ack")
+        self.inbox.watch_liveliness(keys.sync(), "member")
+        self.inbox.watch_liveliness(keys.alive(), "alive")
+        self.alive: set[str] = set()
+        self._queryables = [
+            session.declare_queryable(keys.info, self._on_info),
+            session.declare_queryable(keys.reset, lambda q: self.inbox.queue.put(_QueryEvent(q))),
+        ]
+        self._token = session.liveliness().declare_token(keys.alive("plant"))
+
+    # ------------------------------------------------------------------ queryables
+    def info(self) -> dict:
+        d = self.sim.describe()
+        d.update(mode=self.mode, seed=self.seed, time_ns=self.sim.time_ns,
+                 namespace=self.keys.namespace, rate=self.rate)
+        return d
+
+    def _on_info(self, query: zenoh.Query) -> None:
+        query.reply(self.keys.info, json.dumps(self.info()))
+
+    def _reset(self, query: zenoh.Query) -> None:
+        """Rebuild the world (``world.reset()`` only resets DART's clock), optionally with a
+        new seed or new start poses: ``{"seed": 3, "poses": {"robot1": [x, y, yaw]}}``."""
+        try:
+            raw = query.payload.to_bytes() if query.payload is not None else b""
+            req = json.loads(raw) if raw.strip() else {}
+            if not isinstance(req, dict):
+                raise ValueError("request must be a JSON object")
+            if "seed" in req:
+                if not isinstance(req["seed"], int) or isinstance(req["seed"], bool):
+                    raise ValueError("seed must be an integer")
+                self.seed = req["seed"]
+                self.spec.seed = self.seed
+            for name, pose in (req.get("poses") or {}).items():
+                if name not in self.sim.robots:
+                    raise ValueError(f"unknown robot {name!r}")
+                if (not isinstance(pose, list) or len(pose) != 3 or
+                        not all(isinstance(v, (int, float)) and math.isfinite(v) for v in pose)):
+                    raise ValueError(f"pose of {name} must be [x, y, yaw]")
+                self.spec.robot(name).pose = tuple(float(v) for v in pose)
+            unknown = set(req) - {"seed", "poses"}
+            if unknown:
+                raise ValueError(f"unknown request keys: {', '.join(sorted(unknown))}")
+        except (ValueError, json.JSONDecodeError) as exc:
+            self.rejects.reject("reset", str(exc))
+            query.reply_err(json.dumps({"error": str(exc)}))
+            return
+        self.sim = Simulation(self.spec)
+        self.commands.clear()
+        self.acks.clear()
+        self.log.info("world rebuilt (seed %d)", self.seed)
+        query.reply(self.keys.reset, json.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
+
+    # ------------------------------------------------------------------ publishing
+    def _put(self, key: str, msg, t_ns: int) -> None:
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = self.session.declare_publisher(
+                key, encoding=zenoh.Encoding.APPLICATION_CDR)
+        self._seq += 1
+        pub.put(codec.encode(msg), attachment=codec.attachment(self._seq, t_ns))
+        self.published[key] = self.published.get(key, 0) + 1
+
+    def publish_tick(self) -> None:
+        t = self.sim.time_ns
+        for name in self.sim.robots:
+            self.publish_robot(name, self.sim.state(name), t)
+        self._put(self.keys.clock, codec.clock(t), t)
+
+    def publish_robot(self, name: str, st: RobotState, t: int) -> None:
+        k = self.keys
+        self._put(k.topic(name, "joint_states"),
+                  codec.joint_state(t, ("left_wheel_joint", "right_wheel_joint"),
+                                    st.enc_pos, st.enc_vel), t)
+        x, y, z = st.xyz
+        self._put(k.topic(name, "gps"), codec.point_stamped(t, x, y, z), t)
+        self._put(k.topic(name, "ground_truth"),
+                  codec.odometry(t, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id="world",
+                                 z=z, quaternion=st.quaternion), t)
+
+    # ------------------------------------------------------------------ input
+    def handle(self, ev) -> None:
+        if isinstance(ev, _QueryEvent):
+            self._reset(ev.query)
+        elif ev.tag == "cmd":
+            self._on_command(ev)
+        elif ev.tag == "ack":
+            if len(ev.payload) != 8:
+                self.rejects.reject("ack", f"bad payload of {len(ev.payload)} bytes")
+                return
+            self.acks[self.keys.node_of(ev.key)] = int.from_bytes(ev.payload, "little")
+        elif ev.tag == "alive":
+            (self.alive.add if ev.alive else self.alive.discard)(self.keys.node_of(ev.key))
+        elif ev.tag == "member":
+            node = self.keys.node_of(ev.key)
+            if ev.alive:
+                self.members.add(node)
+                self.members_seen.add(node)
+                self.log.info("lockstep member joined: %s", node)
+            else:
+                self.members.discard(node)
+                self.log.warning("lockstep member left: %s", node)
+
+    def _on_command(self, ev) -> None:
+        robot, topic = self._robot_of_cmd[ev.key]
+        drive = self.sim.robots[robot].spec.drive
+        try:
+            if topic == "cmd_vel":
+                msg = codec.decode(ev.payload, "geometry_msgs/msg/TwistStamped")
+                a, b = float(msg.twist.linear.x), float(msg.twist.angular.z)
+                lim_a, lim_b = drive.max_linear_mps, drive.max_angular_radps
+                kind = "twist"
+            else:
+                msg = codec.decode(ev.payload, "sensor_msgs/msg/JointState")
+                a, b = _wheel_speeds(msg)
+                lim_a = lim_b = drive.max_wheel_speed_radps
+                kind = "wheels"
+        except (codec.CodecError, ValueError) as exc:
+            self.rejects.reject(f"{robot}/{topic}", str(exc))
+            return
+        if not (math.isfinite(a) and math.isfinite(b)):
+            self.rejects.reject(f"{robot}/{topic}", f"non-finite command ({a}, {b})")
+            return
+        if abs(a) > ABSURD_FACTOR * lim_a or abs(b) > ABSURD_FACTOR * lim_b:
+            self.rejects.reject(f"{robot}/{topic}", f"absurd command ({a:g}, {b:g}); "
+                                f"limits are {lim_a:g}, {lim_b:g}")
+            return
+        self.commands[robot] = Command(kind, a, b, self.sim.time_ns, time.monotonic())
+
+    def apply_commands(self) -> None:
+        """Hand each robot its latest command, or zero if it has none or it timed out."""
+        now_wall = time.monotonic()
+        now_ns = self.sim.time_ns
+        for name, robot in self.sim.robots.items():
+            cmd = self.commands.get(name)
+            if cmd is not None:
+                timeout = robot.spec.drive.cmd_timeout_s
+                age = (now_ns - cmd.t_ns) * 1e-9 if self.mode == "lockstep" else now_wall - cmd.wall
+                if age > timeout:
+                    self.log.warning("%s: no command for %.2f s (cmd_timeout %.2f s): stopping it",
+                                     name, age, timeout)
+                    del self.commands[name]
+                    cmd = None
+            if cmd is None:
+                self.sim.command_twist(name, 0.0, 0.0)
+            elif cmd.kind == "twist":
+                self.sim.command_twist(name, cmd.a, cmd.b)
+            else:
+                self.sim.command_wheels(name, cmd.a, cmd.b)
+
+    def drain(self, timeout: float | None = 0.0) -> bool:
+        """Handle queued events; wait up to ``timeout`` for the first. True if any came."""
+        ev = self.inbox.get(timeout=timeout) if timeout else _nowait(self.inbox)
+        if ev is None:
+            return False
+        self.handle(ev)
+        while (ev := _nowait(self.inbox)) is not None:
+            self.handle(ev)
+        return True
+
+    # ------------------------------------------------------------------ loop
+    def wait_for_members(self) -> bool:
+        """Before the first tick: wait for the expected nodes (in lockstep, for any member
+        if none were named)."""
+        want = set(self.expect)
+        deadline = time.monotonic() + self.join_timeout_s
+        if want:
+            self.log.info("waiting for nodes: %s", ", ".join(sorted(want)))
+        else:
+            self.log.info("lockstep: waiting for a controller to join (or use --mode fast)")
+        while not self.stop_event.is_set():
+            self.drain(0.1)
+            present = self.members if self.mode == "lockstep" else self.alive
+            if (want and want <= present) or (not want and present):
+                return True
+            if want and time.monotonic() > deadline:
+                self.log.error("nodes did not join within %.0f s: %s",
+                               self.join_timeout_s, ", ".join(sorted(want - present)))
+                return False
+        return False
+
+    def wait_for_acks(self, t_ns: int, required: set[str]) -> None:
+        while not self.stop_event.is_set():
+            pending = {m for m in required if m in self.members and self.acks.get(m) != t_ns}
+            if not pending:
+                return
+            self.drain(0.5)
+
+    def run(self) -> int:
+        self.drain(0.05)
+        if (self.mode == "lockstep" or self.expect) and not self.wait_for_members():
+            return 1 if not self.stop_event.is_set() else 0
+        self.wall_start = time.monotonic()
+        tick_ns = int(round(self.spec.control_tick_s * 1e9))
+        self.log.info("running %s (%s mode, tick %.0f ms, %d physics steps per tick)",
+                      self.spec.name, self.mode, tick_ns / 1e6, self.spec.substeps)
+        try:
+            while not self.stop_event.is_set():
+                t = self.sim.time_ns
+                required = set(self.members)
+                c0 = time.perf_counter()
+                self.publish_tick()
+                c1 = time.perf_counter()
+                if self.duration_ns is not None and t >= self.duration_ns:
+                    if self.mode == "lockstep":
+                        self.wait_for_acks(t, required)
+                    break
+                if self.mode == "lockstep":
+                    self.wait_for_acks(t, required)
+                else:
+                    self.drain(0.0)
+                if self.mode == "realtime":
+                    due = self.wall_start + (t + tick_ns) * 1e-9 / self.rate
+                    while (left := due - time.monotonic()) > 0 and not self.stop_event.is_set():
+                        self.drain(min(left, 0.05))
+                c2 = time.perf_counter()
+                self.apply_commands()
+                self.sim.step_tick()
+                c3 = time.perf_counter()
+                self.ticks += 1
+                self.timing["publish_s"] += c1 - c0
+                self.timing["wait_s"] += c2 - c1
+                self.timing["physics_s"] += c3 - c2
+                if not self.sim.is_finite():
+                    self.log.error("physics diverged at t=%.3f s; rebuilding the world", t * 1e-9)
+                    self.sim = Simulation(self.spec)
+        finally:
+            self.wall_end = time.monotonic()
+        return 0
+
+    def stats(self) -> dict:
+        wall = max(self.wall_end - self.wall_start, 1e-9) if self.wall_start else 0.0
+        sim_s = self.sim.time_ns * 1e-9
+        return {"node": "plant", "world": self.spec.name, "mode": self.mode, "seed": self.seed,
+                "sim_time_s": sim_s, "wall_time_s": wall, "ticks": self.ticks,
+                "real_time_factor": sim_s / wall if wall else None,
+                "published": self.published, "rejected": dict(self.rejects.counts),
+                "members_seen": sorted(self.members_seen),
+                "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
+                                for k, v in self.timing.items()}}
+
+    def close(self) -> None:
+        self._token.undeclare()
+        for q in self._queryables:
+            q.undeclare()
+        self.inbox.close()
+
+
+class _QueryEvent:
+    """A ``sim/reset`` query handed to the main loop (the world is rebuilt between ticks)."""
+    tag = "reset"
+
+    def __init__(self, query: zenoh.Query) -> None:
+        self.query = query
+
+
+def _nowait(inbox: Inbox):
+    try:
+        return inbox.queue.get_nowait()
+    except Exception:
+        return None
+
+
+def _wheel_speeds(msg) -> tuple[float, float]:
+    vel = np.asarray(msg.velocity, dtype=float)
+    if len(vel) != 2:
+        raise ValueError(f"wheel_cmd needs 2 velocities, got {len(vel)}")
+    names = list(msg.name)
+    if not names:
+        return float(vel[0]), float(vel[1])
+    if sorted(names) != ["left_wheel_joint", "right_wheel_joint"]:
+        raise ValueError(f"unknown joint names {names}")
+    d = dict(zip(names, vel))
+    return float(d["left_wheel_joint"]), float(d["right_wheel_joint"])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="diffbot plant", description="Run the DART plant on the bus.")
+    p.add_argument("--world", default="living_room",
+                   help="world file, or the name of a shipped world (living_room, empty)")
+    p.add_argument("--mode", choices=MODES, default="lockstep")
+    p.add_argument("--rate", type=float, default=1.0,
+                   help="realtime mode: simulated seconds per wall second (default 1)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S simulated seconds (default: run until stopped)")
+    p.add_argument("--seed", type=int, default=None, help="noise seed (default: the world's)")
+    p.add_argument("--expect", default="", metavar="NODES",
+                   help="lockstep: comma-separated members to wait for before the first tick")
+    p.add_argument("--join-timeout", type=float, default=30.0, metavar="S")
+    p.add_argument("--stats", metavar="FILE", help="write counters and timing as JSON at exit")
+    p.add_argument("--log-level", default="INFO")
+    add_bus_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    log = setup_logging("plant", args.log_level)
+    try:
+        spec = load_world(args.world)
+        if args.seed is not None:
+            spec.seed = args.seed
+        keys = Keys(args.namespace)
+        if args.rate <= 0 or not math.isfinite(args.rate):
+            raise WorldError(f"--rate must be > 0, got {args.rate}")
+    except (WorldError, ValueError) as exc:
+        log.error("%s", exc)
+        return 2
+    try:
+        session = open_session("plant", args.endpoint, args.zenoh_config)
+    except BusConfigError as exc:
+        log.error("%s", exc)
+        return 2
+    plant = None
+    try:
+        plant = Plant(spec, session, keys, args.mode, log, rate=args.rate,
+                      expect=tuple(n for n in args.expect.split(",") if n),
+                      duration_s=args.duration, join_timeout_s=args.join_timeout)
+
+        def on_signal(signum, frame):
+            plant.stop_event.set()
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+        code = plant.run()
+        st = plant.stats()
+        log.info("stopped at t=%.2f s after %d ticks (%.1fx real time)", st["sim_time_s"],
+                 st["ticks"], st["real_time_factor"] or 0.0)
+        return code
+    finally:
+        if plant is not None:
+            if args.stats:
+                write_json(args.stats, plant.stats())
+            plant.close()
+        session.close()

@@ -1,0 +1,187 @@
+"""The physics world: builds DART from a :class:`~plant.world.WorldSpec` and steps it.
+
+No bus here: :mod:`plant.node` drives a :class:`Simulation` and publishes what it reads.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import dartpy as dart
+import numpy as np
+
+from . import drive as dd
+from .robot import Robot, dart_shape, isometry, static_object
+from .shapes import Shape, pose_matrix
+from .world import ObjectSpec, WorldSpec
+
+FLOOR_THICKNESS_M = 0.1
+
+
+@dataclass
+class RobotState:
+    """What the plant knows about one robot after a tick (true values, no noise)."""
+    tf: np.ndarray            # base_link -> world, 4x4
+    yaw: float                # rad
+    v_body: np.ndarray        # m/s in base_link
+    w_body: np.ndarray        # rad/s in base_link
+    enc_pos: np.ndarray       # left, right wheel angle, rad
+    enc_vel: np.ndarray       # left, right wheel speed, rad/s
+
+    @property
+    def xyz(self) -> np.ndarray:
+        return self.tf[:3, 3]
+
+    @property
+    def quaternion(self) -> tuple[float, float, float, float]:
+        """(x, y, z, w) of the base_link orientation."""
+        return rotation_to_quaternion(self.tf[:3, :3])
+
+
+def rotation_to_quaternion(m: np.ndarray) -> tuple[float, float, float, float]:
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = np.sqrt(tr + 1.0) * 2
+        return ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s)
+    i = int(np.argmax([m[0, 0], m[1, 1], m[2, 2]]))
+    j, k = (i + 1) % 3, (i + 2) % 3
+    s = np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2
+    q = [0.0, 0.0, 0.0, 0.0]
+    q[i] = 0.25 * s
+    q[j] = (m[j, i] + m[i, j]) / s
+    q[k] = (m[k, i] + m[i, k]) / s
+    q[3] = (m[k, j] - m[j, k]) / s
+    return tuple(q)  # type: ignore[return-value]
+
+
+def room_objects(spec: WorldSpec) -> list[ObjectSpec]:
+    """Floor and walls as static boxes (the floor's top face is z = 0)."""
+    lx, ly = spec.floor_size_m
+    out = [ObjectSpec("floor", "box", (lx, ly, FLOOR_THICKNESS_M), (0, 0, -FLOOR_THICKNESS_M / 2, 0),
+                      spec.floor_color, spec.floor_material)]
+    h, t = spec.wall_height_m, spec.wall_thickness_m
+    if h > 0:
+        for name, x, y, sx, sy in (("wall_front", lx / 2 + t / 2, 0, t, ly + 2 * t),
+                                   ("wall_back", -lx / 2 - t / 2, 0, t, ly + 2 * t),
+                                   ("wall_left", 0, ly / 2 + t / 2, lx, t),
+                                   ("wall_right", 0, -ly / 2 - t / 2, lx, t)):
+            out.append(ObjectSpec(name, "box", (sx, sy, h), (x, y, h / 2, 0), spec.wall_color,
+                                  "default"))
+    return out
+
+
+class Simulation:
+    """One DART world with its robots; rebuild it (``Simulation(spec)``) to reset."""
+
+    def __init__(self, spec: WorldSpec) -> None:
+        self.spec = spec
+        w = dart.simulation.World()
+        w.setTimeStep(spec.physics_step_s)
+        w.setGravity(np.array([0.0, 0.0, -spec.gravity_mps2]))
+        self.world = w
+        self.objects = room_objects(spec) + list(spec.objects)
+        for obj in self.objects:
+            w.addSkeleton(static_object(obj, spec))
+        self.robots: dict[str, Robot] = {}
+        self.limiters: dict[str, dd.DriveLimiter] = {}
+        for rs in spec.robots:
+            robot = Robot(rs, spec)
+            w.addSkeleton(robot.skeleton)
+            self.robots[rs.name] = robot
+            self.limiters[rs.name] = dd.DriveLimiter(rs.drive)
+        self.steps = 0
+        self._static_shapes = [self._shape_of(o) for o in self.objects if o.static]
+
+    # ------------------------------------------------------------------ time
+    @property
+    def time_ns(self) -> int:
+        """Simulated time in integer ns (counted in steps, so it never drifts)."""
+        return self.steps * int(round(self.spec.physics_step_s * 1e9))
+
+    def step_tick(self) -> None:
+        """Advance one control tick (``substeps`` physics steps) with the current targets."""
+        robots = list(self.robots.values())
+        for _ in range(self.spec.substeps):
+            for r in robots:
+                r.apply()
+            self.world.step()
+        self.steps += self.spec.substeps
+
+    # ------------------------------------------------------------------ commands
+    def command_twist(self, robot: str, v_mps: float, w_radps: float) -> None:
+        self.robots[robot].targets = self.limiters[robot].from_twist(
+            v_mps, w_radps, self.spec.control_tick_s)
+
+    def command_wheels(self, robot: str, wl: float, wr: float) -> None:
+        self.robots[robot].targets = self.limiters[robot].from_wheels(
+            wl, wr, self.spec.control_tick_s)
+
+    # ------------------------------------------------------------------ state
+    def state(self, robot: str) -> RobotState:
+        r = self.robots[robot]
+        tf = r.transform()
+        v, w = r.body_velocity(tf)
+        pos, vel = r.encoders()
+        yaw = float(np.arctan2(tf[1, 0], tf[0, 0]))
+        return RobotState(tf, yaw, v, w, pos, vel)
+
+    def is_finite(self) -> bool:
+        return all(np.all(np.isfinite(r.skeleton.getPositions())) and
+                   np.all(np.isfinite(r.skeleton.getVelocities())) for r in self.robots.values())
+
+    # ------------------------------------------------------------------ geometry for sensors
+    @staticmethod
+    def _shape_of(o: ObjectSpec, parent: np.ndarray | None = None, owner: str = "") -> Shape:
+        x, y, z, yaw = o.pose
+        tf = pose_matrix(x, y, z, yaw=yaw)
+        return Shape(o.shape, tuple(o.size), tf if parent is None else parent @ tf, o.color,
+                     o.name, owner)
+
+    def shapes(self) -> list[Shape]:
+        """Every solid of the world in world coordinates, robots included."""
+        out = list(self._static_shapes)
+        for name, r in self.robots.items():
+            for body in r.skeleton.getBodyNodes():
+                for i in range(body.getNumShapeNodes()):
+                    sn = body.getShapeNode(i)
+                    shape = sn.getShape()
+                    kind = {"BoxShape": "box", "CylinderShape": "cylinder",
+                            "SphereShape": "sphere"}.get(type(shape).__name__)
+                    if kind is None:
+                        continue
+                    if kind == "box":
+                        size = tuple(np.asarray(shape.getSize(), dtype=float))
+                    elif kind == "cylinder":
+                        size = (shape.getRadius(), shape.getHeight())
+                    else:
+                        size = (shape.getRadius(),)
+                    # The wheels' collision spheres are not what a camera sees.
+                    if kind == "sphere" and sn.getName().endswith("_wheel"):
+                        continue
+                    color = tuple(np.asarray(sn.getVisualAspect().getRGBA())[:3]) \
+                        if sn.hasVisualAspect() else (0.5, 0.5, 0.5)
+                    out.append(Shape(kind, size, sn.getWorldTransform().matrix(), color,
+                                     sn.getName(), name))
+        for o in self.objects:
+            if not o.static:
+                out.append(self._shape_of(o))
+        return out
+
+    def describe(self) -> dict:
+        """The world as the plant understood it (served on ``sim/info``)."""
+        s = self.spec
+        return {
+            "world": s.name, "world_file": s.path, "mode_physics": s.mode,
+            "physics_step_s": s.physics_step_s, "control_tick_s": s.control_tick_s,
+            "floor_size_m": list(s.floor_size_m), "wall_height_m": s.wall_height_m,
+            "objects": [{"name": o.name, "shape": o.shape, "size": list(o.size),
+                         "pose": list(o.pose), "color": list(o.color), "material": o.material}
+                        for o in self.objects],
+            "robots": {r.name: {"pose": list(r.pose), "color": list(r.color),
+                                "wheel_radius_m": r.drive.wheel_radius_m,
+                                "wheel_separation_m": r.drive.wheel_separation_m,
+                                "drive": dict(r.drive.__dict__),
+                                "joints": ["left_wheel_joint", "right_wheel_joint"],
+                                "parts": [p.name for p in r.parts]}
+                       for r in s.robots},
+            "materials": {m.name: m.friction for m in s.materials.values()},
+        }

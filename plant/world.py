@@ -1,0 +1,354 @@
+"""World files: load and validate a TOML world description.
+
+A world file names the physics settings, the floor and walls, the furniture
+(boxes, cylinders and spheres with colours and materials), friction per
+material, and the robots with their start poses and drive limits. Every error
+is reported as ``file:key: reason`` (:class:`WorldError`), so the command line
+can print one line and exit 2.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+import os
+from dataclasses import dataclass, field
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+from bus.keys import BadName, check_name
+
+WORLDS_DIR = os.path.join(os.path.dirname(__file__), "worlds")
+
+
+class WorldError(ValueError):
+    """A world file that cannot be used; the message is ``file:key: reason``."""
+
+
+# ---------------------------------------------------------------------------- spec
+@dataclass
+class Material:
+    name: str
+    friction: float
+
+
+@dataclass
+class ObjectSpec:
+    name: str
+    shape: str                  # box | cylinder | sphere
+    size: tuple[float, ...]     # box: lx, ly, lz; cylinder: radius, height; sphere: radius
+    pose: tuple[float, float, float, float]  # x, y, z (centre), yaw
+    color: tuple[float, float, float]
+    material: str
+    static: bool = True
+    mass_kg: float = 1.0
+
+
+@dataclass
+class DriveSpec:
+    wheel_radius_m: float = 0.12
+    wheel_separation_m: float = 0.36
+    max_wheel_speed_radps: float = 12.0
+    max_wheel_accel_radps2: float = 40.0
+    max_linear_mps: float = 1.0
+    max_angular_radps: float = 3.0
+    max_linear_accel_mps2: float = 2.0
+    max_angular_accel_radps2: float = 8.0
+    max_wheel_torque_nm: float = 5.0
+    cmd_timeout_s: float = 0.5
+
+
+@dataclass
+class RobotSpec:
+    name: str
+    pose: tuple[float, float, float]        # x, y, yaw
+    color: tuple[float, float, float] = (0.15, 0.35, 0.8)
+    wheel_material: str = "rubber"
+    drive: DriveSpec = field(default_factory=DriveSpec)
+    chassis_mass_kg: float = 6.0
+    wheel_mass_kg: float = 0.5
+    # extra parts carried by the robot (e.g. the leader's green ball), poses relative to base
+    parts: list[ObjectSpec] = field(default_factory=list)
+
+
+@dataclass
+class WorldSpec:
+    path: str
+    name: str
+    mode: str = "dynamic"                   # dynamic | kinematic
+    physics_step_s: float = 0.001
+    control_tick_s: float = 0.02
+    gravity_mps2: float = 9.81
+    seed: int = 0
+    floor_size_m: tuple[float, float] = (10.0, 10.0)
+    floor_color: tuple[float, float, float] = (0.78, 0.72, 0.62)
+    floor_material: str = "floor"
+    wall_height_m: float = 0.0              # 0 = no walls
+    wall_thickness_m: float = 0.1
+    wall_color: tuple[float, float, float] = (0.9, 0.9, 0.85)
+    materials: dict[str, Material] = field(default_factory=dict)
+    objects: list[ObjectSpec] = field(default_factory=list)
+    robots: list[RobotSpec] = field(default_factory=list)
+
+    @property
+    def substeps(self) -> int:
+        return int(round(self.control_tick_s / self.physics_step_s))
+
+    def robot(self, name: str) -> RobotSpec:
+        for r in self.robots:
+            if r.name == name:
+                return r
+        raise KeyError(name)
+
+
+# ---------------------------------------------------------------------------- reader
+class _Table:
+    """Typed access to one TOML table that remembers which keys were read."""
+
+    def __init__(self, path: str, where: str, data: dict) -> None:
+        self.path, self.where, self.data = path, where, data
+        if not isinstance(data, dict):
+            self.fail("", f"expected a table, got {type(data).__name__}")
+        self.used: set[str] = set()
+
+    def key(self, k: str) -> str:
+        return f"{self.where}.{k}" if self.where else k
+
+    def fail(self, k: str, reason: str):
+        raise WorldError(f"{self.path}:{self.key(k) if k else self.where}: {reason}")
+
+    def has(self, k: str) -> bool:
+        return k in self.data
+
+    def raw(self, k: str, default=None):
+        self.used.add(k)
+        return self.data.get(k, default)
+
+    def number(self, k: str, default=None, *, positive=False, nonneg=False, required=False) -> float:
+        if k not in self.data:
+            if required or default is None:
+                self.fail(k, "missing (a number is required)")
+            return default
+        v = self.raw(k)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(k, f"expected a number, got {type(v).__name__} {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            self.fail(k, f"must be finite, got {v}")
+        if positive and v <= 0:
+            self.fail(k, f"must be > 0, got {v:g}")
+        if nonneg and v < 0:
+            self.fail(k, f"must be >= 0, got {v:g}")
+        return v
+
+    def integer(self, k: str, default: int) -> int:
+        v = self.raw(k, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            self.fail(k, f"expected an integer, got {type(v).__name__} {v!r}")
+        return v
+
+    def string(self, k: str, default=None, choices=None) -> str:
+        if k not in self.data and default is None:
+            self.fail(k, "missing (a string is required)")
+        v = self.raw(k, default)
+        if not isinstance(v, str):
+            self.fail(k, f"expected a string, got {type(v).__name__} {v!r}")
+        if choices and v not in choices:
+            self.fail(k, f"must be one of {', '.join(choices)}, got {v!r}")
+        return v
+
+    def boolean(self, k: str, default: bool) -> bool:
+        v = self.raw(k, default)
+        if not isinstance(v, bool):
+            self.fail(k, f"expected true or false, got {v!r}")
+        return v
+
+    def vector(self, k: str, n: int | tuple[int, ...], default=None, *, positive=False,
+               unit_range=False) -> tuple[float, ...]:
+        if k not in self.data:
+            if default is None:
+                self.fail(k, "missing")
+            return tuple(default)
+        v = self.raw(k)
+        ns = (n,) if isinstance(n, int) else n
+        if not isinstance(v, list) or len(v) not in ns or any(
+                isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):
+            want = " or ".join(str(i) for i in ns)
+            self.fail(k, f"expected a list of {want} numbers, got {v!r}")
+        v = tuple(float(x) for x in v)
+        if not all(math.isfinite(x) for x in v):
+            self.fail(k, f"values must be finite, got {v}")
+        if positive and any(x <= 0 for x in v):
+            self.fail(k, f"values must be > 0, got {list(v)}")
+        if unit_range and any(x < 0 or x > 1 for x in v):
+            self.fail(k, f"colour components must be in 0..1, got {list(v)}")
+        return v
+
+    def table(self, k: str) -> "_Table":
+        return _Table(self.path, self.key(k), self.raw(k, {}))
+
+    def tables(self, k: str) -> list["_Table"]:
+        v = self.raw(k, [])
+        if not isinstance(v, list):
+            self.fail(k, f"expected an array of tables ([[{k}]]), got {type(v).__name__}")
+        return [_Table(self.path, f"{self.key(k)}[{i}]", item) for i, item in enumerate(v)]
+
+    def done(self) -> None:
+        """Refuse keys nobody asked for (typos), suggesting the closest known one."""
+        for k in self.data:
+            if k not in self.used:
+                close = difflib.get_close_matches(k, sorted(self.used), n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                self.fail(k, f"unknown key{hint}")
+
+
+# ---------------------------------------------------------------------------- parse
+def _parse_object(t: _Table, materials: dict, default_material: str) -> ObjectSpec:
+    name = t.string("name")
+    shape = t.string("shape", choices=("box", "cylinder", "sphere"))
+    if shape == "box":
+        size = t.vector("size_m", 3, positive=True)
+        height = size[2]
+    elif shape == "cylinder":
+        size = (t.number("radius_m", positive=True, required=True),
+                t.number("height_m", positive=True, required=True))
+        height = size[1]
+    else:
+        size = (t.number("radius_m", positive=True, required=True),)
+        height = 2 * size[0]
+    pose = t.vector("pose", (2, 3, 4), (0.0, 0.0))
+    # [x, y], [x, y, yaw] or [x, y, z, yaw]; z defaults to resting on the floor
+    if len(pose) == 2:
+        x, y, z, yaw = pose[0], pose[1], height / 2, 0.0
+    elif len(pose) == 3:
+        x, y, z, yaw = pose[0], pose[1], height / 2, pose[2]
+    else:
+        x, y, z, yaw = pose
+    color = t.vector("color", 3, (0.6, 0.6, 0.6), unit_range=True)
+    material = t.string("material", default_material)
+    if material not in materials:
+        t.fail("material", f"unknown material {material!r} (defined: {', '.join(materials)})")
+    static = t.boolean("static", True)
+    mass = t.number("mass_kg", 1.0, positive=True)
+    t.done()
+    return ObjectSpec(name, shape, size, (x, y, z, yaw), color, material, static, mass)
+
+
+def _parse_drive(t: _Table) -> DriveSpec:
+    d = DriveSpec()
+    for f in DriveSpec.__dataclass_fields__:
+        setattr(d, f, t.number(f, getattr(d, f), positive=True))
+    t.done()
+    return d
+
+
+def parse_world(data: dict, path: str) -> WorldSpec:
+    top = _Table(path, "", data)
+    w = top.table("world")
+    spec = WorldSpec(path=path, name=w.string("name", os.path.splitext(os.path.basename(path))[0]))
+    spec.mode = w.string("mode", "dynamic", choices=("dynamic", "kinematic"))
+    spec.physics_step_s = w.number("physics_step_s", 0.001, positive=True)
+    spec.control_tick_s = w.number("control_tick_s", 0.02, positive=True)
+    ratio = spec.control_tick_s / spec.physics_step_s
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        w.fail("control_tick_s", f"must be a whole multiple of physics_step_s "
+                                 f"({spec.physics_step_s:g} s), got {spec.control_tick_s:g} s")
+    if spec.physics_step_s > 0.01:
+        w.fail("physics_step_s", f"{spec.physics_step_s:g} s is too coarse for contact "
+                                 "(use at most 0.01 s)")
+    spec.gravity_mps2 = w.number("gravity_mps2", 9.81, nonneg=True)
+    spec.seed = w.integer("seed", 0)
+    w.done()
+
+    mats = top.table("materials")
+    spec.materials = {"floor": Material("floor", 1.0), "rubber": Material("rubber", 1.0),
+                      "default": Material("default", 0.6)}
+    for name in list(mats.data):
+        m = mats.table(name)
+        spec.materials[name] = Material(name, m.number("friction", nonneg=True, required=True))
+        m.done()
+    mats.done()
+
+    fl = top.table("floor")
+    spec.floor_size_m = fl.vector("size_m", 2, (10.0, 10.0), positive=True)
+    spec.floor_color = fl.vector("color", 3, spec.floor_color, unit_range=True)
+    spec.floor_material = fl.string("material", "floor")
+    if spec.floor_material not in spec.materials:
+        fl.fail("material", f"unknown material {spec.floor_material!r}")
+    fl.done()
+
+    wl = top.table("walls")
+    spec.wall_height_m = wl.number("height_m", 0.0, nonneg=True)
+    spec.wall_thickness_m = wl.number("thickness_m", 0.1, positive=True)
+    spec.wall_color = wl.vector("color", 3, spec.wall_color, unit_range=True)
+    wl.done()
+
+    names: set[str] = set()
+    for t in top.tables("objects"):
+        obj = _parse_object(t, spec.materials, "default")
+        if obj.name in names:
+            t.fail("name", f"duplicate name {obj.name!r}")
+        names.add(obj.name)
+        spec.objects.append(obj)
+
+    for t in top.tables("robots"):
+        name = t.string("name")
+        try:
+            check_name(name, "robot name")
+        except BadName as exc:
+            t.fail("name", str(exc))
+        if any(r.name == name for r in spec.robots):
+            t.fail("name", f"duplicate robot {name!r}")
+        pose = t.vector("pose", 3, (0.0, 0.0, 0.0))
+        r = RobotSpec(name=name, pose=pose)
+        r.color = t.vector("color", 3, r.color, unit_range=True)
+        r.wheel_material = t.string("wheel_material", "rubber")
+        if r.wheel_material not in spec.materials:
+            t.fail("wheel_material", f"unknown material {r.wheel_material!r}")
+        r.chassis_mass_kg = t.number("chassis_mass_kg", r.chassis_mass_kg, positive=True)
+        r.wheel_mass_kg = t.number("wheel_mass_kg", r.wheel_mass_kg, positive=True)
+        r.drive = _parse_drive(t.table("drive"))
+        for pt in t.tables("parts"):
+            r.parts.append(_parse_object(pt, spec.materials, "default"))
+        t.done()
+        spec.robots.append(r)
+    _check_robot_overlap(spec, top)
+    top.done()
+    return spec
+
+
+ROBOT_RADIUS_M = 0.30  # conservative footprint radius of the default robot
+
+
+def _check_robot_overlap(spec: WorldSpec, top: _Table) -> None:
+    for i, a in enumerate(spec.robots):
+        for b in spec.robots[i + 1:]:
+            d = math.hypot(a.pose[0] - b.pose[0], a.pose[1] - b.pose[1])
+            if d < 2 * ROBOT_RADIUS_M:
+                raise WorldError(f"{top.path}:robots: robots {a.name!r} and {b.name!r} overlap "
+                                 f"(start {d:.2f} m apart, need {2 * ROBOT_RADIUS_M:.2f} m)")
+
+
+def resolve_world_path(name_or_path: str) -> str:
+    """A path as given, or the name of a shipped world (``living_room``, ``empty``)."""
+    if os.path.exists(name_or_path):
+        return name_or_path
+    shipped = os.path.join(WORLDS_DIR, f"{name_or_path}.toml")
+    if os.path.exists(shipped):
+        return shipped
+    raise WorldError(f"{name_or_path}: no such world file (shipped worlds: "
+                     f"{', '.join(sorted(f[:-5] for f in os.listdir(WORLDS_DIR) if f.endswith('.toml')))})")
+
+
+def load_world(name_or_path: str) -> WorldSpec:
+    path = resolve_world_path(name_or_path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise WorldError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
+    return parse_world(data, path)
