@@ -1,8 +1,8 @@
 """One queue for everything a process receives, in arrival order.
 
-Zenoh delivers samples from one peer in the order they were sent; callback
-subscribers that all feed one queue keep that order across keys, which the
-lockstep protocol relies on (a tick's sensors arrive before its ``sim/clock``).
+Zenoh delivers samples from one peer in the order they were sent; direct callback
+subscribers that all feed one queue keep that order across keys. The lockstep
+protocol does not depend on it (nodes check stamps), but it saves waiting.
 """
 from __future__ import annotations
 
@@ -35,7 +35,11 @@ class Inbox:
             q.put(Event(tag, str(sample.key_expr), sample.payload.to_bytes(),
                         att.to_bytes() if att is not None else None))
 
-        self._handles.append(self.session.declare_subscriber(key, cb))
+        # indirect=False: run in Zenoh's receive thread, so samples of different keys
+        # reach the queue in the order they arrived (the default hands every
+        # subscriber its own Python thread, which reorders them).
+        self._handles.append(self.session.declare_subscriber(
+            key, zenoh.handlers.Callback(cb, indirect=False)))
 
     def watch_liveliness(self, key: str, tag: str) -> None:
         """Events for tokens on ``key`` appearing (alive=True) and vanishing (alive=False),
@@ -46,7 +50,8 @@ class Inbox:
             q.put(Event(tag, str(sample.key_expr), b"", None,
                         sample.kind == zenoh.SampleKind.PUT))
 
-        self._handles.append(self.session.liveliness().declare_subscriber(key, cb, history=True))
+        self._handles.append(self.session.liveliness().declare_subscriber(
+            key, zenoh.handlers.Callback(cb, indirect=False), history=True))
 
     def get(self, timeout: float | None = None) -> Event | None:
         try:

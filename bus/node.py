@@ -104,8 +104,6 @@ class NodeRunner:
         for topic in self.inputs:
             if topic not in TOPICS:
                 raise ValueError(f"{type(controller).__name__}.inputs: unknown topic {topic!r}")
-        # Inputs made by other lockstep nodes must carry this tick's stamp before we act.
-        self.awaited = [t for t in self.inputs if TOPICS[t].source != "plant"]
         self.rejects = RejectCounter(log)
         self.stop_event = threading.Event()
         self.exit_code = 0
@@ -118,12 +116,19 @@ class NodeRunner:
         if robot not in self.info.get("robots", {}):
             raise ValueError(f"robot {robot!r} is not in the plant's world "
                              f"(robots: {', '.join(self.info.get('robots', {})) or 'none'})")
+        self.tick_ns = int(round(self.info.get("control_tick_s", 0.0) * 1e9))
+        # Sensors the plant publishes every `period` ticks; node outputs come every tick.
+        self.periods = dict(self.info["robots"][robot].get("topics", {}))
+        self.awaited = [t for t in self.inputs
+                        if TOPICS[t].source != "plant" or t in self.periods]
+        self._tick_keys: list[str] = []
         if hasattr(controller, "configure"):
             controller.configure(self.info, robot)
 
     # ----------------------------------------------------------------- output
     def _put(self, key: str, msg, t_ns: int) -> None:
         self._seq += 1
+        self._tick_keys.append(key)
         self.session.put(key, codec.encode(msg), encoding=zenoh.Encoding.APPLICATION_CDR,
                          attachment=codec.attachment(self._seq, t_ns))
         self.published += 1
@@ -145,8 +150,18 @@ class NodeRunner:
                             "WheelSpeeds, dict or None")
 
     def ack(self, t_ns: int) -> None:
+        """Tell the plant this node is done with tick ``t_ns``: the stamp, then the keys it
+        published for the tick, so the plant waits for those samples too."""
         if self.sync:
-            self.session.put(self.keys.ack(self.name), t_ns.to_bytes(8, "little"))
+            self.session.put(self.keys.ack(self.name),
+                             encode_ack(t_ns, self._tick_keys))
+        self._tick_keys = []
+
+    def due_inputs(self, t_ns: int) -> list[str]:
+        """The inputs that must carry stamp ``t_ns`` before the node acts on that tick:
+        outputs of other lockstep nodes, and the plant's sensors due at this tick."""
+        k = t_ns // self.tick_ns if self.tick_ns else 0
+        return [t for t in self.awaited if k % self.periods.get(t, 1) == 0]
 
     # ----------------------------------------------------------------- loop
     def run(self, max_ticks: int | None = None) -> int:
@@ -196,7 +211,7 @@ class NodeRunner:
                     stamps[topic] = codec.msg_stamp_ns(msg)
                 if pending is None:
                     continue
-                if self.sync and any(stamps.get(t) != pending for t in self.awaited):
+                if self.sync and any(stamps.get(t) != pending for t in self.due_inputs(pending)):
                     continue
                 t_ns, pending = pending, None
                 obs = Observation(t_ns, self.robot, dict(latest))
@@ -225,6 +240,18 @@ class NodeRunner:
         return {"node": self.name, "robot": self.robot, "ticks": self.ticks,
                 "published": self.published, "rejected": dict(self.rejects.counts),
                 "exit_code": self.exit_code}
+
+
+def encode_ack(t_ns: int, keys: list[str]) -> bytes:
+    return t_ns.to_bytes(8, "little") + ",".join(keys).encode()
+
+
+def decode_ack(payload: bytes) -> tuple[int, list[str]]:
+    """(tick stamp, keys published for it); raises ValueError if malformed."""
+    if len(payload) < 8:
+        raise ValueError(f"ack of {len(payload)} bytes")
+    rest = payload[8:].decode("utf-8")
+    return int.from_bytes(payload[:8], "little"), [k for k in rest.split(",") if k]
 
 
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:

@@ -30,7 +30,7 @@ from bus import codec
 from bus.inbox import Inbox
 from bus.keys import Keys
 from bus.log import RejectCounter, setup_logging
-from bus.node import write_json
+from bus.node import decode_ack, write_json
 from bus.session import BusConfigError, add_bus_args, open_session
 
 from .sim import RobotState, Simulation
@@ -72,7 +72,8 @@ class Plant:
         self.stop_event = threading.Event()
         self.members: set[str] = set()
         self.members_seen: set[str] = set()
-        self.acks: dict[str, int] = {}
+        self.acks: dict[str, tuple[int, list[str]]] = {}
+        self.cmd_tick: dict[str, int] = {}      # command key -> tick stamp of its last sample
         self.commands: dict[str, Command] = {}
         self.published: dict[str, int] = {}
         self.ticks = 0
@@ -138,6 +139,7 @@ class Plant:
         self.sim = Simulation(self.spec)
         self.commands.clear()
         self.acks.clear()
+        self.cmd_tick.clear()
         self.log.info("world rebuilt (seed %d)", self.seed)
         query.reply(self.keys.reset, json.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
 
@@ -175,10 +177,10 @@ class Plant:
         elif ev.tag == "cmd":
             self._on_command(ev)
         elif ev.tag == "ack":
-            if len(ev.payload) != 8:
-                self.rejects.reject("ack", f"bad payload of {len(ev.payload)} bytes")
-                return
-            self.acks[self.keys.node_of(ev.key)] = int.from_bytes(ev.payload, "little")
+            try:
+                self.acks[self.keys.node_of(ev.key)] = decode_ack(ev.payload)
+            except ValueError as exc:
+                self.rejects.reject("ack", str(exc))
         elif ev.tag == "alive":
             (self.alive.add if ev.alive else self.alive.discard)(self.keys.node_of(ev.key))
         elif ev.tag == "member":
@@ -193,6 +195,9 @@ class Plant:
 
     def _on_command(self, ev) -> None:
         robot, topic = self._robot_of_cmd[ev.key]
+        att = codec.parse_attachment(ev.attachment)
+        if att is not None:
+            self.cmd_tick[ev.key] = att[1]
         drive = self.sim.robots[robot].spec.drive
         try:
             if topic == "cmd_vel":
@@ -269,10 +274,15 @@ class Plant:
                 return False
         return False
 
+    def _acked(self, member: str, t_ns: int) -> bool:
+        """The member acked tick ``t_ns`` and every command it published for it is in."""
+        t, keys = self.acks.get(member, (None, ()))
+        return t == t_ns and all(self.cmd_tick.get(k) == t_ns for k in keys
+                                 if k in self._robot_of_cmd)
+
     def wait_for_acks(self, t_ns: int, required: set[str]) -> None:
         while not self.stop_event.is_set():
-            pending = {m for m in required if m in self.members and self.acks.get(m) != t_ns}
-            if not pending:
+            if all(self._acked(m, t_ns) for m in required if m in self.members):
                 return
             self.drain(0.5)
 

@@ -4,7 +4,7 @@ Body: a box chassis whose origin is the midpoint of the wheel axle (``base_link`
 at wheel-radius height); two wheels of radius r whose contact points are d apart,
 on revolute joints about +y driven by torque-limited velocity servos (their
 positions are the encoders); a passive, frictionless caster sphere at the rear.
-The chassis' centre of mass sits 5 cm behind the axle, toward the caster, so the
+The chassis' centre of mass sits 8 cm behind the axle, toward the caster, so the
 robot does not tip onto its nose when it brakes hard.
 
 Dynamic mode: a free joint, contact and friction decide the motion (slip
@@ -23,7 +23,7 @@ D = dart.dynamics
 
 CHASSIS_SIZE_M = (0.40, 0.26, 0.10)
 CHASSIS_OFFSET_X_M = -0.05           # box centre behind the axle
-COM_OFFSET_X_M = -0.05               # centre of mass toward the caster
+COM_OFFSET_X_M = -0.08               # centre of mass toward the caster
 CASTER_RADIUS_M = 0.05
 CASTER_X_M = -0.20
 WHEEL_WIDTH_M = 0.04

@@ -166,6 +166,10 @@ class Simulation:
                 out.append(self._shape_of(o))
         return out
 
+    def topic_periods(self, robot: str) -> dict[str, int]:
+        """Sensor topics the plant publishes for ``robot``: name -> period in control ticks."""
+        return {"joint_states": 1, "gps": 1, "ground_truth": 1}
+
     def describe(self) -> dict:
         """The world as the plant understood it (served on ``sim/info``)."""
         s = self.spec
@@ -181,6 +185,7 @@ class Simulation:
                                 "wheel_separation_m": r.drive.wheel_separation_m,
                                 "drive": dict(r.drive.__dict__),
                                 "joints": ["left_wheel_joint", "right_wheel_joint"],
+                                "topics": self.topic_periods(r.name),
                                 "parts": [p.name for p in r.parts]}
                        for r in s.robots},
             "materials": {m.name: m.friction for m in s.materials.values()},

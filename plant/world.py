@@ -127,6 +127,7 @@ class _Table:
         return self.data.get(k, default)
 
     def number(self, k: str, default=None, *, positive=False, nonneg=False, required=False) -> float:
+        self.used.add(k)
         if k not in self.data:
             if required or default is None:
                 self.fail(k, "missing (a number is required)")
@@ -150,6 +151,7 @@ class _Table:
         return v
 
     def string(self, k: str, default=None, choices=None) -> str:
+        self.used.add(k)
         if k not in self.data and default is None:
             self.fail(k, "missing (a string is required)")
         v = self.raw(k, default)
@@ -167,6 +169,7 @@ class _Table:
 
     def vector(self, k: str, n: int | tuple[int, ...], default=None, *, positive=False,
                unit_range=False) -> tuple[float, ...]:
+        self.used.add(k)
         if k not in self.data:
             if default is None:
                 self.fail(k, "missing")

@@ -1,0 +1,91 @@
+"""Shared fixtures: a private bus endpoint per test and processes that are always cleaned up."""
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.fixture
+def endpoint():
+    """A unix-socket endpoint private to this test (no ports shared between parallel runs)."""
+    d = tempfile.mkdtemp(prefix="dbt-")
+    yield f"unixsock-stream/{d}/bus.sock"
+    shutil.rmtree(d, ignore_errors=True)
+
+
+class Procs:
+    """Starts ``diffbot`` processes and kills every one of them by PID at teardown."""
+
+    def __init__(self, tmp) -> None:
+        self.tmp = tmp
+        self.procs: list[subprocess.Popen] = []
+
+    def diffbot(self, *args: str, name: str = "proc", **kw) -> subprocess.Popen:
+        log = open(os.path.join(self.tmp, f"{name}-{len(self.procs)}.log"), "wb")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        kw.setdefault("stdout", log)
+        kw.setdefault("stderr", subprocess.STDOUT)
+        kw.setdefault("stdin", subprocess.DEVNULL)
+        p = subprocess.Popen([sys.executable, "-m", "diffbot.cli", *args], cwd=ROOT, env=env,
+                             start_new_session=True, **kw)
+        p.log_path = log.name
+        self.procs.append(p)
+        return p
+
+    @staticmethod
+    def log(p) -> str:
+        with open(p.log_path, "rb") as f:
+            return f.read().decode("utf-8", "replace")
+
+    def cleanup(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + 3
+        for p in self.procs:
+            try:
+                p.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(5)
+
+
+@pytest.fixture
+def procs(tmp_path):
+    pr = Procs(str(tmp_path))
+    yield pr
+    pr.cleanup()
+
+
+@pytest.fixture
+def bus(endpoint):
+    """A client session to the test's endpoint (open it after the plant is started)."""
+    from bus.session import open_session
+    sessions = []
+
+    def connect():
+        s = open_session("test", endpoint)
+        sessions.append(s)
+        return s
+    yield connect
+    for s in sessions:
+        s.close()
+
+
+def wait_for(pred, timeout: float, step: float = 0.02, what: str = "condition"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        v = pred()
+        if v:
+            return v
+        time.sleep(step)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")

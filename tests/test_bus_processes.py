@@ -1,0 +1,177 @@
+"""Real processes on a real Zenoh bus: lockstep, realtime watchdog, bad commands, queryables."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+import zenoh
+
+from bus import codec
+from bus.keys import Keys
+
+from .conftest import wait_for
+
+pytestmark = pytest.mark.slow
+K = Keys()
+
+
+class Tap:
+    """Collects decoded ground truth and clock ticks (with wall arrival times) in the test."""
+
+    def __init__(self, session, robot="robot1"):
+        self.lock = threading.Lock()
+        self.clock: list[tuple[float, int]] = []
+        self.gt: list = []
+        self.subs = [
+            session.declare_subscriber(K.clock, self._on_clock),
+            session.declare_subscriber(K.topic(robot, "ground_truth"), self._on_gt),
+        ]
+
+    def _on_clock(self, s):
+        t = codec.msg_stamp_ns(codec.decode(s.payload.to_bytes(), "rosgraph_msgs/msg/Clock"))
+        with self.lock:
+            self.clock.append((time.monotonic(), t))
+
+    def _on_gt(self, s):
+        m = codec.decode(s.payload.to_bytes(), "nav_msgs/msg/Odometry")
+        with self.lock:
+            self.gt.append(m)
+
+    def last_t(self) -> int:
+        with self.lock:
+            return self.clock[-1][1] if self.clock else -1
+
+    def speed_at(self, t_ns: int) -> float:
+        with self.lock:
+            for m in self.gt:
+                if codec.msg_stamp_ns(m) >= t_ns:
+                    return abs(m.twist.twist.linear.x)
+        return math.nan
+
+
+def plant(procs, endpoint, tmp_path, *extra, world="empty"):
+    stats = str(tmp_path / "plant.json")
+    p = procs.diffbot("plant", "--world", world, "--endpoint", endpoint, "--stats", stats,
+                      *extra, name="plant")
+    p.stats_path = stats
+    return p
+
+
+def test_lockstep_member_killed_leaves_sync_set_at_once(procs, endpoint, bus, tmp_path):
+    p = plant(procs, endpoint, tmp_path, "--mode", "lockstep",
+              "--expect", "odometry_robot1,wheel_schedule_robot1")
+    s = bus()
+    tap = Tap(s)
+    procs.diffbot("controller", "odometry", "--endpoint", endpoint, name="odo")
+    ctrl = procs.diffbot("controller", "wheel_schedule", "--schedule", "1000:2,2",
+                         "--endpoint", endpoint, name="ctrl")
+    wait_for(lambda: tap.last_t() > 2e9, 60, what="lockstep run to reach t=2 s")
+    ctrl.send_signal(signal.SIGKILL)
+    killed = time.monotonic()
+    ctrl.wait(5)
+    # The plant goes on with the remaining member (the odometry node).
+    t_at_kill = tap.last_t()
+    wait_for(lambda: tap.last_t() > t_at_kill + 200_000_000, 10, what="ticks after the kill")
+    with tap.lock:
+        gaps = [w for w, t in tap.clock if w > killed]
+    assert gaps[0] - killed < 0.1, f"plant resumed {gaps[0] - killed:.3f} s after the kill"
+    assert p.poll() is None
+
+
+def test_realtime_watchdog_stops_robot_after_cmd_timeout(procs, endpoint, bus, tmp_path):
+    plant(procs, endpoint, tmp_path, "--mode", "realtime")
+    s = bus()
+    tap = Tap(s)
+    ctrl = procs.diffbot("controller", "wheel_schedule", "--schedule", "1000:3,3",
+                         "--endpoint", endpoint, name="ctrl")
+    wait_for(lambda: tap.speed_at(0) == tap.speed_at(0) and tap.last_t() > 1.5e9, 30,
+             what="robot driving")
+    assert tap.speed_at(tap.last_t()) == pytest.approx(0.36, rel=0.05)
+    ctrl.send_signal(signal.SIGKILL)
+    t_kill = tap.last_t()
+    wait_for(lambda: tap.last_t() > t_kill + 1.2e9, 10, what="sim to run on")
+    # cmd_timeout 0.5 s, then the drive's deceleration limit brings it to rest.
+    assert tap.speed_at(t_kill + 300_000_000) > 0.3          # held the last command meanwhile
+    assert tap.speed_at(t_kill + 700_000_000) < 0.005
+
+
+def test_bad_commands_are_counted_and_never_reach_the_physics(procs, endpoint, bus, tmp_path):
+    p = plant(procs, endpoint, tmp_path, "--mode", "fast")
+    s = bus()
+    tap = Tap(s)
+    wait_for(lambda: tap.last_t() > 0, 30, what="plant ticking")
+    key = K.topic("robot1", "cmd_vel")
+    rng = np.random.default_rng(0)
+    good = codec.encode(codec.twist_stamped(0, 0.2, 0.0))
+    bad = [bytes(rng.integers(0, 256, n, dtype=np.uint8)) for n in (0, 3, 17, 64, 300)]
+    bad += [good[:10], codec.encode(codec.twist_stamped(0, math.nan, 0.0)),
+            codec.encode(codec.twist_stamped(0, 0.1, math.inf)),
+            codec.encode(codec.twist_stamped(0, 1e9, 0.0)),
+            codec.encode(codec.twist_stamped(0, -1e300, 1e300))]
+    wheel_bad = [codec.encode(codec.joint_state(0, ["a", "b"], velocity=[1, 1])),
+                 codec.encode(codec.joint_state(0, [], velocity=[1.0])),
+                 codec.encode(codec.joint_state(0, [], velocity=[math.nan, 1.0]))]
+    for _ in range(3):
+        for b in bad:
+            s.put(key, b)
+            s.put(key, good)              # good commands interleaved keep working
+        for b in wheel_bad:
+            s.put(K.topic("robot1", "wheel_cmd"), b)
+    t0 = tap.last_t()
+    wait_for(lambda: tap.last_t() > t0 + 2e9, 30, what="plant to keep running")
+    assert p.poll() is None
+    with tap.lock:
+        last = tap.gt[-1]
+    pos = last.pose.pose.position
+    assert all(math.isfinite(v) for v in (pos.x, pos.y, pos.z))
+    p.send_signal(signal.SIGINT)
+    p.wait(10)
+    stats = json.load(open(p.stats_path))
+    rejected = stats["rejected"]
+    assert rejected.get("robot1/cmd_vel", 0) == 3 * len(bad)
+    assert rejected.get("robot1/wheel_cmd", 0) == 3 * len(wheel_bad)
+    assert "rejected robot1/cmd_vel" in procs.log(p)        # logged, rate-limited
+    assert procs.log(p).count("rejected robot1/cmd_vel") < 10
+    assert pos.x > 0.01                                      # the good commands moved it
+
+
+def test_info_and_reset_queryables(procs, endpoint, bus, tmp_path):
+    plant(procs, endpoint, tmp_path, "--mode", "fast", world="living_room")
+    s = bus()
+
+    def query(key, payload=None):
+        replies = list(s.get(key, payload=payload, timeout=5.0))
+        assert replies, f"no reply on {key}"
+        r = replies[0]
+        return (True, json.loads(r.ok.payload.to_bytes())) if r.ok is not None else \
+            (False, json.loads(r.err.payload.to_bytes()))
+
+    ok, info = wait_for(lambda: _try(lambda: query(K.info)), 30, what="sim/info")
+    assert ok and info["mode"] == "fast" and "robot1" in info["robots"]
+    assert info["robots"]["robot1"]["wheel_radius_m"] == 0.12
+    assert any(o["name"] == "sofa_seat" for o in info["objects"])
+    ok, rep = query(K.reset, json.dumps({"seed": 5, "poses": {"robot1": [0.5, 0.5, 1.0]}}))
+    assert ok and rep["seed"] == 5
+    tap = Tap(s)
+    wait_for(lambda: tap.gt, 10, what="ground truth after reset")
+    with tap.lock:
+        m = tap.gt[-1]
+    assert m.pose.pose.position.x == pytest.approx(0.5, abs=0.01)
+    assert codec.quaternion_to_yaw(m.pose.pose.orientation) == pytest.approx(1.0, abs=0.01)
+    ok, rep = query(K.reset, json.dumps({"poses": {"nobody": [0, 0, 0]}}))
+    assert not ok and "unknown robot" in rep["error"]
+    ok, rep = query(K.reset, b"{not json")
+    assert not ok
+
+
+def _try(f):
+    try:
+        return f()
+    except AssertionError:
+        return None

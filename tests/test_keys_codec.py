@@ -1,0 +1,68 @@
+import math
+
+import numpy as np
+import pytest
+
+from bus import codec
+from bus.keys import TOPICS, BadName, Keys, check_name
+
+
+@pytest.mark.parametrize("bad", ["", "*", "**", "a*", "$x", "a/b", "robot 1", "sim", "1abc",
+                                 "a" * 65, "ro$bot", "a?b", "a#b"])
+def test_names_that_would_change_key_expressions_are_refused(bad):
+    with pytest.raises(BadName):
+        check_name(bad)
+    with pytest.raises(BadName):
+        Keys(bad) if bad else check_name(bad, "namespace")
+
+
+def test_namespace_prefixes_every_key():
+    k = Keys("lab2")
+    assert k.clock == "lab2/sim/clock"
+    assert k.topic("robot1", "cmd_vel") == "lab2/robot1/cmd_vel"
+    assert k.topic("robot1", "camera/image") == "lab2/robot1/camera/image"
+    assert k.sync("n1") == "lab2/sim/sync/n1"
+    assert k.all == "lab2/**"
+    assert k.robot_topic_of("lab2/robot1/odom") == ("robot1", "odom")
+    assert k.robot_topic_of("robot1/odom") is None
+    assert k.msgtype_of("lab2/sim/clock") == "rosgraph_msgs/msg/Clock"
+    assert Keys().topic("r", "gps") == "r/gps"
+
+
+def test_unknown_topic_is_an_error():
+    with pytest.raises(BadName):
+        Keys().topic("robot1", "nope")
+
+
+def test_every_topic_type_is_a_known_ros2_message():
+    for t in TOPICS.values():
+        assert t.msgtype in codec.TYPESTORE.types
+
+
+def test_messages_round_trip_through_cdr():
+    t = 12_345_678_901
+    tw = codec.decode(codec.encode(codec.twist_stamped(t, 0.3, -0.2)), "geometry_msgs/msg/TwistStamped")
+    assert codec.msg_stamp_ns(tw) == t
+    assert (tw.twist.linear.x, tw.twist.angular.z) == (0.3, -0.2)
+    js = codec.decode(codec.encode(codec.joint_state(t, ["l", "r"], [1.5, 2.5], [0.1, 0.2])),
+                      "sensor_msgs/msg/JointState")
+    assert js.name == ["l", "r"] and np.allclose(js.position, [1.5, 2.5])
+    od = codec.decode(codec.encode(codec.odometry(t, 1.0, 2.0, 0.7, 0.1, 0.2)), "nav_msgs/msg/Odometry")
+    assert math.isclose(codec.quaternion_to_yaw(od.pose.pose.orientation), 0.7)
+    assert od.pose.pose.position.y == 2.0
+    assert codec.msg_stamp_ns(codec.decode(codec.encode(codec.clock(t)), "rosgraph_msgs/msg/Clock")) == t
+    assert codec.parse_attachment(codec.attachment(7, t)) == (7, t)
+    assert codec.parse_attachment(b"short") is None
+
+
+@pytest.mark.parametrize("payload", [b"", b"\x00", b"\x00\x01\x00\x00\xff\xff\xff\xff" * 3,
+                                     bytes(range(256)), b"\x00\x01\x00\x00" + b"\x7f" * 40])
+def test_malformed_payloads_raise_codec_error(payload):
+    with pytest.raises(codec.CodecError):
+        codec.decode(payload, "sensor_msgs/msg/JointState")
+
+
+def test_summarize_shortens_large_arrays():
+    js = codec.joint_state(0, ["a"] * 20, np.arange(100.0))
+    s = codec.summarize(js)
+    assert "100" in s["position"] and len(s["name"]) == 7

@@ -1,0 +1,89 @@
+"""The DART robot: the study's velocities, no tipping, kinematic mode, determinism, limits."""
+import math
+
+import numpy as np
+import pytest
+
+from plant import drive
+from plant.sim import Simulation
+from plant.world import DriveSpec, load_world
+
+
+def run(sim, wl, wr, seconds, robot="robot1"):
+    for _ in range(int(round(seconds / sim.spec.control_tick_s))):
+        sim.command_wheels(robot, wl, wr)
+        sim.step_tick()
+    return sim.state(robot)
+
+
+@pytest.mark.parametrize("mode", ["dynamic", "kinematic"])
+def test_drive_test_velocities(mode):
+    spec = load_world("empty")
+    spec.mode = mode
+    sim = Simulation(spec)
+    st = run(sim, 1, 1, 5)
+    assert st.v_body[0] == pytest.approx(0.120, rel=0.01)
+    st = run(sim, 1, -1, 5)
+    assert st.w_body[2] == pytest.approx(-0.12 / 0.18, rel=0.02)   # clockwise: negative yaw rate
+    assert abs(st.v_body[0]) < 1e-3
+
+
+def test_hard_braking_does_not_tip_the_robot():
+    sim = Simulation(load_world("empty"))
+    run(sim, 8, 8, 1.5)
+    worst = 0.0
+    for _ in range(50):
+        st = run(sim, 0, 0, 0.02)
+        up = st.tf[:3, 2]
+        worst = max(worst, math.degrees(math.acos(min(1.0, up[2]))))
+    assert worst < 5.0, f"chassis tilted {worst:.1f} deg"
+    assert st.xyz[2] == pytest.approx(0.12, abs=0.005)
+
+
+def test_same_commands_same_trajectory_bitwise():
+    def trajectory():
+        sim = Simulation(load_world("living_room"))
+        out = []
+        for k in range(150):
+            sim.command_twist("robot1", 0.3, 0.5 * math.sin(k / 20))
+            sim.step_tick()
+            out.append(sim.state("robot1").tf.copy())
+        return np.array(out)
+    assert np.array_equal(trajectory(), trajectory())
+
+
+def test_walls_stop_the_robot_in_kinematic_mode():
+    spec = load_world("living_room")
+    spec.mode = "kinematic"
+    sim = Simulation(spec)
+    st = run(sim, -4, -4, 12)              # backwards toward the bookshelf/back wall
+    assert st.xyz[0] > -3.0 + 0.15        # stayed inside the room
+    assert np.all(np.isfinite(st.tf))
+
+
+def test_time_counts_in_whole_steps():
+    sim = Simulation(load_world("empty"))
+    for _ in range(7):
+        sim.step_tick()
+    assert sim.time_ns == 7 * 20_000_000
+
+
+def test_inverse_and_forward_kinematics_agree():
+    wl, wr = drive.inverse(0.3, -0.7, 0.12, 0.36)
+    assert drive.forward(wl, wr, 0.12, 0.36) == pytest.approx((0.3, -0.7))
+    assert drive.inverse(0.12, 0.0, 0.12, 0.36) == pytest.approx((1.0, 1.0))
+
+
+def test_limiter_clamps_and_ramps():
+    spec = DriveSpec(max_linear_mps=0.5, max_linear_accel_mps2=1.0, max_wheel_speed_radps=100,
+                     max_wheel_accel_radps2=1000)
+    lim = drive.DriveLimiter(spec)
+    wl, wr = lim.from_twist(5.0, 0.0, 0.1)            # asks for 5 m/s
+    assert lim.v == pytest.approx(0.1)               # ramped by 1 m/s^2 over 0.1 s
+    for _ in range(20):
+        lim.from_twist(5.0, 0.0, 0.1)
+    assert lim.v == pytest.approx(0.5)               # clamped at the limit
+    spec2 = DriveSpec(max_wheel_speed_radps=2.0, max_wheel_accel_radps2=1e6)
+    lim2 = drive.DriveLimiter(spec2)
+    wl, wr = lim2.from_wheels(8.0, 4.0, 0.02)
+    assert (wl, wr) == pytest.approx((2.0, 1.0))     # scaled together: curvature kept

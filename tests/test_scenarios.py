@@ -1,0 +1,126 @@
+"""`diffbot run`: the study's drive test and square, determinism, supervision, Ctrl-C."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from .conftest import ROOT, wait_for
+
+pytestmark = pytest.mark.slow
+
+
+def diffbot_run(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "diffbot.cli", "run", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """PIDs of live processes whose command line contains ``text``."""
+    pids = []
+    for d in os.listdir("/proc"):
+        if not d.isdigit() or int(d) == os.getpid():
+            continue
+        try:
+            with open(f"/proc/{d}/cmdline", "rb") as f:
+                cmd = f.read().replace(b"\0", b" ").decode("utf-8", "replace")
+            with open(f"/proc/{d}/stat") as f:
+                state = f.read().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if text in cmd and state != "Z":
+            pids.append(int(d))
+    return pids
+
+
+def test_drive_test_matches_the_study(tmp_path):
+    r = diffbot_run("drive-test", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    s = json.load(open(tmp_path / "summary.json"))
+    m = s["metrics"]
+    assert m["steady_linear_velocity_mps"] == pytest.approx(0.120, rel=0.01)
+    assert abs(m["steady_angular_velocity_radps"]) == pytest.approx(0.667, rel=0.02)
+    assert (tmp_path / "velocity.png").stat().st_size > 10_000
+    header = (tmp_path / "velocity.csv").read_text().splitlines()[0]
+    assert header == "t_s,linear_velocity_mps,angular_velocity_radps"
+    assert s["exit_codes"] == {"plant": 0, "wheel_schedule_robot1": 0}
+
+
+def test_square_closes_and_is_byte_identical_across_runs(tmp_path):
+    outs = [tmp_path / "a", tmp_path / "b"]
+    for out in outs:
+        r = diffbot_run("square", "--seed", "7", "--out", str(out))
+        assert r.returncode == 0, r.stderr
+    a, b = ((o / "trajectory.csv").read_bytes() for o in outs)
+    assert len(a.splitlines()) > 1000
+    assert a == b
+    s = json.load(open(outs[0] / "summary.json"))
+    m = s["metrics"]["robot1"]
+    assert m["final_odom_error_m"] < 0.02
+    assert m["path_closure_m"] < 0.05                 # the square closes
+    assert m["path_length_m"] == pytest.approx(6.0, abs=0.1)
+    assert s["mode"] == "lockstep" and s["seed"] == 7 and s["real_time_factor"] > 1
+    assert s["message_counts"]["robot1/odom"] > 1000
+    assert (outs[0] / "odometry_vs_gps.png").stat().st_size > 10_000
+    assert all(code == 0 for code in s["exit_codes"].values()), s["exit_codes"]
+
+
+def test_required_process_death_ends_the_run_and_names_it(tmp_path):
+    scen = tmp_path / "broken.toml"
+    scen.write_text("""
+[scenario]
+world = "empty"
+mode = "lockstep"
+
+[[process]]
+name = "odometry_robot1"
+command = ["controller", "odometry", "--robot", "robot1"]
+
+[[process]]
+name = "bad_controller"
+command = ["controller", "wheel_schedule", "--schedule", "oops"]
+""")
+    r = diffbot_run(str(scen), "--out", str(tmp_path / "out"), timeout=60)
+    assert r.returncode == 1
+    assert "bad_controller failed with exit code 2" in r.stderr
+    assert "bad schedule item 'oops'" in r.stderr           # its last stderr lines
+    s = json.load(open(tmp_path / "out" / "summary.json"))
+    assert s["exit_codes"]["bad_controller"] == 2
+    assert not processes_mentioning(str(tmp_path))
+
+
+def test_bad_scenario_file_is_one_line_exit_2(tmp_path):
+    scen = tmp_path / "typo.toml"
+    scen.write_text('[scenario]\nworld = "empty"\nmdoe = "fast"\n')
+    r = diffbot_run(str(scen), "--out", str(tmp_path / "out"), timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [
+        f"diffbot run: {scen}:scenario.mdoe: unknown key (did you mean 'mode'?)"]
+
+
+def test_ctrl_c_stops_every_process_and_leaves_a_summary(tmp_path):
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "diffbot.cli", "run", "square", "--mode",
+                          "realtime", "--out", str(out)], cwd=ROOT, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        wait_for(lambda: len(processes_mentioning(str(out))) >= 4, 60, what="all processes up")
+        time.sleep(1.0)
+        p.send_signal(signal.SIGINT)
+        t0 = time.monotonic()
+        wait_for(lambda: not processes_mentioning(str(out)), 5, what="children to go")
+        assert time.monotonic() - t0 < 2.0 + 0.5      # children gone within 2 s
+        p.wait(30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130
+    s = json.load(open(out / "summary.json"))
+    assert s["end_reason"] == "interrupted (SIGINT)"
+    assert s["sim_time_s"] > 0.5
+    assert (out / "trajectory.csv").read_text().startswith("t_s,")

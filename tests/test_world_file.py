@@ -1,0 +1,95 @@
+"""World files: shipped ones load; every mistake is one line `file:key: reason`, exit 2."""
+import os
+import subprocess
+import sys
+
+import pytest
+
+from plant.world import WorldError, load_world
+
+from .conftest import ROOT
+
+GOOD = """
+[world]
+physics_step_s = 0.001
+control_tick_s = 0.02
+
+[[objects]]
+name = "ball"
+shape = "sphere"
+radius_m = 0.2
+pose = [1.0, 0.0]
+
+[[robots]]
+name = "robot1"
+pose = [0.0, 0.0, 0.0]
+"""
+
+
+def write(tmp_path, text):
+    p = tmp_path / "w.toml"
+    p.write_text(text)
+    return str(p)
+
+
+def test_shipped_worlds_load():
+    lr = load_world("living_room")
+    assert len(lr.objects) >= 15 and lr.wall_height_m > 0
+    assert {o.shape for o in lr.objects} == {"box", "cylinder", "sphere"}
+    assert lr.robots[0].drive.wheel_radius_m == 0.12
+    assert lr.robots[0].drive.wheel_separation_m == 0.36
+    empty = load_world("empty")
+    assert empty.objects == [] and empty.substeps == 20
+
+
+@pytest.mark.parametrize("edit,key,reason", [
+    (("physics_step_s = 0.001", "physics_stp_s = 0.001"), "world.physics_stp_s", "did you mean 'physics_step_s'"),
+    (("physics_step_s = 0.001", 'physics_step_s = "fast"'), "world.physics_step_s", "expected a number"),
+    (("physics_step_s = 0.001", "physics_step_s = 0"), "world.physics_step_s", "must be > 0"),
+    (("physics_step_s = 0.001", "physics_step_s = -0.001"), "world.physics_step_s", "must be > 0"),
+    (("control_tick_s = 0.02", "control_tick_s = 0.0205"), "world.control_tick_s", "whole multiple"),
+    (("radius_m = 0.2", "radius_m = -0.2"), "objects[0].radius_m", "must be > 0"),
+    (('shape = "sphere"', 'shape = "cone"'), "objects[0].shape", "must be one of"),
+    (("pose = [1.0, 0.0]", "pose = [1.0]"), "objects[0].pose", "list of"),
+    (('name = "robot1"', 'name = "robot/1"'), "robots[0].name", "invalid robot name"),
+    (('name = "robot1"', 'name = "*"'), "robots[0].name", "invalid robot name"),
+    (("pose = [0.0, 0.0, 0.0]", 'pose = [0.0, 0.0, 0.0]\ncolour = [1, 0, 0]'), "robots[0].colour", "unknown key"),
+])
+def test_mistakes_name_file_and_key(tmp_path, edit, key, reason):
+    path = write(tmp_path, GOOD.replace(*edit, 1))
+    with pytest.raises(WorldError) as e:
+        load_world(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}:{key}: "), msg
+    assert reason in msg
+    assert "\n" not in msg
+
+
+def test_overlapping_robots_are_refused(tmp_path):
+    path = write(tmp_path, GOOD + '\n[[robots]]\nname = "robot2"\npose = [0.2, 0.1, 0.0]\n')
+    with pytest.raises(WorldError, match="overlap"):
+        load_world(path)
+
+
+def test_missing_file_and_bad_toml(tmp_path):
+    with pytest.raises(WorldError, match="no such world"):
+        load_world(str(tmp_path / "nope.toml"))
+    with pytest.raises(WorldError, match="not valid TOML"):
+        load_world(write(tmp_path, "[world\n"))
+
+
+def test_plant_exits_2_with_one_line_and_no_traceback(tmp_path):
+    path = write(tmp_path, GOOD.replace("control_tick_s = 0.02", "control_tick_s = 'x'"))
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "plant", "--world", path],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert f"{path}:world.control_tick_s: expected a number" in lines[0]
+    assert "Traceback" not in r.stderr
+
+
+def test_run_with_unknown_scenario_exits_2(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "no-such-scenario",
+                        "--out", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "no such scenario" in r.stderr and "Traceback" not in r.stderr
