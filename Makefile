@@ -1,17 +1,23 @@
 # The two commands of the README: `make demo` and `make test` (each sets up first).
-PYTHON ?= python3
-VENV   := .venv
-BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed
+PYTHON  ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+FMUS    := fmus/build/.built
+FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
 
 .PHONY: setup demo test test-fast bench clean
 
-setup: $(STAMP)
+setup: $(STAMP) $(FMUS)
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
+
+$(FMUS): $(STAMP) $(FMU_SRC)
+	$(BIN)/diffbot fmu build
+	@touch $(FMUS)
 
 demo: setup
 	$(BIN)/diffbot run square --out out/demo
@@ -26,4 +32,4 @@ bench: setup
 	$(BIN)/diffbot bench
 
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out fmus/build .pytest_cache

@@ -3,6 +3,7 @@
     diffbot run SCENARIO ...        start a scenario's processes together and supervise them
     diffbot plant ...               the DART plant alone
     diffbot controller NAME ...     one controller (square_path, teleop, odometry, wheel_schedule)
+    diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
     diffbot bench ...               benchmarks
     diffbot scenarios               list the scenarios
 """
@@ -45,6 +46,12 @@ def main(argv: list[str] | None = None) -> int:
         for name, desc in list_scenarios():
             print(f"{name:14s} {desc}")
         return 0
+    if cmd == "fmu":
+        if rest[:1] == ["build"]:
+            from fmus.build import main as build_main
+            return build_main(rest[1:])
+        print("usage: diffbot fmu build [--out DIR]", file=sys.stderr)
+        return 2
     if cmd == "bench":
         from .bench import main as bench_main
         return bench_main(rest)
