@@ -39,27 +39,30 @@ class SquareAnalysis:
     @staticmethod
     def keys(keys: Keys, spec, world) -> dict[str, str]:
         r = spec.robot
-        return {keys.topic(r, t): TOPICS[t].msgtype for t in ("odom", "gps", "cmd_vel")}
+        return {keys.topic(r, t): TOPICS[t].msgtype
+                for t in ("odom", "gps", "cmd_vel", "joint_states")}
 
     @staticmethod
     def analyse(observer, keys, spec, world, out) -> dict:
         r = spec.robot
         odom = {_stamp(m): m for m in observer.messages(keys.topic(r, "odom"))}
         gps = {_stamp(m): m for m in observer.messages(keys.topic(r, "gps"))}
+        enc = {_stamp(m): m.position for m in observer.messages(keys.topic(r, "joint_states"))}
         cmds = observer.messages(keys.topic(r, "cmd_vel"))
         # The path ends where the controller stopped the robot: its last command.
         t_end = _stamp(cmds[-1]) if cmds else max(odom, default=0)
         rows = []
-        for t in sorted(set(odom) & set(gps)):
+        for t in sorted(set(odom) & set(gps) & set(enc)):
             if t > t_end:
                 break
-            o, g = odom[t].pose.pose, gps[t].point
+            o, g, e = odom[t].pose.pose, gps[t].point, enc[t]
             rows.append((t * 1e-9, o.position.x, o.position.y,
-                         codec.quaternion_to_yaw(o.orientation), g.x, g.y))
+                         codec.quaternion_to_yaw(o.orientation), g.x, g.y, e[0], e[1]))
         path = os.path.join(out, "trajectory.csv")
         with open(path, "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["t_s", "odom_x_m", "odom_y_m", "odom_theta_rad", "gps_x_m", "gps_y_m"])
+            w.writerow(["t_s", "odom_x_m", "odom_y_m", "odom_theta_rad", "gps_x_m", "gps_y_m",
+                        "enc_left_rad", "enc_right_rad"])
             for row in rows:
                 w.writerow([_fmt(v) for v in row])
         if not rows:
