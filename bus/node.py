@@ -107,7 +107,7 @@ class NodeRunner:
         self.rejects = RejectCounter(log)
         self.stop_event = threading.Event()
         self.exit_code = 0
-        self.published = 0
+        self.published: dict[str, int] = {}
         self.ticks = 0
         self._seq = 0
         self.info = query_info(session, keys, wait_for_plant_s)
@@ -130,8 +130,9 @@ class NodeRunner:
         self._seq += 1
         self._tick_keys.append(key)
         self.session.put(key, codec.encode(msg), encoding=zenoh.Encoding.APPLICATION_CDR,
+                         congestion_control=zenoh.CongestionControl.BLOCK,
                          attachment=codec.attachment(self._seq, t_ns))
-        self.published += 1
+        self.published[key] = self.published.get(key, 0) + 1
 
     def publish(self, out, t_ns: int) -> None:
         if out is None:

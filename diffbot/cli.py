@@ -4,6 +4,7 @@
     diffbot plant ...               the DART plant alone
     diffbot controller NAME ...     one controller (square_path, teleop, odometry, wheel_schedule)
     diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
+    diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
     diffbot bench ...               benchmarks
     diffbot scenarios               list the scenarios
 """
@@ -52,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
             return build_main(rest[1:])
         print("usage: diffbot fmu build [--out DIR]", file=sys.stderr)
         return 2
+    if cmd == "fmu-node":
+        from fmus.node import main as fmu_node_main
+        return fmu_node_main(rest)
     if cmd == "bench":
         from .bench import main as bench_main
         return bench_main(rest)

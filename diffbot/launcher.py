@@ -254,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"diffbot run: {run.reason or run.failed.name + ' failed'}\n"
               f"--- last lines of {run.failed.name}'s log ({run.failed.log_path}):\n"
               f"{run.failed.tail()}", file=sys.stderr)
-    summary = summarize(run, observer, wall, code)
+    summary = summarize(run, wall, code)
     if observer is not None:
         try:
             summary["metrics"] = analysis.analyse(observer, keys, spec, world, out)
@@ -267,8 +267,14 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
-def summarize(run: Run, observer, wall: float, code: int) -> dict:
-    plant = _read_json(os.path.join(run.out, "logs", "plant.json"))
+def summarize(run: Run, wall: float, code: int) -> dict:
+    stats = {c.name: _read_json(os.path.join(run.out, "logs", f"{c.name}.json"))
+             for c in run.children}
+    plant = stats["plant"]
+    counts: dict[str, int] = {}
+    for st in stats.values():            # every process counts what it published
+        for key, n in st.get("published", {}).items():
+            counts[key] = counts.get(key, 0) + n
     return {
         "scenario": run.spec.name, "world": run.spec.world, "mode": run.mode, "seed": run.seed,
         "sim_time_s": plant.get("sim_time_s"), "wall_time_s": wall,
@@ -276,9 +282,8 @@ def summarize(run: Run, observer, wall: float, code: int) -> dict:
         "real_time_factor": plant.get("real_time_factor"),
         "end_reason": run.reason, "exit_code": code,
         "exit_codes": {c.name: c.exit_code for c in run.children},
-        "message_counts": dict(sorted(observer.counts.items())) if observer else {},
-        "rejected": {c.name: _read_json(os.path.join(run.out, "logs", f"{c.name}.json")).get(
-            "rejected", {}) for c in run.children},
+        "message_counts": dict(sorted(counts.items())),
+        "rejected": {name: st.get("rejected", {}) for name, st in stats.items()},
     }
 
 

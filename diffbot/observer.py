@@ -1,11 +1,12 @@
-"""A passive bus listener for the launcher: counts every key and keeps what the analysis needs.
+"""A passive bus listener for the launcher: keeps the messages the analysis needs.
 
-It never takes part in lockstep; it only listens (the plant delivers reliably).
+It never takes part in lockstep; it only listens to the keys it keeps, so the plant
+does not build messages nobody else reads. Message counts come from each
+process's own stats.
 """
 from __future__ import annotations
 
 import threading
-from collections import Counter
 
 import zenoh
 
@@ -17,16 +18,14 @@ class Observer:
     def __init__(self, session: zenoh.Session, keys: Keys, keep: dict[str, str]) -> None:
         """``keep`` maps concrete keys to message types whose decoded messages are stored."""
         self.keys = keys
-        self.counts: Counter[str] = Counter()
         self.keep = keep
         self.samples: dict[str, list[tuple[int, bytes]]] = {k: [] for k in keep}
         self.lock = threading.Lock()
-        self._sub = session.declare_subscriber(keys.all, self._on_sample)
+        self._subs = [session.declare_subscriber(k, self._on_sample) for k in keep]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         with self.lock:
-            self.counts[key] += 1
             if key in self.samples:
                 att = codec.parse_attachment(sample.attachment.to_bytes()
                                              if sample.attachment is not None else None)
@@ -46,7 +45,8 @@ class Observer:
         return out
 
     def close(self) -> None:
-        try:
-            self._sub.undeclare()
-        except Exception:
-            pass
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception:
+                pass

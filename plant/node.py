@@ -33,7 +33,7 @@ from bus.log import RejectCounter, setup_logging
 from bus.node import decode_ack, write_json
 from bus.session import BusConfigError, add_bus_args, open_session
 
-from .sim import RobotState, Simulation
+from .sim import Simulation
 from .world import WorldError, WorldSpec, load_world
 
 MODES = ("lockstep", "realtime", "fast")
@@ -82,6 +82,9 @@ class Plant:
         self.wall_end = 0.0
         self._seq = 0
         self._pubs: dict[str, zenoh.Publisher] = {}
+        # In lockstep nothing may be lost: block rather than drop when a queue is full.
+        self.congestion = (zenoh.CongestionControl.BLOCK if mode == "lockstep"
+                           else zenoh.CongestionControl.DROP)
         self.inbox = Inbox(session)
         self._robot_of_cmd: dict[str, tuple[str, str]] = {}
         for name in self.sim.robots:
@@ -144,27 +147,35 @@ class Plant:
         query.reply(self.keys.reset, json.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
 
     # ------------------------------------------------------------------ publishing
-    def _put(self, key: str, msg, t_ns: int) -> None:
+    def _publisher(self, key: str) -> zenoh.Publisher:
         pub = self._pubs.get(key)
         if pub is None:
             pub = self._pubs[key] = self.session.declare_publisher(
-                key, encoding=zenoh.Encoding.APPLICATION_CDR)
+                key, encoding=zenoh.Encoding.APPLICATION_CDR,
+                congestion_control=self.congestion)
+        return pub
+
+    def _put(self, key: str, msg, t_ns: int) -> None:
         self._seq += 1
-        pub.put(codec.encode(msg), attachment=codec.attachment(self._seq, t_ns))
+        self._publisher(key).put(codec.encode(msg), attachment=codec.attachment(self._seq, t_ns))
         self.published[key] = self.published.get(key, 0) + 1
 
     def publish_tick(self) -> None:
         t = self.sim.time_ns
         for name in self.sim.robots:
-            self.publish_robot(name, self.sim.state(name), t)
+            self.publish_robot(name, t)
         self._put(self.keys.clock, codec.clock(t), t)
 
-    def publish_robot(self, name: str, st: RobotState, t: int) -> None:
+    def publish_robot(self, name: str, t: int) -> None:
+        # Everything is published every tick: Zenoh's matching status can report "no
+        # subscriber" through a router while there is one, and a lockstep node would
+        # then wait forever for a skipped message.
         k = self.keys
+        st = self.sim.state(name)
+        x, y, z = st.xyz
         self._put(k.topic(name, "joint_states"),
                   codec.joint_state(t, ("left_wheel_joint", "right_wheel_joint"),
                                     st.enc_pos, st.enc_vel), t)
-        x, y, z = st.xyz
         self._put(k.topic(name, "gps"), codec.point_stamped(t, x, y, z), t)
         self._put(k.topic(name, "ground_truth"),
                   codec.odometry(t, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id="world",

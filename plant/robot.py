@@ -164,22 +164,30 @@ class Robot:
                 rot.T @ np.asarray(self.chassis.getAngularVelocity()))
 
 
-def static_object(obj: ObjectSpec, world: WorldSpec) -> "D.Skeleton":
+def room_skeleton(objects: list[ObjectSpec], world: WorldSpec) -> "D.Skeleton":
+    """Every static object as a shape of ONE welded body: a skeleton does not collide with
+    itself, so the furniture resting on the floor costs no contact checks."""
+    sk = D.Skeleton("room")
+    _, body = sk.createWeldJointAndBodyNodePair()
+    body.setName("room")
+    for obj in objects:
+        x, y, z, yaw = obj.pose
+        add_shape(body, dart_shape(obj.shape, obj.size), pose_matrix(x, y, z, yaw=yaw),
+                  obj.color, world.materials[obj.material].friction, name=obj.name)
+    sk.setMobile(False)
+    return sk
+
+
+def movable_object(obj: ObjectSpec, world: WorldSpec) -> "D.Skeleton":
+    """A free body (``static = false`` in the world file)."""
     sk = D.Skeleton(obj.name)
-    if obj.static:
-        _, body = sk.createWeldJointAndBodyNodePair()
-    else:
-        joint, body = sk.createFreeJointAndBodyNodePair()
+    joint, body = sk.createFreeJointAndBodyNodePair()
     x, y, z, yaw = obj.pose
     shape = dart_shape(obj.shape, obj.size)
     add_shape(body, shape, None, obj.color, world.materials[obj.material].friction, name=obj.name)
     body.setInertia(inertia(obj.mass_kg, shape))
-    if obj.static:
-        sk.getRootJoint().setTransformFromParentBodyNode(isometry(pose_matrix(x, y, z, yaw=yaw)))
-        sk.setMobile(False)
-    else:
-        q = np.zeros(6)
-        q[2] = yaw
-        q[3:] = (x, y, z)
-        joint.setPositions(q)
+    q = np.zeros(6)
+    q[2] = yaw
+    q[3:] = (x, y, z)
+    joint.setPositions(q)
     return sk

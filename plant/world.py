@@ -81,6 +81,7 @@ class WorldSpec:
     physics_step_s: float = 0.001
     control_tick_s: float = 0.02
     gravity_mps2: float = 9.81
+    collision_detector: str = "bullet"      # bullet | fcl | dart | ode
     seed: int = 0
     floor_size_m: tuple[float, float] = (10.0, 10.0)
     floor_color: tuple[float, float, float] = (0.78, 0.72, 0.62)
@@ -262,6 +263,8 @@ def parse_world(data: dict, path: str) -> WorldSpec:
         w.fail("physics_step_s", f"{spec.physics_step_s:g} s is too coarse for contact "
                                  "(use at most 0.01 s)")
     spec.gravity_mps2 = w.number("gravity_mps2", 9.81, nonneg=True)
+    spec.collision_detector = w.string("collision_detector", "bullet",
+                                       choices=("bullet", "fcl", "dart", "ode"))
     spec.seed = w.integer("seed", 0)
     w.done()
 

@@ -175,3 +175,42 @@ def _try(f):
         return f()
     except AssertionError:
         return None
+
+
+def test_user_zenoh_config_passes_through_a_router(procs, tmp_path):
+    """Plant and controller as clients of a separate router, configured by the user's file."""
+    import tempfile
+    d = tempfile.mkdtemp(prefix="dbr-")
+    ep = f"unixsock-stream/{d}/router.sock"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", json.dumps([ep]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    router = zenoh.open(conf)
+    try:
+        client = tmp_path / "client.json5"
+        client.write_text('{ mode: "client", connect: { endpoints: ["%s"] },\n'
+                          '  listen: { endpoints: [] },\n'
+                          '  scouting: { multicast: { enabled: false }, gossip: { enabled: false } } }\n'
+                          % ep)
+        p = procs.diffbot("plant", "--world", "empty", "--zenoh-config", str(client),
+                          "--duration", "3", "--stats", str(tmp_path / "plant.json"), name="plant")
+        c = procs.diffbot("controller", "wheel_schedule", "--schedule", "100:2,2",
+                          "--zenoh-config", str(client), name="ctrl")
+        assert p.wait(60) == 0, procs.log(p)
+        stats = json.load(open(tmp_path / "plant.json"))
+        assert stats["sim_time_s"] == pytest.approx(3.0)
+        assert stats["members_seen"] == ["wheel_schedule_robot1"]
+        c.wait(10)
+        assert "the plant is gone" in procs.log(c)
+    finally:
+        router.close()
+
+
+def test_bad_zenoh_config_file_is_exit_2(procs, tmp_path):
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ mode: ")
+    p = procs.diffbot("plant", "--zenoh-config", str(bad), name="plant")
+    assert p.wait(30) == 2
+    log = procs.log(p)
+    assert "bad.json5" in log and "Traceback" not in log
