@@ -133,7 +133,7 @@ def test_intrinsics_convention():
 
 
 @pytest.mark.parametrize("dist", [0.5, 1.0, 2.0, 3.0])
-@pytest.mark.parametrize("az,el", [(0.0, 0.0), (0.3, 0.12), (-0.35, -0.2), (0.15, -0.25)])
+@pytest.mark.parametrize("az,el", [(0.0, 0.0), (0.25, 0.12), (-0.25, -0.1), (0.1, -0.15)])
 def test_sphere_where_the_pinhole_model_says(dist, az, el):
     cfg = CameraConfig(width=640, height=480, hfov_rad=1.0)
     k, _ = intrinsics(cfg)
@@ -184,8 +184,8 @@ def test_distorted_render_agrees_with_projectpoints(size):
     k, d = intrinsics(cfg)
     rng = np.random.default_rng(3)
     centres_body, shapes = [], []
-    for az in np.linspace(-0.55, 0.55, 5):             # out to the image corners
-        for el in np.linspace(-0.4, 0.4, 4):
+    for az in np.linspace(-0.5, 0.5, 5):               # out to the image corners
+        for el in np.linspace(-0.36, 0.36, 4):
             dist = rng.uniform(1.0, 2.5)
             cb = dist * body_dir(az, el)
             centres_body.append(cb)
@@ -197,15 +197,39 @@ def test_distorted_render_agrees_with_projectpoints(size):
     proj = proj.reshape(-1, 2)
     checked = 0
     for i, p in enumerate(proj):
-        if not (2 <= p[0] <= w - 3 and 2 <= p[1] <= h - 3):
+        r_px = k[0, 0] * shapes[i].size[0] / np.linalg.norm(centres_body[i]) * 1.5 + 2
+        if not (r_px <= p[0] <= w - 1 - r_px and r_px <= p[1] <= h - 1 - r_px):
             continue                                      # partly outside the image
         got, _, _ = blob(sid, i)
         assert np.linalg.norm(got - p) < 1.0, (i, got, p)
         checked += 1
-    assert checked >= 12
+    assert checked >= (12 if w >= 320 else 6)
     # distortion visibly moves things: without it the corner spheres land elsewhere
     plain, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), k, np.zeros(5))
     assert np.max(np.linalg.norm(plain.reshape(-1, 2) - proj, axis=1)) > 3.0
+
+
+@pytest.mark.parametrize("eye,target", [((-2.5, -2.0, 2.2), (0.3, 0.0, 0.3)),
+                                        ((2.5, 2.0, 0.3), (-1.0, -0.5, 0.5)),
+                                        ((0.0, 0.0, 4.0), (0.1, 0.0, 0.0))])
+def test_camera_kernels_agree_with_the_general_caster(eye, target):
+    # the camera's float32 per-shape kernels vs plant.raycast (float64, all shapes)
+    from plant.camera import _T_BODY_OPTICAL, _grid_for
+    from plant.raycast import cast_rays
+    cfg = CameraConfig(width=200, height=150, k1=-0.2, k2=0.05)
+    world = living_room()
+    pose = look_at(eye, target)
+    _, depth, sid = render_full(cfg, pose, world)
+    t_wo = pose @ _T_BODY_OPTICAL
+    rays = _grid_for(cfg).dirs.reshape(-1, 3) @ t_wo[:3, :3].T   # optical z = 1: t = depth
+    t, idx, _ = cast_rays(t_wo[:3, 3], rays, world, max_range=cfg.far_m, min_range=cfg.near_m)
+    same = idx == sid.ravel()
+    assert same.mean() > 0.995                      # only silhouette pixels may differ
+    fin = same & np.isfinite(t)
+    rel = np.abs(depth.ravel()[fin] - t[fin]) / t[fin]
+    # float32 vs float64: ~1e-7 on faces; near-tangent rays on thin round parts are
+    # ill-conditioned (up to ~2e-4, i.e. 1 mm at 5 m on the edge of a table leg)
+    assert np.mean(rel < 1e-5) > 0.99 and rel.max() < 1e-3
 
 
 def test_orientation_left_is_left_up_is_up():
@@ -254,7 +278,7 @@ def test_background_depth_and_near_far():
     cam = np.eye(4)
     near_ball = Shape("sphere", (0.1,), pose_matrix(0.3, 0, 0), (1, 0, 0))   # before near
     far_ball = Shape("sphere", (0.1,), pose_matrix(5.0, 0.3, 0), (1, 0, 0))  # beyond far
-    mid = Shape("box", (0.2, 0.2, 0.2), pose_matrix(2.0, -0.4, 0), (0, 0, 1))
+    mid = Shape("box", (0.2, 0.2, 0.2), pose_matrix(2.0, 0, 0), (0, 0, 1))  # behind near_ball
     img, depth, sid = render_full(cfg, cam, [near_ball, far_ball, mid], background=(0, 0, 0))
     assert set(np.unique(sid)) == {-1, 2}
     assert np.all(img[sid == -1] == 0) and np.all(np.isinf(depth[sid == -1]))
@@ -271,6 +295,29 @@ def test_third_person_and_living_room():
     # the lidar sees the room too (sanity, same shapes)
     r = scan(LidarConfig(), pose_matrix(-0.4, -0.3, 0, yaw=0.3), world, exclude_owner="follower")
     assert np.all(np.isfinite(r)) and r.min() > 0.05
+
+
+def test_no_preimage_pixels_show_background():
+    # strong barrel distortion folds over before the image corners: those pixels have
+    # no ray; they must show the background, the rest renders normally
+    from plant.camera import _grid_for
+    cfg = CameraConfig(k1=-0.5)
+    grid = _grid_for(cfg)
+    assert 0.5 < grid.valid.mean() < 1.0
+    floor = Shape("box", (20, 20, 0.1), pose_matrix(0, 0, -0.05))
+    img, _, sid = render_full(cfg, pose_matrix(0, 0, 0.5), [floor], background=(0, 0, 0))
+    assert np.all(sid[~grid.valid] == -1) and np.all(img[~grid.valid] == 0)
+    assert np.any(sid[grid.valid] == 0)
+
+
+def test_scene_and_list_render_the_same():
+    from plant.raycast import Scene
+    cfg = CameraConfig()
+    world = living_room()
+    cam = camera_pose(cfg, pose_matrix(-0.4, -0.3, 0, yaw=0.3))
+    a = render(cfg, cam, world, "follower")
+    b = render(cfg, cam, Scene(world), "follower")
+    assert np.array_equal(a, b)
 
 
 def test_config_validation():

@@ -23,15 +23,17 @@ SCAN_Z = 0.25  # lidar height for a robot standing at z = 0 with the default mou
 def _room() -> list[Shape]:
     t, hgt = 0.2, 1.0
     s = [Shape("box", (20.0, 20.0, 0.1), pose_matrix(0, 0, -0.05), name="floor")]
-    s.append(Shape("box", (t, 6.0 + 2 * t, hgt), pose_matrix(4 + t / 2, 0, hgt / 2), name="wall_e"))
-    s.append(Shape("box", (t, 6.0 + 2 * t, hgt), pose_matrix(-4 - t / 2, 0, hgt / 2), name="wall_w"))
+    ew = (t, 6.0 + 2 * t, hgt)
+    s.append(Shape("box", ew, pose_matrix(4 + t / 2, 0, hgt / 2), name="wall_e"))
+    s.append(Shape("box", ew, pose_matrix(-4 - t / 2, 0, hgt / 2), name="wall_w"))
     s.append(Shape("box", (8.0, t, hgt), pose_matrix(0, -3 - t / 2, hgt / 2), name="wall_s"))
     # north wall with an opening from x = -1 to x = 2
     s.append(Shape("box", (3.0, t, hgt), pose_matrix(-2.5, 3 + t / 2, hgt / 2), name="wall_n1"))
     s.append(Shape("box", (2.0, t, hgt), pose_matrix(3.0, 3 + t / 2, hgt / 2), name="wall_n2"))
     s.append(Shape("box", (0.6, 0.4, 0.5), pose_matrix(2.0, -1.2, 0.25, yaw=0.4),
                    (0.2, 0.2, 0.9), name="box"))
-    s.append(Shape("cylinder", (0.25, 0.8), pose_matrix(2.5, 1.0, 0.4), (0.9, 0.1, 0.1), name="cyl"))
+    s.append(Shape("cylinder", (0.25, 0.8), pose_matrix(2.5, 1.0, 0.4), (0.9, 0.1, 0.1),
+                   name="cyl"))
     s.append(Shape("sphere", (0.35,), pose_matrix(-1.5, -1.0, 0.3), (0.1, 0.9, 0.1), name="ball"))
     # another robot: seen by ours
     s.append(Shape("box", (0.4, 0.3, 0.4), pose_matrix(-2.0, 1.5, 0.2, yaw=-0.7), name="body",
@@ -143,6 +145,23 @@ def test_scan_matches_analytic_distances(robot_xyyaw):
     fin = np.isfinite(expected)
     assert fin.sum() > 100
     assert np.max(np.abs(ranges[fin] - expected[fin])) < 1e-6
+
+
+def test_culling_does_not_change_the_scan():
+    # scan() culls shapes off the scan plane / out of the fan before casting; with the
+    # robot tilted and turned, the result equals casting every ray at every shape
+    rng = np.random.default_rng(11)
+    world = _room()
+    cfg = LidarConfig(fov_rad=4.0, num_rays=90)
+    for _ in range(10):
+        robot = pose_matrix(*rng.uniform(-2, 2, 2), rng.uniform(0, 0.3),
+                            *rng.uniform(-0.3, 0.3, 2), rng.uniform(-math.pi, math.pi))
+        pose = sensor_pose(cfg, robot)
+        a = np.linspace(-2.0, 2.0, 90)
+        dirs = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1) @ pose[:3, :3].T
+        want, _, _ = cast_rays(pose[:3, 3], dirs, world, max_range=cfg.max_range_m)
+        want[want < cfg.min_range_m] = np.inf
+        assert np.array_equal(scan(cfg, robot, world), want)
 
 
 def test_rays_through_the_opening_hit_nothing():

@@ -1,0 +1,615 @@
+"""Pinhole RGB camera rendered by ray casting (pure numpy; OpenCV only for distortion).
+
+Frames
+------
+* The camera *body* frame follows the robot convention: x forward (viewing
+  direction), y left, z up. ``camera_pose`` arguments are body-frame poses
+  (4x4, camera->world); the mount pose on the robot is in the same convention.
+* Internally rays live in the *optical* frame (OpenCV / ROS ``*_optical_frame``):
+  z forward, x right, y down. ``x_body = z_opt``, ``y_body = -x_opt``,
+  ``z_body = -y_opt`` (:data:`R_BODY_OPTICAL` maps optical to body coordinates).
+  A 3-D point ``P_opt`` given to ``cv2.projectPoints(P_opt, rvec=0, tvec=0, K, D)``
+  lands on the pixel where :func:`render` draws it.
+
+Intrinsics (:func:`intrinsics`)
+-------------------------------
+``fx = fy = (width/2) / tan(hfov/2)``, ``cx = (width-1)/2``, ``cy = (height-1)/2``:
+pixel centres are at integer coordinates (OpenCV convention), pixel ``(u, v)`` covers
+``[u-0.5, u+0.5]``, so ``hfov`` spans the image from its left edge to its right edge
+(Webots' definition); square pixels, vertical fov ``2 atan((height/2)/fy)``.
+``D = (k1, k2, p1, p2, k3)`` is OpenCV's plumb-bob model. With distortion, the ray of
+output pixel ``(u, v)`` is the undistorted normalised point that ``cv2.projectPoints``
+maps to ``(u, v)`` (``cv2.undistortPoints`` polished by Newton steps to ~1e-12),
+cached per configuration. Pixels with no preimage (strong distortion beyond its fold)
+show the background.
+
+Rendering
+---------
+Rays start at the camera; a hit counts only if the ray *enters* the solid at a depth
+in ``[near_m, far_m)`` (as in :mod:`plant.raycast`, back faces are ignored: a camera
+inside its own robot's body does not see the body; ``exclude_owner`` skips a robot's
+parts altogether). Each shape's bounding box is clipped to the near plane and
+projected to a rectangle of normalised image coordinates; only the rays of pixels
+inside that rectangle are intersected with it (z-buffer on depth). Colour =
+``shape.color * (AMBIENT + DIFFUSE * max(0, n . LIGHT_DIR))`` (n . L quantised to
+1/255); pixels where nothing is hit get ``background`` (RGB 0..1). Output: uint8
+(H, W, 3) rgb8. Pass a :class:`plant.raycast.Scene` built once per tick to share the
+stacking work with the lidar.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Sequence
+
+import numpy as np
+
+try:                                   # only for distortion and a fast RGBA->RGB copy
+    import cv2
+except ImportError:                    # pragma: no cover
+    cv2 = None
+
+from plant.raycast import Scene, quadratic_roots, shape_params
+from plant.shapes import Shape, pose_matrix
+
+__all__ = [
+    "CameraConfig",
+    "intrinsics",
+    "camera_info",
+    "camera_pose",
+    "look_at",
+    "render",
+    "render_full",
+    "third_person",
+    "R_BODY_OPTICAL",
+    "LIGHT_DIR",
+    "AMBIENT",
+    "DIFFUSE",
+    "DEFAULT_BACKGROUND",
+]
+
+#: optical -> body rotation (columns: optical x, y, z axes expressed in the body frame)
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0],
+                           [-1.0, 0.0, 0.0],
+                           [0.0, -1.0, 0.0]])
+_T_BODY_OPTICAL = np.eye(4)
+_T_BODY_OPTICAL[:3, :3] = R_BODY_OPTICAL
+
+#: world-frame unit vector towards the light (mostly overhead, a little towards -x, +y)
+LIGHT_DIR = np.array([-0.4, 0.3, 1.0]) / np.linalg.norm([-0.4, 0.3, 1.0])
+AMBIENT = 0.4
+DIFFUSE = 0.6
+DEFAULT_BACKGROUND = (0.70, 0.82, 0.95)
+
+_TILE = 8
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Pinhole camera. SI units (m, rad, Hz); distortion in OpenCV's convention."""
+
+    width: int = 160
+    height: int = 120
+    hfov_rad: float = 1.0              # ~57.3 deg, edge to edge
+    rate_hz: float = 30.0
+    near_m: float = 0.01
+    far_m: float = 100.0
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+    mount_x_m: float = 0.18
+    mount_y_m: float = 0.0
+    mount_z_m: float = 0.30
+    mount_roll_rad: float = 0.0
+    mount_pitch_rad: float = 0.0
+    mount_yaw_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        for key in ("width", "height"):
+            v = getattr(self, key)
+            if int(v) != v or v < 1:
+                raise ValueError(f"camera {key} must be a positive integer, got {v!r}")
+        checks = {
+            "hfov_rad": 0.0 < self.hfov_rad < math.pi,
+            "rate_hz": self.rate_hz > 0.0,
+            "near_m": 0.0 < self.near_m < self.far_m,
+            "far_m": self.far_m > 0.0,
+        }
+        for key, ok in checks.items():
+            if not ok:
+                raise ValueError(f"camera {key} out of range: {getattr(self, key)!r}")
+        for key in ("k1", "k2", "p1", "p2", "k3", "mount_x_m", "mount_y_m", "mount_z_m",
+                    "mount_roll_rad", "mount_pitch_rad", "mount_yaw_rad"):
+            if not math.isfinite(getattr(self, key)):
+                raise ValueError(f"camera {key} must be finite, got {getattr(self, key)!r}")
+
+    @property
+    def distortion(self) -> tuple[float, float, float, float, float]:
+        return (self.k1, self.k2, self.p1, self.p2, self.k3)
+
+    def mount_pose(self) -> np.ndarray:
+        """4x4 camera-body -> robot-base transform."""
+        return pose_matrix(self.mount_x_m, self.mount_y_m, self.mount_z_m,
+                           self.mount_roll_rad, self.mount_pitch_rad, self.mount_yaw_rad)
+
+
+def intrinsics(config: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(K 3x3, D (5,))`` for OpenCV: fx = fy = (w/2)/tan(hfov/2), c = ((w-1)/2, (h-1)/2)."""
+    f = 0.5 * config.width / math.tan(0.5 * config.hfov_rad)
+    k = np.array([[f, 0.0, 0.5 * (config.width - 1)],
+                  [0.0, f, 0.5 * (config.height - 1)],
+                  [0.0, 0.0, 1.0]])
+    return k, np.array(config.distortion, dtype=float)
+
+
+def camera_info(config: CameraConfig) -> dict:
+    """Fields of a ROS ``sensor_msgs/CameraInfo`` (plumb_bob; P = [K | 0])."""
+    k, d = intrinsics(config)
+    p = np.zeros((3, 4))
+    p[:, :3] = k
+    return {
+        "width": config.width, "height": config.height,
+        "distortion_model": "plumb_bob", "d": d.tolist(),
+        "k": k.ravel().tolist(), "r": np.eye(3).ravel().tolist(), "p": p.ravel().tolist(),
+    }
+
+
+def camera_pose(config: CameraConfig, robot_pose: np.ndarray) -> np.ndarray:
+    """World pose (4x4, body convention) of the camera for a robot-base world pose."""
+    return np.asarray(robot_pose, dtype=float) @ config.mount_pose()
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Camera body pose (x forward, y left, z up) at ``eye`` looking at ``target``."""
+    eye = np.asarray(eye, dtype=float)
+    fwd = np.asarray(target, dtype=float) - eye
+    nf = np.linalg.norm(fwd)
+    if nf == 0:
+        raise ValueError("look_at: eye and target coincide")
+    fwd /= nf
+    up = np.asarray(up, dtype=float)
+    left = np.cross(up, fwd)
+    if np.linalg.norm(left) < 1e-9:              # looking along `up`: pick another up
+        left = np.cross(np.array([1.0, 0.0, 0.0]) if abs(fwd[0]) < 0.9
+                        else np.array([0.0, 1.0, 0.0]), fwd)
+    left /= np.linalg.norm(left)
+    upv = np.cross(fwd, left)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = fwd, left, upv, eye
+    return m
+
+
+# ----------------------------------------------------------------------------------
+# Ray grid (cached per image geometry)
+# ----------------------------------------------------------------------------------
+
+def _distort(x, y, d):
+    k1, k2, p1, p2, k3 = d
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return xd, yd
+
+
+def _undistort(xd, yd, d, k):
+    """Normalised undistorted coords whose distortion gives (xd, yd); nan if none.
+
+    OpenCV's iterative ``undistortPoints`` gives the start, Newton steps with the
+    analytic Jacobian polish it to < 1e-12 (normalised units)."""
+    x, y = xd.copy(), yd.copy()
+    if cv2 is not None:
+        pts = (np.stack([xd * k[0, 0] + k[0, 2], yd * k[1, 1] + k[1, 2]], -1)
+               .reshape(-1, 1, 2).astype(np.float64))
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-14)
+        und = cv2.undistortPoints(pts, k, np.asarray(d, float), criteria=crit).reshape(-1, 2)
+        if np.all(np.isfinite(und)):
+            x, y = und[:, 0].copy(), und[:, 1].copy()
+    k1, k2, p1, p2, k3 = d
+    with np.errstate(all="ignore"):
+        for _ in range(50):
+            fx, fy = _distort(x, y, d)
+            ex, ey = fx - xd, fy - yd
+            err = np.hypot(ex, ey)
+            if not (np.nanmax(err) > 1e-13):
+                break
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+            a = radial + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x
+            b = 2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y
+            e = radial + 2.0 * y * y * drad + 6.0 * p1 * y + 2.0 * p2 * x
+            det = a * e - b * b
+            x = x - (e * ex - b * ey) / det
+            y = y - (a * ey - b * ex) / det
+        fx, fy = _distort(x, y, d)
+        bad = ~(np.hypot(fx - xd, fy - yd) < 1e-9) | ~np.isfinite(x) | ~np.isfinite(y)
+    x[bad] = np.nan
+    y[bad] = np.nan
+    return x, y
+
+
+class _RayGrid:
+    """Per-pixel optical-frame rays (x_n, y_n, 1) and culling structures."""
+
+    def __init__(self, width: int, height: int, hfov: float, dist: tuple):
+        cfg = CameraConfig(width=width, height=height, hfov_rad=hfov,
+                           k1=dist[0], k2=dist[1], p1=dist[2], p2=dist[3], k3=dist[4])
+        self.k, self.d = intrinsics(cfg)
+        self.width, self.height = width, height
+        f, cx, cy = self.k[0, 0], self.k[0, 2], self.k[1, 2]
+        self.f, self.cx, self.cy = f, cx, cy
+        u, v = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+        xd, yd = (u - cx) / f, (v - cy) / f
+        self.distorted = any(c != 0.0 for c in dist)
+        if self.distorted:
+            xn, yn = _undistort(xd.ravel(), yd.ravel(), dist, self.k)
+            xn, yn = xn.reshape(height, width), yn.reshape(height, width)
+        else:
+            xn, yn = xd, yd
+        self.valid = np.isfinite(xn) & np.isfinite(yn)
+        self.xn, self.yn = xn, yn
+        self.xn32, self.yn32 = xn.astype(np.float32), yn.astype(np.float32)
+        dirs = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
+        dirs[~self.valid] = np.nan
+        self.dirs = dirs                                        # (H, W, 3)
+        with np.errstate(invalid="ignore"):
+            self.bounds = (np.nanmin(xn), np.nanmax(xn), np.nanmin(yn), np.nanmax(yn))
+        if self.distorted:
+            self._build_tiles()
+        for arr in (self.xn, self.yn, self.xn32, self.yn32, self.dirs, self.valid):
+            arr.flags.writeable = False         # shared through the cache
+
+    def _build_tiles(self) -> None:
+        h, w = self.height, self.width
+        tv, tu = np.meshgrid(np.arange(h) // _TILE, np.arange(w) // _TILE, indexing="ij")
+        ntu = (w + _TILE - 1) // _TILE
+        tid = (tv * ntu + tu).ravel()
+        tid = np.where(self.valid.ravel(), tid, -1)
+        order = np.argsort(tid, kind="stable")
+        order = order[tid[order] >= 0]
+        self.perm = order
+        ntiles = ntu * ((h + _TILE - 1) // _TILE)
+        counts = np.bincount(tid[order], minlength=ntiles)
+        self.starts = np.concatenate([[0], np.cumsum(counts)])
+        xs, ys = self.xn.ravel()[order], self.yn.ravel()[order]
+        nz = counts > 0
+        self.tile_ids = np.nonzero(nz)[0]
+        s = self.starts[self.tile_ids]
+        self.t_xmin = np.minimum.reduceat(xs, s)
+        self.t_xmax = np.maximum.reduceat(xs, s)
+        self.t_ymin = np.minimum.reduceat(ys, s)
+        self.t_ymax = np.maximum.reduceat(ys, s)
+        self.xn_flat = self.xn.ravel()
+        self.yn_flat = self.yn.ravel()
+        self.xn32_flat = self.xn32.ravel()
+        self.yn32_flat = self.yn32.ravel()
+
+    def select_flat(self, x0, x1, y0, y1) -> np.ndarray:
+        """Flat pixel indices whose ray lies in the normalised rectangle."""
+        m = (self.t_xmax >= x0) & (self.t_xmin <= x1) & (self.t_ymax >= y0) & (self.t_ymin <= y1)
+        tiles = self.tile_ids[m]
+        if tiles.size == 0:
+            return np.empty(0, dtype=np.intp)
+        st = self.starts[tiles]
+        lens = self.starts[tiles + 1] - st
+        total = int(lens.sum())
+        base = np.repeat(st - (np.cumsum(lens) - lens), lens)
+        idx = self.perm[base + np.arange(total)]
+        xs, ys = self.xn_flat[idx], self.yn_flat[idx]
+        keep = (xs >= x0) & (xs <= x1) & (ys >= y0) & (ys <= y1)
+        return idx[keep]
+
+    def select_block(self, x0, x1, y0, y1):
+        """(row slice, col slice) of the pixels whose ray lies in the rectangle, or None."""
+        f, cx, cy = self.f, self.cx, self.cy
+        u0 = max(0, math.ceil(f * x0 + cx - 1e-9))
+        u1 = min(self.width - 1, math.floor(f * x1 + cx + 1e-9))
+        v0 = max(0, math.ceil(f * y0 + cy - 1e-9))
+        v1 = min(self.height - 1, math.floor(f * y1 + cy + 1e-9))
+        if u0 > u1 or v0 > v1:
+            return None
+        return (slice(v0, v1 + 1), slice(u0, u1 + 1))
+
+
+@lru_cache(maxsize=16)
+def _ray_grid(width: int, height: int, hfov: float, dist: tuple) -> _RayGrid:
+    return _RayGrid(width, height, hfov, dist)
+
+
+def _grid_for(config: CameraConfig) -> _RayGrid:
+    return _ray_grid(int(config.width), int(config.height), float(config.hfov_rad),
+                     tuple(float(c) for c in config.distortion))
+
+
+# ----------------------------------------------------------------------------------
+# Rendering
+# ----------------------------------------------------------------------------------
+
+_CORNER_SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+                         dtype=float)
+_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
+                   if np.sum(_CORNER_SIGNS[i] != _CORNER_SIGNS[j]) == 1])
+
+
+def _projected_rects(half: np.ndarray, t_opt_shape: np.ndarray, near: float, far: float):
+    """Normalised-image rectangles covering each shape's bounding box clipped to
+    z >= near: (S, 4) [x0, x1, y0, y1] and a (S,) bool "possibly visible" mask
+    (False when the box lies wholly in front of ``near`` or beyond ``far``)."""
+    rot_t = t_opt_shape[:, :3, :3].transpose(0, 2, 1)
+    corners = (_CORNER_SIGNS[None, :, :] * half[:, None, :]) @ rot_t
+    corners += t_opt_shape[:, None, :3, 3]                                # (S, 8, 3)
+    z = corners[..., 2]
+    a, b = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]            # (S, 12, 3)
+    za, zb = a[..., 2], b[..., 2]
+    cross = (za - near) * (zb - near) < 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sfrac = np.where(cross, (near - za) / (zb - za), 0.0)
+    clip = a + sfrac[..., None] * (b - a)
+    pts = np.concatenate([corners, clip], axis=1)                         # (S, 20, 3)
+    ok = np.concatenate([z >= near, cross], axis=1)
+    zz = np.where(ok, np.maximum(pts[..., 2], near), 1.0)
+    x = pts[..., 0] / zz
+    y = pts[..., 1] / zz
+    rect = np.stack([np.where(ok, x, np.inf).min(1), np.where(ok, x, -np.inf).max(1),
+                     np.where(ok, y, np.inf).min(1), np.where(ok, y, -np.inf).max(1)], axis=1)
+    visible = ok.any(axis=1) & (z.min(axis=1) <= far)
+    return rect, visible
+
+
+# ----------------------------------------------------------------------------------
+# Camera kernels: one shape, one shared ray origin (python floats ox, oy, oz in the
+# shape's frame), a block of float32 directions (dx, dy, dz). Return (t_enter, ok,
+# lam): ``ok`` marks entering hits with near <= t < cur (the z-buffer), ``lam`` the
+# Lambert term n . L (L in the shape frame), valid where ok; lam is None if nothing
+# is hit. Fewer array passes than the general kernels + normals (the box face comes
+# from the slab that set t_enter) and float32 throughout: ~2x faster.
+# ----------------------------------------------------------------------------------
+
+def _slab32(o, d, h):
+    inv = np.divide(1.0, d)
+    t1 = inv * (-h - o)
+    t2 = inv * (h - o)
+    return np.fmin(t1, t2), np.fmax(t1, t2, out=t2)
+
+
+def _face_term(d, l_comp):
+    """Lambert term of the slab face entered by rays d: normal -sign(d)."""
+    return np.where(d > 0, np.float32(-l_comp), np.float32(l_comp))
+
+
+def _cam_box(prm, ox, oy, oz, dx, dy, dz, light, near, cur):
+    hx, hy, hz = prm
+    lo_x, hi = _slab32(ox, dx, hx)
+    lo_y, hi_y = _slab32(oy, dy, hy)
+    lo_z, hi_z = _slab32(oz, dz, hz)
+    np.minimum(hi, hi_y, out=hi)
+    np.minimum(hi, hi_z, out=hi)
+    tn = np.maximum(lo_x, lo_y)
+    np.maximum(tn, lo_z, out=tn)
+    ok = tn <= hi
+    ok &= tn >= near
+    ok &= tn < cur
+    if not ok.any():
+        return tn, ok, None
+    lx, ly, lz = light
+    lam = np.where(tn == lo_x, _face_term(dx, lx),
+                   np.where(tn == lo_y, _face_term(dy, ly), _face_term(dz, lz)))
+    return tn, ok, lam
+
+
+def _cam_sphere(prm, ox, oy, oz, dx, dy, dz, light, near, cur):
+    (r,) = prm
+    a = dx * dx
+    a += dy * dy
+    a += dz * dz
+    b = dx * ox
+    b += dy * oy
+    b += dz * oz
+    c = ox * ox + oy * oy + oz * oz - r * r
+    t0, _ = quadratic_roots(a, b, c)
+    ok = t0 >= near                          # nan (no root) compares False
+    ok &= t0 < cur
+    if not ok.any():
+        return t0, ok, None
+    lx, ly, lz = light
+    # n = (o + t d) / r
+    dl = dx * (lx / r)
+    dl += dy * (ly / r)
+    dl += dz * (lz / r)
+    dl *= t0
+    dl += (ox * lx + oy * ly + oz * lz) / r
+    return t0, ok, dl
+
+
+def _cam_cylinder(prm, ox, oy, oz, dx, dy, dz, light, near, cur):
+    r, hh = prm
+    a = dx * dx
+    a += dy * dy
+    b = dx * ox
+    b += dy * oy
+    c = ox * ox + oy * oy - r * r
+    s0, s1 = quadratic_roots(a, b, c)
+    if c < 0.0:                              # origin inside the infinite tube: rays
+        par = a == 0.0                       # along the axis stay inside it
+        s0 = np.where(par, np.float32(-np.inf), s0)
+        s1 = np.where(par, np.float32(np.inf), s1)
+    zlo, zhi = _slab32(oz, dz, hh)
+    side = s0 >= zlo
+    tn = np.where(side, s0, zlo)             # s0 nan (tube missed): not side, tn = zlo,
+    ok = tn <= np.minimum(s1, zhi)           # but then s1 is nan too: not ok
+    ok &= tn >= near
+    ok &= tn < cur
+    if not ok.any():
+        return tn, ok, None
+    lx, ly, lz = light
+    px = dx * tn
+    px += ox
+    px *= lx / r
+    py = dy * tn
+    py += oy
+    py *= ly / r
+    px += py
+    lam = np.where(side, px, _face_term(dz, lz))
+    return tn, ok, lam
+
+
+def _affine(xs, ys, a, b, c):
+    out = xs * a
+    out += ys * b
+    out += c
+    return out
+
+
+_CAM_KERNELS = {"box": _cam_box, "sphere": _cam_sphere, "cylinder": _cam_cylinder}
+
+
+_LEVELS = 256
+
+
+def _shade(shape_list, sid: np.ndarray, lam: np.ndarray, bg: np.ndarray) -> np.ndarray:
+    """rgb8 from shape ids and Lambert terms via a (shape, level) -> RGBA lookup table
+    (the Lambert term is quantised to 1/255: at most half a grey level off)."""
+    h, w = sid.shape
+    n = len(shape_list)
+    lut = _lut(tuple(tuple(s.color) for s in shape_list), tuple(float(v) for v in bg))
+    q = np.clip(lam, 0.0, 1.0)
+    q *= _LEVELS - 1
+    q += 0.5
+    idx = q.astype(np.intp)
+    row = sid.copy()
+    row[sid < 0] = n
+    row *= _LEVELS
+    idx += row
+    rgba = np.take(lut, idx).view(np.uint8).reshape(h, w, 4)
+    if cv2 is not None:
+        return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
+    return np.ascontiguousarray(rgba[..., :3])     # pragma: no cover - numpy-only fallback
+
+
+@lru_cache(maxsize=32)
+def _lut(colors: tuple, bg: tuple) -> np.ndarray:
+    """Flat uint32 (RGBA) table: entry shape * LEVELS + level; row len(colors) = background."""
+    n = len(colors)
+    cols = np.clip(np.array(colors, dtype=float).reshape(n, 3), 0.0, 1.0)
+    fac = AMBIENT + DIFFUSE * (np.arange(_LEVELS) / (_LEVELS - 1))
+    lut = np.empty((n + 1, _LEVELS, 4), dtype=np.uint8)
+    lut[:n, :, :3] = np.rint(cols[:, None, :] * fac[None, :, None] * 255.0)
+    lut[n, :, :3] = np.rint(np.clip(bg, 0.0, 1.0) * 255.0)
+    lut[..., 3] = 255
+    return lut.view(np.uint32).reshape(-1)
+
+
+def render_full(config: CameraConfig, camera_pose: np.ndarray,
+                shapes: "Sequence[Shape] | Scene", exclude_owner: str | None = None,
+                background=DEFAULT_BACKGROUND, *, force_flat: bool = False):
+    """Render and also return the buffers: ``(rgb uint8 (H,W,3), depth float32 (H,W)
+    m along the optical axis with inf where nothing is hit, shape_index (H,W) int
+    indexing ``shapes``, -1 = none)``. Ray maths runs in float32 (sub-micrometre at
+    room scale); the lidar path (:mod:`plant.raycast`) is float64.
+
+    ``force_flat`` uses the (distortion) per-pixel-index path even without distortion
+    (testing aid; the output is identical).
+    """
+    scene = Scene.from_shapes(shapes)
+    shape_list = scene.shapes
+    grid = _grid_for(config) if not force_flat else _flat_grid_for(config)
+    h, w = config.height, config.width
+    near, far = float(config.near_m), float(config.far_m)
+    bg = np.asarray(background, dtype=float).reshape(3)
+
+    t_world_opt = np.asarray(camera_pose, dtype=float) @ _T_BODY_OPTICAL
+    r_wo, o_w = t_world_opt[:3, :3], t_world_opt[:3, 3]
+
+    depth = np.full((h, w), far, dtype=np.float32)   # z-buffer: optical-axis depth
+    sid = np.full((h, w), -1, dtype=np.intp)
+    shade = np.zeros((h, w), dtype=np.float32)
+    todo = np.nonzero(scene.include_mask(exclude_owner))[0]
+    if todo.size:
+        rots, cens = scene.rotations[todo], scene.centers[todo]
+        # shape -> optical: R_wo^T R_s, R_wo^T (c_s - o_w)
+        t_opt_shape = np.zeros((todo.size, 4, 4))
+        t_opt_shape[:, :3, :3] = r_wo.T @ rots
+        t_opt_shape[:, :3, 3] = (cens - o_w) @ r_wo
+        t_opt_shape[:, 3, 3] = 1.0
+        rects, visible = _projected_rects(scene.halves[todo], t_opt_shape, near, far)
+        bx0, bx1, by0, by1 = grid.bounds
+        rects[:, 0] = np.maximum(rects[:, 0], bx0)
+        rects[:, 1] = np.minimum(rects[:, 1], bx1)
+        rects[:, 2] = np.maximum(rects[:, 2], by0)
+        rects[:, 3] = np.minimum(rects[:, 3], by1)
+        visible &= (rects[:, 0] <= rects[:, 1]) & (rects[:, 2] <= rects[:, 3])
+        flat = grid.distorted
+        depth_f, sid_f, shade_f = depth.reshape(-1), sid.reshape(-1), shade.reshape(-1)
+        for j in np.nonzero(visible)[0]:
+            i = todo[j]
+            shape = shape_list[i]
+            x0, x1, y0, y1 = rects[j]
+            if flat:
+                sel = grid.select_flat(x0, x1, y0, y1)
+                if sel.size == 0:
+                    continue
+                xs, ys = grid.xn32_flat[sel], grid.yn32_flat[sel]
+                cur = depth_f[sel]
+            else:
+                sel = grid.select_block(x0, x1, y0, y1)
+                if sel is None:
+                    continue
+                xs, ys = grid.xn32[sel], grid.yn32[sel]
+                cur = depth[sel]                    # a view
+            r_s, p_s = rots[j], cens[j]
+            m = r_s.T @ r_wo                        # optical -> shape local
+            ox, oy, oz = (float(v) for v in r_s.T @ (o_w - p_s))
+            dx, dy, dz = (_affine(xs, ys, *(float(v) for v in row)) for row in m)
+            light = tuple(float(v) for v in r_s.T @ LIGHT_DIR)
+            with np.errstate(all="ignore"):
+                tn, hit, lam = _CAM_KERNELS[shape.kind](shape_params(shape), ox, oy, oz,
+                                                        dx, dy, dz, light, near, cur)
+            if lam is None:
+                continue
+            if flat:
+                idx = sel[hit]
+                depth_f[idx] = tn[hit]
+                sid_f[idx] = i
+                shade_f[idx] = lam[hit]
+            else:
+                np.copyto(cur, tn, where=hit)
+                np.copyto(sid[sel], i, where=hit)
+                np.copyto(shade[sel], lam, where=hit)
+
+    img = _shade(shape_list, sid, shade, bg)
+    depth[sid < 0] = np.inf
+    return img, depth, sid
+
+
+def render(config: CameraConfig, camera_pose: np.ndarray, shapes: "Sequence[Shape] | Scene",
+           exclude_owner: str | None = None, background=DEFAULT_BACKGROUND) -> np.ndarray:
+    """rgb8 image (uint8, (height, width, 3)) seen from ``camera_pose`` (4x4 world pose
+    of the camera body: x forward, y left, z up). ``exclude_owner``: skip that robot's
+    parts (the robot carrying the camera). ``background``: RGB 0..1 where nothing is hit."""
+    return render_full(config, camera_pose, shapes, exclude_owner, background)[0]
+
+
+def third_person(eye_xyz, target_xyz, shapes: "Sequence[Shape] | Scene", width: int = 640,
+                 height: int = 480, hfov: float = 1.0, background=DEFAULT_BACKGROUND,
+                 up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Picture of the scene from any eye point looking at ``target_xyz`` (rgb8)."""
+    cfg = CameraConfig(width=width, height=height, hfov_rad=hfov, far_m=1e4)
+    return render(cfg, look_at(eye_xyz, target_xyz, up), shapes, None, background)
+
+
+@lru_cache(maxsize=4)
+def _flat_grid(width: int, height: int, hfov: float) -> _RayGrid:
+    g = _RayGrid(width, height, hfov, (0.0,) * 5)
+    g.distorted = True
+    g._build_tiles()
+    return g
+
+
+def _flat_grid_for(config: CameraConfig) -> _RayGrid:
+    if any(c != 0.0 for c in config.distortion):
+        return _grid_for(config)
+    return _flat_grid(int(config.width), int(config.height), float(config.hfov_rad))

@@ -1,0 +1,184 @@
+"""Planar scanning lidar modelled on the SICK LMS 291 (as Webots simulates it).
+
+Geometry
+--------
+* The sensor frame is the robot frame convention (x forward, y left, z up); the scan
+  plane is the sensor's x-y plane. The sensor sits on the robot at the mount pose
+  (``mount_x_m, mount_y_m, mount_z_m, mount_yaw_rad``) relative to the robot base,
+  so the scan tilts with the robot if the robot tilts.
+* Ray ``i`` points at ``angle_min + i * angle_increment`` (counter-clockwise from
+  the sensor's x axis), ``angle_min = -fov/2``, ``angle_increment = fov/(n-1)``: both
+  ends of the field of view are included (the LMS 291's 180 rays over pi are
+  pi/179 apart). This is the ROS ``sensor_msgs/LaserScan`` order: index 0 is the
+  rightmost ray. (Webots' range image runs the other way, left to right: Webots
+  ``ranges[i]`` is ours ``ranges[n-1-i]``.)
+
+Values (Webots and ROS REP 117 for "no return")
+-----------------------------------------------
+* nothing within ``max_range_m`` along the ray  -> ``+inf``;
+* the first surface is closer than ``min_range_m`` -> ``+inf`` (it still occludes
+  whatever is behind it, as in Webots: "not detected but still occlude");
+* the robot's own parts are skipped (``exclude_owner``).
+
+:func:`scan` returns these exact ranges (float64). :func:`apply_noise` turns them
+into reported values: Gaussian noise (a :class:`plant.noise.NoiseModel`, drawn for
+every ray so the random stream does not depend on what the rays hit), then every
+finite value is clipped to ``[min_range_m, max_range_m]`` (a true return stays a
+return: noise never turns a hit into "no return" or vice versa), then quantised to
+``resolution_m`` if > 0 (and clipped again). ``inf`` stays ``inf``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Sequence
+
+import numpy as np
+
+from plant.raycast import Scene, cast_rays
+from plant.shapes import Shape, pose_matrix
+
+__all__ = ["LidarConfig", "scan", "apply_noise", "measure", "ray_directions", "sensor_pose"]
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """SICK LMS 291-like planar lidar. SI units (m, rad, Hz)."""
+
+    num_rays: int = 180
+    fov_rad: float = math.pi
+    min_range_m: float = 0.01
+    max_range_m: float = 80.0
+    resolution_m: float = 0.0          # quantisation step of reported ranges; 0 = none
+    rate_hz: float = 10.0
+    mount_x_m: float = 0.15
+    mount_y_m: float = 0.0
+    mount_z_m: float = 0.25
+    mount_yaw_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        if int(self.num_rays) != self.num_rays or self.num_rays < 1:
+            raise ValueError(f"num_rays must be a positive integer, got {self.num_rays!r}")
+        checks = {
+            "fov_rad": 0.0 <= self.fov_rad <= 2.0 * math.pi,
+            "min_range_m": 0.0 <= self.min_range_m < self.max_range_m,
+            "max_range_m": self.max_range_m > 0.0,
+            "resolution_m": self.resolution_m >= 0.0,
+            "rate_hz": self.rate_hz > 0.0,
+        }
+        for key, ok in checks.items():
+            if not ok:
+                raise ValueError(f"lidar {key} out of range: {getattr(self, key)!r}")
+        for key in ("mount_x_m", "mount_y_m", "mount_z_m", "mount_yaw_rad"):
+            if not math.isfinite(getattr(self, key)):
+                raise ValueError(f"lidar {key} must be finite, got {getattr(self, key)!r}")
+
+    @property
+    def angle_min(self) -> float:
+        return -0.5 * self.fov_rad if self.num_rays > 1 else 0.0
+
+    @property
+    def angle_max(self) -> float:
+        return 0.5 * self.fov_rad if self.num_rays > 1 else 0.0
+
+    @property
+    def angle_increment(self) -> float:
+        return self.fov_rad / (self.num_rays - 1) if self.num_rays > 1 else 0.0
+
+    def angles(self) -> np.ndarray:
+        """Ray angles in the sensor frame (rad, CCW from x), both fov ends included."""
+        return _angles(self.num_rays, self.fov_rad).copy()
+
+    def mount_pose(self) -> np.ndarray:
+        """4x4 sensor->robot-base transform."""
+        return pose_matrix(self.mount_x_m, self.mount_y_m, self.mount_z_m, yaw=self.mount_yaw_rad)
+
+
+@lru_cache(maxsize=64)
+def _angles(n: int, fov: float) -> np.ndarray:
+    if n == 1:
+        return np.zeros(1)
+    return np.linspace(-0.5 * fov, 0.5 * fov, n)
+
+
+@lru_cache(maxsize=64)
+def _local_dirs(n: int, fov: float) -> np.ndarray:
+    a = _angles(n, fov)
+    return np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
+
+
+def ray_directions(config: LidarConfig) -> np.ndarray:
+    """(n, 3) unit ray directions in the sensor frame."""
+    return _local_dirs(config.num_rays, config.fov_rad).copy()
+
+
+def sensor_pose(config: LidarConfig, robot_pose: np.ndarray) -> np.ndarray:
+    """World pose (4x4) of the sensor for a robot-base world pose."""
+    return np.asarray(robot_pose, dtype=float) @ config.mount_pose()
+
+
+def scan(config: LidarConfig, robot_pose: np.ndarray,
+         shapes: "Sequence[Shape] | Scene", exclude_owner: str | None = None) -> np.ndarray:
+    """Exact ranges (m, float64, shape (num_rays,)) for the robot at ``robot_pose``.
+
+    ``inf`` where nothing lies within ``max_range_m`` or the first surface is nearer
+    than ``min_range_m``. Pass the robot's name as ``exclude_owner`` so the sensor
+    ignores its own robot.
+    """
+    pose = sensor_pose(config, robot_pose)
+    scene = Scene.from_shapes(shapes)
+    dirs = _local_dirs(config.num_rays, config.fov_rad) @ pose[:3, :3].T
+    keep = _candidates(config, pose, scene, exclude_owner)
+    dist, _, _ = cast_rays(pose[:3, 3], dirs, scene, max_range=config.max_range_m,
+                           include=keep)
+    dist[dist < config.min_range_m] = np.inf
+    return dist
+
+
+def _candidates(config: LidarConfig, pose: np.ndarray, scene: Scene,
+                exclude_owner: str | None) -> np.ndarray:
+    """Shapes whose bounding sphere meets the scan fan (plane, range, angular sector):
+    a cheap, conservative cull before the exact cast."""
+    keep = scene.include_mask(exclude_owner)
+    if len(scene) == 0:
+        return keep
+    rel = (scene.centers - pose[:3, 3]) @ pose[:3, :3]          # centres in the sensor frame
+    r = scene.radii
+    h = np.abs(rel[:, 2])
+    # meets the scan plane: |distance| <= the bounding box's extent along the normal
+    n_local = np.abs(scene.rotations.transpose(0, 2, 1) @ pose[:3, 2])   # (S, 3)
+    keep &= h <= (n_local * scene.halves).sum(axis=1) + 1e-12
+    r_plane = np.sqrt(np.maximum(r * r - h * h, 0.0))
+    rho = np.hypot(rel[:, 0], rel[:, 1])
+    keep &= rho - r_plane <= config.max_range_m
+    if config.fov_rad < 2.0 * math.pi - 1e-9:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            half = np.arcsin(np.minimum(r_plane / rho, 1.0))
+        bearing = np.abs(np.arctan2(rel[:, 1], rel[:, 0]))
+        keep &= (rho <= r_plane) | (bearing <= 0.5 * config.fov_rad + half + 1e-9)
+    return keep
+
+
+def apply_noise(config: LidarConfig, ranges: np.ndarray, noise=None) -> np.ndarray:
+    """Reported ranges from exact ones: noise -> clip finite to [min, max] -> quantise.
+
+    ``noise``: a :class:`plant.noise.NoiseModel` (or None for none). Returns a new
+    float64 array; ``inf`` stays ``inf``.
+    """
+    r = np.array(ranges, dtype=float)
+    if noise is not None:
+        r = np.asarray(noise.apply(r), dtype=float)
+    finite = np.isfinite(r)
+    lo, hi = config.min_range_m, config.max_range_m
+    r[finite] = np.clip(r[finite], lo, hi)
+    if config.resolution_m > 0.0:
+        q = config.resolution_m
+        r[finite] = np.clip(np.round(r[finite] / q) * q, lo, hi)
+    return r
+
+
+def measure(config: LidarConfig, robot_pose: np.ndarray, shapes: "Sequence[Shape] | Scene",
+            noise=None, exclude_owner: str | None = None) -> np.ndarray:
+    """``apply_noise(config, scan(...), noise)``: what the sensor reports."""
+    return apply_noise(config, scan(config, robot_pose, shapes, exclude_owner), noise)

@@ -1,0 +1,225 @@
+"""Sensor noise models and per-stream random generators.
+
+Model: ``reported = quantise(true + bias + N(mean, std))`` with
+``quantise(x) = round(x / resolution) * resolution`` when ``resolution > 0``.
+All four numbers are in the sensor's own units (m for lidar and GPS, rad for wheel
+encoders, 0..255 intensity levels for a camera).
+
+Webots' ``noise`` fields mean different things per device, so each has a constructor
+(see the field notes, "Webots semantics"):
+
+* Lidar ``noise``: std relative to ``maxRange`` -> :func:`webots_lidar` (std = noise * max_range).
+* Camera ``noise``: per-channel, 1.0 == std 255 -> :func:`webots_camera`.
+* PositionSensor ``noise``: absolute std in rad, per reading -> :func:`webots_position`.
+* GPS ``noise``: absolute std in m -> :func:`webots_gps`.
+
+Random streams: every noise stream (e.g. ``"robot1/scan"``, ``"robot1/left_wheel"``)
+gets its own generator from :func:`make_rng` (run seed + a stable hash of the stream
+name), so adding or removing one sensor never changes another sensor's noise and the
+same seed gives the same noise, run after run and across processes.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+__all__ = [
+    "NoiseConfig",
+    "NoiseModel",
+    "make_rng",
+    "parse_noise",
+    "webots_lidar",
+    "webots_camera",
+    "webots_position",
+    "webots_gps",
+    "WEBOTS_SCALES",
+]
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Gaussian noise + bias + quantisation, in the sensor's own units."""
+
+    std: float = 0.0
+    mean: float = 0.0
+    bias: float = 0.0
+    resolution: float = 0.0          # quantisation step; 0 = none
+
+    def __post_init__(self) -> None:
+        for key in ("std", "mean", "bias", "resolution"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                raise ValueError(f"noise {key} must be a number, got {v!r}")
+            if not math.isfinite(float(v)):
+                raise ValueError(f"noise {key} must be finite, got {v!r}")
+        if self.std < 0:
+            raise ValueError(f"noise std must be >= 0, got {self.std!r}")
+        if self.resolution < 0:
+            raise ValueError(f"noise resolution must be >= 0, got {self.resolution!r}")
+
+    @property
+    def is_zero(self) -> bool:
+        """True when the model leaves values unchanged (apart from quantisation)."""
+        return self.std == 0 and self.mean == 0 and self.bias == 0
+
+
+# ----------------------------------------------------------------------------------
+# Webots-style constructors
+# ----------------------------------------------------------------------------------
+
+def webots_lidar(noise: float, max_range: float) -> NoiseConfig:
+    """Webots Lidar ``noise``: std dev relative to maxRange (m)."""
+    _check_webots(noise)
+    if not (max_range > 0 and math.isfinite(max_range)):
+        raise ValueError(f"max_range must be a positive finite number, got {max_range!r}")
+    return NoiseConfig(std=float(noise) * float(max_range))
+
+
+def webots_camera(noise: float) -> NoiseConfig:
+    """Webots Camera ``noise``: per-channel std dev, 1.0 == 255 intensity levels."""
+    _check_webots(noise)
+    return NoiseConfig(std=float(noise) * 255.0)
+
+
+def webots_position(noise: float) -> NoiseConfig:
+    """Webots PositionSensor ``noise``: absolute std dev in rad, per reading."""
+    _check_webots(noise)
+    return NoiseConfig(std=float(noise))
+
+
+def webots_gps(noise: float) -> NoiseConfig:
+    """Webots GPS ``noise``: absolute std dev in m."""
+    _check_webots(noise)
+    return NoiseConfig(std=float(noise))
+
+
+def _check_webots(noise: Any) -> None:
+    if isinstance(noise, bool) or not isinstance(noise, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(float(noise)) or noise < 0:
+        raise ValueError(f"webots_noise must be a finite number >= 0, got {noise!r}")
+
+
+#: How each sensor kind scales a Webots ``noise`` value into a std dev in its units.
+#: Lidar needs its max range, so it is handled in :func:`parse_noise`.
+WEBOTS_SCALES = {"camera": 255.0, "position": 1.0, "encoder": 1.0, "gps": 1.0}
+
+_PLAIN_KEYS = ("std", "mean", "bias", "resolution")
+
+
+def parse_noise(table: Mapping[str, Any] | None, sensor: str, *,
+                max_range: float | None = None, where: str = "noise") -> NoiseConfig:
+    """Build a :class:`NoiseConfig` from a plain dict (a TOML table).
+
+    Two forms (not mixable for the std):
+      ``{std = 0.01, mean = 0, bias = 0, resolution = 0}`` (any subset; sensor units), or
+      ``{webots_noise = 0.2}`` (Webots meaning for ``sensor``; may be combined with
+      ``mean``, ``bias``, ``resolution``).
+    ``sensor``: ``"lidar"`` (needs ``max_range``), ``"camera"``, ``"position"``/``"encoder"``,
+    ``"gps"``. ``where``: prefix for error messages (e.g. ``"world.toml:robot1.lidar.noise"``).
+    None or ``{}`` means no noise. Raises ValueError naming the offending key.
+    """
+    if table is None:
+        return NoiseConfig()
+    if not isinstance(table, Mapping):
+        raise ValueError(f"{where}: expected a table like {{std = 0.01}}, "
+                         f"got {type(table).__name__}")
+    allowed = set(_PLAIN_KEYS) | {"webots_noise"}
+    for key in table:
+        if key not in allowed:
+            raise ValueError(f"{where}.{key}: unknown key; expected one of "
+                             f"{', '.join(sorted(allowed))}")
+    values: dict[str, float] = {}
+    for key, v in table.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+            raise ValueError(f"{where}.{key}: must be a number, got {v!r}")
+        if not math.isfinite(float(v)):
+            raise ValueError(f"{where}.{key}: must be finite, got {v!r}")
+        if key in ("std", "webots_noise", "resolution") and v < 0:
+            raise ValueError(f"{where}.{key}: must be >= 0, got {v!r}")
+        values[key] = float(v)
+    if "webots_noise" in values:
+        if "std" in values:
+            raise ValueError(f"{where}.webots_noise: give either std or webots_noise, not both")
+        w = values.pop("webots_noise")
+        if sensor == "lidar":
+            if max_range is None:
+                raise ValueError(f"{where}.webots_noise: lidar noise needs the lidar's max range")
+            values["std"] = webots_lidar(w, max_range).std
+        elif sensor in WEBOTS_SCALES:
+            values["std"] = w * WEBOTS_SCALES[sensor]
+        else:
+            raise ValueError(f"{where}.webots_noise: no Webots meaning known for sensor "
+                             f"{sensor!r}; use std instead")
+    return NoiseConfig(**values)
+
+
+# ----------------------------------------------------------------------------------
+# Random streams
+# ----------------------------------------------------------------------------------
+
+def _name_words(name: str) -> list[int]:
+    digest = hashlib.sha256(name.encode("utf-8")).digest()
+    return [int.from_bytes(digest[i:i + 4], "little") for i in range(0, 16, 4)]
+
+
+def make_rng(seed: int, stream_name: str) -> np.random.Generator:
+    """Generator for one noise stream, from the run seed and the stream's name.
+
+    Seeded with ``SeedSequence([seed, *sha256(name)[:16] as 4 uint32])``: stable across
+    processes and Python versions (unlike ``hash()``), independent per name.
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return np.random.Generator(np.random.PCG64(
+        np.random.SeedSequence([int(seed), *_name_words(str(stream_name))])))
+
+
+# ----------------------------------------------------------------------------------
+# Application
+# ----------------------------------------------------------------------------------
+
+class NoiseModel:
+    """Applies a :class:`NoiseConfig` using its own generator.
+
+    ``apply(x)``:
+      * float input: returns float64 ``quantise(x + bias + N(mean, std))``; ``inf``/``nan``
+        stay as they are (noise is still drawn for them, so the stream advances by
+        exactly ``x.size`` normals per call whatever the values).
+      * uint8 input (camera images): the same per element (per channel), rounded and
+        clipped to 0..255, returned as uint8.
+      * other integer input: treated as float (returns float64).
+    With ``std == 0`` no random numbers are drawn.
+    """
+
+    def __init__(self, config: NoiseConfig, rng: np.random.Generator):
+        self.config = config
+        self.rng = rng
+
+    def _noisy(self, x: np.ndarray) -> np.ndarray:
+        c = self.config
+        out = x + (c.bias + c.mean)
+        if c.std > 0:
+            out = out + self.rng.normal(0.0, c.std, size=x.shape)
+        return out
+
+    def apply(self, x):
+        arr = np.asarray(x)
+        c = self.config
+        if arr.dtype == np.uint8:
+            if c.is_zero and c.resolution == 0:
+                return arr.copy()
+            out = self._noisy(arr.astype(np.float64))
+            if c.resolution > 0:
+                out = np.round(out / c.resolution) * c.resolution
+            return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+        out = self._noisy(arr.astype(np.float64))
+        if c.resolution > 0:
+            with np.errstate(invalid="ignore"):
+                out = np.where(np.isfinite(out), np.round(out / c.resolution) * c.resolution, out)
+        return out
+
+    __call__ = apply

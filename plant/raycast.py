@@ -1,0 +1,247 @@
+"""Vectorised ray casting against primitive :class:`~plant.shapes.Shape` solids.
+
+Pure numpy, exact analytic intersections, computed in each shape's local frame:
+
+* box: slab test against the oriented box (``size`` = full extents);
+* cylinder: finite, capped (``size`` = radius, height; axis = local z, centred);
+* sphere: ``size`` = radius.
+
+Every primitive is written as one form, its local bounding box (three slabs)
+intersected with a diagonal quadric ``qx x^2 + qy y^2 + qz z^2 <= rr``: a box has
+q = 0 (no quadric), a cylinder q = (1, 1, 0), rr = r^2, a sphere q = (1, 1, 1). So all
+shapes go through a single broadcast (shapes x rays) with no per-kind or per-shape
+Python loop; that is what keeps a 180-ray scan well under a millisecond.
+
+Conventions
+-----------
+* A ray is ``origin + t * direction``. Directions need not be unit length: ``t`` is
+  the ray parameter, which equals the distance in metres when directions are unit
+  vectors (as :func:`cast_rays` expects).
+* Only *entering* (front-face) hits count: a ray whose origin lies inside a shape
+  (or which starts past ``min_range`` inside it) does not see that shape at all -- its
+  back faces are ignored. A sensor buried in its own robot body therefore does not
+  see the body; use ``exclude_owner`` / ``include`` to skip a robot's parts anyway
+  (cheaper, and also right for parts that do *not* contain the sensor).
+* A ray grazing a face exactly (parallel to it, in its plane) is a miss.
+* Normals are world-frame, unit, outward, of the surface that was hit.
+* Misses: distance ``inf``, shape index ``-1``, normal ``(0, 0, 0)``.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from plant.shapes import Shape
+
+__all__ = [
+    "Scene",
+    "cast_rays",
+    "quadratic_roots",
+    "shape_params",
+    "local_half_extents",
+]
+
+
+def quadratic_roots(a, b_half, c):
+    """Roots of ``a t^2 + 2 b_half t + c = 0`` (a > 0), ordered; nan where none.
+
+    Numerically stable form (no cancellation in either root). Call inside
+    ``np.errstate(all="ignore")`` if some a may be 0 or the discriminant negative."""
+    sq = np.sqrt(b_half * b_half - a * c)            # nan where no real root
+    q = -(b_half + np.copysign(sq, b_half))
+    r1 = q / a
+    r2 = c / q
+    return np.minimum(r1, r2), np.maximum(r1, r2)    # nan propagates: a miss
+
+
+def shape_params(shape: Shape) -> tuple[float, ...]:
+    """Size parameters: box half extents; cylinder (radius, half height); sphere (r,)."""
+    if shape.kind == "box":
+        return tuple(0.5 * float(v) for v in shape.size)
+    if shape.kind == "cylinder":
+        return (float(shape.size[0]), 0.5 * float(shape.size[1]))
+    return (float(shape.size[0]),)
+
+
+def local_half_extents(shape: Shape) -> np.ndarray:
+    """Half extents of the shape's local bounding box."""
+    if shape.kind == "box":
+        return 0.5 * np.asarray(shape.size, dtype=float)
+    if shape.kind == "cylinder":
+        r, h = shape.size
+        return np.array([r, r, 0.5 * h], dtype=float)
+    r = float(shape.size[0])
+    return np.array([r, r, r])
+
+
+def _half_tuple(shape: Shape) -> tuple[float, float, float]:
+    size = shape.size
+    if shape.kind == "box":
+        return (0.5 * size[0], 0.5 * size[1], 0.5 * size[2])
+    if shape.kind == "cylinder":
+        return (size[0], size[0], 0.5 * size[1])
+    return (size[0], size[0], size[0])
+
+
+_QUADRIC = {"box": (0.0, 0.0, 0.0), "cylinder": (1.0, 1.0, 0.0), "sphere": (1.0, 1.0, 1.0)}
+
+
+class Scene:
+    """Shapes stacked into arrays for batched casting (build once per tick and share
+    between sensors; ``cast_rays`` also accepts a plain list and builds one).
+
+    Every primitive is centred on its pose origin. Arrays, (S, ...) each:
+    ``centers``, ``rotations`` (shape->world), ``halves`` (local bounding-box half
+    extents), ``radii`` (bounding spheres), ``quad`` / ``rr`` (the quadric), ``owners``.
+    """
+
+    def __init__(self, shapes: Sequence[Shape]):
+        self.shapes = list(shapes)
+        n = len(self.shapes)
+        self.owners = np.array([s.owner for s in self.shapes], dtype=object)
+        poses = np.array([s.pose for s in self.shapes], dtype=float).reshape(n, 4, 4)
+        self.centers = np.ascontiguousarray(poses[:, :3, 3])
+        self.rotations = np.ascontiguousarray(poses[:, :3, :3])
+        self.halves = np.array([_half_tuple(s) for s in self.shapes], dtype=float).reshape(n, 3)
+        self.radii = np.sqrt((self.halves * self.halves).sum(axis=1))
+        self.quad = np.array([_QUADRIC[s.kind] for s in self.shapes], dtype=float).reshape(n, 3)
+        # box: 0 <= 1 always holds (the quadric never bounds it); else radius^2
+        self.rr = np.where(self.quad[:, 0] > 0, self.halves[:, 0] ** 2, 1.0)
+
+    @classmethod
+    def from_shapes(cls, shapes: "Sequence[Shape] | Scene") -> "Scene":
+        return shapes if isinstance(shapes, Scene) else cls(shapes)
+
+    def __len__(self) -> int:
+        return len(self.shapes)
+
+    def include_mask(self, exclude_owner: str | None = None, include=None) -> np.ndarray:
+        """Boolean mask over shapes: ``include`` (bool mask or index list; None = all)
+        minus every shape whose ``owner == exclude_owner`` (when not None/empty)."""
+        n = len(self.shapes)
+        if include is None:
+            mask = np.ones(n, dtype=bool)
+        else:
+            inc = np.asarray(include)
+            if inc.dtype == bool:
+                if inc.shape != (n,):
+                    raise ValueError(f"include mask has shape {inc.shape}, expected ({n},)")
+                mask = inc.copy()
+            else:
+                mask = np.zeros(n, dtype=bool)
+                mask[inc.astype(np.intp)] = True
+        if exclude_owner:
+            mask &= self.owners != exclude_owner
+        return mask
+
+
+def _slab(o, d, h):
+    """Interval of t with |o + t d| <= h. d == 0: (-inf, inf) inside, empty outside."""
+    inv = 1.0 / d                       # +-inf on zero components (sign of zero kept)
+    t1 = (-h - o) * inv
+    t2 = (h - o) * inv
+    # fmin/fmax drop the nan of 0*inf (ray parallel to and exactly on a face plane):
+    # the interval collapses to +-inf, i.e. a grazing ray misses.
+    return np.fmin(t1, t2), np.fmax(t1, t2)
+
+
+def cast_rays(origins, directions, shapes: "Sequence[Shape] | Scene",
+              max_range: float = np.inf, *, min_range: float = 0.0,
+              exclude_owner: str | None = None, include=None):
+    """Cast N rays against the shapes; nearest entering hit per ray.
+
+    origins: (N, 3), or (3,) / (1, 3) for one origin shared by all rays (faster);
+    directions: (N, 3), world frame, unit for ``distances`` to be metres. Hits with
+    ``t < min_range`` (the ray starts there: a shape straddling that point is entered
+    "from inside" and ignored) or ``t > max_range`` are misses.
+    ``exclude_owner``: skip shapes of that owner (a robot's sensors pass the robot's
+    name). ``include``: bool mask (len(shapes)) or index list of shapes to consider
+    (combined with ``exclude_owner``).
+
+    Returns ``(distances (N,), shape_index (N,) int, normals (N, 3))``: ``inf``,
+    ``-1``, zeros where nothing is hit; shape_index indexes the given list.
+    """
+    scene = Scene.from_shapes(shapes)
+    d = np.atleast_2d(np.asarray(directions, dtype=float))
+    o = np.atleast_2d(np.asarray(origins, dtype=float))
+    if o.shape[0] != 1 and o.shape[0] != d.shape[0]:
+        if d.shape[0] != 1:
+            raise ValueError(f"origins {o.shape} and directions {d.shape} do not match")
+        d = np.broadcast_to(d, o.shape)
+    n_rays = d.shape[0]
+    best_t = np.full(n_rays, np.inf)
+    best_i = np.full(n_rays, -1, dtype=np.intp)
+    best_n = np.zeros((n_rays, 3))
+    if n_rays == 0 or len(scene) == 0:
+        return best_t, best_i, best_n
+    idx = np.nonzero(scene.include_mask(exclude_owner, include))[0]
+    if idx.size == 0:
+        return best_t, best_i, best_n
+    rot, pos, half = scene.rotations[idx], scene.centers[idx], scene.halves[idx]
+    quad, rr = scene.quad[idx], scene.rr[idx]
+    s = idx.size
+    with np.errstate(all="ignore"):
+        # local frame: p_local = R^T (p - c); as rows (p - c) @ R
+        dl = (d @ rot.transpose(1, 0, 2).reshape(3, 3 * s)).reshape(n_rays, s, 3)
+        dx, dy, dz = (np.ascontiguousarray(dl[:, :, k].T) for k in range(3))  # (S, N)
+        ol = np.matmul(o[None, :, :] - pos[:, None, :], rot)                  # (S, No, 3)
+        ox, oy, oz = ol[:, :, 0], ol[:, :, 1], ol[:, :, 2]                    # (S, No)
+        lo_x, tf = _slab(ox, dx, half[:, 0:1])
+        lo_y, hi = _slab(oy, dy, half[:, 1:2])
+        np.minimum(tf, hi, out=tf)
+        lo_z, hi = _slab(oz, dz, half[:, 2:3])
+        np.minimum(tf, hi, out=tf)
+        tn = np.maximum(np.maximum(lo_x, lo_y), lo_z)
+        # quadric a t^2 + 2 b t + c <= 0, only on the rows of round shapes (boxes have none)
+        q0 = np.full(tn.shape, -np.inf)
+        rnd = np.nonzero(quad[:, 0] > 0)[0]
+        if rnd.size:
+            qx, qy, qz = quad[rnd, 0:1], quad[rnd, 1:2], quad[rnd, 2:3]
+            rdx, rdy, rdz = dx[rnd], dy[rnd], dz[rnd]
+            rox, roy, roz = ox[rnd], oy[rnd], oz[rnd]
+            a = qx * rdx * rdx + qy * rdy * rdy + qz * rdz * rdz
+            b = qx * rox * rdx + qy * roy * rdy + qz * roz * rdz
+            c = qx * rox * rox + qy * roy * roy + qz * roz * roz - rr[rnd, None]
+            r0, r1 = quadratic_roots(a, b, c)
+            flat = a == 0.0                   # rays along a cylinder's axis
+            if flat.any():
+                inside = np.broadcast_to(c < 0.0, flat.shape)
+                r0 = np.where(flat, np.where(inside, -np.inf, np.nan), r0)
+                r1 = np.where(flat, np.where(inside, np.inf, np.nan), r1)
+            tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
+            tf[rnd] = np.minimum(tf[rnd], r1)
+            q0[rnd] = r0
+        hit = (tn <= tf) & (tn >= min_range) & (tn <= max_range)
+        tn[~hit] = np.inf
+        t = tn
+        k = np.argmin(t, axis=0)                                              # (N,)
+        cols = np.arange(n_rays)
+        tk = t[k, cols]
+        rows = np.nonzero(np.isfinite(tk))[0]
+        if rows.size == 0:
+            return best_t, best_i, best_n
+        ks = k[rows]
+        tr = tk[rows]
+        orow = rows if ol.shape[1] > 1 else 0
+        ddx, ddy, ddz = dx[ks, rows], dy[ks, rows], dz[ks, rows]
+        px = ox[ks, orow] + tr * ddx
+        py = oy[ks, orow] + tr * ddy
+        pz = oz[ks, orow] + tr * ddz
+        # entry face: the quadric if it set t_enter, else the slab that did
+        on_q = tr == q0[ks, rows]
+        selx = ~on_q & (tr == lo_x[ks, rows])
+        sely = ~on_q & ~selx & (tr == lo_y[ks, rows])
+        selz = ~on_q & ~selx & ~sely
+        qk = quad[ks]
+        nx = np.where(on_q, qk[:, 0] * px, np.where(selx, -np.sign(ddx), 0.0))
+        ny = np.where(on_q, qk[:, 1] * py, np.where(sely, -np.sign(ddy), 0.0))
+        nz = np.where(on_q, qk[:, 2] * pz, np.where(selz, -np.sign(ddz), 0.0))
+        norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+        rk = rot[ks]                                                          # (R, 3, 3)
+        nw = (rk[:, :, 0] * (nx / norm)[:, None] + rk[:, :, 1] * (ny / norm)[:, None]
+              + rk[:, :, 2] * (nz / norm)[:, None])
+    best_t[rows] = tr
+    best_i[rows] = idx[ks]
+    best_n[rows] = nw
+    return best_t, best_i, best_n
