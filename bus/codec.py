@@ -225,6 +225,47 @@ def odometry(t_ns: int, x: float, y: float, yaw: float, linear_mps: float, angul
                       covariance=_ZERO_COV))
 
 
+def laser_scan(t_ns: int, angle_min: float, angle_max: float, angle_increment: float,
+               scan_time: float, range_min: float, range_max: float, ranges, frame_id="laser"):
+    """sensor_msgs/LaserScan; ranges in m, ``inf`` where nothing was hit."""
+    return T["sensor_msgs/msg/LaserScan"](
+        header=header(t_ns, frame_id), angle_min=float(angle_min), angle_max=float(angle_max),
+        angle_increment=float(angle_increment), time_increment=0.0, scan_time=float(scan_time),
+        range_min=float(range_min), range_max=float(range_max),
+        ranges=np.asarray(ranges, dtype=np.float32), intensities=np.zeros(0, dtype=np.float32))
+
+
+def image(t_ns: int, rgb: np.ndarray, frame_id: str = "camera"):
+    """sensor_msgs/Image, rgb8, from an (H, W, 3) uint8 array."""
+    h, w = rgb.shape[:2]
+    return T["sensor_msgs/msg/Image"](
+        header=header(t_ns, frame_id), height=h, width=w, encoding="rgb8", is_bigendian=0,
+        step=3 * w, data=np.ascontiguousarray(rgb, dtype=np.uint8).reshape(-1))
+
+
+def image_to_array(msg) -> np.ndarray:
+    """An rgb8 Image message as an (H, W, 3) uint8 array (raises ValueError otherwise)."""
+    if msg.encoding != "rgb8":
+        raise ValueError(f"expected an rgb8 image, got {msg.encoding!r}")
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if data.size != msg.height * msg.width * 3 or msg.step != 3 * msg.width:
+        raise ValueError(f"image data of {data.size} bytes does not fit "
+                         f"{msg.width}x{msg.height} rgb8 (step {msg.step})")
+    return data.reshape(msg.height, msg.width, 3)
+
+
+def camera_info(t_ns: int, width: int, height: int, distortion_model: str, d, k, r, p,
+                frame_id: str = "camera"):
+    """sensor_msgs/CameraInfo (K, D in OpenCV's convention; P = [K | 0])."""
+    RoI = T["sensor_msgs/msg/RegionOfInterest"]
+    f64 = lambda a: np.asarray(a, dtype=np.float64)  # noqa: E731
+    return T["sensor_msgs/msg/CameraInfo"](
+        header=header(t_ns, frame_id), height=int(height), width=int(width),
+        distortion_model=distortion_model, d=f64(d), k=f64(k), r=f64(r), p=f64(p),
+        binning_x=0, binning_y=0,
+        roi=RoI(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+
+
 def msg_stamp_ns(msg) -> int | None:
     """Sim-time stamp of a message in ns (header stamp, or the clock of a Clock)."""
     h = getattr(msg, "header", None)

@@ -100,8 +100,9 @@ class Keys:
         return self._k("sim/info")
 
     @property
-    def stop(self) -> str:
-        return self._k("sim/stop")
+    def end(self) -> str:
+        """The plant's last word: the simulation ended normally (payload: reason)."""
+        return self._k("sim/end")
 
     def alive(self, node: str = "*") -> str:
         return self._k(f"sim/alive/{node}")

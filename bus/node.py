@@ -150,12 +150,12 @@ class NodeRunner:
             raise TypeError(f"step() returned {type(out).__name__}; expected Twist, "
                             "WheelSpeeds, dict or None")
 
-    def ack(self, t_ns: int) -> None:
-        """Tell the plant this node is done with tick ``t_ns``: the stamp, then the keys it
-        published for the tick, so the plant waits for those samples too."""
+    def ack(self, t_ns: int, final: bool = False) -> None:
+        """Tell the plant this node is done with tick ``t_ns``: the stamp, whether it is the
+        node's last, and the keys it published for the tick (the plant waits for those too)."""
         if self.sync:
             self.session.put(self.keys.ack(self.name),
-                             encode_ack(t_ns, self._tick_keys))
+                             encode_ack(t_ns, self._tick_keys, final))
         self._tick_keys = []
 
     def due_inputs(self, t_ns: int) -> list[str]:
@@ -171,6 +171,7 @@ class NodeRunner:
         for key in topic_of:
             inbox.subscribe(key, "input")
         inbox.subscribe(self.keys.clock, "clock")
+        inbox.subscribe(self.keys.end, "end")
         inbox.watch_liveliness(self.keys.alive("plant"), "plant")
         tokens = [self.session.liveliness().declare_token(self.keys.alive(self.name))]
         if self.sync:
@@ -186,6 +187,10 @@ class NodeRunner:
                 ev = inbox.get(timeout=0.2)
                 if ev is None:
                     continue
+                if ev.tag == "end":
+                    self.log.info("the simulation ended (%s); stopping",
+                                  ev.payload.decode("utf-8", "replace"))
+                    break
                 if ev.tag == "plant":
                     if ev.alive:
                         plant_seen = True
@@ -221,7 +226,7 @@ class NodeRunner:
                 self.ticks += 1
                 if getattr(self.controller, "done", False):
                     self.publish(self._stop_command(), t_ns)
-                    self.ack(t_ns)
+                    self.ack(t_ns, final=True)
                     self.log.info("%s done at t=%.3f s", self.name, t_ns * 1e-9)
                     break
                 self.ack(t_ns)
@@ -243,16 +248,19 @@ class NodeRunner:
                 "exit_code": self.exit_code}
 
 
-def encode_ack(t_ns: int, keys: list[str]) -> bytes:
-    return t_ns.to_bytes(8, "little") + ",".join(keys).encode()
+def encode_ack(t_ns: int, keys: list[str], final: bool = False) -> bytes:
+    """Ack payload: tick stamp (uint64 LE), b"F" if it is the node's last tick else b"-",
+    then the keys the node published for the tick, comma-separated."""
+    return t_ns.to_bytes(8, "little") + (b"F" if final else b"-") + ",".join(keys).encode()
 
 
-def decode_ack(payload: bytes) -> tuple[int, list[str]]:
-    """(tick stamp, keys published for it); raises ValueError if malformed."""
-    if len(payload) < 8:
-        raise ValueError(f"ack of {len(payload)} bytes")
-    rest = payload[8:].decode("utf-8")
-    return int.from_bytes(payload[:8], "little"), [k for k in rest.split(",") if k]
+def decode_ack(payload: bytes) -> tuple[int, list[str], bool]:
+    """(tick stamp, keys published for it, final); raises ValueError if malformed."""
+    if len(payload) < 9 or payload[8:9] not in (b"F", b"-"):
+        raise ValueError(f"malformed ack of {len(payload)} bytes")
+    rest = payload[9:].decode("utf-8")
+    return (int.from_bytes(payload[:8], "little"), [k for k in rest.split(",") if k],
+            payload[8:9] == b"F")
 
 
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:

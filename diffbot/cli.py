@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 
 #: controller name -> module with a main(argv) function
@@ -25,6 +26,15 @@ USAGE = __doc__
 
 
 def main(argv: list[str] | None = None) -> int:
+    code = _dispatch(argv)
+    # A stop signal arriving while the interpreter shuts down (handlers are reset then)
+    # would turn a clean exit into death by signal: ignore them from here on.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    return code
+
+
+def _dispatch(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help", "help"):
         print(USAGE.strip())

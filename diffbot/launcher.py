@@ -115,9 +115,13 @@ class Run:
         expect = [p.name for p in self.spec.processes if p.sync]
         plant = diffbot_argv("plant", "--world", self.spec.world, "--mode", self.mode,
                              "--seed", str(self.seed), "--stats",
-                             os.path.join(logs, "plant.json"), *self.bus_args())
-        if expect and self.mode == "lockstep":
+                             os.path.join(logs, "plant.json"), *self.spec.plant_args,
+                             *self.bus_args())
+        if expect:
             plant += ["--expect", ",".join(expect)]
+        enders = [p.name for p in self.spec.processes if p.ends_run and p.sync]
+        if enders and self.mode == "lockstep":
+            plant += ["--end-with", ",".join(enders)]
         if self.duration_s is not None:
             plant += ["--duration", repr(self.duration_s)]
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))

@@ -8,6 +8,7 @@ A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
     duration_s = 300.0        # upper bound in simulated time (optional)
     analysis = "square"        # what to plot and summarise afterwards
     robot = "robot1"           # the robot the analysis looks at
+    plant_args = ["--disable", "camera"]   # extra `diffbot plant` arguments
 
     [[process]]
     name = "square_path_robot1"
@@ -50,6 +51,7 @@ class ScenarioSpec:
     duration_s: float | None = None
     analysis: str = "none"
     robot: str = "robot1"
+    plant_args: list[str] = field(default_factory=list)
     processes: list[ProcessSpec] = field(default_factory=list)
 
 
@@ -83,6 +85,10 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
         s.fail("duration_s", f"must be > 0, got {spec.duration_s:g}")
     spec.analysis = s.string("analysis", "none", choices=ANALYSES)
     spec.robot = s.string("robot", "robot1")
+    plant_args = s.raw("plant_args", [])
+    if not isinstance(plant_args, list) or not all(isinstance(a, str) for a in plant_args):
+        s.fail("plant_args", "expected a list of strings (extra `diffbot plant` arguments)")
+    spec.plant_args = list(plant_args)
     s.done()
     names = set()
     for t in top.tables("process"):

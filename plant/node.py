@@ -33,6 +33,8 @@ from bus.log import RejectCounter, setup_logging
 from bus.node import decode_ack, write_json
 from bus.session import BusConfigError, add_bus_args, open_session
 
+from .raycast import Scene
+from .sensors import RobotSensors
 from .sim import Simulation
 from .world import WorldError, WorldSpec, load_world
 
@@ -56,7 +58,8 @@ class Plant:
 
     def __init__(self, spec: WorldSpec, session: zenoh.Session, keys: Keys, mode: str, log,
                  rate: float = 1.0, expect: tuple[str, ...] = (), duration_s: float | None = None,
-                 join_timeout_s: float = 30.0) -> None:
+                 join_timeout_s: float = 30.0, disabled: tuple[str, ...] = (),
+                 end_with: tuple[str, ...] = ()) -> None:
         self.spec = spec
         self.session = session
         self.keys = keys
@@ -64,21 +67,25 @@ class Plant:
         self.log = log
         self.rate = rate
         self.expect = tuple(expect)
+        self.end_with = tuple(end_with)
         self.duration_ns = None if duration_s is None else int(round(duration_s * 1e9))
         self.join_timeout_s = join_timeout_s
-        self.sim = Simulation(spec)
+        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.disabled = set(disabled)
         self.seed = spec.seed
+        self.build()
         self.rejects = RejectCounter(log)
         self.stop_event = threading.Event()
         self.members: set[str] = set()
         self.members_seen: set[str] = set()
-        self.acks: dict[str, tuple[int, list[str]]] = {}
+        self.acks: dict[str, tuple[int, list[str], bool]] = {}
         self.cmd_tick: dict[str, int] = {}      # command key -> tick stamp of its last sample
         self.commands: dict[str, Command] = {}
         self.published: dict[str, int] = {}
         self.ticks = 0
         self.timing = {"publish_s": 0.0, "wait_s": 0.0, "physics_s": 0.0}
         self.wall_start = 0.0
+        self.end_reason = "stopped"
         self.wall_end = 0.0
         self._seq = 0
         self._pubs: dict[str, zenoh.Publisher] = {}
@@ -102,9 +109,22 @@ class Plant:
         ]
         self._token = session.liveliness().declare_token(keys.alive("plant"))
 
+    def build(self) -> None:
+        """(Re)build the world and the sensors with the current seed."""
+        for r in self.spec.robots:
+            if "lidar" in self.disabled:
+                r.sensors.lidar = None
+            if "camera" in self.disabled:
+                r.sensors.camera = None
+        self.sim = Simulation(self.spec)
+        self.sensors = {r.name: RobotSensors(r, self.spec.control_tick_s, self.seed)
+                        for r in self.spec.robots}
+
     # ------------------------------------------------------------------ queryables
     def info(self) -> dict:
         d = self.sim.describe()
+        for name, sensors in self.sensors.items():
+            d["robots"][name]["topics"] = dict(sensors.periods)
         d.update(mode=self.mode, seed=self.seed, time_ns=self.sim.time_ns,
                  namespace=self.keys.namespace, rate=self.rate)
         return d
@@ -139,7 +159,7 @@ class Plant:
             self.rejects.reject("reset", str(exc))
             query.reply_err(json.dumps({"error": str(exc)}))
             return
-        self.sim = Simulation(self.spec)
+        self.build()
         self.commands.clear()
         self.acks.clear()
         self.cmd_tick.clear()
@@ -161,25 +181,16 @@ class Plant:
         self.published[key] = self.published.get(key, 0) + 1
 
     def publish_tick(self) -> None:
+        """The sensors due at this tick, robot by robot, then ``sim/clock``."""
         t = self.sim.time_ns
-        for name in self.sim.robots:
-            self.publish_robot(name, t)
+        tick = t // self.tick_ns
+        scene = None
+        if any(s.needs_scene(tick) for s in self.sensors.values()):
+            scene = Scene(self.sim.shapes())
+        for name, sensors in self.sensors.items():
+            for topic, msg in sensors.messages(tick, t, self.sim.state(name), scene):
+                self._put(self.keys.topic(name, topic), msg, t)
         self._put(self.keys.clock, codec.clock(t), t)
-
-    def publish_robot(self, name: str, t: int) -> None:
-        # Everything is published every tick: Zenoh's matching status can report "no
-        # subscriber" through a router while there is one, and a lockstep node would
-        # then wait forever for a skipped message.
-        k = self.keys
-        st = self.sim.state(name)
-        x, y, z = st.xyz
-        self._put(k.topic(name, "joint_states"),
-                  codec.joint_state(t, ("left_wheel_joint", "right_wheel_joint"),
-                                    st.enc_pos, st.enc_vel), t)
-        self._put(k.topic(name, "gps"), codec.point_stamped(t, x, y, z), t)
-        self._put(k.topic(name, "ground_truth"),
-                  codec.odometry(t, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id="world",
-                                 z=z, quaternion=st.quaternion), t)
 
     # ------------------------------------------------------------------ input
     def handle(self, ev) -> None:
@@ -287,7 +298,7 @@ class Plant:
 
     def _acked(self, member: str, t_ns: int) -> bool:
         """The member acked tick ``t_ns`` and every command it published for it is in."""
-        t, keys = self.acks.get(member, (None, ()))
+        t, keys, _ = self.acks.get(member, (None, (), False))
         return t == t_ns and all(self.cmd_tick.get(k) == t_ns for k in keys
                                  if k in self._robot_of_cmd)
 
@@ -302,7 +313,7 @@ class Plant:
         if (self.mode == "lockstep" or self.expect) and not self.wait_for_members():
             return 1 if not self.stop_event.is_set() else 0
         self.wall_start = time.monotonic()
-        tick_ns = int(round(self.spec.control_tick_s * 1e9))
+        tick_ns = self.tick_ns
         self.log.info("running %s (%s mode, tick %.0f ms, %d physics steps per tick)",
                       self.spec.name, self.mode, tick_ns / 1e6, self.spec.substeps)
         try:
@@ -315,9 +326,15 @@ class Plant:
                 if self.duration_ns is not None and t >= self.duration_ns:
                     if self.mode == "lockstep":
                         self.wait_for_acks(t, required)
+                    self.end_reason = "duration reached"
                     break
                 if self.mode == "lockstep":
                     self.wait_for_acks(t, required)
+                    ended = [m for m in self.end_with if self.acks.get(m, (None, (), False))[2]]
+                    if ended:
+                        self.end_reason = f"{ended[0]} finished"
+                        self.log.info("%s finished at t=%.3f s: stopping", ended[0], t * 1e-9)
+                        break
                 else:
                     self.drain(0.0)
                 if self.mode == "realtime":
@@ -334,7 +351,7 @@ class Plant:
                 self.timing["physics_s"] += c3 - c2
                 if not self.sim.is_finite():
                     self.log.error("physics diverged at t=%.3f s; rebuilding the world", t * 1e-9)
-                    self.sim = Simulation(self.spec)
+                    self.build()
         finally:
             self.wall_end = time.monotonic()
         return 0
@@ -350,7 +367,12 @@ class Plant:
                 "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
                                 for k, v in self.timing.items()}}
 
-    def close(self) -> None:
+    def close(self, reason: str = "stopped") -> None:
+        """Tell the nodes the simulation ended (so they exit 0, not "plant gone"), then leave."""
+        try:
+            self.session.put(self.keys.end, reason.encode())
+        except Exception:
+            pass
         self._token.undeclare()
         for q in self._queryables:
             q.undeclare()
@@ -398,6 +420,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--expect", default="", metavar="NODES",
                    help="lockstep: comma-separated members to wait for before the first tick")
     p.add_argument("--join-timeout", type=float, default=30.0, metavar="S")
+    p.add_argument("--end-with", default="", metavar="NODES",
+                   help="lockstep: stop, without stepping further, at the tick where one of "
+                        "these members finishes (so a run's length is reproducible)")
+    p.add_argument("--disable", default="", metavar="SENSORS",
+                   help="comma-separated sensors of the world file to leave off: lidar, camera")
     p.add_argument("--stats", metavar="FILE", help="write counters and timing as JSON at exit")
     p.add_argument("--log-level", default="INFO")
     add_bus_args(p)
@@ -414,6 +441,9 @@ def main(argv: list[str] | None = None) -> int:
         keys = Keys(args.namespace)
         if args.rate <= 0 or not math.isfinite(args.rate):
             raise WorldError(f"--rate must be > 0, got {args.rate}")
+        disabled = tuple(x for x in args.disable.split(",") if x)
+        if set(disabled) - {"lidar", "camera"}:
+            raise WorldError(f"--disable takes lidar and/or camera, got {args.disable!r}")
     except (WorldError, ValueError) as exc:
         log.error("%s", exc)
         return 2
@@ -426,7 +456,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         plant = Plant(spec, session, keys, args.mode, log, rate=args.rate,
                       expect=tuple(n for n in args.expect.split(",") if n),
-                      duration_s=args.duration, join_timeout_s=args.join_timeout)
+                      duration_s=args.duration, join_timeout_s=args.join_timeout,
+                      disabled=disabled,
+                      end_with=tuple(n for n in args.end_with.split(",") if n))
 
         def on_signal(signum, frame):
             plant.stop_event.set()
@@ -441,5 +473,5 @@ def main(argv: list[str] | None = None) -> int:
         if plant is not None:
             if args.stats:
                 write_json(args.stats, plant.stats())
-            plant.close()
+            plant.close(plant.end_reason)
         session.close()

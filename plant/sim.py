@@ -12,6 +12,7 @@ import numpy as np
 from . import drive as dd
 from .robot import Robot, movable_object, room_skeleton
 from .shapes import Shape, pose_matrix
+from .noise import make_rng
 from .world import ObjectSpec, WorldSpec
 
 FLOOR_THICKNESS_M = 0.1
@@ -62,6 +63,30 @@ def rotation_to_quaternion(m: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(q)  # type: ignore[return-value]
 
 
+def _visible_parts(robot: Robot, owner: str) -> list[tuple]:
+    """(shape node, kind, size, colour, name, owner) of what a sensor sees of a robot:
+    its visual shapes (the wheels' collision spheres are left out)."""
+    out = []
+    for body in robot.skeleton.getBodyNodes():
+        for i in range(body.getNumShapeNodes()):
+            sn = body.getShapeNode(i)
+            shape = sn.getShape()
+            kind = {"BoxShape": "box", "CylinderShape": "cylinder",
+                    "SphereShape": "sphere"}.get(type(shape).__name__)
+            if kind is None or (kind == "sphere" and sn.getName().endswith("_wheel")):
+                continue
+            if kind == "box":
+                size = tuple(float(v) for v in np.asarray(shape.getSize()))
+            elif kind == "cylinder":
+                size = (shape.getRadius(), shape.getHeight())
+            else:
+                size = (shape.getRadius(),)
+            color = tuple(float(c) for c in np.asarray(sn.getVisualAspect().getRGBA())[:3]) \
+                if sn.hasVisualAspect() else (0.5, 0.5, 0.5)
+            out.append((sn, kind, size, color, sn.getName(), owner))
+    return out
+
+
 def room_objects(spec: WorldSpec) -> list[ObjectSpec]:
     """Floor and walls as static boxes (the floor's top face is z = 0)."""
     lx, ly = spec.floor_size_m
@@ -102,6 +127,21 @@ class Simulation:
             self.limiters[rs.name] = dd.DriveLimiter(rs.drive)
         self.steps = 0
         self._static_shapes = [self._shape_of(o) for o in self.objects if o.static]
+        self._robot_parts = [part for name, r in self.robots.items()
+                             for part in _visible_parts(r, name)]
+        self._set_contact_solver(spec.contact_solver)
+        self.motion_rng = {r.name: make_rng(spec.seed, f"{r.name}/motion") for r in spec.robots}
+
+    def _set_contact_solver(self, name: str) -> None:
+        """PGS honours the Coulomb friction limit; DART's default Dantzig solver over-grips
+        under hard acceleration (FIELD_NOTES). PGS is only reachable as the stock secondary
+        solver, so the two are swapped."""
+        cs = self.world.getConstraintSolver()
+        if name == "pgs" and cs.getBoxedLcpSolver().getType() != "PgsBoxedLcpSolver":
+            primary, secondary = cs.getBoxedLcpSolver(), cs.getSecondaryBoxedLcpSolver()
+            cs.setSecondaryBoxedLcpSolver(None)
+            cs.setBoxedLcpSolver(secondary)
+            cs.setSecondaryBoxedLcpSolver(primary)
 
     # ------------------------------------------------------------------ time
     @property
@@ -120,12 +160,21 @@ class Simulation:
 
     # ------------------------------------------------------------------ commands
     def command_twist(self, robot: str, v_mps: float, w_radps: float) -> None:
-        self.robots[robot].targets = self.limiters[robot].from_twist(
-            v_mps, w_radps, self.spec.control_tick_s)
+        self._set_targets(robot, self.limiters[robot].from_twist(
+            v_mps, w_radps, self.spec.control_tick_s))
 
     def command_wheels(self, robot: str, wl: float, wr: float) -> None:
-        self.robots[robot].targets = self.limiters[robot].from_wheels(
-            wl, wr, self.spec.control_tick_s)
+        self._set_targets(robot, self.limiters[robot].from_wheels(
+            wl, wr, self.spec.control_tick_s))
+
+    def _set_targets(self, robot: str, wheels: tuple[float, float]) -> None:
+        """Wheel-speed set-points for the next tick, with the robot's motion noise."""
+        r = self.robots[robot]
+        std = r.spec.sensors.command_noise_std_radps
+        if std > 0.0 and wheels != (0.0, 0.0):
+            n = self.motion_rng[robot].normal(0.0, std, 2)
+            wheels = (wheels[0] + n[0], wheels[1] + n[1])
+        r.targets = wheels
 
     # ------------------------------------------------------------------ state
     def state(self, robot: str) -> RobotState:
@@ -151,36 +200,12 @@ class Simulation:
     def shapes(self) -> list[Shape]:
         """Every solid of the world in world coordinates, robots included."""
         out = list(self._static_shapes)
-        for name, r in self.robots.items():
-            for body in r.skeleton.getBodyNodes():
-                for i in range(body.getNumShapeNodes()):
-                    sn = body.getShapeNode(i)
-                    shape = sn.getShape()
-                    kind = {"BoxShape": "box", "CylinderShape": "cylinder",
-                            "SphereShape": "sphere"}.get(type(shape).__name__)
-                    if kind is None:
-                        continue
-                    if kind == "box":
-                        size = tuple(np.asarray(shape.getSize(), dtype=float))
-                    elif kind == "cylinder":
-                        size = (shape.getRadius(), shape.getHeight())
-                    else:
-                        size = (shape.getRadius(),)
-                    # The wheels' collision spheres are not what a camera sees.
-                    if kind == "sphere" and sn.getName().endswith("_wheel"):
-                        continue
-                    color = tuple(np.asarray(sn.getVisualAspect().getRGBA())[:3]) \
-                        if sn.hasVisualAspect() else (0.5, 0.5, 0.5)
-                    out.append(Shape(kind, size, sn.getWorldTransform().matrix(), color,
-                                     sn.getName(), name))
+        for sn, kind, size, color, name, owner in self._robot_parts:
+            out.append(Shape(kind, size, sn.getWorldTransform().matrix(), color, name, owner))
         for o in self.objects:
             if not o.static:
                 out.append(self._shape_of(o))
         return out
-
-    def topic_periods(self, robot: str) -> dict[str, int]:
-        """Sensor topics the plant publishes for ``robot``: name -> period in control ticks."""
-        return {"joint_states": 1, "gps": 1, "ground_truth": 1}
 
     def describe(self) -> dict:
         """The world as the plant understood it (served on ``sim/info``)."""
@@ -197,7 +222,6 @@ class Simulation:
                                 "wheel_separation_m": r.drive.wheel_separation_m,
                                 "drive": dict(r.drive.__dict__),
                                 "joints": ["left_wheel_joint", "right_wheel_joint"],
-                                "topics": self.topic_periods(r.name),
                                 "parts": [p.name for p in r.parts]}
                        for r in s.robots},
             "materials": {m.name: m.friction for m in s.materials.values()},

@@ -20,6 +20,10 @@ except ModuleNotFoundError:  # Python 3.10
 
 from bus.keys import BadName, check_name
 
+from .camera import CameraConfig
+from .lidar import LidarConfig
+from .noise import NoiseConfig, parse_noise
+
 WORLDS_DIR = os.path.join(os.path.dirname(__file__), "worlds")
 
 
@@ -61,6 +65,19 @@ class DriveSpec:
 
 
 @dataclass
+class SensorsSpec:
+    """A robot's sensors and noise. Lidar and camera exist only if their table is given."""
+    lidar: LidarConfig | None = None
+    lidar_noise: NoiseConfig = field(default_factory=NoiseConfig)
+    camera: CameraConfig | None = None
+    camera_noise: NoiseConfig = field(default_factory=NoiseConfig)
+    encoder_noise: NoiseConfig = field(default_factory=NoiseConfig)
+    gps_noise: NoiseConfig = field(default_factory=NoiseConfig)
+    #: motion noise: Gaussian standard deviation added to each commanded wheel speed, rad/s
+    command_noise_std_radps: float = 0.0
+
+
+@dataclass
 class RobotSpec:
     name: str
     pose: tuple[float, float, float]        # x, y, yaw
@@ -71,6 +88,7 @@ class RobotSpec:
     wheel_mass_kg: float = 0.5
     # extra parts carried by the robot (e.g. the leader's green ball), poses relative to base
     parts: list[ObjectSpec] = field(default_factory=list)
+    sensors: SensorsSpec = field(default_factory=SensorsSpec)
 
 
 @dataclass
@@ -82,6 +100,7 @@ class WorldSpec:
     control_tick_s: float = 0.02
     gravity_mps2: float = 9.81
     collision_detector: str = "bullet"      # bullet | fcl | dart | ode
+    contact_solver: str = "pgs"             # pgs (Coulomb limit exact) | dantzig
     seed: int = 0
     floor_size_m: tuple[float, float] = (10.0, 10.0)
     floor_color: tuple[float, float, float] = (0.78, 0.72, 0.62)
@@ -240,6 +259,62 @@ def _parse_object(t: _Table, materials: dict, default_material: str) -> ObjectSp
     return ObjectSpec(name, shape, size, (x, y, z, yaw), color, material, static, mass)
 
 
+def _config_from_table(t: _Table, cls, skip=()) -> object:
+    """A frozen sensor config dataclass from the same-named keys of a table."""
+    kw = {}
+    t.used.update(cls.__dataclass_fields__)      # all known keys (for typo suggestions)
+    for name, f in cls.__dataclass_fields__.items():
+        if name in skip or not t.has(name):
+            continue
+        if f.type in ("int", int):
+            kw[name] = t.integer(name, f.default)
+        else:
+            kw[name] = t.number(name, f.default)
+    try:
+        return cls(**kw)
+    except ValueError as exc:
+        t.fail("", str(exc))
+
+
+def _noise(t: _Table, sensor: str, max_range: float | None = None) -> NoiseConfig:
+    raw = t.raw("noise")
+    if raw is None:
+        return NoiseConfig()
+    try:
+        return parse_noise(raw, sensor, max_range=max_range, where=f"{t.path}:{t.key('noise')}")
+    except ValueError as exc:
+        raise WorldError(str(exc)) from None
+
+
+def _parse_sensors(robot: _Table) -> SensorsSpec:
+    s = SensorsSpec()
+    if robot.has("lidar"):
+        t = robot.table("lidar")
+        if t.boolean("enabled", True):
+            s.lidar = _config_from_table(t, LidarConfig)
+            s.lidar_noise = _noise(t, "lidar", s.lidar.max_range_m)
+        t.raw("noise")
+        t.done()
+    if robot.has("camera"):
+        t = robot.table("camera")
+        if t.boolean("enabled", True):
+            s.camera = _config_from_table(t, CameraConfig)
+            s.camera_noise = _noise(t, "camera")
+        t.raw("noise")
+        t.done()
+    for key, sensor, attr in (("encoders", "position", "encoder_noise"),
+                              ("gps", "gps", "gps_noise")):
+        if robot.has(key):
+            t = robot.table(key)
+            setattr(s, attr, _noise(t, sensor))
+            t.done()
+    if robot.has("motion"):
+        t = robot.table("motion")
+        s.command_noise_std_radps = t.number("command_noise_std_radps", 0.0, nonneg=True)
+        t.done()
+    return s
+
+
 def _parse_drive(t: _Table) -> DriveSpec:
     d = DriveSpec()
     for f in DriveSpec.__dataclass_fields__:
@@ -265,6 +340,7 @@ def parse_world(data: dict, path: str) -> WorldSpec:
     spec.gravity_mps2 = w.number("gravity_mps2", 9.81, nonneg=True)
     spec.collision_detector = w.string("collision_detector", "bullet",
                                        choices=("bullet", "fcl", "dart", "ode"))
+    spec.contact_solver = w.string("contact_solver", "pgs", choices=("pgs", "dantzig"))
     spec.seed = w.integer("seed", 0)
     w.done()
 
@@ -316,6 +392,7 @@ def parse_world(data: dict, path: str) -> WorldSpec:
         r.chassis_mass_kg = t.number("chassis_mass_kg", r.chassis_mass_kg, positive=True)
         r.wheel_mass_kg = t.number("wheel_mass_kg", r.wheel_mass_kg, positive=True)
         r.drive = _parse_drive(t.table("drive"))
+        r.sensors = _parse_sensors(t)
         for pt in t.tables("parts"):
             r.parts.append(_parse_object(pt, spec.materials, "default"))
         t.done()

@@ -109,7 +109,9 @@ def test_ctrl_c_stops_every_process_and_leaves_a_summary(tmp_path):
                           "realtime", "--out", str(out)], cwd=ROOT, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, start_new_session=True)
     try:
-        wait_for(lambda: len(processes_mentioning(str(out))) >= 4, 60, what="all processes up")
+        plant_log = out / "logs" / "plant.log"
+        wait_for(lambda: plant_log.exists() and "running" in plant_log.read_text(), 60,
+                 what="the plant to start running")
         time.sleep(1.0)
         p.send_signal(signal.SIGINT)
         t0 = time.monotonic()

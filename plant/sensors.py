@@ -1,0 +1,88 @@
+"""A robot's sensors as the plant publishes them: which are due at a tick, and their messages.
+
+Each sensor runs every ``period`` control ticks (its rate rounded to whole ticks),
+and every noise stream has a generator of its own seeded from (seed, robot/sensor),
+so adding a sensor never changes another sensor's noise. Encoder noise is added
+to each reading (not accumulated); wheel speeds are reported exact.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from bus import codec
+
+from . import camera as cam
+from . import lidar as lid
+from .noise import NoiseModel, make_rng
+from .raycast import Scene
+from .sim import RobotState
+from .world import RobotSpec
+
+JOINTS = ("left_wheel_joint", "right_wheel_joint")
+
+
+def period_ticks(rate_hz: float, tick_s: float) -> int:
+    """Whole control ticks between two readings of a sensor of rate ``rate_hz``."""
+    return max(1, int(round(1.0 / (rate_hz * tick_s))))
+
+
+class RobotSensors:
+    def __init__(self, spec: RobotSpec, tick_s: float, seed: int) -> None:
+        self.spec = spec
+        self.name = spec.name
+        s = spec.sensors
+        self.tick_s = tick_s
+
+        def model(cfg, stream):
+            return None if cfg.is_zero and cfg.resolution == 0 else NoiseModel(cfg, make_rng(seed, f"{self.name}/{stream}"))
+        self.enc_noise = model(s.encoder_noise, "encoders")
+        self.gps_noise = model(s.gps_noise, "gps")
+        self.lidar = s.lidar
+        self.camera = s.camera
+        self.lidar_noise = model(s.lidar_noise, "lidar") if s.lidar else None
+        self.camera_noise = model(s.camera_noise, "camera") if s.camera else None
+        self.periods = {"joint_states": 1, "gps": 1, "ground_truth": 1}
+        if self.lidar:
+            self.periods["scan"] = period_ticks(self.lidar.rate_hz, tick_s)
+        if self.camera:
+            p = period_ticks(self.camera.rate_hz, tick_s)
+            self.periods["camera/image"] = p
+            self.periods["camera/info"] = p
+            self._info_fields = cam.camera_info(self.camera)
+
+    def due(self, tick: int) -> list[str]:
+        return [t for t, p in self.periods.items() if tick % p == 0]
+
+    def needs_scene(self, tick: int) -> bool:
+        return any(tick % self.periods[t] == 0 for t in ("scan", "camera/image")
+                   if t in self.periods)
+
+    def messages(self, tick: int, t_ns: int, st: RobotState, scene: Scene | None):
+        """(topic, message) pairs due at ``tick``, in a fixed order."""
+        out = []
+        pos = st.enc_pos
+        if self.enc_noise is not None:
+            pos = self.enc_noise.apply(pos)
+        out.append(("joint_states", codec.joint_state(t_ns, JOINTS, pos, st.enc_vel)))
+        x, y, z = st.xyz
+        gx, gy, gz = self.gps_noise.apply(np.array([x, y, z])) if self.gps_noise else (x, y, z)
+        out.append(("gps", codec.point_stamped(t_ns, gx, gy, gz)))
+        out.append(("ground_truth", codec.odometry(
+            t_ns, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id="world", z=z,
+            quaternion=st.quaternion)))
+        if self.lidar and tick % self.periods["scan"] == 0:
+            ranges = lid.measure(self.lidar, st.tf, scene, self.lidar_noise, exclude_owner=self.name)
+            c = self.lidar
+            out.append(("scan", codec.laser_scan(t_ns, c.angle_min, c.angle_max, c.angle_increment,
+                                                 1.0 / c.rate_hz, c.min_range_m, c.max_range_m,
+                                                 ranges)))
+        if self.camera and tick % self.periods["camera/image"] == 0:
+            rgb = cam.render(self.camera, cam.camera_pose(self.camera, st.tf), scene,
+                             exclude_owner=self.name)
+            if self.camera_noise is not None:
+                rgb = self.camera_noise.apply(rgb)
+            out.append(("camera/image", codec.image(t_ns, rgb)))
+            out.append(("camera/info", codec.camera_info(t_ns, **self._info_fields)))
+        return out
+
+
