@@ -411,6 +411,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="diffbot plant", description="Run the DART plant on the bus.")
     p.add_argument("--world", default="living_room",
                    help="world file, or the name of a shipped world (living_room, empty)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a world-file value, e.g. world.mode=kinematic or "
+                        "'robots.robot1.encoders.noise={webots_noise = 0.2}' (repeatable)")
     p.add_argument("--mode", choices=MODES, default="lockstep")
     p.add_argument("--rate", type=float, default=1.0,
                    help="realtime mode: simulated seconds per wall second (default 1)")
@@ -435,7 +438,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     log = setup_logging("plant", args.log_level)
     try:
-        spec = load_world(args.world)
+        spec = load_world(args.world, args.set)
         if args.seed is not None:
             spec.seed = args.seed
         keys = Keys(args.namespace)

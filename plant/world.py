@@ -425,7 +425,9 @@ def resolve_world_path(name_or_path: str) -> str:
                      f"{', '.join(sorted(f[:-5] for f in os.listdir(WORLDS_DIR) if f.endswith('.toml')))})")
 
 
-def load_world(name_or_path: str) -> WorldSpec:
+def load_world(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) -> WorldSpec:
+    """Load and validate a world file, after applying ``KEY=VALUE`` overrides (see
+    :func:`apply_override`)."""
     path = resolve_world_path(name_or_path)
     try:
         with open(path, "rb") as f:
@@ -434,4 +436,41 @@ def load_world(name_or_path: str) -> WorldSpec:
         raise WorldError(f"{path}: not valid TOML: {exc}") from None
     except OSError as exc:
         raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
+    for item in overrides:
+        apply_override(data, item, path)
     return parse_world(data, path)
+
+
+def apply_override(data: dict, item: str, path: str = "<world>") -> None:
+    """Set one value of a parsed world file from ``dotted.key=TOML value``.
+
+    Robots are addressed by name: ``robots.robot1.encoders.noise={webots_noise = 0.2}``,
+    ``world.mode="kinematic"``, ``materials.floor.friction=0.4``. Missing tables are
+    created; the result is validated like the file itself.
+    """
+    key, sep, value = item.partition("=")
+    parts = [p for p in key.strip().split(".") if p]
+    if not sep or not parts:
+        raise WorldError(f"{path}: bad override {item!r}: expected KEY=VALUE")
+    try:
+        val = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        val = value.strip()               # a bare word is a string
+    node = data
+    i = 0
+    while i < len(parts) - 1:
+        p = parts[i]
+        if p == "robots" and isinstance(node.get("robots"), list):
+            name = parts[i + 1]
+            match = [r for r in node["robots"] if isinstance(r, dict) and r.get("name") == name]
+            if not match:
+                raise WorldError(f"{path}: override {key}: no robot named {name!r}")
+            node = match[0]
+            i += 2
+            continue
+        nxt = node.setdefault(p, {})
+        if not isinstance(nxt, dict):
+            raise WorldError(f"{path}: override {key}: {p!r} is not a table")
+        node = nxt
+        i += 1
+    node[parts[-1]] = val

@@ -93,3 +93,32 @@ def test_run_with_unknown_scenario_exits_2(tmp_path):
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "no-such-scenario",
                         "--out", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "no such scenario" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_overrides_set_values_by_robot_name_and_are_validated():
+    w = load_world("living_room", ["world.mode=kinematic",
+                                   "robots.robot1.encoders.noise={webots_noise = 0.2}",
+                                   "materials.floor.friction=0.4",
+                                   "robots.robot1.lidar.noise={ std = 0.05 }"])
+    assert w.mode == "kinematic"
+    assert w.materials["floor"].friction == 0.4
+    assert w.robots[0].sensors.encoder_noise.std == pytest.approx(0.2)
+    assert w.robots[0].sensors.lidar_noise.std == pytest.approx(0.05)
+    with pytest.raises(WorldError, match="no robot named 'ghost'"):
+        load_world("living_room", ["robots.ghost.gps.noise={std=1}"])
+    with pytest.raises(WorldError, match=r"world\.mode: must be one of"):
+        load_world("living_room", ["world.mode=warp"])
+    with pytest.raises(WorldError, match=r"robots\[0\]\.lidar\.noise\.stdev: unknown key"):
+        load_world("living_room", ["robots.robot1.lidar.noise={stdev = 1}"])
+
+
+def test_sensor_sections_parse_with_webots_values():
+    w = load_world("living_room", ["robots.robot1.lidar.noise={webots_noise = 0.2}",
+                                   "robots.robot1.camera.noise={webots_noise = 0.2}",
+                                   "robots.robot1.camera.k1=-0.2"])
+    s = w.robots[0].sensors
+    assert s.lidar.num_rays == 180 and s.lidar.max_range_m == 80.0
+    assert s.lidar_noise.std == pytest.approx(0.2 * 80.0)      # relative to max range
+    assert s.camera_noise.std == pytest.approx(0.2 * 255)      # 1.0 means 255
+    assert s.camera.k1 == -0.2
+    assert load_world("empty").robots[0].sensors.lidar is None
