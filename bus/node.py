@@ -41,6 +41,8 @@ from .session import BusConfigError, add_bus_args, open_session
 WHEEL_JOINTS = ("left_wheel_joint", "right_wheel_joint")
 
 EXIT_PLANT_GONE = 3
+#: How long after the plant's liveliness vanished a node waits for its ``sim/end``.
+END_GRACE_S = 0.3
 EXIT_BAD_CONFIG = 2
 
 
@@ -180,11 +182,16 @@ class NodeRunner:
         stamps: dict[str, int] = {}
         pending: int | None = None
         plant_seen = False
+        gone_at = 0.0
         self.log.info("%s on robot %s: mode %s, inputs %s%s", self.name, self.robot, self.mode,
                       ", ".join(self.inputs) or "none", ", lockstep member" if self.sync else "")
         try:
             while not self.stop_event.is_set():
-                ev = inbox.get(timeout=0.2)
+                ev = inbox.get(timeout=0.05 if gone_at else 0.2)
+                if gone_at and time.monotonic() - gone_at > END_GRACE_S:
+                    self.log.error("the plant is gone; stopping")
+                    self.exit_code = EXIT_PLANT_GONE
+                    break
                 if ev is None:
                     continue
                 if ev.tag == "end":
@@ -193,11 +200,10 @@ class NodeRunner:
                     break
                 if ev.tag == "plant":
                     if ev.alive:
-                        plant_seen = True
+                        plant_seen, gone_at = True, 0.0
                     elif plant_seen:
-                        self.log.error("the plant is gone; stopping")
-                        self.exit_code = EXIT_PLANT_GONE
-                        break
+                        # Its liveliness may overtake its last word (sim/end): wait a moment.
+                        gone_at = time.monotonic()
                     continue
                 if ev.tag == "clock":
                     try:

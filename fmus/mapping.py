@@ -1,0 +1,301 @@
+"""The mapping file of ``diffbot fmu-node``: which message fields feed which FMU inputs,
+which FMU outputs make which message, which FMU parameters come from ``sim/info``.
+
+The format is in fmus/README.md ("The FMU on the bus") and in fmus/node.py. This module
+checks the file on its own (keys, topics, message fields, message builders); the FMU's
+variables are checked against it when the node is built (fmus/node.py). Every error is
+one line ``file:key: reason`` (:class:`FmuNodeError`).
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+from bus import codec
+from bus.keys import TOPICS
+from bus.node import WHEEL_JOINTS
+
+FMUS_DIR = Path(__file__).resolve().parent
+
+
+class FmuNodeError(ValueError):
+    """A configuration error (FMU file, mapping file, sim/info); one line, exit code 2."""
+
+# ====================================================================== field paths
+
+_SEGMENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)")
+_INDEX = re.compile(r"\[(\d+)\]")
+_NUMERIC = {"float32", "float64", "int8", "uint8", "int16", "uint16", "int32", "uint32",
+            "int64", "uint64", "byte", "octet", "char"}
+
+
+class FieldPath:
+    """A path into a message or a JSON document: ``position[0]``, ``pose.pose.position.x``,
+    ``robots.{robot}.pose[2]`` (``{robot}`` is replaced before parsing)."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+        self.steps: list[str | int] = []
+        if not isinstance(text, str) or not text:
+            raise ValueError("expected a field path like position[0] or pose.pose.position.x")
+        for part in text.split("."):
+            m = _SEGMENT.fullmatch(part)
+            if not m:
+                raise ValueError(f"bad field path {text!r}: segment {part!r} is not "
+                                 "name or name[index]")
+            self.steps.append(m.group(1))
+            self.steps += [int(i) for i in _INDEX.findall(m.group(2))]
+
+    def __str__(self) -> str:
+        return self.text
+
+    def get(self, obj) -> Any:
+        """The value at this path; raises LookupError if it is not there."""
+        for s in self.steps:
+            if isinstance(s, int):
+                try:
+                    obj = obj[s]
+                except (IndexError, KeyError, TypeError):
+                    raise LookupError(f"{self.text}: no element [{s}]") from None
+            elif isinstance(obj, dict):
+                if s not in obj:
+                    raise LookupError(f"{self.text}: no key {s!r}")
+                obj = obj[s]
+            else:
+                try:
+                    obj = getattr(obj, s)
+                except AttributeError:
+                    raise LookupError(f"{self.text}: no field {s!r}") from None
+        return obj
+
+    def check_msgtype(self, msgtype: str) -> None:
+        """Raise ValueError unless the path names a numeric field of ``msgtype``."""
+        node: tuple = (2, msgtype)      # rosbags Nodetype: 1 BASE, 2 NAME, 3 ARRAY, 4 SEQUENCE
+        where = msgtype
+        for s in self.steps:
+            kind = int(node[0])
+            if isinstance(s, int):
+                if kind not in (3, 4):
+                    raise ValueError(f"{where} is not an array: [{s}] does not apply")
+                if kind == 3 and s >= node[1][1]:
+                    raise ValueError(f"{where} has {node[1][1]} elements: [{s}] is out of range")
+                node = node[1][0]
+                continue
+            if kind != 2:
+                raise ValueError(f"{where} has no fields ({s!r} does not apply)")
+            fields = dict(codec.TYPESTORE.fielddefs[node[1]][1])
+            if s not in fields:
+                raise ValueError(f"{node[1]} has no field {s!r} (fields: {', '.join(fields)})")
+            node, where = fields[s], f"{where}.{s}"
+        if int(node[0]) in (3, 4):
+            raise ValueError(f"{where} is an array: add an index, e.g. {self.text}[0]")
+        if int(node[0]) != 1 or node[1][0] not in _NUMERIC:
+            raise ValueError(f"{where} is not a number")
+
+
+# ====================================================================== messages
+
+@dataclass(frozen=True)
+class MessageKind:
+    """How a message is built from named numbers (each one fed by an FMU variable)."""
+    msgtype: str
+    required: tuple[str, ...]
+    optional: tuple[str, ...]
+    options: dict[str, str]                      # option -> default (strings)
+    build: Callable[..., Any]                    # build(t_ns, values: dict, options: dict)
+
+
+MESSAGES: dict[str, MessageKind] = {
+    "odometry": MessageKind(
+        "nav_msgs/msg/Odometry", ("x", "y", "yaw"), ("linear", "angular"),
+        {"frame_id": "world", "child_frame_id": "base_link"},
+        lambda t, v, o: codec.odometry(t, v["x"], v["y"], v["yaw"], v.get("linear", 0.0),
+                                       v.get("angular", 0.0), frame_id=o["frame_id"],
+                                       child_frame_id=o["child_frame_id"])),
+    "point": MessageKind(
+        "geometry_msgs/msg/PointStamped", ("x", "y"), ("z",), {"frame_id": "world"},
+        lambda t, v, o: codec.point_stamped(t, v["x"], v["y"], v.get("z", 0.0), o["frame_id"])),
+    "twist": MessageKind(
+        "geometry_msgs/msg/TwistStamped", ("linear", "angular"), (), {"frame_id": "base_link"},
+        lambda t, v, o: codec.twist_stamped(t, v["linear"], v["angular"], o["frame_id"])),
+    "wheel_speeds": MessageKind(
+        "sensor_msgs/msg/JointState", ("left", "right"), (), {},
+        lambda t, v, o: codec.joint_state(t, WHEEL_JOINTS, velocity=(v["left"], v["right"]))),
+}
+
+
+# ====================================================================== mapping file
+
+@dataclass
+class InputMap:
+    variable: str
+    topic: str
+    field: FieldPath
+    transform: str = "value"        # "value" or "rate"
+    scale: float = 1.0
+    where: str = ""                 # "file:input[0]" for messages
+
+
+@dataclass
+class OutputMap:
+    topic: str
+    kind: MessageKind
+    message: str
+    fields: dict[str, str]          # builder field -> FMU variable
+    options: dict[str, str]
+    where: str = ""
+
+
+@dataclass
+class Mapping:
+    path: str
+    inputs: list[InputMap] = field(default_factory=list)
+    outputs: list[OutputMap] = field(default_factory=list)
+    parameters: dict[str, float | str] = field(default_factory=dict)   # name -> number | path
+    where_parameters: str = ""
+
+    @property
+    def topics(self) -> list[str]:
+        """The input topics, in order of first use."""
+        return list(dict.fromkeys(i.topic for i in self.inputs))
+
+
+TRANSFORMS = ("value", "rate")
+
+
+class _Table:
+    """One table of the mapping file; remembers which keys were read to report the rest."""
+
+    def __init__(self, path: str, where: str, data) -> None:
+        self.path, self.where = path, where
+        if not isinstance(data, dict):
+            self.fail("", f"expected a table, got {type(data).__name__}")
+        self.data, self.used = data, set()
+
+    def fail(self, key: str, reason: str):
+        k = f"{self.where}.{key}" if key and self.where else key or self.where
+        raise FmuNodeError(f"{self.path}:{k}: {reason}")
+
+    def string(self, key: str, default: str | None = None) -> str:
+        self.used.add(key)
+        if key not in self.data:
+            if default is None:
+                self.fail(key, "missing (a string is required)")
+            return default
+        v = self.data[key]
+        if not isinstance(v, str) or not v:
+            self.fail(key, f"expected a non-empty string, got {v!r}")
+        return v
+
+    def number(self, key: str, default: float) -> float:
+        self.used.add(key)
+        v = self.data.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            self.fail(key, f"expected a finite number, got {v!r}")
+        return float(v)
+
+    def done(self, known: tuple[str, ...] | None = None) -> None:
+        for k in self.data:
+            if k not in self.used:
+                hint = f" (known: {', '.join(known)})" if known else ""
+                self.fail(k, f"unknown key{hint}")
+
+
+def load_mapping(path: str | Path) -> Mapping:
+    """Read and check a mapping file (syntax, keys, topics, message fields); the FMU's
+    variables are checked by :meth:`Fmu.check_mapping`. Raises FmuNodeError."""
+    path = str(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise FmuNodeError(f"{path}: no such mapping file") from None
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise FmuNodeError(f"{path}: not a valid TOML file: {exc}") from None
+    m = Mapping(path)
+    top = _Table(path, "", data)
+    raw_inputs = data.get("input", [])
+    top.used.add("input")
+    if isinstance(raw_inputs, dict):
+        raw_inputs = [raw_inputs]
+    if not isinstance(raw_inputs, list):
+        top.fail("input", "expected [[input]] tables")
+    seen: set[str] = set()
+    for n, raw in enumerate(raw_inputs):
+        t = _Table(path, f"input[{n}]", raw)
+        var = t.string("variable")
+        if var in seen:
+            t.fail("variable", f"{var!r} is fed twice")
+        seen.add(var)
+        topic = t.string("topic")
+        if topic not in TOPICS:
+            t.fail("topic", f"unknown topic {topic!r} (topics: {', '.join(TOPICS)})")
+        try:
+            fp = FieldPath(t.string("field"))
+            fp.check_msgtype(TOPICS[topic].msgtype)
+        except ValueError as exc:
+            t.fail("field", str(exc))
+        transform = t.string("transform", "value")
+        if transform not in TRANSFORMS:
+            t.fail("transform", f"must be one of {', '.join(TRANSFORMS)}, got {transform!r}")
+        scale = t.number("scale", 1.0)
+        t.done(("variable", "topic", "field", "transform", "scale"))
+        m.inputs.append(InputMap(var, topic, fp, transform, scale, f"{path}:input[{n}]"))
+
+    raw_outputs = data.get("output", [])
+    top.used.add("output")
+    single = isinstance(raw_outputs, dict)
+    if single:
+        raw_outputs = [raw_outputs]
+    if not isinstance(raw_outputs, list) or not raw_outputs:
+        top.fail("output", "missing: at least one [output] table is required")
+    for n, raw in enumerate(raw_outputs):
+        t = _Table(path, "output" if single else f"output[{n}]", raw)
+        topic = t.string("topic")
+        if topic not in TOPICS:
+            t.fail("topic", f"unknown topic {topic!r} (topics: {', '.join(TOPICS)})")
+        message = t.string("message")
+        if message not in MESSAGES:
+            t.fail("message", f"unknown message {message!r} (messages: {', '.join(MESSAGES)})")
+        kind = MESSAGES[message]
+        if kind.msgtype != TOPICS[topic].msgtype:
+            t.fail("message", f"{message} builds {kind.msgtype} but {topic} carries "
+                              f"{TOPICS[topic].msgtype}")
+        options = {o: t.string(o, d) for o, d in kind.options.items()}
+        fields = {}
+        for f in kind.required + kind.optional:
+            if f in t.data or f in kind.required:
+                fields[f] = t.string(f)
+        t.done(("topic", "message", *kind.options, *kind.required, *kind.optional))
+        m.outputs.append(OutputMap(topic, kind, message, fields, options, f"{path}:{t.where}"))
+
+    raw_params = data.get("parameters", {})
+    top.used.add("parameters")
+    t = _Table(path, "parameters", raw_params)
+    for name, v in raw_params.items():
+        t.used.add(name)
+        if isinstance(v, str):
+            try:
+                FieldPath(v.replace("{robot}", "robot"))
+            except ValueError as exc:
+                t.fail(name, str(exc))
+        elif isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            t.fail(name, f"expected a number or a sim/info path like "
+                         f"\"robots.{{robot}}.wheel_radius_m\", got {v!r}")
+        m.parameters[name] = v
+    m.where_parameters = f"{path}:parameters"
+    top.done(("input", "output", "parameters"))
+    return m
+
+
+def default_mapping(model_identifier: str) -> Path | None:
+    p = FMUS_DIR / model_identifier / "mapping.toml"
+    return p if p.is_file() else None
