@@ -69,6 +69,9 @@ TOPICS: dict[str, Topic] = {
                          "px", "camera"),
     "odom": Topic("odom", "nav_msgs/msg/Odometry", "node", "every control tick",
                   "m, rad, m/s, rad/s", "odom -> base_link"),
+    "follower/debug": Topic("follower/debug", "std_msgs/msg/Float64MultiArray", "controller",
+                            "with each camera frame",
+                            "found, u px, v px, radius px, distance m, bearing rad", "camera"),
 }
 
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"

@@ -14,7 +14,20 @@ A controller declares::
     done = False                        # set True to stop the robot and exit 0
 
 ``step`` returns a :class:`Twist` (published as ``cmd_vel``), :class:`WheelSpeeds`
-(``wheel_cmd``), a dict ``{topic: message}`` of other outputs, or None.
+(``wheel_cmd``), a dict ``{topic: message}`` of other outputs (a Twist or WheelSpeeds
+value in it, under any key, is the command), or None.
+
+Faults (see the README's "What happens when ..."): the plant is watched through its
+liveliness token, so a killed plant is noticed within milliseconds and a frozen one
+(SIGSTOP) within the 1 s lease; the node then exits 3, or with ``--wait`` waits for a
+plant to come back, re-reads ``sim/info`` and carries on (this node's controller object
+keeps its state). A node that was itself frozen longer than the lease has been dropped by
+the simulation; when it resumes it sees the plant gone and exits 3 (with ``--wait`` it
+rejoins at the current tick). Inputs are filed by stamp, so stray, stale or forged
+samples never displace the one a tick needs; bad values are rejected and counted, and
+the tick goes on with the last good message (``check_inputs = False`` on a controller
+that validates its own). A lockstep node that waits for another node's output after
+that node left exits 4 instead of holding the simulation forever.
 """
 from __future__ import annotations
 
@@ -30,19 +43,31 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from . import codec
 from .inbox import Inbox
 from .keys import TOPICS, Keys, check_name
 from .log import RejectCounter, setup_logging
-from .session import BusConfigError, add_bus_args, open_session
+from .session import BusConfigError, add_bus_args, make_config, open_session
 
 WHEEL_JOINTS = ("left_wheel_joint", "right_wheel_joint")
 
 EXIT_PLANT_GONE = 3
-#: How long after the plant's liveliness vanished a node waits for its ``sim/end``.
-END_GRACE_S = 0.3
+#: a lockstep node whose awaited input comes from a node that left (it would wait forever)
+EXIT_INPUT_GONE = 4
+
+#: the Zenoh lease (bus.session.DEFAULT_LEASE_MS): a peer silent for longer is dropped
+LEASE_S = 1.0
+#: how long a lockstep node waits for another node's output once a member has left
+PRODUCER_GRACE_S = 0.5
+#: samples kept per input topic (by stamp) and clock ticks waiting for their inputs
+_BUF_PER_TOPIC = 8
+_PENDING_MAX = 16
+#: input values beyond this magnitude are absurd (m, rad, m/s, rad/s ...): rejected
+ABSURD_INPUT = 1e9
+_HELD = object()     # "a bad sample came for this tick": the tick goes on, the last good is held
 EXIT_BAD_CONFIG = 2
 
 
@@ -95,37 +120,48 @@ class NodeRunner:
     """Runs one controller object on the bus (see module docstring)."""
 
     def __init__(self, controller, robot: str, name: str, session: zenoh.Session, keys: Keys,
-                 log: logging.Logger, wait_for_plant_s: float = 15.0) -> None:
+                 log: logging.Logger, wait_for_plant_s: float = 15.0,
+                 wait: bool = False) -> None:
         self.controller = controller
         self.robot = check_name(robot, "robot name")
         self.name = check_name(name, "node name")
         self.session = session
         self.keys = keys
         self.log = log
+        #: --wait: when the plant goes away, wait for it to come back instead of exiting 3
+        self.wait = wait
         self.inputs = list(getattr(controller, "inputs", ()))
         for topic in self.inputs:
             if topic not in TOPICS:
                 raise ValueError(f"{type(controller).__name__}.inputs: unknown topic {topic!r}")
+        #: inputs with non-finite or absurd numbers, or wrong joint names, are rejected here
+        #: unless the controller validates its own (``check_inputs = False``)
+        self.check_inputs = bool(getattr(controller, "check_inputs", True))
         self.rejects = RejectCounter(log)
         self.stop_event = threading.Event()
         self.exit_code = 0
         self.published: dict[str, int] = {}
         self.ticks = 0
+        self.plant_lost = 0           # times the plant went away while --wait kept us here
         self._seq = 0
-        self.info = query_info(session, keys, wait_for_plant_s)
-        self.mode = self.info.get("mode", "lockstep")
-        self.sync = bool(getattr(controller, "sync", True)) and self.mode == "lockstep"
-        if robot not in self.info.get("robots", {}):
-            raise ValueError(f"robot {robot!r} is not in the plant's world "
-                             f"(robots: {', '.join(self.info.get('robots', {})) or 'none'})")
-        self.tick_ns = int(round(self.info.get("control_tick_s", 0.0) * 1e9))
-        # Sensors the plant publishes every `period` ticks; node outputs come every tick.
-        self.periods = dict(self.info["robots"][robot].get("topics", {}))
-        self.awaited = [t for t in self.inputs
-                        if TOPICS[t].source != "plant" or t in self.periods]
+        self._apply_info(query_info(session, keys, wait_for_plant_s))
         self._tick_keys: list[str] = []
         if hasattr(controller, "configure"):
             controller.configure(self.info, robot)
+
+    def _apply_info(self, info: dict) -> None:
+        """Take the simulation's mode, tick and sensor periods from the plant's ``sim/info``."""
+        self.info = info
+        self.mode = info.get("mode", "lockstep")
+        self.sync = bool(getattr(self.controller, "sync", True)) and self.mode == "lockstep"
+        if self.robot not in info.get("robots", {}):
+            raise ValueError(f"robot {self.robot!r} is not in the plant's world "
+                             f"(robots: {', '.join(info.get('robots', {})) or 'none'})")
+        self.tick_ns = int(round(info.get("control_tick_s", 0.0) * 1e9))
+        # Sensors the plant publishes every `period` ticks; node outputs come every tick.
+        self.periods = dict(info["robots"][self.robot].get("topics", {}))
+        self.awaited = [t for t in self.inputs
+                        if TOPICS[t].source != "plant" or t in self.periods]
 
     # ----------------------------------------------------------------- output
     def _put(self, key: str, msg, t_ns: int) -> None:
@@ -147,7 +183,10 @@ class NodeRunner:
                       codec.joint_state(t_ns, WHEEL_JOINTS, velocity=(out.left, out.right)), t_ns)
         elif isinstance(out, dict):
             for topic, msg in out.items():
-                self._put(self.keys.topic(self.robot, topic), msg, t_ns)
+                if isinstance(msg, (Twist, WheelSpeeds)):     # a command among other outputs
+                    self.publish(msg, t_ns)
+                else:
+                    self._put(self.keys.topic(self.robot, topic), msg, t_ns)
         else:
             raise TypeError(f"step() returned {type(out).__name__}; expected Twist, "
                             "WheelSpeeds, dict or None")
@@ -166,6 +205,82 @@ class NodeRunner:
         k = t_ns // self.tick_ns if self.tick_ns else 0
         return [t for t in self.awaited if k % self.periods.get(t, 1) == 0]
 
+    # ----------------------------------------------------------------- input
+    def _input(self, topic: str, payload: bytes) -> None:
+        """Decode and check one input sample, and file it under its stamp.
+
+        Samples are kept by stamp (a few per topic), so a late, early or forged sample
+        never displaces the one a tick needs. A sample that decodes but carries bad
+        values (NaN, inf, absurd magnitudes, wrong joint names) is rejected and *held*:
+        its tick still happens and the controller sees the topic's last good message.
+        """
+        try:
+            msg = codec.decode(payload, TOPICS[topic].msgtype)
+        except codec.CodecError as exc:
+            self.rejects.reject(topic, str(exc))
+            return
+        stamp, problem = _stamp_of(msg, self.tick_ns)
+        if problem:
+            self.rejects.reject(topic, problem)
+            return
+        buf = self._buf.setdefault(topic, {})
+        if self.check_inputs and (problem := check_input(topic, msg)):
+            self.rejects.reject(topic, f"{problem} (t={stamp * 1e-9:.3f} s; holding the last "
+                                       "good one)")
+            buf.setdefault(stamp, _HELD)       # never replaces a good sample of the tick
+        else:
+            buf[stamp] = msg
+        if len(buf) > _BUF_PER_TOPIC:          # drop what lies farthest from the clock
+            ref = self._last_clock if self._last_clock is not None else stamp
+            del buf[max(buf, key=lambda s: abs(s - ref))]
+
+    def _clock(self, payload: bytes) -> int | None:
+        try:
+            msg = codec.decode(payload, "rosgraph_msgs/msg/Clock")
+        except codec.CodecError as exc:
+            self.rejects.reject("clock", str(exc))
+            return None
+        t_ns, problem = _stamp_of(msg, self.tick_ns)
+        if problem:
+            self.rejects.reject("clock", problem)
+            return None
+        self._last_clock = t_ns
+        return t_ns
+
+    def _complete(self, t_ns: int) -> bool:
+        """Every input due at ``t_ns`` has a sample (good or held) stamped ``t_ns`` that this
+        node has not acted on yet."""
+        return all(t_ns in self._buf.get(topic, ()) and (topic, t_ns) not in self._used
+                   for topic in self.due_inputs(t_ns))
+
+    def _observation(self, t_ns: int) -> Observation:
+        """The latest good message of each input stamped at or before ``t_ns``; older ones
+        and the held marks are dropped."""
+        msgs = {}
+        for topic in self.inputs:
+            buf = self._buf.get(topic)
+            if not buf:
+                continue
+            good = [s for s, m in buf.items() if s <= t_ns and m is not _HELD]
+            if good:
+                best = max(good)
+                msgs[topic] = buf[best]
+            else:
+                best = None
+            for s in [s for s, m in buf.items()
+                      if s <= t_ns and (s != best) and (best is None or s < best or m is _HELD)]:
+                del buf[s]
+            self._used.add((topic, t_ns))
+        if len(self._used) > 4 * _BUF_PER_TOPIC * max(1, len(self.inputs)):
+            self._used = {(tp, s) for tp, s in self._used if s >= t_ns}
+        return Observation(t_ns, self.robot, msgs)
+
+    def _reset_inputs(self) -> None:
+        self._buf: dict[str, dict[int, Any]] = {}
+        self._used: set[tuple[str, int]] = set()
+        self._pending: dict[int, float] = {}   # lockstep: clock stamp -> wall time it came
+        self._last_clock: int | None = None
+
     # ----------------------------------------------------------------- loop
     def run(self, max_ticks: int | None = None) -> int:
         inbox = Inbox(self.session)
@@ -174,75 +289,160 @@ class NodeRunner:
             inbox.subscribe(key, "input")
         inbox.subscribe(self.keys.clock, "clock")
         inbox.subscribe(self.keys.end, "end")
+        # The plant also declares sim/end as a liveliness token before it withdraws
+        # sim/alive/plant: declarations stay in order, so the end is seen before the absence.
+        inbox.watch_liveliness(self.keys.end, "end")
         inbox.watch_liveliness(self.keys.alive("plant"), "plant")
-        tokens = [self.session.liveliness().declare_token(self.keys.alive(self.name))]
+        inbox.watch_liveliness(self.keys.sync(), "member")
+        liveliness = self.session.liveliness()
+        tokens = {"alive": liveliness.declare_token(self.keys.alive(self.name))}
         if self.sync:
-            tokens.append(self.session.liveliness().declare_token(self.keys.sync(self.name)))
-        latest: dict[str, Any] = {}
-        stamps: dict[str, int] = {}
-        pending: int | None = None
-        plant_seen = False
-        gone_at = 0.0
+            tokens["sync"] = liveliness.declare_token(self.keys.sync(self.name))
+        self._reset_inputs()
+        plant_seen = plant_here = False
+        left: dict[str, float] = {}          # lockstep members that left -> wall time
+        last_loop = stalled = time.monotonic()
+        stall_s = 0.0
         self.log.info("%s on robot %s: mode %s, inputs %s%s", self.name, self.robot, self.mode,
                       ", ".join(self.inputs) or "none", ", lockstep member" if self.sync else "")
         try:
             while not self.stop_event.is_set():
-                ev = inbox.get(timeout=0.05 if gone_at else 0.2)
-                if gone_at and time.monotonic() - gone_at > END_GRACE_S:
-                    self.log.error("the plant is gone; stopping")
-                    self.exit_code = EXIT_PLANT_GONE
-                    break
+                ev = inbox.get(timeout=0.2)
+                now = time.monotonic()
+                if now - last_loop > LEASE_S:      # this process was stopped (SIGSTOP) or starved
+                    stall_s, stalled = now - last_loop, now
+                last_loop = now
                 if ev is None:
+                    if self.sync and self._producer_gone(left, now):
+                        break
                     continue
                 if ev.tag == "end":
-                    self.log.info("the simulation ended (%s); stopping",
-                                  ev.payload.decode("utf-8", "replace"))
+                    if not ev.alive or (not plant_here and not ev.payload):
+                        continue             # the end token withdrawn, or a repeat of the end
+                    reason = ev.payload.decode("utf-8", "replace") or "the plant ended it"
+                    if self.wait:
+                        self.log.warning("the simulation ended (%s); waiting for a plant "
+                                         "(--wait)", reason)
+                        plant_here = False
+                        self._reset_inputs()
+                        continue
+                    self.log.info("the simulation ended (%s); stopping", reason)
                     break
                 if ev.tag == "plant":
                     if ev.alive:
-                        plant_seen, gone_at = True, 0.0
-                    elif plant_seen:
-                        # Its liveliness may overtake its last word (sim/end): wait a moment.
-                        gone_at = time.monotonic()
+                        if plant_seen and not plant_here:
+                            if not self._plant_back(tokens):
+                                break
+                        plant_seen = plant_here = True
+                    elif plant_here:
+                        plant_here = False
+                        self._reset_inputs()
+                        if self.wait:
+                            self.plant_lost += 1
+                            self.log.warning("the plant is gone; waiting for it to come back "
+                                             "(--wait)")
+                            continue
+                        if now - stalled < 5.0:
+                            self.log.error("the plant is gone: this process was stopped for "
+                                           "%.1f s, longer than the %.0f s bus lease, so the "
+                                           "simulation dropped it; stopping", stall_s, LEASE_S)
+                        else:
+                            self.log.error("the plant is gone; stopping")
+                        self.exit_code = EXIT_PLANT_GONE
+                        break
+                    continue
+                if ev.tag == "member":
+                    node = self.keys.node_of(ev.key)
+                    if not ev.alive and node != self.name:
+                        left[node] = now
+                    elif ev.alive:
+                        left.pop(node, None)
                     continue
                 if ev.tag == "clock":
-                    try:
-                        t_ns = codec.msg_stamp_ns(codec.decode(ev.payload, "rosgraph_msgs/msg/Clock"))
-                    except codec.CodecError as exc:
-                        self.rejects.reject("clock", str(exc))
+                    t_ns = self._clock(ev.payload)
+                    if t_ns is None:
                         continue
-                    pending = t_ns
+                    if not self.sync:
+                        if self._act(t_ns):
+                            break
+                        if max_ticks is not None and self.ticks >= max_ticks:
+                            break
+                        continue
+                    self._pending[t_ns] = now
+                    if len(self._pending) > _PENDING_MAX:
+                        old = next(iter(self._pending))
+                        del self._pending[old]
+                        self.rejects.reject("clock", f"tick t={old * 1e-9:.3f} s never "
+                                                     "completed (a stray clock?)")
                 else:
-                    topic = topic_of.get(ev.key)
-                    try:
-                        msg = codec.decode(ev.payload, TOPICS[topic].msgtype)
-                    except codec.CodecError as exc:
-                        self.rejects.reject(topic, str(exc))
+                    self._input(topic_of[ev.key], ev.payload)
+                    if not self.sync:
                         continue
-                    latest[topic] = msg
-                    stamps[topic] = codec.msg_stamp_ns(msg)
-                if pending is None:
-                    continue
-                if self.sync and any(stamps.get(t) != pending for t in self.due_inputs(pending)):
-                    continue
-                t_ns, pending = pending, None
-                obs = Observation(t_ns, self.robot, dict(latest))
-                out = self.controller.step(obs)
-                self.publish(out, t_ns)
-                self.ticks += 1
-                if getattr(self.controller, "done", False):
-                    self.publish(self._stop_command(), t_ns)
-                    self.ack(t_ns, final=True)
-                    self.log.info("%s done at t=%.3f s", self.name, t_ns * 1e-9)
-                    break
-                self.ack(t_ns)
-                if max_ticks is not None and self.ticks >= max_ticks:
+                finished = False
+                for t_ns in [t for t in self._pending if self._complete(t)]:
+                    del self._pending[t_ns]
+                    if self._act(t_ns):
+                        finished = True
+                        break
+                    if max_ticks is not None and self.ticks >= max_ticks:
+                        finished = True
+                        break
+                if finished:
                     break
         finally:
-            for tok in tokens:
+            for tok in tokens.values():
                 tok.undeclare()
             inbox.close()
         return self.exit_code
+
+    def _act(self, t_ns: int) -> bool:
+        """Step the controller at tick ``t_ns``, publish, ack; True if the controller is done."""
+        obs = self._observation(t_ns)
+        out = self.controller.step(obs)
+        self.publish(out, t_ns)
+        self.ticks += 1
+        if getattr(self.controller, "done", False):
+            self.publish(self._stop_command(), t_ns)
+            self.ack(t_ns, final=True)
+            self.log.info("%s done at t=%.3f s", self.name, t_ns * 1e-9)
+            return True
+        self.ack(t_ns)
+        return False
+
+    def _plant_back(self, tokens: dict) -> bool:
+        """A plant is there again (--wait): learn its mode and carry on. False to stop."""
+        try:
+            self._apply_info(query_info(self.session, self.keys, 15.0))
+        except (TimeoutError, ValueError) as exc:
+            self.log.error("a plant came back but %s; stopping", exc)
+            self.exit_code = EXIT_PLANT_GONE
+            return False
+        if self.sync and "sync" not in tokens:
+            tokens["sync"] = self.session.liveliness().declare_token(self.keys.sync(self.name))
+        elif not self.sync and "sync" in tokens:
+            tokens.pop("sync").undeclare()
+        self._reset_inputs()
+        self.log.warning("the plant is back (%s mode, t=%.3f s); carrying on", self.mode,
+                         self.info.get("time_ns", 0) * 1e-9)
+        return True
+
+    def _producer_gone(self, left: dict[str, float], now: float) -> bool:
+        """Lockstep: a tick has every plant sensor it needs but waits for another node's
+        output, and a member left the simulation since: that output will never come."""
+        if not left or not self._pending:
+            return False
+        for t_ns, came in self._pending.items():
+            missing = [tp for tp in self.due_inputs(t_ns) if t_ns not in self._buf.get(tp, ())]
+            if not missing or any(TOPICS[tp].source == "plant" for tp in missing):
+                continue
+            gone = [n for n, w in left.items() if w >= came - PRODUCER_GRACE_S]
+            if gone and now - max(came, max(left[n] for n in gone)) > PRODUCER_GRACE_S:
+                self.log.error("no %s for t=%.3f s: lockstep member %s left the simulation, "
+                               "so it will never come; stopping", ", ".join(missing),
+                               t_ns * 1e-9, ", ".join(sorted(gone)))
+                self.exit_code = EXIT_INPUT_GONE
+                return True
+        return False
 
     def _stop_command(self):
         stop = getattr(self.controller, "stop_command", None)
@@ -251,7 +451,62 @@ class NodeRunner:
     def stats(self) -> dict:
         return {"node": self.name, "robot": self.robot, "ticks": self.ticks,
                 "published": self.published, "rejected": dict(self.rejects.counts),
-                "exit_code": self.exit_code}
+                "plant_lost": self.plant_lost, "exit_code": self.exit_code}
+
+
+def _stamp_of(msg, tick_ns: int) -> tuple[int, str | None]:
+    """(stamp in ns, problem or None): stamps must be valid times on the tick grid."""
+    st = msg.header.stamp if hasattr(msg, "header") else msg.clock
+    if st.sec < 0 or not 0 <= st.nanosec < 1_000_000_000:
+        return 0, f"invalid stamp ({st.sec} s, {st.nanosec} ns)"
+    t_ns = codec.stamp_ns(st)
+    if tick_ns and t_ns % tick_ns:
+        return t_ns, (f"stamp t={t_ns * 1e-9:.9f} s is not on the {tick_ns * 1e-6:g} ms "
+                      "tick grid")
+    return t_ns, None
+
+
+#: fields where inf / NaN are legitimate (REP 117: no return) or that are not numbers
+_FREE_FIELDS = {"ranges", "intensities", "data"}
+
+
+def check_input(topic: str, msg) -> str | None:
+    """Why an input message is unusable (non-finite or absurd numbers, wrong joint names),
+    or None. Laser ranges may be inf or NaN (no return); covariances need only be finite."""
+    if topic == "joint_states":
+        names = list(msg.name)
+        if names != list(WHEEL_JOINTS):
+            return f"joint names {names} are not {list(WHEEL_JOINTS)}"
+        if len(msg.position) != 2 or len(msg.velocity) not in (0, 2):
+            return (f"expected 2 positions (and 0 or 2 velocities), got {len(msg.position)} "
+                    f"and {len(msg.velocity)}")
+    return _numbers_problem(msg, "")
+
+
+def _numbers_problem(msg, where: str) -> str | None:
+    for name in msg.__dataclass_fields__:
+        if name.startswith("__") or name in _FREE_FIELDS:
+            continue
+        v = getattr(msg, name)
+        path = f"{where}{name}"
+        if isinstance(v, float):
+            if not math.isfinite(v) or abs(v) > ABSURD_INPUT:
+                return f"{path} = {v!r}"
+        elif isinstance(v, np.ndarray):
+            if v.dtype.kind == "f" and v.size:
+                if not np.isfinite(v).all():
+                    return f"{path} is not finite"
+                if "covariance" not in name and np.abs(v).max() > ABSURD_INPUT:
+                    return f"{path} has absurd values (max |v| {np.abs(v).max():.3g})"
+        elif hasattr(v, "__dataclass_fields__"):
+            if (p := _numbers_problem(v, path + ".")) is not None:
+                return p
+        elif isinstance(v, list):
+            for i, item in enumerate(v):
+                if hasattr(item, "__dataclass_fields__") and \
+                        (p := _numbers_problem(item, f"{path}[{i}].")) is not None:
+                    return p
+    return None
 
 
 def encode_ack(t_ns: int, keys: list[str], final: bool = False) -> bytes:
@@ -276,6 +531,10 @@ def node_arg_parser(description: str, default_name: str | None = None) -> argpar
                    help="node name on the bus (default <controller>_<robot>)")
     p.add_argument("--stats", metavar="FILE", help="write the node's counters as JSON at exit")
     p.add_argument("--log-level", default="INFO")
+    p.add_argument("--wait", action="store_true",
+                   help="if the plant is not there yet or goes away (killed, frozen, "
+                        "restarted), wait for it and carry on when it is back, instead of "
+                        "exiting with code 3")
     add_bus_args(p)
     return p
 
@@ -305,28 +564,50 @@ def run_node(controller, robot: str | None = None, argv: list[str] | None = None
 
 def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
     log = setup_logging(name, args.log_level)
+    wait = bool(getattr(args, "wait", False))
     try:
         keys = Keys(args.namespace)
-        session = open_session("node", args.endpoint, args.zenoh_config)
+        check_name(args.robot, "robot name")
+        check_name(name, "node name")
+        session = _open_node_session(args, wait)
     except (BusConfigError, ValueError) as exc:
         log.error("%s", exc)
         return EXIT_BAD_CONFIG
     runner = None
     try:
         try:
-            runner = NodeRunner(controller, args.robot, name, session, keys, log)
+            if wait:
+                log.info("waiting for the plant (--wait)")
+            runner = NodeRunner(controller, args.robot, name, session, keys, log,
+                                wait_for_plant_s=math.inf if wait else 15.0, wait=wait)
         except TimeoutError as exc:
             log.error("%s", exc)
             return EXIT_PLANT_GONE
         except ValueError as exc:
             log.error("%s", exc)
             return EXIT_BAD_CONFIG
+        except KeyboardInterrupt:          # Ctrl-C while waiting for the plant
+            return 0
         install_stop_signals(runner.stop_event)
         return runner.run()
     finally:
         if runner is not None and getattr(args, "stats", None):
             write_json(args.stats, runner.stats())
         session.close()
+
+
+def _open_node_session(args: argparse.Namespace, wait: bool) -> zenoh.Session:
+    """The node's client session; with ``--wait`` (and the default config) it opens at once
+    and connects whenever the plant is there."""
+    if not wait or args.zenoh_config:
+        return open_session("node", args.endpoint, args.zenoh_config)
+    conf = make_config("node", args.endpoint)
+    conf.insert_json5("connect/exit_on_failure", "false")
+    conf.insert_json5("connect/timeout_ms", "0")
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:
+        raise BusConfigError(f"bad endpoint {args.endpoint!r}: {exc}") from None
 
 
 def write_json(path: str, data: dict) -> None:

@@ -148,4 +148,7 @@ def plot_velocities(a: np.ndarray, t0: float, path: str) -> str:
     return save(fig, path)
 
 
-ANALYSES = {"square": SquareAnalysis, "drive-test": DriveTestAnalysis, "none": NoAnalysis}
+from .analysis_follow import FollowAnalysis  # noqa: E402
+
+ANALYSES = {"square": SquareAnalysis, "drive-test": DriveTestAnalysis, "follow": FollowAnalysis,
+            "none": NoAnalysis}

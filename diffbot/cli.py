@@ -6,6 +6,11 @@
     diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
     diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
     diffbot bench ...               benchmarks
+    diffbot experiment NAME ...     the study's sensor experiments, --out DIR (-h lists them)
+    diffbot record FILE.mcap [KEYS] record the bus into MCAP (Foxglove, ros2 bag, rosbags)
+    diffbot replay FILE.mcap        play a recording back onto the bus (--rate R | --fast)
+    diffbot topics [--duration S]   live keys with message type and rate
+    diffbot echo KEY [--count N]    print a key's messages, decoded
     diffbot scenarios               list the scenarios
 """
 from __future__ import annotations
@@ -20,6 +25,8 @@ CONTROLLERS = {
     "teleop": "controllers.teleop",
     "odometry": "controllers.odometry_node",
     "wheel_schedule": "controllers.scripted",
+    "wander": "controllers.wander",
+    "ball_follower": "controllers.ball_follower",
 }
 
 USAGE = __doc__
@@ -66,9 +73,24 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "fmu-node":
         from fmus.node import main as fmu_node_main
         return fmu_node_main(rest)
+    if cmd == "experiment":
+        from .experiments import main as experiment_main
+        return experiment_main(rest)
     if cmd == "bench":
         from .bench import main as bench_main
         return bench_main(rest)
+    if cmd == "record":
+        from bus.record import main as record_main
+        return record_main(rest)
+    if cmd == "replay":
+        from bus.replay import main as replay_main
+        return replay_main(rest)
+    if cmd == "topics":
+        from bus.topics import topics_main
+        return topics_main(rest)
+    if cmd == "echo":
+        from bus.topics import echo_main
+        return echo_main(rest)
     print(f"diffbot: unknown command {cmd!r}\n\n{USAGE.strip()}", file=sys.stderr)
     return 2
 

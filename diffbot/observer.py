@@ -31,18 +31,23 @@ class Observer:
                                              if sample.attachment is not None else None)
                 self.samples[key].append((att[1] if att else -1, sample.payload.to_bytes()))
 
-    def messages(self, key: str) -> list:
-        """Decoded messages on ``key`` sorted by sim-time stamp (undecodable ones skipped)."""
+    def stamped(self, key: str) -> list[tuple[int, object]]:
+        """(sim-time stamp from the attachment, decoded message) on ``key``, in stamp
+        order (undecodable ones skipped). Works for messages without a header too."""
         with self.lock:
             raw = list(self.samples.get(key, ()))
         out = []
-        for _, payload in raw:
+        for t, payload in raw:
             try:
-                out.append(codec.decode(payload, self.keep[key]))
+                out.append((t, codec.decode(payload, self.keep[key])))
             except codec.CodecError:
                 continue
-        out.sort(key=codec.msg_stamp_ns)
+        out.sort(key=lambda item: item[0])
         return out
+
+    def messages(self, key: str) -> list:
+        """Decoded messages on ``key`` in stamp order."""
+        return [m for _, m in self.stamped(key)]
 
     def close(self) -> None:
         for sub in self._subs:

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from plant.world import WorldError, _Table, tomllib
 
 SCENARIOS_DIR = os.path.join(os.path.dirname(__file__), "scenarios")
-ANALYSES = ("square", "drive-test", "none")
+ANALYSES = ("square", "drive-test", "follow", "none")
 
 
 @dataclass

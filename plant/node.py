@@ -21,6 +21,7 @@ import math
 import signal
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +43,10 @@ MODES = ("lockstep", "realtime", "fast")
 
 #: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
 ABSURD_FACTOR = 10.0
+#: Acks and command stamps remembered per member / command key.
+_RECENT = 32
+#: realtime: falling this far behind the wall clock (s) re-anchors it instead of catching up
+STALL_S = 0.25
 
 
 @dataclass
@@ -78,8 +83,13 @@ class Plant:
         self.stop_event = threading.Event()
         self.members: set[str] = set()
         self.members_seen: set[str] = set()
-        self.acks: dict[str, tuple[int, list[str], bool]] = {}
-        self.cmd_tick: dict[str, int] = {}      # command key -> tick stamp of its last sample
+        # member -> {tick stamp: (keys published for it, final)}, the last few ticks: a stray,
+        # late or forged ack never hides the one the plant waits for
+        self.acks: dict[str, dict[int, tuple[list[str], bool]]] = {}
+        # command key -> tick stamps (from the attachment) of its last few samples
+        self.cmd_ticks: dict[str, deque[int]] = {}
+        self.stalls = 0                          # realtime: times the wall clock was re-anchored
+        self._stall_logged = -1e9
         self.commands: dict[str, Command] = {}
         self.published: dict[str, int] = {}
         self.ticks = 0
@@ -138,33 +148,52 @@ class Plant:
         try:
             raw = query.payload.to_bytes() if query.payload is not None else b""
             req = json.loads(raw) if raw.strip() else {}
-            if not isinstance(req, dict):
-                raise ValueError("request must be a JSON object")
-            if "seed" in req:
-                if not isinstance(req["seed"], int) or isinstance(req["seed"], bool):
-                    raise ValueError("seed must be an integer")
-                self.seed = req["seed"]
-                self.spec.seed = self.seed
-            for name, pose in (req.get("poses") or {}).items():
-                if name not in self.sim.robots:
-                    raise ValueError(f"unknown robot {name!r}")
-                if (not isinstance(pose, list) or len(pose) != 3 or
-                        not all(isinstance(v, (int, float)) and math.isfinite(v) for v in pose)):
-                    raise ValueError(f"pose of {name} must be [x, y, yaw]")
-                self.spec.robot(name).pose = tuple(float(v) for v in pose)
-            unknown = set(req) - {"seed", "poses"}
-            if unknown:
-                raise ValueError(f"unknown request keys: {', '.join(sorted(unknown))}")
-        except (ValueError, json.JSONDecodeError) as exc:
+            seed, poses = self._check_reset(req)
+        except (ValueError, RecursionError) as exc:   # JSONDecodeError is a ValueError
             self.rejects.reject("reset", str(exc))
             query.reply_err(json.dumps({"error": str(exc)}))
             return
+        # Checked in full before anything changes: a bad request leaves the world as it was.
+        if seed is not None:
+            self.seed = self.spec.seed = seed
+        for name, pose in poses.items():
+            self.spec.robot(name).pose = pose
         self.build()
         self.commands.clear()
         self.acks.clear()
-        self.cmd_tick.clear()
+        self.cmd_ticks.clear()
         self.log.info("world rebuilt (seed %d)", self.seed)
         query.reply(self.keys.reset, json.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
+
+    def _check_reset(self, req) -> tuple[int | None, dict[str, tuple[float, float, float]]]:
+        """(seed or None, new poses) of a reset request; ValueError if any part is bad."""
+        if not isinstance(req, dict):
+            raise ValueError("request must be a JSON object")
+        unknown = set(req) - {"seed", "poses"}
+        if unknown:
+            raise ValueError(f"unknown request keys: {', '.join(sorted(map(str, unknown)))}")
+        seed = req.get("seed")
+        if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)
+                                 or not 0 <= seed < 2**63):
+            raise ValueError("seed must be an integer in [0, 2**63)")
+        poses = req.get("poses") or {}
+        if not isinstance(poses, dict):
+            raise ValueError('poses must be an object {"robot": [x, y, yaw]}')
+        half = [s / 2 for s in self.spec.floor_size_m]
+        out = {}
+        for name, pose in poses.items():
+            if name not in self.sim.robots:
+                raise ValueError(f"unknown robot {name!r}")
+            if (not isinstance(pose, list) or len(pose) != 3 or
+                    not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                            and math.isfinite(v) for v in pose)):
+                raise ValueError(f"pose of {name} must be [x, y, yaw] (finite numbers)")
+            x, y, yaw = (float(v) for v in pose)
+            if abs(x) > half[0] or abs(y) > half[1] or abs(yaw) > 1e3:
+                raise ValueError(f"pose of {name} {pose} is off the {2 * half[0]:g} x "
+                                 f"{2 * half[1]:g} m floor (or yaw beyond 1000 rad)")
+            out[name] = (x, y, yaw)
+        return seed, out
 
     # ------------------------------------------------------------------ publishing
     def _publisher(self, key: str) -> zenoh.Publisher:
@@ -199,10 +228,19 @@ class Plant:
         elif ev.tag == "cmd":
             self._on_command(ev)
         elif ev.tag == "ack":
+            node = self.keys.node_of(ev.key)
             try:
-                self.acks[self.keys.node_of(ev.key)] = decode_ack(ev.payload)
+                t, keys, final = decode_ack(ev.payload)
             except ValueError as exc:
                 self.rejects.reject("ack", str(exc))
+                return
+            if node not in self.members:
+                self.rejects.reject("ack", f"from {node!r}, not a lockstep member")
+                return
+            acks = self.acks.setdefault(node, {})
+            acks[t] = (keys, final)
+            if len(acks) > _RECENT:
+                del acks[next(iter(acks))]
         elif ev.tag == "alive":
             (self.alive.add if ev.alive else self.alive.discard)(self.keys.node_of(ev.key))
         elif ev.tag == "member":
@@ -213,18 +251,27 @@ class Plant:
                 self.log.info("lockstep member joined: %s", node)
             else:
                 self.members.discard(node)
+                self.acks.pop(node, None)
                 self.log.warning("lockstep member left: %s", node)
 
     def _on_command(self, ev) -> None:
         robot, topic = self._robot_of_cmd[ev.key]
         att = codec.parse_attachment(ev.attachment)
         if att is not None:
-            self.cmd_tick[ev.key] = att[1]
+            ticks = self.cmd_ticks.setdefault(ev.key, deque(maxlen=_RECENT))
+            ticks.append(att[1])
         drive = self.sim.robots[robot].spec.drive
         try:
             if topic == "cmd_vel":
                 msg = codec.decode(ev.payload, "geometry_msgs/msg/TwistStamped")
-                a, b = float(msg.twist.linear.x), float(msg.twist.angular.z)
+                tw = msg.twist
+                if not all(math.isfinite(v) for v in (tw.linear.x, tw.linear.y, tw.linear.z,
+                                                      tw.angular.x, tw.angular.y, tw.angular.z)):
+                    raise ValueError("non-finite twist")
+                if msg.header.frame_id not in ("", "base_link"):
+                    raise ValueError(f"twist in frame {msg.header.frame_id!r}; "
+                                     "expected base_link")
+                a, b = float(tw.linear.x), float(tw.angular.z)
                 lim_a, lim_b = drive.max_linear_mps, drive.max_angular_radps
                 kind = "twist"
             else:
@@ -232,6 +279,7 @@ class Plant:
                 a, b = _wheel_speeds(msg)
                 lim_a = lim_b = drive.max_wheel_speed_radps
                 kind = "wheels"
+            self._check_stamp(msg.header.stamp, drive.cmd_timeout_s)
         except (codec.CodecError, ValueError) as exc:
             self.rejects.reject(f"{robot}/{topic}", str(exc))
             return
@@ -243,6 +291,22 @@ class Plant:
                                 f"limits are {lim_a:g}, {lim_b:g}")
             return
         self.commands[robot] = Command(kind, a, b, self.sim.time_ns, time.monotonic())
+
+    def _check_stamp(self, stamp, timeout_s: float) -> None:
+        """Raise ValueError for a command stamped in the future, or (lockstep, realtime) older
+        than the robot's ``cmd_timeout_s``. A zero stamp means "now" (unstamped)."""
+        if stamp.sec < 0 or not 0 <= stamp.nanosec < 1_000_000_000:
+            raise ValueError(f"invalid stamp ({stamp.sec} s, {stamp.nanosec} ns)")
+        t = codec.stamp_ns(stamp)
+        if t == 0:
+            return
+        now = self.sim.time_ns
+        if t > now + self.tick_ns:
+            raise ValueError(f"stamped t={t * 1e-9:.3f} s, in the future (now "
+                             f"{now * 1e-9:.3f} s)")
+        if self.mode != "fast" and now - t > timeout_s * 1e9:
+            raise ValueError(f"stamped t={t * 1e-9:.3f} s, older than cmd_timeout "
+                             f"{timeout_s:g} s (now {now * 1e-9:.3f} s)")
 
     def apply_commands(self) -> None:
         """Hand each robot its latest command, or zero if it has none or it timed out."""
@@ -298,8 +362,8 @@ class Plant:
 
     def _acked(self, member: str, t_ns: int) -> bool:
         """The member acked tick ``t_ns`` and every command it published for it is in."""
-        t, keys, _ = self.acks.get(member, (None, (), False))
-        return t == t_ns and all(self.cmd_tick.get(k) == t_ns for k in keys
+        ack = self.acks.get(member, {}).get(t_ns)
+        return ack is not None and all(t_ns in self.cmd_ticks.get(k, ()) for k in ack[0]
                                  if k in self._robot_of_cmd)
 
     def wait_for_acks(self, t_ns: int, required: set[str]) -> None:
@@ -330,7 +394,8 @@ class Plant:
                     break
                 if self.mode == "lockstep":
                     self.wait_for_acks(t, required)
-                    ended = [m for m in self.end_with if self.acks.get(m, (None, (), False))[2]]
+                    ended = [m for m in self.end_with
+                             if self.acks.get(m, {}).get(t, ((), False))[1]]
                     if ended:
                         self.end_reason = f"{ended[0]} finished"
                         self.log.info("%s finished at t=%.3f s: stopping", ended[0], t * 1e-9)
@@ -339,6 +404,18 @@ class Plant:
                     self.drain(0.0)
                 if self.mode == "realtime":
                     due = self.wall_start + (t + tick_ns) * 1e-9 / self.rate
+                    behind = time.monotonic() - due
+                    if behind > max(STALL_S, 5 * tick_ns * 1e-9 / self.rate):
+                        # Stopped (SIGSTOP, debugger) or starved: do not race to catch up,
+                        # which would replay the missed wall time at full speed.
+                        self.stalls += 1
+                        self.wall_start += behind
+                        due -= behind
+                        if time.monotonic() - self._stall_logged > 5.0:
+                            self._stall_logged = time.monotonic()
+                            self.log.warning("realtime: %.2f s behind the wall clock at "
+                                             "t=%.3f s (stopped or overloaded); carrying on "
+                                             "from now", behind, t * 1e-9)
                     while (left := due - time.monotonic()) > 0 and not self.stop_event.is_set():
                         self.drain(min(left, 0.05))
                 c2 = time.perf_counter()
@@ -360,20 +437,28 @@ class Plant:
         wall = max(self.wall_end - self.wall_start, 1e-9) if self.wall_start else 0.0
         sim_s = self.sim.time_ns * 1e-9
         return {"node": "plant", "world": self.spec.name, "mode": self.mode, "seed": self.seed,
+                "end_reason": self.end_reason,
                 "sim_time_s": sim_s, "wall_time_s": wall, "ticks": self.ticks,
                 "real_time_factor": sim_s / wall if wall else None,
                 "published": self.published, "rejected": dict(self.rejects.counts),
-                "members_seen": sorted(self.members_seen),
+                "members_seen": sorted(self.members_seen), "stalls": self.stalls,
                 "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
                                 for k, v in self.timing.items()}}
 
     def close(self, reason: str = "stopped") -> None:
         """Tell the nodes the simulation ended (so they exit 0, not "plant gone"), then leave."""
+        end_token = None
         try:
             self.session.put(self.keys.end, reason.encode())
+            # Also as a liveliness token: declarations are ordered with the undeclaration
+            # of sim/alive/plant below, so a node always sees the end before the absence.
+            end_token = self.session.liveliness().declare_token(self.keys.end)
+            time.sleep(0.05)
         except Exception:
             pass
         self._token.undeclare()
+        if end_token is not None:
+            end_token.undeclare()
         for q in self._queryables:
             q.undeclare()
         self.inbox.close()

@@ -212,10 +212,18 @@ class NoiseModel:
         if arr.dtype == np.uint8:
             if c.is_zero and c.resolution == 0:
                 return arr.copy()
-            out = self._noisy(arr.astype(np.float64))
+            # Images: single precision is plenty for 0..255 and several times faster.
+            out = arr.astype(np.float32)
+            out += np.float32(c.bias + c.mean)
+            if c.std > 0:
+                noise = self.rng.standard_normal(arr.shape, dtype=np.float32)
+                noise *= np.float32(c.std)
+                out += noise
             if c.resolution > 0:
-                out = np.round(out / c.resolution) * c.resolution
-            return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+                out = np.round(out / np.float32(c.resolution)) * np.float32(c.resolution)
+            np.rint(out, out=out)
+            np.clip(out, 0, 255, out=out)
+            return out.astype(np.uint8)
         out = self._noisy(arr.astype(np.float64))
         if c.resolution > 0:
             with np.errstate(invalid="ignore"):

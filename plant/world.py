@@ -436,9 +436,47 @@ def load_world(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) -
         raise WorldError(f"{path}: not valid TOML: {exc}") from None
     except OSError as exc:
         raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
+    data = _extend(data, path, seen=(os.path.abspath(path),))
     for item in overrides:
         apply_override(data, item, path)
     return parse_world(data, path)
+
+
+def _extend(data: dict, path: str, seen: tuple[str, ...]) -> dict:
+    """``[world] extends = "living_room"``: start from another world file (a shipped name or
+    a path relative to this file). This file's tables override the base's key by key;
+    its ``objects`` are added to the base's; its ``robots``, if any, replace the base's."""
+    world = data.get("world")
+    base_name = world.get("extends") if isinstance(world, dict) else None
+    if base_name is None:
+        return data
+    if not isinstance(base_name, str):
+        raise WorldError(f"{path}:world.extends: expected a world name or path")
+    rel = os.path.join(os.path.dirname(path), base_name)
+    try:
+        base_path = resolve_world_path(rel if os.path.exists(rel) else base_name)
+    except WorldError as exc:
+        raise WorldError(f"{path}:world.extends: {exc}") from None
+    if os.path.abspath(base_path) in seen:
+        raise WorldError(f"{path}:world.extends: {base_name!r} extends itself")
+    try:
+        with open(base_path, "rb") as f:
+            base = tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise WorldError(f"{path}:world.extends: cannot load {base_path}: {exc}") from None
+    base = _extend(base, base_path, seen + (os.path.abspath(base_path),))
+    out = dict(base)
+    for key, value in data.items():
+        if key == "objects":
+            out["objects"] = list(base.get("objects", [])) + list(value)
+        elif key == "robots":
+            out["robots"] = value
+        elif isinstance(value, dict) and isinstance(base.get(key), dict):
+            out[key] = {**base[key], **value}
+        else:
+            out[key] = value
+    out["world"] = {k: v for k, v in out["world"].items() if k != "extends"}
+    return out
 
 
 def apply_override(data: dict, item: str, path: str = "<world>") -> None:

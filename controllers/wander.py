@@ -1,0 +1,81 @@
+"""The leader's route: a smooth loop around the living room, at 0.1-0.2 m/s.
+
+Pure pursuit along an ellipse through the free middle of the room (clear of the
+furniture by the robot's footprint), speed varying smoothly between the two limits
+so a follower has something to do. The leader is a scripted actor: it steers on
+``ground_truth`` so its route never drifts, however long the run.
+"""
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+
+from bus import codec
+from bus.node import Twist, node_arg_parser, run_node_args
+
+
+class Wander:
+    name = "wander"
+    inputs = ["ground_truth"]
+
+    def __init__(self, center=(-0.1, -0.15), semi_axes=(1.5, 1.1), speed_range=(0.1, 0.2),
+                 lookahead_m: float = 0.5, clockwise: bool = False) -> None:
+        if not (0 < speed_range[0] <= speed_range[1]):
+            raise ValueError("speed range must be positive and ordered")
+        self.cx, self.cy = center
+        self.a, self.b = semi_axes
+        self.vmin, self.vmax = speed_range
+        self.lookahead = lookahead_m
+        self.sign = -1.0 if clockwise else 1.0
+        self.params = np.linspace(0.0, 2 * math.pi, 1440, endpoint=False)
+        self.points = np.stack([self.cx + self.a * np.cos(self.params),
+                                self.cy + self.b * np.sin(self.params)], axis=1)
+        seg = np.linalg.norm(np.diff(np.vstack([self.points, self.points[:1]]), axis=0), axis=1)
+        self.step_len = float(seg.mean())
+        self.done = False
+
+    def point(self, x: float, y: float) -> int:
+        return int(np.argmin(np.sum((self.points - (x, y)) ** 2, axis=1)))
+
+    def step(self, obs):
+        gt = obs["ground_truth"]
+        if gt is None:
+            return Twist()
+        p = gt.pose.pose
+        x, y = p.position.x, p.position.y
+        yaw = codec.quaternion_to_yaw(p.orientation)
+        i = self.point(x, y)
+        j = (i + int(self.sign * self.lookahead / self.step_len)) % len(self.points)
+        tx, ty = self.points[j]
+        dx, dy = tx - x, ty - y
+        alpha = math.atan2(dy, dx) - yaw
+        alpha = (alpha + math.pi) % (2 * math.pi) - math.pi
+        dist = math.hypot(dx, dy)
+        # Speed: slow and fast stretches, twice round the loop.
+        phase = self.params[i]
+        v = self.vmin + (self.vmax - self.vmin) * 0.5 * (1 + math.sin(2 * phase))
+        if abs(alpha) > math.pi / 2:          # far off the route (start-up): turn first
+            return Twist(0.0, math.copysign(0.6, alpha))
+        w = 2.0 * v * math.sin(alpha) / max(dist, 1e-3)
+        return Twist(v, w)
+
+
+def main(argv=None) -> int:
+    p = node_arg_parser("Drive a smooth loop around the living room (the follow task's leader).")
+    p.set_defaults(robot="leader")
+    p.add_argument("--clockwise", action="store_true")
+    p.add_argument("--min-speed", type=float, default=0.1, help="m/s (default 0.1)")
+    p.add_argument("--max-speed", type=float, default=0.2, help="m/s (default 0.2)")
+    args = p.parse_args(argv)
+    try:
+        ctrl = Wander(speed_range=(args.min_speed, args.max_speed), clockwise=args.clockwise)
+    except ValueError as exc:
+        print(f"wander: {exc}", file=sys.stderr)
+        return 2
+    return run_node_args(ctrl, args, args.name or f"wander_{args.robot}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

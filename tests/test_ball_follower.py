@@ -1,0 +1,111 @@
+"""The follower's detector on rendered frames, its distance model, and its control law."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bus import codec
+from bus.node import Observation, Twist
+from controllers.ball_follower import BallFollower, detect_ball, distance_from_radius, locate_ball
+from plant import camera as cam
+from plant.noise import NoiseConfig, NoiseModel, make_rng
+from plant.shapes import Shape, pose_matrix
+from plant.world import load_world
+
+BALL_R = 0.06
+CFG = cam.CameraConfig(width=160, height=120, hfov_rad=1.3)
+GREEN = (0.10, 0.85, 0.15)
+
+
+def scene_with_ball(distance: float, bearing: float, height: float = 0.0, clutter: bool = True):
+    """A ball `distance` m from a camera at the origin (looking along +x), `bearing` rad left."""
+    shapes = [Shape("box", (20, 20, 0.1), pose_matrix(0, 0, -0.55), (0.72, 0.58, 0.42), "floor")]
+    if clutter:   # dull greens and other colours the detector must ignore
+        shapes += [Shape("sphere", (0.3,), pose_matrix(4, -2, 0.2), (0.30, 0.50, 0.28), "foliage"),
+                   Shape("box", (0.5, 0.5, 0.5), pose_matrix(3, 1.5, 0), (0.20, 0.40, 0.30), "chair"),
+                   Shape("box", (0.1, 6, 2), pose_matrix(6, 0, 0.5), (0.9, 0.9, 0.85), "wall")]
+    x, y = distance * math.cos(bearing), distance * math.sin(bearing)
+    shapes.append(Shape("sphere", (BALL_R,), pose_matrix(x, y, height), GREEN, "ball"))
+    return shapes
+
+
+def render(shapes, noise_std=0.0, seed=0):
+    rgb = cam.render(CFG, np.eye(4), shapes)
+    if noise_std:
+        rgb = NoiseModel(NoiseConfig(std=noise_std), make_rng(seed, "camera")).apply(rgb)
+    return rgb
+
+
+def focal():
+    k, _ = cam.intrinsics(CFG)
+    return k[0, 0], k[0, 2], k[1, 2]
+
+
+@pytest.mark.parametrize("distance", [0.4, 0.65, 1.0, 1.5])
+@pytest.mark.parametrize("bearing_deg", [-25, -10, 0, 15, 30])
+@pytest.mark.parametrize("noise", [0.0, 10.0])
+def test_distance_and_bearing_from_a_rendered_ball(distance, bearing_deg, noise):
+    f, cx, cy = focal()
+    det = detect_ball(render(scene_with_ball(distance, math.radians(bearing_deg)), noise))
+    assert det is not None
+    est, bearing = locate_ball(det, f, f, cx, cy, BALL_R)
+    # 5 %, or what half a pixel of radius amounts to for a small, far ball
+    r_px = f * BALL_R / distance
+    assert est == pytest.approx(distance, rel=max(0.05, 0.5 / r_px))
+    assert math.degrees(bearing) == pytest.approx(bearing_deg, abs=1.0)
+
+
+def test_absent_ball_is_none_even_with_noise_and_green_clutter():
+    shapes = [s for s in scene_with_ball(1.0, 0.0) if s.name != "ball"]
+    assert detect_ball(render(shapes)) is None
+    assert detect_ball(render(shapes, noise_std=10.0)) is None
+    assert detect_ball(np.zeros((120, 160, 3), np.uint8)) is None
+
+
+def test_ball_partly_out_of_view_is_still_found_at_the_edge():
+    half_fov = CFG.hfov_rad / 2
+    det = detect_ball(render(scene_with_ball(0.8, half_fov + 0.02)))   # centre just outside
+    assert det is not None and det.u < 6
+
+
+def test_pinhole_distance_model_is_exact_on_axis():
+    f = 100.0
+    for d in (0.3, 0.65, 2.0):
+        r_px = f * math.tan(math.asin(BALL_R / d))
+        assert distance_from_radius(r_px, f, BALL_R) == pytest.approx(d, rel=1e-12)
+
+
+def observation(t_s, rgb):
+    k, d = cam.intrinsics(CFG)
+    info = codec.camera_info(int(t_s * 1e9), CFG.width, CFG.height, "plumb_bob", d, k.ravel(),
+                             np.eye(3).ravel(), np.hstack([k, np.zeros((3, 1))]).ravel())
+    return Observation(int(t_s * 1e9), "follower",
+                       {"camera/image": codec.image(int(t_s * 1e9), rgb), "camera/info": info})
+
+
+def test_control_law_closes_distance_steers_toward_ball_and_searches_when_lost():
+    ctrl = BallFollower()
+    out = ctrl.step(observation(0.04, render(scene_with_ball(1.0, math.radians(10)))))
+    cmd = out["cmd"]
+    assert cmd.linear > 0.1 and cmd.angular > 0.05            # too far and to the left
+    assert out["follower/debug"].data[0] == 1.0
+    assert out["follower/debug"].data[4] == pytest.approx(1.0, rel=0.06)
+    cmd = ctrl.step(observation(0.08, render(scene_with_ball(0.45, math.radians(-10)))))["cmd"]
+    assert cmd.linear < 0 and cmd.angular < 0                 # too close and to the right
+    shapes = [s for s in scene_with_ball(1, 0) if s.name != "ball"]
+    out = ctrl.step(observation(0.12, render(shapes)))
+    assert out["cmd"].linear == 0.0 and out["cmd"].angular < 0   # turns to where it was last seen
+    assert out["follower/debug"].data[0] == 0.0 and ctrl.lost_frames == 1
+    # the same frame again (no new image this tick): the command is held, not recomputed
+    assert ctrl.step(observation(0.12, render(shapes))) is ctrl.command
+
+
+def test_follow_world_has_the_ball_on_the_leader_and_a_camera_on_the_follower():
+    w = load_world("living_room_follow")
+    assert [r.name for r in w.robots] == ["leader", "follower"]
+    ball = [p for p in w.robot("leader").parts if p.shape == "sphere"][0]
+    assert ball.size[0] == BALL_R and ball.pose[0] < -0.25          # behind: the back bumper
+    assert w.robot("follower").sensors.camera is not None
+    assert len(w.objects) == len(load_world("living_room").objects)   # the furniture, inherited

@@ -1,0 +1,51 @@
+"""The follow scenario end to end: real plant, wander, follower and odometry processes."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from .conftest import ROOT
+
+pytestmark = pytest.mark.slow
+
+
+def run_follow(out, *extra):
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "follow", "--out", str(out),
+                        *extra], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return json.load(open(out / "summary.json"))
+
+
+def test_follower_holds_the_band_for_60_s_with_camera_noise(tmp_path):
+    s = run_follow(tmp_path)                      # 60 s, camera noise std 10 (the scenario's)
+    m = s["metrics"]
+    assert s["sim_time_s"] == pytest.approx(60.0)
+    assert 0.60 <= m["distance_min_m"] and m["distance_max_m"] <= 0.70, m
+    assert m["distance_rms_error_m"] < 0.03
+    assert m["ball_lost_frames"] == 0 and m["frames"] >= 1400
+    assert s["real_time_factor"] > 0
+    assert all(code == 0 for code in s["exit_codes"].values()), s["exit_codes"]
+    assert (tmp_path / "tracking_distance.png").stat().st_size > 20_000
+    assert (tmp_path / "follow.gif").read_bytes()[:6] == b"GIF89a"
+    header = (tmp_path / "tracking.csv").read_text().splitlines()[0]
+    assert header.startswith("t_s,distance_m,estimated_distance_m,ball_found")
+
+
+def test_same_seed_gives_a_byte_identical_tracking_csv(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    run_follow(a, "--duration", "12", "--seed", "3")
+    run_follow(b, "--duration", "12", "--seed", "3")
+    ta, tb = (a / "tracking.csv").read_bytes(), (b / "tracking.csv").read_bytes()
+    assert len(ta.splitlines()) > 500
+    assert ta == tb
+
+
+def test_realtime_follower_keeps_up(tmp_path):
+    s = run_follow(tmp_path, "--mode", "realtime", "--duration", "15")
+    m = s["metrics"]
+    assert s["real_time_factor"] == pytest.approx(1.0, abs=0.1)
+    assert m["ball_lost_frames"] <= 2
+    assert 0.55 <= m["distance_min_m"] and m["distance_max_m"] <= 0.75, m
