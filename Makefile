@@ -20,7 +20,7 @@ $(FMUS): $(STAMP) $(FMU_SRC)
 	@touch $(FMUS)
 
 demo: setup
-	$(BIN)/diffbot run square --out out/demo
+	$(BIN)/diffbot run follow --out out/demo
 
 test: setup
 	$(BIN)/python -m pytest -q

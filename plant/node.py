@@ -386,6 +386,8 @@ class Plant:
                 required = set(self.members)
                 c0 = time.perf_counter()
                 self.publish_tick()
+                for sensors in self.sensors.values():
+                    sensors.prefetch()
                 c1 = time.perf_counter()
                 if self.duration_ns is not None and t >= self.duration_ns:
                     if self.mode == "lockstep":

@@ -198,6 +198,20 @@ class NoiseModel:
     def __init__(self, config: NoiseConfig, rng: np.random.Generator):
         self.config = config
         self.rng = rng
+        self._next_image_noise: np.ndarray | None = None
+
+    def prefetch_image(self, shape: tuple[int, ...]) -> None:
+        """Draw the next image's noise now (e.g. while the plant waits for its nodes).
+
+        The stream is the same with or without prefetching: the next ``apply`` of an
+        image of this shape uses exactly these draws."""
+        if self.config.std > 0 and self._next_image_noise is None:
+            self._next_image_noise = self._image_noise(shape)
+
+    def _image_noise(self, shape) -> np.ndarray:
+        noise = self.rng.standard_normal(shape, dtype=np.float32)
+        noise *= np.float32(self.config.std)
+        return noise
 
     def _noisy(self, x: np.ndarray) -> np.ndarray:
         c = self.config
@@ -216,8 +230,9 @@ class NoiseModel:
             out = arr.astype(np.float32)
             out += np.float32(c.bias + c.mean)
             if c.std > 0:
-                noise = self.rng.standard_normal(arr.shape, dtype=np.float32)
-                noise *= np.float32(c.std)
+                noise, self._next_image_noise = self._next_image_noise, None
+                if noise is None or noise.shape != arr.shape:
+                    noise = self._image_noise(arr.shape)
                 out += noise
             if c.resolution > 0:
                 out = np.round(out / np.float32(c.resolution)) * np.float32(c.resolution)

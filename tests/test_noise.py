@@ -175,3 +175,17 @@ def test_config_validation():
         webots_camera(-0.1)
     with pytest.raises(ValueError, match="seed"):
         make_rng(-1, "x")
+
+
+def test_prefetched_image_noise_is_the_same_stream():
+    from plant.noise import NoiseConfig, NoiseModel, make_rng
+    img = np.full((12, 16, 3), 100, np.uint8)
+    a = NoiseModel(NoiseConfig(std=20.0), make_rng(4, "robot1/camera"))
+    b = NoiseModel(NoiseConfig(std=20.0), make_rng(4, "robot1/camera"))
+    out_a = [a.apply(img) for _ in range(3)]
+    out_b = []
+    for _ in range(3):
+        b.prefetch_image(img.shape)
+        b.prefetch_image(img.shape)          # a second prefetch draws nothing more
+        out_b.append(b.apply(img))
+    assert all(np.array_equal(x, y) for x, y in zip(out_a, out_b))
