@@ -62,6 +62,9 @@ EXIT_INPUT_GONE = 4
 LEASE_S = 1.0
 #: how long a lockstep node waits for another node's output once a member has left
 PRODUCER_GRACE_S = 0.5
+#: an input older than this (simulated s, or three of its periods) is not shown to the
+#: controller: its producer is gone (realtime and fast modes, where nobody waits for it)
+STALE_S = 0.5
 #: samples kept per input topic (by stamp) and clock ticks waiting for their inputs
 _BUF_PER_TOPIC = 8
 _PENDING_MAX = 16
@@ -142,6 +145,7 @@ class NodeRunner:
         self.exit_code = 0
         self.published: dict[str, int] = {}
         self.ticks = 0
+        self.final_tick: int | None = None   # the tick at which the controller finished
         self.plant_lost = 0           # times the plant went away while --wait kept us here
         self._seq = 0
         self._apply_info(query_info(session, keys, wait_for_plant_s))
@@ -254,8 +258,9 @@ class NodeRunner:
                    for topic in self.due_inputs(t_ns))
 
     def _observation(self, t_ns: int) -> Observation:
-        """The latest good message of each input stamped at or before ``t_ns``; older ones
-        and the held marks are dropped."""
+        """The latest good message of each input stamped at or before ``t_ns``, unless it is
+        stale (older than ``STALE_S`` or three of its periods: its producer is gone), so a
+        controller never steers on a dead input; older ones and held marks are dropped."""
         msgs = {}
         for topic in self.inputs:
             buf = self._buf.get(topic)
@@ -264,7 +269,9 @@ class NodeRunner:
             good = [s for s, m in buf.items() if s <= t_ns and m is not _HELD]
             if good:
                 best = max(good)
-                msgs[topic] = buf[best]
+                stale_ns = max(STALE_S * 1e9, 3 * self.periods.get(topic, 1) * self.tick_ns)
+                if t_ns - best <= stale_ns:
+                    msgs[topic] = buf[best]
             else:
                 best = None
             for s in [s for s, m in buf.items()
@@ -301,8 +308,7 @@ class NodeRunner:
         self._reset_inputs()
         plant_seen = plant_here = False
         left: dict[str, float] = {}          # lockstep members that left -> wall time
-        last_loop = stalled = time.monotonic()
-        stall_s = 0.0
+        last_loop, stalled, stall_s = time.monotonic(), -math.inf, 0.0
         self.log.info("%s on robot %s: mode %s, inputs %s%s", self.name, self.robot, self.mode,
                       ", ".join(self.inputs) or "none", ", lockstep member" if self.sync else "")
         try:
@@ -389,11 +395,29 @@ class NodeRunner:
                         break
                 if finished:
                     break
+            if self.final_tick is not None and self.sync:
+                self._linger(inbox, self.final_tick)
         finally:
             for tok in tokens.values():
                 tok.undeclare()
             inbox.close()
         return self.exit_code
+
+    def _linger(self, inbox: Inbox, t_done: int, timeout_s: float = 2.0) -> None:
+        """After the final ack, stay in the lockstep set until the plant has taken it: it
+        ticks past ``t_done`` or ends. Leaving at once would let the token's withdrawal
+        overtake the ack, and the plant would step on without knowing this node finished."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not self.stop_event.is_set():
+            ev = inbox.get(timeout=0.05)
+            if ev is None:
+                continue
+            if ev.tag == "end" or (ev.tag == "plant" and not ev.alive):
+                return
+            if ev.tag == "clock":
+                t = self._clock(ev.payload)
+                if t is not None and t > t_done:
+                    return
 
     def _act(self, t_ns: int) -> bool:
         """Step the controller at tick ``t_ns``, publish, ack; True if the controller is done."""
@@ -404,6 +428,7 @@ class NodeRunner:
         if getattr(self.controller, "done", False):
             self.publish(self._stop_command(), t_ns)
             self.ack(t_ns, final=True)
+            self.final_tick = t_ns
             self.log.info("%s done at t=%.3f s", self.name, t_ns * 1e-9)
             return True
         self.ack(t_ns)
@@ -569,10 +594,12 @@ def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
         keys = Keys(args.namespace)
         check_name(args.robot, "robot name")
         check_name(name, "node name")
-        session = _open_node_session(args, wait)
+        session = _open_node_session(args, wait, log)
     except (BusConfigError, ValueError) as exc:
         log.error("%s", exc)
         return EXIT_BAD_CONFIG
+    except KeyboardInterrupt:              # Ctrl-C while waiting for the plant
+        return 0
     runner = None
     try:
         try:
@@ -593,21 +620,35 @@ def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
     finally:
         if runner is not None and getattr(args, "stats", None):
             write_json(args.stats, runner.stats())
+        close_session(session, log)
+
+
+def close_session(session: zenoh.Session, log) -> None:
+    """Close, even when the far end is gone (a close that times out is logged, not raised)."""
+    try:
         session.close()
+    except Exception as exc:       # zenoh.ZError: "close operation timed out"
+        log.warning("closing the Zenoh session: %s", exc)
 
 
-def _open_node_session(args: argparse.Namespace, wait: bool) -> zenoh.Session:
-    """The node's client session; with ``--wait`` (and the default config) it opens at once
-    and connects whenever the plant is there."""
+def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Session:
+    """The node's client session; with ``--wait`` (and the default config) keep trying until
+    a plant listens (a Zenoh client cannot open without its router)."""
     if not wait or args.zenoh_config:
         return open_session("node", args.endpoint, args.zenoh_config)
     conf = make_config("node", args.endpoint)
-    conf.insert_json5("connect/exit_on_failure", "false")
-    conf.insert_json5("connect/timeout_ms", "0")
-    try:
-        return zenoh.open(conf)
-    except Exception as exc:
-        raise BusConfigError(f"bad endpoint {args.endpoint!r}: {exc}") from None
+    conf.insert_json5("connect/timeout_ms", "1000")
+    said = False
+    while True:
+        try:
+            return zenoh.open(conf)
+        except Exception as exc:
+            if "connect" not in str(exc).lower():
+                raise BusConfigError(f"bad endpoint {args.endpoint!r}: {exc}") from None
+        if not said:
+            log.info("no plant at %s yet; waiting for one (--wait)", args.endpoint)
+            said = True
+        time.sleep(0.2)
 
 
 def write_json(path: str, data: dict) -> None:
