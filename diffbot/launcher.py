@@ -5,7 +5,10 @@ launcher decides the order of shutdown: on Ctrl-C, SIGTERM, the end of the run
 or a failure, it sends SIGINT to every child, waits, then SIGKILLs what is left,
 by PID. A required process that dies ends the run with a non-zero exit code and
 its last stderr lines; an optional one may die alone. A process marked
-``ends_run`` that exits 0 ends the run normally.
+``ends_run`` that exits 0 ends the run normally. A process that is still there but
+has lost its bus lease (stopped with SIGSTOP, or wedged) counts as dead: the launcher
+watches ``sim/alive/*`` and /proc. When nodes exit 3 because the plant went away,
+the report names the plant.
 """
 from __future__ import annotations
 
@@ -21,17 +24,25 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
+import zenoh
+
 from bus.keys import Keys
-from bus.node import write_json
+from bus.node import EXIT_PLANT_GONE, write_json
 from bus.session import BusConfigError, open_session
 from plant.world import WorldError, load_world
 
 from .scenario import ScenarioSpec, load_scenario
 
 STOP_GRACE_S = 1.5
+#: a child whose bus token is gone but whose process still runs is taken as hung after this
+WEDGED_S = 3.0
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
+
+RECORDER = "recorder"       # the --record process (bus/record.py); see Run's recorder section
+RECORDER_JOIN_S = 30.0
+RECORDER_GRACE_S = 10.0
 
 
 @dataclass
@@ -81,6 +92,25 @@ class Child:
         if self.log_file is not None:
             self.log_file.close()
 
+    def stopped(self) -> bool:
+        """The process is stopped (SIGSTOP, a debugger): state T or t in /proc."""
+        if self.proc is None or self.poll() is not None:
+            return False
+        try:
+            with open(f"/proc/{self.proc.pid}/stat") as f:
+                return f.read().rsplit(")", 1)[1].split()[0] in ("T", "t")
+        except (OSError, IndexError):
+            return False
+
+    def describe_exit(self) -> str:
+        code = self.exit_code
+        if code is not None and code < 0:
+            try:
+                return f"was killed by {signal.Signals(-code).name} (exit code {code})"
+            except ValueError:
+                pass
+        return f"failed with exit code {code}"
+
 
 def diffbot_argv(*args: str) -> list[str]:
     return [sys.executable, "-m", "diffbot.cli", *args]
@@ -97,9 +127,14 @@ class Run:
     zenoh_config: str | None = None
     duration_s: float | None = None
     timeout_s: float = 900.0
+    record: str | None = None       # --record FILE.mcap (see the recorder section)
+    recorder: Child | None = None
     children: list[Child] = field(default_factory=list)
     reason: str = ""
     failed: Child | None = None
+    #: bus liveliness of the processes (sim/alive/<name>): name -> wall time its token went,
+    #: None while it is there (filled by :meth:`on_alive` from the launcher's session)
+    gone: dict[str, float | None] = field(default_factory=dict)
 
     def bus_args(self) -> list[str]:
         a = ["--endpoint", self.endpoint]
@@ -112,7 +147,7 @@ class Run:
     def build(self) -> None:
         logs = os.path.join(self.out, "logs")
         os.makedirs(logs, exist_ok=True)
-        expect = [p.name for p in self.spec.processes if p.sync]
+        expect = [p.name for p in self.spec.processes if p.sync] + self._recorder_expect()
         plant = diffbot_argv("plant", "--world", self.spec.world, "--mode", self.mode,
                              "--seed", str(self.seed), "--stats",
                              os.path.join(logs, "plant.json"), *self.spec.plant_args,
@@ -125,6 +160,7 @@ class Run:
         if self.duration_s is not None:
             plant += ["--duration", repr(self.duration_s)]
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
+        self._add_recorder(logs)
         for p in self.spec.processes:
             argv = diffbot_argv(*p.command, "--name", p.name, "--stats",
                                 os.path.join(logs, f"{p.name}.json"), *self.bus_args())
@@ -134,7 +170,8 @@ class Run:
     def stop_all(self) -> None:
         """SIGINT the nodes, then the plant (so nodes do not see it vanish), then SIGKILL
         by PID whatever is left after the grace period."""
-        plant, nodes = self.children[0], self.children[1:]
+        plant = self.children[0]
+        nodes = [c for c in self.children[1:] if c is not self.recorder]
         for c in nodes:
             c.signal(signal.SIGINT)
         deadline = time.monotonic() + STOP_GRACE_S / 2
@@ -142,8 +179,9 @@ class Run:
             time.sleep(0.02)
         plant.signal(signal.SIGINT)
         deadline = time.monotonic() + STOP_GRACE_S / 2
-        while time.monotonic() < deadline and any(c.poll() is None for c in self.children):
+        while time.monotonic() < deadline and any(c.poll() is None for c in [plant, *nodes]):
             time.sleep(0.02)
+        self._stop_recorder()
         for c in self.children:
             if c.poll() is None:
                 c.signal(signal.SIGKILL)
@@ -154,6 +192,18 @@ class Run:
                 c.poll()
             c.close()
 
+    def on_alive(self, sample) -> None:
+        """Liveliness callback: a process's ``sim/alive/<name>`` token came or went."""
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        self.gone[name] = None if sample.kind == zenoh.SampleKind.PUT else time.monotonic()
+
+    def unresponsive(self, c: Child) -> bool:
+        """A process that is there but lost its bus lease: stopped (SIGSTOP) or wedged."""
+        went = self.gone.get(c.name)
+        if went is None or c.poll() is not None:
+            return False
+        return c.stopped() or time.monotonic() - went > WEDGED_S
+
     def supervise(self, stop_flag: list) -> int:
         start = time.monotonic()
         while True:
@@ -163,18 +213,92 @@ class Run:
             for c in self.children:
                 code = c.poll()
                 if code is None:
+                    if self.unresponsive(c):
+                        what = ("stopped (SIGSTOP?)" if c.stopped()
+                                else f"not answering for {WEDGED_S:.0f} s")
+                        if c.name == "plant" or c.required:
+                            self.failed = c
+                            self.reason = (f"{c.name} stopped responding: its process is "
+                                           f"{what} and lost its bus lease")
+                            return EXIT_FAILED
+                        print(f"diffbot run: {c.name} (optional) stopped responding; "
+                              "killing it", file=sys.stderr)
+                        c.signal(signal.SIGKILL)
                     continue
                 if c.name == "plant" or c.required:
                     if code == 0:
                         self.reason = f"{c.name} finished"
                         return 0
                     self.failed = c
-                    self.reason = f"{c.name} failed with exit code {code}"
+                    self.reason = f"{c.name} {c.describe_exit()}"
+                    if code == EXIT_PLANT_GONE and c.name != "plant":
+                        self._blame_plant(c)
                     return EXIT_FAILED
             if time.monotonic() - start > self.timeout_s:
                 self.reason = f"wall-clock timeout after {self.timeout_s:.0f} s"
                 return EXIT_FAILED
             time.sleep(0.02)
+
+    def _blame_plant(self, node: Child) -> None:
+        """A node exited 3 (it lost the plant): if the plant died or froze, name the plant."""
+        plant = self.children[0]
+        deadline = time.monotonic() + 0.5
+        while plant.poll() is None and not plant.stopped() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if plant.poll() is not None:
+            self.failed = plant
+            self.reason = f"plant {plant.describe_exit()} ({node.name} lost it)"
+        elif plant.stopped():
+            self.failed = plant
+            self.reason = (f"plant stopped responding: its process is stopped (SIGSTOP?) "
+                           f"and lost its bus lease ({node.name} lost it)")
+        else:
+            self.reason += " (it lost the plant)"
+
+    # ------------------------------------------------------------ recorder (--record)
+    # An optional extra process, started right after the plant and before every other
+    # node; it declares sim/alive/recorder once subscribed. In lockstep the plant cannot
+    # tick before the nodes join, and they start only once that token is seen; in
+    # realtime/fast the plant --expects it too. It is stopped last, after the plant,
+    # with time to close its file.
+    def _recorder_expect(self) -> list[str]:
+        return [RECORDER] if self.record and self.mode != "lockstep" else []
+
+    def _add_recorder(self, logs: str) -> None:
+        if self.record:
+            argv = diffbot_argv("record", os.path.abspath(self.record), "--name", RECORDER,
+                                "--stats", os.path.join(logs, f"{RECORDER}.json"),
+                                *self.bus_args())
+            self.recorder = Child(RECORDER, argv, required=False,
+                                  log_path=os.path.join(logs, f"{RECORDER}.log"))
+            self.children.append(self.recorder)
+
+    def start_recorder(self, env: dict, session, stop_flag: list) -> bool:
+        """Start the recorder and wait until it listens; False (and ``failed``) if not."""
+        rec = self.recorder
+        if rec is None:
+            return True
+        rec.start(env)
+        key = Keys(self.namespace).alive(RECORDER)
+        deadline = time.monotonic() + RECORDER_JOIN_S
+        while time.monotonic() < deadline and rec.poll() is None and not stop_flag:
+            if any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5)):
+                return True
+            time.sleep(0.05)
+        if not stop_flag:
+            self.failed = rec
+            self.reason = (f"recorder failed with exit code {rec.exit_code}"
+                           if rec.exit_code is not None
+                           else f"recorder did not start within {RECORDER_JOIN_S:.0f} s")
+        return False
+
+    def _stop_recorder(self) -> None:
+        rec = self.recorder
+        if rec is not None and rec.poll() is None:
+            rec.signal(signal.SIGINT)
+            deadline = time.monotonic() + RECORDER_GRACE_S
+            while time.monotonic() < deadline and rec.poll() is None:
+                time.sleep(0.02)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -192,6 +316,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--zenoh-config", default=None, metavar="FILE")
     p.add_argument("--timeout", type=float, default=900.0, metavar="S",
                    help="wall-clock limit for the whole run (default 900)")
+    p.add_argument("--record", default=None, metavar="FILE.mcap",
+                   help="record every message into this MCAP file (Foxglove opens it; a path "
+                        "without .mcap is a rosbag2 bag directory)")
     return p
 
 
@@ -214,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
-              args.timeout)
+              args.timeout, args.record)
     run.build()
     analysis = ANALYSES[spec.analysis]
     stop_flag: list[str] = []
@@ -224,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
-    observer = session = None
+    observer = session = watch = None
     wall0 = time.monotonic()
     code = EXIT_FAILED
     try:
@@ -237,16 +364,25 @@ def main(argv: list[str] | None = None) -> int:
         if session is not None:
             from .observer import Observer
             observer = Observer(session, keys, analysis.keys(keys, spec, world))
-            for c in run.children[1:]:
-                c.start(env)
-            print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
-                  f"{len(run.children)} processes, output in {out}", file=sys.stderr)
-            code = run.supervise(stop_flag)
+            watch = session.liveliness().declare_subscriber(keys.alive(), run.on_alive,
+                                                            history=True)
+            if run.start_recorder(env, session, stop_flag):
+                for c in run.children[1:]:
+                    if c is not run.recorder:
+                        c.start(env)
+                print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
+                      f"{len(run.children)} processes, output in {out}", file=sys.stderr)
+                code = run.supervise(stop_flag)
+            elif stop_flag:
+                run.reason = f"interrupted ({stop_flag[0]})"
+                code = EXIT_INTERRUPTED
     finally:
         run.stop_all()
         for s, h in old.items():
             signal.signal(s, h)
         wall = time.monotonic() - wall0
+        if watch is not None:
+            watch.undeclare()
         if observer is not None:
             observer.close()
         if session is not None:
@@ -266,7 +402,7 @@ def main(argv: list[str] | None = None) -> int:
             summary["analysis_error"] = f"{type(exc).__name__}: {exc}"
             code = code or EXIT_FAILED
     write_json(os.path.join(out, "summary.json"), summary)
-    print(f"diffbot run {spec.name}: {run.reason}; summary in {os.path.join(out, 'summary.json')}",
+    print(f"diffbot run {spec.name}: {summary['end_reason']}; summary in {os.path.join(out, 'summary.json')}",
           file=sys.stderr)
     return code
 
@@ -284,7 +420,11 @@ def summarize(run: Run, wall: float, code: int) -> dict:
         "sim_time_s": plant.get("sim_time_s"), "wall_time_s": wall,
         "plant_wall_time_s": plant.get("wall_time_s"),
         "real_time_factor": plant.get("real_time_factor"),
-        "end_reason": run.reason, "exit_code": code,
+        # A run that ended in the plant (duration reached, the ending node finished) says so.
+        "end_reason": (f"plant: {plant['end_reason']}"
+                       if code == 0 and plant.get("end_reason", "stopped") != "stopped"
+                       else run.reason),
+        "exit_code": code,
         "exit_codes": {c.name: c.exit_code for c in run.children},
         "message_counts": dict(sorted(counts.items())),
         "rejected": {name: st.get("rejected", {}) for name, st in stats.items()},
