@@ -234,6 +234,7 @@ class NodeRunner:
             buf.setdefault(stamp, _HELD)       # never replaces a good sample of the tick
         else:
             buf[stamp] = msg
+            self._used.discard((topic, stamp))  # a new sample for that tick (a reset)
         if len(buf) > _BUF_PER_TOPIC:          # drop what lies farthest from the clock
             ref = self._last_clock if self._last_clock is not None else stamp
             del buf[max(buf, key=lambda s: abs(s - ref))]
@@ -248,6 +249,14 @@ class NodeRunner:
         if problem:
             self.rejects.reject("clock", problem)
             return None
+        if self._last_clock is not None and t_ns < self._last_clock:
+            # The world was rebuilt (sim/reset): time starts again, and so do the inputs.
+            self.log.info("simulated time went back to %.3f s: the world was reset", t_ns * 1e-9)
+            self._reset_inputs()
+            self._pending.clear()
+            reset = getattr(self.controller, "reset", None)
+            if callable(reset):
+                reset()
         self._last_clock = t_ns
         return t_ns
 
@@ -551,8 +560,9 @@ def decode_ack(payload: bytes) -> tuple[int, list[str], bool]:
 
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=description)
-    p.add_argument("--robot", default="robot1", help="robot to control (default robot1)")
-    p.add_argument("--name", default=default_name,
+    p.add_argument("--robot", default="robot1", type=_name_arg("robot name"),
+                   help="robot to control (default robot1)")
+    p.add_argument("--name", default=default_name, type=_name_arg("node name"),
                    help="node name on the bus (default <controller>_<robot>)")
     p.add_argument("--stats", metavar="FILE", help="write the node's counters as JSON at exit")
     p.add_argument("--log-level", default="INFO")
@@ -562,6 +572,17 @@ def node_arg_parser(description: str, default_name: str | None = None) -> argpar
                         "exiting with code 3")
     add_bus_args(p)
     return p
+
+
+def _name_arg(what: str):
+    """argparse type: a name that is one safe key segment (no '*', '$', '/', not empty)."""
+    def check(value: str) -> str:
+        try:
+            return check_name(value, what)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    check.__name__ = what
+    return check
 
 
 def install_stop_signals(stop_event: threading.Event) -> None:

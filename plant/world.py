@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import re
 from dataclasses import dataclass, field
 
 try:
@@ -25,6 +26,7 @@ from .lidar import LidarConfig
 from .noise import NoiseConfig, parse_noise
 
 WORLDS_DIR = os.path.join(os.path.dirname(__file__), "worlds")
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 
 
 class WorldError(ValueError):
@@ -134,6 +136,8 @@ class _Table:
         self.used: set[str] = set()
 
     def key(self, k: str) -> str:
+        if not _BARE_KEY.match(str(k)):        # quoted TOML keys: "a b", "x\ny" (one line)
+            k = repr(k)
         return f"{self.where}.{k}" if self.where else k
 
     def fail(self, k: str, reason: str):
@@ -290,15 +294,17 @@ def _parse_sensors(robot: _Table) -> SensorsSpec:
     s = SensorsSpec()
     if robot.has("lidar"):
         t = robot.table("lidar")
+        lidar = _config_from_table(t, LidarConfig)      # checked even when disabled
         if t.boolean("enabled", True):
-            s.lidar = _config_from_table(t, LidarConfig)
-            s.lidar_noise = _noise(t, "lidar", s.lidar.max_range_m)
+            s.lidar = lidar
+            s.lidar_noise = _noise(t, "lidar", lidar.max_range_m)
         t.raw("noise")
         t.done()
     if robot.has("camera"):
         t = robot.table("camera")
+        camera = _config_from_table(t, CameraConfig)
         if t.boolean("enabled", True):
-            s.camera = _config_from_table(t, CameraConfig)
+            s.camera = camera
             s.camera_noise = _noise(t, "camera")
         t.raw("noise")
         t.done()
@@ -432,7 +438,7 @@ def load_world(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) -
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise WorldError(f"{path}: not valid TOML: {exc}") from None
     except OSError as exc:
         raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
@@ -462,7 +468,7 @@ def _extend(data: dict, path: str, seen: tuple[str, ...]) -> dict:
     try:
         with open(base_path, "rb") as f:
             base = tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError) as exc:
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise WorldError(f"{path}:world.extends: cannot load {base_path}: {exc}") from None
     base = _extend(base, base_path, seen + (os.path.abspath(base_path),))
     out = dict(base)

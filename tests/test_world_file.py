@@ -122,3 +122,9 @@ def test_sensor_sections_parse_with_webots_values():
     assert s.camera_noise.std == pytest.approx(0.2 * 255)      # 1.0 means 255
     assert s.camera.k1 == -0.2
     assert load_world("empty").robots[0].sensors.lidar is None
+
+
+def test_a_sensor_can_be_switched_off_in_place():
+    w = load_world("living_room", ["robots.robot1.lidar.enabled=false",
+                                   "robots.robot1.camera.enabled=false"])
+    assert w.robots[0].sensors.lidar is None and w.robots[0].sensors.camera is None

@@ -1,0 +1,638 @@
+"""``diffbot experiment NAME --out DIR``: the study's sensor experiments, through the bus.
+
+Every experiment starts its own plant process (lockstep, on a private unix socket),
+reads what it needs from the real topics, and writes PNG + CSV + ``summary.json``
+(experiment, parameters — noise both in the study's Webots form and as the resulting
+SI standard deviation —, seed, results) into DIR.
+
+    motion-noise    Fig. 4: N straight 0.3 m runs with command noise and wheel slip
+                    (friction 0.4), in ONE plant reset between runs (``sim/reset``, new
+                    seed per run); GPS end positions, mean, 1σ/2σ covariance ellipses
+    lidar           Fig. 5: one scan in the living room; the room from above + polar plot
+    noisy-lidar     Fig. 9: the same scan noiseless and with Webots noise 0.2
+                    (std = 0.2 x maxRange 80 m = 16 m) on one polar plot
+    noisy-odometry  Fig. 10: the 1.5 m square with encoder noise 0.2 rad: odometry vs GPS
+    camera          Fig. 8/11: camera image without and with Webots noise 0.2 (std 51/255)
+
+The motion-noise drive is OPEN LOOP: both wheels at ``--wheel-speed`` for the time
+that covers ``--distance`` without noise or slip (distance / (r w), rounded to whole
+control ticks; the drive limiter's ramps up and down are symmetric, so they cancel),
+then zero for ``--settle`` seconds, then the GPS position is recorded.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import signal
+import sys
+import time
+
+import numpy as np
+
+from bus import codec
+from bus.node import WheelSpeeds, write_json
+from plant.world import WorldError, load_world
+
+from .experiment_bus import (ExperimentError, PlantProcess, capture, forget_inputs,
+                             run_controller)
+
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
+# ------------------------------------------------------------------ helpers
+class Progress:
+    """A progress bar on stderr (one line per 10 % when stderr is not a terminal)."""
+
+    def __init__(self, total: int, what: str, width: int = 30) -> None:
+        self.total, self.what, self.width = max(total, 1), what, width
+        self.t0 = time.monotonic()
+        self.tty = sys.stderr.isatty()
+        self._last_decile = -1
+
+    def update(self, done: int) -> None:
+        frac = done / self.total
+        el = time.monotonic() - self.t0
+        eta = el / frac - el if frac > 0 else 0.0
+        bar = "#" * int(round(frac * self.width))
+        line = (f"  [{bar:<{self.width}}] {done}/{self.total} {self.what}  "
+                f"{el:5.1f} s elapsed, {eta:4.1f} s left")
+        if self.tty:
+            print("\r" + line, end="" if done < self.total else "\n", file=sys.stderr, flush=True)
+        elif int(frac * 10) != self._last_decile or done == self.total:
+            self._last_decile = int(frac * 10)
+            print(line, file=sys.stderr, flush=True)
+
+
+def _fmt(x: float, digits: int = 9) -> str:
+    return f"{x:.{digits}f}" if math.isfinite(x) else ("inf" if x > 0 else "nan")
+
+
+def _write_csv(path: str, header: list[str], rows) -> str:
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for row in rows:
+            w.writerow(row)
+    return path
+
+
+def _parse_pose(text: str | None) -> tuple[float, float, float] | None:
+    if text is None:
+        return None
+    try:
+        pose = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        pose = ()
+    if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
+        raise ValueError(f"--pose must be X,Y,YAW (m, m, rad), got {text!r}")
+    return pose  # type: ignore[return-value]
+
+
+def _pose_set(robot: str, pose) -> list[str]:
+    return [] if pose is None else [f"robots.{robot}.pose=[{pose[0]!r}, {pose[1]!r}, {pose[2]!r}]"]
+
+
+def clipped_normal_moments(v, sigma: float, lo: float, hi: float):
+    """Mean and mean square of ``clip(v + N(0, sigma), lo, hi) - v`` (elementwise in v).
+
+    Sensors clip their noisy readings (camera to 0..255, lidar to [min, max] range), so a
+    Webots-sized std (51 levels, 16 m) is only reached far from the limits; this is what
+    the measured spread should be instead."""
+    from math import erf, exp, pi, sqrt
+    v = np.atleast_1d(np.asarray(v, dtype=float))
+    a, b = (lo - v) / sigma, (hi - v) / sigma
+    Phi = np.vectorize(lambda z: 0.5 * (1.0 + erf(z / sqrt(2.0))))
+    phi = np.vectorize(lambda z: exp(-0.5 * z * z) / sqrt(2.0 * pi))
+    Pa, Pb, pa, pb = Phi(a), Phi(b), phi(a), phi(b)
+    m1 = a * Pa + (pa - pb) + b * (1.0 - Pb)
+    m2 = a * a * Pa + (Pb - Pa) + a * pa - b * pb + b * b * (1.0 - Pb)
+    return sigma * m1, sigma * sigma * m2
+
+
+def expected_clipped_std(values, sigma: float, lo: float, hi: float) -> float:
+    """Std of the residuals (noisy - true) over a set of true values, with clipping."""
+    m1, m2 = clipped_normal_moments(values, sigma, lo, hi)
+    return float(math.sqrt(max(np.mean(m2) - np.mean(m1) ** 2, 0.0)))
+
+
+# ------------------------------------------------------------------ motion-noise (Fig. 4)
+class StraightRuns:
+    """Lockstep driver: open-loop straight runs, GPS end position, ``sim/reset``, repeat.
+
+    The plant answers ``sim/reset`` while it waits for this node's ack, so the reset is
+    sent from inside ``step``. A run is: tick 0 no command (the robot stands), ticks
+    1..D both wheels at ``wheel_speed``, then S ticks of zero, then the reading. The
+    step that resets publishes no command (a command stamped with the old world's time
+    would be refused by the new world's clock), so the new world's tick 0 stands still
+    exactly as the first world's did: every run sees the same command sequence.
+    After the reset the node runner forgets its inputs: the new world's clock starts
+    again at 0, and stamps it already acted on would otherwise be ignored."""
+
+    name = "motion_noise"
+    inputs = ["gps", "ground_truth", "joint_states"]
+
+    def __init__(self, runs: int, seed0: int, wheel_speed: float, drive_ticks: int,
+                 settle_ticks: int, robot: str, pose, wheel_radius: float,
+                 progress: Progress | None = None) -> None:
+        self.runs, self.seed0 = runs, seed0
+        self.w = wheel_speed
+        self.drive_ticks, self.settle_ticks = drive_ticks, settle_ticks
+        self.robot, self.pose, self.r = robot, tuple(pose), wheel_radius
+        self.progress = progress
+        self.run = 0
+        self.k = 0
+        self.rows: list[tuple] = []
+        self.done = False
+        self.session = self.keys = self.runner = None
+
+    def step(self, obs):
+        k = self.k
+        self.k += 1
+        if k == 0:
+            return None
+        if k <= self.drive_ticks:
+            return WheelSpeeds(self.w, self.w)
+        if k <= self.drive_ticks + self.settle_ticks:
+            return WheelSpeeds(0.0, 0.0)
+        g, gt, js = obs["gps"].point, obs["ground_truth"].pose.pose, obs["joint_states"]
+        enc = self.r * float(np.mean(js.position))
+        true = math.hypot(gt.position.x - self.pose[0], gt.position.y - self.pose[1])
+        self.rows.append((self.run, self.seed0 + self.run, g.x, g.y,
+                          codec.quaternion_to_yaw(gt.orientation), enc, true, obs.t))
+        if self.progress:
+            self.progress.update(self.run + 1)
+        if self.run + 1 >= self.runs:
+            self.done = True
+            return WheelSpeeds(0.0, 0.0)
+        self.run += 1
+        self.reset(self.seed0 + self.run)
+        self.k = 1                       # this step stands for the new world's tick 0
+        return None
+
+    def stop_command(self):
+        return WheelSpeeds(0.0, 0.0)
+
+    def reset(self, seed: int) -> None:
+        req = json.dumps({"seed": seed, "poses": {self.robot: list(self.pose)}})
+        for reply in self.session.get(self.keys.reset, payload=req, timeout=10.0):
+            if reply.ok is None:
+                raise ExperimentError(
+                    f"sim/reset refused: {reply.err.payload.to_bytes().decode()}")
+            # NodeRunner has no public hook for a world reset yet (see experiment_bus)
+            forget_inputs(self.runner)
+            return
+        raise ExperimentError("no reply to sim/reset within 10 s")
+
+
+def motion_noise(args) -> dict:
+    robot = args.robot
+    sets = [f"materials.rubber.friction={args.friction!r}",
+            f"materials.floor.friction={max(args.friction, 1.0)!r}",
+            f"robots.{robot}.motion.command_noise_std_radps={args.command_noise!r}",
+            *_pose_set(robot, args.pose)]
+    spec = load_world(args.world, sets)
+    rs = spec.robot(robot)
+    r = rs.drive.wheel_radius_m
+    tick = spec.control_tick_s
+    drive_ticks = max(1, int(round(args.distance / (r * args.wheel_speed) / tick)))
+    settle_ticks = max(1, int(round(args.settle / tick)))
+    x0, y0, yaw0 = rs.pose
+    ideal_dist = r * args.wheel_speed * drive_ticks * tick
+    ideal = (x0 + ideal_dist * math.cos(yaw0), y0 + ideal_dist * math.sin(yaw0))
+    print(f"motion-noise: {args.runs} runs of {drive_ticks * tick:.2f} s at {args.wheel_speed:g} "
+          f"rad/s (open loop, {ideal_dist:.3f} m without noise/slip), command noise "
+          f"{args.command_noise:g} rad/s per tick, wheel/floor friction {args.friction:g}; "
+          "one plant, reset between runs", file=sys.stderr)
+    prog = Progress(args.runs, "runs")
+    driver = StraightRuns(args.runs, args.seed, args.wheel_speed, drive_ticks, settle_ticks,
+                          robot, rs.pose, r, prog)
+    t0 = time.monotonic()
+    with PlantProcess(args.out, "plant", driver.name, args.world, sets, args.seed,
+                      disable=("lidar", "camera")) as plant:
+        run_controller(driver, plant, driver.name, robot, timeout_s=args.timeout)
+    wall = time.monotonic() - t0
+    rows = driver.rows
+    _write_csv(os.path.join(args.out, "endpoints.csv"),
+               ["run", "seed", "gps_x_m", "gps_y_m", "yaw_rad", "encoder_distance_m",
+                "true_distance_m", "t_s"],
+               [[i, s, _fmt(x), _fmt(y), _fmt(th), _fmt(e), _fmt(d), _fmt(t, 3)]
+                for i, s, x, y, th, e, d, t in rows])
+    ends = np.array([(row[2], row[3]) for row in rows])
+    mean = ends.mean(axis=0)
+    cov = np.cov(ends.T) if len(ends) > 1 else np.zeros((2, 2))
+    std = ends.std(axis=0, ddof=1) if len(ends) > 1 else np.zeros(2)
+    enc = np.array([row[5] for row in rows])
+    true = np.array([row[6] for row in rows])
+    from .experiment_plots import plot_endpoints
+    plot_endpoints(ends, rs.pose, ideal, os.path.join(args.out, "motion_noise.png"),
+                   f"Motion noise: {len(ends)} open-loop {args.distance:g} m runs at "
+                   f"{args.wheel_speed:g} rad/s\ncommand noise {args.command_noise:g} rad/s, "
+                   f"friction {args.friction:g} (seeds {args.seed}..{args.seed + len(ends) - 1})")
+    return {
+        "parameters": {
+            "runs": args.runs, "world": args.world, "robot": robot, "start_pose": list(rs.pose),
+            "drive": "open loop: both wheels at wheel_speed_radps for drive_time_s "
+                     "(= distance / (wheel radius x wheel speed), whole ticks), then 0",
+            "distance_m": args.distance, "wheel_speed_radps": args.wheel_speed,
+            "drive_ticks": drive_ticks, "drive_time_s": drive_ticks * tick,
+            "settle_s": settle_ticks * tick,
+            "command_noise_std_radps": args.command_noise,
+            "command_noise": "Gaussian, added by the plant to each wheel's commanded speed "
+                             "every control tick (the study: noise on the controller's "
+                             "velocity commands; Webots has no device field for it)",
+            "wheel_floor_friction": args.friction,
+            "friction_note": "Coulomb coefficient, the same in both directions: dartpy "
+                             "binds only a single friction coefficient (Webots' asymmetric "
+                             "coulombFriction is not reproducible here)",
+            "contact_solver": spec.contact_solver, "control_tick_s": tick,
+            "seeds": [args.seed, args.seed + args.runs - 1],
+        },
+        "endpoint_mean_m": mean.tolist(), "endpoint_std_m": std.tolist(),
+        "endpoint_cov_m2": cov.tolist(),
+        "ideal_end_m": list(ideal),
+        "mean_shortfall_m": float(ideal_dist - true.mean()),
+        "mean_true_distance_m": float(true.mean()),
+        "mean_encoder_distance_m": float(enc.mean()),
+        "mean_slip_gap_m": float((enc - true).mean()),
+        "runs_done": len(rows), "plant_process_starts": 1,
+        "experiment_wall_time_s": wall, "wall_time_per_run_s": wall / max(len(rows), 1),
+    }
+
+
+# ------------------------------------------------------------------ lidar (Fig. 5)
+def _scan_arrays(msg) -> tuple[np.ndarray, np.ndarray]:
+    ranges = np.asarray(msg.ranges, dtype=float)
+    n = len(ranges)
+    angles = np.linspace(float(msg.angle_min), float(msg.angle_max), n) if n > 1 else \
+        np.array([float(msg.angle_min)])
+    return angles, ranges
+
+
+def _robot_pose(gt) -> tuple[float, float, float, float]:
+    p = gt.pose.pose
+    return p.position.x, p.position.y, p.position.z, codec.quaternion_to_yaw(p.orientation)
+
+
+def lidar(args) -> dict:
+    robot = args.robot
+    sets = [f"robots.{robot}.lidar.noise={{std = 0.0}}", *_pose_set(robot, args.pose)]
+    spec = load_world(args.world, sets)
+    cfg = spec.robot(robot).sensors.lidar
+    if cfg is None:
+        raise WorldError(f"{args.world}: {robot} has no lidar")
+    print(f"lidar: one scan of {robot} in {args.world} from the bus", file=sys.stderr)
+    cap = capture(args.out, "plant", ["scan", "ground_truth"], args.world, sets, args.seed,
+                  disable=("camera",), robot=robot)
+    angles, ranges = _scan_arrays(cap.obs["scan"])
+    _write_csv(os.path.join(args.out, "scan.csv"), ["angle_rad", "range_m"],
+               [[_fmt(a), _fmt(r, 6)] for a, r in zip(angles, ranges)])
+    x, y, z, yaw = _robot_pose(cap.obs["ground_truth"])
+    c, s = math.cos(yaw), math.sin(yaw)
+    sx, sy = x + c * cfg.mount_x_m - s * cfg.mount_y_m, y + s * cfg.mount_x_m + c * cfg.mount_y_m
+    plane_z = z + cfg.mount_z_m
+    from .experiment_plots import plot_lidar
+    plot_lidar(cap.info, (x, y, yaw + cfg.mount_yaw_rad), (sx, sy), plane_z, angles, ranges,
+               os.path.join(args.out, "lidar.png"),
+               f"Lidar ({cfg.num_rays} rays over {math.degrees(cfg.fov_rad):.0f}°, max range "
+               f"{cfg.max_range_m:g} m, noiseless) — {robot} at ({x:.2f}, {y:.2f}) m, "
+               f"yaw {math.degrees(yaw):.0f}°")
+    fin = np.isfinite(ranges)
+    return {
+        "parameters": {"world": args.world, "robot": robot, "robot_pose": [x, y, yaw],
+                       "num_rays": cfg.num_rays, "fov_rad": cfg.fov_rad,
+                       "angle_increment_rad": cfg.angle_increment,
+                       "max_range_m": cfg.max_range_m, "min_range_m": cfg.min_range_m,
+                       "sensor_xy_m": [sx, sy], "scan_plane_z_m": plane_z,
+                       "noise": "none (std 0 m)"},
+        "rays": int(len(ranges)), "finite_rays": int(fin.sum()),
+        "range_min_m": float(np.min(ranges[fin])) if fin.any() else None,
+        "range_max_m": float(np.max(ranges[fin])) if fin.any() else None,
+        "range_mean_m": float(np.mean(ranges[fin])) if fin.any() else None,
+        "scan_stamp_s": cap.obs.t,
+    }
+
+
+# ------------------------------------------------------------------ noisy-lidar (Fig. 9)
+def noisy_lidar(args) -> dict:
+    robot = args.robot
+    base = _pose_set(robot, args.pose)
+    spec = load_world(args.world, base)
+    cfg = spec.robot(robot).sensors.lidar
+    if cfg is None:
+        raise WorldError(f"{args.world}: {robot} has no lidar")
+    if args.lidar_noise_std is not None:
+        noise_tbl, std = f"{{std = {args.lidar_noise_std!r}}}", args.lidar_noise_std
+        form = f"std {std:g} m (given in metres)"
+    else:
+        noise_tbl = f"{{webots_noise = {args.lidar_noise!r}}}"
+        std = args.lidar_noise * cfg.max_range_m
+        form = f"Webots noise {args.lidar_noise:g} x maxRange {cfg.max_range_m:g} m = std {std:g} m"
+    print(f"noisy-lidar: {form}; two plants (noiseless, noisy), same pose and seed",
+          file=sys.stderr)
+    clean_cap = capture(args.out, "plant_noiseless", ["scan"], args.world,
+                        [*base, f"robots.{robot}.lidar.noise={{std = 0.0}}"], args.seed,
+                        disable=("camera",), robot=robot)
+    noisy_cap = capture(args.out, "plant_noisy", ["scan"], args.world,
+                        [*base, f"robots.{robot}.lidar.noise={noise_tbl}"], args.seed,
+                        disable=("camera",), robot=robot)
+    angles, clean = _scan_arrays(clean_cap.obs["scan"])
+    _, noisy = _scan_arrays(noisy_cap.obs["scan"])
+    _write_csv(os.path.join(args.out, "scan_noisy.csv"),
+               ["angle_rad", "range_noiseless_m", "range_noisy_m"],
+               [[_fmt(a), _fmt(c, 6), _fmt(n, 6)] for a, c, n in zip(angles, clean, noisy)])
+    from .experiment_plots import plot_noisy_lidar
+    plot_noisy_lidar(angles, clean, noisy, os.path.join(args.out, "noisy_lidar.png"),
+                     f"Lidar without (blue) and with (orange) noise: {form}")
+    both = np.isfinite(clean) & np.isfinite(noisy)
+    resid = (noisy - clean)[both]
+    at_min = np.isclose(noisy[both], cfg.min_range_m, atol=1e-6)
+    at_max = np.isclose(noisy[both], cfg.max_range_m, atol=1e-4)
+    expected = expected_clipped_std(clean[both], std, cfg.min_range_m, cfg.max_range_m) \
+        if std > 0 and both.any() else 0.0
+    return {
+        "parameters": {"world": args.world, "robot": robot,
+                       "lidar_noise_webots": None if args.lidar_noise_std is not None
+                       else args.lidar_noise,
+                       "lidar_noise_std_m": std, "max_range_m": cfg.max_range_m,
+                       "min_range_m": cfg.min_range_m, "num_rays": cfg.num_rays},
+        "noise_meaning": (f"{form}. Webots' lidar noise is a Gaussian std RELATIVE TO maxRange "
+                          f"(SICK LMS 291: 80 m): here a std of {std:g} m on ranges that "
+                          f"are {np.nanmin(np.where(np.isfinite(clean), clean, np.nan)):.1f}-"
+                          f"{np.nanmax(np.where(np.isfinite(clean), clean, np.nan)):.1f} m in "
+                          "this room; noisy values are clipped to [min, max] range, so "
+                          f"{100 * at_min.mean():.0f} % of the rays read the 0.01 m minimum."),
+        "rays": int(len(clean)),
+        "measured_residual_std_m": float(resid.std()) if resid.size else None,
+        "expected_residual_std_with_clipping_m": expected,
+        "measured_residual_mean_m": float(resid.mean()) if resid.size else None,
+        "fraction_clipped_to_min_range": float(at_min.mean()) if both.any() else 0.0,
+        "fraction_clipped_to_max_range": float(at_max.mean()) if both.any() else 0.0,
+    }
+
+
+# ------------------------------------------------------------------ noisy-odometry (Fig. 10)
+def _toml_str(s: str) -> str:
+    return json.dumps(s)
+
+
+def noisy_odometry(args) -> dict:
+    from .launcher import main as run_main
+    from .scenario import load_scenario
+    sc = load_scenario("square")
+    robot = sc.robot
+    noise_set = f"robots.{robot}.encoders.noise={{webots_noise = {args.encoder_noise!r}}}"
+    plant_args = [*sc.plant_args, "--set", noise_set]
+    lines = ["[scenario]",
+             f"description = {_toml_str('the square with noisy encoders (study Figure 10)')}",
+             f"world = {_toml_str(sc.world)}", f"mode = {_toml_str(sc.mode)}",
+             f"duration_s = {sc.duration_s or 300.0!r}", 'analysis = "square"',
+             f"robot = {_toml_str(robot)}",
+             "plant_args = [" + ", ".join(_toml_str(a) for a in plant_args) + "]"]
+    for p in sc.processes:
+        cmd = list(p.command)
+        if cmd[:2] == ["controller", "square_path"]:
+            if "--side" in cmd:
+                cmd[cmd.index("--side") + 1] = repr(args.side)
+            else:
+                cmd += ["--side", repr(args.side)]
+        if args.odometry == "python" and cmd[:1] == ["fmu-node"]:
+            cmd = ["controller", "odometry", "--robot", robot]
+        lines += ["", "[[process]]", f"name = {_toml_str(p.name)}",
+                  "command = [" + ", ".join(_toml_str(c) for c in cmd) + "]",
+                  f"required = {str(p.required).lower()}", f"ends_run = {str(p.ends_run).lower()}",
+                  f"sync = {str(p.sync).lower()}"]
+    path = os.path.join(args.out, "noisy-odometry.toml")
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    print(f"noisy-odometry: the square scenario ({args.side:g} m) with encoder noise "
+          f"{args.encoder_noise:g} rad (Webots PositionSensor noise = absolute std in rad); "
+          f"scenario file {path}", file=sys.stderr)
+    code = run_main([path, "--out", args.out, "--seed", str(args.seed),
+                     "--timeout", repr(args.timeout)])
+    try:
+        with open(os.path.join(args.out, "summary.json")) as f:
+            run = json.load(f)
+    except (OSError, ValueError):
+        run = {}
+    if code != 0:
+        raise ExperimentError(f"the square run failed (exit code {code}): "
+                              f"{run.get('end_reason', 'see ' + args.out + '/logs')}")
+    traj = os.path.join(args.out, "trajectory.csv")
+    a = np.loadtxt(traj, delimiter=",", skiprows=1, ndmin=2)
+    if a.size == 0:
+        raise ExperimentError("the square run recorded no trajectory")
+    from .analysis import plot_odometry_vs_gps
+    plot_odometry_vs_gps(a, os.path.join(args.out, "odometry_vs_gps.png"),
+                         f"Noisy odometry (encoder noise {args.encoder_noise:g} rad per reading) "
+                         f"vs GPS,\n{args.side:g} m square, seed {args.seed}")
+    err = np.hypot(a[:, 1] - a[:, 4], a[:, 2] - a[:, 5])
+    m = run.get("metrics", {}).get(robot, {})
+    return {
+        "parameters": {"world": sc.world, "robot": robot, "side_m": args.side,
+                       "encoder_noise_webots": args.encoder_noise,
+                       "encoder_noise_std_rad": args.encoder_noise,
+                       "noise_meaning": "Webots PositionSensor noise: absolute Gaussian std in "
+                                        "rad, added to each reading (not accumulated)",
+                       "odometry": "C FMU node (fmus/build/odometry_fmi2.fmu)"
+                       if args.odometry == "fmu" else "Python odometry node",
+                       "controller": "square_path, closed loop on the (noisy) odometry",
+                       "plant_args": plant_args},
+        "final_odom_error_m": float(err[-1]), "max_odom_error_m": float(err.max()),
+        "mean_odom_error_m": float(err.mean()),
+        "path_length_m": m.get("path_length_m"), "path_closure_m": m.get("path_closure_m"),
+        "samples": int(len(a)), "run": run,
+    }
+
+
+# ------------------------------------------------------------------ camera (Fig. 8/11)
+def _save_rgb_png(path: str, rgb: np.ndarray) -> str:
+    import cv2
+    if not cv2.imwrite(path, cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
+        raise ExperimentError(f"cannot write {path}")
+    return path
+
+
+def camera(args) -> dict:
+    robot = args.robot
+    pose = args.pose if args.pose is not None else (0.0, 0.0, -0.6)
+    base = _pose_set(robot, pose)
+    spec = load_world(args.world, base)
+    cfg = spec.robot(robot).sensors.camera
+    if cfg is None:
+        raise WorldError(f"{args.world}: {robot} has no camera")
+    if args.camera_noise_std is not None:
+        tbl, std = f"{{std = {args.camera_noise_std!r}}}", args.camera_noise_std
+        form = f"std {std:g} levels (of 0-255)"
+    else:
+        tbl, std = f"{{webots_noise = {args.camera_noise!r}}}", args.camera_noise * 255.0
+        form = f"Webots noise {args.camera_noise:g} x 255 = std {std:g} levels"
+    print(f"camera: {cfg.width}x{cfg.height} from ({pose[0]:g}, {pose[1]:g}, yaw {pose[2]:g}); "
+          f"{form}", file=sys.stderr)
+    clean_cap = capture(args.out, "plant_noiseless", ["camera/image"], args.world,
+                        [*base, f"robots.{robot}.camera.noise={{std = 0.0}}"], args.seed,
+                        disable=("lidar",), robot=robot)
+    noisy_cap = capture(args.out, "plant_noisy", ["camera/image"], args.world,
+                        [*base, f"robots.{robot}.camera.noise={tbl}"], args.seed,
+                        disable=("lidar",), robot=robot)
+    clean = codec.image_to_array(clean_cap.obs["camera/image"])
+    noisy = codec.image_to_array(noisy_cap.obs["camera/image"])
+    _save_rgb_png(os.path.join(args.out, "camera.png"), clean)
+    _save_rgb_png(os.path.join(args.out, "camera_noisy.png"), noisy)
+    from .experiment_plots import plot_camera_compare
+    plot_camera_compare(clean, noisy, os.path.join(args.out, "camera_compare.png"),
+                        f"Camera {cfg.width}x{cfg.height} rgb8 from the bus "
+                        f"({robot} at ({pose[0]:g}, {pose[1]:g}) m, yaw {pose[2]:g} rad)",
+                        labels=("noiseless (Figure 8)", f"noisy: {form} (Figure 11)"))
+    resid = noisy.astype(float) - clean.astype(float)
+    mid = (clean >= 96) & (clean <= 160)
+    expected = expected_clipped_std(clean.reshape(-1), std, 0.0, 255.0) if std > 0 else 0.0
+    return {
+        "parameters": {"world": args.world, "robot": robot, "pose": list(pose),
+                       "width": cfg.width, "height": cfg.height, "hfov_rad": cfg.hfov_rad,
+                       "camera_noise_webots": None if args.camera_noise_std is not None
+                       else args.camera_noise,
+                       "camera_noise_std_levels": std,
+                       "noise_meaning": "Webots camera noise: per-channel Gaussian std, "
+                                        "1.0 = 255 levels; the result is rounded and clipped "
+                                        "to 0..255"},
+        "measured_residual_std_levels": float(resid.std()),
+        "expected_residual_std_with_clipping_levels": expected,
+        "measured_residual_std_midtones_levels": float(resid[mid].std()) if mid.any() else None,
+        "pixels_clipped_fraction": float(np.mean((noisy == 0) | (noisy == 255))),
+        "images": ["camera.png", "camera_noisy.png", "camera_compare.png"],
+    }
+
+
+# ------------------------------------------------------------------ command line
+EXPERIMENTS = {
+    "motion-noise": (motion_noise, "Fig. 4: end positions of N noisy straight 0.3 m runs "
+                                   "(one plant, sim/reset between runs)"),
+    "lidar": (lidar, "Fig. 5: a lidar scan in the living room; room from above + polar plot"),
+    "noisy-lidar": (noisy_lidar, "Fig. 9: noiseless vs noisy (Webots 0.2 = 16 m) scan"),
+    "noisy-odometry": (noisy_odometry, "Fig. 10: the 1.5 m square with encoder noise 0.2 rad"),
+    "camera": (camera, "Fig. 8/11: camera image without and with noise (Webots 0.2)"),
+}
+
+
+def experiment_list() -> str:
+    return "\n".join(f"  {n:15s} {d}" for n, (_, d) in EXPERIMENTS.items())
+
+
+def build_parser(name: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=f"diffbot experiment {name}",
+                                description=EXPERIMENTS[name][1])
+    p.add_argument("--out", default=os.path.join("out", "experiments", name),
+                   help="output directory (default out/experiments/NAME)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    if name != "noisy-odometry":            # the square scenario names its world and robot
+        p.add_argument("--world", default="living_room", help="world name or file")
+        p.add_argument("--robot", default="robot1")
+    p.add_argument("--timeout", type=float, default=600.0, metavar="S",
+                   help="wall-clock limit (default 600 s)")
+    if name == "motion-noise":
+        p.add_argument("--runs", type=int, default=100, help="number of runs (default 100)")
+        p.add_argument("--command-noise", type=float, default=0.1, metavar="RADPS",
+                       help="std of the Gaussian noise on each commanded wheel speed, added "
+                            "every control tick, rad/s (default 0.1)")
+        p.add_argument("--friction", type=float, default=0.4,
+                       help="wheel-floor friction coefficient (default 0.4, as the study)")
+        p.add_argument("--wheel-speed", type=float, default=2.5, metavar="RADPS",
+                       help="wheel speed of the open-loop drive, rad/s (default 2.5 = 0.3 m/s)")
+        p.add_argument("--distance", type=float, default=0.3, metavar="M",
+                       help="distance without noise or slip, m (default 0.3)")
+        p.add_argument("--settle", type=float, default=0.5, metavar="S",
+                       help="time stopped before the GPS reading, s (default 0.5)")
+    if name != "noisy-odometry":           # the square starts at the world's start pose
+        p.add_argument("--pose", default=None, metavar="X,Y,YAW",
+                       help="robot pose (m, m, rad); default: the world's start pose"
+                            + (" (camera: 0,0,-0.6, facing the dining corner)"
+                               if name == "camera" else ""))
+    if name == "noisy-lidar":
+        p.add_argument("--lidar-noise", type=float, default=0.2, metavar="WEBOTS",
+                       help="Webots lidar noise: std relative to max range (default 0.2)")
+        p.add_argument("--lidar-noise-std", type=float, default=None, metavar="M",
+                       help="lidar noise std in metres (overrides --lidar-noise)")
+    if name == "noisy-odometry":
+        p.add_argument("--encoder-noise", type=float, default=0.2, metavar="RAD",
+                       help="Webots PositionSensor noise = std per reading, rad (default 0.2)")
+        p.add_argument("--side", type=float, default=1.5, metavar="M",
+                       help="side of the square, m (default 1.5)")
+        p.add_argument("--odometry", choices=("fmu", "python"), default="fmu",
+                       help="odometry node: the C FMU (default, as the square scenario) or "
+                            "the Python reference")
+    if name == "camera":
+        p.add_argument("--camera-noise", type=float, default=0.2, metavar="WEBOTS",
+                       help="Webots camera noise: std as a fraction of 255 (default 0.2)")
+        p.add_argument("--camera-noise-std", type=float, default=None, metavar="LEVELS",
+                       help="camera noise std in 0-255 levels (overrides --camera-noise)")
+    return p
+
+
+def _check(args) -> None:
+    for key in ("runs",):
+        if getattr(args, key, 1) < 1:
+            raise ValueError(f"--{key} must be >= 1")
+    for key in ("command_noise", "lidar_noise", "lidar_noise_std", "encoder_noise",
+                "camera_noise", "camera_noise_std"):
+        v = getattr(args, key, None)
+        if v is not None and (not math.isfinite(v) or v < 0):
+            raise ValueError(f"--{key.replace('_', '-')} must be a finite number >= 0, got {v}")
+    for key in ("friction", "wheel_speed", "distance", "settle", "side", "timeout"):
+        v = getattr(args, key, None)
+        if v is not None and (not math.isfinite(v) or v <= 0):
+            raise ValueError(f"--{key.replace('_', '-')} must be > 0, got {v}")
+    if args.seed < 0:
+        raise ValueError("--seed must be >= 0")
+    if hasattr(args, "pose"):
+        args.pose = _parse_pose(args.pose)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    usage = (f"usage: diffbot experiment NAME --out DIR [--runs N] [--seed S] [options]\n"
+             f"experiments:\n{experiment_list()}")
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage, file=sys.stdout if argv else sys.stderr)
+        return 0 if argv else EXIT_BAD_INPUT
+    name = argv[0]
+    if name not in EXPERIMENTS:
+        print(f"diffbot experiment: unknown experiment {name!r}\n{usage}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    args = build_parser(name).parse_args(argv[1:])
+    try:
+        _check(args)
+        load_world(getattr(args, "world", "living_room"))  # a bad world: exit 2 at once
+    except (ValueError, WorldError) as exc:
+        print(f"diffbot experiment {name}: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    args.out = os.path.abspath(args.out)
+    os.makedirs(args.out, exist_ok=True)
+    t0 = time.monotonic()
+
+    def on_term(signum, frame):             # SIGTERM unwinds like Ctrl-C: plants are stopped
+        raise KeyboardInterrupt
+    old_term = signal.signal(signal.SIGTERM, on_term)
+    try:
+        result = EXPERIMENTS[name][0](args)
+    except KeyboardInterrupt:
+        print(f"diffbot experiment {name}: interrupted", file=sys.stderr)
+        return 130
+    except WorldError as exc:
+        print(f"diffbot experiment {name}: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ExperimentError as exc:
+        print(f"diffbot experiment {name}: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    finally:
+        signal.signal(signal.SIGTERM, old_term)
+    summary = {"experiment": name, "seed": args.seed, **result,
+               "wall_time_s": time.monotonic() - t0}
+    write_json(os.path.join(args.out, "summary.json"), summary)
+    files = sorted(f for f in os.listdir(args.out) if f.endswith((".png", ".csv", ".json")))
+    print(f"diffbot experiment {name}: done in {summary['wall_time_s']:.1f} s; "
+          f"{', '.join(files)} in {args.out}", file=sys.stderr)
+    return 0
