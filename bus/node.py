@@ -249,14 +249,6 @@ class NodeRunner:
         if problem:
             self.rejects.reject("clock", problem)
             return None
-        if self._last_clock is not None and t_ns < self._last_clock:
-            # The world was rebuilt (sim/reset): time starts again, and so do the inputs.
-            self.log.info("simulated time went back to %.3f s: the world was reset", t_ns * 1e-9)
-            self._reset_inputs()
-            self._pending.clear()
-            reset = getattr(self.controller, "reset", None)
-            if callable(reset):
-                reset()
         self._last_clock = t_ns
         return t_ns
 
