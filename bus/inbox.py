@@ -6,13 +6,10 @@ protocol does not depend on it (nodes check stamps), but it saves waiting.
 """
 from __future__ import annotations
 
-import os
 import queue
 from dataclasses import dataclass
 
 import zenoh
-
-_DIRECT = os.environ.get("DIFFBOT_DIRECT", "1") == "1"
 
 
 @dataclass(slots=True)
@@ -42,7 +39,7 @@ class Inbox:
         # reach the queue in the order they arrived (the default hands every
         # subscriber its own Python thread, which reorders them).
         self._handles.append(self.session.declare_subscriber(
-            key, zenoh.handlers.Callback(cb, indirect=not _DIRECT)))
+            key, zenoh.handlers.Callback(cb, indirect=False)))
 
     def watch_liveliness(self, key: str, tag: str) -> None:
         """Events for tokens on ``key`` appearing (alive=True) and vanishing (alive=False),
@@ -54,7 +51,7 @@ class Inbox:
                         sample.kind == zenoh.SampleKind.PUT))
 
         self._handles.append(self.session.liveliness().declare_subscriber(
-            key, zenoh.handlers.Callback(cb, indirect=not _DIRECT), history=True))
+            key, zenoh.handlers.Callback(cb, indirect=False), history=True))
 
     def get(self, timeout: float | None = None) -> Event | None:
         try:
