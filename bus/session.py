@@ -21,6 +21,8 @@ DEFAULT_ENDPOINT = os.environ.get("DIFFBOT_ENDPOINT", "tcp/127.0.0.1:7450")
 
 #: Lease after which a frozen (not killed) peer is declared gone, ms.
 DEFAULT_LEASE_MS = 1000
+#: Handshake limit for opening a link, ms (bounds close() while the router is frozen).
+OPEN_TIMEOUT_MS = 500
 
 
 class BusConfigError(ValueError):
@@ -49,6 +51,9 @@ def make_config(role: str, endpoint: str = DEFAULT_ENDPOINT, config_file: str | 
     put("scouting/gossip/enabled", False)
     put("transport/link/tx/lease", int(lease_ms))
     put("transport/link/tx/keep_alive", 4)
+    # A frozen (SIGSTOPped) router still accepts connections in the kernel, so a client's
+    # reconnect hangs in the handshake and close() waits for it (10 s by default).
+    put("transport/unicast/open_timeout", OPEN_TIMEOUT_MS)
     put("timestamping/enabled", False)
     try:
         if role == "plant":

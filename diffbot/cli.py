@@ -7,6 +7,7 @@
     diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
     diffbot bench ...               benchmarks
     diffbot experiment NAME ...     the study's sensor experiments, --out DIR (-h lists them)
+    diffbot figures --out DIR       all twelve figures of the study + index.html (--only 4,12)
     diffbot record FILE.mcap [KEYS] record the bus into MCAP (Foxglove, ros2 bag, rosbags)
     diffbot replay FILE.mcap        play a recording back onto the bus (--rate R | --fast)
     diffbot topics [--duration S]   live keys with message type and rate
@@ -76,6 +77,9 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "experiment":
         from .experiments import main as experiment_main
         return experiment_main(rest)
+    if cmd == "figures":
+        from .figures import main as figures_main
+        return figures_main(rest)
     if cmd == "bench":
         from .bench import main as bench_main
         return bench_main(rest)

@@ -127,8 +127,9 @@ class StraightRuns:
     sent from inside ``step``. A run is: tick 0 no command (the robot stands), ticks
     1..D both wheels at ``wheel_speed``, then S ticks of zero, then the reading. The
     step that resets publishes no command (a command stamped with the old world's time
-    would be refused by the new world's clock), so the new world's tick 0 stands still
-    exactly as the first world's did: every run sees the same command sequence.
+    would be refused by the new world's clock); the plant does not step the new world
+    for that tick but publishes its tick 0, which stands still exactly as the first
+    world's did: every run sees the same command sequence.
     After the reset the node runner forgets its inputs: the new world's clock starts
     again at 0, and stamps it already acted on would otherwise be ignored."""
 
@@ -170,7 +171,7 @@ class StraightRuns:
             return WheelSpeeds(0.0, 0.0)
         self.run += 1
         self.reset(self.seed0 + self.run)
-        self.k = 1                       # this step stands for the new world's tick 0
+        self.k = 0                       # the plant publishes the new world's tick 0 next
         return None
 
     def stop_command(self):

@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
+from bus.keys import check_name
 from plant.world import WorldError, _Table, tomllib
 
 SCENARIOS_DIR = os.path.join(os.path.dirname(__file__), "scenarios")
@@ -70,8 +71,10 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise WorldError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
     top = _Table(path, "", data)
     s = top.table("scenario")
     spec = ScenarioSpec(name=os.path.splitext(os.path.basename(path))[0], path=path)
@@ -95,6 +98,10 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
         name = t.string("name")
         if name in names or name == "plant":
             t.fail("name", f"duplicate or reserved process name {name!r}")
+        try:
+            check_name(name, "process name")      # it becomes the node's name on the bus
+        except ValueError as exc:
+            t.fail("name", str(exc))
         names.add(name)
         cmd = t.raw("command")
         if not isinstance(cmd, list) or not cmd or not all(isinstance(c, str) for c in cmd):

@@ -351,6 +351,7 @@ class FmuNode:
     """A bus.node controller that steps an FMU once per control tick (see module docstring)."""
 
     sync = True
+    check_inputs = False     # it checks its mapped fields itself (and holds its outputs)
 
     def __init__(self, fmu: Fmu, mapping: Mapping, log: logging.Logger | None = None) -> None:
         self.fmu = fmu

@@ -89,6 +89,8 @@ class Plant:
         # command key -> tick stamps (from the attachment) of its last few samples
         self.cmd_ticks: dict[str, deque[int]] = {}
         self.stalls = 0                          # realtime: times the wall clock was re-anchored
+        self._pace0 = 0.0                        # realtime: wall time of sim time 0
+        self.reset_in_tick = False               # a sim/reset came during the current tick
         self._stall_logged = -1e9
         self.commands: dict[str, Command] = {}
         self.published: dict[str, int] = {}
@@ -160,8 +162,8 @@ class Plant:
             self.spec.robot(name).pose = pose
         self.build()
         self.commands.clear()
-        self.acks.clear()
-        self.cmd_ticks.clear()
+        self.reset_in_tick = True
+        self._pace0 = time.monotonic() - self.sim.time_ns * 1e-9 / self.rate
         self.log.info("world rebuilt (seed %d)", self.seed)
         query.reply(self.keys.reset, json.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
 
@@ -224,6 +226,9 @@ class Plant:
     # ------------------------------------------------------------------ input
     def handle(self, ev) -> None:
         if isinstance(ev, _QueryEvent):
+            # Answered at once, even while the plant waits for a tick's acks (a node may ask
+            # from inside its step); the acks of that tick are kept, and run() does not step
+            # the new world with them: it starts over at t = 0.
             self._reset(ev.query)
         elif ev.tag == "cmd":
             self._on_command(ev)
@@ -376,7 +381,7 @@ class Plant:
         self.drain(0.05)
         if (self.mode == "lockstep" or self.expect) and not self.wait_for_members():
             return 1 if not self.stop_event.is_set() else 0
-        self.wall_start = time.monotonic()
+        self.wall_start = self._pace0 = time.monotonic()
         tick_ns = self.tick_ns
         self.log.info("running %s (%s mode, tick %.0f ms, %d physics steps per tick)",
                       self.spec.name, self.mode, tick_ns / 1e6, self.spec.substeps)
@@ -405,13 +410,13 @@ class Plant:
                 else:
                     self.drain(0.0)
                 if self.mode == "realtime":
-                    due = self.wall_start + (t + tick_ns) * 1e-9 / self.rate
+                    due = self._pace0 + (t + tick_ns) * 1e-9 / self.rate
                     behind = time.monotonic() - due
                     if behind > max(STALL_S, 5 * tick_ns * 1e-9 / self.rate):
                         # Stopped (SIGSTOP, debugger) or starved: do not race to catch up,
                         # which would replay the missed wall time at full speed.
                         self.stalls += 1
-                        self.wall_start += behind
+                        self._pace0 += behind
                         due -= behind
                         if time.monotonic() - self._stall_logged > 5.0:
                             self._stall_logged = time.monotonic()
@@ -420,6 +425,11 @@ class Plant:
                                              "from now", behind, t * 1e-9)
                     while (left := due - time.monotonic()) > 0 and not self.stop_event.is_set():
                         self.drain(min(left, 0.05))
+                if self.reset_in_tick:          # the world was rebuilt: publish its t = 0
+                    self.reset_in_tick = False
+                    self.acks.clear()           # the old world's stamps would match the new
+                    self.cmd_ticks.clear()
+                    continue
                 c2 = time.perf_counter()
                 self.apply_commands()
                 self.sim.step_tick()
