@@ -1,0 +1,1053 @@
+"""``diffbot figures --out DIR``: the study's twelve figures, from real runs, with a report.
+
+Every figure comes from a run of this project's own commands, each started as a
+``diffbot`` subprocess into ``DIR/runs/<job>/`` (its stdout and stderr in
+``DIR/runs/<job>.log``); independent jobs run in parallel (``--jobs``, longest first).
+A figure is copied from its run's output or re-plotted from its CSV/PNG; nothing here
+re-implements an experiment. Then ``DIR`` holds::
+
+    fig01_robot.png ... fig12_tracking_distance.png, follow.gif
+    index.html    every figure with its number, caption, parameters and measured numbers
+    REPORT.md     the same in Markdown
+    figures.json  all the numbers, the parameters and each job's command, exit code and times
+
+Ctrl-C (or SIGTERM) sends SIGINT to every running job by PID (each job stops its own
+processes), then SIGKILLs by PID whatever of a job's process tree is left after a grace
+period; the report is still written for what finished. Exit codes: 0 all figures
+written, 1 a job or a figure failed (the others are still written), 2 bad arguments,
+130 interrupted.
+"""
+from __future__ import annotations
+
+import argparse
+import html
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable
+
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+STOP_GRACE_S = 20.0            # a job's own shutdown (a scenario analyses its run on SIGINT too)
+HEARTBEAT_S = 15.0             # a "still running" line on stderr this often
+LOG_TAIL_LINES = 15
+
+
+# ------------------------------------------------------------------ the jobs
+@dataclass(frozen=True)
+class JobSpec:
+    name: str
+    args: tuple[str, ...]        # after `diffbot` (or a module run with -m, see `module`)
+    est_s: float                 # measured wall time alone on the 2-core machine: run longest first
+    what: str
+    module: str = ""             # run `python -m module` instead of `diffbot`
+
+
+JOBS = {j.name: j for j in (
+    JobSpec("follow", ("run", "follow"), 48.0, "follow scenario: leader + camera follower, 60 s"),
+    JobSpec("motion-noise", ("experiment", "motion-noise"), 45.0,
+            "100 noisy open-loop 0.3 m runs in one plant"),
+    JobSpec("square", ("run", "square"), 18.0, "1.5 m square on odometry vs GPS"),
+    JobSpec("noisy-odometry", ("experiment", "noisy-odometry"), 18.0,
+            "the square with encoder noise 0.2 rad"),
+    JobSpec("lidar", ("experiment", "lidar"), 4.5, "one noiseless lidar scan"),
+    JobSpec("camera", ("experiment", "camera"), 5.5, "camera image, noiseless and noisy"),
+    JobSpec("drive-test", ("run", "drive-test"), 5.5, "wheel speeds 1,1 then 1,-1 rad/s"),
+    JobSpec("noisy-lidar", ("experiment", "noisy-lidar"), 5.0, "lidar scan with noise 0.2"),
+    JobSpec("render", (), 3.5, "third-person renders of robot1 and the living room",
+            module="diffbot.figures_render"),
+)}
+
+
+def job_argv(spec: JobSpec, out: str, seed: int) -> list[str]:
+    if spec.module:
+        return [sys.executable, "-m", spec.module, "--out", out]
+    return [sys.executable, "-m", "diffbot.cli", *spec.args, "--out", out, "--seed", str(seed)]
+
+
+@dataclass
+class Job:
+    spec: JobSpec
+    out: str
+    log_path: str
+    argv: list[str]
+    proc: subprocess.Popen | None = None
+    log_file: object = None
+    t_start: float = 0.0
+    t_end: float = 0.0
+    exit_code: int | None = None
+    status: str = "waiting"      # waiting, running, ok, failed, timeout, interrupted, skipped
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def wall_s(self) -> float | None:
+        if not self.t_start:
+            return None
+        return (self.t_end or time.monotonic()) - self.t_start
+
+    def start(self) -> None:
+        if os.path.isdir(self.out):
+            shutil.rmtree(self.out)              # no stale outputs from an earlier run
+        os.makedirs(self.out)
+        self.log_file = open(self.log_path, "wb")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=self.log_file,
+                                     stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        self.t_start = time.monotonic()
+        self.status = "running"
+
+    def poll(self) -> int | None:
+        if self.proc is None or self.exit_code is not None:
+            return self.exit_code
+        code = self.proc.poll()
+        if code is not None:
+            self.finish(code)
+        return code
+
+    def finish(self, code: int) -> None:
+        self.exit_code = code
+        self.t_end = time.monotonic()
+        if self.log_file is not None:
+            self.log_file.close()
+            self.log_file = None
+        if self.status == "running":
+            self.status = "ok" if code == 0 else "failed"
+        self.summary = _read_json(os.path.join(self.out, "summary.json"))
+
+    def tail(self, n: int = LOG_TAIL_LINES) -> str:
+        try:
+            with open(self.log_path, "rb") as f:
+                return b"".join(deque(f, maxlen=n)).decode("utf-8", "replace").rstrip()
+        except OSError:
+            return ""
+
+
+def _descendants(pid: int) -> list[int]:
+    """PIDs of every process below ``pid`` (from /proc), deepest last."""
+    children: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        children.setdefault(ppid, []).append(int(d))
+    out, todo = [], [pid]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def _kill(pid: int, sig: int) -> None:
+    try:
+        os.kill(pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def stop_jobs(jobs: list[Job], grace_s: float = STOP_GRACE_S, why: str = "interrupted") -> None:
+    """SIGINT each running job (it stops its own children), wait, then SIGKILL by PID
+    every process still left in each job's tree."""
+    running = [j for j in jobs if j.proc is not None and j.poll() is None]
+    trees = {j.name: _descendants(j.proc.pid) for j in running}
+    for j in running:
+        j.status = why
+        _kill(j.proc.pid, signal.SIGINT)
+    deadline = time.monotonic() + grace_s
+    while time.monotonic() < deadline and any(j.poll() is None for j in running):
+        time.sleep(0.05)
+    for j in running:
+        left = [p for p in trees[j.name] + _descendants(j.proc.pid) if _alive(p)]
+        if j.poll() is None:
+            _kill(j.proc.pid, signal.SIGKILL)
+        for p in left:
+            _kill(p, signal.SIGKILL)
+        if j.exit_code is None:
+            try:
+                j.finish(j.proc.wait(5.0))
+            except subprocess.TimeoutExpired:
+                j.finish(-9)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+# ------------------------------------------------------------------ the figures
+@dataclass
+class Made:
+    """What a figure builder reports: caption text, parameters used, numbers measured."""
+    caption: str
+    parameters: dict
+    numbers: dict
+    extra_files: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class FigureSpec:
+    number: int
+    file: str
+    study_caption: str
+    jobs: tuple[str, ...]
+    build: Callable[["Context", str], Made]
+
+
+class FigureError(Exception):
+    pass
+
+
+@dataclass
+class Context:
+    out: str
+    jobs: dict[str, Job]
+
+    def run_dir(self, job: str) -> str:
+        return self.jobs[job].out
+
+    def summary(self, job: str) -> dict:
+        s = self.jobs[job].summary or _read_json(os.path.join(self.run_dir(job), "summary.json"))
+        if not s:
+            raise FigureError(f"{job}: no summary.json in {self.run_dir(job)}")
+        return s
+
+    def file(self, job: str, name: str) -> str:
+        path = os.path.join(self.run_dir(job), name)
+        if not os.path.isfile(path):
+            raise FigureError(f"{job} wrote no {name} (looked in {self.run_dir(job)})")
+        return path
+
+    def copy(self, job: str, name: str, dest: str) -> str:
+        shutil.copyfile(self.file(job, name), dest)
+        return dest
+
+
+def _scenario_params(s: dict) -> dict:
+    return {k: s.get(k) for k in ("scenario", "world", "mode", "seed") if k in s}
+
+
+def _run_numbers(s: dict) -> dict:
+    return {"real_time_factor": s.get("real_time_factor"), "sim_time_s": s.get("sim_time_s"),
+            "run_wall_time_s": s.get("wall_time_s")}
+
+
+def fig_robot(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("render")
+    ctx.copy("render", "robot.png", dest)
+    views = ", ".join(v["label"] for v in s.get("robot_views", []))
+    return Made(
+        f"{s['robot']} as the plant builds it: a box chassis, two driven wheels (radius "
+        f"{s['wheel_radius_m']:g} m, {s['wheel_separation_m']:g} m apart) and a rear ball "
+        f"caster, ray-cast from the same shapes the camera and lidar see ({views}).",
+        {"world": s["world"], "robot": s["robot"], "robot_pose": s["robot_pose"],
+         "image_size_px": s["robot_view_size_px"], "hfov_rad": s["robot_view_hfov_rad"],
+         "eye_points": s["robot_views"], "settle_s": s["settle_s"]},
+        {"wheel_radius_m": s["wheel_radius_m"], "wheel_separation_m": s["wheel_separation_m"],
+         "robot_colour_pixel_fraction": s.get("robot_colour_fraction")})
+
+
+def _schedule(spec) -> list[tuple[float, float, float]]:
+    """(duration s, left, right rad/s) of the drive-test's wheel_schedule controller."""
+    for p in spec.processes:
+        cmd = list(p.command)
+        if "--schedule" in cmd:
+            out = []
+            for seg in cmd[cmd.index("--schedule") + 1].split(";"):
+                dur, wheels = seg.split(":")
+                left, right = wheels.split(",")
+                out.append((float(dur), float(left), float(right)))
+            return out
+    raise FigureError("drive-test: no --schedule in the scenario")
+
+
+def _drive_test(ctx: Context) -> tuple[dict, list, float, float, "object"]:
+    from plant.world import load_world
+
+    from .scenario import load_scenario
+    s = ctx.summary("drive-test")
+    spec = load_scenario("drive-test")
+    drive = load_world(spec.world).robot(spec.robot).drive
+    import numpy as np
+    a = np.loadtxt(ctx.file("drive-test", "velocity.csv"), delimiter=",", skiprows=1, ndmin=2)
+    if a.size == 0:
+        raise FigureError("drive-test: velocity.csv is empty")
+    return s, _schedule(spec), drive.wheel_radius_m, drive.wheel_separation_m, a
+
+
+def _velocity_plot(a, col: int, sched, expected: list[float], key: int, measured: float,
+                   window, ylabel: str, title: str, formula: str, unit: str, color: str,
+                   dest: str) -> None:
+    """One velocity against time, the schedule's phases shaded and labelled, the expected
+    value of each phase dashed (phase ``key``'s value and formula written out)."""
+    from .plots import plt, save
+    fig, ax = plt.subplots(figsize=(8, 4.4))
+    t0 = 0.0
+    for i, (dur, left, right) in enumerate(sched):
+        ax.axvspan(t0, t0 + dur, color="0.5" if i % 2 else "0.8", alpha=0.12, lw=0)
+        ax.text(t0 + dur / 2, 1.01, f"left {left:+g}, right {right:+g} rad/s", ha="center",
+                va="bottom", transform=ax.get_xaxis_transform(), fontsize=8.5)
+        t0 += dur
+    ax.plot(a[:, 0], a[:, col], color=color, lw=2.2, label="measured (ground truth)")
+    ax.axvspan(*window, color=color, alpha=0.13, lw=0,
+               label=f"mean over {window[0]:g}-{window[1]:g} s = {measured:.4f} {unit}")
+    t0 = 0.0
+    for i, ((dur, _, _), exp) in enumerate(zip(sched, expected)):
+        ax.plot([t0, t0 + dur], [exp, exp], ls=(0, (4, 3)), color="k", lw=1.3, zorder=5,
+                label=f"expected: {formula}" if i == key else None)
+        if i == key:
+            ax.annotate(f"expected {exp:.3f} {unit}", (t0 + dur / 2, exp),
+                        xytext=(0, 10 if exp >= 0 else -16), textcoords="offset points",
+                        ha="center", fontsize=10, fontweight="bold")
+        t0 += dur
+    lo = min(0.0, *expected, float(a[:, col].min()))
+    hi = max(0.0, *expected, float(a[:, col].max()))
+    pad = 0.12 * max(hi - lo, 1e-6)
+    ax.set_ylim(lo - pad, hi + pad)
+    ax.set_xlabel("simulated time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, pad=18)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="center right", fontsize=8.5)
+    save(fig, dest)
+
+
+def fig_linear(ctx: Context, dest: str) -> Made:
+    s, sched, r, d, a = _drive_test(ctx)
+    m = s.get("metrics", {})
+    v = m.get("steady_linear_velocity_mps", math.nan)
+    expected = [r * (left + right) / 2 for _, left, right in sched]
+    left, right = sched[0][1], sched[0][2]
+    _velocity_plot(a, 1, sched, expected, 0, v, (3.0, 5.0), "linear velocity v [m/s]",
+                   "Linear velocity of the robot",
+                   f"v = r (ωL + ωR) / 2 = {r:g} x ({left:g} + {right:g}) / 2", "m/s",
+                   "tab:blue", dest)
+    return Made(
+        f"Both wheels at {sched[0][1]:g} rad/s for {sched[0][0]:g} s (the study's \"1 m/s\" is "
+        f"1 rad/s): v = r ω = {expected[0]:.3f} m/s expected, {v:.4f} m/s measured (mean of "
+        "the plant's ground-truth body velocity over 3-5 s). Then the wheels turn opposite "
+        "ways and v returns to 0.",
+        {**_scenario_params(s), "wheel_schedule_s_radps": sched, "wheel_radius_m": r},
+        {"steady_linear_velocity_mps": v, "expected_linear_velocity_mps": expected[0],
+         "linear_velocity_error_mps": v - expected[0], **_run_numbers(s)})
+
+
+def fig_angular(ctx: Context, dest: str) -> Made:
+    s, sched, r, d, a = _drive_test(ctx)
+    m = s.get("metrics", {})
+    w = m.get("steady_angular_velocity_radps", math.nan)
+    expected = [r * (right - left) / d for _, left, right in sched]
+    t_end = sum(seg[0] for seg in sched)
+    left, right = sched[-1][1], sched[-1][2]
+    _velocity_plot(a, 2, sched, expected, len(sched) - 1, w, (t_end - 2.0, t_end),
+                   "angular velocity ω [rad/s]",
+                   "Angular velocity of the robot (counter-clockwise positive)",
+                   f"ω = r (ωR - ωL) / d = {r:g} x ({right:g} - {left:g}) / {d:g}", "rad/s",
+                   "tab:red", dest)
+    return Made(
+        f"Left wheel {sched[-1][1]:+g} rad/s, right {sched[-1][2]:+g} rad/s: the robot spins "
+        f"on the spot, clockwise. ω = r(ωR - ωL)/d = {expected[-1]:.3f} rad/s expected "
+        f"(counter-clockwise positive; the study's \"0.12/0.18 = 0.66 m/s\" is this rate in "
+        f"rad/s, counted clockwise-positive), {w:.4f} rad/s measured (mean over the last 2 s).",
+        {**_scenario_params(s), "wheel_schedule_s_radps": sched, "wheel_radius_m": r,
+         "wheel_separation_m": d, "sign_convention": "counter-clockwise positive (REP 103)"},
+        {"steady_angular_velocity_radps": w, "expected_angular_velocity_radps": expected[-1],
+         "angular_velocity_error_radps": w - expected[-1], **_run_numbers(s)})
+
+
+def fig_motion_noise(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("motion-noise")
+    ctx.copy("motion-noise", "motion_noise.png", dest)
+    p = s.get("parameters", {})
+    std = s.get("endpoint_std_m", [math.nan, math.nan])
+    return Made(
+        f"{p.get('runs')} open-loop straight runs of {p.get('distance_m')} m at "
+        f"{p.get('wheel_speed_radps')} rad/s, with Gaussian noise of "
+        f"{p.get('command_noise_std_radps')} rad/s on each wheel command every tick and "
+        f"wheel/floor friction {p.get('wheel_floor_friction')}; GPS end positions with their "
+        f"mean and 1σ/2σ covariance ellipses. Spread {1000 * std[0]:.2f} mm along the path, "
+        f"{1000 * std[1]:.2f} mm across; slip leaves the robot "
+        f"{1000 * s.get('mean_shortfall_m', math.nan):.1f} mm short on average. One plant "
+        "process, reset between runs.",
+        {k: p[k] for k in ("runs", "world", "start_pose", "distance_m", "wheel_speed_radps",
+                           "drive_time_s", "command_noise_std_radps", "wheel_floor_friction",
+                           "contact_solver", "seeds") if k in p},
+        {"endpoint_mean_m": s.get("endpoint_mean_m"), "endpoint_std_m": std,
+         "ideal_end_m": s.get("ideal_end_m"), "mean_shortfall_m": s.get("mean_shortfall_m"),
+         "mean_slip_gap_m": s.get("mean_slip_gap_m"), "runs_done": s.get("runs_done"),
+         "wall_time_per_run_s": s.get("wall_time_per_run_s")})
+
+
+def fig_lidar(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("lidar")
+    ctx.copy("lidar", "lidar.png", dest)
+    p = s.get("parameters", {})
+    return Made(
+        f"(a) The living room from above with the {p.get('num_rays')} rays of one scan and "
+        f"where they hit; (b) the same scan as a polar plot (bearing 0 = ahead, + = left). "
+        f"{p.get('num_rays')} rays over {math.degrees(p.get('fov_rad', math.nan)):.0f}° "
+        f"including both ends, max range {p.get('max_range_m')} m, no noise.",
+        {k: p[k] for k in ("world", "robot", "robot_pose", "num_rays", "fov_rad",
+                           "angle_increment_rad", "max_range_m", "scan_plane_z_m") if k in p},
+        {k: s.get(k) for k in ("finite_rays", "range_min_m", "range_max_m", "range_mean_m")})
+
+
+def fig_map(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("render")
+    ctx.copy("render", "room.png", dest)
+    return Made(
+        f"The {s['world']} world: a {s['floor_size_m'][0]:g} m x {s['floor_size_m'][1]:g} m "
+        f"room with {s['objects']} furniture solids (boxes, cylinders, spheres) from "
+        f"plant/worlds/{s['world']}.toml, rendered by the plant's ray caster from above a "
+        "corner; robot1 at its start pose.",
+        {"world": s["world"], "eye_m": s["room_eye_m"], "target_m": s["room_target_m"],
+         "hfov_rad": s["room_hfov_rad"], "image_size_px": s["room_size_px"]},
+        {"floor_size_m": s["floor_size_m"], "wall_height_m": s["wall_height_m"],
+         "objects": s["objects"], "render_wall_time_s": s.get("wall_time_s")})
+
+
+def _square_numbers(m: dict) -> dict:
+    return {k: m.get(k) for k in ("final_odom_error_m", "max_odom_error_m", "path_length_m",
+                                  "path_closure_m", "duration_s")}
+
+
+def fig_odometry(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("square")
+    ctx.copy("square", "odometry_vs_gps.png", dest)
+    m = s.get("metrics", {})
+    robot = next((k for k, v in m.items() if isinstance(v, dict)), "robot1")
+    mr = m.get(robot, m)
+    return Made(
+        f"{robot} drives a 1.5 m square closed-loop on its own odometry (the C odometry FMU on "
+        f"the bus integrating the wheel encoders); odometry '*' against GPS 'o'. Without noise "
+        f"they end {1000 * mr.get('final_odom_error_m', math.nan):.1f} mm apart after "
+        f"{mr.get('path_length_m', math.nan):.2f} m.",
+        {**_scenario_params(s), "side_m": 1.5, "odometry": "fmus/build/odometry_fmi2.fmu"},
+        {**_square_numbers(mr), **_run_numbers(s)})
+
+
+def _camera_plot(ctx: Context, name: str, dest: str, title: str) -> None:
+    from .plots import plt, save
+    img = plt.imread(ctx.file("camera", name))
+    h, w = img.shape[:2]
+    fig, ax = plt.subplots(figsize=(8, 8 * h / w + 0.6))
+    ax.imshow(img, interpolation="nearest")
+    ax.set_title(title, fontsize=10.5)
+    ax.set_xlabel("u [px]")
+    ax.set_ylabel("v [px]")
+    save(fig, dest)
+
+
+def fig_camera(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("camera")
+    p = s.get("parameters", {})
+    pose = p.get("pose", [0, 0, 0])
+    _camera_plot(ctx, "camera.png", dest,
+                 f"{p.get('robot')}'s camera, {p.get('width')}x{p.get('height')} rgb8 from the bus "
+                 f"(no noise), robot at ({pose[0]:g}, {pose[1]:g}) m, yaw {pose[2]:g} rad")
+    return Made(
+        f"One frame of {p.get('robot')}'s camera topic ({p.get('width')}x{p.get('height')}, "
+        f"horizontal field of view {p.get('hfov_rad')} rad), decoded from the bus and "
+        "enlarged pixel for pixel: the dining corner with table, chairs and bookshelf.",
+        {k: p[k] for k in ("world", "robot", "pose", "width", "height", "hfov_rad") if k in p},
+        {})
+
+
+def fig_noisy_lidar(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("noisy-lidar")
+    ctx.copy("noisy-lidar", "noisy_lidar.png", dest)
+    p = s.get("parameters", {})
+    return Made(
+        f"The scan of Figure 5 without (blue) and with (orange) Webots lidar noise "
+        f"{p.get('lidar_noise_webots')}: a standard deviation relative to the max range, "
+        f"{p.get('lidar_noise_std_m')} m for the SICK LMS 291's {p.get('max_range_m')} m, on "
+        "ranges of 1-5 m, so the room disappears in the noise (left: full range; right: "
+        f"zoomed to the room). Noisy values are clipped to the sensor's range: "
+        f"{100 * (s.get('fraction_clipped_to_min_range') or 0):.0f} % read the minimum.",
+        {k: p[k] for k in ("world", "robot", "lidar_noise_webots", "lidar_noise_std_m",
+                           "max_range_m", "min_range_m", "num_rays") if k in p},
+        {k: s.get(k) for k in ("measured_residual_std_m", "expected_residual_std_with_clipping_m",
+                               "measured_residual_mean_m", "fraction_clipped_to_min_range")})
+
+
+def fig_noisy_odometry(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("noisy-odometry")
+    ctx.copy("noisy-odometry", "odometry_vs_gps.png", dest)
+    p = s.get("parameters", {})
+    run = s.get("run", {})
+    return Made(
+        f"The square of Figure 7 with Webots PositionSensor noise {p.get('encoder_noise_webots')} "
+        f"(a Gaussian of {p.get('encoder_noise_std_rad')} rad std on every encoder reading). The "
+        f"controller closes the square on the noisy odometry (blue '*'); GPS (orange 'o') shows "
+        f"where the robot really went: up to {100 * s.get('max_odom_error_m', math.nan):.0f} cm "
+        "apart.",
+        {k: p[k] for k in ("world", "robot", "side_m", "encoder_noise_webots",
+                           "encoder_noise_std_rad", "odometry", "controller") if k in p}
+        | {"seed": s.get("seed")},
+        {**{k: s.get(k) for k in ("final_odom_error_m", "max_odom_error_m", "mean_odom_error_m",
+                                  "path_length_m", "path_closure_m")}, **_run_numbers(run)})
+
+
+def fig_noisy_camera(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("camera")
+    p = s.get("parameters", {})
+    _camera_plot(ctx, "camera_noisy.png", dest,
+                 f"the same frame with Webots camera noise {p.get('camera_noise_webots')} "
+                 f"(std {p.get('camera_noise_std_levels'):g} of 255 levels per channel)")
+    return Made(
+        f"The frame of Figure 8 with Webots camera noise {p.get('camera_noise_webots')}: a "
+        f"Gaussian of {p.get('camera_noise_std_levels'):g} levels (0.2 x 255) per channel and "
+        "pixel, rounded and clipped to 0-255 (clipping makes the measured spread a little "
+        "smaller than 51).",
+        {k: p[k] for k in ("world", "robot", "pose", "width", "height", "camera_noise_webots",
+                           "camera_noise_std_levels") if k in p},
+        {k: s.get(k) for k in ("measured_residual_std_levels",
+                               "expected_residual_std_with_clipping_levels",
+                               "measured_residual_std_midtones_levels",
+                               "pixels_clipped_fraction")})
+
+
+def fig_tracking(ctx: Context, dest: str) -> Made:
+    s = ctx.summary("follow")
+    ctx.copy("follow", "tracking_distance.png", dest)
+    extra = []
+    try:
+        ctx.copy("follow", "follow.gif", os.path.join(ctx.out, "follow.gif"))
+        extra.append("follow.gif")
+    except FigureError:
+        pass
+    m = s.get("metrics", {})
+    return Made(
+        "The follower keeps its camera 0.65 m from the leader's green ball: it finds the ball "
+        "with OpenCV, steers it to the image centre and sets its speed from the ball's "
+        "apparent radius (orange: that estimate); blue: the true distance from ground truth. "
+        f"After {m.get('settle_s', 5):g} s the distance stays within "
+        f"{m.get('distance_min_m', math.nan):.3f}-{m.get('distance_max_m', math.nan):.3f} m "
+        "(the study: 0.6-0.7 m).",
+        {**_scenario_params(s), "target_distance_m": 0.65, "band_m": [0.60, 0.70],
+         "settle_s": m.get("settle_s")},
+        {**{k: m.get(k) for k in ("distance_min_m", "distance_max_m", "distance_rms_error_m",
+                                  "distance_in_band", "ball_lost_frames", "frames")},
+         **_run_numbers(s)}, extra)
+
+
+FIGURES = {f.number: f for f in (
+    FigureSpec(1, "fig01_robot.png", "3D model of the differential drive robot.", ("render",),
+               fig_robot),
+    FigureSpec(2, "fig02_linear_velocity.png", "Linear velocity of the robot.", ("drive-test",),
+               fig_linear),
+    FigureSpec(3, "fig03_angular_velocity.png", "Angular velocity of the robot.",
+               ("drive-test",), fig_angular),
+    FigureSpec(4, "fig04_motion_noise.png", "Motion noise.", ("motion-noise",), fig_motion_noise),
+    FigureSpec(5, "fig05_lidar.png", "Lidar sensor data: (a) the simulation environment, "
+               "(b) polar plot of the distance sensor data.", ("lidar",), fig_lidar),
+    FigureSpec(6, "fig06_map.png", "Map environment.", ("render",), fig_map),
+    FigureSpec(7, "fig07_odometry_vs_gps.png", "Odometry and GPS data.", ("square",),
+               fig_odometry),
+    FigureSpec(8, "fig08_camera.png", "Camera image.", ("camera",), fig_camera),
+    FigureSpec(9, "fig09_noisy_lidar.png", "Noisy lidar data compared to noiseless data.",
+               ("noisy-lidar",), fig_noisy_lidar),
+    FigureSpec(10, "fig10_noisy_odometry.png",
+               "Noisy odometry data compared to ground truth GPS data.", ("noisy-odometry",),
+               fig_noisy_odometry),
+    FigureSpec(11, "fig11_noisy_camera.png", "Noisy camera image.", ("camera",),
+               fig_noisy_camera),
+    FigureSpec(12, "fig12_tracking_distance.png", "Tracking distance vs time.", ("follow",),
+               fig_tracking),
+)}
+
+
+def parse_only(text: str | None) -> list[int]:
+    """``"4,12"``, ``"1-3,7"`` -> sorted figure numbers; ValueError names the bad part."""
+    if text is None:
+        return sorted(FIGURES)
+    nums: set[int] = set()
+    for part in text.replace(" ", "").split(","):
+        if not part:
+            continue
+        try:
+            lo, _, hi = part.partition("-")
+            a, b = int(lo), int(hi or lo)
+        except ValueError:
+            raise ValueError(f"--only: {part!r} is not a figure number or range") from None
+        if a > b:
+            raise ValueError(f"--only: empty range {part!r}")
+        for n in range(a, b + 1):
+            if n not in FIGURES:
+                raise ValueError(f"--only: there is no figure {n} (figures are "
+                                 f"{min(FIGURES)}-{max(FIGURES)})")
+            nums.add(n)
+    if not nums:
+        raise ValueError("--only: no figure numbers given")
+    return sorted(nums)
+
+
+# ------------------------------------------------------------------ running everything
+class Progress:
+    def __init__(self) -> None:
+        self.t0 = time.monotonic()
+
+    def __call__(self, msg: str) -> None:
+        print(f"figures [{time.monotonic() - self.t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+
+def run_jobs(jobs: list[Job], parallel: int, timeout_s: float, stop_flag: list,
+             say: Progress, on_done: Callable[[Job], None]) -> None:
+    waiting = sorted(jobs, key=lambda j: -j.spec.est_s)       # longest first
+    running: list[Job] = []
+    done = 0
+    last_beat = time.monotonic()
+    while waiting or running:
+        if stop_flag:
+            say(f"{stop_flag[0]}: stopping {', '.join(j.name for j in running) or 'nothing'}")
+            stop_jobs(running)
+            for j in waiting:
+                j.status = "skipped"
+            for j in running:
+                say(f"stopped {j.name} (exit code {j.exit_code})")
+            return
+        while waiting and len(running) < parallel:
+            j = waiting.pop(0)
+            try:
+                j.start()
+            except OSError as exc:
+                j.status, j.exit_code = "failed", -1
+                say(f"FAILED to start {j.name}: {exc}")
+                on_done(j)
+                continue
+            running.append(j)
+            say(f"start {j.name}: {j.spec.what} (pid {j.proc.pid}, log {j.log_path})")
+        for j in list(running):
+            if j.poll() is None and j.wall_s > timeout_s:
+                say(f"{j.name} exceeded --timeout {timeout_s:g} s; stopping it")
+                stop_jobs([j], why="timeout")
+            if j.exit_code is None:
+                continue
+            running.remove(j)
+            done += 1
+            if j.status == "ok":
+                say(f"done  {j.name} in {j.wall_s:.1f} s ({done}/{len(jobs)})")
+            else:
+                say(f"FAILED {j.name} ({j.status}, exit code {j.exit_code}) after "
+                    f"{j.wall_s:.1f} s ({done}/{len(jobs)}); last lines of {j.log_path}:\n"
+                    + _indent(j.tail()))
+            on_done(j)
+        now = time.monotonic()
+        if running and now - last_beat >= HEARTBEAT_S:
+            last_beat = now
+            say("running: " + ", ".join(f"{j.name} {j.wall_s:.0f} s" for j in running)
+                + (f"; waiting: {', '.join(j.name for j in waiting)}" if waiting else ""))
+        time.sleep(0.05)
+
+
+def _indent(text: str) -> str:
+    return "\n".join("    " + line for line in text.splitlines()) or "    (empty log)"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    lines = [f"  {n:2d} {f.file:30s} {', '.join(f.jobs)}" for n, f in FIGURES.items()]
+    p = argparse.ArgumentParser(
+        prog="diffbot figures", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run the experiments and scenarios behind the study's twelve figures and "
+                    "write the figures, index.html, REPORT.md and figures.json into --out.",
+        epilog="figures (number, file, the jobs it needs):\n" + "\n".join(lines))
+    p.add_argument("--out", default=os.path.join("out", "figures"),
+                   help="output directory (default out/figures); runs go to OUT/runs/")
+    p.add_argument("--only", default=None, metavar="LIST",
+                   help="only these figures, e.g. 4,12 or 1-3 (and only the jobs they need)")
+    p.add_argument("--jobs", type=int, default=2, metavar="N",
+                   help="jobs run at the same time (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed for every run (default 0)")
+    p.add_argument("--timeout", type=float, default=480.0, metavar="S",
+                   help="wall-clock limit per job (default 480 s)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        numbers = parse_only(args.only)
+        if args.jobs < 1:
+            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+        if args.seed < 0:
+            raise ValueError(f"--seed must be >= 0, got {args.seed}")
+        if not (args.timeout > 0 and math.isfinite(args.timeout)):
+            raise ValueError(f"--timeout must be > 0, got {args.timeout}")
+    except ValueError as exc:
+        print(f"diffbot figures: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    out = os.path.abspath(args.out)
+    runs = os.path.join(out, "runs")
+    os.makedirs(runs, exist_ok=True)
+    for n in numbers:                            # no stale figure from an earlier run
+        for name in (FIGURES[n].file, *(["follow.gif"] if n == 12 else [])):
+            if os.path.exists(os.path.join(out, name)):
+                os.remove(os.path.join(out, name))
+    needed = sorted({j for n in numbers for j in FIGURES[n].jobs}, key=list(JOBS).index)
+    jobs = {name: Job(JOBS[name], os.path.join(runs, name), os.path.join(runs, f"{name}.log"),
+                      job_argv(JOBS[name], os.path.join(runs, name), args.seed))
+            for name in needed}
+    ctx = Context(out, jobs)
+    say = Progress()
+    say(f"{len(numbers)} figure(s) ({_ranges(numbers)}) from {len(jobs)} job(s) "
+        f"({', '.join(needed)}), {args.jobs} at a time on {os.cpu_count()} CPU(s), seed "
+        f"{args.seed}; output in {out}")
+    results: dict[int, dict] = {}
+
+    def on_done(job: Job) -> None:
+        for n in numbers:
+            f = FIGURES[n]
+            if n in results or job.name not in f.jobs:
+                continue
+            if all(jobs[j].status == "ok" for j in f.jobs):
+                results[n] = make_figure(ctx, f, say)
+            elif all(jobs[j].exit_code is not None for j in f.jobs):
+                bad = [j for j in f.jobs if jobs[j].status != "ok"]
+                results[n] = {"status": "not made",
+                              "error": f"job {', '.join(bad)} {jobs[bad[0]].status} "
+                                       f"(exit code {jobs[bad[0]].exit_code})"}
+
+    stop_flag: list[str] = []
+
+    def on_signal(signum, frame):
+        if stop_flag:                               # a second Ctrl-C: no more grace
+            for j in jobs.values():
+                if j.proc is not None and j.poll() is None:
+                    for p in _descendants(j.proc.pid):
+                        _kill(p, signal.SIGKILL)
+                    _kill(j.proc.pid, signal.SIGKILL)
+        stop_flag.append(signal.Signals(signum).name)
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    t0 = time.monotonic()
+    try:
+        run_jobs(list(jobs.values()), args.jobs, args.timeout, stop_flag, say, on_done)
+    finally:
+        stop_jobs(list(jobs.values()))              # nothing outlives us, even on an error
+        for s, h in old.items():
+            signal.signal(s, h)
+    wall = time.monotonic() - t0
+    for n in numbers:
+        results.setdefault(n, {"status": "not made", "error": "interrupted before its jobs finished"
+                               if stop_flag else "its jobs did not run"})
+    report = build_report(ctx, numbers, results, args, wall, bool(stop_flag))
+    write_outputs(out, report)
+    made = [n for n in numbers if results[n]["status"] == "ok"]
+    failed_jobs = [j for j in jobs.values() if j.status not in ("ok",)]
+    say(f"{len(made)}/{len(numbers)} figure(s) written in {wall:.1f} s: "
+        f"{os.path.join(out, 'index.html')}, REPORT.md, figures.json")
+    for n in numbers:
+        if results[n]["status"] != "ok":
+            say(f"figure {n} not written: {results[n]['error']}")
+    if stop_flag:
+        return EXIT_INTERRUPTED
+    return 0 if len(made) == len(numbers) and not failed_jobs else EXIT_FAILED
+
+
+def make_figure(ctx: Context, f: FigureSpec, say: Progress) -> dict:
+    dest = os.path.join(ctx.out, f.file)
+    try:
+        made = f.build(ctx, dest)
+    except Exception as exc:                     # one bad figure must not lose the others
+        say(f"figure {f.number} FAILED: {type(exc).__name__}: {exc}")
+        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+    say(f"wrote {f.file}")
+    return {"status": "ok", "caption": made.caption, "parameters": made.parameters,
+            "numbers": made.numbers, "extra_files": made.extra_files}
+
+
+def _ranges(nums: list[int]) -> str:
+    out, i = [], 0
+    while i < len(nums):
+        j = i
+        while j + 1 < len(nums) and nums[j + 1] == nums[j] + 1:
+            j += 1
+        out.append(str(nums[i]) if i == j else f"{nums[i]}-{nums[j]}")
+        i = j + 1
+    return ",".join(out)
+
+
+# ------------------------------------------------------------------ the report
+def _mm(v) -> str:
+    return "[" + ", ".join(f"{1000 * x:.2f}" for x in v) + "] mm" if v else "—"
+
+
+#: the numbers worth a glance: (figure, quantity, what the study says, text from its numbers)
+HEADLINES: tuple[tuple[int, str, str, Callable[[dict], str]], ...] = (
+    (2, "linear velocity, both wheels 1 rad/s", "0.12 m/s",
+     lambda n: f"{n['steady_linear_velocity_mps']:.4f} m/s"),
+    (3, "angular velocity, wheels +1 / -1 rad/s (CCW positive)", "\"0.66 m/s\" (0.667 rad/s, CW)",
+     lambda n: f"{n['steady_angular_velocity_radps']:.4f} rad/s"),
+    (4, "end-point spread (std along, across the path)", "scatter plot",
+     lambda n: _mm(n.get("endpoint_std_m"))),
+    (7, "odometry vs GPS at the end of the square, no noise", "small discrepancies",
+     lambda n: f"{1000 * n['final_odom_error_m']:.1f} mm after {n['path_length_m']:.2f} m"),
+    (9, "lidar range error std, noise 0.2 (16 m)", "—",
+     lambda n: f"{n['measured_residual_std_m']:.2f} m (expected with clipping "
+               f"{n['expected_residual_std_with_clipping_m']:.2f} m)"),
+    (10, "odometry vs GPS, encoder noise 0.2 rad (max / end)", "significant difference",
+     lambda n: f"{100 * n['max_odom_error_m']:.1f} cm / {100 * n['final_odom_error_m']:.1f} cm"),
+    (11, "camera pixel error std, noise 0.2 (51 levels)", "—",
+     lambda n: f"{n['measured_residual_std_levels']:.1f} levels (expected with clipping "
+               f"{n['expected_residual_std_with_clipping_levels']:.1f})"),
+    (12, "tracking distance after settling (min-max, RMS error)", "0.6-0.7 m",
+     lambda n: f"{n['distance_min_m']:.3f}-{n['distance_max_m']:.3f} m, RMS "
+               f"{100 * n['distance_rms_error_m']:.1f} cm from 0.65 m"),
+)
+
+
+def headlines(figs: list[dict]) -> list[dict]:
+    by_n = {f["number"]: f for f in figs if f["status"] == "ok"}
+    out = []
+    for n, what, study, text in HEADLINES:
+        if n in by_n:
+            try:
+                measured = text(by_n[n]["numbers"])
+            except (KeyError, TypeError, ValueError):
+                measured = "—"
+            out.append({"figure": n, "quantity": what, "study": study, "measured": measured})
+    return out
+
+
+def build_report(ctx: Context, numbers: list[int], results: dict, args, wall: float,
+                 interrupted: bool) -> dict:
+    figs = []
+    for n in numbers:
+        f, r = FIGURES[n], results[n]
+        figs.append({"number": n, "file": f.file, "study_caption": f.study_caption,
+                     "jobs": list(f.jobs), **r})
+    runs = {}
+    for name, j in ctx.jobs.items():
+        s = j.summary
+        rtf = s.get("real_time_factor", s.get("run", {}).get("real_time_factor")) if s else None
+        runs[name] = {"command": ["diffbot", *j.spec.args, "--out", j.out, "--seed",
+                                  str(args.seed)] if not j.spec.module
+                      else ["python", "-m", j.spec.module, "--out", j.out],
+                      "what": j.spec.what, "status": j.status, "exit_code": j.exit_code,
+                      "wall_time_s": j.wall_s, "real_time_factor": rtf,
+                      "sim_time_s": s.get("sim_time_s", s.get("run", {}).get("sim_time_s"))
+                      if s else None,
+                      "out": os.path.relpath(j.out, ctx.out),
+                      "log": os.path.relpath(j.log_path, ctx.out)}
+        if j.status not in ("ok", "waiting"):
+            runs[name]["log_tail"] = j.tail()
+    return {"generated": time.strftime("%Y-%m-%d %H:%M:%S %z"), "seed": args.seed,
+            "parallel_jobs": args.jobs, "cpus": os.cpu_count(),
+            "only": args.only, "wall_time_s": wall, "interrupted": interrupted,
+            "conventions": "SI units; frames x forward, y left, z up; yaw and angular velocity "
+                           "counter-clockwise positive. The study's \"1 m/s\" wheel command is "
+                           "1 rad/s, its \"0.66 m/s\" is an angular velocity (0.667 rad/s) and "
+                           "its w = (v_left - v_right)/d counts clockwise positive.",
+            "headlines": headlines(figs), "figures": figs, "runs": runs}
+
+
+def _clean(x):
+    """JSON-safe: NaN/inf -> None, tuples -> lists."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if hasattr(x, "item"):                       # numpy scalars
+        return _clean(x.item())
+    return x
+
+
+def fmt(v) -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return "—"
+        if v == 0:
+            return "0"
+        a = abs(v)
+        return f"{v:.5g}" if 1e-3 <= a < 1e5 else f"{v:.3e}"
+    if isinstance(v, (list, tuple)):
+        if v and all(isinstance(e, dict) for e in v):
+            return "; ".join(", ".join(f"{k} {fmt(x)}" for k, x in e.items()) for e in v)
+        return "[" + ", ".join(fmt(e) for e in v) + "]"
+    return str(v)
+
+
+def write_outputs(out: str, report: dict) -> None:
+    report = _clean(report)
+    from bus.node import write_json
+    write_json(os.path.join(out, "figures.json"), report)
+    _write_atomic(os.path.join(out, "REPORT.md"), render_markdown(report))
+    _write_atomic(os.path.join(out, "index.html"), render_html(report))
+
+
+def _write_atomic(path: str, text: str) -> None:
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def _runs_rows(report: dict) -> list[list[str]]:
+    rows = []
+    for name, r in report["runs"].items():
+        cmd = r["command"]
+        if "--out" in cmd:                       # the output and the seed have their columns
+            cmd = cmd[:cmd.index("--out")]
+        rows.append([name, r["status"], fmt(r["exit_code"]), fmt(r["wall_time_s"]),
+                     fmt(r["real_time_factor"]), fmt(r["sim_time_s"]), " ".join(cmd), r["out"]])
+    return rows
+
+
+RUN_HEAD = ["job", "status", "exit", "wall time [s]", "real-time factor", "sim time [s]",
+            "command", "output"]
+
+
+def _intro(report: dict) -> str:
+    made = sum(1 for f in report["figures"] if f["status"] == "ok")
+    return (f"{made} of {len(report['figures'])} figure(s) written by `diffbot figures` on "
+            f"{report['generated']}: seed {report['seed']}, {report['parallel_jobs']} job(s) at "
+            f"a time on {report['cpus']} CPU(s), total wall time "
+            f"{report['wall_time_s']:.1f} s" + (" (INTERRUPTED)" if report["interrupted"] else "")
+            + "." + (" Real-time factors and job wall times were measured with the jobs "
+                     "sharing the CPUs; `--jobs 1` gives each run the machine alone."
+                     if report["parallel_jobs"] > 1 and len(report["runs"]) > 1 else ""))
+
+
+def render_markdown(report: dict) -> str:
+    L = ["# The study's figures, reproduced", "", _intro(report), "",
+         f"Conventions: {report['conventions']}", "",
+         "Each figure comes from the run named under it (`runs/<job>/`, its log in "
+         "`runs/<job>.log`; `summary.json` there has every number).", ""]
+    if report["headlines"]:
+        L += ["| figure | quantity | the study | this run |", "|---|---|---|---|"]
+        L += [f"| {h['figure']} | {_md(h['quantity'])} | {_md(h['study'])} | {_md(h['measured'])} |"
+              for h in report["headlines"]]
+        L.append("")
+    for f in report["figures"]:
+        L.append(f"## Figure {f['number']}: {f['study_caption']}")
+        L.append("")
+        if f["status"] != "ok":
+            L += [f"**Not made**: {f.get('error', '')}", ""]
+            tail = "\n".join(report["runs"][j].get("log_tail", "") for j in f["jobs"]).strip()
+            if tail:
+                L += ["```", tail, "```", ""]
+            continue
+        L += [f"![Figure {f['number']}]({f['file']})", ""]
+        L += [f"*Figure {f['number']}: {f['study_caption']}* {f['caption']}", ""]
+        for extra in f.get("extra_files", []):
+            L += [f"Animation: [{extra}]({extra})", "", f"![{extra}]({extra})", ""]
+        L += [f"Run: {', '.join('`' + j + '`' for j in f['jobs'])}", ""]
+        if f["parameters"]:
+            L += ["| parameter | value |", "|---|---|"]
+            L += [f"| `{k}` | {_md(fmt(v))} |" for k, v in f["parameters"].items()]
+            L.append("")
+        if f["numbers"]:
+            L += ["| measured | value |", "|---|---|"]
+            L += [f"| `{k}` | {_md(fmt(v))} |" for k, v in f["numbers"].items()]
+            L.append("")
+    L += ["## Runs", "", "| " + " | ".join(RUN_HEAD) + " |", "|" + "---|" * len(RUN_HEAD)]
+    L += ["| " + " | ".join(_md(c) for c in row) + " |" for row in _runs_rows(report)]
+    L.append("")
+    return "\n".join(L)
+
+
+def _md(s: str) -> str:
+    return s.replace("|", "\\|").replace("\n", " ")
+
+
+CSS = """
+body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em;
+       color: #222; line-height: 1.45; }
+figure { margin: 2.5em 0; padding-bottom: 1.5em; border-bottom: 1px solid #ddd; }
+figure img { max-width: 100%; border: 1px solid #ccc; }
+figcaption { margin: .6em 0; }
+table { border-collapse: collapse; margin: .5em 1.5em .5em 0; font-size: 90%;
+        display: inline-table; vertical-align: top; }
+td, th { border: 1px solid #ccc; padding: 2px 8px; text-align: left; }
+th { background: #f3f3f3; }
+code { font-size: 92%; }
+.failed { color: #b00; font-weight: bold; }
+pre { background: #f6f6f6; padding: .6em; overflow-x: auto; font-size: 85%; }
+"""
+
+
+def render_html(report: dict) -> str:
+    e = html.escape
+    intro = re.sub(r"`([^`]+)`", r"<code>\1</code>", e(_intro(report)))
+    H = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+         "<title>diffbot-cosim: the study's figures</title>", f"<style>{CSS}</style></head><body>",
+         "<h1>The study's figures, reproduced</h1>", f"<p>{intro}</p>",
+         f"<p>Conventions: {e(report['conventions'])}</p>",
+         "<p>Each figure comes from the run named under it (<code>runs/&lt;job&gt;/</code>, "
+         "its log in <code>runs/&lt;job&gt;.log</code>; <code>summary.json</code> there has "
+         "every number).</p>"]
+    if report["headlines"]:
+        H.append("<table><tr><th>figure</th><th>quantity</th><th>the study</th><th>this run</th>"
+                 "</tr>" + "".join(f'<tr><td><a href="#fig{h["figure"]}">{h["figure"]}</a></td>'
+                                   f"<td>{e(h['quantity'])}</td><td>{e(h['study'])}</td>"
+                                   f"<td>{e(h['measured'])}</td></tr>"
+                                   for h in report["headlines"]) + "</table>")
+    H.append("<ul>" + "".join(f'<li><a href="#fig{f["number"]}">Figure {f["number"]}: '
+                               f'{e(f["study_caption"])}</a>'
+                               + ("" if f["status"] == "ok" else ' <span class="failed">(not made)'
+                                  '</span>') + "</li>" for f in report["figures"]) + "</ul>")
+    for f in report["figures"]:
+        n = f["number"]
+        H.append(f'<figure id="fig{n}">')
+        if f["status"] != "ok":
+            H.append(f"<h2>Figure {n}: {e(f['study_caption'])}</h2>")
+            H.append(f'<p class="failed">Not made: {e(f.get("error", ""))}</p>')
+            tail = "\n".join(report["runs"][j].get("log_tail", "") for j in f["jobs"]).strip()
+            if tail:
+                H.append(f"<pre>{e(tail)}</pre>")
+            H.append("</figure>")
+            continue
+        H.append(f'<a href="{e(f["file"])}"><img src="{e(f["file"])}" '
+                 f'alt="Figure {n}: {e(f["study_caption"])}"></a>')
+        H.append(f"<figcaption><b>Figure {n}: {e(f['study_caption'])}</b> "
+                 f"{e(f['caption'])}</figcaption>")
+        for extra in f.get("extra_files", []):
+            H.append(f'<p>Animation (<a href="{e(extra)}">{e(extra)}</a>):<br>'
+                     f'<img src="{e(extra)}" alt="{e(extra)}"></p>')
+        H.append(f"<p>Run: {', '.join('<code>' + e(j) + '</code>' for j in f['jobs'])}</p>")
+        for title, d in (("parameter", f["parameters"]), ("measured", f["numbers"])):
+            if d:
+                H.append(f"<table><tr><th>{title}</th><th>value</th></tr>"
+                         + "".join(f"<tr><td><code>{e(k)}</code></td><td>{e(fmt(v))}</td></tr>"
+                                   for k, v in d.items()) + "</table>")
+        H.append("</figure>")
+    H.append("<h2>Runs</h2><table><tr>" + "".join(f"<th>{e(h)}</th>" for h in RUN_HEAD) + "</tr>")
+    for row in _runs_rows(report):
+        H.append("<tr>" + "".join(f"<td>{e(c)}</td>" for c in row[:-1])
+                 + f'<td><a href="{e(row[-1])}/">{e(row[-1])}</a></td></tr>')
+    H.append("</table></body></html>")
+    return "\n".join(H) + "\n"
+
+
+def _read_json(path: str) -> dict:
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return {}
+
