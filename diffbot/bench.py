@@ -701,14 +701,16 @@ def run_scenario(ctx: Context, name: str, timeout_s: float = 900.0) -> dict:
         shutil.rmtree(out, ignore_errors=True)
 
 
-@suite("scenario", "the square scenario end to end in lockstep (diffbot run square)")
+@suite("scenario", "the square and follow scenarios end to end in lockstep (diffbot run)")
 def scenario_suite(ctx: Context):
-    yield Probe("square", lambda: run_scenario(ctx, "square"), [
-        Metric("real_time_factor", "square: real-time factor", "x",
-               notes="summary.json real_time_factor (plant, lockstep)"),
-        Metric("wall_time_s", "square: wall time", notes="whole run incl. start-up, analysis"),
-        Metric("sim_time_s", "square: simulated time"),
-    ], repeats=1 if ctx.quick else 3, warmup=0, notes="no warm-up run")
+    for name in ("square", "follow"):
+        yield Probe(name, lambda name=name: run_scenario(ctx, name), [
+            Metric("real_time_factor", f"{name}: real-time factor", "x",
+                   notes="summary.json real_time_factor (plant, lockstep)"),
+            Metric("wall_time_s", f"{name}: wall time",
+                   notes="whole run incl. start-up, analysis"),
+            Metric("sim_time_s", f"{name}: simulated time"),
+        ], repeats=1 if ctx.quick or name == "follow" else 3, warmup=0, notes="no warm-up run")
 
 
 @suite("fmu", "odometry FMU steps (timed by fmus/bench.py, when it exists)")
