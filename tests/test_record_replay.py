@@ -316,3 +316,31 @@ def test_topics_and_echo_against_a_running_plant(procs, endpoint):
         assert re.match(r"/robot1/gps  seq \d+  t \d+\.\d{6} s  \(geometry_msgs/msg/PointStamped\)",
                         b)
         assert "frame_id: world" in b and re.search(r"point: \{x: \S+, y: \S+, z: \S+\}", b)
+
+
+@pytest.mark.slow
+def test_replayed_camera_gives_a_fresh_follower_the_same_commands(procs, endpoint, tmp_path):
+    """The follower reads only its camera (the plant's sensors, which come before sim/clock
+    in every tick): a recorded lockstep follow run replayed into a fresh follower gives the
+    same cmd_vel at every stamp as the original run."""
+    out = tmp_path / "out"
+    r = diffbot("run", "follow", "--duration", "4", "--seed", "2", "--out", str(out),
+                "--record", str(out / "follow.mcap"))
+    assert r.returncode == 0, r.stderr
+    replay = procs.diffbot("replay", str(out / "follow.mcap"), "--fast",
+                           "--keys", "sim/clock", "follower/camera/image", "follower/camera/info",
+                           "--expect", "ball_follower_follower,tap", "--endpoint", endpoint,
+                           name="replay")
+    node = procs.diffbot("controller", "ball_follower", "--robot", "follower",
+                         "--name", "ball_follower_follower", "--endpoint", endpoint,
+                         name="follower")
+    tap = procs.diffbot("record", str(tmp_path / "again.mcap"), "follower/cmd_vel", "--name",
+                        "tap", "--endpoint", endpoint, name="tap")
+    for p in (replay, node, tap):
+        p.wait(60)
+        assert p.returncode == 0, procs.log(p)
+    original, _ = read_messages(out / "follow.mcap", "follower/cmd_vel")
+    again, _ = read_messages(tmp_path / "again.mcap", "follower/cmd_vel")
+    assert len(original) > 150
+    replayed = {t: d for _, t, _, d in again}
+    assert {t: replayed.get(t) for _, t, _, _ in original} == {t: d for _, t, _, d in original}
