@@ -6,7 +6,7 @@ STAMP   := $(VENV)/.installed
 FMUS    := fmus/build/.built
 FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
 
-.PHONY: setup demo test test-fast bench clean
+.PHONY: setup demo test test-fast soak bench clean
 
 setup: $(STAMP) $(FMUS)
 
@@ -27,6 +27,11 @@ test: setup
 
 test-fast: setup
 	$(BIN)/python -m pytest -q -m "not slow"
+
+# One hour of simulated time in lockstep, sensors on (SOAK_SIM_S=600 for a shorter one):
+# memory, lost messages, /dev/shm. Writes out/soak/soak.json.
+soak: setup
+	$(BIN)/python -m pytest -q -s -m soak -p no:cacheprovider tests/test_soak.py
 
 bench: setup
 	$(BIN)/diffbot bench

@@ -12,6 +12,7 @@
     diffbot replay FILE.mcap        play a recording back onto the bus (--rate R | --fast)
     diffbot topics [--duration S]   live keys with message type and rate
     diffbot echo KEY [--count N]    print a key's messages, decoded
+    diffbot router --listen E       a Zenoh router for several machines (--zenoh-config FILE)
     diffbot scenarios               list the scenarios
 """
 from __future__ import annotations
@@ -83,6 +84,9 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "bench":
         from .bench import main as bench_main
         return bench_main(rest)
+    if cmd == "router":
+        from .router import main as router_main
+        return router_main(rest)
     if cmd == "record":
         from bus.record import main as record_main
         return record_main(rest)
