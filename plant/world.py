@@ -474,7 +474,10 @@ def _extend(data: dict, path: str, seen: tuple[str, ...]) -> dict:
     out = dict(base)
     for key, value in data.items():
         if key == "objects":
-            out["objects"] = list(base.get("objects", [])) + list(value)
+            if not isinstance(value, list):
+                raise WorldError(f"{path}:objects: expected an array of tables ([[objects]]), "
+                                 f"got {type(value).__name__}")
+            out["objects"] = list(base.get("objects", [])) + value
         elif key == "robots":
             out["robots"] = value
         elif isinstance(value, dict) and isinstance(base.get(key), dict):

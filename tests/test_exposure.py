@@ -345,7 +345,6 @@ def test_tls_router_with_access_control_example(tmp_path):
         ctrl = diffbot("controller", "wheel_schedule", "--schedule", "100:2,2",
                        "--zenoh-config", tls_client("diffbot-controller"))
         # an observer: may listen, may not command
-        from bus import codec
         from bus.keys import Keys
         K = Keys()
         obs = zenoh.open(zenoh.Config.from_file(tls_client("diffbot-observer")))

@@ -199,9 +199,17 @@ def scratch():
     shutil.rmtree(d, ignore_errors=True)
 
 
-@settings(max_examples=100, deadline=None,
+extending = st.builds(
+    lambda base, rest, world: {**rest, "world": {"extends": base, **world}},
+    st.sampled_from(["empty", "living_room", "nope", "", ".", 3, ["empty"]]),
+    st.dictionaries(st.sampled_from(["objects", "robots", "floor", "walls", "materials"]),
+                    toml_values, max_size=3),
+    st.dictionaries(st.sampled_from(WORLD_KEYS), toml_values, max_size=2))
+
+
+@settings(max_examples=150, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-@given(doc=st.one_of(mutated_worlds(), documents),
+@given(doc=st.one_of(mutated_worlds(), documents, extending),
        overrides=st.lists(st.text(max_size=30) | st.sampled_from([
            "world.mode=kinematic", "robots.robot1.pose=[1, 2]", "floor.size_m=-1",
            "robots.nobody.pose=[0,0,0]", "world=3", "=", "a.b.c=[", "objects=1",
