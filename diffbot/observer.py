@@ -14,26 +14,49 @@ from bus import codec
 from bus.keys import Keys
 
 
+#: samples Zenoh may hold per key between two drains; a full channel makes the sender
+#: wait (nothing is lost), which at this size and DRAIN_S never happens in practice
+CHANNEL_CAPACITY = 1 << 16
+#: how often the drain thread empties the channels (s)
+DRAIN_S = 0.05
+
+
 class Observer:
     def __init__(self, session: zenoh.Session, keys: Keys, keep: dict[str, str]) -> None:
-        """``keep`` maps concrete keys to message types whose decoded messages are stored."""
+        """``keep`` maps concrete keys to message types whose decoded messages are stored.
+
+        Samples wait in Zenoh's own FIFO channels and a thread empties them in batches every
+        ``DRAIN_S``: the observer costs the running simulation no Python callback (and no
+        GIL hand-over) per message, only a few wake-ups per second.
+        """
         self.keys = keys
         self.keep = keep
         self.samples: dict[str, list[tuple[int, bytes]]] = {k: [] for k in keep}
         self.lock = threading.Lock()
-        self._subs = [session.declare_subscriber(k, self._on_sample) for k in keep]
+        self._subs = {k: session.declare_subscriber(k, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+                      for k in keep}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._drain_loop, name="observer", daemon=True)
+        self._thread.start()
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
+    def _drain_loop(self) -> None:
+        while not self._stop.wait(DRAIN_S):
+            self.drain()
+
+    def drain(self) -> None:
+        """Move what the channels hold into ``samples``."""
         with self.lock:
-            if key in self.samples:
-                att = codec.parse_attachment(sample.attachment.to_bytes()
-                                             if sample.attachment is not None else None)
-                self.samples[key].append((att[1] if att else -1, sample.payload.to_bytes()))
+            for key, sub in self._subs.items():
+                out = self.samples[key]
+                while (sample := sub.try_recv()) is not None:
+                    att = sample.attachment
+                    att = codec.parse_attachment(att.to_bytes() if att is not None else None)
+                    out.append((att[1] if att else -1, sample.payload.to_bytes()))
 
     def stamped(self, key: str) -> list[tuple[int, object]]:
         """(sim-time stamp from the attachment, decoded message) on ``key``, in stamp
         order (undecodable ones skipped). Works for messages without a header too."""
+        self.drain()
         with self.lock:
             raw = list(self.samples.get(key, ()))
         out = []
@@ -50,7 +73,11 @@ class Observer:
         return [m for _, m in self.stamped(key)]
 
     def close(self) -> None:
-        for sub in self._subs:
+        self._stop.set()
+        self._thread.join()
+        self.drain()                      # what arrived before the close is kept
+        subs, self._subs = self._subs, {}
+        for sub in subs.values():
             try:
                 sub.undeclare()
             except Exception:
