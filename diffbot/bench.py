@@ -463,6 +463,54 @@ def physics_suite(ctx: Context):
                    notes="Simulation(spec): what a reset costs")
 
 
+def _sensor_scene(world: str, robot: str):
+    """(spec, sim, robot state, Scene) of a shipped world with its robots at their start."""
+    from plant.raycast import Scene
+    from plant.sim import Simulation
+    from plant.world import load_world
+    spec = load_world(world)
+    sim = Simulation(spec)
+    return spec, sim, sim.state(robot), Scene(sim.shapes())
+
+
+@suite("lidar", "one 180-ray lidar sweep in the living room")
+def lidar_suite(ctx: Context):
+    from plant import lidar
+    from plant.raycast import Scene
+    spec, sim, st, scene = _sensor_scene("living_room", "robot1")
+    cfg = spec.robot("robot1").sensors.lidar or lidar.LidarConfig()
+    where = (f"{len(scene)} shapes (floor, 4 walls, {len(spec.objects)} objects, the robot), "
+             f"{cfg.num_rays} rays over {cfg.fov_rad:.3g} rad, max range {cfg.max_range_m:g} m")
+    yield Case("sweep 180 rays", lambda: lidar.scan(cfg, st.tf, scene, exclude_owner="robot1"),
+               notes=where + "; target <= 0.3 ms")
+    yield Case("sweep + noise", lambda: lidar.measure(cfg, st.tf, scene, None, "robot1"),
+               notes="lidar.measure: sweep, clip, (no) noise: what the plant calls")
+    yield Case("scene snapshot", lambda: Scene(sim.shapes()),
+               notes="world shapes -> arrays, once per tick a lidar or camera is due")
+
+
+@suite("camera", "pinhole camera frames in the living room (follow world)")
+def camera_suite(ctx: Context):
+    from dataclasses import replace
+
+    from plant import camera as cam
+    spec, sim, st, scene = _sensor_scene("living_room_follow", "follower")
+    base = spec.robot("follower").sensors.camera or cam.CameraConfig()
+    pose = cam.camera_pose(base, st.tf)
+    where = f"{len(scene)} shapes, the leader and its green ball in view"
+    for (w, h), target in (((160, 120), 3e-3), ((320, 240), 10e-3)):
+        cfg = replace(base, width=w, height=h)
+        cam.render(cfg, pose, scene, exclude_owner="follower")    # rays cached per size
+        yield Case(f"render {w}x{h}", lambda cfg=cfg: cam.render(cfg, pose, scene, "follower"),
+                   notes=f"{where}; target <= {target * 1e3:g} ms")
+    dist = replace(base, k1=-0.25, k2=0.08, p1=0.001, p2=-0.001)
+    cam.render(dist, pose, scene, exclude_owner="follower")
+    yield Case("render 160x120, lens distortion", lambda: cam.render(dist, pose, scene, "follower"),
+               notes="k1 -0.25, k2 0.08, p1 0.001, p2 -0.001 (per-pixel rays, tiled culling)")
+    yield Case("third-person 640x480", lambda: cam.third_person((-2.5, -2.0, 2.2), (0, 0, 0), scene),
+               notes="figure 1's kind of picture, from above the room")
+
+
 def codec_messages() -> dict:
     """One message of each type the bus carries: type name -> message."""
     import numpy as np

@@ -36,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from plant.raycast import Scene, cast_rays
+from plant.raycast import Scene, cast_distances
 from plant.shapes import Shape, pose_matrix
 
 __all__ = ["LidarConfig", "scan", "apply_noise", "measure", "ray_directions", "sensor_pose"]
@@ -130,8 +130,8 @@ def scan(config: LidarConfig, robot_pose: np.ndarray,
     scene = Scene.from_shapes(shapes)
     dirs = _local_dirs(config.num_rays, config.fov_rad) @ pose[:3, :3].T
     keep = _candidates(config, pose, scene, exclude_owner)
-    dist, _, _ = cast_rays(pose[:3, 3], dirs, scene, max_range=config.max_range_m,
-                           include=keep)
+    dist = cast_distances(pose[:3, 3], dirs, scene, max_range=config.max_range_m,
+                          include=keep)
     dist[dist < config.min_range_m] = np.inf
     return dist
 

@@ -37,6 +37,7 @@ from plant.shapes import Shape
 __all__ = [
     "Scene",
     "cast_rays",
+    "cast_distances",
     "quadratic_roots",
     "shape_params",
     "local_half_extents",
@@ -245,3 +246,56 @@ def cast_rays(origins, directions, shapes: "Sequence[Shape] | Scene",
     best_i[rows] = idx[ks]
     best_n[rows] = nw
     return best_t, best_i, best_n
+
+
+def cast_distances(origin, directions, shapes: "Sequence[Shape] | Scene",
+                   max_range: float = np.inf, *, exclude_owner: str | None = None,
+                   include=None) -> np.ndarray:
+    """Distances only, for rays sharing one origin: ``cast_rays(...)[0]`` (same hits, same
+    conventions, ``min_range`` 0) without the shape indices and normals, in a few array
+    passes over (shapes, rays, axis) -- what a lidar sweep needs, ~3x faster."""
+    scene = Scene.from_shapes(shapes)
+    d = np.asarray(directions, dtype=float).reshape(-1, 3)
+    o = np.asarray(origin, dtype=float).reshape(3)
+    out = np.full(d.shape[0], np.inf)
+    if d.shape[0] == 0 or len(scene) == 0:
+        return out
+    idx = np.nonzero(scene.include_mask(exclude_owner, include))[0]
+    if idx.size == 0:
+        return out
+    rot = scene.rotations[idx]
+    n, k = d.shape[0], idx.size
+    with np.errstate(all="ignore"):
+        # (axis, shape, ray) layout: reductions over the 3 axes are elementwise ops
+        dl = np.ascontiguousarray((d @ rot.transpose(1, 0, 2).reshape(3, 3 * k))
+                                  .reshape(n, k, 3).transpose(2, 1, 0))          # (3, S, N)
+        ol = ((o - scene.centers[idx])[:, None, :] @ rot)[:, 0, :].T[:, :, None]  # (3, S, 1)
+        h = scene.halves[idx].T[:, :, None]
+        inv = np.divide(1.0, dl)
+        t1 = (-h - ol) * inv
+        t2 = (h - ol) * inv
+        lo = np.fmin(t1, t2)
+        hi = np.fmax(t1, t2, out=t2)
+        tn = np.maximum(lo[0], lo[1])
+        np.maximum(tn, lo[2], out=tn)
+        tf = np.minimum(hi[0], hi[1])
+        np.minimum(tf, hi[2], out=tf)
+        rnd = np.nonzero(scene.quad[idx, 0] > 0)[0]
+        if rnd.size:
+            q = scene.quad[idx[rnd]].T[:, :, None]                                # (3, R, 1)
+            dr, orr = dl[:, rnd], ol[:, rnd]
+            qd = q * dr
+            a = qd[0] * dr[0] + qd[1] * dr[1] + qd[2] * dr[2]
+            b = qd[0] * orr[0] + qd[1] * orr[1] + qd[2] * orr[2]
+            qo = q * orr * orr
+            c = qo[0] + qo[1] + qo[2] - scene.rr[idx[rnd], None]
+            r0, r1 = quadratic_roots(a, b, c)
+            flat = a == 0.0                   # rays along a cylinder's axis
+            if flat.any():
+                inside = np.broadcast_to(c < 0.0, flat.shape)
+                r0 = np.where(flat, np.where(inside, -np.inf, np.nan), r0)
+                r1 = np.where(flat, np.where(inside, np.inf, np.nan), r1)
+            tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
+            tf[rnd] = np.minimum(tf[rnd], r1)
+        hit = (tn <= tf) & (tn >= 0.0) & (tn <= max_range)
+        return np.where(hit, tn, np.inf).min(axis=0)

@@ -189,3 +189,15 @@ def test_bus_suite_measures_a_round_trip_and_kills_its_echo_process(tmp_path, ca
                                                  "round trip 57.6 KB (160x120 rgb8)"]
     assert all(c["median"] > 0 for c in doc["cases"])
     assert _children_with(b"--echo") == []
+
+
+def test_sensor_suites_time_the_lidar_sweep_and_camera_frames(tmp_path):
+    out = tmp_path / "sensors.json"
+    assert bench.main(["--suite", "lidar,camera", "--quick", "--repeats", "1",
+                       "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    names = {c["name"] for c in doc["cases"]}
+    assert {"sweep 180 rays", "render 160x120", "render 320x240"} <= names
+    assert all(c["median"] > 0 for c in doc["cases"])
+    sweep = next(c for c in doc["cases"] if c["name"] == "sweep 180 rays")
+    assert "32 shapes" in sweep["notes"] and "180 rays" in sweep["notes"]

@@ -8,7 +8,7 @@ import pytest
 
 from plant.lidar import LidarConfig, apply_noise, measure, scan, sensor_pose
 from plant.noise import NoiseModel, make_rng, webots_lidar
-from plant.raycast import Scene, cast_rays
+from plant.raycast import Scene, cast_distances, cast_rays
 from plant.shapes import Shape, pose_matrix
 
 ROBOT = "robot1"
@@ -325,3 +325,32 @@ def test_masks_and_max_range():
     assert t.shape == (0,) and n.shape == (0, 3)
     t, i, n = cast_rays(o, d, [])
     assert np.isinf(t[0]) and i[0] == -1
+
+
+def test_distance_only_caster_equals_the_general_one():
+    # the lidar's cast_distances: the same distances as cast_rays for rays from one origin,
+    # with origins inside shapes, rays along a cylinder's axis, grazing rays and max range
+    rng = np.random.default_rng(5)
+    kinds = [("box", (0.8, 0.5, 0.3)), ("cylinder", (0.3, 0.9)), ("sphere", (0.4,))]
+    for trial in range(20):
+        shapes = [Shape(k, size, pose_matrix(*rng.uniform(-2, 2, 3),
+                                             *rng.uniform(-math.pi, math.pi, 3)))
+                  for k, size in (kinds[i] for i in rng.integers(0, 3, 8))]
+        shapes.append(Shape("cylinder", (0.5, 1.0), pose_matrix(0, 0, 3)))  # axis along z
+        shapes.append(Shape("box", (1, 1, 1), pose_matrix(0, 0, -3)))
+        origin = shapes[int(rng.integers(0, 8))].pose[:3, 3] if trial % 4 == 0 \
+            else rng.uniform(-1, 1, 3)
+        dirs = rng.normal(size=(300, 3))
+        dirs[:3] = [[0, 0, 1], [0, 0, -1], [1, 0, 0]]
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        for max_range in (np.inf, 2.0):
+            want = cast_rays(origin, dirs, shapes, max_range=max_range)[0]
+            got = cast_distances(origin, dirs, shapes, max_range=max_range)
+            assert np.array_equal(np.isinf(got), np.isinf(want))
+            assert np.allclose(got, want, rtol=0, atol=1e-12)
+    # one origin on a face plane, rays along it: a miss, as in cast_rays
+    box = Shape("box", (2, 2, 2), pose_matrix(5, 0, 0))
+    assert np.isinf(cast_distances([0, 1, 0], [[1, 0, 0]], [box])[0])
+    assert cast_distances([0, 0.999, 0], [[1, 0, 0]], [box])[0] == pytest.approx(4.0)
+    assert cast_distances([0, 0, 0], np.zeros((0, 3)), [box]).shape == (0,)
+    assert np.isinf(cast_distances([0, 0, 0], [[1, 0, 0]], [box], include=[]))[0]
