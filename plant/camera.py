@@ -252,9 +252,8 @@ class _RayGrid:
             xn, yn = xd, yd
         self.valid = np.isfinite(xn) & np.isfinite(yn)
         self.xn, self.yn = xn, yn
-        self.xn32, self.yn32 = xn.astype(np.float32), yn.astype(np.float32)
         # (x_n, y_n, 1) per pixel, float32: a shape's ray directions are one 3x3 product
-        self.rays3 = np.stack([self.xn32, self.yn32, np.ones_like(self.xn32)])   # (3, H, W)
+        self.rays3 = np.stack([xn, yn, np.ones_like(xn)]).astype(np.float32)   # (3, H, W)
         self.rays3_flat = self.rays3.reshape(3, -1)
         dirs = np.stack([xn, yn, np.ones_like(xn)], axis=-1)
         dirs[~self.valid] = np.nan
@@ -263,7 +262,7 @@ class _RayGrid:
             self.bounds = (np.nanmin(xn), np.nanmax(xn), np.nanmin(yn), np.nanmax(yn))
         if self.distorted:
             self._build_tiles()
-        for arr in (self.xn, self.yn, self.xn32, self.yn32, self.dirs, self.valid, self.rays3):
+        for arr in (self.xn, self.yn, self.dirs, self.valid, self.rays3, self.rays3_flat):
             arr.flags.writeable = False         # shared through the cache
 
     def _build_tiles(self) -> None:
@@ -288,8 +287,6 @@ class _RayGrid:
         self.t_ymax = np.maximum.reduceat(ys, s)
         self.xn_flat = self.xn.ravel()
         self.yn_flat = self.yn.ravel()
-        self.xn32_flat = self.xn32.ravel()
-        self.yn32_flat = self.yn32.ravel()
 
     def select_flat(self, x0, x1, y0, y1) -> np.ndarray:
         """Flat pixel indices whose ray lies in the normalised rectangle."""
