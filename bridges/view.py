@@ -1,0 +1,582 @@
+"""``diffbot view``: the simulation live in Foxglove, and teleop from it.
+
+A bus node that never holds lockstep (no ``sim/sync`` token): it listens to every key
+of the simulation and serves a Foxglove WebSocket (``foxglove-sdk``, subprotocol
+``foxglove.sdk.v1``) on ``ws://127.0.0.1:8765`` by default (loopback only unless
+``--host`` says otherwise). Channels, all ``cdr`` with full ``ros2msg`` schemas, so
+Foxglove needs nothing installed:
+
+* every bus topic as ``/<key>`` (``/robot1/odom``, ``/sim/clock`` ...), bytes unchanged,
+  except ``scan`` and ``camera/image`` / ``camera/info``, whose frame becomes
+  ``<robot>/laser`` / ``<robot>/camera_optical`` so several robots never share a frame;
+* ``/scene``, ``/tf_static``, ``/tf`` (:mod:`bus.scene`, the same as in recordings);
+* ``/<robot>/path/{ground_truth,odom,gps}`` (``nav_msgs/Path``, 2 Hz wall);
+* ``/<robot>/metrics/odometry_error_m`` (odometry vs ground truth, m) and
+  ``/<robot>/metrics/tracking_distance_m`` (this robot's camera to another robot's ball);
+* ``/<robot>/camera/image_annotated``: the camera image with the follower's detection
+  (``follower/debug``) drawn on it.
+
+Costs: images (and their camera info) go through a latest-only slot per camera and
+leave at most ``--image-rate`` times per wall second: older frames are dropped, never
+queued; each client's queue is bounded (``--backlog`` messages, the oldest dropped).
+Derived channels are computed only while a client subscribes to them.
+
+Teleop: a client may publish ``geometry_msgs/msg/Twist`` (or ``TwistStamped``) on
+``/<robot>/cmd_vel``, ``cdr`` or ``json`` encoded (Foxglove's Teleop panel); it goes on the
+bus as the robot's ``cmd_vel`` (TwistStamped) stamped with the latest simulated time.
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import math
+import queue
+import sys
+import threading
+import time
+from collections import deque
+
+import numpy as np
+import zenoh
+
+from bus import codec, scene
+from bus.keys import TOPICS, Keys, check_name
+from bus.log import RejectCounter, setup_logging
+from bus.node import close_session, install_stop_signals, query_info, write_json
+from bus.session import BusConfigError, add_bus_args, open_session
+
+EXIT_OK = 0
+EXIT_BAD_CONFIG = 2
+#: paths: a point is added once the robot moved this far from the last one; at most this many
+PATH_STEP_M = 0.02
+PATH_MAX_POINTS = 5000
+PATH_PERIOD_S = 0.5
+TIME_PERIOD_S = 1 / 30
+#: samples of ground truth kept per robot to pair with odometry of the same stamp
+_GT_KEEP = 64
+TWIST_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/Twist",
+               "geometry_msgs/msg/TwistStamped", "geometry_msgs/TwistStamped")
+REFRAMED = {"scan": "laser", "camera/image": "camera_optical", "camera/info": "camera_optical"}
+RATE_LIMITED = ("camera/image", "camera/info")
+
+
+def ros2msg_schema(msgtype: str):
+    """A foxglove Schema with the full ROS 2 message definition (dependencies included)."""
+    import foxglove
+    msgdef, _ = codec.TYPESTORE.generate_msgdef(msgtype, ros_version=2)
+    return foxglove.Schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
+
+
+def quaternion_matrix(q) -> np.ndarray:
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def pose_of(odom) -> tuple[np.ndarray, np.ndarray]:
+    """(position, rotation matrix) of an Odometry message."""
+    p, q = odom.pose.pose.position, odom.pose.pose.orientation
+    return np.array([p.x, p.y, p.z]), quaternion_matrix((q.x, q.y, q.z, q.w))
+
+
+def tracking_pairs(info: dict) -> list[tuple[str, np.ndarray, str, np.ndarray]]:
+    """(watcher, camera position on it, target, ball position on it): every robot with a
+    camera against every other robot that carries a sphere part (the follow task's ball)."""
+    out = []
+    robots = info.get("robots", {})
+    for a, ra in robots.items():
+        cam = (ra.get("sensors") or {}).get("camera")
+        if not cam:
+            continue
+        mount = np.array([cam["mount_x_m"], cam["mount_y_m"], cam["mount_z_m"]])
+        for b, rb in robots.items():
+            parts = {f"{b}_{p}" for p in rb.get("parts", [])}
+            balls = [v for v in rb.get("body", []) if v["shape"] == "sphere" and v["name"] in parts]
+            if b != a and balls:
+                out.append((a, mount, b, np.array(balls[0]["position"])))
+    return out
+
+
+class Path:
+    """A decimated, bounded trail of positions."""
+
+    def __init__(self) -> None:
+        self.points: deque[tuple[int, float, float, float]] = deque(maxlen=PATH_MAX_POINTS)
+        self.dirty = False
+
+    def add(self, t_ns: int, x: float, y: float, z: float) -> None:
+        if self.points:
+            _, px, py, pz = self.points[-1]
+            if math.hypot(x - px, y - py) < PATH_STEP_M:
+                return
+        self.points.append((t_ns, x, y, z))
+        self.dirty = True
+
+    def message(self, frame_id: str = scene.WORLD_FRAME):
+        T = codec.T
+        poses = [T["geometry_msgs/msg/PoseStamped"](
+            header=codec.header(t, frame_id),
+            pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=x, y=y, z=z),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)))
+            for t, x, y, z in self.points]
+        t_last = self.points[-1][0] if self.points else 0
+        return T["nav_msgs/msg/Path"](header=codec.header(t_last, frame_id), poses=poses)
+
+
+class View:
+    """The bus side and the Foxglove side of ``diffbot view`` (see the module docstring)."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, log, name: str = "view",
+                 image_rate_hz: float = 15.0) -> None:
+        self.session = session
+        self.keys = keys
+        self.log = log
+        self.name = name
+        self.image_period_s = 1.0 / image_rate_hz
+        self.rejects = RejectCounter(log)
+        self.stop_event = threading.Event()
+        self.queue: queue.SimpleQueue = queue.SimpleQueue()
+        self.info: dict = {}
+        self.channels: dict[str, object] = {}
+        self.sent: dict[str, int] = {}
+        self.dropped_images = 0
+        self.teleop_in = 0
+        self.published: dict[str, int] = {}
+        self.sim_ns = 0
+        self._seq = itertools.count(1)
+        self._slots: dict[str, tuple[bytes, int]] = {}     # latest-only: key -> (payload, t)
+        self._next_image: dict[str, float] = {}
+        self._paths: dict[str, Path] = {}
+        self._gt: dict[str, dict[int, object]] = {}
+        self._debug: dict[str, tuple[int, list[float]]] = {}
+        self._resend = threading.Event()
+        self._client_channels: dict[tuple[int, int], tuple[str, str, str]] = {}
+        self._subs: list = []
+        self._token = None
+        self._pairs: list = []
+        self.server = None
+
+    # ------------------------------------------------------------------ foxglove side
+    def start_server(self, host: str, port: int, backlog: int):
+        import foxglove
+        from foxglove.websocket import Capability
+        self.server = foxglove.start_server(
+            name="diffbot-cosim", host=host, port=port, server_listener=self,
+            capabilities=[Capability.ClientPublish, Capability.Time],
+            supported_encodings=["cdr", "json"], message_backlog_size=backlog)
+        return self.server
+
+    def topic_name(self, rest: str) -> str:
+        return "/" + (f"{self.keys.namespace}/" if self.keys.namespace else "") + rest
+
+    def channel(self, topic: str, msgtype: str):
+        ch = self.channels.get(topic)
+        if ch is None:
+            import foxglove
+            ch = self.channels[topic] = foxglove.Channel(
+                topic, message_encoding="cdr", schema=ros2msg_schema(msgtype))
+        return ch
+
+    def send(self, topic: str, msgtype: str, data: bytes, t_ns: int) -> None:
+        self.channel(topic, msgtype).log(data, log_time=t_ns)
+        self.sent[topic] = self.sent.get(topic, 0) + 1
+
+    def wanted(self, topic: str, msgtype: str) -> bool:
+        """Declare the channel and say whether any client subscribes to it."""
+        return self.channel(topic, msgtype).has_sinks()
+
+    # ServerListener: called from the server's threads
+    def on_subscribe(self, client, channel) -> None:
+        if channel.topic in (self.topic_name(scene.SCENE_TOPIC),
+                             self.topic_name(scene.TF_STATIC_TOPIC)):
+            self._resend.set()
+
+    def on_unsubscribe(self, client, channel) -> None:
+        pass
+
+    def on_client_advertise(self, client, channel) -> None:
+        self._client_channels[(client.id, channel.id)] = (
+            channel.topic, channel.encoding, channel.schema_name)
+
+    def on_client_unadvertise(self, client, client_channel_id: int) -> None:
+        self._client_channels.pop((client.id, client_channel_id), None)
+
+    def on_message_data(self, client, client_channel_id: int, data: bytes) -> None:
+        ch = self._client_channels.get((client.id, client_channel_id))
+        if ch is None:
+            self.rejects.reject("teleop", "data on a channel the client never advertised")
+            return
+        topic, encoding, schema = ch
+        try:
+            robot = self.teleop_robot(topic)
+            v, w = parse_twist(bytes(data), encoding, schema)
+        except ValueError as exc:
+            self.rejects.reject("teleop", f"{topic}: {exc}")
+            return
+        t = self.sim_ns
+        key = self.keys.topic(robot, "cmd_vel")
+        self.session.put(key, codec.encode(codec.twist_stamped(t, v, w)),
+                         encoding=zenoh.Encoding.APPLICATION_CDR,
+                         attachment=codec.attachment(next(self._seq), t))
+        self.teleop_in += 1
+        self.published[key] = self.published.get(key, 0) + 1
+
+    def teleop_robot(self, topic: str) -> str:
+        """The robot a client's ``/<robot>/cmd_vel`` topic drives (ValueError if none)."""
+        prefix = self.topic_name("")
+        rest = topic[len(prefix):] if topic.startswith(prefix) else topic.lstrip("/")
+        robot, _, suffix = rest.partition("/")
+        if suffix != "cmd_vel":
+            raise ValueError("teleop takes /<robot>/cmd_vel only")
+        if robot not in self.info.get("robots", {}):
+            raise ValueError(f"no robot {robot!r} in the simulation "
+                             f"(robots: {', '.join(self.info.get('robots', {})) or 'none'})")
+        return robot
+
+    # ------------------------------------------------------------------ bus side
+    def subscribe(self) -> None:
+        q = self.queue
+
+        def cb(sample: zenoh.Sample) -> None:
+            att = sample.attachment
+            q.put((str(sample.key_expr), sample.payload.to_bytes(),
+                   att.to_bytes() if att is not None else None))
+
+        self._subs.append(self.session.declare_subscriber(
+            self.keys.all, zenoh.handlers.Callback(cb, indirect=False)))
+
+        def on_plant(sample: zenoh.Sample) -> None:
+            if sample.kind == zenoh.SampleKind.PUT:
+                q.put(("plant", b"", None))
+        self._subs.append(self.session.liveliness().declare_subscriber(
+            self.keys.alive("plant"), zenoh.handlers.Callback(on_plant, indirect=False),
+            history=True))
+        self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
+
+    def load_info(self, info: dict) -> None:
+        self.info = info
+        self._pairs = tracking_pairs(info)
+        self._resend.set()
+
+    def send_static(self) -> None:
+        t = self.sim_ns
+        self.send(self.topic_name(scene.SCENE_TOPIC), scene.SCENE_TYPE,
+                  codec.encode(scene.scene(self.info, t)), t)
+        self.send(self.topic_name(scene.TF_STATIC_TOPIC), scene.TF_TYPE,
+                  codec.encode(scene.static_tf(self.info, t)), t)
+
+    def handle(self, key: str, payload: bytes, att: bytes | None) -> None:
+        if key == "plant":
+            try:
+                self.load_info(query_info(self.session, self.keys, 5.0))
+                self.log.info("plant %s: world %s, robots %s", "found", self.info.get("world"),
+                              ", ".join(self.info.get("robots", {})))
+            except (TimeoutError, ValueError) as exc:
+                self.log.warning("a plant appeared but %s", exc)
+            return
+        msgtype = self.keys.msgtype_of(key)
+        if msgtype is None:
+            return
+        a = codec.parse_attachment(att)
+        t = a[1] if a is not None else self.sim_ns
+        if key == self.keys.clock:
+            self.sim_ns = t
+            return
+        robot, topic = self.keys.robot_topic_of(key)
+        if topic in RATE_LIMITED:
+            self._slots[key] = (payload, t)
+            return
+        channel = "/" + key
+        if topic in REFRAMED:
+            if not self.wanted(channel, msgtype):
+                return
+            payload = self.reframe(payload, msgtype, robot, topic)
+            if payload is None:
+                return
+        elif topic == "ground_truth":
+            self.on_ground_truth(robot, payload, t)
+        elif topic == "odom":
+            self.on_odom(robot, payload, t)
+        elif topic == "gps":
+            if self.wanted(self.topic_name(f"{robot}/path/gps"), "nav_msgs/msg/Path"):
+                m = self.decode(payload, msgtype, key)
+                if m is not None:
+                    self.path(robot, "gps").add(t, m.point.x, m.point.y, m.point.z)
+        elif topic == "follower/debug":
+            m = self.decode(payload, msgtype, key)
+            if m is not None:
+                self._debug[robot] = (t, [float(v) for v in m.data])
+        self.send(channel, msgtype, payload, t)
+
+    def decode(self, payload: bytes, msgtype: str, key: str):
+        try:
+            return codec.decode(payload, msgtype)
+        except codec.CodecError as exc:
+            self.rejects.reject(key, str(exc))
+            return None
+
+    def reframe(self, payload: bytes, msgtype: str, robot: str, topic: str) -> bytes | None:
+        m = self.decode(payload, msgtype, f"{robot}/{topic}")
+        if m is None:
+            return None
+        m.header.frame_id = scene.frame(robot, REFRAMED[topic])
+        return codec.encode(m)
+
+    def path(self, robot: str, kind: str) -> Path:
+        return self._paths.setdefault(f"{robot}/path/{kind}", Path())
+
+    def on_ground_truth(self, robot: str, payload: bytes, t: int) -> None:
+        m = self.decode(payload, TOPICS["ground_truth"].msgtype, f"{robot}/ground_truth")
+        if m is None:
+            return
+        gts = self._gt.setdefault(robot, {})
+        gts[t] = m
+        if len(gts) > _GT_KEEP:
+            del gts[next(iter(gts))]
+        tf_topic = self.topic_name(scene.TF_TOPIC)
+        if self.wanted(tf_topic, scene.TF_TYPE):
+            self.send(tf_topic, scene.TF_TYPE,
+                      codec.encode(scene.tf([scene.ground_truth_transform(robot, m, t)])), t)
+        if self.wanted(self.topic_name(f"{robot}/path/ground_truth"), "nav_msgs/msg/Path"):
+            p = m.pose.pose.position
+            self.path(robot, "ground_truth").add(t, p.x, p.y, p.z)
+        for a, mount, b, ball in self._pairs:
+            if robot not in (a, b):
+                continue
+            ga, gb = self._gt.get(a, {}).get(t), self._gt.get(b, {}).get(t)
+            if ga is None or gb is None:
+                continue
+            pa, ra = pose_of(ga)
+            pb, rb = pose_of(gb)
+            d = float(np.linalg.norm((pa + ra @ mount) - (pb + rb @ ball)))
+            self.metric(a, "tracking_distance_m", d, t)
+
+    def on_odom(self, robot: str, payload: bytes, t: int) -> None:
+        m = self.decode(payload, TOPICS["odom"].msgtype, f"{robot}/odom")
+        if m is None:
+            return
+        p = m.pose.pose.position
+        if self.wanted(self.topic_name(f"{robot}/path/odom"), "nav_msgs/msg/Path"):
+            self.path(robot, "odom").add(t, p.x, p.y, p.z)
+        gt = self._gt.get(robot, {}).get(t)
+        if gt is not None:
+            g = gt.pose.pose.position
+            self.metric(robot, "odometry_error_m", math.hypot(p.x - g.x, p.y - g.y), t)
+
+    def metric(self, robot: str, name: str, value: float, t: int) -> None:
+        topic = self.topic_name(f"{robot}/metrics/{name}")
+        if self.wanted(topic, "std_msgs/msg/Float64"):
+            self.send(topic, "std_msgs/msg/Float64",
+                      codec.encode(codec.T["std_msgs/msg/Float64"](data=float(value))), t)
+
+    def flush_images(self, now: float) -> None:
+        """Send each camera's latest frame if its period has passed; drop the rest."""
+        for key, (payload, t) in list(self._slots.items()):
+            if now < self._next_image.get(key, 0.0):
+                continue
+            del self._slots[key]
+            self._next_image[key] = now + self.image_period_s
+            robot, topic = self.keys.robot_topic_of(key)
+            msgtype = TOPICS[topic].msgtype
+            channel = "/" + key
+            if topic == "camera/image":
+                self.annotated(robot, payload, t)
+            if not self.wanted(channel, msgtype):
+                continue
+            data = self.reframe(payload, msgtype, robot, topic)
+            if data is not None:
+                self.send(channel, msgtype, data, t)
+
+    def annotated(self, robot: str, payload: bytes, t: int) -> None:
+        """The image with the follower's detection (circle, centre, distance) drawn on it."""
+        topic = self.topic_name(f"{robot}/camera/image_annotated")
+        msgtype = TOPICS["camera/image"].msgtype
+        if not self.wanted(topic, msgtype):
+            return
+        m = self.decode(payload, msgtype, f"{robot}/camera/image")
+        if m is None:
+            return
+        try:
+            rgb = codec.image_to_array(m).copy()
+        except ValueError as exc:
+            self.rejects.reject(f"{robot}/camera/image", str(exc))
+            return
+        dbg = self._debug.get(robot)
+        if dbg is not None and abs(dbg[0] - t) <= 0.2e9 and len(dbg[1]) >= 4 and dbg[1][0] > 0:
+            import cv2
+            _, u, v, r = dbg[1][:4]
+            if all(math.isfinite(x) for x in (u, v, r)):
+                c = (int(round(u)), int(round(v)))
+                cv2.circle(rgb, c, max(1, int(round(r))), (255, 0, 255), 1)
+                cv2.drawMarker(rgb, c, (255, 0, 255), cv2.MARKER_CROSS, 6, 1)
+                if len(dbg[1]) >= 5 and math.isfinite(dbg[1][4]):
+                    cv2.putText(rgb, f"{dbg[1][4]:.2f} m", (2, rgb.shape[0] - 4),
+                                cv2.FONT_HERSHEY_PLAIN, 0.8, (255, 0, 255), 1)
+        out = codec.image(t, rgb, scene.frame(robot, "camera_optical"))
+        self.send(topic, msgtype, codec.encode(out), t)
+
+    def flush_paths(self) -> None:
+        for name, p in self._paths.items():
+            if p.dirty:
+                p.dirty = False
+                self.send(self.topic_name(name), "nav_msgs/msg/Path", codec.encode(p.message()),
+                          p.points[-1][0])
+
+    # ------------------------------------------------------------------ loop
+    def run(self) -> int:
+        next_path = next_time = 0.0
+        get = self.queue.get
+        while not self.stop_event.is_set():
+            try:
+                item = get(timeout=0.02)
+            except queue.Empty:
+                item = None
+            n = 0
+            while item is not None:
+                try:
+                    self.handle(*item)
+                except Exception as exc:      # a bad sample never ends the view
+                    self.rejects.reject("sample", f"{item[0]}: {type(exc).__name__}: {exc}")
+                n += 1
+                if n >= 500:
+                    break
+                try:
+                    item = self.queue.get_nowait()
+                except queue.Empty:
+                    item = None
+            now = time.monotonic()
+            if self._resend.is_set() and self.info:
+                self._resend.clear()
+                self.send_static()
+            if self._slots:
+                self.flush_images(now)
+            if now >= next_path:
+                next_path = now + PATH_PERIOD_S
+                self.flush_paths()
+            if now >= next_time and self.server is not None:
+                next_time = now + TIME_PERIOD_S
+                self.server.broadcast_time(self.sim_ns)
+        return EXIT_OK
+
+    def close(self) -> None:
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:
+                pass
+        self._subs.clear()
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
+        if self.server is not None:
+            self.server.stop()
+
+    def stats(self) -> dict:
+        return {"node": self.name, "sent": dict(sorted(self.sent.items())),
+                "published": dict(self.published), "teleop_messages": self.teleop_in,
+                "rejected": dict(self.rejects.counts)}
+
+
+def parse_twist(data: bytes, encoding: str, schema_name: str) -> tuple[float, float]:
+    """(linear x m/s, angular z rad/s) of a client's Twist or TwistStamped; ValueError if bad."""
+    if schema_name and schema_name not in TWIST_TYPES:
+        raise ValueError(f"expected geometry_msgs/msg/Twist, got {schema_name!r}")
+    stamped = "Stamped" in (schema_name or "")
+    if encoding == "json":
+        try:
+            msg = json.loads(data)
+            tw = msg["twist"] if stamped else msg
+            v, w = float(tw["linear"]["x"]), float(tw["angular"]["z"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"not a JSON Twist: {exc}") from None
+    elif encoding == "cdr":
+        msgtype = "geometry_msgs/msg/TwistStamped" if stamped else "geometry_msgs/msg/Twist"
+        try:
+            m = codec.decode(data, msgtype)
+        except codec.CodecError as exc:
+            raise ValueError(str(exc)) from None
+        tw = m.twist if stamped else m
+        v, w = float(tw.linear.x), float(tw.angular.z)
+    else:
+        raise ValueError(f"unsupported encoding {encoding!r} (cdr, json)")
+    if not (math.isfinite(v) and math.isfinite(w)):
+        raise ValueError(f"non-finite twist ({v}, {w})")
+    return v, w
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="diffbot view",
+        description="Serve the simulation live to Foxglove (ws://HOST:PORT, subprotocol "
+                    "foxglove.sdk.v1) and take teleop from it. Runs until Ctrl-C.")
+    p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765; "
+                   "0 picks a free one, logged at start)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default 127.0.0.1: this machine only)")
+    p.add_argument("--image-rate", type=float, default=15.0, metavar="HZ",
+                   help="at most this many frames per second per camera (wall clock); "
+                        "older frames are dropped (default 15)")
+    p.add_argument("--backlog", type=int, default=256, metavar="N",
+                   help="messages queued per client before the oldest are dropped (default 256)")
+    p.add_argument("--name", default="view", help="node name on the bus (default view)")
+    p.add_argument("--info-timeout", type=float, default=15.0, metavar="S",
+                   help="wait this long for the plant at the start (default 15)")
+    p.add_argument("--stats", metavar="FILE", help="write counters as JSON at exit")
+    p.add_argument("--log-level", default="INFO")
+    add_bus_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    log = setup_logging(args.name, args.log_level)
+    if not 0 <= args.port <= 65535:
+        log.error("--port must be in 0..65535, got %d", args.port)
+        return EXIT_BAD_CONFIG
+    if not (args.image_rate > 0 and math.isfinite(args.image_rate)) or args.backlog < 1:
+        log.error("--image-rate must be > 0 and --backlog >= 1")
+        return EXIT_BAD_CONFIG
+    try:
+        import foxglove  # noqa: F401
+    except ImportError:
+        log.error("diffbot view needs foxglove-sdk: pip install 'diffbot-cosim[view]'")
+        return EXIT_BAD_CONFIG
+    try:
+        keys = Keys(args.namespace)
+        check_name(args.name, "node name")
+        session = open_session("node", args.endpoint, args.zenoh_config)
+    except (BusConfigError, ValueError) as exc:
+        log.error("%s", exc)
+        return EXIT_BAD_CONFIG
+    view = View(session, keys, log, args.name, args.image_rate)
+    install_stop_signals(view.stop_event)
+    code = EXIT_OK
+    try:
+        try:
+            view.load_info(query_info(session, keys, args.info_timeout))
+        except (TimeoutError, ValueError) as exc:
+            log.error("%s", exc)
+            return 3
+        try:
+            server = view.start_server(args.host, args.port, args.backlog)
+        except Exception as exc:             # port in use, bad address
+            log.error("cannot serve on %s:%d: %s", args.host, args.port, exc)
+            return EXIT_BAD_CONFIG
+        view.subscribe()
+        log.info("serving ws://%s:%d (Foxglove: Open connection -> Foxglove WebSocket); "
+                 "world %s, robots %s", args.host, server.port(), view.info.get("world"),
+                 ", ".join(view.info.get("robots", {})))
+        code = view.run()
+    finally:
+        view.close()
+        close_session(session, log)
+        if args.stats:
+            write_json(args.stats, view.stats())
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
