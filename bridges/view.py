@@ -567,7 +567,7 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_BAD_CONFIG
         view.subscribe()
         log.info("serving ws://%s:%d (Foxglove: Open connection -> Foxglove WebSocket); "
-                 "world %s, robots %s", args.host, server.port(), view.info.get("world"),
+                 "world %s, robots %s", args.host, server.port, view.info.get("world"),
                  ", ".join(view.info.get("robots", {})))
         code = view.run()
     finally:
