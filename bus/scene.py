@@ -164,8 +164,24 @@ def sensor_transforms(info: dict, t_ns: int = 0) -> list:
     return out
 
 
-def static_tf(info: dict, t_ns: int = 0):
-    return _TFMessage(transforms=sensor_transforms(info, t_ns))
+def alias_transforms(info: dict, t_ns: int = 0) -> list:
+    """Identity transforms ``<robot>/laser -> laser`` and ``<robot>/camera_optical -> camera``
+    when exactly one robot has that sensor: the bus's own scans and images (frames ``laser``
+    and ``camera``, unchanged in recordings) then find their place in the scene."""
+    out = []
+    robots = info.get("robots", {})
+    for sensor, own, bare in (("lidar", "laser", "laser"), ("camera", "camera_optical", "camera")):
+        having = [r for r, v in robots.items() if (v.get("sensors") or {}).get(sensor)]
+        if len(having) == 1:
+            out.append(transform(frame(having[0], own), bare, (0.0, 0.0, 0.0),
+                                 (0.0, 0.0, 0.0, 1.0), t_ns))
+    return out
+
+
+def static_tf(info: dict, t_ns: int = 0, aliases: bool = False):
+    """The sensor mounts (and, for recordings, :func:`alias_transforms`)."""
+    return _TFMessage(transforms=sensor_transforms(info, t_ns)
+                      + (alias_transforms(info, t_ns) if aliases else []))
 
 
 def ground_truth_transform(robot: str, odom, t_ns: int | None = None):
