@@ -42,6 +42,7 @@ EXIT_INTERRUPTED = 130
 
 RECORDER = "recorder"       # the --record process (bus/record.py); see Run's recorder section
 RECORDER_JOIN_S = 30.0
+VIEW = "view"               # the --view process (bridges/view.py): optional, never in lockstep
 RECORDER_GRACE_S = 10.0
 
 
@@ -129,6 +130,8 @@ class Run:
     timeout_s: float = 900.0
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
+    view_port: int | None = None    # --view [--view-port P]: serve the run to Foxglove
+    view_host: str = "127.0.0.1"
     children: list[Child] = field(default_factory=list)
     reason: str = ""
     failed: Child | None = None
@@ -161,6 +164,13 @@ class Run:
             plant += ["--duration", repr(self.duration_s)]
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
         self._add_recorder(logs)
+        if self.view_port is not None:
+            # Not a lockstep member, not expected by the plant: it watches, it never holds.
+            argv = diffbot_argv("view", "--port", str(self.view_port), "--host", self.view_host,
+                                "--name", VIEW, "--stats", os.path.join(logs, f"{VIEW}.json"),
+                                *self.bus_args())
+            self.children.append(Child(VIEW, argv, required=False,
+                                       log_path=os.path.join(logs, f"{VIEW}.log")))
         for p in self.spec.processes:
             argv = diffbot_argv(*p.command, "--name", p.name, "--stats",
                                 os.path.join(logs, f"{p.name}.json"), *self.bus_args())
@@ -319,6 +329,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every message into this MCAP file (Foxglove opens it; a path "
                         "without .mcap is a rosbag2 bag directory)")
+    p.add_argument("--view", action="store_true",
+                   help="watch the run live in Foxglove: also start `diffbot view` "
+                        "(ws://127.0.0.1:8765; needs the [view] extra)")
+    p.add_argument("--view-port", type=int, default=8765, metavar="PORT",
+                   help="port of --view (default 8765)")
+    p.add_argument("--view-host", default="127.0.0.1", metavar="HOST",
+                   help="address --view binds (default 127.0.0.1)")
     return p
 
 
@@ -342,6 +359,12 @@ def main(argv: list[str] | None = None) -> int:
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
               args.timeout, args.record)
+    if args.view:
+        if not 0 <= args.view_port <= 65535:
+            print(f"diffbot run: --view-port must be in 0..65535, got {args.view_port}",
+                  file=sys.stderr)
+            return EXIT_BAD_INPUT
+        run.view_port, run.view_host = args.view_port, args.view_host
     run.build()
     analysis = ANALYSES[spec.analysis]
     stop_flag: list[str] = []
