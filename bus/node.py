@@ -35,7 +35,6 @@ import argparse
 import json
 import logging
 import math
-import os
 import signal
 import threading
 import time
@@ -46,7 +45,9 @@ import numpy as np
 import zenoh
 
 from . import codec
+from .cliargs import ArgumentParser
 from .inbox import Inbox
+from .jsonio import write_json  # noqa: F401  (re-exported: controllers import it from here)
 from .keys import TOPICS, Keys, check_name
 from .log import RejectCounter, setup_logging
 from .session import BusConfigError, add_bus_args, make_config, open_session
@@ -550,7 +551,7 @@ def decode_ack(payload: bytes) -> tuple[int, list[str], bool]:
 
 
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=description)
+    p = ArgumentParser(description=description)
     p.add_argument("--robot", default="robot1", type=_name_arg("robot name"),
                    help="robot to control (default robot1)")
     p.add_argument("--name", default=default_name, type=_name_arg("node name"),
@@ -661,26 +662,3 @@ def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Sessi
             log.info("no plant at %s yet; waiting for one (--wait)", args.endpoint)
             said = True
         time.sleep(0.2)
-
-
-def write_json(path: str, data: dict) -> None:
-    """Write JSON atomically (a reader never sees half a file)."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=2, default=_json_default)
-        f.write("\n")
-    os.replace(tmp, path)
-
-
-def _json_default(o):
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    try:
-        import numpy as np
-        if isinstance(o, np.generic):
-            return o.item()
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-    except ImportError:
-        pass
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

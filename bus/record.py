@@ -55,7 +55,8 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from . import codec
+from . import codec, jsonio
+from .cliargs import ArgumentParser, positive_float, positive_int
 from .keys import Keys
 from .log import RejectCounter, setup_logging
 from .session import BusConfigError, add_bus_args, open_session
@@ -434,8 +435,8 @@ class Recorder:
             self.log.warning("no sim/info (%s); recording without it", exc)
             return
         self.out.add_metadata(INFO_METADATA, {
-            "sim_info": json.dumps(self.info),
-            "recorder": json.dumps({"keys": self.exprs, "namespace": self.keys.namespace,
+            "sim_info": jsonio.dumps(self.info),
+            "recorder": jsonio.dumps({"keys": self.exprs, "namespace": self.keys.namespace,
                                     "started_unix_ns": time.time_ns(),
                                     "host": socket.gethostname(),
                                     "log_time": "sim time (attachment t_ns)",
@@ -568,7 +569,7 @@ def report(counts: dict[str, int], out=sys.stderr) -> None:
 
 # ====================================================================== CLI
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="diffbot record",
         description="Record the bus into an MCAP file (ROS 2 profile; Foxglove opens it). "
                     "Runs until Ctrl-C or the simulation ends (sim/end).")
@@ -583,12 +584,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "subscribed (default recorder)")
     p.add_argument("--no-stop-on-end", dest="stop_on_end", action="store_false",
                    help="keep recording after sim/end (until Ctrl-C)")
-    p.add_argument("--flush", type=float, default=1.0, metavar="S",
+    p.add_argument("--flush", type=positive_float, default=1.0, metavar="S",
                    help="close and flush a chunk at least every S wall seconds: what a "
                         "SIGKILL can lose (default 1)")
-    p.add_argument("--chunk-size", type=int, default=1 << 20, metavar="BYTES")
+    p.add_argument("--chunk-size", type=positive_int, default=1 << 20, metavar="BYTES")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
-    p.add_argument("--info-timeout", type=float, default=15.0, metavar="S",
+    p.add_argument("--info-timeout", type=positive_float, default=15.0, metavar="S",
                    help="wait this long for the plant's sim/info at the start (default 15)")
     p.add_argument("--recover", action="store_true",
                    help="do not record: rewrite FILE, left unclosed by a SIGKILL, "

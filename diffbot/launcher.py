@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from bus.cliargs import ArgumentParser, nonneg_int, positive_float
 from bus.keys import Keys
 from bus.node import EXIT_PLANT_GONE, write_json
 from bus.session import BusConfigError, open_session
@@ -302,19 +303,19 @@ class Run:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="diffbot run", description="Run a scenario.")
+    p = ArgumentParser(prog="diffbot run", description="Run a scenario.")
     p.add_argument("scenario", help="scenario name (see `diffbot scenarios`) or TOML file")
     p.add_argument("--mode", choices=("lockstep", "realtime", "fast"), default=None,
                    help="override the scenario's mode")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S simulated seconds")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=nonneg_int, default=0)
     p.add_argument("--out", default=None, help="output directory (default out/<scenario>)")
     p.add_argument("--endpoint", default=None,
                    help="Zenoh endpoint (default: a unix socket private to this run)")
     p.add_argument("--namespace", default="")
     p.add_argument("--zenoh-config", default=None, metavar="FILE")
-    p.add_argument("--timeout", type=float, default=900.0, metavar="S",
+    p.add_argument("--timeout", type=positive_float, default=900.0, metavar="S",
                    help="wall-clock limit for the whole run (default 900)")
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every message into this MCAP file (Foxglove opens it; a path "

@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
+from bus.cliargs import did_you_mean
 from bus.keys import check_name
 from plant.world import WorldError, _Table, tomllib
 
@@ -62,8 +63,9 @@ def scenario_path(name_or_path: str) -> str:
     p = os.path.join(SCENARIOS_DIR, f"{name_or_path}.toml")
     if os.path.isfile(p):
         return p
-    known = ", ".join(n for n, _ in list_scenarios())
-    raise WorldError(f"{name_or_path}: no such scenario (shipped: {known})")
+    known = [n for n, _ in list_scenarios()]
+    raise WorldError(f"{name_or_path}: no such scenario{did_you_mean(name_or_path, known)} "
+                     f"(shipped: {', '.join(known)})")
 
 
 def load_scenario(name_or_path: str) -> ScenarioSpec:

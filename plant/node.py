@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
-from bus import codec
+from bus import codec, jsonio
+from bus.cliargs import ArgumentParser, nonneg_int, positive_float
 from bus.inbox import Inbox
 from bus.keys import Keys
 from bus.log import RejectCounter, setup_logging
@@ -142,7 +143,7 @@ class Plant:
         return d
 
     def _on_info(self, query: zenoh.Query) -> None:
-        query.reply(self.keys.info, json.dumps(self.info()))
+        query.reply(self.keys.info, jsonio.dumps(self.info()))
 
     def _reset(self, query: zenoh.Query) -> None:
         """Rebuild the world (``world.reset()`` only resets DART's clock), optionally with a
@@ -153,7 +154,7 @@ class Plant:
             seed, poses = self._check_reset(req)
         except (ValueError, RecursionError) as exc:   # JSONDecodeError is a ValueError
             self.rejects.reject("reset", str(exc))
-            query.reply_err(json.dumps({"error": str(exc)}))
+            query.reply_err(jsonio.dumps({"error": str(exc)}))
             return
         # Checked in full before anything changes: a bad request leaves the world as it was.
         if seed is not None:
@@ -165,7 +166,7 @@ class Plant:
         self.reset_in_tick = True
         self._pace0 = time.monotonic() - self.sim.time_ns * 1e-9 / self.rate
         self.log.info("world rebuilt (seed %d)", self.seed)
-        query.reply(self.keys.reset, json.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
+        query.reply(self.keys.reset, jsonio.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
 
     def _check_reset(self, req) -> tuple[int | None, dict[str, tuple[float, float, float]]]:
         """(seed or None, new poses) of a reset request; ValueError if any part is bad."""
@@ -505,21 +506,21 @@ def _wheel_speeds(msg) -> tuple[float, float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="diffbot plant", description="Run the DART plant on the bus.")
+    p = ArgumentParser(prog="diffbot plant", description="Run the DART plant on the bus.")
     p.add_argument("--world", default="living_room",
                    help="world file, or the name of a shipped world (living_room, empty)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a world-file value, e.g. world.mode=kinematic or "
                         "'robots.robot1.encoders.noise={webots_noise = 0.2}' (repeatable)")
     p.add_argument("--mode", choices=MODES, default="lockstep")
-    p.add_argument("--rate", type=float, default=1.0,
+    p.add_argument("--rate", type=positive_float, default=1.0,
                    help="realtime mode: simulated seconds per wall second (default 1)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S simulated seconds (default: run until stopped)")
-    p.add_argument("--seed", type=int, default=None, help="noise seed (default: the world's)")
+    p.add_argument("--seed", type=nonneg_int, default=None, help="noise seed (default: the world's)")
     p.add_argument("--expect", default="", metavar="NODES",
                    help="lockstep: comma-separated members to wait for before the first tick")
-    p.add_argument("--join-timeout", type=float, default=30.0, metavar="S")
+    p.add_argument("--join-timeout", type=positive_float, default=30.0, metavar="S")
     p.add_argument("--end-with", default="", metavar="NODES",
                    help="lockstep: stop, without stepping further, at the tick where one of "
                         "these members finishes (so a run's length is reproducible)")
