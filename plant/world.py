@@ -462,7 +462,7 @@ def _blame_override(exc: WorldError, path: str, touched: list[tuple[str, str]]) 
     where, _, reason = msg[len(path) + 1:].partition(": ")
     for item, keypath in touched:
         if where == keypath or where.startswith((keypath + ".", keypath + "[")):
-            return WorldError(f"--set {item}: {where}: {reason}")
+            return WorldError(f"--set {_shown(item)}: {where}: {reason}")
     return exc
 
 
@@ -506,6 +506,11 @@ def _extend(data: dict, path: str, seen: tuple[str, ...]) -> dict:
     return out
 
 
+def _shown(item: str) -> str:
+    """An override as the user typed it, quoted if it holds newlines or other controls."""
+    return item if item.isprintable() else repr(item)
+
+
 def apply_override(data: dict, item: str, path: str = "<world>") -> str:
     """Set one value of a parsed world file from ``dotted.key=TOML value``.
 
@@ -517,7 +522,7 @@ def apply_override(data: dict, item: str, path: str = "<world>") -> str:
     key, sep, value = item.partition("=")
     parts = [p for p in key.strip().split(".") if p]
     if not sep or not parts:
-        raise WorldError(f"--set {item}: expected KEY=VALUE")
+        raise WorldError(f"--set {_shown(item)}: expected KEY=VALUE")
     try:
         val = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
@@ -533,7 +538,7 @@ def apply_override(data: dict, item: str, path: str = "<world>") -> str:
                      if isinstance(r, dict) and r.get("name") == name]
             if not match:
                 names = [r.get("name") for r in node["robots"] if isinstance(r, dict)]
-                raise WorldError(f"--set {item}: no robot named {name!r}"
+                raise WorldError(f"--set {_shown(item)}: no robot named {name!r}"
                                  f"{did_you_mean(name, [n for n in names if isinstance(n, str)])}"
                                  f" in {path}")
             node = node["robots"][match[0]]
@@ -542,7 +547,8 @@ def apply_override(data: dict, item: str, path: str = "<world>") -> str:
             continue
         nxt = node.setdefault(p, {})
         if not isinstance(nxt, dict):
-            raise WorldError(f"--set {item}: {'.'.join(parts[:i + 1])} is not a table in {path}")
+            raise WorldError(f"--set {_shown(item)}: {'.'.join(parts[:i + 1])} is not a table "
+                             f"in {path}")
         node = nxt
         where.append(p)
         i += 1
