@@ -17,11 +17,9 @@ import json
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import tempfile
 import time
-from collections import deque
 from dataclasses import dataclass, field
 
 import zenoh
@@ -32,6 +30,8 @@ from bus.node import EXIT_PLANT_GONE, write_json
 from bus.session import BusConfigError, open_session
 from plant.world import WorldError, load_world
 
+from . import procs
+from .procs import diffbot_argv
 from .scenario import ScenarioSpec, load_scenario
 
 STOP_GRACE_S = 1.5
@@ -46,75 +46,14 @@ RECORDER_JOIN_S = 30.0
 RECORDER_GRACE_S = 10.0
 
 
-@dataclass
-class Child:
-    name: str
-    argv: list[str]
-    required: bool = True
-    ends_run: bool = False
-    interactive: bool = False
-    log_path: str = ""
-    proc: subprocess.Popen | None = None
-    exit_code: int | None = None
-    started: float = 0.0
-    log_file: object = None
+class Child(procs.Child):
+    """A scenario's process: a :class:`procs.Child` and what its death means for the run."""
 
-    def start(self, env: dict) -> None:
-        self.log_file = open(self.log_path, "wb")
-        kw = dict(env=env, stderr=self.log_file)
-        if self.interactive:
-            self.proc = subprocess.Popen(self.argv, **kw)
-        else:
-            self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=self.log_file,
-                                         start_new_session=True, **kw)
-        self.started = time.monotonic()
-
-    def poll(self) -> int | None:
-        if self.proc is not None and self.exit_code is None:
-            self.exit_code = self.proc.poll()
-        return self.exit_code
-
-    def signal(self, sig: int) -> None:
-        if self.proc is not None and self.poll() is None:
-            try:
-                self.proc.send_signal(sig)
-            except ProcessLookupError:
-                pass
-
-    def tail(self, n: int = 12) -> str:
-        try:
-            with open(self.log_path, "rb") as f:
-                lines = deque(f, maxlen=n)
-            return b"".join(lines).decode("utf-8", "replace").rstrip()
-        except OSError:
-            return ""
-
-    def close(self) -> None:
-        if self.log_file is not None:
-            self.log_file.close()
-
-    def stopped(self) -> bool:
-        """The process is stopped (SIGSTOP, a debugger): state T or t in /proc."""
-        if self.proc is None or self.poll() is not None:
-            return False
-        try:
-            with open(f"/proc/{self.proc.pid}/stat") as f:
-                return f.read().rsplit(")", 1)[1].split()[0] in ("T", "t")
-        except (OSError, IndexError):
-            return False
-
-    def describe_exit(self) -> str:
-        code = self.exit_code
-        if code is not None and code < 0:
-            try:
-                return f"was killed by {signal.Signals(-code).name} (exit code {code})"
-            except ValueError:
-                pass
-        return f"failed with exit code {code}"
-
-
-def diffbot_argv(*args: str) -> list[str]:
-    return [sys.executable, "-m", "diffbot.cli", *args]
+    def __init__(self, name: str, argv: list[str], required: bool = True,
+                 ends_run: bool = False, interactive: bool = False, log_path: str = "") -> None:
+        super().__init__(name, argv, log_path, interactive=interactive)
+        self.required = required
+        self.ends_run = ends_run
 
 
 @dataclass
@@ -170,28 +109,16 @@ class Run:
 
     def stop_all(self) -> None:
         """SIGINT the nodes, then the plant (so nodes do not see it vanish), then SIGKILL
-        by PID whatever is left after the grace period."""
+        by PID whatever is left after the grace period, the recorder last."""
         plant = self.children[0]
         nodes = [c for c in self.children[1:] if c is not self.recorder]
         for c in nodes:
             c.signal(signal.SIGINT)
-        deadline = time.monotonic() + STOP_GRACE_S / 2
-        while time.monotonic() < deadline and any(c.poll() is None for c in nodes):
-            time.sleep(0.02)
+        procs.wait_all(nodes, STOP_GRACE_S / 2)
         plant.signal(signal.SIGINT)
-        deadline = time.monotonic() + STOP_GRACE_S / 2
-        while time.monotonic() < deadline and any(c.poll() is None for c in [plant, *nodes]):
-            time.sleep(0.02)
+        procs.wait_all([plant, *nodes], STOP_GRACE_S / 2)
         self._stop_recorder()
-        for c in self.children:
-            if c.poll() is None:
-                c.signal(signal.SIGKILL)
-                try:
-                    c.proc.wait(1.0)
-                except subprocess.TimeoutExpired:
-                    pass
-                c.poll()
-            c.close()
+        procs.stop(self.children, 0.0, signal.SIGKILL)
 
     def on_alive(self, sample) -> None:
         """Liveliness callback: a process's ``sim/alive/<name>`` token came or went."""
@@ -294,12 +221,9 @@ class Run:
         return False
 
     def _stop_recorder(self) -> None:
-        rec = self.recorder
-        if rec is not None and rec.poll() is None:
-            rec.signal(signal.SIGINT)
-            deadline = time.monotonic() + RECORDER_GRACE_S
-            while time.monotonic() < deadline and rec.poll() is None:
-                time.sleep(0.02)
+        if self.recorder is not None:
+            self.recorder.signal(signal.SIGINT)
+            procs.wait_all([self.recorder], RECORDER_GRACE_S)
 
 
 def build_parser() -> argparse.ArgumentParser:
