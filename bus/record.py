@@ -465,7 +465,7 @@ class Recorder:
             return
         a = codec.parse_attachment(att)
         if a is not None:
-            seq, t_ns = a
+            seq, t_ns = a.seq, a.t_ns
             self._sim_ns = max(self._sim_ns, t_ns)
         else:
             seq, t_ns = 0, self._sim_ns

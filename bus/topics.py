@@ -179,8 +179,17 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
     a = codec.parse_attachment(attachment)
     head = f"--- /{key}"
     if a is not None:
-        head += f"  seq {a[0]}  t {a[1] * 1e-9:.6f} s"
+        head += f"  seq {a.seq}  t {a.t_ns * 1e-9:.6f} s"
+        if a.node is not None:          # a lockstep member's trailer (docs/PROTOCOL.md)
+            flags = [f for f, bit in (("ACK", codec.ACK), ("FINAL", codec.FINAL))
+                     if a.flags & bit]
+            head += (f"  member {a.node}  flags {'|'.join(flags) or '-'}"
+                     + (f"  n_plant {a.n_plant}" if a.flags & codec.ACK else ""))
+    elif attachment:
+        head += f"  (malformed attachment of {len(attachment)} bytes: {attachment[:24].hex()})"
     msgtype = keys.msgtype_of(key)
+    if msgtype is None and not payload:
+        return f"{head}\n(empty payload)"
     if msgtype is None:
         try:
             body = "data: " + _scalar(payload.decode("utf-8"))

@@ -27,6 +27,7 @@ import zenoh
 from bus.cliargs import ArgumentParser, nonneg_int, positive_float
 from bus.keys import Keys
 from bus.node import EXIT_PLANT_GONE, write_json
+from bus.protocol import COUPLINGS
 from bus.session import BusConfigError, open_session
 from plant.world import WorldError, load_world
 
@@ -67,6 +68,7 @@ class Run:
     zenoh_config: str | None = None
     duration_s: float | None = None
     timeout_s: float = 900.0
+    coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
     children: list[Child] = field(default_factory=list)
@@ -89,7 +91,7 @@ class Run:
         os.makedirs(logs, exist_ok=True)
         expect = [p.name for p in self.spec.processes if p.sync] + self._recorder_expect()
         plant = diffbot_argv("plant", "--world", self.spec.world, "--mode", self.mode,
-                             "--seed", str(self.seed), "--stats",
+                             "--coupling", self.coupling, "--seed", str(self.seed), "--stats",
                              os.path.join(logs, "plant.json"), *self.spec.plant_args,
                              *self.bus_args())
         if expect:
@@ -231,6 +233,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", help="scenario name (see `diffbot scenarios`) or TOML file")
     p.add_argument("--mode", choices=("lockstep", "realtime", "fast"), default=None,
                    help="override the scenario's mode")
+    p.add_argument("--coupling", choices=COUPLINGS, default=None,
+                   help="lockstep coupling: sequential (exact) or pipelined (plant and nodes in "
+                        "parallel, one tick of actuation delay); default: the scenario's")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S simulated seconds")
     p.add_argument("--seed", type=nonneg_int, default=0)
@@ -266,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
-              args.timeout, args.record)
+              args.timeout, coupling=args.coupling or spec.coupling, record=args.record)
     run.build()
     analysis = ANALYSES[spec.analysis]
     stop_flag: list[str] = []
@@ -342,6 +347,9 @@ def summarize(run: Run, wall: float, code: int) -> dict:
             counts[key] = counts.get(key, 0) + n
     return {
         "scenario": run.spec.name, "world": run.spec.world, "mode": run.mode, "seed": run.seed,
+        "coupling": plant.get("coupling", run.coupling),
+        "actuation_delay_ticks": plant.get("actuation_delay_ticks"),
+        "node_input_delay_ticks": plant.get("node_input_delay_ticks"),
         "sim_time_s": plant.get("sim_time_s"), "wall_time_s": wall,
         "plant_wall_time_s": plant.get("wall_time_s"),
         "real_time_factor": plant.get("real_time_factor"),

@@ -5,6 +5,7 @@ A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
     [scenario]
     world = "living_room"      # world name or path
     mode = "lockstep"          # lockstep | realtime | fast
+    coupling = "sequential"    # lockstep: sequential | pipelined (docs/PROTOCOL.md)
     duration_s = 300.0        # upper bound in simulated time (optional)
     analysis = "square"        # what to plot and summarise afterwards
     robot = "robot1"           # the robot the analysis looks at
@@ -27,6 +28,7 @@ from dataclasses import dataclass, field
 
 from bus.cliargs import did_you_mean
 from bus.keys import check_name
+from bus.protocol import COUPLINGS
 from plant.world import WorldError, _Table, tomllib
 
 SCENARIOS_DIR = os.path.join(os.path.dirname(__file__), "scenarios")
@@ -50,6 +52,7 @@ class ScenarioSpec:
     description: str = ""
     world: str = "living_room"
     mode: str = "lockstep"
+    coupling: str = "sequential"
     duration_s: float | None = None
     analysis: str = "none"
     robot: str = "robot1"
@@ -83,6 +86,7 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
     spec.description = s.string("description", "")
     spec.world = s.string("world", "living_room")
     spec.mode = s.string("mode", "lockstep", choices=("lockstep", "realtime", "fast"))
+    spec.coupling = s.string("coupling", "sequential", choices=COUPLINGS)
     spec.duration_s = s.number("duration_s", -1.0)
     if spec.duration_s == -1.0:
         spec.duration_s = None
