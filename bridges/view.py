@@ -281,7 +281,7 @@ class View:
         if msgtype is None:
             return
         a = codec.parse_attachment(att)
-        t = a[1] if a is not None else self.sim_ns
+        t = a.t_ns if a is not None else self.sim_ns
         if key == self.keys.clock:
             self.sim_ns = t
             return

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import struct
+from typing import NamedTuple
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
@@ -23,8 +24,15 @@ _Quaternion = T["geometry_msgs/msg/Quaternion"]
 _Pose = T["geometry_msgs/msg/Pose"]
 _Twist = T["geometry_msgs/msg/Twist"]
 
-#: Zenoh attachment: sequence number, sim-time stamp (ns), both uint64 little-endian.
+#: Zenoh attachment (docs/PROTOCOL.md): sequence number, sim-time stamp (ns), both uint64
+#: little-endian; then, on every message a lockstep member publishes for a tick, the
+#: member trailer: flags (u8), n_plant (u16 LE), name length (u8), node name (UTF-8).
 ATTACHMENT = struct.Struct("<QQ")
+TRAILER = struct.Struct("<BHB")
+#: trailer flags: ACK = the member published everything for this tick (this is its last
+#: message for it); FINAL = the member's last tick (it leaves after it)
+ACK, FINAL = 1, 2
+_FLAGS = ACK | FINAL
 
 _EMPTY = np.zeros(0, dtype=np.float64)
 _ZERO_COV = np.zeros(36, dtype=np.float64)
@@ -149,15 +157,44 @@ def decode(data: bytes, msgtype: str):
         raise CodecError(f"not a valid {msgtype}: {exc}") from None
 
 
-def attachment(seq: int, t_ns: int) -> bytes:
-    return ATTACHMENT.pack(seq & 0xFFFFFFFFFFFFFFFF, t_ns)
+class Attachment(NamedTuple):
+    """A parsed attachment. ``node`` is None (and flags, n_plant 0) without a trailer."""
+    seq: int
+    t_ns: int
+    flags: int = 0
+    n_plant: int = 0
+    node: str | None = None
 
 
-def parse_attachment(data: bytes | None) -> tuple[int, int] | None:
-    """(seq, t_ns) from an attachment, or None if absent or malformed."""
-    if data is None or len(data) != ATTACHMENT.size:
+def attachment(seq: int, t_ns: int, flags: int = 0, n_plant: int = 0,
+               node: str | None = None) -> bytes:
+    """Attachment bytes: ``seq``, ``t_ns`` and, for a lockstep member (``node`` given), the
+    trailer with ``flags`` (:data:`ACK`, :data:`FINAL`) and ``n_plant``."""
+    head = ATTACHMENT.pack(seq & 0xFFFFFFFFFFFFFFFF, t_ns)
+    if node is None:
+        return head
+    name = node.encode("utf-8")
+    return head + TRAILER.pack(flags, n_plant, len(name)) + name
+
+
+def parse_attachment(data: bytes | None) -> Attachment | None:
+    """The :class:`Attachment` in ``data``, or None if absent or malformed (wrong length,
+    unknown flag bits, a name that is not UTF-8 or not as long as it says)."""
+    if data is None or len(data) < ATTACHMENT.size:
         return None
-    return ATTACHMENT.unpack(data)
+    seq, t_ns = ATTACHMENT.unpack_from(data)
+    if len(data) == ATTACHMENT.size:
+        return Attachment(seq, t_ns)
+    if len(data) < ATTACHMENT.size + TRAILER.size:
+        return None
+    flags, n_plant, n = TRAILER.unpack_from(data, ATTACHMENT.size)
+    name = data[ATTACHMENT.size + TRAILER.size:]
+    if flags & ~_FLAGS or len(name) != n or n == 0:
+        return None
+    try:
+        return Attachment(seq, t_ns, flags, n_plant, name.decode("utf-8"))
+    except UnicodeDecodeError:
+        return None
 
 
 # ---------------------------------------------------------------- time

@@ -17,8 +17,9 @@ def setup_logging(name: str, level: str = "INFO") -> logging.Logger:
 class RejectCounter:
     """Counts rejected inputs per reason and logs them at most once per ``period_s`` per reason."""
 
-    def __init__(self, log: logging.Logger, period_s: float = 2.0) -> None:
+    def __init__(self, log: logging.Logger, period_s: float = 2.0, verb: str = "rejected") -> None:
         self.log = log
+        self.verb = verb
         self.period_s = period_s
         self.counts: Counter[str] = Counter()
         self._last: dict[str, float] = {}
@@ -32,7 +33,7 @@ class RejectCounter:
             n = self._since.pop(reason)
             self._last[reason] = now
             more = f" ({n} since last report)" if n > 1 else ""
-            self.log.warning("rejected %s%s%s", reason, f": {detail}" if detail else "", more)
+            self.log.warning("%s %s%s%s", self.verb, reason, f": {detail}" if detail else "", more)
 
     @property
     def total(self) -> int:

@@ -35,7 +35,6 @@ import argparse
 import json
 import logging
 import math
-import os
 import signal
 import threading
 import time
@@ -46,8 +45,11 @@ import numpy as np
 import zenoh
 
 from . import codec
+from .cliargs import ArgumentParser
 from .inbox import Inbox
+from .jsonio import write_json  # noqa: F401  (re-exported: controllers import it from here)
 from .keys import TOPICS, Keys, check_name
+from .protocol import PLANT_READS, check_version
 from .log import RejectCounter, setup_logging
 from .session import BusConfigError, add_bus_args, make_config, open_session
 
@@ -147,15 +149,19 @@ class NodeRunner:
         self.final_tick: int | None = None   # the tick at which the controller finished
         self.plant_lost = 0           # times the plant went away while --wait kept us here
         self._seq = 0
+        self._out: list[tuple[str, Any]] = []        # the current tick's outputs, not sent yet
+        self._pubs: dict[str, zenoh.Publisher] = {}
         self._apply_info(query_info(session, keys, wait_for_plant_s))
-        self._tick_keys: list[str] = []
         if hasattr(controller, "configure"):
             controller.configure(self.info, robot)
 
     def _apply_info(self, info: dict) -> None:
-        """Take the simulation's mode, tick and sensor periods from the plant's ``sim/info``."""
+        """Take the simulation's protocol, mode, coupling, tick and sensor periods from the
+        plant's ``sim/info`` (a plant of another protocol version is a ProtocolError)."""
+        check_version(info)
         self.info = info
         self.mode = info.get("mode", "lockstep")
+        self.coupling = info.get("coupling", "sequential")
         self.sync = bool(getattr(self.controller, "sync", True)) and self.mode == "lockstep"
         if self.robot not in info.get("robots", {}):
             raise ValueError(f"robot {self.robot!r} is not in the plant's world "
@@ -165,48 +171,76 @@ class NodeRunner:
         self.periods = dict(info["robots"][self.robot].get("topics", {}))
         self.awaited = [t for t in self.inputs
                         if TOPICS[t].source != "plant" or t in self.periods]
+        # Pipelined coupling: other nodes' outputs are taken one tick old, so producer and
+        # consumer work on the same tick in parallel (docs/PROTOCOL.md).
+        lag = int(info.get("node_input_delay_ticks", 0)) * self.tick_ns if self.sync else 0
+        self.lag_ns = {t: lag if TOPICS[t].source != "plant" else 0 for t in self.inputs}
+        self._plant_reads = {self.keys.topic(self.robot, t) for t in PLANT_READS}
 
     # ----------------------------------------------------------------- output
-    def _put(self, key: str, msg, t_ns: int) -> None:
-        self._seq += 1
-        self._tick_keys.append(key)
-        self.session.put(key, codec.encode(msg), encoding=zenoh.Encoding.APPLICATION_CDR,
-                         congestion_control=zenoh.CongestionControl.BLOCK,
-                         attachment=codec.attachment(self._seq, t_ns))
-        self.published[key] = self.published.get(key, 0) + 1
-
     def publish(self, out, t_ns: int) -> None:
+        """Queue what ``step`` returned for tick ``t_ns``; :meth:`flush` sends it."""
         if out is None:
             return
         if isinstance(out, Twist):
-            self._put(self.keys.topic(self.robot, "cmd_vel"),
-                      codec.twist_stamped(t_ns, out.linear, out.angular), t_ns)
+            self._out.append((self.keys.topic(self.robot, "cmd_vel"),
+                              codec.twist_stamped(t_ns, out.linear, out.angular)))
         elif isinstance(out, WheelSpeeds):
-            self._put(self.keys.topic(self.robot, "wheel_cmd"),
-                      codec.joint_state(t_ns, WHEEL_JOINTS, velocity=(out.left, out.right)), t_ns)
+            self._out.append((self.keys.topic(self.robot, "wheel_cmd"),
+                              codec.joint_state(t_ns, WHEEL_JOINTS,
+                                                velocity=(out.left, out.right))))
         elif isinstance(out, dict):
             for topic, msg in out.items():
                 if isinstance(msg, (Twist, WheelSpeeds)):     # a command among other outputs
                     self.publish(msg, t_ns)
                 else:
-                    self._put(self.keys.topic(self.robot, topic), msg, t_ns)
+                    self._out.append((self.keys.topic(self.robot, topic), msg))
         else:
             raise TypeError(f"step() returned {type(out).__name__}; expected Twist, "
                             "WheelSpeeds, dict or None")
 
-    def ack(self, t_ns: int, final: bool = False) -> None:
-        """Tell the plant this node is done with tick ``t_ns``: the stamp, whether it is the
-        node's last, and the keys it published for the tick (the plant waits for those too)."""
-        if self.sync:
-            self.session.put(self.keys.ack(self.name),
-                             encode_ack(t_ns, self._tick_keys, final))
-        self._tick_keys = []
+    def flush(self, t_ns: int, final: bool = False) -> None:
+        """Send the tick's outputs. A lockstep member (docs/PROTOCOL.md) stamps each with its
+        trailer, sends the keys the plant reads last, and sets ACK on the very last of those:
+        one message per tick for a node with one command. Only a member with no such output
+        sends an empty ``sim/ack/<node>`` instead."""
+        out, self._out = self._out, []
+        if not self.sync:
+            for key, msg in out:
+                self._put(key, codec.encode(msg), codec.attachment(self._next_seq(), t_ns))
+            return
+        out.sort(key=lambda km: km[0] in self._plant_reads)       # stable: plant-read last
+        n_plant = sum(1 for key, _ in out if key in self._plant_reads)
+        end = codec.ACK | (codec.FINAL if final else 0)
+        for i, (key, msg) in enumerate(out):
+            last = n_plant and i == len(out) - 1
+            att = codec.attachment(self._next_seq(), t_ns, end if last else 0,
+                                   n_plant if last else 0, self.name)
+            self._put(key, codec.encode(msg), att)
+        if not n_plant:
+            self._put(self.keys.ack(self.name), b"",
+                      codec.attachment(self._next_seq(), t_ns, end, 0, self.name))
+
+    def _next_seq(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    def _put(self, key: str, payload: bytes, att: bytes) -> None:
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = self.session.declare_publisher(
+                key, encoding=zenoh.Encoding.APPLICATION_CDR,
+                congestion_control=zenoh.CongestionControl.BLOCK)
+        pub.put(payload, attachment=att)
+        self.published[key] = self.published.get(key, 0) + 1
 
     def due_inputs(self, t_ns: int) -> list[str]:
-        """The inputs that must carry stamp ``t_ns`` before the node acts on that tick:
-        outputs of other lockstep nodes, and the plant's sensors due at this tick."""
+        """The inputs that must be in before the node acts on tick ``t_ns``: the plant's
+        sensors due at this tick, and outputs of other lockstep nodes (stamped ``t_ns``, or
+        one tick earlier in pipelined coupling: none at the first tick)."""
         k = t_ns // self.tick_ns if self.tick_ns else 0
-        return [t for t in self.awaited if k % self.periods.get(t, 1) == 0]
+        return [t for t in self.awaited if k % self.periods.get(t, 1) == 0
+                and t_ns - self.lag_ns[t] >= 0]
 
     # ----------------------------------------------------------------- input
     def _input(self, topic: str, payload: bytes) -> None:
@@ -252,10 +286,10 @@ class NodeRunner:
         return t_ns
 
     def _complete(self, t_ns: int) -> bool:
-        """Every input due at ``t_ns`` has a sample (good or held) stamped ``t_ns`` that this
-        node has not acted on yet."""
-        return all(t_ns in self._buf.get(topic, ()) and (topic, t_ns) not in self._used
-                   for topic in self.due_inputs(t_ns))
+        """Every input due at ``t_ns`` has a sample (good or held) of the stamp it needs
+        (``t_ns``, or a tick earlier for a lagged one) that this node has not acted on yet."""
+        return all((s := t_ns - self.lag_ns[topic]) in self._buf.get(topic, ())
+                   and (topic, s) not in self._used for topic in self.due_inputs(t_ns))
 
     def _observation(self, t_ns: int) -> Observation:
         """The latest good message of each input stamped at or before ``t_ns``, unless it is
@@ -266,20 +300,21 @@ class NodeRunner:
             buf = self._buf.get(topic)
             if not buf:
                 continue
-            good = [s for s, m in buf.items() if s <= t_ns and m is not _HELD]
+            upto = t_ns - self.lag_ns[topic]       # a lagged input never shows a newer sample
+            good = [s for s, m in buf.items() if s <= upto and m is not _HELD]
             if good:
                 best = max(good)
                 stale_ns = max(STALE_S * 1e9, 3 * self.periods.get(topic, 1) * self.tick_ns)
-                if t_ns - best <= stale_ns:
+                if upto - best <= stale_ns:
                     msgs[topic] = buf[best]
             else:
                 best = None
             for s in [s for s, m in buf.items()
-                      if s <= t_ns and (s != best) and (best is None or s < best or m is _HELD)]:
+                      if s <= upto and (s != best) and (best is None or s < best or m is _HELD)]:
                 del buf[s]
-            self._used.add((topic, t_ns))
+            self._used.add((topic, upto))
         if len(self._used) > 4 * _BUF_PER_TOPIC * max(1, len(self.inputs)):
-            self._used = {(tp, s) for tp, s in self._used if s >= t_ns}
+            self._used = {(tp, s) for tp, s in self._used if s >= t_ns - self.tick_ns}
         return Observation(t_ns, self.robot, msgs)
 
     def _reset_inputs(self) -> None:
@@ -427,11 +462,11 @@ class NodeRunner:
         self.ticks += 1
         if getattr(self.controller, "done", False):
             self.publish(self._stop_command(), t_ns)
-            self.ack(t_ns, final=True)
+            self.flush(t_ns, final=True)
             self.final_tick = t_ns
             self.log.info("%s done at t=%.3f s", self.name, t_ns * 1e-9)
             return True
-        self.ack(t_ns)
+        self.flush(t_ns)
         return False
 
     def _plant_back(self, tokens: dict) -> bool:
@@ -457,7 +492,8 @@ class NodeRunner:
         if not left or not self._pending:
             return False
         for t_ns, came in self._pending.items():
-            missing = [tp for tp in self.due_inputs(t_ns) if t_ns not in self._buf.get(tp, ())]
+            missing = [tp for tp in self.due_inputs(t_ns)
+                       if t_ns - self.lag_ns[tp] not in self._buf.get(tp, ())]
             if not missing or any(TOPICS[tp].source == "plant" for tp in missing):
                 continue
             gone = [n for n, w in left.items() if w >= came - PRODUCER_GRACE_S]
@@ -534,23 +570,8 @@ def _numbers_problem(msg, where: str) -> str | None:
     return None
 
 
-def encode_ack(t_ns: int, keys: list[str], final: bool = False) -> bytes:
-    """Ack payload: tick stamp (uint64 LE), b"F" if it is the node's last tick else b"-",
-    then the keys the node published for the tick, comma-separated."""
-    return t_ns.to_bytes(8, "little") + (b"F" if final else b"-") + ",".join(keys).encode()
-
-
-def decode_ack(payload: bytes) -> tuple[int, list[str], bool]:
-    """(tick stamp, keys published for it, final); raises ValueError if malformed."""
-    if len(payload) < 9 or payload[8:9] not in (b"F", b"-"):
-        raise ValueError(f"malformed ack of {len(payload)} bytes")
-    rest = payload[9:].decode("utf-8")
-    return (int.from_bytes(payload[:8], "little"), [k for k in rest.split(",") if k],
-            payload[8:9] == b"F")
-
-
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=description)
+    p = ArgumentParser(description=description)
     p.add_argument("--robot", default="robot1", type=_name_arg("robot name"),
                    help="robot to control (default robot1)")
     p.add_argument("--name", default=default_name, type=_name_arg("node name"),
@@ -661,26 +682,3 @@ def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Sessi
             log.info("no plant at %s yet; waiting for one (--wait)", args.endpoint)
             said = True
         time.sleep(0.2)
-
-
-def write_json(path: str, data: dict) -> None:
-    """Write JSON atomically (a reader never sees half a file)."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=2, default=_json_default)
-        f.write("\n")
-    os.replace(tmp, path)
-
-
-def _json_default(o):
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    try:
-        import numpy as np
-        if isinstance(o, np.generic):
-            return o.item()
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-    except ImportError:
-        pass
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

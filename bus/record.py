@@ -65,7 +65,8 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from . import codec, scene
+from . import codec, jsonio, scene
+from .cliargs import ArgumentParser, positive_float, positive_int
 from .keys import Keys
 from .log import RejectCounter, setup_logging
 from .session import BusConfigError, add_bus_args, open_session
@@ -446,8 +447,8 @@ class Recorder:
             self.log.warning("no sim/info (%s); recording without it", exc)
             return
         self.out.add_metadata(INFO_METADATA, {
-            "sim_info": json.dumps(self.info),
-            "recorder": json.dumps({"keys": self.exprs, "namespace": self.keys.namespace,
+            "sim_info": jsonio.dumps(self.info),
+            "recorder": jsonio.dumps({"keys": self.exprs, "namespace": self.keys.namespace,
                                     "started_unix_ns": time.time_ns(),
                                     "host": socket.gethostname(),
                                     "log_time": "sim time (attachment t_ns)",
@@ -480,21 +481,20 @@ class Recorder:
             self.skipped[key] = self.skipped.get(key, 0) + 1
             return
         try:
-            codec.decode(payload, msgtype)
+            msg = codec.decode(payload, msgtype)
         except codec.CodecError as exc:
             self.rejects.reject(key, str(exc))
             return
         a = codec.parse_attachment(att)
         if a is not None:
-            seq, t_ns = a
+            seq, t_ns = a.seq, a.t_ns
             self._sim_ns = max(self._sim_ns, t_ns)
         else:
             seq, t_ns = 0, self._sim_ns
         self.out.write(key, msgtype, payload, t_ns, recv_ns, seq)
         if self.with_scene and (robot := scene.robot_of_ground_truth(self.keys, key)):
-            gt = codec.decode(payload, msgtype)
             self.out.write(self._derived(scene.TF_TOPIC), scene.TF_TYPE,
-                           codec.encode(scene.tf([scene.ground_truth_transform(robot, gt, t_ns)])),
+                           codec.encode(scene.tf([scene.ground_truth_transform(robot, msg, t_ns)])),
                            t_ns, recv_ns)
         if self.info is None and key == self.keys.clock and not self._late_info_tried:
             self._late_info_tried = True      # the plant came after the recorder: ask once
@@ -595,7 +595,7 @@ def report(counts: dict[str, int], out=sys.stderr) -> None:
 
 # ====================================================================== CLI
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="diffbot record",
         description="Record the bus into an MCAP file (ROS 2 profile; Foxglove opens it). "
                     "Runs until Ctrl-C or the simulation ends (sim/end).")
@@ -610,12 +610,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "subscribed (default recorder)")
     p.add_argument("--no-stop-on-end", dest="stop_on_end", action="store_false",
                    help="keep recording after sim/end (until Ctrl-C)")
-    p.add_argument("--flush", type=float, default=1.0, metavar="S",
+    p.add_argument("--flush", type=positive_float, default=1.0, metavar="S",
                    help="close and flush a chunk at least every S wall seconds: what a "
                         "SIGKILL can lose (default 1)")
-    p.add_argument("--chunk-size", type=int, default=1 << 20, metavar="BYTES")
+    p.add_argument("--chunk-size", type=positive_int, default=1 << 20, metavar="BYTES")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
-    p.add_argument("--info-timeout", type=float, default=15.0, metavar="S",
+    p.add_argument("--info-timeout", type=positive_float, default=15.0, metavar="S",
                    help="wait this long for the plant's sim/info at the start (default 15)")
     p.add_argument("--recover", action="store_true",
                    help="do not record: rewrite FILE, left unclosed by a SIGKILL, "

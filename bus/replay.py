@@ -28,7 +28,6 @@ A recording left unclosed by a SIGKILL replays up to its last flushed chunk.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import sys
@@ -37,7 +36,8 @@ import time
 
 import zenoh
 
-from . import codec
+from . import codec, jsonio
+from .cliargs import ArgumentParser, nonneg_float, positive_float
 from .keys import Keys
 from .log import setup_logging
 from .record import Recorded, RecordError, iter_recording, layout
@@ -160,7 +160,7 @@ class Replayer:
     def _on_info(self, query: zenoh.Query) -> None:
         d = dict(self.info)
         d["time_ns"] = self.sim_ns
-        query.reply(self.keys.info, json.dumps(d))
+        query.reply(self.keys.info, jsonio.dumps(d))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         node = self.keys.node_of(str(sample.key_expr))
@@ -271,13 +271,13 @@ class Replayer:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="diffbot replay",
         description="Publish a recording back onto the bus, standing in for the plant "
                     "(sim/info, sim/alive/plant, sim/end): controllers run against it unchanged.")
     p.add_argument("path", metavar="FILE.mcap", help="recording (file or rosbag2 bag directory)")
     speed = p.add_mutually_exclusive_group()
-    speed.add_argument("--rate", type=float, default=1.0, metavar="R",
+    speed.add_argument("--rate", type=positive_float, default=1.0, metavar="R",
                        help="sim seconds per wall second (default 1: recorded spacing)")
     speed.add_argument("--fast", action="store_true", help="as fast as possible")
     p.add_argument("--keys", nargs="+", default=[], metavar="KEY",
@@ -286,8 +286,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not replay these, e.g. the outputs of the node under test")
     p.add_argument("--expect", default="", metavar="NODES",
                    help="comma-separated nodes (sim/alive/<node>) to wait for before starting")
-    p.add_argument("--join-timeout", type=float, default=30.0, metavar="S")
-    p.add_argument("--linger", type=float, default=10.0, metavar="S",
+    p.add_argument("--join-timeout", type=positive_float, default=30.0, metavar="S")
+    p.add_argument("--linger", type=nonneg_float, default=10.0, metavar="S",
                    help="after sim/end, wait up to S s for the expected nodes to leave")
     p.add_argument("--stats", metavar="FILE", help="write counters as JSON at exit")
     p.add_argument("--log-level", default="INFO")

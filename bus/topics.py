@@ -8,7 +8,6 @@ whatever the real-time factor).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import queue
 import sys
@@ -17,13 +16,16 @@ import time
 
 import zenoh
 
-from . import codec
+from . import codec, jsonio
+from .cliargs import ArgumentParser, nonneg_float, positive_float, positive_int
 from .keys import Keys
 from .session import BusConfigError, add_bus_args, open_session
 
 EXIT_OK = 0
 EXIT_NOTHING = 1
 EXIT_BAD_INPUT = 2
+#: echo gives up when nothing came for this long (wall s), saying what the plant publishes
+ECHO_TIMEOUT_S = 10.0
 
 
 # ---------------------------------------------------------------- topics
@@ -78,9 +80,9 @@ def _fmt_hz(v) -> str:
 
 
 def topics_main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="diffbot topics",
+    p = ArgumentParser(prog="diffbot topics",
                                 description="List the live keys with message type and rate.")
-    p.add_argument("--duration", type=float, default=2.0, metavar="S",
+    p.add_argument("--duration", type=positive_float, default=2.0, metavar="S",
                    help="listen this many wall seconds (default 2)")
     p.add_argument("--json", action="store_true", help="print the table as JSON")
     add_bus_args(p)
@@ -107,7 +109,7 @@ def topics_main(argv: list[str] | None = None) -> int:
         session.close()
     rows = meter.table(keys)
     if args.json:
-        print(json.dumps({"topics": rows, "nodes": nodes}, indent=2))
+        print(jsonio.dumps({"topics": rows, "nodes": nodes}, indent=2))
         return EXIT_OK
     if not rows:
         print(f"no messages in {args.duration:g} s on {args.endpoint or args.zenoh_config} "
@@ -177,8 +179,17 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
     a = codec.parse_attachment(attachment)
     head = f"--- /{key}"
     if a is not None:
-        head += f"  seq {a[0]}  t {a[1] * 1e-9:.6f} s"
+        head += f"  seq {a.seq}  t {a.t_ns * 1e-9:.6f} s"
+        if a.node is not None:          # a lockstep member's trailer (docs/PROTOCOL.md)
+            flags = [f for f, bit in (("ACK", codec.ACK), ("FINAL", codec.FINAL))
+                     if a.flags & bit]
+            head += (f"  member {a.node}  flags {'|'.join(flags) or '-'}"
+                     + (f"  n_plant {a.n_plant}" if a.flags & codec.ACK else ""))
+    elif attachment:
+        head += f"  (malformed attachment of {len(attachment)} bytes: {attachment[:24].hex()})"
     msgtype = keys.msgtype_of(key)
+    if msgtype is None and not payload:
+        return f"{head}\n(empty payload)"
     if msgtype is None:
         try:
             body = "data: " + _scalar(payload.decode("utf-8"))
@@ -192,16 +203,32 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
     return "\n".join([f"{head}  ({msgtype})", *to_text(codec.summarize(msg))])
 
 
+def _what_is_published(session: zenoh.Session, keys: Keys) -> str:
+    """What the plant says it publishes (from ``sim/info``), for a "nothing came" message."""
+    from .node import query_info
+    try:
+        info = query_info(session, keys, timeout_s=1.0)
+    except (TimeoutError, ValueError):
+        return (f"no plant answered {keys.info}: is one running with the same --endpoint "
+                "and --namespace?")
+    pre = f"{keys.namespace}/" if keys.namespace else ""
+    published = [keys.clock[len(pre):]]
+    for robot, r in sorted(info.get("robots", {}).items()):
+        published += [keys.topic(robot, t)[len(pre):] for t in r.get("topics", {})]
+    return f"the plant publishes: {', '.join(published)}"
+
+
 def echo_main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="diffbot echo",
+    p = ArgumentParser(prog="diffbot echo",
                                 description="Print the messages on a key, decoded, with large "
                                             "arrays summarised.")
     p.add_argument("key", help="key (or key expression) relative to the namespace, "
                                "e.g. robot1/gps or 'robot1/**'")
-    p.add_argument("--count", type=int, default=None, metavar="N",
+    p.add_argument("--count", type=positive_int, default=None, metavar="N",
                    help="exit after N messages (default: until Ctrl-C)")
-    p.add_argument("--timeout", type=float, default=None, metavar="S",
-                   help="give up after S wall seconds (exit 1 if fewer than N came)")
+    p.add_argument("--timeout", type=nonneg_float, default=ECHO_TIMEOUT_S, metavar="S",
+                   help="give up when no message came for S wall seconds, exit 1 "
+                        f"(default {ECHO_TIMEOUT_S:g}; 0 waits forever)")
     add_bus_args(p)
     args = p.parse_args(argv)
     try:
@@ -226,13 +253,17 @@ def echo_main(argv: list[str] | None = None) -> int:
 
     n = 0
     code = EXIT_OK
-    deadline = time.monotonic() + args.timeout if args.timeout else None
+    idle_s = args.timeout or None
+    deadline = time.monotonic() + idle_s if idle_s else None
     try:
         sub = session.declare_subscriber(expr, zenoh.handlers.Callback(cb, indirect=False))
         try:
             while args.count is None or n < args.count:
                 left = None if deadline is None else deadline - time.monotonic()
                 if left is not None and left <= 0:
+                    print(f"diffbot echo: no message on {args.key} within {idle_s:g} s"
+                          f"{' of the last' if n else ''} ({_what_is_published(session, keys)})",
+                          file=sys.stderr)
                     code = EXIT_NOTHING
                     break
                 try:
@@ -241,6 +272,8 @@ def echo_main(argv: list[str] | None = None) -> int:
                     continue
                 print(format_message(key, payload, att, keys), flush=True)
                 n += 1
+                if idle_s:
+                    deadline = time.monotonic() + idle_s
         except KeyboardInterrupt:
             pass
         finally:

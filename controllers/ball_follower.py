@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from bus import codec
+from bus.cliargs import nonneg_float, positive_float
 from bus.node import Twist, node_arg_parser, run_node_args
 
 #: The ball's edge beyond minEnclosingCircle's radius of the pixel contour, px.
@@ -166,13 +167,13 @@ def debug_message(values) -> object:
 def main(argv=None) -> int:
     p = node_arg_parser("Follow the leader's green ball with the camera.")
     p.set_defaults(robot="follower")
-    p.add_argument("--target", type=float, default=0.65, help="distance to hold, m (0.65)")
-    p.add_argument("--ball-radius", type=float, default=0.06, help="m (0.06)")
-    p.add_argument("--k-distance", type=float, default=1.5, help="P gain, (m/s)/m")
-    p.add_argument("--ki-distance", type=float, default=0.4, help="I gain, (m/s)/(m s)")
-    p.add_argument("--k-turn", type=float, default=2.5, help="steering gain, (rad/s)/rad")
-    p.add_argument("--max-speed", type=float, default=0.4, help="m/s")
-    p.add_argument("--max-turn", type=float, default=1.5, help="rad/s")
+    p.add_argument("--target", type=positive_float, default=0.65, help="distance to hold, m (0.65)")
+    p.add_argument("--ball-radius", type=positive_float, default=0.06, help="m (0.06)")
+    p.add_argument("--k-distance", type=nonneg_float, default=1.5, help="P gain, (m/s)/m")
+    p.add_argument("--ki-distance", type=nonneg_float, default=0.4, help="I gain, (m/s)/(m s)")
+    p.add_argument("--k-turn", type=nonneg_float, default=2.5, help="steering gain, (rad/s)/rad")
+    p.add_argument("--max-speed", type=positive_float, default=0.4, help="m/s")
+    p.add_argument("--max-turn", type=positive_float, default=1.5, help="rad/s")
     args = p.parse_args(argv)
     try:
         ctrl = BallFollower(args.target, args.ball_radius, args.k_distance, args.ki_distance,

@@ -11,6 +11,7 @@ import math
 import sys
 
 from bus import codec
+from bus.cliargs import positive_float, positive_int
 from bus.node import Twist, node_arg_parser, run_node_args
 
 
@@ -75,11 +76,11 @@ class SquarePath:
 
 def main(argv=None) -> int:
     p: argparse.ArgumentParser = node_arg_parser("Drive a square on odometry, then stop.")
-    p.add_argument("--side", type=float, default=1.5, help="side length, m (default 1.5)")
-    p.add_argument("--speed", type=float, default=0.2, help="forward speed, m/s (default 0.2)")
-    p.add_argument("--turn-rate", type=float, default=0.5, help="turn rate, rad/s (default 0.5)")
+    p.add_argument("--side", type=positive_float, default=1.5, help="side length, m (default 1.5)")
+    p.add_argument("--speed", type=positive_float, default=0.2, help="forward speed, m/s (default 0.2)")
+    p.add_argument("--turn-rate", type=positive_float, default=0.5, help="turn rate, rad/s (default 0.5)")
     p.add_argument("--direction", choices=("ccw", "cw"), default="ccw")
-    p.add_argument("--laps", type=int, default=1)
+    p.add_argument("--laps", type=positive_int, default=1)
     args = p.parse_args(argv)
     try:
         ctrl = SquarePath(args.side, args.speed, args.turn_rate, args.direction, args.laps)

@@ -17,6 +17,7 @@ import termios
 import threading
 import tty
 
+from bus.cliargs import positive_float
 from bus.node import Twist, node_arg_parser, run_node_args
 
 #: at rest the zero command is repeated this many ticks (a lost one is covered), then withheld
@@ -130,8 +131,8 @@ class Teleop:
 
 def main(argv=None) -> int:
     p = node_arg_parser("Drive a robot from the keyboard.")
-    p.add_argument("--linear-step", type=float, default=0.05, help="m/s per key press")
-    p.add_argument("--angular-step", type=float, default=0.2, help="rad/s per key press")
+    p.add_argument("--linear-step", type=positive_float, default=0.05, help="m/s per key press")
+    p.add_argument("--angular-step", type=positive_float, default=0.2, help="rad/s per key press")
     args = p.parse_args(argv)
     ctrl = Teleop(args.linear_step, args.angular_step)
     try:

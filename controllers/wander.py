@@ -13,6 +13,7 @@ import sys
 import numpy as np
 
 from bus import codec
+from bus.cliargs import positive_float
 from bus.node import Twist, node_arg_parser, run_node_args
 
 
@@ -66,8 +67,8 @@ def main(argv=None) -> int:
     p = node_arg_parser("Drive a smooth loop around the living room (the follow task's leader).")
     p.set_defaults(robot="leader")
     p.add_argument("--clockwise", action="store_true")
-    p.add_argument("--min-speed", type=float, default=0.1, help="m/s (default 0.1)")
-    p.add_argument("--max-speed", type=float, default=0.2, help="m/s (default 0.2)")
+    p.add_argument("--min-speed", type=positive_float, default=0.1, help="m/s (default 0.1)")
+    p.add_argument("--max-speed", type=positive_float, default=0.2, help="m/s (default 0.2)")
     args = p.parse_args(argv)
     try:
         ctrl = Wander(speed_range=(args.min_speed, args.max_speed), clockwise=args.clockwise)

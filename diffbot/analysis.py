@@ -6,7 +6,6 @@ messages into files in the run's output directory (``analyse``).
 from __future__ import annotations
 
 import csv
-import math
 import os
 
 import numpy as np
@@ -120,15 +119,21 @@ class DriveTestAnalysis:
             return {"rows": 0}
         a = np.array(rows)
 
-        def steady(col: int, t_from: float, t_to: float) -> float:
-            sel = (a[:, 0] >= t0 + t_from) & (a[:, 0] < t0 + t_to)
-            return float(np.mean(a[sel, col])) if sel.any() else math.nan
+        metrics: dict = {}
 
-        v = steady(1, 3.0, 5.0)
-        w_ = steady(2, 8.0, 10.0)
+        def steady(name: str, col: int, t_from: float, t_to: float) -> None:
+            """Mean over the window, or null with the reason (JSON has no NaN)."""
+            sel = (a[:, 0] >= t0 + t_from) & (a[:, 0] < t0 + t_to)
+            metrics[name] = float(np.mean(a[sel, col])) if sel.any() else None
+            if not sel.any():
+                metrics[f"{name}_reason"] = (
+                    f"no ground truth between {t_from:g} and {t_to:g} s after the first "
+                    f"command (the run covered {a[-1, 0] - t0:.2f} s of it)")
+
+        steady("steady_linear_velocity_mps", 1, 3.0, 5.0)
+        steady("steady_angular_velocity_radps", 2, 8.0, 10.0)
         plot_velocities(a, t0, os.path.join(out, "velocity.png"))
-        return {"steady_linear_velocity_mps": v, "steady_angular_velocity_radps": w_,
-                "expected_linear_velocity_mps": 0.12,
+        return {**metrics, "expected_linear_velocity_mps": 0.12,
                 "expected_angular_velocity_radps": -0.12 / 0.18}
 
 

@@ -23,6 +23,8 @@ import importlib
 import signal
 import sys
 
+from bus.cliargs import did_you_mean
+
 #: controller name -> module with a main(argv) function
 CONTROLLERS = {
     "square_path": "controllers.square_path",
@@ -34,6 +36,9 @@ CONTROLLERS = {
 }
 
 USAGE = __doc__
+#: the sub-commands (for "did you mean")
+COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experiment", "figures",
+            "record", "replay", "topics", "echo", "router", "scenarios")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,14 +56,24 @@ def _dispatch(argv: list[str] | None) -> int:
         print(USAGE.strip())
         return 0
     cmd, rest = argv[0], argv[1:]
+    # Sub-commands' parsers take their program name from argv[0]: make `--help` and usage
+    # lines say `diffbot controller square_path`, not `cli.py` or `diffbot`.
+    sys.argv[0] = f"diffbot {cmd}"
     if cmd == "plant":
         from plant.node import main as plant_main
         return plant_main(rest)
     if cmd == "controller":
-        if not rest or rest[0] not in CONTROLLERS:
-            print(f"usage: diffbot controller {{{','.join(CONTROLLERS)}}} [options]",
-                  file=sys.stderr)
+        if not rest or rest[0] in ("-h", "--help"):
+            print(f"usage: diffbot controller {{{','.join(CONTROLLERS)}}} [options]\n"
+                  "  (diffbot controller NAME --help for a controller's options)",
+                  file=sys.stderr if not rest else sys.stdout)
+            return 2 if not rest else 0
+        if rest[0] not in CONTROLLERS:
+            print(f"diffbot controller: unknown controller {rest[0]!r}"
+                  f"{did_you_mean(rest[0], CONTROLLERS)} (choose from "
+                  f"{', '.join(CONTROLLERS)})", file=sys.stderr)
             return 2
+        sys.argv[0] = f"diffbot controller {rest[0]}"
         return importlib.import_module(CONTROLLERS[rest[0]]).main(rest[1:])
     if cmd == "run":
         from .launcher import main as run_main
@@ -104,7 +119,8 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "echo":
         from bus.topics import echo_main
         return echo_main(rest)
-    print(f"diffbot: unknown command {cmd!r}\n\n{USAGE.strip()}", file=sys.stderr)
+    print(f"diffbot: unknown command {cmd!r}{did_you_mean(cmd, COMMANDS)}\n\n{USAGE.strip()}",
+          file=sys.stderr)
     return 2
 
 

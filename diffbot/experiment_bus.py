@@ -13,45 +13,22 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections import deque
 
 from bus.keys import Keys
 from bus.log import setup_logging
 from bus.node import NodeRunner
 from bus.session import BusConfigError, open_session
 
-
-def _parent_death_signal():
-    """Linux: a ``preexec_fn`` that has the child get SIGTERM when this process dies, so a
-    plant never outlives an experiment that was SIGKILLed (e.g. by a test's timeout).
-    The libc function is looked up here, in the parent; the child only calls it."""
-    try:
-        import ctypes
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        return None
-    PR_SET_PDEATHSIG = 1
-
-    def preexec() -> None:
-        prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
-    return preexec if sys.platform.startswith("linux") else None
-
-
-_PREEXEC = _parent_death_signal()
+from . import procs
+from .procs import diffbot_argv
 
 
 class ExperimentError(RuntimeError):
     """An experiment could not run (a process failed); the message says which and why."""
-
-
-def _diffbot_argv(*args: str) -> list[str]:
-    return [sys.executable, "-m", "diffbot.cli", *args]
 
 
 class PlantProcess:
@@ -78,30 +55,20 @@ class PlantProcess:
             argv += ["--set", s]
         if disable:
             argv += ["--disable", ",".join(disable)]
-        self.argv = _diffbot_argv(*argv)
-        self.proc: subprocess.Popen | None = None
-        self._log = None
+        self.child = procs.Child(tag, diffbot_argv(*argv), self.log_path, die_with_parent=True)
 
     def __enter__(self) -> "PlantProcess":
-        self._log = open(self.log_path, "wb")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=self._log,
-                                     stderr=subprocess.STDOUT, env=env, start_new_session=True,
-                                     preexec_fn=_PREEXEC)
+        self.child.start()
         return self
 
     def __exit__(self, *exc) -> None:
         self.stop()
 
     def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
+        return self.child.running()
 
     def tail(self, n: int = 10) -> str:
-        try:
-            with open(self.log_path, "rb") as f:
-                return b"".join(deque(f, maxlen=n)).decode("utf-8", "replace").rstrip()
-        except OSError:
-            return ""
+        return self.child.tail(n)
 
     def stats(self) -> dict:
         try:
@@ -117,25 +84,11 @@ class PlantProcess:
         grace is short on purpose: a plant that missed that ack runs on without members
         (seen before bus.node kept finished nodes until their final ack was in); SIGINT
         ends it cleanly and its stats are still written."""
-        p = self.proc
-        if p is not None:
-            for sig, wait_s in ((None, grace_s), (signal.SIGINT, 3.0), (signal.SIGKILL, 3.0)):
-                if p.poll() is not None:
-                    break
-                if sig is not None:
-                    try:
-                        p.send_signal(sig)
-                    except ProcessLookupError:
-                        pass
-                try:
-                    p.wait(wait_s)
-                except subprocess.TimeoutExpired:
-                    pass
-        if self._log is not None:
-            self._log.close()
-            self._log = None
+        if self.child.started and self.child.wait(grace_s) is None:
+            self.child.stop(grace_s=3.0)
+        self.child.close_log()
         shutil.rmtree(self.tmp, ignore_errors=True)
-        return None if p is None else p.poll()
+        return self.child.exit_code
 
 
 def _wait_for_plant(session, keys: Keys, plant: PlantProcess, timeout_s: float) -> None:
@@ -143,7 +96,7 @@ def _wait_for_plant(session, keys: Keys, plant: PlantProcess, timeout_s: float) 
     deadline = time.monotonic() + timeout_s
     while True:
         if not plant.alive():
-            raise ExperimentError(f"the plant exited (code {plant.proc.poll()}); last lines "
+            raise ExperimentError(f"the plant exited (code {plant.child.poll()}); last lines "
                                   f"of {plant.log_path}:\n{plant.tail()}")
         if any(r.ok is not None for r in session.get(keys.info, timeout=0.5)):
             return
@@ -167,7 +120,7 @@ def run_controller(controller, plant: PlantProcess, name: str, robot: str = "rob
     while not os.path.exists(sock) and plant.alive() and time.monotonic() < deadline:
         time.sleep(0.02)                 # the plant listens once it has loaded its world
     if not plant.alive():
-        raise ExperimentError(f"the plant exited (code {plant.proc.poll()}); last lines of "
+        raise ExperimentError(f"the plant exited (code {plant.child.poll()}); last lines of "
                               f"{plant.log_path}:\n{plant.tail()}")
     try:
         session = open_session("node", plant.endpoint)
@@ -182,7 +135,7 @@ def run_controller(controller, plant: PlantProcess, name: str, robot: str = "rob
             runner = NodeRunner(controller, robot, name, session, keys, log,
                                 wait_for_plant_s=60.0)
         except TimeoutError:
-            raise ExperimentError(f"the plant did not answer (exit code {plant.proc.poll()});"
+            raise ExperimentError(f"the plant did not answer (exit code {plant.child.poll()});"
                                   f" last lines of {plant.log_path}:\n{plant.tail()}") from None
         controller.runner = runner
         timed_out = []

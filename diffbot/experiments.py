@@ -32,7 +32,8 @@ import time
 
 import numpy as np
 
-from bus import codec
+from bus import codec, jsonio
+from bus.cliargs import ArgumentParser, nonneg_float, nonneg_int, positive_float, positive_int
 from bus.node import WheelSpeeds, write_json
 from plant.world import WorldError, load_world
 
@@ -178,7 +179,7 @@ class StraightRuns:
         return WheelSpeeds(0.0, 0.0)
 
     def reset(self, seed: int) -> None:
-        req = json.dumps({"seed": seed, "poses": {self.robot: list(self.pose)}})
+        req = jsonio.dumps({"seed": seed, "poses": {self.robot: list(self.pose)}})
         for reply in self.session.get(self.keys.reset, payload=req, timeout=10.0):
             if reply.ok is None:
                 raise ExperimentError(
@@ -377,7 +378,7 @@ def noisy_lidar(args) -> dict:
 
 # ------------------------------------------------------------------ noisy-odometry (Fig. 10)
 def _toml_str(s: str) -> str:
-    return json.dumps(s)
+    return jsonio.dumps(s)
 
 
 def noisy_odometry(args) -> dict:
@@ -524,28 +525,28 @@ def experiment_list() -> str:
 
 
 def build_parser(name: str) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=f"diffbot experiment {name}",
+    p = ArgumentParser(prog=f"diffbot experiment {name}",
                                 description=EXPERIMENTS[name][1])
     p.add_argument("--out", default=os.path.join("out", "experiments", name),
                    help="output directory (default out/experiments/NAME)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="noise seed (default 0)")
     if name != "noisy-odometry":            # the square scenario names its world and robot
         p.add_argument("--world", default="living_room", help="world name or file")
         p.add_argument("--robot", default="robot1")
-    p.add_argument("--timeout", type=float, default=600.0, metavar="S",
+    p.add_argument("--timeout", type=positive_float, default=600.0, metavar="S",
                    help="wall-clock limit (default 600 s)")
     if name == "motion-noise":
-        p.add_argument("--runs", type=int, default=100, help="number of runs (default 100)")
-        p.add_argument("--command-noise", type=float, default=0.1, metavar="RADPS",
+        p.add_argument("--runs", type=positive_int, default=100, help="number of runs (default 100)")
+        p.add_argument("--command-noise", type=nonneg_float, default=0.1, metavar="RADPS",
                        help="std of the Gaussian noise on each commanded wheel speed, added "
                             "every control tick, rad/s (default 0.1)")
-        p.add_argument("--friction", type=float, default=0.4,
+        p.add_argument("--friction", type=positive_float, default=0.4,
                        help="wheel-floor friction coefficient (default 0.4, as the study)")
-        p.add_argument("--wheel-speed", type=float, default=2.5, metavar="RADPS",
+        p.add_argument("--wheel-speed", type=positive_float, default=2.5, metavar="RADPS",
                        help="wheel speed of the open-loop drive, rad/s (default 2.5 = 0.3 m/s)")
-        p.add_argument("--distance", type=float, default=0.3, metavar="M",
+        p.add_argument("--distance", type=positive_float, default=0.3, metavar="M",
                        help="distance without noise or slip, m (default 0.3)")
-        p.add_argument("--settle", type=float, default=0.5, metavar="S",
+        p.add_argument("--settle", type=nonneg_float, default=0.5, metavar="S",
                        help="time stopped before the GPS reading, s (default 0.5)")
     if name != "noisy-odometry":           # the square starts at the world's start pose
         p.add_argument("--pose", default=None, metavar="X,Y,YAW",
@@ -553,22 +554,22 @@ def build_parser(name: str) -> argparse.ArgumentParser:
                             + (" (camera: 0,0,-0.6, facing the dining corner)"
                                if name == "camera" else ""))
     if name == "noisy-lidar":
-        p.add_argument("--lidar-noise", type=float, default=0.2, metavar="WEBOTS",
+        p.add_argument("--lidar-noise", type=nonneg_float, default=0.2, metavar="WEBOTS",
                        help="Webots lidar noise: std relative to max range (default 0.2)")
-        p.add_argument("--lidar-noise-std", type=float, default=None, metavar="M",
+        p.add_argument("--lidar-noise-std", type=nonneg_float, default=None, metavar="M",
                        help="lidar noise std in metres (overrides --lidar-noise)")
     if name == "noisy-odometry":
-        p.add_argument("--encoder-noise", type=float, default=0.2, metavar="RAD",
+        p.add_argument("--encoder-noise", type=nonneg_float, default=0.2, metavar="RAD",
                        help="Webots PositionSensor noise = std per reading, rad (default 0.2)")
-        p.add_argument("--side", type=float, default=1.5, metavar="M",
+        p.add_argument("--side", type=positive_float, default=1.5, metavar="M",
                        help="side of the square, m (default 1.5)")
         p.add_argument("--odometry", choices=("fmu", "python"), default="fmu",
                        help="odometry node: the C FMU (default, as the square scenario) or "
                             "the Python reference")
     if name == "camera":
-        p.add_argument("--camera-noise", type=float, default=0.2, metavar="WEBOTS",
+        p.add_argument("--camera-noise", type=nonneg_float, default=0.2, metavar="WEBOTS",
                        help="Webots camera noise: std as a fraction of 255 (default 0.2)")
-        p.add_argument("--camera-noise-std", type=float, default=None, metavar="LEVELS",
+        p.add_argument("--camera-noise-std", type=nonneg_float, default=None, metavar="LEVELS",
                        help="camera noise std in 0-255 levels (overrides --camera-noise)")
     return p
 

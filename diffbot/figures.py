@@ -20,27 +20,25 @@ written, 1 a job or a figure failed (the others are still written), 2 bad argume
 from __future__ import annotations
 
 import argparse
-import html
-import json
 import math
 import os
-import re
 import shutil
 import signal
-import subprocess
 import sys
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
+
+from bus.cliargs import ArgumentParser, nonneg_int, positive_float, positive_int
+
+from . import procs
+from .jobs import Job, Progress, read_json, run_jobs, stop_jobs
+from .report import build_report, write_outputs
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
-STOP_GRACE_S = 20.0            # a job's own shutdown (a scenario analyses its run on SIGINT too)
-HEARTBEAT_S = 15.0             # a "still running" line on stderr this often
-LOG_TAIL_LINES = 15
 
 
 # ------------------------------------------------------------------ the jobs
@@ -75,126 +73,6 @@ def job_argv(spec: JobSpec, out: str, seed: int) -> list[str]:
     return [sys.executable, "-m", "diffbot.cli", *spec.args, "--out", out, "--seed", str(seed)]
 
 
-@dataclass
-class Job:
-    spec: JobSpec
-    out: str
-    log_path: str
-    argv: list[str]
-    proc: subprocess.Popen | None = None
-    log_file: object = None
-    t_start: float = 0.0
-    t_end: float = 0.0
-    exit_code: int | None = None
-    status: str = "waiting"      # waiting, running, ok, failed, timeout, interrupted, skipped
-    summary: dict = field(default_factory=dict)
-
-    @property
-    def name(self) -> str:
-        return self.spec.name
-
-    @property
-    def wall_s(self) -> float | None:
-        if not self.t_start:
-            return None
-        return (self.t_end or time.monotonic()) - self.t_start
-
-    def start(self) -> None:
-        if os.path.isdir(self.out):
-            shutil.rmtree(self.out)              # no stale outputs from an earlier run
-        os.makedirs(self.out)
-        self.log_file = open(self.log_path, "wb")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=self.log_file,
-                                     stderr=subprocess.STDOUT, env=env, start_new_session=True)
-        self.t_start = time.monotonic()
-        self.status = "running"
-
-    def poll(self) -> int | None:
-        if self.proc is None or self.exit_code is not None:
-            return self.exit_code
-        code = self.proc.poll()
-        if code is not None:
-            self.finish(code)
-        return code
-
-    def finish(self, code: int) -> None:
-        self.exit_code = code
-        self.t_end = time.monotonic()
-        if self.log_file is not None:
-            self.log_file.close()
-            self.log_file = None
-        if self.status == "running":
-            self.status = "ok" if code == 0 else "failed"
-        self.summary = _read_json(os.path.join(self.out, "summary.json"))
-
-    def tail(self, n: int = LOG_TAIL_LINES) -> str:
-        try:
-            with open(self.log_path, "rb") as f:
-                return b"".join(deque(f, maxlen=n)).decode("utf-8", "replace").rstrip()
-        except OSError:
-            return ""
-
-
-def _descendants(pid: int) -> list[int]:
-    """PIDs of every process below ``pid`` (from /proc), deepest last."""
-    children: dict[int, list[int]] = {}
-    for d in os.listdir("/proc"):
-        if not d.isdigit():
-            continue
-        try:
-            with open(f"/proc/{d}/stat") as f:
-                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        children.setdefault(ppid, []).append(int(d))
-    out, todo = [], [pid]
-    while todo:
-        for c in children.get(todo.pop(), []):
-            out.append(c)
-            todo.append(c)
-    return out
-
-
-def _kill(pid: int, sig: int) -> None:
-    try:
-        os.kill(pid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-def stop_jobs(jobs: list[Job], grace_s: float = STOP_GRACE_S, why: str = "interrupted") -> None:
-    """SIGINT each running job (it stops its own children), wait, then SIGKILL by PID
-    every process still left in each job's tree."""
-    running = [j for j in jobs if j.proc is not None and j.poll() is None]
-    trees = {j.name: _descendants(j.proc.pid) for j in running}
-    for j in running:
-        j.status = why
-        _kill(j.proc.pid, signal.SIGINT)
-    deadline = time.monotonic() + grace_s
-    while time.monotonic() < deadline and any(j.poll() is None for j in running):
-        time.sleep(0.05)
-    for j in running:
-        left = [p for p in trees[j.name] + _descendants(j.proc.pid) if _alive(p)]
-        if j.poll() is None:
-            _kill(j.proc.pid, signal.SIGKILL)
-        for p in left:
-            _kill(p, signal.SIGKILL)
-        if j.exit_code is None:
-            try:
-                j.finish(j.proc.wait(5.0))
-            except subprocess.TimeoutExpired:
-                j.finish(-9)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return False
-
-
 # ------------------------------------------------------------------ the figures
 @dataclass
 class Made:
@@ -227,7 +105,7 @@ class Context:
         return self.jobs[job].out
 
     def summary(self, job: str) -> dict:
-        s = self.jobs[job].summary or _read_json(os.path.join(self.run_dir(job), "summary.json"))
+        s = self.jobs[job].summary or read_json(os.path.join(self.run_dir(job), "summary.json"))
         if not s:
             raise FigureError(f"{job}: no summary.json in {self.run_dir(job)}")
         return s
@@ -603,70 +481,9 @@ def parse_only(text: str | None) -> list[int]:
 
 
 # ------------------------------------------------------------------ running everything
-class Progress:
-    def __init__(self) -> None:
-        self.t0 = time.monotonic()
-
-    def __call__(self, msg: str) -> None:
-        print(f"figures [{time.monotonic() - self.t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
-
-
-def run_jobs(jobs: list[Job], parallel: int, timeout_s: float, stop_flag: list,
-             say: Progress, on_done: Callable[[Job], None]) -> None:
-    waiting = sorted(jobs, key=lambda j: -j.spec.est_s)       # longest first
-    running: list[Job] = []
-    done = 0
-    last_beat = time.monotonic()
-    while waiting or running:
-        if stop_flag:
-            say(f"{stop_flag[0]}: stopping {', '.join(j.name for j in running) or 'nothing'}")
-            stop_jobs(running)
-            for j in waiting:
-                j.status = "skipped"
-            for j in running:
-                say(f"stopped {j.name} (exit code {j.exit_code})")
-            return
-        while waiting and len(running) < parallel:
-            j = waiting.pop(0)
-            try:
-                j.start()
-            except OSError as exc:
-                j.status, j.exit_code = "failed", -1
-                say(f"FAILED to start {j.name}: {exc}")
-                on_done(j)
-                continue
-            running.append(j)
-            say(f"start {j.name}: {j.spec.what} (pid {j.proc.pid}, log {j.log_path})")
-        for j in list(running):
-            if j.poll() is None and j.wall_s > timeout_s:
-                say(f"{j.name} exceeded --timeout {timeout_s:g} s; stopping it")
-                stop_jobs([j], why="timeout")
-            if j.exit_code is None:
-                continue
-            running.remove(j)
-            done += 1
-            if j.status == "ok":
-                say(f"done  {j.name} in {j.wall_s:.1f} s ({done}/{len(jobs)})")
-            else:
-                say(f"FAILED {j.name} ({j.status}, exit code {j.exit_code}) after "
-                    f"{j.wall_s:.1f} s ({done}/{len(jobs)}); last lines of {j.log_path}:\n"
-                    + _indent(j.tail()))
-            on_done(j)
-        now = time.monotonic()
-        if running and now - last_beat >= HEARTBEAT_S:
-            last_beat = now
-            say("running: " + ", ".join(f"{j.name} {j.wall_s:.0f} s" for j in running)
-                + (f"; waiting: {', '.join(j.name for j in waiting)}" if waiting else ""))
-        time.sleep(0.05)
-
-
-def _indent(text: str) -> str:
-    return "\n".join("    " + line for line in text.splitlines()) or "    (empty log)"
-
-
 def build_parser() -> argparse.ArgumentParser:
     lines = [f"  {n:2d} {f.file:30s} {', '.join(f.jobs)}" for n, f in FIGURES.items()]
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="diffbot figures", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Run the experiments and scenarios behind the study's twelve figures and "
                     "write the figures, index.html, REPORT.md and figures.json into --out.",
@@ -675,10 +492,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output directory (default out/figures); runs go to OUT/runs/")
     p.add_argument("--only", default=None, metavar="LIST",
                    help="only these figures, e.g. 4,12 or 1-3 (and only the jobs they need)")
-    p.add_argument("--jobs", type=int, default=2, metavar="N",
+    p.add_argument("--jobs", type=positive_int, default=2, metavar="N",
                    help="jobs run at the same time (default 2)")
-    p.add_argument("--seed", type=int, default=0, help="seed for every run (default 0)")
-    p.add_argument("--timeout", type=float, default=480.0, metavar="S",
+    p.add_argument("--seed", type=nonneg_int, default=0, help="seed for every run (default 0)")
+    p.add_argument("--timeout", type=positive_float, default=480.0, metavar="S",
                    help="wall-clock limit per job (default 480 s)")
     return p
 
@@ -687,12 +504,6 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         numbers = parse_only(args.only)
-        if args.jobs < 1:
-            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
-        if args.seed < 0:
-            raise ValueError(f"--seed must be >= 0, got {args.seed}")
-        if not (args.timeout > 0 and math.isfinite(args.timeout)):
-            raise ValueError(f"--timeout must be > 0, got {args.timeout}")
     except ValueError as exc:
         print(f"diffbot figures: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -732,10 +543,7 @@ def main(argv: list[str] | None = None) -> int:
     def on_signal(signum, frame):
         if stop_flag:                               # a second Ctrl-C: no more grace
             for j in jobs.values():
-                if j.proc is not None and j.poll() is None:
-                    for p in _descendants(j.proc.pid):
-                        _kill(p, signal.SIGKILL)
-                    _kill(j.proc.pid, signal.SIGKILL)
+                procs.kill_tree(j)
         stop_flag.append(signal.Signals(signum).name)
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     t0 = time.monotonic()
@@ -749,7 +557,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in numbers:
         results.setdefault(n, {"status": "not made", "error": "interrupted before its jobs finished"
                                if stop_flag else "its jobs did not run"})
-    report = build_report(ctx, numbers, results, args, wall, bool(stop_flag))
+    report = build_report(FIGURES, ctx, numbers, results, args, wall, bool(stop_flag))
     write_outputs(out, report)
     made = [n for n in numbers if results[n]["status"] == "ok"]
     failed_jobs = [j for j in jobs.values() if j.status not in ("ok",)]
@@ -786,268 +594,4 @@ def _ranges(nums: list[int]) -> str:
     return ",".join(out)
 
 
-# ------------------------------------------------------------------ the report
-def _mm(v) -> str:
-    return "[" + ", ".join(f"{1000 * x:.2f}" for x in v) + "] mm" if v else "—"
-
-
-#: the numbers worth a glance: (figure, quantity, what the study says, text from its numbers)
-HEADLINES: tuple[tuple[int, str, str, Callable[[dict], str]], ...] = (
-    (2, "linear velocity, both wheels 1 rad/s", "0.12 m/s",
-     lambda n: f"{n['steady_linear_velocity_mps']:.4f} m/s"),
-    (3, "angular velocity, wheels +1 / -1 rad/s (CCW positive)", "\"0.66 m/s\" (0.667 rad/s, CW)",
-     lambda n: f"{n['steady_angular_velocity_radps']:.4f} rad/s"),
-    (4, "end-point spread (std along, across the path)", "scatter plot",
-     lambda n: _mm(n.get("endpoint_std_m"))),
-    (7, "odometry vs GPS at the end of the square, no noise", "small discrepancies",
-     lambda n: f"{1000 * n['final_odom_error_m']:.1f} mm after {n['path_length_m']:.2f} m"),
-    (9, "lidar range error std, noise 0.2 (16 m)", "—",
-     lambda n: f"{n['measured_residual_std_m']:.2f} m (expected with clipping "
-               f"{n['expected_residual_std_with_clipping_m']:.2f} m)"),
-    (10, "odometry vs GPS, encoder noise 0.2 rad (max / end)", "significant difference",
-     lambda n: f"{100 * n['max_odom_error_m']:.1f} cm / {100 * n['final_odom_error_m']:.1f} cm"),
-    (11, "camera pixel error std, noise 0.2 (51 levels)", "—",
-     lambda n: f"{n['measured_residual_std_levels']:.1f} levels (expected with clipping "
-               f"{n['expected_residual_std_with_clipping_levels']:.1f})"),
-    (12, "tracking distance after settling (min-max, RMS error)", "0.6-0.7 m",
-     lambda n: f"{n['distance_min_m']:.3f}-{n['distance_max_m']:.3f} m, RMS "
-               f"{100 * n['distance_rms_error_m']:.1f} cm from 0.65 m"),
-)
-
-
-def headlines(figs: list[dict]) -> list[dict]:
-    by_n = {f["number"]: f for f in figs if f["status"] == "ok"}
-    out = []
-    for n, what, study, text in HEADLINES:
-        if n in by_n:
-            try:
-                measured = text(by_n[n]["numbers"])
-            except (KeyError, TypeError, ValueError):
-                measured = "—"
-            out.append({"figure": n, "quantity": what, "study": study, "measured": measured})
-    return out
-
-
-def build_report(ctx: Context, numbers: list[int], results: dict, args, wall: float,
-                 interrupted: bool) -> dict:
-    figs = []
-    for n in numbers:
-        f, r = FIGURES[n], results[n]
-        figs.append({"number": n, "file": f.file, "study_caption": f.study_caption,
-                     "jobs": list(f.jobs), **r})
-    runs = {}
-    for name, j in ctx.jobs.items():
-        s = j.summary
-        rtf = s.get("real_time_factor", s.get("run", {}).get("real_time_factor")) if s else None
-        runs[name] = {"command": ["diffbot", *j.spec.args, "--out", j.out, "--seed",
-                                  str(args.seed)] if not j.spec.module
-                      else ["python", "-m", j.spec.module, "--out", j.out],
-                      "what": j.spec.what, "status": j.status, "exit_code": j.exit_code,
-                      "wall_time_s": j.wall_s, "real_time_factor": rtf,
-                      "sim_time_s": s.get("sim_time_s", s.get("run", {}).get("sim_time_s"))
-                      if s else None,
-                      "out": os.path.relpath(j.out, ctx.out),
-                      "log": os.path.relpath(j.log_path, ctx.out)}
-        if j.status not in ("ok", "waiting"):
-            runs[name]["log_tail"] = j.tail()
-    return {"generated": time.strftime("%Y-%m-%d %H:%M:%S %z"), "seed": args.seed,
-            "parallel_jobs": args.jobs, "cpus": os.cpu_count(),
-            "only": args.only, "wall_time_s": wall, "interrupted": interrupted,
-            "conventions": "SI units; frames x forward, y left, z up; yaw and angular velocity "
-                           "counter-clockwise positive. The study's \"1 m/s\" wheel command is "
-                           "1 rad/s, its \"0.66 m/s\" is an angular velocity (0.667 rad/s) and "
-                           "its w = (v_left - v_right)/d counts clockwise positive.",
-            "headlines": headlines(figs), "figures": figs, "runs": runs}
-
-
-def _clean(x):
-    """JSON-safe: NaN/inf -> None, tuples -> lists."""
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if hasattr(x, "item"):                       # numpy scalars
-        return _clean(x.item())
-    return x
-
-
-def fmt(v) -> str:
-    if v is None:
-        return "—"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            return "—"
-        if v == 0:
-            return "0"
-        a = abs(v)
-        return f"{v:.5g}" if 1e-3 <= a < 1e5 else f"{v:.3e}"
-    if isinstance(v, (list, tuple)):
-        if v and all(isinstance(e, dict) for e in v):
-            return "; ".join(", ".join(f"{k} {fmt(x)}" for k, x in e.items()) for e in v)
-        return "[" + ", ".join(fmt(e) for e in v) + "]"
-    return str(v)
-
-
-def write_outputs(out: str, report: dict) -> None:
-    report = _clean(report)
-    from bus.node import write_json
-    write_json(os.path.join(out, "figures.json"), report)
-    _write_atomic(os.path.join(out, "REPORT.md"), render_markdown(report))
-    _write_atomic(os.path.join(out, "index.html"), render_html(report))
-
-
-def _write_atomic(path: str, text: str) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
-def _runs_rows(report: dict) -> list[list[str]]:
-    rows = []
-    for name, r in report["runs"].items():
-        cmd = r["command"]
-        if "--out" in cmd:                       # the output and the seed have their columns
-            cmd = cmd[:cmd.index("--out")]
-        rows.append([name, r["status"], fmt(r["exit_code"]), fmt(r["wall_time_s"]),
-                     fmt(r["real_time_factor"]), fmt(r["sim_time_s"]), " ".join(cmd), r["out"]])
-    return rows
-
-
-RUN_HEAD = ["job", "status", "exit", "wall time [s]", "real-time factor", "sim time [s]",
-            "command", "output"]
-
-
-def _intro(report: dict) -> str:
-    made = sum(1 for f in report["figures"] if f["status"] == "ok")
-    return (f"{made} of {len(report['figures'])} figure(s) written by `diffbot figures` on "
-            f"{report['generated']}: seed {report['seed']}, {report['parallel_jobs']} job(s) at "
-            f"a time on {report['cpus']} CPU(s), total wall time "
-            f"{report['wall_time_s']:.1f} s" + (" (INTERRUPTED)" if report["interrupted"] else "")
-            + "." + (" Real-time factors and job wall times were measured with the jobs "
-                     "sharing the CPUs; `--jobs 1` gives each run the machine alone."
-                     if report["parallel_jobs"] > 1 and len(report["runs"]) > 1 else ""))
-
-
-def render_markdown(report: dict) -> str:
-    L = ["# The study's figures, reproduced", "", _intro(report), "",
-         f"Conventions: {report['conventions']}", "",
-         "Each figure comes from the run named under it (`runs/<job>/`, its log in "
-         "`runs/<job>.log`; `summary.json` there has every number).", ""]
-    if report["headlines"]:
-        L += ["| figure | quantity | the study | this run |", "|---|---|---|---|"]
-        L += [f"| {h['figure']} | {_md(h['quantity'])} | {_md(h['study'])} | {_md(h['measured'])} |"
-              for h in report["headlines"]]
-        L.append("")
-    for f in report["figures"]:
-        L.append(f"## Figure {f['number']}: {f['study_caption']}")
-        L.append("")
-        if f["status"] != "ok":
-            L += [f"**Not made**: {f.get('error', '')}", ""]
-            tail = "\n".join(report["runs"][j].get("log_tail", "") for j in f["jobs"]).strip()
-            if tail:
-                L += ["```", tail, "```", ""]
-            continue
-        L += [f"![Figure {f['number']}]({f['file']})", ""]
-        L += [f"*Figure {f['number']}: {f['study_caption']}* {f['caption']}", ""]
-        for extra in f.get("extra_files", []):
-            L += [f"Animation: [{extra}]({extra})", "", f"![{extra}]({extra})", ""]
-        L += [f"Run: {', '.join('`' + j + '`' for j in f['jobs'])}", ""]
-        if f["parameters"]:
-            L += ["| parameter | value |", "|---|---|"]
-            L += [f"| `{k}` | {_md(fmt(v))} |" for k, v in f["parameters"].items()]
-            L.append("")
-        if f["numbers"]:
-            L += ["| measured | value |", "|---|---|"]
-            L += [f"| `{k}` | {_md(fmt(v))} |" for k, v in f["numbers"].items()]
-            L.append("")
-    L += ["## Runs", "", "| " + " | ".join(RUN_HEAD) + " |", "|" + "---|" * len(RUN_HEAD)]
-    L += ["| " + " | ".join(_md(c) for c in row) + " |" for row in _runs_rows(report)]
-    L.append("")
-    return "\n".join(L)
-
-
-def _md(s: str) -> str:
-    return s.replace("|", "\\|").replace("\n", " ")
-
-
-CSS = """
-body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em;
-       color: #222; line-height: 1.45; }
-figure { margin: 2.5em 0; padding-bottom: 1.5em; border-bottom: 1px solid #ddd; }
-figure img { max-width: 100%; border: 1px solid #ccc; }
-figcaption { margin: .6em 0; }
-table { border-collapse: collapse; margin: .5em 1.5em .5em 0; font-size: 90%;
-        display: inline-table; vertical-align: top; }
-td, th { border: 1px solid #ccc; padding: 2px 8px; text-align: left; }
-th { background: #f3f3f3; }
-code { font-size: 92%; }
-.failed { color: #b00; font-weight: bold; }
-pre { background: #f6f6f6; padding: .6em; overflow-x: auto; font-size: 85%; }
-"""
-
-
-def render_html(report: dict) -> str:
-    e = html.escape
-    intro = re.sub(r"`([^`]+)`", r"<code>\1</code>", e(_intro(report)))
-    H = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-         "<title>diffbot-cosim: the study's figures</title>", f"<style>{CSS}</style></head><body>",
-         "<h1>The study's figures, reproduced</h1>", f"<p>{intro}</p>",
-         f"<p>Conventions: {e(report['conventions'])}</p>",
-         "<p>Each figure comes from the run named under it (<code>runs/&lt;job&gt;/</code>, "
-         "its log in <code>runs/&lt;job&gt;.log</code>; <code>summary.json</code> there has "
-         "every number).</p>"]
-    if report["headlines"]:
-        H.append("<table><tr><th>figure</th><th>quantity</th><th>the study</th><th>this run</th>"
-                 "</tr>" + "".join(f'<tr><td><a href="#fig{h["figure"]}">{h["figure"]}</a></td>'
-                                   f"<td>{e(h['quantity'])}</td><td>{e(h['study'])}</td>"
-                                   f"<td>{e(h['measured'])}</td></tr>"
-                                   for h in report["headlines"]) + "</table>")
-    H.append("<ul>" + "".join(f'<li><a href="#fig{f["number"]}">Figure {f["number"]}: '
-                               f'{e(f["study_caption"])}</a>'
-                               + ("" if f["status"] == "ok" else ' <span class="failed">(not made)'
-                                  '</span>') + "</li>" for f in report["figures"]) + "</ul>")
-    for f in report["figures"]:
-        n = f["number"]
-        H.append(f'<figure id="fig{n}">')
-        if f["status"] != "ok":
-            H.append(f"<h2>Figure {n}: {e(f['study_caption'])}</h2>")
-            H.append(f'<p class="failed">Not made: {e(f.get("error", ""))}</p>')
-            tail = "\n".join(report["runs"][j].get("log_tail", "") for j in f["jobs"]).strip()
-            if tail:
-                H.append(f"<pre>{e(tail)}</pre>")
-            H.append("</figure>")
-            continue
-        H.append(f'<a href="{e(f["file"])}"><img src="{e(f["file"])}" '
-                 f'alt="Figure {n}: {e(f["study_caption"])}"></a>')
-        H.append(f"<figcaption><b>Figure {n}: {e(f['study_caption'])}</b> "
-                 f"{e(f['caption'])}</figcaption>")
-        for extra in f.get("extra_files", []):
-            H.append(f'<p>Animation (<a href="{e(extra)}">{e(extra)}</a>):<br>'
-                     f'<img src="{e(extra)}" alt="{e(extra)}"></p>')
-        H.append(f"<p>Run: {', '.join('<code>' + e(j) + '</code>' for j in f['jobs'])}</p>")
-        for title, d in (("parameter", f["parameters"]), ("measured", f["numbers"])):
-            if d:
-                H.append(f"<table><tr><th>{title}</th><th>value</th></tr>"
-                         + "".join(f"<tr><td><code>{e(k)}</code></td><td>{e(fmt(v))}</td></tr>"
-                                   for k, v in d.items()) + "</table>")
-        H.append("</figure>")
-    H.append("<h2>Runs</h2><table><tr>" + "".join(f"<th>{e(h)}</th>" for h in RUN_HEAD) + "</tr>")
-    for row in _runs_rows(report):
-        H.append("<tr>" + "".join(f"<td>{e(c)}</td>" for c in row[:-1])
-                 + f'<td><a href="{e(row[-1])}/">{e(row[-1])}</a></td></tr>')
-    H.append("</table></body></html>")
-    return "\n".join(H) + "\n"
-
-
-def _read_json(path: str) -> dict:
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return {}
 

@@ -17,20 +17,22 @@ import json
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import tempfile
 import time
-from collections import deque
 from dataclasses import dataclass, field
 
 import zenoh
 
+from bus.cliargs import ArgumentParser, nonneg_int, positive_float
 from bus.keys import Keys
 from bus.node import EXIT_PLANT_GONE, write_json
+from bus.protocol import COUPLINGS
 from bus.session import BusConfigError, open_session
 from plant.world import WorldError, load_world
 
+from . import procs
+from .procs import diffbot_argv
 from .scenario import ScenarioSpec, load_scenario
 
 STOP_GRACE_S = 1.5
@@ -46,75 +48,14 @@ VIEW = "view"               # the --view process (bridges/view.py): optional, ne
 RECORDER_GRACE_S = 10.0
 
 
-@dataclass
-class Child:
-    name: str
-    argv: list[str]
-    required: bool = True
-    ends_run: bool = False
-    interactive: bool = False
-    log_path: str = ""
-    proc: subprocess.Popen | None = None
-    exit_code: int | None = None
-    started: float = 0.0
-    log_file: object = None
+class Child(procs.Child):
+    """A scenario's process: a :class:`procs.Child` and what its death means for the run."""
 
-    def start(self, env: dict) -> None:
-        self.log_file = open(self.log_path, "wb")
-        kw = dict(env=env, stderr=self.log_file)
-        if self.interactive:
-            self.proc = subprocess.Popen(self.argv, **kw)
-        else:
-            self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=self.log_file,
-                                         start_new_session=True, **kw)
-        self.started = time.monotonic()
-
-    def poll(self) -> int | None:
-        if self.proc is not None and self.exit_code is None:
-            self.exit_code = self.proc.poll()
-        return self.exit_code
-
-    def signal(self, sig: int) -> None:
-        if self.proc is not None and self.poll() is None:
-            try:
-                self.proc.send_signal(sig)
-            except ProcessLookupError:
-                pass
-
-    def tail(self, n: int = 12) -> str:
-        try:
-            with open(self.log_path, "rb") as f:
-                lines = deque(f, maxlen=n)
-            return b"".join(lines).decode("utf-8", "replace").rstrip()
-        except OSError:
-            return ""
-
-    def close(self) -> None:
-        if self.log_file is not None:
-            self.log_file.close()
-
-    def stopped(self) -> bool:
-        """The process is stopped (SIGSTOP, a debugger): state T or t in /proc."""
-        if self.proc is None or self.poll() is not None:
-            return False
-        try:
-            with open(f"/proc/{self.proc.pid}/stat") as f:
-                return f.read().rsplit(")", 1)[1].split()[0] in ("T", "t")
-        except (OSError, IndexError):
-            return False
-
-    def describe_exit(self) -> str:
-        code = self.exit_code
-        if code is not None and code < 0:
-            try:
-                return f"was killed by {signal.Signals(-code).name} (exit code {code})"
-            except ValueError:
-                pass
-        return f"failed with exit code {code}"
-
-
-def diffbot_argv(*args: str) -> list[str]:
-    return [sys.executable, "-m", "diffbot.cli", *args]
+    def __init__(self, name: str, argv: list[str], required: bool = True,
+                 ends_run: bool = False, interactive: bool = False, log_path: str = "") -> None:
+        super().__init__(name, argv, log_path, interactive=interactive)
+        self.required = required
+        self.ends_run = ends_run
 
 
 @dataclass
@@ -128,6 +69,7 @@ class Run:
     zenoh_config: str | None = None
     duration_s: float | None = None
     timeout_s: float = 900.0
+    coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
     view_port: int | None = None    # --view [--view-port P]: serve the run to Foxglove
@@ -152,7 +94,7 @@ class Run:
         os.makedirs(logs, exist_ok=True)
         expect = [p.name for p in self.spec.processes if p.sync] + self._recorder_expect()
         plant = diffbot_argv("plant", "--world", self.spec.world, "--mode", self.mode,
-                             "--seed", str(self.seed), "--stats",
+                             "--coupling", self.coupling, "--seed", str(self.seed), "--stats",
                              os.path.join(logs, "plant.json"), *self.spec.plant_args,
                              *self.bus_args())
         if expect:
@@ -179,28 +121,16 @@ class Run:
 
     def stop_all(self) -> None:
         """SIGINT the nodes, then the plant (so nodes do not see it vanish), then SIGKILL
-        by PID whatever is left after the grace period."""
+        by PID whatever is left after the grace period, the recorder last."""
         plant = self.children[0]
         nodes = [c for c in self.children[1:] if c is not self.recorder]
         for c in nodes:
             c.signal(signal.SIGINT)
-        deadline = time.monotonic() + STOP_GRACE_S / 2
-        while time.monotonic() < deadline and any(c.poll() is None for c in nodes):
-            time.sleep(0.02)
+        procs.wait_all(nodes, STOP_GRACE_S / 2)
         plant.signal(signal.SIGINT)
-        deadline = time.monotonic() + STOP_GRACE_S / 2
-        while time.monotonic() < deadline and any(c.poll() is None for c in [plant, *nodes]):
-            time.sleep(0.02)
+        procs.wait_all([plant, *nodes], STOP_GRACE_S / 2)
         self._stop_recorder()
-        for c in self.children:
-            if c.poll() is None:
-                c.signal(signal.SIGKILL)
-                try:
-                    c.proc.wait(1.0)
-                except subprocess.TimeoutExpired:
-                    pass
-                c.poll()
-            c.close()
+        procs.stop(self.children, 0.0, signal.SIGKILL)
 
     def on_alive(self, sample) -> None:
         """Liveliness callback: a process's ``sim/alive/<name>`` token came or went."""
@@ -303,28 +233,28 @@ class Run:
         return False
 
     def _stop_recorder(self) -> None:
-        rec = self.recorder
-        if rec is not None and rec.poll() is None:
-            rec.signal(signal.SIGINT)
-            deadline = time.monotonic() + RECORDER_GRACE_S
-            while time.monotonic() < deadline and rec.poll() is None:
-                time.sleep(0.02)
+        if self.recorder is not None:
+            self.recorder.signal(signal.SIGINT)
+            procs.wait_all([self.recorder], RECORDER_GRACE_S)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="diffbot run", description="Run a scenario.")
+    p = ArgumentParser(prog="diffbot run", description="Run a scenario.")
     p.add_argument("scenario", help="scenario name (see `diffbot scenarios`) or TOML file")
     p.add_argument("--mode", choices=("lockstep", "realtime", "fast"), default=None,
                    help="override the scenario's mode")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--coupling", choices=COUPLINGS, default=None,
+                   help="lockstep coupling: sequential (exact) or pipelined (plant and nodes in "
+                        "parallel, one tick of actuation delay); default: the scenario's")
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S simulated seconds")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=nonneg_int, default=0)
     p.add_argument("--out", default=None, help="output directory (default out/<scenario>)")
     p.add_argument("--endpoint", default=None,
                    help="Zenoh endpoint (default: a unix socket private to this run)")
     p.add_argument("--namespace", default="")
     p.add_argument("--zenoh-config", default=None, metavar="FILE")
-    p.add_argument("--timeout", type=float, default=900.0, metavar="S",
+    p.add_argument("--timeout", type=positive_float, default=900.0, metavar="S",
                    help="wall-clock limit for the whole run (default 900)")
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every message into this MCAP file (Foxglove opens it; a path "
@@ -358,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
-              args.timeout, args.record)
+              args.timeout, coupling=args.coupling or spec.coupling, record=args.record)
     if args.view:
         if not 0 <= args.view_port <= 65535:
             print(f"diffbot run: --view-port must be in 0..65535, got {args.view_port}",
@@ -440,6 +370,9 @@ def summarize(run: Run, wall: float, code: int) -> dict:
             counts[key] = counts.get(key, 0) + n
     return {
         "scenario": run.spec.name, "world": run.spec.world, "mode": run.mode, "seed": run.seed,
+        "coupling": plant.get("coupling", run.coupling),
+        "actuation_delay_ticks": plant.get("actuation_delay_ticks"),
+        "node_input_delay_ticks": plant.get("node_input_delay_ticks"),
         "sim_time_s": plant.get("sim_time_s"), "wall_time_s": wall,
         "plant_wall_time_s": plant.get("wall_time_s"),
         "real_time_factor": plant.get("real_time_factor"),

@@ -12,7 +12,6 @@ endpoints of a config file. Stops on Ctrl-C / SIGTERM; exit 2 on a bad endpoint 
 """
 from __future__ import annotations
 
-import argparse
 import json
 import signal
 import sys
@@ -20,6 +19,7 @@ import threading
 
 import zenoh
 
+from bus.cliargs import ArgumentParser
 from bus.log import setup_logging
 from bus.session import DEFAULT_LEASE_MS, BusConfigError, make_config
 
@@ -48,7 +48,7 @@ def router_config(listen: list[str] | None, config_file: str | None) -> zenoh.Co
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="diffbot router", description=__doc__.split("\n\n")[0])
+    p = ArgumentParser(prog="diffbot router", description=__doc__.split("\n\n")[0])
     p.add_argument("--listen", action="append", metavar="ENDPOINT",
                    help=f"endpoint to listen on, repeatable (default {DEFAULT_LISTEN}; "
                         "e.g. tcp/192.168.1.10:7447, tls/host:7447)")

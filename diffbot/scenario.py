@@ -5,6 +5,7 @@ A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
     [scenario]
     world = "living_room"      # world name or path
     mode = "lockstep"          # lockstep | realtime | fast
+    coupling = "sequential"    # lockstep: sequential | pipelined (docs/PROTOCOL.md)
     duration_s = 300.0        # upper bound in simulated time (optional)
     analysis = "square"        # what to plot and summarise afterwards
     robot = "robot1"           # the robot the analysis looks at
@@ -25,7 +26,9 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
+from bus.cliargs import did_you_mean
 from bus.keys import check_name
+from bus.protocol import COUPLINGS
 from plant.world import WorldError, _Table, tomllib
 
 SCENARIOS_DIR = os.path.join(os.path.dirname(__file__), "scenarios")
@@ -49,6 +52,7 @@ class ScenarioSpec:
     description: str = ""
     world: str = "living_room"
     mode: str = "lockstep"
+    coupling: str = "sequential"
     duration_s: float | None = None
     analysis: str = "none"
     robot: str = "robot1"
@@ -62,8 +66,9 @@ def scenario_path(name_or_path: str) -> str:
     p = os.path.join(SCENARIOS_DIR, f"{name_or_path}.toml")
     if os.path.isfile(p):
         return p
-    known = ", ".join(n for n, _ in list_scenarios())
-    raise WorldError(f"{name_or_path}: no such scenario (shipped: {known})")
+    known = [n for n, _ in list_scenarios()]
+    raise WorldError(f"{name_or_path}: no such scenario{did_you_mean(name_or_path, known)} "
+                     f"(shipped: {', '.join(known)})")
 
 
 def load_scenario(name_or_path: str) -> ScenarioSpec:
@@ -81,6 +86,7 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
     spec.description = s.string("description", "")
     spec.world = s.string("world", "living_room")
     spec.mode = s.string("mode", "lockstep", choices=("lockstep", "realtime", "fast"))
+    spec.coupling = s.string("coupling", "sequential", choices=COUPLINGS)
     spec.duration_s = s.number("duration_s", -1.0)
     if spec.duration_s == -1.0:
         spec.duration_s = None

@@ -21,17 +21,18 @@ import math
 import signal
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 import zenoh
 
-from bus import codec
+from bus import codec, jsonio
+from bus.cliargs import ArgumentParser, nonneg_int, positive_float
 from bus.inbox import Inbox
 from bus.keys import Keys
 from bus.log import RejectCounter, setup_logging
-from bus.node import decode_ack, write_json
+from bus.node import write_json
+from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION, delays
 from bus.session import BusConfigError, add_bus_args, open_session
 
 from .raycast import Scene
@@ -43,8 +44,10 @@ MODES = ("lockstep", "realtime", "fast")
 
 #: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
 ABSURD_FACTOR = 10.0
-#: Acks and command stamps remembered per member / command key.
+#: Acks per member, commands per robot and message counts remembered (ticks).
 _RECENT = 32
+#: lockstep: waiting this long (wall s) on a tick makes the plant say who it waits for
+WAIT_REPORT_S = 2.0
 #: realtime: falling this far behind the wall clock (s) re-anchors it instead of catching up
 STALL_S = 0.25
 
@@ -54,7 +57,7 @@ class Command:
     kind: str          # "twist" or "wheels"
     a: float
     b: float
-    t_ns: int          # sim time when received
+    t_ns: int          # the tick it was computed for (its stamp; sim time when received if 0)
     wall: float        # monotonic wall time when received
 
 
@@ -64,7 +67,7 @@ class Plant:
     def __init__(self, spec: WorldSpec, session: zenoh.Session, keys: Keys, mode: str, log,
                  rate: float = 1.0, expect: tuple[str, ...] = (), duration_s: float | None = None,
                  join_timeout_s: float = 30.0, disabled: tuple[str, ...] = (),
-                 end_with: tuple[str, ...] = ()) -> None:
+                 end_with: tuple[str, ...] = (), coupling: str = "sequential") -> None:
         self.spec = spec
         self.session = session
         self.keys = keys
@@ -76,6 +79,10 @@ class Plant:
         self.duration_ns = None if duration_s is None else int(round(duration_s * 1e9))
         self.join_timeout_s = join_timeout_s
         self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.coupling = coupling
+        # Lockstep only: the coupling's delays, in ticks (docs/PROTOCOL.md).
+        self.delays = delays(coupling) if mode == "lockstep" else delays("sequential")
+        self.delay_ns = self.delays["actuation_delay_ticks"] * self.tick_ns
         self.disabled = set(disabled)
         self.seed = spec.seed
         self.build()
@@ -83,11 +90,16 @@ class Plant:
         self.stop_event = threading.Event()
         self.members: set[str] = set()
         self.members_seen: set[str] = set()
-        # member -> {tick stamp: (keys published for it, final)}, the last few ticks: a stray,
+        # member -> {tick stamp: (n_plant, final)} from its ACKs, the last few ticks: a stray,
         # late or forged ack never hides the one the plant waits for
-        self.acks: dict[str, dict[int, tuple[list[str], bool]]] = {}
-        # command key -> tick stamps (from the attachment) of its last few samples
-        self.cmd_ticks: dict[str, deque[int]] = {}
+        self.acks: dict[str, dict[int, tuple[int, bool]]] = {}
+        # (member, tick stamp) -> messages of it on the keys the plant reads, for that tick
+        self.member_msgs: dict[tuple[str, int], int] = {}
+        # robot -> {tick stamp: Command} (lockstep: the command computed for each tick)
+        self.cmd_by_tick: dict[str, dict[int, Command]] = {}
+        # lockstep protocol problems (no or bad attachment, a tick not due, missing outputs),
+        # counted per kind and said at most every 2 s
+        self.protocol = RejectCounter(log, verb="lockstep protocol:")
         self.stalls = 0                          # realtime: times the wall clock was re-anchored
         self._pace0 = 0.0                        # realtime: wall time of sim time 0
         self.reset_in_tick = False               # a sim/reset came during the current tick
@@ -105,13 +117,15 @@ class Plant:
         self.congestion = (zenoh.CongestionControl.BLOCK if mode == "lockstep"
                            else zenoh.CongestionControl.DROP)
         self.inbox = Inbox(session)
-        self._robot_of_cmd: dict[str, tuple[str, str]] = {}
+        self._robot_of_key: dict[str, tuple[str, str]] = {}
         for name in self.sim.robots:
-            for topic in ("cmd_vel", "wheel_cmd"):
+            for topic in PLANT_READS:
+                if topic == "odom" and mode != "lockstep":
+                    continue                     # read only for lockstep members' ACKs
                 key = keys.topic(name, topic)
-                self._robot_of_cmd[key] = (name, topic)
-                self.inbox.subscribe(key, "cmd")
-        self.inbox.subscribe(keys.ack(), "ack")
+                self._robot_of_key[key] = (name, topic)
+                self.inbox.subscribe(key, "out")
+        self.inbox.subscribe(keys.ack(), "out")
         self.inbox.watch_liveliness(keys.sync(), "member")
         self.inbox.watch_liveliness(keys.alive(), "alive")
         self.alive: set[str] = set()
@@ -137,12 +151,13 @@ class Plant:
         d = self.sim.describe()
         for name, sensors in self.sensors.items():
             d["robots"][name]["topics"] = dict(sensors.periods)
-        d.update(mode=self.mode, seed=self.seed, time_ns=self.sim.time_ns,
+        d.update(protocol=PROTOCOL_VERSION, mode=self.mode, coupling=self.coupling,
+                 **self.delays, seed=self.seed, time_ns=self.sim.time_ns,
                  namespace=self.keys.namespace, rate=self.rate)
         return d
 
     def _on_info(self, query: zenoh.Query) -> None:
-        query.reply(self.keys.info, json.dumps(self.info()))
+        query.reply(self.keys.info, jsonio.dumps(self.info()))
 
     def _reset(self, query: zenoh.Query) -> None:
         """Rebuild the world (``world.reset()`` only resets DART's clock), optionally with a
@@ -153,7 +168,7 @@ class Plant:
             seed, poses = self._check_reset(req)
         except (ValueError, RecursionError) as exc:   # JSONDecodeError is a ValueError
             self.rejects.reject("reset", str(exc))
-            query.reply_err(json.dumps({"error": str(exc)}))
+            query.reply_err(jsonio.dumps({"error": str(exc)}))
             return
         # Checked in full before anything changes: a bad request leaves the world as it was.
         if seed is not None:
@@ -165,7 +180,7 @@ class Plant:
         self.reset_in_tick = True
         self._pace0 = time.monotonic() - self.sim.time_ns * 1e-9 / self.rate
         self.log.info("world rebuilt (seed %d)", self.seed)
-        query.reply(self.keys.reset, json.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
+        query.reply(self.keys.reset, jsonio.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
 
     def _check_reset(self, req) -> tuple[int | None, dict[str, tuple[float, float, float]]]:
         """(seed or None, new poses) of a reset request; ValueError if any part is bad."""
@@ -230,22 +245,8 @@ class Plant:
             # from inside its step); the acks of that tick are kept, and run() does not step
             # the new world with them: it starts over at t = 0.
             self._reset(ev.query)
-        elif ev.tag == "cmd":
-            self._on_command(ev)
-        elif ev.tag == "ack":
-            node = self.keys.node_of(ev.key)
-            try:
-                t, keys, final = decode_ack(ev.payload)
-            except ValueError as exc:
-                self.rejects.reject("ack", str(exc))
-                return
-            if node not in self.members:
-                self.rejects.reject("ack", f"from {node!r}, not a lockstep member")
-                return
-            acks = self.acks.setdefault(node, {})
-            acks[t] = (keys, final)
-            if len(acks) > _RECENT:
-                del acks[next(iter(acks))]
+        elif ev.tag == "out":
+            self._on_output(ev)
         elif ev.tag == "alive":
             (self.alive.add if ev.alive else self.alive.discard)(self.keys.node_of(ev.key))
         elif ev.tag == "member":
@@ -257,14 +258,70 @@ class Plant:
             else:
                 self.members.discard(node)
                 self.acks.pop(node, None)
+                for k in [k for k in self.member_msgs if k[0] == node]:
+                    del self.member_msgs[k]
                 self.log.warning("lockstep member left: %s", node)
 
-    def _on_command(self, ev) -> None:
-        robot, topic = self._robot_of_cmd[ev.key]
+    def _on_output(self, ev) -> None:
+        """A message on a key the plant reads: a command to apply, and in lockstep a
+        member's output, counted for its tick, whose ACK tells the member is done."""
+        robot, topic = self._robot_of_key.get(ev.key, (None, "ack"))
         att = codec.parse_attachment(ev.attachment)
-        if att is not None:
-            ticks = self.cmd_ticks.setdefault(ev.key, deque(maxlen=_RECENT))
-            ticks.append(att[1])
+        if self.mode == "lockstep" and not self._member_output(ev.key, topic, att,
+                                                               ev.attachment):
+            return
+        if topic in ("cmd_vel", "wheel_cmd"):
+            self._on_command(ev, robot, topic, att)
+
+    def _member_output(self, key: str, topic: str, att, raw: bytes | None) -> bool:
+        """Lockstep bookkeeping of one message; False if it is not to be used at all."""
+        if att is None or att.node is None:
+            if topic == "odom":                  # a realtime-style odometry node: not ours
+                return False
+            why = ("no attachment" if not raw
+                   else "a malformed attachment" if att is None
+                   else "a plain 16-byte attachment (no member trailer)")
+            self.protocol.reject(f"{key}: {why}",
+                                 "a lockstep member's outputs carry seq, stamp and the trailer "
+                                 "flags|n_plant|name (docs/PROTOCOL.md); "
+                                 + ("applied as a command from a non-member" if topic != "ack"
+                                    else "ignored"))
+            return topic != "ack"
+        member, t = att.node, att.t_ns
+        if self.tick_ns and t % self.tick_ns:
+            self.protocol.reject(f"{key}: stamp off the tick grid",
+                                 f"t={t * 1e-9:.9f} s from {member}; ignored")
+            return False
+        if t > self.sim.time_ns:
+            self.protocol.reject(f"{key}: stamped for a tick not due",
+                                 f"t={t * 1e-9:.3f} s from {member}, the plant is at "
+                                 f"t={self.sim.time_ns * 1e-9:.3f} s; ignored")
+            return False
+        if member not in self.members:
+            self.protocol.reject(f"{key}: from {member!r}, not a lockstep member",
+                                 "(no sim/sync token); used, not waited for")
+            return True
+        if topic != "ack":
+            k = (member, t)
+            self.member_msgs[k] = self.member_msgs.get(k, 0) + 1
+            if len(self.member_msgs) > 4 * _RECENT * max(1, len(self.members)):
+                del self.member_msgs[next(iter(self.member_msgs))]
+        if att.flags & codec.ACK:
+            acks = self.acks.setdefault(member, {})
+            ack = (att.n_plant, bool(att.flags & codec.FINAL))
+            if t in acks:
+                # A member ACKs a tick once: a second ACK is forged or a bug. The smaller count
+                # is kept, so no stray ACK can hold the run forever.
+                self.protocol.reject(f"{key}: a second ACK from {member}",
+                                     f"for t={t * 1e-9:.3f} s (n_plant {acks[t][0]} and "
+                                     f"{att.n_plant})")
+                ack = (min(ack[0], acks[t][0]), ack[1] or acks[t][1])
+            acks[t] = ack
+            if len(acks) > _RECENT:
+                del acks[next(iter(acks))]
+        return True
+
+    def _on_command(self, ev, robot: str, topic: str, att) -> None:
         drive = self.sim.robots[robot].spec.drive
         try:
             if topic == "cmd_vel":
@@ -295,7 +352,13 @@ class Plant:
             self.rejects.reject(f"{robot}/{topic}", f"absurd command ({a:g}, {b:g}); "
                                 f"limits are {lim_a:g}, {lim_b:g}")
             return
-        self.commands[robot] = Command(kind, a, b, self.sim.time_ns, time.monotonic())
+        t = codec.stamp_ns(msg.header.stamp) or self.sim.time_ns
+        cmd = self.commands[robot] = Command(kind, a, b, t, time.monotonic())
+        if self.mode == "lockstep":
+            by_tick = self.cmd_by_tick.setdefault(robot, {})
+            by_tick[t] = cmd
+            if len(by_tick) > _RECENT:
+                del by_tick[min(by_tick)]
 
     def _check_stamp(self, stamp, timeout_s: float) -> None:
         """Raise ValueError for a command stamped in the future, or (lockstep, realtime) older
@@ -318,14 +381,16 @@ class Plant:
         now_wall = time.monotonic()
         now_ns = self.sim.time_ns
         for name, robot in self.sim.robots.items():
-            cmd = self.commands.get(name)
+            cmd = (self._lockstep_command(name, now_ns - self.delay_ns)
+                   if self.mode == "lockstep" else self.commands.get(name))
             if cmd is not None:
                 timeout = robot.spec.drive.cmd_timeout_s
                 age = (now_ns - cmd.t_ns) * 1e-9 if self.mode == "lockstep" else now_wall - cmd.wall
                 if age > timeout:
                     self.log.warning("%s: no command for %.2f s (cmd_timeout %.2f s): stopping it",
                                      name, age, timeout)
-                    del self.commands[name]
+                    self.commands.pop(name, None)
+                    self.cmd_by_tick.pop(name, None)
                     cmd = None
             if cmd is None:
                 self.sim.command_twist(name, 0.0, 0.0)
@@ -333,6 +398,21 @@ class Plant:
                 self.sim.command_twist(name, cmd.a, cmd.b)
             else:
                 self.sim.command_wheels(name, cmd.a, cmd.b)
+
+    def _lockstep_command(self, robot: str, upto_ns: int) -> Command | None:
+        """The command computed for the latest tick at or before ``upto_ns`` (the current
+        tick in sequential coupling, the one before in pipelined): what arrives early for a
+        later tick waits for its turn, so runs are the same whatever the timing."""
+        by_tick = self.cmd_by_tick.get(robot)
+        if not by_tick:
+            return None
+        ticks = [t for t in by_tick if t <= upto_ns]
+        if not ticks:
+            return None
+        best = max(ticks)
+        for t in [t for t in ticks if t < best]:          # older ones are done with
+            del by_tick[t]
+        return by_tick[best]
 
     def drain(self, timeout: float | None = 0.0) -> bool:
         """Handle queued events; wait up to ``timeout`` for the first. True if any came."""
@@ -366,16 +446,40 @@ class Plant:
         return False
 
     def _acked(self, member: str, t_ns: int) -> bool:
-        """The member acked tick ``t_ns`` and every command it published for it is in."""
+        """The member ACKed tick ``t_ns`` and every message it counted for it is in."""
         ack = self.acks.get(member, {}).get(t_ns)
-        return ack is not None and all(t_ns in self.cmd_ticks.get(k, ()) for k in ack[0]
-                                 if k in self._robot_of_cmd)
+        return ack is not None and self.member_msgs.get((member, t_ns), 0) >= ack[0]
 
     def wait_for_acks(self, t_ns: int, required: set[str]) -> None:
+        """Until every member still present has ACKed tick ``t_ns`` with all its messages;
+        after WAIT_REPORT_S of wall time, say (every few seconds) whom it waits for."""
+        since = time.monotonic()
+        said = 0
         while not self.stop_event.is_set():
-            if all(self._acked(m, t_ns) for m in required if m in self.members):
+            waiting = [m for m in required if m in self.members and not self._acked(m, t_ns)]
+            if not waiting:
                 return
+            if time.monotonic() - since > WAIT_REPORT_S * (said + 1):
+                said += 1
+                self._report_wait(t_ns, waiting, time.monotonic() - since)
             self.drain(0.5)
+
+    def _report_wait(self, t_ns: int, waiting: list[str], waited_s: float) -> None:
+        parts = []
+        for m in sorted(waiting):
+            ack = self.acks.get(m, {}).get(t_ns)
+            got = self.member_msgs.get((m, t_ns), 0)
+            if ack is not None:
+                self.protocol.reject("missing outputs",
+                                     f"{m} ACKed t={t_ns * 1e-9:.3f} s with n_plant={ack[0]} "
+                                     f"but {got} of its messages for it arrived")
+                parts.append(f"{m} (ACKed with n_plant={ack[0]}, {got} arrived)")
+            else:
+                last = max(self.acks.get(m, {}), default=None)
+                parts.append(f"{m} (no ACK; {got} message(s) for this tick; last ACK "
+                             + (f"t={last * 1e-9:.3f} s)" if last is not None else "none)"))
+        self.log.warning("lockstep: waited %.1f s for tick t=%.3f s: %s", waited_s,
+                         t_ns * 1e-9, "; ".join(parts))
 
     def run(self) -> int:
         self.drain(0.05)
@@ -400,12 +504,17 @@ class Plant:
                     self.end_reason = "duration reached"
                     break
                 if self.mode == "lockstep":
-                    self.wait_for_acks(t, required)
+                    # Sequential: tick t's commands; pipelined: tick t-1's, while the nodes
+                    # compute tick t's (none before the first tick).
+                    due = t - self.delay_ns
+                    if due >= 0:
+                        self.wait_for_acks(due, required)
                     ended = [m for m in self.end_with
-                             if self.acks.get(m, {}).get(t, ((), False))[1]]
+                             if self.acks.get(m, {}).get(due, (0, False))[1]]
                     if ended:
                         self.end_reason = f"{ended[0]} finished"
-                        self.log.info("%s finished at t=%.3f s: stopping", ended[0], t * 1e-9)
+                        self.log.info("%s finished at t=%.3f s: stopping", ended[0],
+                                      due * 1e-9)
                         break
                 else:
                     self.drain(0.0)
@@ -428,7 +537,8 @@ class Plant:
                 if self.reset_in_tick:          # the world was rebuilt: publish its t = 0
                     self.reset_in_tick = False
                     self.acks.clear()           # the old world's stamps would match the new
-                    self.cmd_ticks.clear()
+                    self.member_msgs.clear()
+                    self.cmd_by_tick.clear()
                     continue
                 c2 = time.perf_counter()
                 self.apply_commands()
@@ -454,6 +564,8 @@ class Plant:
                 "real_time_factor": sim_s / wall if wall else None,
                 "published": self.published, "rejected": dict(self.rejects.counts),
                 "members_seen": sorted(self.members_seen), "stalls": self.stalls,
+                "protocol": PROTOCOL_VERSION, "coupling": self.coupling, **self.delays,
+                "protocol_errors": dict(self.protocol.counts),
                 "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
                                 for k, v in self.timing.items()}}
 
@@ -505,21 +617,25 @@ def _wheel_speeds(msg) -> tuple[float, float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="diffbot plant", description="Run the DART plant on the bus.")
+    p = ArgumentParser(prog="diffbot plant", description="Run the DART plant on the bus.")
     p.add_argument("--world", default="living_room",
                    help="world file, or the name of a shipped world (living_room, empty)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a world-file value, e.g. world.mode=kinematic or "
                         "'robots.robot1.encoders.noise={webots_noise = 0.2}' (repeatable)")
     p.add_argument("--mode", choices=MODES, default="lockstep")
-    p.add_argument("--rate", type=float, default=1.0,
+    p.add_argument("--coupling", choices=COUPLINGS, default="sequential",
+                   help="lockstep: sequential (commands of tick k from tick k's sensors act at "
+                        "once; exact) or pipelined (the plant steps while the nodes compute: "
+                        "commands act one tick later, node-to-node inputs are a tick old)")
+    p.add_argument("--rate", type=positive_float, default=1.0,
                    help="realtime mode: simulated seconds per wall second (default 1)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S simulated seconds (default: run until stopped)")
-    p.add_argument("--seed", type=int, default=None, help="noise seed (default: the world's)")
+    p.add_argument("--seed", type=nonneg_int, default=None, help="noise seed (default: the world's)")
     p.add_argument("--expect", default="", metavar="NODES",
                    help="lockstep: comma-separated members to wait for before the first tick")
-    p.add_argument("--join-timeout", type=float, default=30.0, metavar="S")
+    p.add_argument("--join-timeout", type=positive_float, default=30.0, metavar="S")
     p.add_argument("--end-with", default="", metavar="NODES",
                    help="lockstep: stop, without stepping further, at the tick where one of "
                         "these members finishes (so a run's length is reproducible)")
@@ -558,7 +674,8 @@ def main(argv: list[str] | None = None) -> int:
                       expect=tuple(n for n in args.expect.split(",") if n),
                       duration_s=args.duration, join_timeout_s=args.join_timeout,
                       disabled=disabled,
-                      end_with=tuple(n for n in args.end_with.split(",") if n))
+                      end_with=tuple(n for n in args.end_with.split(",") if n),
+                      coupling=args.coupling)
 
         def on_signal(signum, frame):
             plant.stop_event.set()

@@ -19,6 +19,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
+from bus.cliargs import did_you_mean
 from bus.keys import BadName, check_name
 
 from .camera import CameraConfig
@@ -182,7 +183,8 @@ class _Table:
         if not isinstance(v, str):
             self.fail(k, f"expected a string, got {type(v).__name__} {v!r}")
         if choices and v not in choices:
-            self.fail(k, f"must be one of {', '.join(choices)}, got {v!r}")
+            self.fail(k, f"must be one of {', '.join(choices)}, got {v!r}"
+                         f"{did_you_mean(v, choices)}")
         return v
 
     def boolean(self, k: str, default: bool) -> bool:
@@ -427,8 +429,9 @@ def resolve_world_path(name_or_path: str) -> str:
     shipped = os.path.join(WORLDS_DIR, f"{name_or_path}.toml")
     if os.path.exists(shipped):
         return shipped
-    raise WorldError(f"{name_or_path}: no such world file (shipped worlds: "
-                     f"{', '.join(sorted(f[:-5] for f in os.listdir(WORLDS_DIR) if f.endswith('.toml')))})")
+    shipped = sorted(f[:-5] for f in os.listdir(WORLDS_DIR) if f.endswith(".toml"))
+    raise WorldError(f"{name_or_path}: no such world file{did_you_mean(name_or_path, shipped)} "
+                     f"(shipped worlds: {', '.join(shipped)})")
 
 
 def load_world(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) -> WorldSpec:
@@ -443,9 +446,24 @@ def load_world(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) -
     except OSError as exc:
         raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
     data = _extend(data, path, seen=(os.path.abspath(path),))
-    for item in overrides:
-        apply_override(data, item, path)
-    return parse_world(data, path)
+    touched = [(item, apply_override(data, item, path)) for item in overrides]
+    try:
+        return parse_world(data, path)
+    except WorldError as exc:
+        raise _blame_override(exc, path, touched) from None
+
+
+def _blame_override(exc: WorldError, path: str, touched: list[tuple[str, str]]) -> WorldError:
+    """A value that came from ``--set KEY=VALUE`` is the option's fault, not the file's:
+    ``--set world.physics_stepp_s=0.002: world.physics_stepp_s: unknown key ...``."""
+    msg = str(exc)
+    if not msg.startswith(f"{path}:"):
+        return exc
+    where, _, reason = msg[len(path) + 1:].partition(": ")
+    for item, keypath in touched:
+        if where == keypath or where.startswith((keypath + ".", keypath + "[")):
+            return WorldError(f"--set {_shown(item)}: {where}: {reason}")
+    return exc
 
 
 def _extend(data: dict, path: str, seen: tuple[str, ...]) -> dict:
@@ -488,36 +506,52 @@ def _extend(data: dict, path: str, seen: tuple[str, ...]) -> dict:
     return out
 
 
-def apply_override(data: dict, item: str, path: str = "<world>") -> None:
+def _shown(item: str) -> str:
+    """An override as the user typed it, quoted if it holds newlines or other controls."""
+    return item if item.isprintable() else repr(item)
+
+
+def apply_override(data: dict, item: str, path: str = "<world>") -> str:
     """Set one value of a parsed world file from ``dotted.key=TOML value``.
 
     Robots are addressed by name: ``robots.robot1.encoders.noise={webots_noise = 0.2}``,
     ``world.mode="kinematic"``, ``materials.floor.friction=0.4``. Missing tables are
-    created; the result is validated like the file itself.
+    created; the result is validated like the file itself. Returns the key's path as the
+    validator names it (``robots[0].encoders.noise``), to blame errors on the option.
     """
     key, sep, value = item.partition("=")
     parts = [p for p in key.strip().split(".") if p]
     if not sep or not parts:
-        raise WorldError(f"{path}: bad override {item!r}: expected KEY=VALUE")
+        raise WorldError(f"--set {_shown(item)}: expected KEY=VALUE")
     try:
         val = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         val = value.strip()               # a bare word is a string
     node = data
+    where: list[str] = []
     i = 0
     while i < len(parts) - 1:
         p = parts[i]
         if p == "robots" and isinstance(node.get("robots"), list):
             name = parts[i + 1]
-            match = [r for r in node["robots"] if isinstance(r, dict) and r.get("name") == name]
+            match = [j for j, r in enumerate(node["robots"])
+                     if isinstance(r, dict) and r.get("name") == name]
             if not match:
-                raise WorldError(f"{path}: override {key}: no robot named {name!r}")
-            node = match[0]
+                names = [r.get("name") for r in node["robots"] if isinstance(r, dict)]
+                raise WorldError(f"--set {_shown(item)}: no robot named {name!r}"
+                                 f"{did_you_mean(name, [n for n in names if isinstance(n, str)])}"
+                                 f" in {path}")
+            node = node["robots"][match[0]]
+            where.append(f"robots[{match[0]}]")
             i += 2
             continue
         nxt = node.setdefault(p, {})
         if not isinstance(nxt, dict):
-            raise WorldError(f"{path}: override {key}: {p!r} is not a table")
+            raise WorldError(f"--set {_shown(item)}: {'.'.join(parts[:i + 1])} is not a table "
+                             f"in {path}")
         node = nxt
+        where.append(p)
         i += 1
     node[parts[-1]] = val
+    where.append(parts[-1])
+    return ".".join(where).replace(".[", "[")

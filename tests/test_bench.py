@@ -158,7 +158,7 @@ def test_a_failing_case_is_reported_and_the_suite_releases_its_resources(tmp_pat
 
 
 def test_fmu_suite_is_skipped_without_fmus_bench(tmp_path, monkeypatch):
-    monkeypatch.setattr(bench, "ROOT", str(tmp_path))
+    monkeypatch.setattr("diffbot.bench.fmu.ROOT", str(tmp_path))
     results, status = bench.run_suite(bench.Context(quick=True), "fmu")
     assert results == []
     assert status["status"] == "skipped" and status["reason"] == "fmus/bench.py not available"

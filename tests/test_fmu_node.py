@@ -23,7 +23,8 @@ import pytest
 
 from bus import codec
 from bus.keys import Keys
-from bus.node import Observation, decode_ack
+from bus.node import Observation
+from bus.protocol import PROTOCOL_VERSION
 from controllers.odometry import integrate
 from fmus import build as fmu_build
 from fmus import node as fmu_node
@@ -34,7 +35,7 @@ K = Keys()
 TOL = 1e-9
 R, D = 0.12, 0.36
 POSE0 = (0.4, -0.3, 0.8)
-INFO = {"mode": "lockstep", "control_tick_s": 0.02,
+INFO = {"protocol": PROTOCOL_VERSION, "mode": "lockstep", "control_tick_s": 0.02,
         "robots": {"robot1": {"wheel_radius_m": R, "wheel_separation_m": D, "pose": list(POSE0),
                               "topics": {"joint_states": 1}}}}
 TICK_NS = 20_000_000
@@ -408,19 +409,23 @@ def _info(session):
 def test_bad_joint_states_on_the_bus_are_counted_and_the_node_keeps_publishing(
         procs, endpoint, fmus, tmp_path):
     """The test is the plant here: it serves sim/info, publishes joint_states and the clock
-    tick by tick and waits for the node's lockstep ack, so each bad sample lands on its tick."""
+    tick by tick and waits for the node's lockstep ACK (on its odom, docs/PROTOCOL.md), so
+    each bad sample lands on its tick."""
     from bus.session import open_session
     stats = tmp_path / "odo.json"
     s = open_session("plant", endpoint)
     acks: queue.Queue = queue.Queue()
     odom: dict[int, object] = {}
+
+    def on_odom(smp):
+        m = codec.decode(smp.payload.to_bytes(), "nav_msgs/msg/Odometry")
+        odom.setdefault(codec.msg_stamp_ns(m), m)
+        att = codec.parse_attachment(smp.attachment.to_bytes())
+        if att.flags & codec.ACK and att.node == "odometry_robot1" and att.n_plant == 1:
+            acks.put(att.t_ns)
     keep = [
         s.declare_queryable(K.info, lambda q: q.reply(K.info, json.dumps(INFO))),
-        s.declare_subscriber(K.ack("odometry_robot1"),
-                             lambda smp: acks.put(decode_ack(smp.payload.to_bytes())[0])),
-        s.declare_subscriber(K.topic("robot1", "odom"), lambda smp: odom.setdefault(
-            *(lambda m: (codec.msg_stamp_ns(m), m))(codec.decode(smp.payload.to_bytes(),
-                                                                 "nav_msgs/msg/Odometry")))),
+        s.declare_subscriber(K.topic("robot1", "odom"), on_odom),
         s.liveliness().declare_token(K.alive("plant")),
     ]
     try:

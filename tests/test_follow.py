@@ -19,8 +19,11 @@ def run_follow(out, *extra):
     return json.load(open(out / "summary.json"))
 
 
-def test_follower_holds_the_band_for_60_s_with_camera_noise(tmp_path):
-    s = run_follow(tmp_path)                      # 60 s, camera noise std 10 (the scenario's)
+@pytest.mark.parametrize("coupling", ["pipelined", "sequential"])
+def test_follower_holds_the_band_for_60_s_with_camera_noise(tmp_path, coupling):
+    # 60 s, camera noise std 10 (the scenario's), under both couplings (docs/PROTOCOL.md)
+    s = run_follow(tmp_path, "--coupling", coupling)
+    assert s["coupling"] == coupling
     m = s["metrics"]
     assert s["sim_time_s"] == pytest.approx(60.0)
     assert 0.60 <= m["distance_min_m"] and m["distance_max_m"] <= 0.70, m

@@ -36,7 +36,6 @@ from hypothesis import strategies as st
 
 from bus import codec
 from bus.keys import Keys
-from bus.node import encode_ack
 from diffbot.scenario import load_scenario
 from plant.world import WORLDS_DIR, WorldError, load_world, parse_world, tomllib
 
@@ -629,21 +628,30 @@ def test_plant_commands(live, key, twists, wheels):
     live.still_going(f"bad {key}")
 
 
+MEMBER_NAMES = ["square_path_robot1", "odometry_robot1", "nobody", "plant", "é", "x" * 255]
+
+
 @pytest.mark.slow
 @FUZZ
 @given(node=st.sampled_from(["square_path_robot1", "odometry_robot1", "nobody", "plant"]),
        acks=st.lists(st.one_of(
-           st.binary(max_size=40),
-           st.tuples(st.sampled_from(STAMPS), st.lists(st.sampled_from(
-               [K.topic("robot1", "cmd_vel"), K.topic("robot1", "odom"), "x", "", "**"]),
-               max_size=3), st.booleans())), min_size=1, max_size=4))
+           st.tuples(st.binary(max_size=40), st.none() | st.binary(max_size=40)),
+           st.tuples(st.sampled_from(STAMPS), st.integers(0, 255), st.integers(0, 65535),
+                     st.sampled_from(MEMBER_NAMES), st.binary(max_size=8))),
+           min_size=1, max_size=4))
 def test_plant_acks(live, node, acks):
+    """Forged, malformed and stray ACKs on sim/ack/<node> (docs/PROTOCOL.md): random bytes,
+    and well-formed trailers with any flags, counts, names and stamps."""
     for a in acks:
-        if isinstance(a, tuple):
-            kind, keys, final = a
+        if len(a) == 2:
+            payload, att = a
+        else:
+            kind, flags, n_plant, who, payload = a
             t = _time(kind, live.now())
-            a = encode_ack(max(0, t.sec) * 10**9 + t.nanosec, keys, final)
-        live.put(K.ack(node), a, None)
+            live.seq += 1
+            att = codec.attachment(live.seq, max(0, t.sec) * 10**9 + t.nanosec, flags, n_plant,
+                                   who)
+        live.put(K.ack(node), payload, att)
     live.still_going(f"bad acks from {node}")
 
 

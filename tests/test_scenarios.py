@@ -51,10 +51,11 @@ def test_drive_test_matches_the_study(tmp_path):
     assert s["exit_codes"] == {"plant": 0, "wheel_schedule_robot1": 0}
 
 
-def test_square_closes_and_is_byte_identical_across_runs(tmp_path):
+@pytest.mark.parametrize("coupling", ["sequential", "pipelined"])
+def test_square_closes_and_is_byte_identical_across_runs(tmp_path, coupling):
     outs = [tmp_path / "a", tmp_path / "b"]
     for out in outs:
-        r = diffbot_run("square", "--seed", "7", "--out", str(out))
+        r = diffbot_run("square", "--seed", "7", "--out", str(out), "--coupling", coupling)
         assert r.returncode == 0, r.stderr
     a, b = ((o / "trajectory.csv").read_bytes() for o in outs)
     assert len(a.splitlines()) > 1000
@@ -65,6 +66,9 @@ def test_square_closes_and_is_byte_identical_across_runs(tmp_path):
     assert m["path_closure_m"] < 0.05                 # the square closes
     assert m["path_length_m"] == pytest.approx(6.0, abs=0.1)
     assert s["mode"] == "lockstep" and s["seed"] == 7 and s["real_time_factor"] > 1
+    assert s["coupling"] == coupling
+    assert s["actuation_delay_ticks"] == s["node_input_delay_ticks"] == \
+        (1 if coupling == "pipelined" else 0)
     assert s["message_counts"]["robot1/odom"] > 1000
     assert (outs[0] / "odometry_vs_gps.png").stat().st_size > 10_000
     assert all(code == 0 for code in s["exit_codes"].values()), s["exit_codes"]

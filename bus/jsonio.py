@@ -1,0 +1,45 @@
+"""Strict JSON out: every JSON file or reply the project writes goes through here.
+
+JSON has no NaN or infinity (``json.dumps`` writes them anyway unless told not to, and
+strict parsers then reject the file): a non-finite number becomes null, and whoever
+produced it says why in a ``*_reason`` key next to it.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+
+
+def write_json(path: str, data: dict) -> None:
+    """Write strict JSON atomically (a reader never sees half a file). JSON has no NaN or
+    infinity: a non-finite number is written as null (say why in a ``*_reason`` key)."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump(strict_json(data), f, indent=2, allow_nan=False)
+        f.write("\n")
+    os.replace(tmp, path)
+
+
+def dumps(o, **kw) -> str:
+    """``json.dumps`` of :func:`strict_json` ``(o)``, refusing NaN."""
+    return json.dumps(strict_json(o), allow_nan=False, **kw)
+
+
+def strict_json(o):
+    """``o`` with numpy values made plain and non-finite floats made None, recursively."""
+    if isinstance(o, dict):
+        return {k: strict_json(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [strict_json(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return strict_json(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if o is None or isinstance(o, (str, int, float, bool)):
+        return o
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -1,0 +1,42 @@
+"""The bus protocol's version and lockstep constants (the contract: docs/PROTOCOL.md).
+
+Keys are spelled in :mod:`bus.keys`, payloads and attachments encoded in :mod:`bus.codec`;
+this module holds what both sides of lockstep must agree on, and a test checks it
+against docs/PROTOCOL.md.
+"""
+from __future__ import annotations
+
+#: announced by the plant in ``sim/info`` as ``"protocol"``; a node of another version exits 2
+PROTOCOL_VERSION = 2
+
+#: how the plant and the lockstep members are coupled (co-simulation master algorithm)
+COUPLINGS = ("sequential", "pipelined")
+
+#: robot topics the plant subscribes to in lockstep: the commands it applies, and ``odom``
+#: only to take a member's ACK from it (a member whose last output of a tick is on one of
+#: these needs no ``sim/ack/<node>`` message)
+PLANT_READS = ("cmd_vel", "wheel_cmd", "odom")
+
+
+class ProtocolError(ValueError):
+    """The other side speaks another protocol version (exit code 2)."""
+
+
+def delays(coupling: str) -> dict[str, int]:
+    """The delays a coupling adds, in control ticks: commands stamped t_k act from
+    t_{k + actuation_delay_ticks}; a node sees other nodes' outputs of tick
+    k - node_input_delay_ticks at tick k."""
+    if coupling not in COUPLINGS:
+        raise ValueError(f"unknown coupling {coupling!r} (choose from {', '.join(COUPLINGS)})")
+    d = 1 if coupling == "pipelined" else 0
+    return {"actuation_delay_ticks": d, "node_input_delay_ticks": d}
+
+
+def check_version(info: dict) -> None:
+    """Raise :class:`ProtocolError` unless the plant's ``sim/info`` speaks this version."""
+    theirs = info.get("protocol")
+    if theirs != PROTOCOL_VERSION:
+        said = f"bus protocol {theirs}" if theirs is not None else "no bus protocol version " \
+               "(a plant older than protocol 2)"
+        raise ProtocolError(f"the plant speaks {said}; this node speaks bus protocol "
+                            f"{PROTOCOL_VERSION} (docs/PROTOCOL.md): use matching versions")

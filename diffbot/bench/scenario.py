@@ -1,0 +1,46 @@
+"""Suite ``scenario``: the square and follow scenarios end to end (``diffbot run``)."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+
+from .common import spawn, stop, tail
+from .harness import Context, Metric, Probe, suite
+
+def run_scenario(ctx: Context, name: str, timeout_s: float = 900.0) -> dict:
+    """One ``diffbot run NAME --out TMP`` run; returns its summary.json."""
+    out = tempfile.mkdtemp(prefix=f"{name}-", dir=ctx.tmpdir)
+    proc = None
+    try:
+        proc = spawn(["run", name, "--out", out, "--timeout", f"{timeout_s:g}"],
+                      os.path.join(out, "run.log"))
+        rc = proc.wait(timeout_s + 60)
+        if rc is None:
+            raise RuntimeError(f"diffbot run {name} did not finish")
+        try:
+            with open(os.path.join(out, "summary.json")) as f:
+                summary = json.load(f)
+        except (OSError, ValueError):
+            raise RuntimeError(f"diffbot run {name} exited {rc} without a summary: "
+                               f"{tail(os.path.join(out, 'run.log'))}") from None
+        if rc != 0:
+            raise RuntimeError(f"diffbot run {name} exited {rc}: {summary.get('end_reason')}")
+        return summary
+    finally:
+        if proc is not None:
+            stop([proc], grace_s=15.0)  # the launcher stops its own children on SIGINT
+        shutil.rmtree(out, ignore_errors=True)
+
+
+@suite("scenario", "the square and follow scenarios end to end in lockstep (diffbot run)")
+def scenario_suite(ctx: Context):
+    for name in ("square", "follow"):
+        yield Probe(name, lambda name=name: run_scenario(ctx, name), [
+            Metric("real_time_factor", f"{name}: real-time factor", "x",
+                   notes="summary.json real_time_factor (plant, lockstep)"),
+            Metric("wall_time_s", f"{name}: wall time",
+                   notes="whole run incl. start-up, analysis"),
+            Metric("sim_time_s", f"{name}: simulated time"),
+        ], repeats=1 if ctx.quick or name == "follow" else 3, warmup=0, notes="no warm-up run")

@@ -1,0 +1,158 @@
+"""A lockstep client written from docs/PROTOCOL.md alone.
+
+It imports nothing of diffbot-cosim: only ``zenoh``, ``rosbags`` and the standard
+library. It joins a plant's lockstep, drives a robot forward on ground truth until it has
+covered ``--distance`` metres, sends its last command with FINAL, waits until the plant
+has moved past that tick and leaves.
+
+    python tests/conformance_client.py --endpoint unixsock-stream/... [--robot robot1]
+
+Exit codes: 0 done, 2 a plant of another protocol version, 3 the plant went away.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import queue
+import struct
+import sys
+import time
+
+import zenoh
+from rosbags.typesys import Stores, get_typestore
+
+PROTOCOL = 2                                   # section "The diffbot-cosim bus protocol, version 2"
+ACK, FINAL = 1, 2                              # section 3: flags
+TS = get_typestore(Stores.ROS2_JAZZY)
+T = TS.types
+
+
+def attachment(seq: int, stamp_ns: int, flags: int, n_plant: int, name: str) -> bytes:
+    """Section 3: u64 seq, u64 stamp_ns, u8 flags, u16 n_plant, u8 name_len, name."""
+    raw = name.encode("utf-8")
+    return struct.pack("<QQBHB", seq, stamp_ns, flags, n_plant, len(raw)) + raw
+
+
+def twist_stamped(stamp_ns: int, linear_mps: float) -> bytes:
+    """Section 2: geometry_msgs/msg/TwistStamped in frame base_link, CDR."""
+    msg = T["geometry_msgs/msg/TwistStamped"](
+        header=T["std_msgs/msg/Header"](
+            stamp=T["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9,
+                                                   nanosec=stamp_ns % 10**9),
+            frame_id="base_link"),
+        twist=T["geometry_msgs/msg/Twist"](
+            linear=T["geometry_msgs/msg/Vector3"](x=linear_mps, y=0.0, z=0.0),
+            angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)))
+    return bytes(TS.serialize_cdr(msg, "geometry_msgs/msg/TwistStamped"))
+
+
+def stamp_of(payload: bytes, msgtype: str) -> tuple[int, object]:
+    msg = TS.deserialize_cdr(payload, msgtype)
+    st = msg.clock if msgtype == "rosgraph_msgs/msg/Clock" else msg.header.stamp
+    return st.sec * 10**9 + st.nanosec, msg
+
+
+def client_config(endpoint: str) -> zenoh.Config:
+    """Section 1: a client session to the plant's endpoint, no scouting."""
+    conf = zenoh.Config()
+    for key, value in (("mode", "client"), ("connect/endpoints", [endpoint]),
+                       ("listen/endpoints", []), ("scouting/multicast/enabled", False),
+                       ("scouting/gossip/enabled", False)):
+        conf.insert_json5(key, json.dumps(value))
+    return conf
+
+
+def get_info(session: zenoh.Session, timeout_s: float = 15.0) -> dict:
+    """Section 5: ask sim/info until the plant answers."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for reply in session.get("sim/info", timeout=1.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        time.sleep(0.1)
+    raise TimeoutError("no plant answered sim/info")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--endpoint", required=True)
+    p.add_argument("--robot", default="robot1")
+    p.add_argument("--name", default="conformance")
+    p.add_argument("--distance", type=float, default=1.0, help="m (default 1)")
+    p.add_argument("--speed", type=float, default=0.25, help="m/s (default 0.25)")
+    a = p.parse_args(argv)
+    with zenoh.open(client_config(a.endpoint)) as s:
+        info = get_info(s)
+        if info.get("protocol") != PROTOCOL or info.get("mode") != "lockstep":
+            print(f"conformance client: plant speaks protocol {info.get('protocol')} in "
+                  f"{info.get('mode')} mode; this client speaks {PROTOCOL}, lockstep",
+                  file=sys.stderr)
+            return 2
+        events: queue.SimpleQueue = queue.SimpleQueue()
+
+        def on(tag):
+            return lambda sample: events.put((tag, sample.payload.to_bytes(), sample.kind))
+        # Section 4, joining: subscribe first, then declare the tokens.
+        subs = [s.declare_subscriber("sim/clock", on("clock")),
+                s.declare_subscriber(f"{a.robot}/ground_truth", on("truth")),
+                s.declare_subscriber("sim/end", on("end")),
+                s.liveliness().declare_subscriber("sim/alive/plant", on("plant"))]
+        pub = s.declare_publisher(f"{a.robot}/cmd_vel", encoding=zenoh.Encoding.APPLICATION_CDR,
+                                  congestion_control=zenoh.CongestionControl.BLOCK)
+        tokens = [s.liveliness().declare_token(f"sim/alive/{a.name}"),
+                  s.liveliness().declare_token(f"sim/sync/{a.name}")]
+        clocks: list[int] = []
+        x_of: dict[int, float] = {}                # ground truth x by stamp
+        x0 = None
+        seq = 0
+        final_tick = None
+        code = 3
+        try:
+            while True:
+                tag, payload, kind = events.get(timeout=30)
+                if tag == "end":
+                    code = 0
+                    break
+                if tag == "plant":
+                    if kind == zenoh.SampleKind.DELETE:
+                        break                      # the plant went away without an end
+                    continue
+                if tag == "truth":
+                    t, msg = stamp_of(payload, "nav_msgs/msg/Odometry")
+                    x_of[t] = msg.pose.pose.position.x
+                elif tag == "clock":
+                    t, _ = stamp_of(payload, "rosgraph_msgs/msg/Clock")
+                    if final_tick is not None:
+                        if t > final_tick:         # the plant moved past our last tick
+                            code = 0
+                            break
+                        continue
+                    clocks.append(t)
+                # Section 4, step 2: act on a tick once its clock and every input due are in
+                # (ground truth is published every tick).
+                while clocks and clocks[0] in x_of and final_tick is None:
+                    t = clocks.pop(0)
+                    x = x_of.pop(t)
+                    x0 = x if x0 is None else x0
+                    done = x - x0 >= a.distance
+                    seq += 1
+                    # Step 3: one command, the last plant-read output, so it carries the ACK.
+                    pub.put(twist_stamped(t, 0.0 if done else a.speed),
+                            attachment=attachment(seq, t, ACK | (FINAL if done else 0), 1,
+                                                  a.name))
+                    if done:
+                        final_tick = t             # finishing: keep the tokens until then
+        except queue.Empty:
+            print("conformance client: nothing from the plant for 30 s", file=sys.stderr)
+        finally:
+            for tok in tokens:
+                tok.undeclare()
+            for sub in subs:
+                sub.undeclare()
+    print(f"conformance client: {'done' if final_tick is not None else 'stopped'} "
+          f"after {seq} ticks", file=sys.stderr)
+    return code if final_tick is not None or code else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,101 @@
+"""diffbot.procs: children are stopped by PID with a grace and an escalation, and leave
+nothing behind."""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import textwrap
+import time
+
+from diffbot import procs
+
+from .conftest import wait_for
+
+
+def _py(code: str) -> list[str]:
+    return [sys.executable, "-c", textwrap.dedent(code)]
+
+
+def test_a_child_that_exits_reports_its_code_and_log_tail(tmp_path):
+    c = procs.Child("talker", _py("""
+        import sys
+        for i in range(30):
+            print(f"line {i}", flush=True)
+        sys.stderr.write("oops on stderr\\n")
+        sys.exit(3)
+    """), str(tmp_path / "talker.log")).start()
+    assert c.wait(20) == 3 and c.exit_code == 3 and not c.running()
+    assert c.tail(3).splitlines() == ["line 28", "line 29", "oops on stderr"]
+    assert c.describe_exit() == "failed with exit code 3"
+    assert c.wall_s > 0
+
+
+def test_a_child_that_ignores_sigint_is_killed_after_the_grace(tmp_path):
+    c = procs.Child("stubborn", _py("""
+        import signal, time
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        print("ready", flush=True)
+        time.sleep(60)
+    """), str(tmp_path / "stubborn.log")).start()
+    wait_for(lambda: "ready" in procs.tail(c.log_path), 20, what="the child to start")
+    t0 = time.monotonic()
+    procs.stop([c], grace_s=0.5)
+    took = time.monotonic() - t0
+    assert c.exit_code == -signal.SIGKILL
+    assert 0.4 < took < 5.0
+    assert "SIGKILL" in c.describe_exit()
+    assert not procs.alive(c.pid)
+
+
+def test_a_child_that_obeys_sigint_ends_cleanly_within_the_grace(tmp_path):
+    c = procs.Child("polite", _py("""
+        import sys, time
+        try:
+            print("ready", flush=True)
+            time.sleep(60)
+        except KeyboardInterrupt:
+            print("bye", flush=True)
+            sys.exit(0)
+    """), str(tmp_path / "polite.log")).start()
+    wait_for(lambda: "ready" in procs.tail(c.log_path), 20, what="the child to start")
+    procs.stop([c], grace_s=10.0)
+    assert c.exit_code == 0
+    assert c.tail(1) == "bye"
+
+
+def test_no_grandchild_is_orphaned(tmp_path):
+    """The child ignores SIGINT and so does the grandchild it started; stop() kills both by
+    PID, including a grandchild whose parent died first."""
+    pidfile = tmp_path / "grandchild.pid"
+    c = procs.Child("parent", _py(f"""
+        import signal, subprocess, sys, time
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        g = subprocess.Popen([sys.executable, "-c",
+                              "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN);"
+                              " time.sleep(60)"])
+        open({str(pidfile)!r}, "w").write(str(g.pid))
+        time.sleep(60)
+    """), str(tmp_path / "parent.log")).start()
+    wait_for(lambda: pidfile.exists() and pidfile.read_text(), 20, what="the grandchild")
+    grandchild = int(pidfile.read_text())
+    assert grandchild in procs.descendants(c.pid)
+    procs.stop([c], grace_s=0.3)
+    assert c.exit_code == -signal.SIGKILL
+    wait_for(lambda: not procs.alive(grandchild), 5, what="the grandchild to die")
+
+
+def test_stopped_child_is_seen_and_still_stopped_by_pid(tmp_path):
+    c = procs.Child("frozen", _py("import time; time.sleep(60)"),
+                    str(tmp_path / "frozen.log")).start()
+    os.kill(c.pid, signal.SIGSTOP)
+    wait_for(c.stopped, 5, what="state T")
+    procs.stop([c], grace_s=0.2)           # SIGINT stays pending on a stopped process
+    assert c.exit_code == -signal.SIGKILL and not c.stopped()
+
+
+def test_stop_leaves_finished_children_alone(tmp_path):
+    done = procs.Child("done", _py("pass"), str(tmp_path / "done.log")).start()
+    assert done.wait(20) == 0
+    procs.stop([done], grace_s=0.1)
+    assert done.exit_code == 0

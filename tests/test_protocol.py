@@ -1,0 +1,200 @@
+"""docs/PROTOCOL.md is the contract: the code agrees with it, a client written from it alone
+holds lockstep byte-identically to bus.node, and the plant says what is wrong."""
+from __future__ import annotations
+
+import json
+import os
+import queue
+import re
+import signal
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from bus import codec
+from bus.keys import TOPICS, Keys
+from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION
+
+from .conftest import ROOT, wait_for
+
+DOC = os.path.join(ROOT, "docs", "PROTOCOL.md")
+K = Keys()
+
+
+def doc() -> str:
+    with open(DOC, encoding="utf-8") as f:
+        return f.read()
+
+
+# ---------------------------------------------------------------- the document and the code
+def test_version_in_the_document_is_the_code_s():
+    text = doc()
+    assert re.search(r"^# .*protocol, version (\d+)$", text, re.M).group(1) == \
+        str(PROTOCOL_VERSION)
+    assert f'"protocol": {PROTOCOL_VERSION}' in text
+
+
+def test_every_key_is_in_the_document():
+    text = doc()
+    table = {m.group(1) for m in re.finditer(r"^\| `([^`]+)` \|", text, re.M)}
+    wanted = {f"<robot>/{t.suffix}" for t in TOPICS.values()}
+    wanted |= {"sim/clock", "sim/end", "sim/info", "sim/reset", "sim/alive/<node>",
+               "sim/sync/<node>", "sim/ack/<node>"}
+    assert wanted <= table, f"missing from PROTOCOL.md: {sorted(wanted - table)}"
+    for name, t in TOPICS.items():
+        row = next(ln for ln in text.splitlines() if ln.startswith(f"| `<robot>/{t.suffix}` |"))
+        assert t.msgtype in row, f"{name}: PROTOCOL.md does not give type {t.msgtype}"
+    for topic in PLANT_READS:
+        assert f"`<robot>/{topic}`" in text.split("The **keys the plant reads**")[1][:300]
+    for c in COUPLINGS:
+        assert c in text
+
+
+def test_attachment_layout_in_the_document_is_the_codec_s():
+    text = doc()
+    rows = re.findall(r"^\| (\d+) \| (u8|u16|u64|bytes) \| `(\w+)` \|", text, re.M)
+    layout = [(int(off), typ, name) for off, typ, name in rows]
+    assert layout == [(0, "u64", "seq"), (8, "u64", "stamp_ns"), (16, "u8", "flags"),
+                      (17, "u16", "n_plant"), (19, "u8", "name_len"), (20, "bytes", "name")]
+    assert codec.ATTACHMENT.format == "<QQ" and codec.TRAILER.format == "<BHB"
+    assert "bit 0 `ACK`" in text and "bit 1 `FINAL`" in text
+    assert (codec.ACK, codec.FINAL) == (1, 2)
+    # the worked example is what the codec makes
+    example = re.search(r"attachment \(31 bytes\):\n\n```\n(.*?)\n", text, re.S).group(1)
+    want = codec.attachment(51, 1_020_000_000, codec.ACK, 1, "go_straight")
+    assert bytes.fromhex(example.replace(" ", "")) == want
+    payload = re.search(r"payload \(76 bytes\):\n\n```\n(.*?)```", text, re.S).group(1)
+    assert bytes.fromhex("".join(payload.split())) == \
+        codec.encode(codec.twist_stamped(1_020_000_000, 0.25, 0.0))
+
+
+def test_attachments_round_trip_and_malformed_ones_are_refused():
+    a = codec.parse_attachment(codec.attachment(9, 40_000_000, codec.ACK | codec.FINAL, 3, "nöde"))
+    assert a == (9, 40_000_000, 3, 3, "nöde")
+    assert codec.parse_attachment(codec.attachment(9, 5)) == (9, 5, 0, 0, None)
+    good = codec.attachment(1, 2, codec.ACK, 1, "abc")
+    for bad in (good[:-1], good + b"x", good[:17], good[:16] + b"\x04" + good[17:],
+                good[:19] + b"\x00", codec.attachment(1, 2)[:15], b""):
+        assert codec.parse_attachment(bad) is None, bad
+
+
+# ---------------------------------------------------------------- a client from the document
+GO_STRAIGHT = textwrap.dedent('''
+    import sys
+    from bus.node import Twist, run_node
+
+    class GoStraight:
+        inputs = ["ground_truth"]
+        done = False
+        def step(self, obs):
+            x = obs["ground_truth"].pose.pose.position.x
+            self.x0 = getattr(self, "x0", x)
+            self.done = x - self.x0 >= 1.0
+            return Twist(linear=0.25, angular=0.0)
+
+    sys.exit(run_node(GoStraight(), robot="robot1"))
+''')
+
+
+def _drive(procs, endpoint, tmp_path, coupling, client_argv) -> dict[int, bytes]:
+    """One plant run in lockstep ended by member ``conformance``; ground truth by stamp."""
+    stats = tmp_path / f"plant-{len(procs.procs)}.json"
+    plant = procs.diffbot("plant", "--world", "empty", "--coupling", coupling, "--expect",
+                          "conformance", "--end-with", "conformance", "--endpoint", endpoint,
+                          "--stats", str(stats), name="plant")
+    from bus.session import open_session
+    s = open_session("test", endpoint)
+    truth: dict[int, bytes] = {}
+    try:
+        sub = s.declare_subscriber(K.topic("robot1", "ground_truth"),
+                                   lambda smp: truth.setdefault(
+                                       codec.parse_attachment(smp.attachment.to_bytes()).t_ns,
+                                       smp.payload.to_bytes()))
+        r = subprocess.run([*client_argv, "--endpoint", endpoint], cwd=str(tmp_path),
+                           env=dict(os.environ, PYTHONPATH=ROOT), capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert plant.wait(30) == 0, procs.log(plant)
+        sub.undeclare()
+    finally:
+        s.close()
+    st = json.loads(stats.read_text())
+    assert st["end_reason"] == "conformance finished" and st["coupling"] == coupling
+    assert st["protocol_errors"] == {} and st["rejected"] == {}, st
+    return truth
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("coupling", COUPLINGS)
+def test_a_client_written_from_the_document_drives_like_bus_node(procs, endpoint, tmp_path,
+                                                                coupling):
+    script = tmp_path / "go_straight.py"
+    script.write_text(GO_STRAIGHT)
+    ours = _drive(procs, endpoint, tmp_path, coupling,
+                  [sys.executable, str(script), "--name", "conformance"])
+    theirs = _drive(procs, endpoint.replace("bus.sock", "bus2.sock"), tmp_path, coupling,
+                    [sys.executable, os.path.join(ROOT, "tests", "conformance_client.py")])
+    assert len(ours) > 150                       # ~4 s at 0.25 m/s, 20 ms ticks
+    xs = [codec.decode(ours[t], "nav_msgs/msg/Odometry").pose.pose.position.x
+          for t in sorted(ours)]
+    assert xs[-1] - xs[0] >= 1.0
+    assert sorted(ours) == sorted(theirs)
+    assert ours == theirs                        # byte for byte, every tick
+
+
+# ---------------------------------------------------------------- versions and errors
+@pytest.mark.slow
+def test_a_node_exits_2_on_a_plant_of_another_protocol_version(procs, endpoint, tmp_path):
+    from bus.session import open_session
+    s = open_session("plant", endpoint)
+    info = {"protocol": 1, "mode": "lockstep", "control_tick_s": 0.02,
+            "robots": {"robot1": {"topics": {"joint_states": 1}}}}
+    q = s.declare_queryable(K.info, lambda query: query.reply(K.info, json.dumps(info)))
+    try:
+        node = procs.diffbot("controller", "square_path", "--endpoint", endpoint, name="node")
+        assert node.wait(60) == 2
+        log = procs.log(node)
+        assert "the plant speaks bus protocol 1; this node speaks bus protocol 2" in log
+        assert "Traceback" not in log
+    finally:
+        q.undeclare()
+        s.close()
+
+
+@pytest.mark.slow
+def test_the_plant_says_what_is_wrong_with_a_member_s_outputs(procs, endpoint, bus, tmp_path):
+    stats = tmp_path / "plant.json"
+    plant = procs.diffbot("plant", "--world", "empty", "--expect", "rogue", "--endpoint",
+                          endpoint, "--stats", str(stats), name="plant")
+    s = bus()
+    clocks: queue.Queue = queue.Queue()
+    sub = s.declare_subscriber(K.clock, lambda smp: clocks.put(
+        codec.parse_attachment(smp.attachment.to_bytes()).t_ns))
+    token = s.liveliness().declare_token(K.sync("rogue"))
+    key = K.topic("robot1", "cmd_vel")
+    cmd = codec.encode(codec.twist_stamped(0, 0.1, 0.0))
+    try:
+        assert clocks.get(timeout=60) == 0
+        s.put(key, cmd)                                           # no attachment at all
+        s.put(key, codec.encode(codec.twist_stamped(200_000_000, 0.1, 0.0)),
+              attachment=codec.attachment(1, 200_000_000, codec.ACK, 1, "rogue"))  # not due
+        s.put(key, cmd, attachment=codec.attachment(2, 0, codec.ACK, 2, "rogue"))  # 1 of 2
+        wait_for(lambda: "lockstep: waited" in procs.log(plant), 15, what="the wait report")
+        assert clocks.empty(), "the plant stepped without the member's second message"
+        s.put(key, cmd, attachment=codec.attachment(3, 0, 0, 0, "rogue"))          # 2 of 2
+        assert clocks.get(timeout=15) == 20_000_000
+    finally:
+        token.undeclare()
+        sub.undeclare()
+    plant.send_signal(signal.SIGINT)
+    assert plant.wait(20) == 0
+    log = procs.log(plant)
+    assert "robot1/cmd_vel: no attachment" in log and "docs/PROTOCOL.md" in log
+    assert "stamped for a tick not due" in log
+    assert "rogue (ACKed with n_plant=2, 1 arrived)" in log
+    errors = json.loads(stats.read_text())["protocol_errors"]
+    assert errors["robot1/cmd_vel: no attachment"] == 1
+    assert errors["robot1/cmd_vel: stamped for a tick not due"] == 1
+    assert errors["missing outputs"] >= 1
