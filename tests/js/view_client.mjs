@@ -3,9 +3,12 @@
 // @foxglove/rosmsg and CDR decoded by @foxglove/rosmsg2-serialization.
 //
 // usage: node view_client.mjs URL ROBOT OUT.json [PHASE]
-//   receives the channels, decodes a LaserScan, an Image and the scene; publishes a Twist
-//   on /ROBOT/cmd_vel as the Teleop panel does (cdr); reports the ground truth before and
-//   after. Prints one JSON line per event and writes a summary to OUT.json.
+//   full (default): receives the channels, decodes a LaserScan, an Image and the scene;
+//     publishes a Twist on /ROBOT/cmd_vel as the Teleop panel does (cdr) and reports the
+//     ground truth before and after; writes a summary to OUT.json.
+//   receive: the same without the Twist.
+//   watch: (the view bench) keeps trying to connect until the view is there, subscribes
+//     to every channel, decodes every message, and on SIGINT/SIGTERM writes the counts.
 import fs from "node:fs";
 import WebSocket from "ws";
 import wsp from "@foxglove/ws-protocol";
@@ -14,14 +17,24 @@ import { MessageReader, MessageWriter } from "@foxglove/rosmsg2-serialization";
 
 const { FoxgloveClient } = wsp;
 const [url, robot, outPath, phase = "full"] = process.argv.slice(2);
-const TIMEOUT_MS = 40000;
+const TIMEOUT_MS = phase === "watch" ? 3600000 : 40000;
+const watch = phase === "watch";
 
-const ws = new WebSocket(url, ["foxglove.sdk.v1"]);
-const client = new FoxgloveClient({ ws });
+let client = null;
+let opened = false;
+function connect() {
+  const ws = new WebSocket(url, ["foxglove.sdk.v1"]);
+  ws.on("error", () => {});
+  ws.on("open", () => { opened = true; });
+  ws.on("close", () => { if (watch && !opened && !done) setTimeout(connect, 200); });
+  client = new FoxgloveClient({ ws });
+  setup(client);
+}
 const channels = new Map();   // id -> {topic, schemaName, reader}
 const subs = new Map();       // subscription id -> channel
 const out = { channels: [], scans: [], image: null, scene: null, ground_truth: [], tf: 0,
               errors: [] };
+out.counts = {};
 const want = new Set([`/${robot}/scan`, `/${robot}/camera/image`, "/scene", "/tf",
                       `/${robot}/ground_truth`]);
 let done = false;
@@ -34,7 +47,10 @@ function finish(code) {
   setTimeout(() => process.exit(code), 50);
 }
 setTimeout(() => { out.errors.push("timeout"); finish(1); }, TIMEOUT_MS);
+process.on("SIGINT", () => finish(0));
+process.on("SIGTERM", () => finish(0));
 
+function setup(client) {
 client.on("error", (e) => { out.errors.push(String(e && e.message || e)); });
 client.on("serverInfo", (info) => { out.server = { name: info.name, capabilities: info.capabilities,
                                                    supportedEncodings: info.supportedEncodings }; });
@@ -45,7 +61,7 @@ client.on("advertise", (chs) => {
     if (ch.encoding !== "cdr" || ch.schemaEncoding !== "ros2msg") continue;
     const reader = new MessageReader(parse(ch.schema, { ros2: true }));
     channels.set(ch.id, { topic: ch.topic, schemaName: ch.schemaName, reader });
-    if (want.has(ch.topic)) subs.set(client.subscribe(ch.id), channels.get(ch.id));
+    if (watch || want.has(ch.topic)) subs.set(client.subscribe(ch.id), channels.get(ch.id));
   }
 });
 
@@ -55,6 +71,8 @@ client.on("message", ({ subscriptionId, data }) => {
   const ch = subs.get(subscriptionId);
   if (!ch) return;
   const msg = ch.reader.readMessage(new Uint8Array(data.buffer, data.byteOffset, data.byteLength));
+  out.counts[ch.topic] = (out.counts[ch.topic] || 0) + 1;
+  if (watch) return;
   const stamp = msg.header ? msg.header.stamp.sec * 1e9 + msg.header.stamp.nanosec : null;
   if (ch.topic.endsWith("/scan") && out.scans.length < 5) {
     out.scans.push({ stamp, frame_id: msg.header.frame_id, ranges: Array.from(msg.ranges,
@@ -103,3 +121,5 @@ client.on("message", ({ subscriptionId, data }) => {
     }
   }
 });
+}
+connect();
