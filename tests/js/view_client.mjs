@@ -42,6 +42,8 @@ let done = false;
 function finish(code) {
   if (done) return;
   done = true;
+  const cpu = process.cpuUsage();
+  out.cpu_s = (cpu.user + cpu.system) / 1e6;
   fs.writeFileSync(outPath, JSON.stringify(out));
   try { client.close(); } catch (e) { /* closing */ }
   setTimeout(() => process.exit(code), 50);
