@@ -214,22 +214,26 @@ class Run:
             self.children.append(self.recorder)
 
     def start_recorder(self, env: dict, session, stop_flag: list) -> bool:
-        """Start the recorder and wait until it listens; False (and ``failed``) if not."""
-        rec = self.recorder
-        if rec is None:
-            return True
-        rec.start(env)
-        key = Keys(self.namespace).alive(RECORDER)
+        """Start the recorder, then the view (--view), each waited for until it is on the
+        bus (so the whole run is recorded and watched, and neither one's start-up competes
+        with the first ticks); False (and ``failed``) if one does not come."""
+        view = next((c for c in self.children if c.name == VIEW), None)
+        return all(self._start_waited(c, env, session, stop_flag)
+                   for c in (self.recorder, view) if c is not None)
+
+    def _start_waited(self, child: Child, env: dict, session, stop_flag: list) -> bool:
+        child.start(env)
+        key = Keys(self.namespace).alive(child.name)
         deadline = time.monotonic() + RECORDER_JOIN_S
-        while time.monotonic() < deadline and rec.poll() is None and not stop_flag:
+        while time.monotonic() < deadline and child.poll() is None and not stop_flag:
             if any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5)):
                 return True
             time.sleep(0.05)
         if not stop_flag:
-            self.failed = rec
-            self.reason = (f"recorder failed with exit code {rec.exit_code}"
-                           if rec.exit_code is not None
-                           else f"recorder did not start within {RECORDER_JOIN_S:.0f} s")
+            self.failed = child
+            self.reason = (f"{child.name} failed with exit code {child.exit_code}"
+                           if child.exit_code is not None
+                           else f"{child.name} did not start within {RECORDER_JOIN_S:.0f} s")
         return False
 
     def _stop_recorder(self) -> None:
@@ -321,7 +325,7 @@ def main(argv: list[str] | None = None) -> int:
                                                             history=True)
             if run.start_recorder(env, session, stop_flag):
                 for c in run.children[1:]:
-                    if c is not run.recorder:
+                    if c is not run.recorder and c.name != VIEW:
                         c.start(env)
                 print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
                       f"{len(run.children)} processes, output in {out}", file=sys.stderr)

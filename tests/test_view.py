@@ -11,6 +11,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 import time
 
 import numpy as np
@@ -240,3 +241,19 @@ def test_recording_holds_the_scene_and_a_transform_per_ground_truth(procs, endpo
         assert t.log_time == g.log_time == codec.stamp_ns(tr.header.stamp)
         assert tr.child_frame_id == "robot1/base_link"
         assert tr.transform.translation.x == gt.pose.pose.position.x
+
+
+@pytest.mark.slow
+def test_run_with_view_starts_it_first_and_stops_it_cleanly(tmp_path):
+    pytest.importorskip("foxglove")
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m",
+                        "diffbot.cli", "run", "drive-test", "--view", "--view-port", "0",
+                        "--duration", "1", "--out", str(out)], cwd=ROOT, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["exit_codes"]["view"] == 0
+    log = (out / "logs" / "view.log").read_text()
+    assert re.search(r"serving ws://127\.0\.0\.1:\d+", log)
+    assert json.loads((out / "logs" / "view.json").read_text())["rejected"] == {}

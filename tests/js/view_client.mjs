@@ -9,6 +9,8 @@
 //   receive: the same without the Twist.
 //   watch: (the view bench) keeps trying to connect until the view is there, subscribes
 //     to every channel, decodes every message, and on SIGINT/SIGTERM writes the counts.
+//   layout: as watch, but subscribes only to what bridges/foxglove_layout.json shows (and
+//     /tf, /tf_static, /scene), as the Foxglove app with that layout does.
 import fs from "node:fs";
 import WebSocket from "ws";
 import wsp from "@foxglove/ws-protocol";
@@ -17,8 +19,18 @@ import { MessageReader, MessageWriter } from "@foxglove/rosmsg2-serialization";
 
 const { FoxgloveClient } = wsp;
 const [url, robot, outPath, phase = "full"] = process.argv.slice(2);
-const TIMEOUT_MS = phase === "watch" ? 3600000 : 40000;
-const watch = phase === "watch";
+const TIMEOUT_MS = (phase === "watch" || phase === "layout") ? 3600000 : 40000;
+const watch = phase === "watch" || phase === "layout";
+let layoutTopics = null;
+if (phase === "layout") {
+  const text = fs.readFileSync(new URL("../../bridges/foxglove_layout.json", import.meta.url), "utf8");
+  layoutTopics = new Set(["/tf", "/tf_static", "/scene"]);
+  for (const m of text.matchAll(/"(\/[A-Za-z0-9_\/]+)/g)) {
+    let t = m[1];
+    // a plot path "/follower/ground_truth.twist..." names its topic before the first "."
+    layoutTopics.add(t);
+  }
+}
 
 let client = null;
 let opened = false;
@@ -63,7 +75,8 @@ client.on("advertise", (chs) => {
     if (ch.encoding !== "cdr" || ch.schemaEncoding !== "ros2msg") continue;
     const reader = new MessageReader(parse(ch.schema, { ros2: true }));
     channels.set(ch.id, { topic: ch.topic, schemaName: ch.schemaName, reader });
-    if (watch || want.has(ch.topic)) subs.set(client.subscribe(ch.id), channels.get(ch.id));
+    const pick = layoutTopics ? layoutTopics.has(ch.topic) : (watch || want.has(ch.topic));
+    if (pick) subs.set(client.subscribe(ch.id), channels.get(ch.id));
   }
 });
 
