@@ -318,6 +318,11 @@ class View:
                  "/" + k.clock: "rosgraph_msgs/msg/Clock"}
         for r, ri in info.get("robots", {}).items():
             plant_topics = set(ri.get("topics") or {}) | {"joint_states", "gps", "ground_truth"}
+            sensors = ri.get("sensors") or {}
+            if sensors.get("lidar"):
+                plant_topics.add("scan")
+            if sensors.get("camera"):
+                plant_topics |= {"camera/image", "camera/info"}
             for topic in sorted(plant_topics | {"odom", "cmd_vel", "wheel_cmd", "follower/debug"}):
                 if topic in TOPICS:
                     key = k.topic(r, topic)

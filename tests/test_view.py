@@ -257,3 +257,30 @@ def test_run_with_view_starts_it_first_and_stops_it_cleanly(tmp_path):
     log = (out / "logs" / "view.log").read_text()
     assert re.search(r"serving ws://127\.0\.0\.1:\d+", log)
     assert json.loads((out / "logs" / "view.json").read_text())["rejected"] == {}
+
+
+def test_shipped_layout_names_only_channels_the_view_serves():
+    pytest.importorskip("foxglove")
+    import logging
+
+    from bridges.view import View
+    layout = json.loads(open(os.path.join(ROOT, "bridges", "foxglove_layout.json")).read())
+    panels = set()
+
+    def walk(node):
+        if isinstance(node, str):
+            panels.add(node)
+        else:
+            walk(node["first"])
+            walk(node["second"])
+    walk(layout["layout"])
+    assert panels == set(layout["configById"])
+    served = set()
+    for world in ("living_room", "living_room_follow"):
+        v = View(None, K, logging.getLogger("test"))
+        v.load_info(_info(world))
+        served |= set(v._deps)
+    named = set(re.findall(r'"(/[A-Za-z0-9_/]+)', json.dumps(layout["configById"])))
+    publish_only = {"/move_base_simple/goal", "/clicked_point", "/initialpose"}
+    assert named - publish_only <= served, named - publish_only - served
+    assert layout["configById"]["Teleop!drive"]["topic"] == "/robot1/cmd_vel"
