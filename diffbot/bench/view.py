@@ -53,6 +53,12 @@ def _run(ctx: Context, view: bool, client: str | None = None) -> tuple[dict, dic
             raise RuntimeError(f"diffbot run follow exited {rc}: {tail(os.path.join(out, 'run.log'))}")
         with open(os.path.join(out, "summary.json")) as f:
             summary = json.load(f)
+        if view:
+            try:
+                with open(os.path.join(out, "logs", "view.json")) as f:
+                    summary["view_cpu_s"] = json.load(f)["cpu_s"]
+            except (OSError, ValueError, KeyError):
+                summary["view_cpu_s"] = float("nan")
         counts = {}
         if client:
             stop(children[1:], grace_s=5.0)
@@ -69,12 +75,15 @@ def _run(ctx: Context, view: bool, client: str | None = None) -> tuple[dict, dic
 
 def compare(ctx: Context) -> dict:
     a = _run(ctx, view=False)[0]["real_time_factor"]
-    idle = _run(ctx, view=True)[0]["real_time_factor"]
-    summary, layout_counts = _run(ctx, view=True, client="layout")
-    lay = summary["real_time_factor"]
-    summary, counts = _run(ctx, view=True, client="watch")
-    every = summary["real_time_factor"]
-    return {"rtf_plain": a, "rtf_idle": idle, "rtf_layout": lay, "rtf_all": every,
+    s_idle = _run(ctx, view=True)[0]
+    idle = s_idle["real_time_factor"]
+    s_lay, layout_counts = _run(ctx, view=True, client="layout")
+    lay = s_lay["real_time_factor"]
+    s_all, counts = _run(ctx, view=True, client="watch")
+    every = s_all["real_time_factor"]
+    return {"cpu_idle": s_idle["view_cpu_s"] / DURATION_S,
+            "cpu_layout": s_lay["view_cpu_s"] / DURATION_S,
+            "cpu_all": s_all["view_cpu_s"] / DURATION_S,"rtf_plain": a, "rtf_idle": idle, "rtf_layout": lay, "rtf_all": every,
             "slowdown_idle": 1.0 - idle / a, "slowdown_layout": 1.0 - lay / a,
             "slowdown_all": 1.0 - every / a,
             "layout_messages": float(sum(layout_counts.values())),
@@ -102,6 +111,10 @@ def view_suite(ctx: Context):
                notes="the shipped layout's channels"),
         Metric("slowdown_all", "slowdown: view + client on all", "(fraction)",
                notes="every channel, every message decoded"),
+        Metric("cpu_idle", "view CPU per simulated s, no client", "s",
+               notes="whole process incl. ~0.35 s of imports"),
+        Metric("cpu_layout", "view CPU per simulated s, layout client", "s"),
+        Metric("cpu_all", "view CPU per simulated s, client on all", "s"),
         Metric("layout_messages", "layout client: messages received", "msgs"),
         Metric("all_messages", "all-channel client: messages received", "msgs"),
         Metric("all_images", "all-channel client: camera frames", "frames",
