@@ -155,7 +155,7 @@ class View:
         self.published: dict[str, int] = {}
         self.sim_ns = 0
         self._seq = itertools.count(1)
-        self._slots: dict[str, tuple[bytes, int]] = {}     # latest-only: key -> (payload, t)
+        self._slots: dict[str, tuple] = {}     # latest-only: key -> (payload, attachment)
         self._next: dict[str, float] = {}
         self._route: dict[str, object] = {}
         self._lock = threading.Lock()
@@ -164,8 +164,9 @@ class View:
         self._key_subs: dict[str, object] = {}  # bus key -> Zenoh subscriber
         self._resub = threading.Event()
         self._paths: dict[str, Path] = {}
-        self._gt: dict[str, dict[int, bytes]] = {}           # robot -> stamp -> raw
-        self._debug: dict[str, tuple[int, bytes]] = {}
+        # (payload, attachment) as Zenoh handed them (ZBytes, copied only when used)
+        self._gt: dict[str, deque] = {}                      # robot -> the last ground truths
+        self._debug: dict[str, tuple] = {}                   # robot -> the last follower/debug
         self._resend = threading.Event()
         self._client_channels: dict[tuple[int, int], tuple[str, str, str]] = {}
         self._subs: list = []
@@ -275,13 +276,40 @@ class View:
         self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
 
     def _declare(self, key: str):
-        q = self.queue
+        """A subscriber whose callback (in Zenoh's receive thread, no copy, no queue, no
+        wake-up) keeps the latest sample in the key's slot; :meth:`flush` sends it."""
+        slots = self._slots
+        rt = self.route(key)
+        if self.period_s == 0 and not (rt and rt[1] in RATE_LIMITED):
+            q = self.queue
 
-        def cb(sample: zenoh.Sample) -> None:
-            att = sample.attachment
-            q.put((str(sample.key_expr), sample.payload.to_bytes(),
-                   att.to_bytes() if att is not None else None))
-        # Direct callbacks (Zenoh's receive thread): no Python thread per subscriber.
+            def cb(sample: zenoh.Sample) -> None:      # --rate 0: every message, in order
+                att = sample.attachment
+                q.put((key, sample.payload.to_bytes(), att.to_bytes() if att is not None else None))
+        elif rt is None:                                 # the clock: sim time for teleop
+            def cb(sample: zenoh.Sample) -> None:
+                item = (sample.payload, sample.attachment)
+                a = codec.parse_attachment(item[1].to_bytes()) if item[1] is not None else None
+                if a is not None:
+                    self.sim_ns = a.t_ns
+                slots[key] = item
+        elif rt[1] == "ground_truth":                    # kept a while to pair with others
+            hist = self._gt.setdefault(rt[0], deque(maxlen=_GT_KEEP))
+
+            def cb(sample: zenoh.Sample) -> None:
+                item = (sample.payload, sample.attachment)
+                hist.append(item)
+                slots[key] = item
+        elif rt[1] == "follower/debug":
+            debug, robot = self._debug, rt[0]
+
+            def cb(sample: zenoh.Sample) -> None:
+                item = (sample.payload, sample.attachment)
+                debug[robot] = item
+                slots[key] = item
+        else:
+            def cb(sample: zenoh.Sample) -> None:
+                slots[key] = (sample.payload, sample.attachment)
         return self.session.declare_subscriber(key, zenoh.handlers.Callback(cb, indirect=False))
 
     def resubscribe(self) -> None:
@@ -383,32 +411,39 @@ class View:
             self.sim_ns = t
         else:
             robot, topic = rt
-            if topic == "ground_truth":        # kept by stamp, decoded only when paired
-                gts = self._gt.setdefault(robot, {})
-                gts[t] = payload
-                if len(gts) > _GT_KEEP:
-                    del gts[next(iter(gts))]
+            if topic == "ground_truth":
+                self._gt.setdefault(robot, deque(maxlen=_GT_KEEP)).append((payload, att))
             elif topic == "follower/debug":
-                self._debug[robot] = (t, payload)
-            if topic not in RATE_LIMITED and self.period_s == 0:
-                self.process(key, payload, t)
-                return
-        self._slots[key] = (payload, t)
+                self._debug[robot] = (payload, att)
+        self.process(key, payload, t)
 
     def flush(self, now: float) -> None:
         """Send each key's latest sample once its period has passed (``--rate``, or
         ``--image-rate`` for cameras); what came in between was dropped, never queued."""
-        for key, (payload, t) in list(self._slots.items()):
+        for key in list(self._slots):
             if now < self._next.get(key, 0.0):
                 continue
-            del self._slots[key]
+            item = self._slots.pop(key, None)         # the freshest (callbacks keep writing)
+            if item is None:
+                continue
             rt = self.route(key)
             image = rt is not None and rt[1] in RATE_LIMITED
             self._next[key] = now + (self.image_period_s if image else self.period_s)
             try:
+                payload, t = self.unpack(item)
                 self.process(key, payload, t)
             except Exception as exc:       # a bad sample never ends the view
                 self.rejects.reject(key, f"{type(exc).__name__}: {exc}")
+
+    def unpack(self, item) -> tuple[bytes, int]:
+        """(payload bytes, sim-time stamp) of a kept (payload, attachment) pair."""
+        payload, att = item
+        if not isinstance(payload, bytes):
+            payload = payload.to_bytes()
+        if att is not None and not isinstance(att, bytes):
+            att = att.to_bytes()
+        a = codec.parse_attachment(att)
+        return payload, (a.t_ns if a is not None else self.sim_ns)
 
     def process(self, key: str, payload: bytes, t: int) -> None:
         """Forward one sample (reframed if it is a scan or an image) and derive what hangs
@@ -456,9 +491,14 @@ class View:
         return self._paths.setdefault(f"{robot}/path/{kind}", Path())
 
     def ground_truth_at(self, robot: str, t: int):
-        raw = self._gt.get(robot, {}).get(t)
-        return None if raw is None else self.decode(raw, TOPICS["ground_truth"].msgtype,
-                                                    f"{robot}/ground_truth")
+        """A robot's ground truth stamped ``t`` (decoded), if it is among the last ones."""
+        for item in reversed(self._gt.get(robot, ())):
+            payload, t_item = self.unpack(item)
+            if t_item == t:
+                return self.decode(payload, TOPICS["ground_truth"].msgtype, f"{robot}/ground_truth")
+            if t_item < t:
+                return None
+        return None
 
     def on_ground_truth(self, robot: str, payload: bytes, t: int) -> None:
         m = self.decode(payload, TOPICS["ground_truth"].msgtype, f"{robot}/ground_truth")
@@ -519,9 +559,10 @@ class View:
             self.rejects.reject(f"{robot}/camera/image", str(exc))
             return
         dbg = None
-        if robot in self._debug and abs(self._debug[robot][0] - t) <= 0.2e9:
-            d = self.decode(self._debug[robot][1], TOPICS["follower/debug"].msgtype,
-                            f"{robot}/follower/debug")
+        if robot in self._debug:
+            raw, t_dbg = self.unpack(self._debug[robot])
+            d = self.decode(raw, TOPICS["follower/debug"].msgtype, f"{robot}/follower/debug") \
+                if abs(t_dbg - t) <= 0.2e9 else None
             dbg = (t, [float(v) for v in d.data]) if d is not None else None
         if dbg is not None and len(dbg[1]) >= 4 and dbg[1][0] > 0:
             import cv2
