@@ -59,6 +59,8 @@ PATH_PERIOD_S = 0.5
 TIME_PERIOD_S = 1 / 30
 #: the loop's period: samples wait at most this long (s)
 LOOP_S = 0.005
+#: ... while no client watches anything
+IDLE_LOOP_S = 0.05
 #: samples of ground truth kept per robot to pair with odometry of the same stamp
 _GT_KEEP = 64
 TWIST_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/Twist",
@@ -590,7 +592,7 @@ class View:
         get = self.queue.get_nowait
         # Wake every LOOP_S and take what came in one batch: a wake-up per sample (thousands
         # a second) costs more than the work here (FIELD_NOTES: halting vCPUs).
-        while not self.stop_event.wait(LOOP_S):
+        while not self.stop_event.wait(LOOP_S if self._watched else IDLE_LOOP_S):
             for _ in range(20000):
                 try:
                     item = get()
