@@ -152,7 +152,6 @@ class View:
         self.info: dict = {}
         self.channels: dict[str, object] = {}
         self.sent: dict[str, int] = {}
-        self.dropped_images = 0
         self.teleop_in = 0
         self.published: dict[str, int] = {}
         self.sim_ns = 0

@@ -157,7 +157,8 @@ def test_foxglove_client_sees_scan_image_scene_drives_and_reconnects(procs, endp
             s.declare_subscriber(K.clock, on_clock)]
     stats = tmp_path / "view.json"
     view = procs.diffbot("view", "--port", "0", "--endpoint", endpoint, "--stats", str(stats),
-                         name="view")
+                         "--image-rate", "5", name="view")
+    view_started = time.monotonic()
     url = wait_for(lambda: (re.search(r"ws://127\.0\.0\.1:\d+", procs.log(view)) or [None])[0],
                    30, what="the view to serve")
 
@@ -207,9 +208,12 @@ def test_foxglove_client_sees_scan_image_scene_drives_and_reconnects(procs, endp
         sub.undeclare()
     view.send_signal(2)
     view.wait(10)
+    view_s = time.monotonic() - view_started
     assert view.returncode == 0, procs.log(view)
     st = json.loads(stats.read_text())
     assert st["teleop_messages"] == got["twists_sent"] and st["rejected"] == {}
+    # the camera renders 25 frames per second; the view sent at most --image-rate 5 of them
+    assert 0 < st["sent"]["/robot1/camera/image"] <= 5 * view_s + 2
 
 
 @pytest.mark.slow
