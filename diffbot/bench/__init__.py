@@ -29,10 +29,15 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from .harness import (DEFAULT_REPEATS, QUICK_REPEATS, ROOT, SUITES, Case, Context,  # noqa: F401 (API)
+from .harness import (DEFAULT_REPEATS, QUICK_REPEATS, ROOT, SUITES, Case, Context,
                       Metric, Probe, Result, Skip, as_timer, autorange, build_parser,
                       fmt_value, machine_info, main, measure, percentile, run_case, run_probe,
                       run_suite, stats, suite, table)
+
+__all__ = ["DEFAULT_REPEATS", "QUICK_REPEATS", "ROOT", "SUITES", "Case", "Context", "Metric",
+           "Probe", "Result", "Skip", "as_timer", "autorange", "build_parser", "fmt_value",
+           "machine_info", "main", "measure", "percentile", "run_case", "run_probe", "run_suite",
+           "stats", "suite", "table", "load_suites"]
 
 #: the shipped suites' modules, in the order ``--list`` shows and a full run runs them
 ORDER = ("physics", "lidar", "camera", "messages", "roundtrip", "lockstep", "scenario", "fmu")
