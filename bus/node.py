@@ -6,6 +6,11 @@ inputs and ``sim/clock``, takes part in lockstep (liveliness token
 ``sim/sync/<node>``, an ack per tick), stamps and publishes the outputs, and
 exits cleanly on Ctrl-C, SIGTERM, the controller finishing, or the plant going away.
 
+One node may drive several robots (``--robots r0,r1`` or ``run_node(..., robots=[...])``):
+one controller object per robot (a factory makes them, or the given object is copied),
+one session, one lockstep member that acks each tick once for all its robots, each
+robot's inputs awaited separately; the node finishes when every controller is done.
+
 A controller declares::
 
     inputs = ["joint_states", "odom"]   # topics of its robot it reads
@@ -32,6 +37,8 @@ that node left exits 4 instead of holding the simulation forever.
 from __future__ import annotations
 
 import argparse
+import copy
+import inspect
 import json
 import logging
 import math
@@ -120,40 +127,89 @@ def query_info(session: zenoh.Session, keys: Keys, timeout_s: float = 15.0) -> d
         time.sleep(0.1)
 
 
-class NodeRunner:
-    """Runs one controller object on the bus (see module docstring)."""
+@dataclass
+class _Slot:
+    """One robot a node drives: its controller object and what it reads."""
+    robot: str
+    controller: Any
+    inputs: list[str]
+    check_inputs: bool
+    periods: dict[str, int] = field(default_factory=dict)
+    awaited: list[str] = field(default_factory=list)
+    done: bool = False
 
-    def __init__(self, controller, robot: str, name: str, session: zenoh.Session, keys: Keys,
-                 log: logging.Logger, wait_for_plant_s: float = 15.0,
-                 wait: bool = False) -> None:
-        self.controller = controller
-        self.robot = check_name(robot, "robot name")
+
+def make_controllers(controller, robots: list[str]) -> list:
+    """One controller object per robot. ``controller`` is either an object with ``step``
+    (one robot: used as it is; several: one deep copy per robot, made before any runs) or
+    a factory: a class or callable, called once per robot with the robot name if it takes
+    a parameter, else with none."""
+    if hasattr(controller, "step") and not isinstance(controller, type):
+        if len(robots) == 1:
+            return [controller]
+        try:
+            return [copy.deepcopy(controller) for _ in robots]
+        except Exception as exc:
+            raise ValueError(f"{type(controller).__name__} cannot drive several robots: it "
+                             f"cannot be copied ({exc}); pass a factory instead") from None
+    if not callable(controller):
+        raise ValueError(f"{controller!r} is neither a controller (an object with step) "
+                         "nor a factory of controllers")
+    try:
+        takes_robot = bool(inspect.signature(controller).parameters)
+    except (TypeError, ValueError):
+        takes_robot = False
+    return [controller(r) if takes_robot else controller() for r in robots]
+
+
+class NodeRunner:
+    """Runs controller objects on the bus as one node: one per robot (module docstring)."""
+
+    def __init__(self, controller, robot: str | None, name: str, session: zenoh.Session,
+                 keys: Keys, log: logging.Logger, wait_for_plant_s: float = 15.0,
+                 wait: bool = False, robots: list[str] | None = None) -> None:
+        robots = list(robots) if robots else [robot or "robot1"]
+        for r in robots:
+            check_name(r, "robot name")
+        if len(set(robots)) != len(robots):
+            raise ValueError(f"a robot is named twice in {','.join(robots)}")
+        self.robots = robots
+        self.robot = robots[0]
         self.name = check_name(name, "node name")
         self.session = session
         self.keys = keys
         self.log = log
         #: --wait: when the plant goes away, wait for it to come back instead of exiting 3
         self.wait = wait
-        self.inputs = list(getattr(controller, "inputs", ()))
-        for topic in self.inputs:
-            if topic not in TOPICS:
-                raise ValueError(f"{type(controller).__name__}.inputs: unknown topic {topic!r}")
-        #: inputs with non-finite or absurd numbers, or wrong joint names, are rejected here
-        #: unless the controller validates its own (``check_inputs = False``)
-        self.check_inputs = bool(getattr(controller, "check_inputs", True))
+        self.slots: list[_Slot] = []
+        for r, ctrl in zip(robots, make_controllers(controller, robots)):
+            inputs = list(getattr(ctrl, "inputs", ()))
+            for topic in inputs:
+                if topic not in TOPICS:
+                    raise ValueError(f"{type(ctrl).__name__}.inputs: unknown topic {topic!r}")
+            # inputs with non-finite or absurd numbers, or wrong joint names, are rejected
+            # here unless the controller validates its own (``check_inputs = False``)
+            self.slots.append(_Slot(r, ctrl, inputs, bool(getattr(ctrl, "check_inputs", True))))
+        self.controller = self.slots[0].controller
+        self.inputs = self.slots[0].inputs
         self.rejects = RejectCounter(log)
         self.stop_event = threading.Event()
         self.exit_code = 0
         self.published: dict[str, int] = {}
         self.ticks = 0
-        self.final_tick: int | None = None   # the tick at which the controller finished
+        self.final_tick: int | None = None   # the tick at which the last controller finished
         self.plant_lost = 0           # times the plant went away while --wait kept us here
         self._seq = 0
-        self._out: list[tuple[str, Any]] = []        # the current tick's outputs, not sent yet
+        # the current tick's outputs, not sent yet: (key, message, read by the plant)
+        self._out: list[tuple[str, Any, bool]] = []
         self._pubs: dict[str, zenoh.Publisher] = {}
+        self._keys: dict[tuple[str, str], str] = {}
+        # input key -> (slot, topic); filled by run()
+        self._topic_of: dict[str, tuple[_Slot, str]] = {}
         self._apply_info(query_info(session, keys, wait_for_plant_s))
-        if hasattr(controller, "configure"):
-            controller.configure(self.info, robot)
+        for slot in self.slots:
+            if hasattr(slot.controller, "configure"):
+                slot.controller.configure(self.info, slot.robot)
 
     def _apply_info(self, info: dict) -> None:
         """Take the simulation's protocol, mode, coupling, tick and sensor periods from the
@@ -162,57 +218,69 @@ class NodeRunner:
         self.info = info
         self.mode = info.get("mode", "lockstep")
         self.coupling = info.get("coupling", "sequential")
-        self.sync = bool(getattr(self.controller, "sync", True)) and self.mode == "lockstep"
-        if self.robot not in info.get("robots", {}):
-            raise ValueError(f"robot {self.robot!r} is not in the plant's world "
-                             f"(robots: {', '.join(info.get('robots', {})) or 'none'})")
+        self.sync = self.mode == "lockstep" and all(
+            bool(getattr(s.controller, "sync", True)) for s in self.slots)
+        robots = info.get("robots", {})
+        for slot in self.slots:
+            if slot.robot not in robots:
+                raise ValueError(f"robot {slot.robot!r} is not in the plant's world "
+                                 f"(robots: {', '.join(robots) or 'none'})")
+            # Sensors the plant publishes every `period` ticks; node outputs come every tick.
+            slot.periods = dict(robots[slot.robot].get("topics", {}))
+            slot.awaited = [t for t in slot.inputs
+                            if TOPICS[t].source != "plant" or t in slot.periods]
+        self.periods = self.slots[0].periods
         self.tick_ns = int(round(info.get("control_tick_s", 0.0) * 1e9))
-        # Sensors the plant publishes every `period` ticks; node outputs come every tick.
-        self.periods = dict(info["robots"][self.robot].get("topics", {}))
-        self.awaited = [t for t in self.inputs
-                        if TOPICS[t].source != "plant" or t in self.periods]
         # Pipelined coupling: other nodes' outputs are taken one tick old, so producer and
         # consumer work on the same tick in parallel (docs/PROTOCOL.md).
         lag = int(info.get("node_input_delay_ticks", 0)) * self.tick_ns if self.sync else 0
-        self.lag_ns = {t: lag if TOPICS[t].source != "plant" else 0 for t in self.inputs}
-        self._plant_reads = {self.keys.topic(self.robot, t) for t in PLANT_READS}
+        self.lag_ns = {t: lag if TOPICS[t].source != "plant" else 0 for t in TOPICS}
+
+    def _key(self, robot: str, topic: str) -> str:
+        key = self._keys.get((robot, topic))
+        if key is None:
+            key = self._keys[robot, topic] = self.keys.topic(robot, topic)
+        return key
 
     # ----------------------------------------------------------------- output
-    def publish(self, out, t_ns: int) -> None:
-        """Queue what ``step`` returned for tick ``t_ns``; :meth:`flush` sends it."""
+    def publish(self, out, t_ns: int, robot: str | None = None) -> None:
+        """Queue what ``step`` returned for tick ``t_ns`` (for ``robot``, by default the
+        first); :meth:`flush` sends it."""
         if out is None:
             return
+        robot = robot or self.robot
         if isinstance(out, Twist):
-            self._out.append((self.keys.topic(self.robot, "cmd_vel"),
-                              codec.twist_stamped(t_ns, out.linear, out.angular)))
+            self._out.append((self._key(robot, "cmd_vel"),
+                              codec.twist_stamped(t_ns, out.linear, out.angular), True))
         elif isinstance(out, WheelSpeeds):
-            self._out.append((self.keys.topic(self.robot, "wheel_cmd"),
+            self._out.append((self._key(robot, "wheel_cmd"),
                               codec.joint_state(t_ns, WHEEL_JOINTS,
-                                                velocity=(out.left, out.right))))
+                                                velocity=(out.left, out.right)), True))
         elif isinstance(out, dict):
             for topic, msg in out.items():
                 if isinstance(msg, (Twist, WheelSpeeds)):     # a command among other outputs
-                    self.publish(msg, t_ns)
+                    self.publish(msg, t_ns, robot)
                 else:
-                    self._out.append((self.keys.topic(self.robot, topic), msg))
+                    self._out.append((self._key(robot, topic), msg, topic in PLANT_READS))
         else:
             raise TypeError(f"step() returned {type(out).__name__}; expected Twist, "
                             "WheelSpeeds, dict or None")
 
     def flush(self, t_ns: int, final: bool = False) -> None:
-        """Send the tick's outputs. A lockstep member (docs/PROTOCOL.md) stamps each with its
-        trailer, sends the keys the plant reads last, and sets ACK on the very last of those:
-        one message per tick for a node with one command. Only a member with no such output
-        sends an empty ``sim/ack/<node>`` instead."""
+        """Send the tick's outputs (of every robot). A lockstep member (docs/PROTOCOL.md)
+        stamps each with its trailer, sends the keys the plant reads last, and sets ACK on
+        the very last of those: one message per tick for a node with one command, one per
+        robot for a node with several. Only a member with no such output sends an empty
+        ``sim/ack/<node>`` instead."""
         out, self._out = self._out, []
         if not self.sync:
-            for key, msg in out:
+            for key, msg, _ in out:
                 self._put(key, codec.encode(msg), codec.attachment(self._next_seq(), t_ns))
             return
-        out.sort(key=lambda km: km[0] in self._plant_reads)       # stable: plant-read last
-        n_plant = sum(1 for key, _ in out if key in self._plant_reads)
+        out.sort(key=lambda o: o[2])                  # stable: plant-read last, robot order
+        n_plant = sum(1 for o in out if o[2])
         end = codec.ACK | (codec.FINAL if final else 0)
-        for i, (key, msg) in enumerate(out):
+        for i, (key, msg, _) in enumerate(out):
             last = n_plant and i == len(out) - 1
             att = codec.attachment(self._next_seq(), t_ns, end if last else 0,
                                    n_plant if last else 0, self.name)
@@ -234,23 +302,28 @@ class NodeRunner:
         pub.put(payload, attachment=att)
         self.published[key] = self.published.get(key, 0) + 1
 
-    def due_inputs(self, t_ns: int) -> list[str]:
-        """The inputs that must be in before the node acts on tick ``t_ns``: the plant's
-        sensors due at this tick, and outputs of other lockstep nodes (stamped ``t_ns``, or
-        one tick earlier in pipelined coupling: none at the first tick)."""
+    def _needs(self, slot: _Slot, t_ns: int) -> list[tuple[str, str, int]]:
+        """(input key, topic, stamp) a robot needs before the node acts on tick ``t_ns``:
+        the plant's sensors due at this tick, and outputs of other lockstep nodes (stamped
+        ``t_ns``, or one tick earlier in pipelined coupling: none at the first tick)."""
         k = t_ns // self.tick_ns if self.tick_ns else 0
-        return [t for t in self.awaited if k % self.periods.get(t, 1) == 0
-                and t_ns - self.lag_ns[t] >= 0]
+        return [(self._key(slot.robot, t), t, t_ns - self.lag_ns[t]) for t in slot.awaited
+                if k % slot.periods.get(t, 1) == 0 and t_ns - self.lag_ns[t] >= 0]
+
+    def due_inputs(self, t_ns: int) -> list[str]:
+        """The first robot's inputs that must be in before the node acts on tick ``t_ns``."""
+        return [t for _, t, _ in self._needs(self.slots[0], t_ns)]
 
     # ----------------------------------------------------------------- input
-    def _input(self, topic: str, payload: bytes) -> None:
+    def _input(self, key: str, payload: bytes) -> None:
         """Decode and check one input sample, and file it under its stamp.
 
-        Samples are kept by stamp (a few per topic), so a late, early or forged sample
+        Samples are kept by stamp (a few per key), so a late, early or forged sample
         never displaces the one a tick needs. A sample that decodes but carries bad
         values (NaN, inf, absurd magnitudes, wrong joint names) is rejected and *held*:
         its tick still happens and the controller sees the topic's last good message.
         """
+        slot, topic = self._topic_of[key]
         try:
             msg = codec.decode(payload, TOPICS[topic].msgtype)
         except codec.CodecError as exc:
@@ -260,14 +333,14 @@ class NodeRunner:
         if problem:
             self.rejects.reject(topic, problem)
             return
-        buf = self._buf.setdefault(topic, {})
-        if self.check_inputs and (problem := check_input(topic, msg)):
+        buf = self._buf.setdefault(key, {})
+        if slot.check_inputs and (problem := check_input(topic, msg)):
             self.rejects.reject(topic, f"{problem} (t={stamp * 1e-9:.3f} s; holding the last "
                                        "good one)")
             buf.setdefault(stamp, _HELD)       # never replaces a good sample of the tick
         else:
             buf[stamp] = msg
-            self._used.discard((topic, stamp))  # a new sample for that tick (a reset)
+            self._used.discard((key, stamp))    # a new sample for that tick (a reset)
         if len(buf) > _BUF_PER_TOPIC:          # drop what lies farthest from the clock
             ref = self._last_clock if self._last_clock is not None else stamp
             del buf[max(buf, key=lambda s: abs(s - ref))]
@@ -286,25 +359,28 @@ class NodeRunner:
         return t_ns
 
     def _complete(self, t_ns: int) -> bool:
-        """Every input due at ``t_ns`` has a sample (good or held) of the stamp it needs
-        (``t_ns``, or a tick earlier for a lagged one) that this node has not acted on yet."""
-        return all((s := t_ns - self.lag_ns[topic]) in self._buf.get(topic, ())
-                   and (topic, s) not in self._used for topic in self.due_inputs(t_ns))
+        """Every robot still driven has, for every input due at ``t_ns``, a sample (good or
+        held) of the stamp it needs that this node has not acted on yet."""
+        return all(s in self._buf.get(key, ()) and (key, s) not in self._used
+                   for slot in self.slots if not slot.done
+                   for key, _, s in self._needs(slot, t_ns))
 
-    def _observation(self, t_ns: int) -> Observation:
-        """The latest good message of each input stamped at or before ``t_ns``, unless it is
-        stale (older than ``STALE_S`` or three of its periods: its producer is gone), so a
-        controller never steers on a dead input; older ones and held marks are dropped."""
+    def _observation(self, slot: _Slot, t_ns: int) -> Observation:
+        """The latest good message of each of a robot's inputs stamped at or before ``t_ns``
+        (a tick earlier for a lagged one), unless it is stale (older than ``STALE_S`` or
+        three of its periods: its producer is gone), so a controller never steers on a dead
+        input; older ones and held marks are dropped."""
         msgs = {}
-        for topic in self.inputs:
-            buf = self._buf.get(topic)
+        for topic in slot.inputs:
+            key = self._key(slot.robot, topic)
+            buf = self._buf.get(key)
             if not buf:
                 continue
             upto = t_ns - self.lag_ns[topic]       # a lagged input never shows a newer sample
             good = [s for s, m in buf.items() if s <= upto and m is not _HELD]
             if good:
                 best = max(good)
-                stale_ns = max(STALE_S * 1e9, 3 * self.periods.get(topic, 1) * self.tick_ns)
+                stale_ns = max(STALE_S * 1e9, 3 * slot.periods.get(topic, 1) * self.tick_ns)
                 if upto - best <= stale_ns:
                     msgs[topic] = buf[best]
             else:
@@ -312,10 +388,10 @@ class NodeRunner:
             for s in [s for s, m in buf.items()
                       if s <= upto and (s != best) and (best is None or s < best or m is _HELD)]:
                 del buf[s]
-            self._used.add((topic, upto))
-        if len(self._used) > 4 * _BUF_PER_TOPIC * max(1, len(self.inputs)):
-            self._used = {(tp, s) for tp, s in self._used if s >= t_ns - self.tick_ns}
-        return Observation(t_ns, self.robot, msgs)
+            self._used.add((key, upto))
+        if len(self._used) > 4 * _BUF_PER_TOPIC * max(1, len(self._topic_of)):
+            self._used = {(k, s) for k, s in self._used if s >= t_ns - self.tick_ns}
+        return Observation(t_ns, slot.robot, msgs)
 
     def _reset_inputs(self) -> None:
         self._buf: dict[str, dict[int, Any]] = {}
@@ -326,8 +402,8 @@ class NodeRunner:
     # ----------------------------------------------------------------- loop
     def run(self, max_ticks: int | None = None) -> int:
         inbox = Inbox(self.session)
-        topic_of = {self.keys.topic(self.robot, t): t for t in self.inputs}
-        for key in topic_of:
+        self._topic_of = {self._key(s.robot, t): (s, t) for s in self.slots for t in s.inputs}
+        for key in self._topic_of:
             inbox.subscribe(key, "input")
         inbox.subscribe(self.keys.clock, "clock")
         inbox.subscribe(self.keys.end, "end")
@@ -344,7 +420,8 @@ class NodeRunner:
         plant_seen = plant_here = False
         left: dict[str, float] = {}          # lockstep members that left -> wall time
         last_loop, stalled, stall_s = time.monotonic(), -math.inf, 0.0
-        self.log.info("%s on robot %s: mode %s, inputs %s%s", self.name, self.robot, self.mode,
+        self.log.info("%s on robot%s %s: mode %s, inputs %s%s", self.name,
+                      "s" if len(self.slots) > 1 else "", ", ".join(self.robots), self.mode,
                       ", ".join(self.inputs) or "none", ", lockstep member" if self.sync else "")
         try:
             while not self.stop_event.is_set():
@@ -416,7 +493,7 @@ class NodeRunner:
                         self.rejects.reject("clock", f"tick t={old * 1e-9:.3f} s never "
                                                      "completed (a stray clock?)")
                 else:
-                    self._input(topic_of[ev.key], ev.payload)
+                    self._input(ev.key, ev.payload)
                     if not self.sync:
                         continue
                 finished = False
@@ -455,19 +532,25 @@ class NodeRunner:
                     return
 
     def _act(self, t_ns: int) -> bool:
-        """Step the controller at tick ``t_ns``, publish, ack; True if the controller is done."""
-        obs = self._observation(t_ns)
-        out = self.controller.step(obs)
-        self.publish(out, t_ns)
+        """Step every robot's controller at tick ``t_ns``, publish, ack (one ack for all);
+        True once every controller is done. A robot whose controller is done is sent its
+        stop command every tick until the others are."""
+        for slot in self.slots:
+            if slot.done:
+                self.publish(self._stop_command(slot), t_ns, slot.robot)
+                continue
+            self.publish(slot.controller.step(self._observation(slot, t_ns)), t_ns, slot.robot)
+            if getattr(slot.controller, "done", False):
+                slot.done = True
+                self.publish(self._stop_command(slot), t_ns, slot.robot)
+                self.log.info("%s%s done at t=%.3f s", self.name,
+                              f" ({slot.robot})" if len(self.slots) > 1 else "", t_ns * 1e-9)
         self.ticks += 1
-        if getattr(self.controller, "done", False):
-            self.publish(self._stop_command(), t_ns)
-            self.flush(t_ns, final=True)
+        finished = all(slot.done for slot in self.slots)
+        self.flush(t_ns, final=finished)
+        if finished:
             self.final_tick = t_ns
-            self.log.info("%s done at t=%.3f s", self.name, t_ns * 1e-9)
-            return True
-        self.flush(t_ns)
-        return False
+        return finished
 
     def _plant_back(self, tokens: dict) -> bool:
         """A plant is there again (--wait): learn its mode and carry on. False to stop."""
@@ -492,8 +575,9 @@ class NodeRunner:
         if not left or not self._pending:
             return False
         for t_ns, came in self._pending.items():
-            missing = [tp for tp in self.due_inputs(t_ns)
-                       if t_ns - self.lag_ns[tp] not in self._buf.get(tp, ())]
+            missing = [tp for slot in self.slots if not slot.done
+                       for key, tp, s in self._needs(slot, t_ns)
+                       if s not in self._buf.get(key, ())]
             if not missing or any(TOPICS[tp].source == "plant" for tp in missing):
                 continue
             gone = [n for n, w in left.items() if w >= came - PRODUCER_GRACE_S]
@@ -505,12 +589,13 @@ class NodeRunner:
                 return True
         return False
 
-    def _stop_command(self):
-        stop = getattr(self.controller, "stop_command", None)
+    def _stop_command(self, slot: _Slot | None = None):
+        stop = getattr((slot or self.slots[0]).controller, "stop_command", None)
         return stop() if callable(stop) else Twist(0.0, 0.0)
 
     def stats(self) -> dict:
-        return {"node": self.name, "robot": self.robot, "ticks": self.ticks,
+        return {"node": self.name, "robot": self.robot, "robots": self.robots,
+                "ticks": self.ticks,
                 "published": self.published, "rejected": dict(self.rejects.counts),
                 "plant_lost": self.plant_lost, "exit_code": self.exit_code}
 
@@ -571,9 +656,13 @@ def _numbers_problem(msg, where: str) -> str | None:
 
 
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:
-    p = ArgumentParser(description=description)
+    p = _NodeParser(description=description)
     p.add_argument("--robot", default="robot1", type=_name_arg("robot name"),
                    help="robot to control (default robot1)")
+    p.add_argument("--robots", default=None, type=_names_arg, metavar="R1,R2,...",
+                   help="drive several robots from this one process: one controller object "
+                        "per robot, one lockstep member (the default node name uses the "
+                        "first robot)")
     p.add_argument("--name", default=default_name, type=_name_arg("node name"),
                    help="node name on the bus (default <controller>_<robot>)")
     p.add_argument("--stats", metavar="FILE", help="write the node's counters as JSON at exit")
@@ -597,6 +686,27 @@ def _name_arg(what: str):
     return check
 
 
+class _NodeParser(ArgumentParser):
+    """With ``--robots``, ``args.robot`` is the first of them (default node names use it)."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        ns, rest = super().parse_known_args(args, namespace)
+        if getattr(ns, "robots", None):
+            ns.robot = ns.robots[0]
+        return ns, rest
+
+
+def _names_arg(value: str) -> list[str]:
+    """argparse type: comma-separated robot names, each one safe key segment, no repeats."""
+    names = [v.strip() for v in value.split(",") if v.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError("expected robot names, e.g. r0,r1")
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"a robot is named twice in {value!r}")
+    check = _name_arg("robot name")
+    return [check(n) for n in names]
+
+
 def install_stop_signals(stop_event: threading.Event) -> None:
     """SIGINT/SIGTERM end the loop cleanly (the session is closed on the way out)."""
     def handler(signum, frame):
@@ -606,26 +716,36 @@ def install_stop_signals(stop_event: threading.Event) -> None:
 
 
 def run_node(controller, robot: str | None = None, argv: list[str] | None = None,
-             name: str | None = None) -> int:
+             name: str | None = None, robots: list[str] | None = None) -> int:
     """Run ``controller`` as a bus node; parse the standard options from ``argv``.
 
+    ``controller`` is a controller object, or a factory of them (a class, or a callable
+    taking the robot name): with several ``robots`` (or ``--robots``) the node drives one
+    controller per robot (:func:`make_controllers`).
     Returns the exit code (0 when stopped or done, 2 on bad configuration,
     3 when the plant went away).
     """
-    base = getattr(controller, "name", type(controller).__name__.lower())
+    base = getattr(controller, "name", None) or (
+        controller if isinstance(controller, type) else type(controller)).__name__.lower()
     parser = node_arg_parser(f"{base} controller")
     if robot is not None:
         parser.set_defaults(robot=robot)
+    if robots:
+        parser.set_defaults(robots=list(robots))
     args = parser.parse_args(argv)
+    if args.robots:
+        args.robot = args.robots[0]
     return run_node_args(controller, args, name or args.name or f"{base}_{args.robot}")
 
 
 def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
     log = setup_logging(name, args.log_level)
     wait = bool(getattr(args, "wait", False))
+    robots = getattr(args, "robots", None) or [args.robot]
     try:
         keys = Keys(args.namespace)
-        check_name(args.robot, "robot name")
+        for r in robots:
+            check_name(r, "robot name")
         check_name(name, "node name")
         session = _open_node_session(args, wait, log)
     except (BusConfigError, ValueError) as exc:
@@ -638,8 +758,9 @@ def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
         try:
             if wait:
                 log.info("waiting for the plant (--wait)")
-            runner = NodeRunner(controller, args.robot, name, session, keys, log,
-                                wait_for_plant_s=math.inf if wait else 15.0, wait=wait)
+            runner = NodeRunner(controller, robots[0], name, session, keys, log,
+                                wait_for_plant_s=math.inf if wait else 15.0, wait=wait,
+                                robots=robots)
         except TimeoutError as exc:
             log.error("%s", exc)
             return EXIT_PLANT_GONE

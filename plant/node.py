@@ -46,8 +46,10 @@ MODES = ("lockstep", "realtime", "fast")
 ABSURD_FACTOR = 10.0
 #: Acks per member, commands per robot and message counts remembered (ticks).
 _RECENT = 32
-#: lockstep: waiting this long (wall s) on a tick makes the plant say who it waits for
+#: lockstep: waiting this long (wall s) on a tick makes the plant say who it waits for,
+#: again after twice as long each time, up to every WAIT_REPORT_MAX_S
 WAIT_REPORT_S = 2.0
+WAIT_REPORT_MAX_S = 30.0
 #: realtime: falling this far behind the wall clock (s) re-anchors it instead of catching up
 STALL_S = 0.25
 
@@ -452,16 +454,20 @@ class Plant:
 
     def wait_for_acks(self, t_ns: int, required: set[str]) -> None:
         """Until every member still present has ACKed tick ``t_ns`` with all its messages;
-        after WAIT_REPORT_S of wall time, say (every few seconds) whom it waits for."""
+        after WAIT_REPORT_S of wall time, say whom it waits for (then less and less often)."""
         since = time.monotonic()
-        said = 0
-        while not self.stop_event.is_set():
+        every = WAIT_REPORT_S
+        report_at = since + every
+        while not self.stop_event.is_set() and not self.reset_in_tick:
+            # (a sim/reset answered meanwhile rebuilt the world: this tick is gone)
             waiting = [m for m in required if m in self.members and not self._acked(m, t_ns)]
             if not waiting:
                 return
-            if time.monotonic() - since > WAIT_REPORT_S * (said + 1):
-                said += 1
-                self._report_wait(t_ns, waiting, time.monotonic() - since)
+            now = time.monotonic()
+            if now >= report_at:
+                self._report_wait(t_ns, waiting, now - since)
+                every = min(2 * every, WAIT_REPORT_MAX_S)
+                report_at = now + every
             self.drain(0.5)
 
     def _report_wait(self, t_ns: int, waiting: list[str], waited_s: float) -> None:

@@ -94,9 +94,12 @@ class Tap:
 
 
 def start_plant(procs, endpoint, tmp_path, mode, *extra, world="empty", tag="plant"):
+    """``mode`` is a plant mode, or ``lockstep-pipelined`` for the pipelined coupling."""
     stats = str(tmp_path / f"{tag}.json")
+    mode, _, coupling = mode.partition("-")
     p = procs.diffbot("plant", "--world", world, "--mode", mode, "--endpoint", endpoint,
-                      "--stats", stats, *extra, name=tag)
+                      "--coupling", coupling or "sequential", "--stats", stats, *extra,
+                      name=tag)
     p.stats_path = stats
     return p
 
@@ -137,12 +140,12 @@ LOCKSTEP_EXPECT = ("--expect", "odometry_robot1,wheel_schedule_robot1")
 
 
 def mode_args(mode):
-    return LOCKSTEP_EXPECT if mode == "lockstep" else ()
+    return LOCKSTEP_EXPECT if mode.startswith("lockstep") else ()
 
 
 # ====================================================================== started by hand
 
-@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+@pytest.mark.parametrize("mode", ["lockstep", "lockstep-pipelined", "realtime"])
 def test_controller_killed_robot_stops_and_plant_carries_on(mode, procs, endpoint, bus,
                                                             tmp_path, request):
     rng = rng_for(request)
@@ -162,16 +165,17 @@ def test_controller_killed_robot_stops_and_plant_carries_on(mode, procs, endpoin
     assert tap.speed_at(t_kill + 1_200_000_000) < 0.005
     assert p.poll() is None and odo.poll() is None
     tap.check_sane()
-    if mode == "lockstep":
+    if mode.startswith("lockstep"):
         assert "lockstep member left: wheel_schedule_robot1" in procs.log(p)
     else:
         assert "no command for" in procs.log(p)
 
 
+@pytest.mark.parametrize("mode", ["lockstep", "lockstep-pipelined"])
 def test_odometry_killed_in_lockstep_its_consumer_exits_4_and_plant_carries_on(
-        procs, endpoint, bus, tmp_path, request):
+        mode, procs, endpoint, bus, tmp_path, request):
     rng = rng_for(request)
-    p = start_plant(procs, endpoint, tmp_path, "lockstep", "--expect",
+    p = start_plant(procs, endpoint, tmp_path, mode, "--expect",
                     "odometry_robot1,square_path_robot1")
     odo = odometry(procs, endpoint, tmp_path)
     sq = start_node(procs, endpoint, tmp_path, "controller", "square_path", "--laps", "50",

@@ -7,14 +7,16 @@ import shutil
 import tempfile
 
 from .common import spawn, stop, tail
+from bus.protocol import COUPLINGS
+
 from .harness import Context, Metric, Probe, suite
 
-def run_scenario(ctx: Context, name: str, timeout_s: float = 900.0) -> dict:
-    """One ``diffbot run NAME --out TMP`` run; returns its summary.json."""
+def run_scenario(ctx: Context, name: str, timeout_s: float = 900.0, *extra: str) -> dict:
+    """One ``diffbot run NAME --out TMP [extra...]`` run; returns its summary.json."""
     out = tempfile.mkdtemp(prefix=f"{name}-", dir=ctx.tmpdir)
     proc = None
     try:
-        proc = spawn(["run", name, "--out", out, "--timeout", f"{timeout_s:g}"],
+        proc = spawn(["run", name, "--out", out, "--timeout", f"{timeout_s:g}", *extra],
                       os.path.join(out, "run.log"))
         rc = proc.wait(timeout_s + 60)
         if rc is None:
@@ -34,13 +36,18 @@ def run_scenario(ctx: Context, name: str, timeout_s: float = 900.0) -> dict:
         shutil.rmtree(out, ignore_errors=True)
 
 
-@suite("scenario", "the square and follow scenarios end to end in lockstep (diffbot run)")
+@suite("scenario", "the square and follow scenarios end to end in lockstep (diffbot run), "
+                   "under both couplings")
 def scenario_suite(ctx: Context):
     for name in ("square", "follow"):
-        yield Probe(name, lambda name=name: run_scenario(ctx, name), [
-            Metric("real_time_factor", f"{name}: real-time factor", "x",
-                   notes="summary.json real_time_factor (plant, lockstep)"),
-            Metric("wall_time_s", f"{name}: wall time",
-                   notes="whole run incl. start-up, analysis"),
-            Metric("sim_time_s", f"{name}: simulated time"),
-        ], repeats=1 if ctx.quick or name == "follow" else 3, warmup=0, notes="no warm-up run")
+        for coupling in COUPLINGS:
+            what = f"{name}, {coupling}"
+            yield Probe(what, lambda name=name, c=coupling: run_scenario(
+                ctx, name, 900.0, "--coupling", c), [
+                Metric("real_time_factor", f"{what}: real-time factor", "x",
+                       notes="summary.json real_time_factor (plant, lockstep)"),
+                Metric("wall_time_s", f"{what}: wall time",
+                       notes="whole run incl. start-up, analysis"),
+                Metric("sim_time_s", f"{what}: simulated time"),
+            ], repeats=1 if ctx.quick or name == "follow" else 3, warmup=0,
+                notes="no warm-up run")
