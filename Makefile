@@ -12,7 +12,7 @@ setup: $(STAMP) $(FMUS)
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,ros2]'
 	@touch $(STAMP)
 
 $(FMUS): $(STAMP) $(FMU_SRC)

@@ -13,6 +13,7 @@
     diffbot replay FILE.mcap        play a recording back onto the bus (--rate R | --fast)
     diffbot topics [--duration S]   live keys with message type and rate
     diffbot echo KEY [--count N]    print a key's messages, decoded
+    diffbot ros2 [--lockstep]       bridge the bus to ROS 2 (rclpy; `pip install -e '.[ros2]'`)
     diffbot router --listen E       a Zenoh router for several machines (--zenoh-config FILE)
     diffbot scenarios               list the scenarios
 """
@@ -37,7 +38,7 @@ CONTROLLERS = {
 USAGE = __doc__
 #: the sub-commands (for "did you mean")
 COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experiment", "figures",
-            "record", "replay", "topics", "echo", "router", "scenarios")
+            "record", "replay", "topics", "echo", "router", "ros2", "scenarios")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -103,6 +104,9 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "router":
         from .router import main as router_main
         return router_main(rest)
+    if cmd == "ros2":
+        from bridges.ros2 import main as ros2_main
+        return ros2_main(rest)
     if cmd == "record":
         from bus.record import main as record_main
         return record_main(rest)
