@@ -38,6 +38,8 @@ from .ros2_types import OUT_TOPICS, ros_modules
 
 #: how often the lockstep wait checks for stop and for the controller leaving the graph
 _POLL_S = 0.05
+#: (--lockstep) the trigger is handed over again after this long without an answer
+RESEND_S = 0.5
 #: a wrong-sized TwistStamped is rejected before it is looked at
 _TWIST6 = struct.Struct("<6d")
 
@@ -104,7 +106,8 @@ class Bridge:
         # lockstep: robot -> {stamp_ns: TwistStamped CDR bytes}
         self.cmds: dict[str, dict[int, bytes]] = {r: {} for r in self.robots}
         self.cond = threading.Condition()
-        self._had: dict[str, bool] = {}    # lockstep: the controller was seen
+        self._had: dict[str, bool] = {}
+        self.resends = 0    # lockstep: the controller was seen
         # Two DDS participants: one participant cannot hold a TwistStamped and a Twist
         # reader of the same topic name (RCLError "incompatible type"), two can, and each
         # writer matches the reader of its own type.
@@ -236,11 +239,14 @@ class Bridge:
     def controller_for(self, robot: str) -> "_RosController":
         return _RosController(self, robot)
 
-    def command_for(self, robot: str, stamp_ns: int, stop: threading.Event) -> bytes | None:
-        """Wait for the ROS 2 controller's command stamped ``stamp_ns``; None if it left."""
+    def command_for(self, robot: str, stamp_ns: int, stop: threading.Event,
+                    resend) -> bytes | None:
+        """Wait for the ROS 2 controller's command stamped ``stamp_ns``; None if it left.
+        ``resend()`` hands the trigger over again every RESEND_S without an answer (a
+        controller not discovered yet, a lost best-effort sample)."""
         topic = f"/{robot}/cmd_vel"
         seen = False
-        said = time.monotonic()
+        said = sent = time.monotonic()
         with self.cond:
             while not stop.is_set():
                 cmds = self.cmds[robot]
@@ -256,7 +262,12 @@ class Bridge:
                 elif self._had.get(robot):
                     self.log.info("%s: the ROS 2 controller left the graph", topic)
                     return None
-                if not seen and time.monotonic() - said > 5.0:
+                now = time.monotonic()
+                if now - sent > RESEND_S:
+                    resend()
+                    sent = now
+                    self.resends += 1
+                if not seen and now - said > 5.0:
                     self.log.info("waiting for a ROS 2 publisher on %s", topic)
                     said = time.monotonic()
                 self.cond.wait(_POLL_S)
@@ -275,7 +286,7 @@ class Bridge:
     def stats(self) -> dict:
         with self._lock:
             return {"forwarded": dict(self.forwarded), "rejected": dict(self.rejects.counts),
-                    "rejected_total": self.rejects.total}
+                    "rejected_total": self.rejects.total, "lockstep_resends": self.resends}
 
     def close(self) -> None:
         for sub in self._zsubs:
@@ -303,8 +314,9 @@ class _RosController:
         self.inputs = [bridge.trigger]
         self.done = False
         ros_name, msg = OUT_TOPICS[bridge.trigger]
+        # reliable: a best-effort subscriber (qos_profile_sensor_data) matches it as well
         self.pub = bridge.node.create_publisher(getattr(bridge.ros, msg), f"/{robot}/{ros_name}",
-                                                bridge.ros.qos_sensor)
+                                                bridge.ros.qos_cmd)
         self.stop = threading.Event()
 
     def step(self, obs):
@@ -313,14 +325,21 @@ class _RosController:
         if trig is None:
             return None
         stamp = codec.stamp_ns(trig.header.stamp)
-        b.clock_pub.publish(codec.encode(codec.clock(obs.t_ns)))
-        self.pub.publish(codec.encode(trig))
-        b._count(self.pub.topic_name)
-        data = b.command_for(self.robot, stamp, self.stop)
+        clock, data = codec.encode(codec.clock(obs.t_ns)), codec.encode(trig)
+
+        def hand_over() -> None:
+            b.clock_pub.publish(clock)
+            self.pub.publish(data)
+            b._count(self.pub.topic_name)
+        hand_over()
+        data = b.command_for(self.robot, stamp, self.stop, hand_over)
         if data is None:
             self.done = True
             return None
-        return {"cmd_vel": codec.decode(data, "geometry_msgs/msg/TwistStamped")}
+        cmd = codec.decode(data, "geometry_msgs/msg/TwistStamped")
+        # on the bus a command carries the tick it answers (the plant files it by stamp)
+        cmd.header.stamp = codec.time_msg(obs.t_ns)
+        return {"cmd_vel": cmd}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -363,9 +382,7 @@ def main(argv: list[str] | None = None) -> int:
             threading.Thread(target=_relay_stop, args=(runner.stop_event, ctrls), daemon=True).start()
             return runner.run()
         install_stop_signals(stop)
-        while not stop.wait(0.2):
-            pass
-        return 0
+        return _free_run(session, keys, args.name, stop, log)
     except KeyboardInterrupt:
         return 0
     finally:
@@ -375,6 +392,30 @@ def main(argv: list[str] | None = None) -> int:
                     json.dump(bridge.stats(), f, allow_nan=False)
             bridge.close()
         close_session(session, log)
+
+
+def _free_run(session, keys: Keys, name: str, stop: threading.Event, log) -> int:
+    """Forward until stopped or the plant goes (exit 3, like a node)."""
+    import zenoh
+    liveliness = session.liveliness()
+    token = liveliness.declare_token(keys.alive(name))
+    plant_gone = threading.Event()
+
+    def on_plant(sample) -> None:
+        if sample.kind == zenoh.SampleKind.DELETE:
+            plant_gone.set()
+            stop.set()
+    watch = liveliness.declare_subscriber(keys.alive("plant"), on_plant, history=True)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        watch.undeclare()
+        token.undeclare()
+    if plant_gone.is_set():
+        log.info("the plant went away")
+        return EXIT_PLANT_GONE
+    return 0
 
 
 def _relay_stop(stop: threading.Event, ctrls: dict) -> None:

@@ -42,6 +42,7 @@ EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
+ROS2_BRIDGE = "ros2_bridge"  # the --ros2 process (bridges/ros2.py)
 RECORDER = "recorder"       # the --record process (bus/record.py); see Run's recorder section
 RECORDER_JOIN_S = 30.0
 RECORDER_GRACE_S = 10.0
@@ -71,6 +72,7 @@ class Run:
     coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
+    ros2: bool = False              # --ros2: the ROS 2 bridge (bridges/ros2.py), free running
     children: list[Child] = field(default_factory=list)
     reason: str = ""
     failed: Child | None = None
@@ -103,6 +105,12 @@ class Run:
             plant += ["--duration", repr(self.duration_s)]
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
         self._add_recorder(logs)
+        if self.ros2:
+            # a bus node like the others, but not a lockstep member: ROS 2 nodes (teleop,
+            # rviz) follow /clock; a scenario's own `["ros2", "--lockstep"]` process holds ticks
+            self.children.append(Child(ROS2_BRIDGE, diffbot_argv(
+                "ros2", "--name", ROS2_BRIDGE, "--stats", os.path.join(logs, f"{ROS2_BRIDGE}.json"),
+                *self.bus_args()), required=False, log_path=os.path.join(logs, f"{ROS2_BRIDGE}.log")))
         for p in self.spec.processes:
             argv = diffbot_argv(*p.command, "--name", p.name, "--stats",
                                 os.path.join(logs, f"{p.name}.json"), *self.bus_args())
@@ -249,6 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every message into this MCAP file (Foxglove opens it; a path "
                         "without .mcap is a rosbag2 bag directory)")
+    p.add_argument("--ros2", action="store_true",
+                   help="also start the ROS 2 bridge (`diffbot ros2`; needs rclpy: "
+                        "pip install -e '.[ros2]'), on the environment's ROS_DOMAIN_ID")
     return p
 
 
@@ -271,7 +282,8 @@ def main(argv: list[str] | None = None) -> int:
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
-              args.timeout, coupling=args.coupling or spec.coupling, record=args.record)
+              args.timeout, coupling=args.coupling or spec.coupling, record=args.record,
+              ros2=args.ros2)
     run.build()
     analysis = ANALYSES[spec.analysis]
     stop_flag: list[str] = []
