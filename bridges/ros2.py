@@ -405,13 +405,25 @@ def _free_run(session, keys: Keys, name: str, stop: threading.Event, log) -> int
         if sample.kind == zenoh.SampleKind.DELETE:
             plant_gone.set()
             stop.set()
-    watch = liveliness.declare_subscriber(keys.alive("plant"), on_plant, history=True)
+    ended = threading.Event()
+
+    def on_end(sample) -> None:
+        ended.set()
+        stop.set()
+    # the plant's last word comes before its token goes: a normal end is not a lost plant
+    watches = [session.declare_subscriber(keys.end, on_end),
+               liveliness.declare_subscriber(keys.end, on_end),
+               liveliness.declare_subscriber(keys.alive("plant"), on_plant, history=True)]
     try:
         while not stop.wait(0.2):
             pass
     finally:
-        watch.undeclare()
+        for w in watches:
+            w.undeclare()
         token.undeclare()
+    if ended.wait(0.2 if plant_gone.is_set() else 0.0):   # the two watches may race
+        log.info("the simulation ended")
+        return 0
     if plant_gone.is_set():
         log.info("the plant went away")
         return EXIT_PLANT_GONE
