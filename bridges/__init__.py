@@ -1,1 +1,2 @@
-"""Bridges from the bus to other middleware (ROS 2). Third-party clients are imported only here."""
+"""Bridges from the bus to other tools: the ROS 2 bridge (ros2.py), the live Foxglove view
+(view.py). Third-party clients (rclpy, foxglove-sdk) are imported only here, lazily."""
