@@ -105,7 +105,7 @@ def _scan_item(m):
     return codec.stamp_ns(m.header.stamp), (list(map(float, m.ranges)), m.header.frame_id)
 
 
-def test_cmd_vel_twist_and_stamped_move_the_robot_garbage_is_counted(
+def test_cmd_vel_twist_stamped_and_wheel_cmd_move_the_robot_garbage_is_counted(
         procs, endpoint, bus, peer_factory, tmp_path):
     from geometry_msgs.msg import Twist, TwistStamped
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -144,6 +144,15 @@ def test_cmd_vel_twist_and_stamped_move_the_robot_garbage_is_counted(
     drive(stamped, lambda: ts, 1.0)                        # TwistStamped: turn
     yaw1 = codec.quaternion_to_yaw(gt[-1].pose.pose.orientation)
     assert abs(yaw1 - yaw0) > 0.3, f"TwistStamped did not turn the robot: {yaw0} -> {yaw1}"
+    from sensor_msgs.msg import JointState
+    wheels = peer_factory(dom).node.create_publisher(JointState, "/robot1/wheel_cmd", qos)
+    wait_for(lambda: wheels.get_subscription_count(), 20, what="the bridge's wheel_cmd")
+    js = JointState()
+    js.name, js.velocity = ["left_wheel_joint", "right_wheel_joint"], [4.0, 4.0]
+    p0 = gt[-1].pose.pose.position
+    drive(wheels, lambda: js, 1.0)                         # wheel speeds: straight on
+    p1 = gt[-1].pose.pose.position
+    assert math.hypot(p1.x - p0.x, p1.y - p0.y) > 0.1, "wheel_cmd did not move the robot"
     bad = TwistStamped()
     bad.twist.linear.x = math.nan
     bad_t = Twist()
@@ -158,7 +167,7 @@ def test_cmd_vel_twist_and_stamped_move_the_robot_garbage_is_counted(
     assert bridge.wait(10) == 0, procs.log(bridge)
     st = json.load(open(stats))
     assert st["rejected_total"] == 6, st
-    assert st["forwarded"]["/robot1/cmd_vel"] > 20, st
+    assert st["forwarded"]["/robot1/cmd_vel"] > 20 and st["forwarded"]["/robot1/wheel_cmd"] > 10, st
 
 
 def test_killing_the_bridge_stops_the_robot_within_cmd_timeout(procs, endpoint, bus, peer_factory):
