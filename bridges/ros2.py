@@ -19,7 +19,6 @@ simulation like any finished node.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import struct
@@ -28,6 +27,7 @@ import time
 
 from bus import codec
 from bus.cliargs import ArgumentParser
+from bus.jsonio import write_json
 from bus.keys import Keys, check_name
 from bus.log import RejectCounter, setup_logging
 from bus.node import (ABSURD_INPUT, EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner,
@@ -57,7 +57,7 @@ def build_parser() -> ArgumentParser:
                    help="comma-separated robots to bridge (default: every robot of the world)")
     p.add_argument("--lockstep", action="store_true",
                    help="take part in lockstep: wait for the ROS 2 controller's command each tick")
-    p.add_argument("--trigger", default="odom",
+    p.add_argument("--trigger", default="odom", choices=sorted(OUT_TOPICS),
                    help="(--lockstep) the input handed to the ROS 2 controller each tick, whose "
                         "stamp its command carries (default odom)")
     p.add_argument("--domain-id", type=domain_id_arg, default=None,
@@ -388,8 +388,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if bridge is not None:
             if args.stats:
-                with open(args.stats, "w") as f:
-                    json.dump(bridge.stats(), f, allow_nan=False)
+                write_json(args.stats, bridge.stats())
             bridge.close()
         close_session(session, log)
 
