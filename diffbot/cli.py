@@ -14,6 +14,7 @@
     diffbot view [--port 8765]      watch live in Foxglove (3D, lidar, camera, plots) + teleop
     diffbot topics [--duration S]   live keys with message type and rate
     diffbot echo KEY [--count N]    print a key's messages, decoded
+    diffbot ros2 [--lockstep]       bridge the bus to ROS 2 (rclpy; `pip install -e '.[ros2]'`)
     diffbot router --listen E       a Zenoh router for several machines (--zenoh-config FILE)
     diffbot scenarios               list the scenarios
 """
@@ -38,7 +39,7 @@ CONTROLLERS = {
 USAGE = __doc__
 #: the sub-commands (for "did you mean")
 COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experiment", "figures",
-            "record", "replay", "topics", "echo", "router", "scenarios")
+            "record", "replay", "topics", "echo", "router", "ros2", "scenarios")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,6 +105,9 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "router":
         from .router import main as router_main
         return router_main(rest)
+    if cmd == "ros2":
+        from bridges.ros2 import main as ros2_main
+        return ros2_main(rest)
     if cmd == "record":
         from bus.record import main as record_main
         return record_main(rest)

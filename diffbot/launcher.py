@@ -42,6 +42,7 @@ EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
+ROS2_BRIDGE = "ros2_bridge"  # the --ros2 process (bridges/ros2.py)
 RECORDER = "recorder"       # the --record process (bus/record.py); see Run's recorder section
 RECORDER_JOIN_S = 30.0
 VIEW = "view"               # the --view process (bridges/view.py): optional, never in lockstep
@@ -72,6 +73,7 @@ class Run:
     coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
+    ros2: bool = False              # --ros2: the ROS 2 bridge (bridges/ros2.py), free running
     view_port: int | None = None    # --view [--view-port P]: serve the run to Foxglove
     view_host: str = "127.0.0.1"
     children: list[Child] = field(default_factory=list)
@@ -106,6 +108,12 @@ class Run:
             plant += ["--duration", repr(self.duration_s)]
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
         self._add_recorder(logs)
+        if self.ros2:
+            # a bus node like the others, but not a lockstep member: ROS 2 nodes (teleop,
+            # rviz) follow /clock; a scenario's own `["ros2", "--lockstep"]` process holds ticks
+            self.children.append(Child(ROS2_BRIDGE, diffbot_argv(
+                "ros2", "--name", ROS2_BRIDGE, "--stats", os.path.join(logs, f"{ROS2_BRIDGE}.json"),
+                *self.bus_args()), required=False, log_path=os.path.join(logs, f"{ROS2_BRIDGE}.log")))
         if self.view_port is not None:
             # Not a lockstep member, not expected by the plant: it watches, it never holds.
             argv = diffbot_argv("view", "--port", str(self.view_port), "--host", self.view_host,
@@ -263,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every message into this MCAP file (Foxglove opens it; a path "
                         "without .mcap is a rosbag2 bag directory)")
+    p.add_argument("--ros2", action="store_true",
+                   help="also start the ROS 2 bridge (`diffbot ros2`; needs rclpy: "
+                        "pip install -e '.[ros2]'), on the environment's ROS_DOMAIN_ID")
     p.add_argument("--view", action="store_true",
                    help="watch the run live in Foxglove: also start `diffbot view` "
                         "(ws://127.0.0.1:8765; needs the [view] extra)")
@@ -292,7 +303,8 @@ def main(argv: list[str] | None = None) -> int:
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
-              args.timeout, coupling=args.coupling or spec.coupling, record=args.record)
+              args.timeout, coupling=args.coupling or spec.coupling, record=args.record,
+              ros2=args.ros2)
     if args.view:
         if not 0 <= args.view_port <= 65535:
             print(f"diffbot run: --view-port must be in 0..65535, got {args.view_port}",
