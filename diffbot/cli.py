@@ -11,6 +11,7 @@
     diffbot figures --out DIR       all twelve figures of the study + index.html (--only 4,12)
     diffbot record FILE.mcap [KEYS] record the bus into MCAP (Foxglove, ros2 bag, rosbags)
     diffbot replay FILE.mcap        play a recording back onto the bus (--rate R | --fast)
+    diffbot view [--port 8765]      watch live in Foxglove (3D, lidar, camera, plots) + teleop
     diffbot topics [--duration S]   live keys with message type and rate
     diffbot echo KEY [--count N]    print a key's messages, decoded
     diffbot router --listen E       a Zenoh router for several machines (--zenoh-config FILE)
@@ -109,6 +110,9 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "replay":
         from bus.replay import main as replay_main
         return replay_main(rest)
+    if cmd == "view":
+        from bridges.view import main as view_main
+        return view_main(rest)
     if cmd == "topics":
         from bus.topics import topics_main
         return topics_main(rest)

@@ -124,8 +124,6 @@ def _indent(text: str) -> str:
     return "\n".join("    " + line for line in text.splitlines()) or "    (empty log)"
 
 
-
-
 def read_json(path: str) -> dict:
     try:
         with open(path) as f:

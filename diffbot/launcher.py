@@ -44,6 +44,7 @@ EXIT_INTERRUPTED = 130
 
 RECORDER = "recorder"       # the --record process (bus/record.py); see Run's recorder section
 RECORDER_JOIN_S = 30.0
+VIEW = "view"               # the --view process (bridges/view.py): optional, never in lockstep
 RECORDER_GRACE_S = 10.0
 
 
@@ -71,6 +72,8 @@ class Run:
     coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
+    view_port: int | None = None    # --view [--view-port P]: serve the run to Foxglove
+    view_host: str = "127.0.0.1"
     children: list[Child] = field(default_factory=list)
     reason: str = ""
     failed: Child | None = None
@@ -103,6 +106,13 @@ class Run:
             plant += ["--duration", repr(self.duration_s)]
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
         self._add_recorder(logs)
+        if self.view_port is not None:
+            # Not a lockstep member, not expected by the plant: it watches, it never holds.
+            argv = diffbot_argv("view", "--port", str(self.view_port), "--host", self.view_host,
+                                "--name", VIEW, "--stats", os.path.join(logs, f"{VIEW}.json"),
+                                *self.bus_args())
+            self.children.append(Child(VIEW, argv, required=False,
+                                       log_path=os.path.join(logs, f"{VIEW}.log")))
         for p in self.spec.processes:
             argv = diffbot_argv(*p.command, "--name", p.name, "--stats",
                                 os.path.join(logs, f"{p.name}.json"), *self.bus_args())
@@ -204,22 +214,26 @@ class Run:
             self.children.append(self.recorder)
 
     def start_recorder(self, env: dict, session, stop_flag: list) -> bool:
-        """Start the recorder and wait until it listens; False (and ``failed``) if not."""
-        rec = self.recorder
-        if rec is None:
-            return True
-        rec.start(env)
-        key = Keys(self.namespace).alive(RECORDER)
+        """Start the recorder, then the view (--view), each waited for until it is on the
+        bus (so the whole run is recorded and watched, and neither one's start-up competes
+        with the first ticks); False (and ``failed``) if one does not come."""
+        view = next((c for c in self.children if c.name == VIEW), None)
+        return all(self._start_waited(c, env, session, stop_flag)
+                   for c in (self.recorder, view) if c is not None)
+
+    def _start_waited(self, child: Child, env: dict, session, stop_flag: list) -> bool:
+        child.start(env)
+        key = Keys(self.namespace).alive(child.name)
         deadline = time.monotonic() + RECORDER_JOIN_S
-        while time.monotonic() < deadline and rec.poll() is None and not stop_flag:
+        while time.monotonic() < deadline and child.poll() is None and not stop_flag:
             if any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5)):
                 return True
             time.sleep(0.05)
         if not stop_flag:
-            self.failed = rec
-            self.reason = (f"recorder failed with exit code {rec.exit_code}"
-                           if rec.exit_code is not None
-                           else f"recorder did not start within {RECORDER_JOIN_S:.0f} s")
+            self.failed = child
+            self.reason = (f"{child.name} failed with exit code {child.exit_code}"
+                           if child.exit_code is not None
+                           else f"{child.name} did not start within {RECORDER_JOIN_S:.0f} s")
         return False
 
     def _stop_recorder(self) -> None:
@@ -249,6 +263,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every message into this MCAP file (Foxglove opens it; a path "
                         "without .mcap is a rosbag2 bag directory)")
+    p.add_argument("--view", action="store_true",
+                   help="watch the run live in Foxglove: also start `diffbot view` "
+                        "(ws://127.0.0.1:8765; needs the [view] extra)")
+    p.add_argument("--view-port", type=int, default=8765, metavar="PORT",
+                   help="port of --view (default 8765)")
+    p.add_argument("--view-host", default="127.0.0.1", metavar="HOST",
+                   help="address --view binds (default 127.0.0.1)")
     return p
 
 
@@ -272,6 +293,12 @@ def main(argv: list[str] | None = None) -> int:
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
               args.timeout, coupling=args.coupling or spec.coupling, record=args.record)
+    if args.view:
+        if not 0 <= args.view_port <= 65535:
+            print(f"diffbot run: --view-port must be in 0..65535, got {args.view_port}",
+                  file=sys.stderr)
+            return EXIT_BAD_INPUT
+        run.view_port, run.view_host = args.view_port, args.view_host
     run.build()
     analysis = ANALYSES[spec.analysis]
     stop_flag: list[str] = []
@@ -298,7 +325,7 @@ def main(argv: list[str] | None = None) -> int:
                                                             history=True)
             if run.start_recorder(env, session, stop_flag):
                 for c in run.children[1:]:
-                    if c is not run.recorder:
+                    if c is not run.recorder and c.name != VIEW:
                         c.start(env)
                 print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
                       f"{len(run.children)} processes, output in {out}", file=sys.stderr)

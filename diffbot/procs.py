@@ -5,8 +5,8 @@ plants, an experiment's plant) is a :class:`Child`: its own session (process gro
 Ctrl-C in the terminal reaches only the parent, which decides the order of shutdown),
 its output in a log file, its exit code polled, its log's last lines at hand, and a
 stop that escalates: a signal (SIGINT by default), a grace period, then SIGKILL to the
-child and to every process below it that is still there (from /proc), so nothing is
-orphaned even when a child dies before its own children.
+child, to every process below it that is still there (from /proc) and to its process
+group, so nothing is orphaned even when a child dies before its own children.
 
     c = Child("plant", diffbot_argv("plant", ...), "out/logs/plant.log").start()
     ...
@@ -87,11 +87,15 @@ class Child:
         kw = dict(env=env, cwd=self.cwd, stderr=self._log if self.interactive
                   else subprocess.STDOUT)
         kw["preexec_fn"] = _preexec(self.die_with_parent)
-        if self.interactive:
-            self.proc = subprocess.Popen(self.argv, **kw)
-        else:
-            self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=self._log,
-                                         start_new_session=True, **kw)
+        try:
+            if self.interactive:
+                self.proc = subprocess.Popen(self.argv, **kw)
+            else:
+                self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL,
+                                             stdout=self._log, start_new_session=True, **kw)
+        except OSError:
+            self.close_log()
+            raise
         self.t_start = time.monotonic()
         return self
 
@@ -186,6 +190,8 @@ def stop(children: list[Child], grace_s: float = 1.5, sig: int = signal.SIGINT) 
         left = [p for p in trees[id(c)] + descendants(c.pid) if alive(p)]
         if c.poll() is None:
             _kill(c.pid, signal.SIGKILL)
+        if not c.interactive:                 # its own process group: daemonised ones too
+            _killpg(c.pid, signal.SIGKILL)
         for p in left:
             _kill(p, signal.SIGKILL)
         if c.wait(5.0) is None:               # unkillable (D state): give up on it, said so
@@ -210,6 +216,8 @@ def kill_tree(child: Child) -> None:
         for p in descendants(child.pid):
             _kill(p, signal.SIGKILL)
         _kill(child.pid, signal.SIGKILL)
+        if not child.interactive:
+            _killpg(child.pid, signal.SIGKILL)
 
 
 def tail(path: str, n: int = TAIL_LINES) -> str:
@@ -259,5 +267,14 @@ def _state(pid: int) -> str | None:
 def _kill(pid: int, sig: int) -> None:
     try:
         os.kill(pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _killpg(pgid: int, sig: int) -> None:
+    """Signal a non-interactive child's process group (its PID: it leads its own session),
+    which also reaches members that left the tree (double-forked, daemonised)."""
+    try:
+        os.killpg(pgid, sig)
     except (ProcessLookupError, PermissionError):
         pass

@@ -99,3 +99,16 @@ def test_stop_leaves_finished_children_alone(tmp_path):
     assert done.wait(20) == 0
     procs.stop([done], grace_s=0.1)
     assert done.exit_code == 0
+
+
+def test_a_daemonised_grandchild_left_in_the_group_is_killed_too(tmp_path):
+    """A grandchild whose parent exited at once is no longer below the child in /proc, but
+    it is still in the child's process group: stop() kills the group as well."""
+    pidfile = tmp_path / "orphan.pid"
+    c = procs.Child("forker", ["sh", "-c", f"(sleep 60 & echo $! > {pidfile}); sleep 60"],
+                    str(tmp_path / "forker.log")).start()
+    wait_for(lambda: pidfile.exists() and pidfile.read_text().strip(), 20, what="the orphan")
+    orphan = int(pidfile.read_text())
+    assert orphan not in procs.descendants(c.pid)
+    procs.stop([c], grace_s=2.0)
+    wait_for(lambda: not procs.alive(orphan), 5, what="the orphan to die")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 
 from diffbot import procs
@@ -11,7 +12,6 @@ from .harness import ROOT, Context
 
 def spawn(args: list[str], log_path: str, module: str = "diffbot.cli") -> procs.Child:
     """Start ``python -m module args`` in its own session, output to ``log_path``."""
-    import sys
     return procs.Child(os.path.basename(log_path), [sys.executable, "-m", module, *args],
                        log_path, cwd=ROOT, die_with_parent=True).start()
 

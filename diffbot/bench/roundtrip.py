@@ -1,5 +1,5 @@
-"""Suite ``bus``: Zenoh round trip to an echo process
-(``python -m diffbot.bench.roundtrip --echo ENDPOINT``, started by the suite)."""
+"""Suite ``bus``: Zenoh round trip to an echo process (``diffbot.bench.echo``, started by
+the suite)."""
 from __future__ import annotations
 
 import contextlib
@@ -52,7 +52,7 @@ def bus_suite(ctx: Context):
         pub = session.declare_publisher(PING)
         sub = session.declare_subscriber(PONG)
         child = spawn(["--echo", endpoint], os.path.join(d, "echo.log"),
-                      module="diffbot.bench.roundtrip")
+                      module="diffbot.bench.echo")
 
         def watch():  # a dead echo process must not leave recv() blocked forever
             while not done.wait(0.1):
@@ -110,11 +110,3 @@ def bus_suite(ctx: Context):
             stop([child], grace_s=1.0)
         session.close()
         shutil.rmtree(d, ignore_errors=True)
-
-
-
-if __name__ == "__main__":
-    import sys
-    if sys.argv[1:2] != ["--echo"] or len(sys.argv) != 3:
-        sys.exit("usage: python -m diffbot.bench.roundtrip --echo ENDPOINT")
-    sys.exit(echo_main(sys.argv[2]))
