@@ -517,8 +517,11 @@ class NodeRunner:
 
     def _linger(self, inbox: Inbox, t_done: int, timeout_s: float = 2.0) -> None:
         """After the final ack, stay in the lockstep set until the plant has taken it: it
-        ticks past ``t_done`` or ends. Leaving at once would let the token's withdrawal
-        overtake the ack, and the plant would step on without knowing this node finished."""
+        publishes a tick past ``t_done`` plus the actuation delay (pipelined: the plant
+        publishes t_done + 1 tick before it looks at the acks of t_done), or ends. Leaving
+        earlier would let the token's withdrawal overtake the ack, and the plant would step
+        on without knowing this node finished."""
+        t_done += int(self.info.get("actuation_delay_ticks", 0)) * self.tick_ns
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline and not self.stop_event.is_set():
             ev = inbox.get(timeout=0.05)

@@ -95,6 +95,7 @@ class Plant:
         # member -> {tick stamp: (n_plant, final)} from its ACKs, the last few ticks: a stray,
         # late or forged ack never hides the one the plant waits for
         self.acks: dict[str, dict[int, tuple[int, bool]]] = {}
+        self.finished: dict[str, int] = {}      # member -> stamp of its FINAL tick
         # (member, tick stamp) -> messages of it on the keys the plant reads, for that tick
         self.member_msgs: dict[tuple[str, int], int] = {}
         # robot -> {tick stamp: Command} (lockstep: the command computed for each tick)
@@ -256,6 +257,7 @@ class Plant:
             if ev.alive:
                 self.members.add(node)
                 self.members_seen.add(node)
+                self.finished.pop(node, None)
                 self.log.info("lockstep member joined: %s", node)
             else:
                 self.members.discard(node)
@@ -321,6 +323,10 @@ class Plant:
                                      f"{att.n_plant})")
                 ack = (min(ack[0], acks[t][0]), ack[1] or acks[t][1])
             acks[t] = ack
+            if ack[1]:
+                # Kept after the member leaves: under pipelined coupling it may leave before
+                # the plant has looked for its FINAL (--end-with must still see it).
+                self.finished[member] = t
             if len(acks) > _RECENT:
                 del acks[next(iter(acks))]
         return True
@@ -462,7 +468,8 @@ class Plant:
         report_at = since + every
         while not self.stop_event.is_set() and not self.reset_in_tick:
             # (a sim/reset answered meanwhile rebuilt the world: this tick is gone)
-            waiting = [m for m in required if m in self.members and not self._acked(m, t_ns)]
+            waiting = [m for m in required if m in self.members and not self._acked(m, t_ns)
+                       and self.finished.get(m, t_ns) >= t_ns]   # (none after its FINAL)
             if not waiting:
                 return
             now = time.monotonic()
@@ -517,9 +524,10 @@ class Plant:
                     due = t - self.delay_ns
                     if due >= 0:
                         self.wait_for_acks(due, required)
-                    ended = [m for m in self.end_with
-                             if self.acks.get(m, {}).get(due, (0, False))[1]]
+                    ended = [m for m in self.end_with if self.finished.get(m, due + 1) <= due]
                     if ended:
+                        if self.delay_ns:   # pipelined: the others' outputs of tick t too,
+                            self.wait_for_acks(t, required)    # so the end is exact
                         self.end_reason = f"{ended[0]} finished"
                         self.log.info("%s finished at t=%.3f s: stopping", ended[0],
                                       due * 1e-9)
@@ -545,6 +553,7 @@ class Plant:
                 if self.reset_in_tick:          # the world was rebuilt: publish its t = 0
                     self.reset_in_tick = False
                     self.acks.clear()           # the old world's stamps would match the new
+                    self.finished.clear()
                     self.member_msgs.clear()
                     self.cmd_by_tick.clear()
                     continue

@@ -1,0 +1,55 @@
+"""--end-with is exact under pipelined coupling even when the finishing member leaves at
+once after its FINAL (under load its token's withdrawal can reach the plant together with
+the FINAL ack, before the plant has looked for it)."""
+from __future__ import annotations
+
+import json
+import queue
+
+import pytest
+import zenoh
+
+from bus import codec
+from bus.keys import Keys
+
+K = Keys()
+TICK_NS = 20_000_000
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("coupling", ["sequential", "pipelined"])
+def test_a_member_that_leaves_right_after_final_still_ends_the_run(procs, endpoint, bus,
+                                                                    tmp_path, coupling):
+    stats = tmp_path / "plant.json"
+    plant = procs.diffbot("plant", "--world", "empty", "--coupling", coupling, "--expect",
+                          "quitter", "--end-with", "quitter", "--endpoint", endpoint,
+                          "--stats", str(stats), name="plant")
+    s = bus()
+    clocks: queue.SimpleQueue = queue.SimpleQueue()
+    sub = s.declare_subscriber(K.clock, lambda smp: clocks.put(codec.msg_stamp_ns(
+        codec.decode(smp.payload.to_bytes(), "rosgraph_msgs/msg/Clock"))))
+    tok = s.liveliness().declare_token(K.sync("quitter"))
+    pub = s.declare_publisher(K.topic("robot1", "cmd_vel"),
+                              encoding=zenoh.Encoding.APPLICATION_CDR,
+                              congestion_control=zenoh.CongestionControl.BLOCK)
+    last = 10 * TICK_NS
+    seq = 0
+    try:
+        while True:
+            t = clocks.get(timeout=20)
+            seq += 1
+            final = codec.FINAL if t == last else 0
+            pub.put(codec.encode(codec.twist_stamped(t, 0.1, 0.0)),
+                    attachment=codec.attachment(seq, t, codec.ACK | final, 1, "quitter"))
+            if final:
+                break
+    finally:
+        tok.undeclare()            # at once: no lingering
+        pub.undeclare()
+        sub.undeclare()
+    assert plant.wait(30) == 0, procs.log(plant)
+    st = json.loads(stats.read_text())
+    assert st["end_reason"] == "quitter finished", procs.log(plant)
+    # the plant stops at the tick it has published when it takes the FINAL
+    assert st["sim_time_s"] == pytest.approx((last + (TICK_NS if coupling == "pipelined"
+                                                       else 0)) * 1e-9)
