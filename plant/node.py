@@ -301,12 +301,12 @@ class Plant:
                                  f"t={t * 1e-9:.3f} s from {member}, the plant is at "
                                  f"t={self.sim.time_ns * 1e-9:.3f} s; ignored")
             return False
-        if member not in self.members:
-            # Not waited for; its ACK is still filed: a FINAL may arrive just after its
-            # sim/sync token went (liveliness and data take different paths), and
-            # --end-with must still end the run at that tick.
+        if member not in self.members and member not in self.members_seen:
             self.protocol.reject(f"{key}: from {member!r}, not a lockstep member",
                                  "(no sim/sync token); used, not waited for")
+        # A member that left is not waited for, but its ACK is still filed: its FINAL may
+        # arrive just after its sim/sync token went (liveliness and data take different
+        # paths), and --end-with must still end the run at that tick.
         if topic != "ack":
             k = (member, t)
             self.member_msgs[k] = self.member_msgs.get(k, 0) + 1
