@@ -1,7 +1,7 @@
 """The swarm world, generated from code: N robots in a walled room with obstacles.
 
 Deterministic from (N, seed): the same arguments give the same TOML text byte for byte.
-The room grows with N (about 9 m^2 of floor per robot, at least 8 x 8 m); robots start
+The room grows with N (about 12 m^2 of floor per robot, at least 10 x 10 m); robots start
 on a jittered grid, obstacles (boxes and cylinders) are scattered where they keep at
 least ``CLEARANCE_M`` from every robot's start and from each other.
 
@@ -18,9 +18,9 @@ import math
 
 import numpy as np
 
-FLOOR_PER_ROBOT_M2 = 9.0
-MIN_SIDE_M = 8.0
-CLEARANCE_M = 1.0          # obstacle edge to a robot's start, and between obstacles
+FLOOR_PER_ROBOT_M2 = 12.0
+MIN_SIDE_M = 10.0
+CLEARANCE_M = 0.8          # obstacle edge to a robot's start, and between obstacles
 OBSTACLES_PER_ROBOT = 1.5
 LIDAR_RAYS = 36
 LIDAR_FOV_RAD = 1.5 * math.pi
@@ -56,7 +56,7 @@ def swarm_layout(n: int, seed: int = 0) -> tuple[float, list[tuple], list[dict]]
     while len(obstacles) < want and tries < 200 * want:
         tries += 1
         if rng.uniform() < 0.5:
-            sx, sy = rng.uniform(0.3, 1.2, 2)
+            sx, sy = rng.uniform(0.3, 0.9, 2)
             size = (round(sx, 3), round(sy, 3), 0.5)
             reach = math.hypot(sx, sy) / 2
         else:
