@@ -134,6 +134,9 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
             ends_run=t.boolean("ends_run", False), sync=t.boolean("sync", True),
             interactive=t.boolean("interactive", False)))
         t.done()
+    if spec.generate and spec.processes:
+        top.fail("process", f"a generated-world scenario (generate = {spec.generate!r}) makes "
+                            "its own processes (controller, controller_processes)")
     top.done()
     return spec
 
