@@ -10,10 +10,14 @@ FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
 
 setup: $(STAMP) $(FMUS)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml tests/js/package-lock.json
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,view,ros2]'
 	@touch $(STAMP)
+	@# The live view's tests drive it with the real Foxglove JS client (Node >= 18)
+	@if command -v npm >/dev/null; then (cd tests/js && npm ci --silent --no-audit --no-fund) \
+	   || echo "npm ci failed: the Foxglove client tests will be skipped"; \
+	 else echo "npm not found: the Foxglove client tests will be skipped"; fi
 
 $(FMUS): $(STAMP) $(FMU_SRC)
 	$(BIN)/diffbot fmu build

@@ -23,6 +23,16 @@
   JSON at the start of the recording (``sim_info``: world, robots, tick, mode, seed)
   and the recorder's own settings; ``diffbot replay`` serves it back. At a clean
   close a ``rosbag2`` metadata record (``serialized_metadata``, as rosbag2 writes).
+* **scene** — so the file opens in Foxglove's 3-D panel as a room, not only numbers, the
+  recorder adds what :mod:`bus.scene` derives (the live view sends the same): ``/scene``
+  (``visualization_msgs/msg/MarkerArray``: every world object and robot part) and
+  ``/tf_static`` (sensor mounts) once, when ``sim/info`` arrives, and ``/tf``
+  (``tf2_msgs/msg/TFMessage``: ``world -> <robot>/base_link``) with every ground truth;
+  ``--no-scene`` leaves them out. They are ordinary ROS 2 messages (``ros2 bag play``
+  publishes them; ``diffbot replay`` skips them, they are no bus keys). The sensor frames
+  ``<robot>/laser`` and ``<robot>/camera`` are the robot's; the bus's scans and images say
+  ``laser`` / ``camera``, so when only one robot has a lidar (camera), ``/tf_static`` also
+  names the bare frame after it (:func:`bus.scene.alias_transforms`).
 * **skipped** — keys that carry no message type (``sim/ack/*``, ``sim/end``,
   anything unknown) and payloads that do not decode as their key's type (counted,
   logged at a limited rate); liveliness tokens never reach a subscriber.
@@ -55,7 +65,7 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from . import codec, jsonio
+from . import codec, jsonio, scene
 from .cliargs import ArgumentParser, positive_float, positive_int
 from .keys import Keys
 from .log import RejectCounter, setup_logging
@@ -403,6 +413,8 @@ class Recorder:
         self.stop_event = threading.Event()
         self.end_reason: str | None = None
         self.info: dict | None = None
+        #: write /scene, /tf_static once and /tf per ground truth (see the module docstring)
+        self.with_scene = True
         self.queue_max = 0
         self._sim_ns = 0
         self._late_info_tried = False
@@ -442,6 +454,16 @@ class Recorder:
                                     "log_time": "sim time (attachment t_ns)",
                                     "publish_time": "wall clock at the recorder (Unix ns)"}),
         })
+        if self.with_scene:
+            t = int(self.info.get("time_ns", 0) or 0)
+            now = time.time_ns()
+            self.out.write(self._derived(scene.SCENE_TOPIC), scene.SCENE_TYPE,
+                           codec.encode(scene.scene(self.info, t)), t, now)
+            self.out.write(self._derived(scene.TF_STATIC_TOPIC), scene.TF_TYPE,
+                           codec.encode(scene.static_tf(self.info, t, aliases=True)), t, now)
+
+    def _derived(self, name: str) -> str:
+        return f"{self.keys.namespace}/{name}" if self.keys.namespace else name
 
     def announce(self) -> None:
         """Liveliness ``sim/alive/<name>`` once subscribed: the launcher and the plant's
@@ -459,7 +481,7 @@ class Recorder:
             self.skipped[key] = self.skipped.get(key, 0) + 1
             return
         try:
-            codec.decode(payload, msgtype)
+            msg = codec.decode(payload, msgtype)
         except codec.CodecError as exc:
             self.rejects.reject(key, str(exc))
             return
@@ -470,6 +492,10 @@ class Recorder:
         else:
             seq, t_ns = 0, self._sim_ns
         self.out.write(key, msgtype, payload, t_ns, recv_ns, seq)
+        if self.with_scene and (robot := scene.robot_of_ground_truth(self.keys, key)):
+            self.out.write(self._derived(scene.TF_TOPIC), scene.TF_TYPE,
+                           codec.encode(scene.tf([scene.ground_truth_transform(robot, msg, t_ns)])),
+                           t_ns, recv_ns)
         if self.info is None and key == self.keys.clock and not self._late_info_tried:
             self._late_info_tried = True      # the plant came after the recorder: ask once
             self.fetch_info(1.0)
@@ -594,6 +620,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--recover", action="store_true",
                    help="do not record: rewrite FILE, left unclosed by a SIGKILL, "
                         "into a complete file")
+    p.add_argument("--no-scene", dest="scene", action="store_false",
+                   help="do not add /scene, /tf_static and /tf (the 3-D room for Foxglove)")
     p.add_argument("--stats", metavar="FILE", help="write counters as JSON at exit")
     p.add_argument("--log-level", default="INFO")
     add_bus_args(p)
@@ -637,6 +665,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     from .node import install_stop_signals, write_json
     rec = Recorder(session, keys, out, exprs, log, args.name)
+    rec.with_scene = args.scene
     install_stop_signals(rec.stop_event)
     code = EXIT_OK
     try:

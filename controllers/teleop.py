@@ -3,8 +3,10 @@
 Keys: up / w faster, down / s slower (or backwards), left / a turn left,
 right / d turn right, space stop, q quit. Each press changes the commanded speed
 by a step; the current command is shown on one status line. It publishes
-``cmd_vel`` on every clock tick without holding the simulation (not a lockstep
-member), so it suits realtime mode. Works on any terminal or pseudo-terminal.
+``cmd_vel`` on every clock tick while the command is not zero (at rest it falls
+silent after a few zeros, so ``diffbot run teleop --view`` can be driven from
+Foxglove too), without holding the simulation (not a lockstep member), so it suits
+realtime mode. Works on any terminal or pseudo-terminal.
 """
 from __future__ import annotations
 
@@ -17,6 +19,9 @@ import tty
 
 from bus.cliargs import positive_float
 from bus.node import Twist, node_arg_parser, run_node_args
+
+#: at rest the zero command is repeated this many ticks (a lost one is covered), then withheld
+_REST_TICKS = 5
 
 KEYS = {
     "\x1b[A": "up", "w": "up", "W": "up",
@@ -59,6 +64,7 @@ class Teleop:
         self.v = 0.0
         self.w = 0.0
         self.done = False
+        self._rest_sent = 0
         self.fd = sys.stdin.fileno() if fd is None else fd
         self.out = out or sys.stdout
         self.lock = threading.Lock()
@@ -111,7 +117,15 @@ class Teleop:
         self._thread.join(1.0)
 
     def step(self, obs):
+        """The current command every tick while moving; at rest, one zero and then silence,
+        so another driver (Foxglove's Teleop panel through ``diffbot view``) can take over."""
         with self.lock:
+            if self.v == 0.0 and self.w == 0.0:
+                if self._rest_sent >= _REST_TICKS:
+                    return None
+                self._rest_sent += 1
+            else:
+                self._rest_sent = 0
             return Twist(self.v, self.w)
 
 

@@ -11,8 +11,10 @@
     diffbot figures --out DIR       all twelve figures of the study + index.html (--only 4,12)
     diffbot record FILE.mcap [KEYS] record the bus into MCAP (Foxglove, ros2 bag, rosbags)
     diffbot replay FILE.mcap        play a recording back onto the bus (--rate R | --fast)
+    diffbot view [--port 8765]      watch live in Foxglove (3D, lidar, camera, plots) + teleop
     diffbot topics [--duration S]   live keys with message type and rate
     diffbot echo KEY [--count N]    print a key's messages, decoded
+    diffbot ros2 [--lockstep]       bridge the bus to ROS 2 (rclpy; `pip install -e '.[ros2]'`)
     diffbot router --listen E       a Zenoh router for several machines (--zenoh-config FILE)
     diffbot scenarios               list the scenarios
 """
@@ -38,7 +40,7 @@ CONTROLLERS = {
 USAGE = __doc__
 #: the sub-commands (for "did you mean")
 COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experiment", "figures",
-            "record", "replay", "topics", "echo", "router", "scenarios")
+            "record", "replay", "topics", "echo", "router", "ros2", "scenarios")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,12 +106,18 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "router":
         from .router import main as router_main
         return router_main(rest)
+    if cmd == "ros2":
+        from bridges.ros2 import main as ros2_main
+        return ros2_main(rest)
     if cmd == "record":
         from bus.record import main as record_main
         return record_main(rest)
     if cmd == "replay":
         from bus.replay import main as replay_main
         return replay_main(rest)
+    if cmd == "view":
+        from bridges.view import main as view_main
+        return view_main(rest)
     if cmd == "topics":
         from bus.topics import topics_main
         return topics_main(rest)

@@ -42,8 +42,10 @@ EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
+ROS2_BRIDGE = "ros2_bridge"  # the --ros2 process (bridges/ros2.py)
 RECORDER = "recorder"       # the --record process (bus/record.py); see Run's recorder section
 RECORDER_JOIN_S = 30.0
+VIEW = "view"               # the --view process (bridges/view.py): optional, never in lockstep
 RECORDER_GRACE_S = 10.0
 
 
@@ -71,6 +73,9 @@ class Run:
     coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
+    ros2: bool = False              # --ros2: the ROS 2 bridge (bridges/ros2.py), free running
+    view_port: int | None = None    # --view [--view-port P]: serve the run to Foxglove
+    view_host: str = "127.0.0.1"
     children: list[Child] = field(default_factory=list)
     reason: str = ""
     failed: Child | None = None
@@ -103,6 +108,19 @@ class Run:
             plant += ["--duration", repr(self.duration_s)]
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
         self._add_recorder(logs)
+        if self.ros2:
+            # a bus node like the others, but not a lockstep member: ROS 2 nodes (teleop,
+            # rviz) follow /clock; a scenario's own `["ros2", "--lockstep"]` process holds ticks
+            self.children.append(Child(ROS2_BRIDGE, diffbot_argv(
+                "ros2", "--name", ROS2_BRIDGE, "--stats", os.path.join(logs, f"{ROS2_BRIDGE}.json"),
+                *self.bus_args()), required=False, log_path=os.path.join(logs, f"{ROS2_BRIDGE}.log")))
+        if self.view_port is not None:
+            # Not a lockstep member, not expected by the plant: it watches, it never holds.
+            argv = diffbot_argv("view", "--port", str(self.view_port), "--host", self.view_host,
+                                "--name", VIEW, "--stats", os.path.join(logs, f"{VIEW}.json"),
+                                *self.bus_args())
+            self.children.append(Child(VIEW, argv, required=False,
+                                       log_path=os.path.join(logs, f"{VIEW}.log")))
         for p in self.spec.processes:
             argv = diffbot_argv(*p.command, "--name", p.name, "--stats",
                                 os.path.join(logs, f"{p.name}.json"), *self.bus_args())
@@ -204,22 +222,26 @@ class Run:
             self.children.append(self.recorder)
 
     def start_recorder(self, env: dict, session, stop_flag: list) -> bool:
-        """Start the recorder and wait until it listens; False (and ``failed``) if not."""
-        rec = self.recorder
-        if rec is None:
-            return True
-        rec.start(env)
-        key = Keys(self.namespace).alive(RECORDER)
+        """Start the recorder, then the view (--view), each waited for until it is on the
+        bus (so the whole run is recorded and watched, and neither one's start-up competes
+        with the first ticks); False (and ``failed``) if one does not come."""
+        view = next((c for c in self.children if c.name == VIEW), None)
+        return all(self._start_waited(c, env, session, stop_flag)
+                   for c in (self.recorder, view) if c is not None)
+
+    def _start_waited(self, child: Child, env: dict, session, stop_flag: list) -> bool:
+        child.start(env)
+        key = Keys(self.namespace).alive(child.name)
         deadline = time.monotonic() + RECORDER_JOIN_S
-        while time.monotonic() < deadline and rec.poll() is None and not stop_flag:
+        while time.monotonic() < deadline and child.poll() is None and not stop_flag:
             if any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5)):
                 return True
             time.sleep(0.05)
         if not stop_flag:
-            self.failed = rec
-            self.reason = (f"recorder failed with exit code {rec.exit_code}"
-                           if rec.exit_code is not None
-                           else f"recorder did not start within {RECORDER_JOIN_S:.0f} s")
+            self.failed = child
+            self.reason = (f"{child.name} failed with exit code {child.exit_code}"
+                           if child.exit_code is not None
+                           else f"{child.name} did not start within {RECORDER_JOIN_S:.0f} s")
         return False
 
     def _stop_recorder(self) -> None:
@@ -255,6 +277,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--controller-processes", type=nonneg_int, default=None, metavar="K",
                    help="generated-world scenario: split the robots over K controller "
                         "processes (0: one process per robot; default: the scenario's)")
+    p.add_argument("--ros2", action="store_true",
+                   help="also start the ROS 2 bridge (`diffbot ros2`; needs rclpy: "
+                        "pip install -e '.[ros2]'), on the environment's ROS_DOMAIN_ID")
+    p.add_argument("--view", action="store_true",
+                   help="watch the run live in Foxglove: also start `diffbot view` "
+                        "(ws://127.0.0.1:8765; needs the [view] extra)")
+    p.add_argument("--view-port", type=int, default=8765, metavar="PORT",
+                   help="port of --view (default 8765)")
+    p.add_argument("--view-host", default="127.0.0.1", metavar="HOST",
+                   help="address --view binds (default 127.0.0.1)")
     return p
 
 
@@ -304,7 +336,14 @@ def main(argv: list[str] | None = None) -> int:
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
-              args.timeout, coupling=args.coupling or spec.coupling, record=args.record)
+              args.timeout, coupling=args.coupling or spec.coupling, record=args.record,
+              ros2=args.ros2)
+    if args.view:
+        if not 0 <= args.view_port <= 65535:
+            print(f"diffbot run: --view-port must be in 0..65535, got {args.view_port}",
+                  file=sys.stderr)
+            return EXIT_BAD_INPUT
+        run.view_port, run.view_host = args.view_port, args.view_host
     run.build()
     analysis = ANALYSES[spec.analysis]
     stop_flag: list[str] = []
@@ -331,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
                                                             history=True)
             if run.start_recorder(env, session, stop_flag):
                 for c in run.children[1:]:
-                    if c is not run.recorder:
+                    if c is not run.recorder and c.name != VIEW:
                         c.start(env)
                 print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
                       f"{len(run.children)} processes, output in {out}", file=sys.stderr)

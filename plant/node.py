@@ -300,9 +300,11 @@ class Plant:
                                  f"t={self.sim.time_ns * 1e-9:.3f} s; ignored")
             return False
         if member not in self.members:
+            # Not waited for; its ACK is still filed: a FINAL may arrive just after its
+            # sim/sync token went (liveliness and data take different paths), and
+            # --end-with must still end the run at that tick.
             self.protocol.reject(f"{key}: from {member!r}, not a lockstep member",
                                  "(no sim/sync token); used, not waited for")
-            return True
         if topic != "ack":
             k = (member, t)
             self.member_msgs[k] = self.member_msgs.get(k, 0) + 1

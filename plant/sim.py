@@ -87,6 +87,14 @@ def _visible_parts(robot: Robot, owner: str) -> list[tuple]:
     return out
 
 
+def _sensor_mounts(r) -> dict:
+    """Where a robot's lidar and camera sit on it (their config, mount poses included)."""
+    from dataclasses import asdict
+    sens = r.sensors
+    return {"lidar": asdict(sens.lidar) if sens.lidar is not None else None,
+            "camera": asdict(sens.camera) if sens.camera is not None else None}
+
+
 def room_objects(spec: WorldSpec) -> list[ObjectSpec]:
     """Floor and walls as static boxes (the floor's top face is z = 0)."""
     lx, ly = spec.floor_size_m
@@ -207,6 +215,22 @@ class Simulation:
                 out.append(self._shape_of(o))
         return out
 
+    def body_visuals(self, robot: str) -> list[dict]:
+        """What a robot looks like, in its base_link frame: each visual shape (chassis,
+        wheels, caster, carried parts) with its size, colour and pose (position m,
+        orientation quaternion x, y, z, w). For viewers (``diffbot view``)."""
+        base_inv = np.linalg.inv(self.robots[robot].transform())
+        out = []
+        for sn, kind, size, color, name, owner in self._robot_parts:
+            if owner != robot:
+                continue
+            rel = base_inv @ sn.getWorldTransform().matrix()
+            out.append({"name": name, "shape": kind, "size": [float(v) for v in size],
+                        "position": [float(v) for v in rel[:3, 3]],
+                        "orientation": [float(v) for v in rotation_to_quaternion(rel[:3, :3])],
+                        "color": [float(c) for c in color]})
+        return out
+
     def describe(self) -> dict:
         """The world as the plant understood it (served on ``sim/info``)."""
         s = self.spec
@@ -222,7 +246,9 @@ class Simulation:
                                 "wheel_separation_m": r.drive.wheel_separation_m,
                                 "drive": dict(r.drive.__dict__),
                                 "joints": ["left_wheel_joint", "right_wheel_joint"],
-                                "parts": [p.name for p in r.parts]}
+                                "parts": [p.name for p in r.parts],
+                                "body": self.body_visuals(r.name),
+                                "sensors": _sensor_mounts(r)}
                        for r in s.robots},
             "materials": {m.name: m.friction for m in s.materials.values()},
         }

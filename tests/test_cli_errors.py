@@ -157,8 +157,13 @@ def test_copied_readme_controller_exits_nonzero_without_a_plant(tmp_path):
     script = tmp_path / "my_controller.py"
     script.write_text(readme_example())
     env = dict(os.environ, PYTHONPATH=ROOT)
-    r = subprocess.run([sys.executable, str(script), "--endpoint",
-                        f"unixsock-stream/{tmp_path}/nobody.sock"], cwd=str(tmp_path), env=env,
-                       capture_output=True, text=True, timeout=60)
+    conf = tmp_path / "client.json5"          # as the default, but give up after 1 s, not 15
+    conf.write_text(json.dumps({
+        "mode": "client", "listen": {"endpoints": []},
+        "connect": {"endpoints": [f"unixsock-stream/{tmp_path}/nobody.sock"],
+                    "timeout_ms": 1000, "exit_on_failure": True},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}}}))
+    r = subprocess.run([sys.executable, str(script), "--zenoh-config", str(conf)],
+                       cwd=str(tmp_path), env=env, capture_output=True, text=True, timeout=60)
     assert r.returncode != 0, r.stderr
     assert "cannot reach the plant" in r.stderr

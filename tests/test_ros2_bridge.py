@@ -1,0 +1,262 @@
+"""`diffbot ros2` against real rclpy (from PyPI, the `ros2` extra): no mocks.
+
+The bridge runs as its own process; the ROS 2 side is an rclpy node in this test process
+(or the example's own process), on a DDS domain id private to the test.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from bus import codec
+from bus.keys import Keys
+from tests.conftest import ROOT, wait_for
+
+rclpy = pytest.importorskip(
+    "rclpy", reason="rclpy is not importable: `pip install -e '.[ros2]'` (make setup does)")
+
+pytestmark = pytest.mark.slow
+
+EXAMPLE = os.path.join(ROOT, "examples", "ros2", "square_path.py")
+
+
+def domain_id(k: int) -> int:
+    """A DDS domain of this test run (0-101 are safe with Fast DDS's ports)."""
+    return 1 + (os.getpid() * 4 + k) % 100
+
+
+class Peer:
+    """An rclpy node in its own context, spun by a thread."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy.context
+        import rclpy.executors
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node("test_peer", context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        try:
+            while self.context.ok():
+                self.executor.spin_once(timeout_sec=0.05)
+        except Exception:
+            pass
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self.context.try_shutdown()
+        self.thread.join(2.0)
+
+
+@pytest.fixture
+def peer_factory():
+    peers = []
+
+    def make(domain: int) -> Peer:
+        peers.append(Peer(domain))
+        return peers[-1]
+    yield make
+    for p in peers:
+        p.close()
+
+
+def test_clock_and_scan_reach_ros2_as_on_the_bus(procs, endpoint, bus, peer_factory):
+    from rclpy.qos import qos_profile_sensor_data
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import LaserScan
+    dom = domain_id(0)
+    procs.diffbot("plant", "--world", "living_room", "--mode", "realtime", "--disable",
+                  "camera", "--endpoint", endpoint, name="plant")
+    s = bus()
+    on_bus, on_ros, clock = {}, {}, []
+    s.declare_subscriber(Keys().topic("robot1", "scan"), lambda smp: on_bus.setdefault(
+        *_scan_item(codec.decode(smp.payload.to_bytes(), "sensor_msgs/msg/LaserScan"))))
+    peer = peer_factory(dom)
+    peer.node.create_subscription(Clock, "/clock", lambda m: clock.append(
+        codec.stamp_ns(m.clock)), 10)
+    peer.node.create_subscription(LaserScan, "/robot1/scan", lambda m: on_ros.setdefault(
+        *_scan_item(m)), qos_profile_sensor_data)
+    procs.diffbot("ros2", "--endpoint", endpoint, "--domain-id", str(dom), name="bridge")
+    wait_for(lambda: len(set(on_bus) & set(on_ros)) >= 5, 40, what="scans on both sides")
+    both = sorted(set(on_bus) & set(on_ros))
+    for t in both:
+        assert len(on_ros[t][0]) == 180
+        assert on_ros[t] == on_bus[t], f"scan at t={t} differs"
+    assert on_ros[both[0]][1] == "laser"           # the bus's frame id, unchanged
+    wait_for(lambda: len(clock) > 10, 10, what="/clock")
+    assert clock[-1] > clock[0] and all(b >= a for a, b in zip(clock, clock[1:]))
+
+
+def _scan_item(m):
+    return codec.stamp_ns(m.header.stamp), (list(map(float, m.ranges)), m.header.frame_id)
+
+
+def test_cmd_vel_twist_stamped_and_wheel_cmd_move_the_robot_garbage_is_counted(
+        procs, endpoint, bus, peer_factory, tmp_path):
+    from geometry_msgs.msg import Twist, TwistStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    dom = domain_id(1)
+    procs.diffbot("plant", "--world", "empty", "--mode", "realtime", "--endpoint", endpoint,
+                  name="plant")
+    s = bus()
+    gt = []
+    s.declare_subscriber(Keys().topic("robot1", "ground_truth"), lambda smp: gt.append(
+        codec.decode(smp.payload.to_bytes(), "nav_msgs/msg/Odometry")))
+    stats = str(tmp_path / "bridge.json")
+    bridge = procs.diffbot("ros2", "--endpoint", endpoint, "--domain-id", str(dom),
+                           "--stats", stats, name="bridge")
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    # one DDS participant cannot write two types on one topic name: two peers, as two nodes
+    twist = peer_factory(dom).node.create_publisher(Twist, "/robot1/cmd_vel", qos)
+    stamped = peer_factory(dom).node.create_publisher(TwistStamped, "/robot1/cmd_vel", qos)
+    wait_for(lambda: gt and twist.get_subscription_count() and stamped.get_subscription_count(),
+             40, what="the bridge's cmd_vel subscriptions")
+
+    def drive(pub, make, seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            pub.publish(make())
+            time.sleep(0.05)
+
+    x0 = gt[-1].pose.pose.position.x
+    m = Twist()
+    m.linear.x = 0.3
+    drive(twist, lambda: m, 1.5)                           # plain Twist: forward
+    x1 = gt[-1].pose.pose.position.x
+    assert x1 - x0 > 0.1, f"Twist did not move the robot: {x0} -> {x1}"
+    yaw0 = codec.quaternion_to_yaw(gt[-1].pose.pose.orientation)
+    ts = TwistStamped()
+    ts.twist.angular.z = 1.0                               # stamp 0 = "now"
+    drive(stamped, lambda: ts, 1.0)                        # TwistStamped: turn
+    yaw1 = codec.quaternion_to_yaw(gt[-1].pose.pose.orientation)
+    assert abs(yaw1 - yaw0) > 0.3, f"TwistStamped did not turn the robot: {yaw0} -> {yaw1}"
+    from sensor_msgs.msg import JointState
+    wheels = peer_factory(dom).node.create_publisher(JointState, "/robot1/wheel_cmd", qos)
+    wait_for(lambda: wheels.get_subscription_count(), 20, what="the bridge's wheel_cmd")
+    js = JointState()
+    js.name, js.velocity = ["left_wheel_joint", "right_wheel_joint"], [4.0, 4.0]
+    p0 = gt[-1].pose.pose.position
+    drive(wheels, lambda: js, 1.0)                         # wheel speeds: straight on
+    p1 = gt[-1].pose.pose.position
+    assert math.hypot(p1.x - p0.x, p1.y - p0.y) > 0.1, "wheel_cmd did not move the robot"
+    bad = TwistStamped()
+    bad.twist.linear.x = math.nan
+    bad_t = Twist()
+    bad_t.angular.z = math.inf
+    for _ in range(3):
+        stamped.publish(bad)
+        twist.publish(bad_t)
+        time.sleep(0.05)
+    time.sleep(0.5)
+    assert bridge.poll() is None, procs.log(bridge)
+    bridge.send_signal(signal.SIGINT)
+    assert bridge.wait(10) == 0, procs.log(bridge)
+    st = json.load(open(stats))
+    assert st["rejected_total"] == 6, st
+    assert st["forwarded"]["/robot1/cmd_vel"] > 20 and st["forwarded"]["/robot1/wheel_cmd"] > 10, st
+
+
+def test_killing_the_bridge_stops_the_robot_within_cmd_timeout(procs, endpoint, bus, peer_factory):
+    from geometry_msgs.msg import Twist
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    dom = domain_id(2)
+    procs.diffbot("plant", "--world", "empty", "--mode", "realtime", "--endpoint", endpoint,
+                  name="plant")
+    s = bus()
+    gt = []
+    s.declare_subscriber(Keys().topic("robot1", "ground_truth"), lambda smp: gt.append(
+        codec.decode(smp.payload.to_bytes(), "nav_msgs/msg/Odometry")))
+    bridge = procs.diffbot("ros2", "--endpoint", endpoint, "--domain-id", str(dom), name="bridge")
+    peer = peer_factory(dom)
+    pub = peer.node.create_publisher(
+        Twist, "/robot1/cmd_vel", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    m = Twist()
+    m.linear.x = 0.3
+    stop = threading.Event()
+
+    def keep_driving():
+        while not stop.is_set():
+            pub.publish(m)
+            time.sleep(0.05)
+    threading.Thread(target=keep_driving, daemon=True).start()
+    try:
+        wait_for(lambda: gt and gt[-1].twist.twist.linear.x > 0.2, 40, what="the robot to drive")
+        bridge.send_signal(signal.SIGKILL)
+        bridge.wait(5)
+        t_kill = codec.stamp_ns(gt[-1].header.stamp)
+        # cmd_timeout_s is 0.5 s (simulated; realtime mode): stopped well within 1 s after
+        wait_for(lambda: codec.stamp_ns(gt[-1].header.stamp) > t_kill + 1_000_000_000, 10,
+                 what="1 s of simulated time")
+        late = [g for g in gt if codec.stamp_ns(g.header.stamp) > t_kill + 700_000_000]
+        assert late and all(abs(g.twist.twist.linear.x) < 0.02 for g in late)
+    finally:
+        stop.set()
+
+
+SHORT_LEASE = os.path.join(ROOT, "tests", "data", "fastdds_short_lease.xml")
+
+
+def _run_square(tmp_path, dom: int, tag: str, kill_after_s: float | None = None):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(dom), PYTHONUNBUFFERED="1")
+    ex_env = dict(env)
+    if kill_after_s is not None:   # the controller's participant lease: 2 s instead of 20
+        ex_env.update(FASTDDS_DEFAULT_PROFILES_FILE=SHORT_LEASE,
+                      FASTRTPS_DEFAULT_PROFILES_FILE=SHORT_LEASE)
+    out = tmp_path / tag
+    run = subprocess.Popen([sys.executable, "-m", "diffbot.cli", "run", "square-ros2", "--out",
+                            str(out), "--timeout", "120"], cwd=ROOT, env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                           start_new_session=True)
+    ex = subprocess.Popen([sys.executable, EXAMPLE], env=ex_env, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        if kill_after_s is not None:
+            time.sleep(kill_after_s)
+            ex.send_signal(signal.SIGKILL)
+        ex.wait(120)
+        log = run.communicate(timeout=150)[0].decode()
+    finally:
+        for p in (ex, run):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(5)
+    return run.returncode, log, out
+
+
+def test_rclpy_square_in_lockstep_closes_and_is_byte_identical(tmp_path):
+    dom = domain_id(3)
+    results = [_run_square(tmp_path, dom, f"run{i}") for i in range(2)]
+    for code, log, out in results:
+        assert code == 0, log
+        summary = json.load(open(out / "summary.json"))
+        assert summary["exit_codes"]["ros2_bridge"] == 0, summary
+        m = summary["metrics"]["robot1"]
+        assert m["final_odom_error_m"] < 0.02, m
+        assert 5.9 < m["path_length_m"] < 6.1, m          # the whole 1.5 m square was driven
+    a, b = ((out / "trajectory.csv").read_bytes() for _, _, out in results)
+    assert len(list(csv.reader(a.decode().splitlines()))) > 2000
+    assert a == b, "two lockstep runs with the ROS 2 controller differ"
+
+
+def test_a_killed_ros2_controller_ends_the_bridge_like_a_node(tmp_path):
+    code, log, out = _run_square(tmp_path, domain_id(4), "killed", kill_after_s=6.0)
+    bridge_log = open(out / "logs" / "ros2_bridge.log").read()
+    summary = json.load(open(out / "summary.json"))
+    why = f"{log}\n{bridge_log}\n{summary}"
+    assert summary["exit_codes"]["ros2_bridge"] == 0, why
+    assert summary["metrics"]["robot1"]["path_length_m"] < 5.0, why   # the square was cut short
+    assert "the ROS 2 controller left the graph" in bridge_log, why
