@@ -23,8 +23,8 @@ class Avoid:
     inputs = ["scan"]
 
     def __init__(self, max_speed_mps: float = 0.3, turn_radps: float = 1.2,
-                 stop_m: float = 0.6, slow_m: float = 1.5,
-                 front_half_angle_rad: float = 0.5) -> None:
+                 stop_m: float = 0.7, slow_m: float = 1.6,
+                 front_half_angle_rad: float = 0.7) -> None:
         if not (0 < stop_m < slow_m):
             raise ValueError("need 0 < stop distance < slow-down distance")
         self.v_max = max_speed_mps
