@@ -277,6 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--controller-processes", type=nonneg_int, default=None, metavar="K",
                    help="generated-world scenario: split the robots over K controller "
                         "processes (0: one process per robot; default: the scenario's)")
+    p.add_argument("--physics", choices=("dynamic", "kinematic"), default=None,
+                   help="generated-world scenario: DART contact physics (default) or the "
+                        "cheap kinematic mode (ideal unicycle, walls still stop robots)")
     p.add_argument("--ros2", action="store_true",
                    help="also start the ROS 2 bridge (`diffbot ros2`; needs rclpy: "
                         "pip install -e '.[ros2]'), on the environment's ROS_DOMAIN_ID")
@@ -296,7 +299,8 @@ def generate(spec, args, out: str) -> None:
     from plant.swarm_world import write_swarm_world
     n = args.robots or spec.robots
     spec.robots = n
-    spec.world = write_swarm_world(os.path.join(out, "world.toml"), n, args.seed)
+    spec.world = write_swarm_world(os.path.join(out, "world.toml"), n, args.seed,
+                                   args.physics or "dynamic")
     k = spec.controller_processes if args.controller_processes is None \
         else args.controller_processes
     names = [f"r{i}" for i in range(n)]
@@ -314,9 +318,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         spec = load_scenario(args.scenario)
-        if (args.robots is not None or args.controller_processes is not None) \
-                and not spec.generate:
-            raise ValueError(f"--robots/--controller-processes: scenario {spec.name!r} has a "
+        if (args.robots is not None or args.controller_processes is not None
+                or args.physics is not None) and not spec.generate:
+            raise ValueError(f"--robots/--controller-processes/--physics: scenario "
+                             f"{spec.name!r} has a "
                              "fixed world (only generated-world scenarios, e.g. swarm, take them)")
         out = os.path.abspath(args.out or os.path.join("out", spec.name))
         if spec.generate:

@@ -100,3 +100,6 @@ def test_robots_option_is_refused_by_a_fixed_world_scenario():
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square", "--robots", "3"],
                        cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "--robots" in r.stderr and "fixed world" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "drive-test", "--physics",
+                        "kinematic"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "fixed world" in r.stderr

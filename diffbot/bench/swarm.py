@@ -83,3 +83,10 @@ def swarm_suite(ctx: Context):
                     Metric("real_time_factor", f"{what}: real-time factor", "x",
                            notes=f"summary.json real_time_factor, {duration} s simulated"),
                 ], repeats=1, warmup=0)
+    what = "swarm lockstep, 24 kinematic robots, 3 controller processes, pipelined"
+    yield Probe(what, lambda: run_scenario(
+        ctx, "swarm", 600.0, "--robots", "24", "--physics", "kinematic",
+        "--coupling", "pipelined", "--duration", duration), [
+        Metric("real_time_factor", f"{what}: real-time factor", "x",
+               notes=f"summary.json real_time_factor, {duration} s simulated")],
+        repeats=1, warmup=0)
