@@ -6,7 +6,7 @@ STAMP   := $(VENV)/.installed
 FMUS    := fmus/build/.built
 FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
 
-.PHONY: setup demo test test-fast soak bench clean
+.PHONY: setup demo test test-fast soak bench clean netns-tools
 
 setup: $(STAMP) $(FMUS)
 
@@ -26,8 +26,17 @@ $(FMUS): $(STAMP) $(FMU_SRC)
 demo: setup
 	$(BIN)/diffbot run follow --out out/demo
 
-test: setup
+test: setup netns-tools
 	$(BIN)/python -m pytest -q
+
+# tests/test_netns.py needs `ip` (iproute2) and `openssl`. Installed only when missing,
+# only as root, only with apt-get (a fresh Debian CI machine); otherwise the test skips
+# and says why.
+netns-tools:
+	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+	    { ! command -v ip >/dev/null || ! command -v openssl >/dev/null; }; then \
+	  echo "installing iproute2 and openssl for tests/test_netns.py"; \
+	  apt-get update -qq && apt-get install -y -qq iproute2 openssl >/dev/null; fi
 
 test-fast: setup
 	$(BIN)/python -m pytest -q -m "not slow"

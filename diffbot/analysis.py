@@ -154,6 +154,7 @@ def plot_velocities(a: np.ndarray, t0: float, path: str) -> str:
 
 
 from .analysis_follow import FollowAnalysis  # noqa: E402
+from .analysis_swarm import SwarmAnalysis  # noqa: E402
 
 ANALYSES = {"square": SquareAnalysis, "drive-test": DriveTestAnalysis, "follow": FollowAnalysis,
-            "none": NoAnalysis}
+            "swarm": SwarmAnalysis, "none": NoAnalysis}

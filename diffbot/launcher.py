@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from bus.cliargs import ArgumentParser, nonneg_int, positive_float
+from bus.cliargs import ArgumentParser, nonneg_int, positive_float, positive_int
 from bus.keys import Keys
 from bus.node import EXIT_PLANT_GONE, write_json
 from bus.protocol import COUPLINGS
@@ -33,7 +33,7 @@ from plant.world import WorldError, load_world
 
 from . import procs
 from .procs import diffbot_argv
-from .scenario import ScenarioSpec, load_scenario
+from .scenario import ProcessSpec, ScenarioSpec, load_scenario
 
 STOP_GRACE_S = 1.5
 #: a child whose bus token is gone but whose process still runs is taken as hung after this
@@ -271,6 +271,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every message into this MCAP file (Foxglove opens it; a path "
                         "without .mcap is a rosbag2 bag directory)")
+    p.add_argument("--robots", type=positive_int, default=None, metavar="N",
+                   help="robot count of a generated-world scenario (swarm; default: the "
+                        "scenario's)")
+    p.add_argument("--controller-processes", type=nonneg_int, default=None, metavar="K",
+                   help="generated-world scenario: split the robots over K controller "
+                        "processes (0: one process per robot; default: the scenario's)")
+    p.add_argument("--physics", choices=("dynamic", "kinematic"), default=None,
+                   help="generated-world scenario: DART contact physics (default) or the "
+                        "cheap kinematic mode (ideal unicycle, walls still stop robots)")
     p.add_argument("--ros2", action="store_true",
                    help="also start the ROS 2 bridge (`diffbot ros2`; needs rclpy: "
                         "pip install -e '.[ros2]'), on the environment's ROS_DOMAIN_ID")
@@ -284,17 +293,46 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def generate(spec, args, out: str) -> None:
+    """A generated-world scenario: write its world into ``out`` and one controller process
+    per group of robots (round robin, so neighbours on the grid sit in different groups)."""
+    from plant.swarm_world import write_swarm_world
+    n = args.robots or spec.robots
+    spec.robots = n
+    spec.world = write_swarm_world(os.path.join(out, "world.toml"), n, args.seed,
+                                   args.physics or "dynamic")
+    k = spec.controller_processes if args.controller_processes is None \
+        else args.controller_processes
+    names = [f"r{i}" for i in range(n)]
+    groups = [[r] for r in names] if k == 0 else \
+        [g for g in (names[j::min(k, n)] for j in range(min(k, n))) if g]
+    spec.controller_processes = len(groups)
+    spec.processes = [ProcessSpec(name=f"{spec.controller}_{g[0]}" if len(g) == 1 else
+                                  f"{spec.controller}_g{j}",
+                                  command=["controller", spec.controller, "--robots", ",".join(g)])
+                      for j, g in enumerate(groups)]
+    spec.robot = names[0]
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         spec = load_scenario(args.scenario)
+        if (args.robots is not None or args.controller_processes is not None
+                or args.physics is not None) and not spec.generate:
+            raise ValueError(f"--robots/--controller-processes/--physics: scenario "
+                             f"{spec.name!r} has a "
+                             "fixed world (only generated-world scenarios, e.g. swarm, take them)")
+        out = os.path.abspath(args.out or os.path.join("out", spec.name))
+        if spec.generate:
+            os.makedirs(out, exist_ok=True)
+            generate(spec, args, out)
         world = load_world(spec.world)
         keys = Keys(args.namespace)
     except (WorldError, ValueError) as exc:
         print(f"diffbot run: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     from .analysis import ANALYSES
-    out = os.path.abspath(args.out or os.path.join("out", spec.name))
     os.makedirs(out, exist_ok=True)
     tmp = None
     endpoint = args.endpoint

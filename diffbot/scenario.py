@@ -32,7 +32,7 @@ from bus.protocol import COUPLINGS
 from plant.world import WorldError, _Table, tomllib
 
 SCENARIOS_DIR = os.path.join(os.path.dirname(__file__), "scenarios")
-ANALYSES = ("square", "drive-test", "follow", "none")
+ANALYSES = ("square", "drive-test", "follow", "swarm", "none")
 
 
 @dataclass
@@ -58,6 +58,14 @@ class ScenarioSpec:
     robot: str = "robot1"
     plant_args: list[str] = field(default_factory=list)
     processes: list[ProcessSpec] = field(default_factory=list)
+    #: a generated world (``generate = "swarm"``): the robot count is a run parameter
+    #: (``robots``, default; ``diffbot run --robots N``), the world file is written into the
+    #: run's output directory, and ``controller`` drives every robot from
+    #: ``controller_processes`` processes (0: one process per robot)
+    generate: str = ""
+    robots: int = 0
+    controller: str = ""
+    controller_processes: int = 0
 
 
 def scenario_path(name_or_path: str) -> str:
@@ -98,6 +106,15 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
     if not isinstance(plant_args, list) or not all(isinstance(a, str) for a in plant_args):
         s.fail("plant_args", "expected a list of strings (extra `diffbot plant` arguments)")
     spec.plant_args = list(plant_args)
+    spec.generate = s.string("generate", "", choices=("", "swarm"))
+    if spec.generate:
+        spec.robots = s.integer("robots", 8)
+        if spec.robots < 1:
+            s.fail("robots", f"must be >= 1, got {spec.robots}")
+        spec.controller = s.string("controller", "avoid")
+        spec.controller_processes = s.integer("controller_processes", 3)
+        if spec.controller_processes < 0:
+            s.fail("controller_processes", f"must be >= 0, got {spec.controller_processes}")
     s.done()
     names = set()
     for t in top.tables("process"):
@@ -117,6 +134,9 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
             ends_run=t.boolean("ends_run", False), sync=t.boolean("sync", True),
             interactive=t.boolean("interactive", False)))
         t.done()
+    if spec.generate and spec.processes:
+        top.fail("process", f"a generated-world scenario (generate = {spec.generate!r}) makes "
+                            "its own processes (controller, controller_processes)")
     top.done()
     return spec
 

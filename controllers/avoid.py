@@ -1,0 +1,72 @@
+"""Reactive obstacle avoidance on the lidar alone (the swarm scenario's controller).
+
+Each tick it looks at the latest scan: the free distance straight ahead (the rays within
+``front_half_angle_rad`` of the heading) sets the speed, from ``max_speed_mps`` when the
+way is clear beyond ``slow_m`` down to zero at ``stop_m``; the robot steers away from
+the nearest return in front of it (a repulsion that grows as it comes closer), and when
+the front is blocked it turns on the spot toward the side with more room, keeping that
+side until the front clears (no dithering between left and right). Walls, obstacles and
+other robots are all just returns: no map, no ground truth, no communication.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bus.cliargs import positive_float
+from bus.node import Twist, node_arg_parser, run_node_args
+
+
+class Avoid:
+    name = "avoid"
+    inputs = ["scan"]
+
+    def __init__(self, max_speed_mps: float = 0.3, turn_radps: float = 1.2,
+                 stop_m: float = 0.7, slow_m: float = 1.6,
+                 front_half_angle_rad: float = 0.7) -> None:
+        if not (0 < stop_m < slow_m):
+            raise ValueError("need 0 < stop distance < slow-down distance")
+        self.v_max = max_speed_mps
+        self.w_turn = turn_radps
+        self.stop_m = stop_m
+        self.slow_m = slow_m
+        self.front = front_half_angle_rad
+        self.turning = 0.0            # +1 left, -1 right while escaping, 0 when free
+
+    def step(self, obs):
+        scan = obs["scan"]
+        if scan is None:
+            return Twist()
+        ranges = np.asarray(scan.ranges, dtype=float)
+        angles = scan.angle_min + scan.angle_increment * np.arange(len(ranges))
+        bad = ~np.isfinite(ranges) | (ranges < scan.range_min)
+        ranges = np.where(bad, scan.range_max, np.minimum(ranges, scan.range_max))
+        return self.command(angles, ranges)
+
+    def command(self, angles: np.ndarray, ranges: np.ndarray) -> Twist:
+        """Twist from a scan given as ray angles (rad, 0 = ahead, + left) and ranges (m)."""
+        ahead = np.abs(angles) <= self.front
+        front = float(ranges[ahead].min()) if ahead.any() else float(ranges.min())
+        if front < self.stop_m or (self.turning and front < self.stop_m * 1.3):
+            if not self.turning:
+                left = ranges[angles > 0].mean() if (angles > 0).any() else 0.0
+                right = ranges[angles < 0].mean() if (angles < 0).any() else 0.0
+                self.turning = 1.0 if left >= right else -1.0
+            return Twist(0.0, self.turning * self.w_turn)
+        self.turning = 0.0
+        v = self.v_max * min(1.0, (front - self.stop_m) / (self.slow_m - self.stop_m))
+        # Repulsion: each close return within +-90 deg pushes the heading away from it.
+        near = (np.abs(angles) <= math.pi / 2) & (ranges < self.slow_m)
+        push = np.sum(-np.sign(angles[near]) * (self.slow_m - ranges[near]) / self.slow_m
+                      * np.cos(angles[near]))
+        w = float(np.clip(1.5 * push, -self.w_turn, self.w_turn))
+        return Twist(v, w)
+
+
+def main(argv=None) -> int:
+    p = node_arg_parser("Wander and avoid walls, obstacles and other robots on the lidar.")
+    p.add_argument("--max-speed", type=positive_float, default=0.3, help="m/s (default 0.3)")
+    args = p.parse_args(argv)
+    return run_node_args(Avoid(max_speed_mps=args.max_speed), args,
+                         args.name or f"avoid_{args.robot}")

@@ -1,0 +1,92 @@
+"""Suite ``swarm``: many robots. Physics alone (dynamic and kinematic), the swarm's lidar
+per robot, and ``diffbot run swarm`` in lockstep with 8/16/24 robots from 3 controller
+processes and from one process per robot, under both couplings."""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+
+from bus.protocol import COUPLINGS
+
+from .harness import Case, Context, Metric, Probe, suite
+from .scenario import run_scenario
+
+
+def _swarm_sim(n: int, mode: str, tmpdir: str):
+    from plant.sim import Simulation
+    from plant.swarm_world import write_swarm_world
+    from plant.world import load_world
+    fd, path = tempfile.mkstemp(suffix=".toml", dir=tmpdir)
+    os.close(fd)
+    try:
+        spec = load_world(write_swarm_world(path, n, seed=0, mode=mode))
+    finally:
+        os.unlink(path)
+    sim = Simulation(spec)
+    for i, name in enumerate(sim.robots):           # all driving, some turning
+        sim.command_twist(name, 0.3, 0.3 if i % 2 else -0.2)
+    sim.step_tick()
+    return spec, sim
+
+
+def physics_rtf(n: int, mode: str, tmpdir: str, sim_s: float = 2.0) -> dict:
+    """Physics only (Simulation.step_tick, no sensors, no bus): real-time factor and the
+    cost per robot per physics step."""
+    spec, sim = _swarm_sim(n, mode, tmpdir)
+    ticks = max(1, int(round(sim_s / spec.control_tick_s)))
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(ticks):
+        sim.step_tick()
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    steps = ticks * spec.substeps
+    return {"real_time_factor": ticks * spec.control_tick_s / wall,
+            "us_per_robot_step": wall / steps / n * 1e6,
+            "cpu_us_per_robot_step": cpu / steps / n * 1e6}
+
+
+@suite("swarm", "many robots: physics alone (dynamic, kinematic), the swarm lidar, and "
+                "`diffbot run swarm` in lockstep with 3 controller processes vs one per robot")
+def swarm_suite(ctx: Context):
+    repeats = 1 if ctx.quick else 3
+    for mode in ("dynamic", "kinematic"):
+        for n in (1, 8, 24):
+            what = f"physics alone, {n} {mode} robot{'s' if n > 1 else ''}"
+            yield Probe(what, lambda n=n, mode=mode: physics_rtf(n, mode, ctx.tmpdir), [
+                Metric("real_time_factor", f"{what}: real-time factor", "x",
+                       notes="Simulation.step_tick in one process, 2 ms steps, 20 ms ticks"),
+                Metric("us_per_robot_step", f"{what}: per robot per step (wall)", "us"),
+                Metric("cpu_us_per_robot_step", f"{what}: per robot per step (CPU)", "us",
+                       notes="process CPU time: less sensitive to a loaded machine"),
+            ], repeats=repeats, warmup=0)
+    from plant import lidar
+    from plant.raycast import Scene
+    spec, sim = _swarm_sim(24, "dynamic", ctx.tmpdir)
+    cfg = spec.robots[0].sensors.lidar
+    scene = Scene(sim.shapes())
+    st = sim.state("r0")
+    yield Case(f"swarm lidar sweep ({cfg.num_rays} rays, 24 robots' world)",
+               lambda: lidar.measure(cfg, st.tf, scene, None, "r0"),
+               notes=f"{len(scene)} shapes; one robot's scan at {cfg.rate_hz:g} Hz")
+    yield Case("swarm scene snapshot (24 robots)", lambda: Scene(sim.shapes()),
+               notes="once per tick a lidar is due, shared by every robot")
+    duration = "5" if ctx.quick else "20"
+    for n in (8, 16, 24):
+        for procs, label in ((3, "3 controller processes"), (0, "one process per robot")):
+            if procs == 0 and n > 16 and ctx.quick:
+                continue
+            for coupling in COUPLINGS:
+                what = f"swarm lockstep, {n} robots, {label}, {coupling}"
+                yield Probe(what, lambda n=n, p=procs, c=coupling: run_scenario(
+                    ctx, "swarm", 600.0, "--robots", str(n), "--controller-processes", str(p),
+                    "--coupling", c, "--duration", duration), [
+                    Metric("real_time_factor", f"{what}: real-time factor", "x",
+                           notes=f"summary.json real_time_factor, {duration} s simulated"),
+                ], repeats=1, warmup=0)
+    what = "swarm lockstep, 24 kinematic robots, 3 controller processes, pipelined"
+    yield Probe(what, lambda: run_scenario(
+        ctx, "swarm", 600.0, "--robots", "24", "--physics", "kinematic",
+        "--coupling", "pipelined", "--duration", duration), [
+        Metric("real_time_factor", f"{what}: real-time factor", "x",
+               notes=f"summary.json real_time_factor, {duration} s simulated")],
+        repeats=1, warmup=0)

@@ -1,0 +1,251 @@
+"""Several machines, emulated: router, plant and controller in three Linux network
+namespaces joined by veth pairs, over TLS, in lockstep; the recording must be byte for
+byte the one of the same run on loopback.
+
+Topology (made here, as root, with names unique to this test run; addresses from
+192.0.2.0/24, TEST-NET-1, only on these veth interfaces inside these namespaces):
+
+    plant ns  192.0.2.2 --veth-- 192.0.2.1  router ns  192.0.2.5 --veth-- 192.0.2.6  ctrl ns
+
+The router listens with TLS on both of its addresses (certificate made here with the
+``openssl`` CLI, signed by a CA made here); plant, recorder and controller are Zenoh
+clients that verify it against that CA. Everything is deleted at the end, also on failure
+(deleting a namespace deletes its veth ends and every address in it).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import uuid
+
+import pytest
+
+from .conftest import ROOT, wait_for
+
+pytestmark = pytest.mark.slow
+
+DURATION_S = "4"
+SCHEDULE = "2:1,1;2:1,-1"
+
+
+def _why_no_netns() -> str | None:
+    if os.geteuid() != 0:
+        return "network namespaces need root"
+    for tool in ("ip", "openssl"):
+        if shutil.which(tool) is None:
+            return f"no `{tool}` command (install iproute2 / openssl)"
+    return None
+
+
+def sh(*argv: str) -> None:
+    subprocess.run(argv, check=True, capture_output=True, timeout=20)
+
+
+class Net:
+    """Three namespaces and two veth pairs; ``close`` removes all of it."""
+
+    def __init__(self) -> None:
+        tag = uuid.uuid4().hex[:6]
+        self.ns = {role: f"dbt-{role}-{tag}" for role in ("router", "plant", "ctrl")}
+        self.made: list[str] = []
+        for ns in self.ns.values():
+            sh("ip", "netns", "add", ns)
+            self.made.append(ns)
+        for side, (r_ip, o_ip) in (("plant", ("192.0.2.1", "192.0.2.2")),
+                                   ("ctrl", ("192.0.2.5", "192.0.2.6"))):
+            a, b = f"dbr{side[0]}{tag}", f"dbo{side[0]}{tag}"      # <= 15 characters
+            sh("ip", "link", "add", a, "netns", self.ns["router"], "type", "veth",
+               "peer", "name", b, "netns", self.ns[side])
+            for ns, dev, ip in ((self.ns["router"], a, r_ip), (self.ns[side], b, o_ip)):
+                sh("ip", "-n", ns, "addr", "add", f"{ip}/30", "dev", dev)
+                sh("ip", "-n", ns, "link", "set", dev, "up")
+                sh("ip", "-n", ns, "link", "set", "lo", "up")
+        self.links = [(self.ns["router"], f"dbrp{tag}"), (self.ns["plant"], f"dbop{tag}"),
+                      (self.ns["router"], f"dbrc{tag}"), (self.ns["ctrl"], f"dboc{tag}")]
+
+    def netem(self, delay: str) -> None:
+        """``tc netem delay`` on every veth end: each hop gets ``delay`` both ways."""
+        for ns, dev in self.links:
+            sh("ip", "netns", "exec", ns, "tc", "qdisc", "replace", "dev", dev, "root",
+               "netem", "delay", delay)
+
+    def close(self) -> None:
+        for ns in self.made:
+            subprocess.run(["ip", "netns", "del", ns], capture_output=True, timeout=20)
+
+
+def make_certs(d: str) -> dict:
+    """A CA and a router certificate for both router addresses (openssl CLI)."""
+    def ossl(*a):
+        sh("openssl", *a)
+    ca, ca_key = os.path.join(d, "ca.pem"), os.path.join(d, "ca-key.pem")
+    crt, key = os.path.join(d, "router.pem"), os.path.join(d, "router-key.pem")
+    csr, ext = os.path.join(d, "router.csr"), os.path.join(d, "router.ext")
+    ossl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj",
+         "/CN=diffbot test CA", "-keyout", ca_key, "-out", ca)
+    ossl("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=router", "-keyout", key,
+         "-out", csr)
+    with open(ext, "w") as f:
+        f.write("subjectAltName=IP:192.0.2.1,IP:192.0.2.5\n"
+                "basicConstraints=CA:FALSE\nextendedKeyUsage=serverAuth\n")
+    ossl("x509", "-req", "-in", csr, "-CA", ca, "-CAkey", ca_key, "-CAcreateserial",
+         "-days", "2", "-extfile", ext, "-out", crt)
+    return {"ca": ca, "crt": crt, "key": key}
+
+
+def configs(d: str, certs: dict) -> dict:
+    common = {"scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+              "timestamping": {"enabled": False}}
+    router = dict(common, mode="router",
+                  listen={"endpoints": ["tls/192.0.2.1:7447", "tls/192.0.2.5:7447"]},
+                  connect={"endpoints": []},
+                  transport={"link": {"tx": {"lease": 1000, "keep_alive": 4},
+                                      "tls": {"listen_certificate": certs["crt"],
+                                              "listen_private_key": certs["key"]}}})
+    out = {"router": router}
+    for side, ip in (("plant", "192.0.2.1"), ("ctrl", "192.0.2.5")):
+        out[side] = dict(common, mode="client", listen={"endpoints": []},
+                         connect={"endpoints": [f"tls/{ip}:7447"], "timeout_ms": 15000,
+                                  "exit_on_failure": True},
+                         transport={"link": {"tx": {"lease": 1000, "keep_alive": 4},
+                                             "tls": {"root_ca_certificate": certs["ca"]}}})
+    paths = {}
+    for name, cfg in out.items():
+        paths[name] = os.path.join(d, f"{name}.json5")
+        with open(paths[name], "w") as f:
+            json.dump(cfg, f)
+    return paths
+
+
+class Runner:
+    def __init__(self, tmp: str) -> None:
+        self.tmp = tmp
+        self.procs: list[subprocess.Popen] = []
+
+    def start(self, ns: str | None, name: str, *args: str) -> subprocess.Popen:
+        log = open(os.path.join(self.tmp, f"{name}.log"), "wb")
+        argv = [sys.executable, "-m", "diffbot.cli", *args]
+        if ns:
+            argv = ["ip", "netns", "exec", ns, *argv]    # ip execs: the PID is python's
+        p = subprocess.Popen(argv, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+                             stdin=subprocess.DEVNULL, start_new_session=True,
+                             env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        p.log_path = log.name
+        self.procs.append(p)
+        return p
+
+    def log(self, p) -> str:
+        with open(p.log_path, "rb") as f:
+            return f.read().decode("utf-8", "replace")
+
+    def cleanup(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        for p in self.procs:
+            try:
+                p.wait(5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(5)
+
+
+def run_drive(tmp: str, bus: dict, ns: dict, coupling: str = "sequential") -> tuple[str, dict]:
+    """Plant (lockstep, empty world), recorder and a wheel schedule; returns the MCAP path
+    and the plant's stats."""
+    os.makedirs(tmp, exist_ok=True)
+    r = Runner(tmp)
+    mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
+    try:
+        if ns.get("router"):
+            r.start(ns["router"], "router", "router", "--zenoh-config", bus["router"])
+        plant = r.start(ns.get("plant"), "plant", "plant", "--world", "empty", "--mode",
+                        "lockstep", "--coupling", coupling, "--duration", DURATION_S,
+                        "--expect", "sched", "--stats", stats, *bus["plant_args"])
+        rec = r.start(ns.get("ctrl"), "recorder", "record", mcap, "--compression", "none",
+                      *bus["ctrl_args"])
+        wait_for(lambda: "recording" in r.log(rec) or rec.poll() is not None, 30,
+                 what="the recorder")
+        assert rec.poll() is None, r.log(rec)
+        ctrl = r.start(ns.get("ctrl"), "sched", "controller", "wheel_schedule", "--robot",
+                       "robot1", "--name", "sched", "--schedule", SCHEDULE, *bus["ctrl_args"])
+        assert plant.wait(90) == 0, r.log(plant)
+        ctrl.wait(20)
+        assert rec.wait(30) == 0, r.log(rec)
+    finally:
+        r.cleanup()
+    with open(stats) as f:
+        return mcap, json.load(f)
+
+
+def messages(mcap: str) -> list[tuple[str, int, bytes]]:
+    """(topic, sim time, payload) of every message, in a stable order (wall-clock
+    publish times differ between runs and are left out)."""
+    from mcap.reader import make_reader
+    with open(mcap, "rb") as f:
+        out = [(ch.topic, m.log_time, m.data) for _, ch, m in make_reader(f).iter_messages()]
+    return sorted(out)
+
+
+@pytest.fixture
+def net():
+    why = _why_no_netns()
+    if why:
+        pytest.skip(why)
+    n = None
+    try:
+        n = Net()
+    except subprocess.CalledProcessError as exc:
+        if n is not None:
+            n.close()
+        pytest.skip(f"cannot create network namespaces here: {exc.stderr.decode().strip()}")
+    try:
+        yield n
+    finally:
+        n.close()
+
+
+def test_lockstep_over_tls_across_namespaces_is_byte_identical_to_loopback(tmp_path, net):
+    certs = make_certs(str(tmp_path))
+    cfg = configs(str(tmp_path), certs)
+    sock = f"unixsock-stream/{tmp_path}/bus.sock"
+    loop = {"plant_args": ["--endpoint", sock], "ctrl_args": ["--endpoint", sock]}
+    remote = {"router": cfg["router"], "plant_args": ["--zenoh-config", cfg["plant"]],
+              "ctrl_args": ["--zenoh-config", cfg["ctrl"]]}
+    a, sa = run_drive(str(tmp_path / "loopback"), loop, {})
+    b, sb = run_drive(str(tmp_path / "netns"), remote, net.ns)
+    ma, mb = messages(a), messages(b)
+    assert len(ma) > 500 and any(t.endswith("robot1/cmd_vel") or t.endswith("wheel_cmd")
+                                 for t, _, _ in ma)
+    assert ma == mb
+    assert sa["sim_time_s"] == sb["sim_time_s"] == pytest.approx(float(DURATION_S))
+    print(f"real-time factor: loopback {sa['real_time_factor']:.2f}, "
+          f"3 namespaces + router + TLS {sb['real_time_factor']:.2f}")
+
+
+def test_lockstep_with_1ms_netem_delay_per_link_keeps_the_bytes(tmp_path, net):
+    """With 1 ms more on every veth end, lockstep gives the same bytes; only the pace
+    drops. The real-time factors under both couplings are printed (speed is not asserted)."""
+    try:
+        net.netem("1ms")
+    except subprocess.CalledProcessError as exc:
+        pytest.skip(f"tc netem is not available here: {exc.stderr.decode().strip()} "
+                    "(the kernel lacks sch_netem)")
+    certs = make_certs(str(tmp_path))
+    cfg = configs(str(tmp_path), certs)
+    remote = {"router": cfg["router"], "plant_args": ["--zenoh-config", cfg["plant"]],
+              "ctrl_args": ["--zenoh-config", cfg["ctrl"]]}
+    rtf, msgs = {}, {}
+    for coupling in ("sequential", "pipelined"):
+        c, sc = run_drive(str(tmp_path / coupling), remote, net.ns, coupling)
+        rtf[coupling] = sc["real_time_factor"]
+        msgs[coupling] = messages(c)
+        assert len(msgs[coupling]) > 500
+    c, _ = run_drive(str(tmp_path / "again"), remote, net.ns, "sequential")
+    assert messages(c) == msgs["sequential"]
+    print(f"real-time factor with netem 1 ms per link: {rtf}")
