@@ -180,14 +180,17 @@ def stop(children: list[Child], grace_s: float = 1.5, sig: int = signal.SIGINT) 
     the tree is read before the signal too, so grandchildren orphaned meanwhile are found),
     and reap them. Children that already ended only get their log closed."""
     running = [c for c in children if c.running()]
-    trees = {id(c): descendants(c.pid) for c in running}
+    # (pid, start time): a PID that ends during the grace and is reused meanwhile by an
+    # unrelated process is then not ours, and is left alone
+    trees = {id(c): [(p, _start_time(p)) for p in descendants(c.pid)] for c in running}
     for c in running:
         _kill(c.pid, sig)
     deadline = time.monotonic() + grace_s
     while time.monotonic() < deadline and any(c.poll() is None for c in running):
         time.sleep(0.02)
     for c in running:
-        left = [p for p in trees[id(c)] + descendants(c.pid) if alive(p)]
+        left = [p for p, t0 in trees[id(c)] if alive(p) and _start_time(p) == t0]
+        left += [p for p in descendants(c.pid) if alive(p)]
         if c.poll() is None:
             _kill(c.pid, signal.SIGKILL)
         if not c.interactive:                 # its own process group: daemonised ones too
@@ -254,6 +257,15 @@ def descendants(pid: int | None) -> list[int]:
 def alive(pid: int) -> bool:
     """The process exists and is not a zombie."""
     return _state(pid) not in (None, "Z")
+
+
+def _start_time(pid: int) -> int | None:
+    """When the process started (clock ticks since boot, /proc/<pid>/stat field 22)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return int(f.read().rsplit(")", 1)[1].split()[19])
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def _state(pid: int) -> str | None:
