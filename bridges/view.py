@@ -45,9 +45,11 @@ import numpy as np
 import zenoh
 
 from bus import codec, scene
+from bus.cliargs import ArgumentParser, nonneg_float, port, positive_float, positive_int
 from bus.keys import TOPICS, Keys, check_name
 from bus.log import RejectCounter, setup_logging
-from bus.node import close_session, install_stop_signals, query_info, write_json
+from bus.node import (EXIT_PLANT_GONE, close_session, install_stop_signals, query_info,
+                      write_json)
 from bus.session import BusConfigError, add_bus_args, open_session
 
 EXIT_OK = 0
@@ -667,24 +669,24 @@ def parse_twist(data: bytes, encoding: str, schema_name: str) -> tuple[float, fl
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="diffbot view",
         description="Serve the simulation live to Foxglove (ws://HOST:PORT, subprotocol "
                     "foxglove.sdk.v1) and take teleop from it. Runs until Ctrl-C.")
-    p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765; "
+    p.add_argument("--port", type=port, default=8765, help="WebSocket port (default 8765; "
                    "0 picks a free one, logged at start)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to bind (default 127.0.0.1: this machine only)")
-    p.add_argument("--rate", type=float, default=30.0, metavar="HZ",
+    p.add_argument("--rate", type=nonneg_float, default=30.0, metavar="HZ",
                    help="send each topic's latest message at most this many times per wall "
                         "second (default 30; 0: every message). Recordings keep every one")
-    p.add_argument("--image-rate", type=float, default=15.0, metavar="HZ",
+    p.add_argument("--image-rate", type=positive_float, default=15.0, metavar="HZ",
                    help="at most this many frames per second per camera (wall clock); "
                         "older frames are dropped (default 15)")
-    p.add_argument("--backlog", type=int, default=256, metavar="N",
+    p.add_argument("--backlog", type=positive_int, default=256, metavar="N",
                    help="messages queued per client before the oldest are dropped (default 256)")
     p.add_argument("--name", default="view", help="node name on the bus (default view)")
-    p.add_argument("--info-timeout", type=float, default=15.0, metavar="S",
+    p.add_argument("--info-timeout", type=positive_float, default=15.0, metavar="S",
                    help="wait this long for the plant at the start (default 15)")
     p.add_argument("--stats", metavar="FILE", help="write counters as JSON at exit")
     p.add_argument("--log-level", default="INFO")
@@ -695,13 +697,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     log = setup_logging(args.name, args.log_level)
-    if not 0 <= args.port <= 65535:
-        log.error("--port must be in 0..65535, got %d", args.port)
-        return EXIT_BAD_CONFIG
-    if (not (args.image_rate > 0 and math.isfinite(args.image_rate)) or args.backlog < 1
-            or not (args.rate >= 0 and math.isfinite(args.rate))):
-        log.error("--image-rate must be > 0, --rate >= 0 and --backlog >= 1")
-        return EXIT_BAD_CONFIG
     try:
         import foxglove  # noqa: F401
     except ImportError:
@@ -722,7 +717,7 @@ def main(argv: list[str] | None = None) -> int:
             view.load_info(query_info(session, keys, args.info_timeout))
         except (TimeoutError, ValueError) as exc:
             log.error("%s", exc)
-            return 3
+            return EXIT_PLANT_GONE
         try:
             server = view.start_server(args.host, args.port, args.backlog)
         except Exception as exc:             # port in use, bad address

@@ -36,6 +36,8 @@ finite_float = _number(float, "a finite number", lambda v: True)
 positive_int = _number(int, "an integer >= 1", lambda v: v >= 1)
 #: >= 0: seeds
 nonneg_int = _number(int, "an integer >= 0", lambda v: v >= 0)
+#: a TCP port, 0 for "any free one"
+port = _number(int, "a port in 0..65535", lambda v: 0 <= v <= 65535)
 
 
 def did_you_mean(word: str, choices: Iterable[str]) -> str:

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from bus.cliargs import ArgumentParser, nonneg_int, positive_float, positive_int
+from bus.cliargs import ArgumentParser, nonneg_int, port, positive_float, positive_int
 from bus.keys import Keys
 from bus.node import EXIT_PLANT_GONE, write_json
 from bus.protocol import COUPLINGS
@@ -286,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--view", action="store_true",
                    help="watch the run live in Foxglove: also start `diffbot view` "
                         "(ws://127.0.0.1:8765; needs the [view] extra)")
-    p.add_argument("--view-port", type=int, default=8765, metavar="PORT",
+    p.add_argument("--view-port", type=port, default=8765, metavar="PORT",
                    help="port of --view (default 8765)")
     p.add_argument("--view-host", default="127.0.0.1", metavar="HOST",
                    help="address --view binds (default 127.0.0.1)")
@@ -344,10 +344,6 @@ def main(argv: list[str] | None = None) -> int:
               args.timeout, coupling=args.coupling or spec.coupling, record=args.record,
               ros2=args.ros2)
     if args.view:
-        if not 0 <= args.view_port <= 65535:
-            print(f"diffbot run: --view-port must be in 0..65535, got {args.view_port}",
-                  file=sys.stderr)
-            return EXIT_BAD_INPUT
         run.view_port, run.view_host = args.view_port, args.view_host
     run.build()
     analysis = ANALYSES[spec.analysis]
