@@ -101,6 +101,16 @@ def test_clock_and_scan_reach_ros2_as_on_the_bus(procs, endpoint, bus, peer_fact
     assert clock[-1] > clock[0] and all(b >= a for a, b in zip(clock, clock[1:]))
 
 
+def _realtime_plant_and_truth(procs, endpoint, bus) -> list:
+    """A realtime plant on the empty world; the list fills with robot1's ground truth."""
+    procs.diffbot("plant", "--world", "empty", "--mode", "realtime", "--endpoint", endpoint,
+                  name="plant")
+    gt: list = []
+    bus().declare_subscriber(Keys().topic("robot1", "ground_truth"), lambda smp: gt.append(
+        codec.decode(smp.payload.to_bytes(), "nav_msgs/msg/Odometry")))
+    return gt
+
+
 def _scan_item(m):
     return codec.stamp_ns(m.header.stamp), (list(map(float, m.ranges)), m.header.frame_id)
 
@@ -110,12 +120,7 @@ def test_cmd_vel_twist_stamped_and_wheel_cmd_move_the_robot_garbage_is_counted(
     from geometry_msgs.msg import Twist, TwistStamped
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     dom = domain_id(1)
-    procs.diffbot("plant", "--world", "empty", "--mode", "realtime", "--endpoint", endpoint,
-                  name="plant")
-    s = bus()
-    gt = []
-    s.declare_subscriber(Keys().topic("robot1", "ground_truth"), lambda smp: gt.append(
-        codec.decode(smp.payload.to_bytes(), "nav_msgs/msg/Odometry")))
+    gt = _realtime_plant_and_truth(procs, endpoint, bus)
     stats = str(tmp_path / "bridge.json")
     bridge = procs.diffbot("ros2", "--endpoint", endpoint, "--domain-id", str(dom),
                            "--stats", stats, name="bridge")
@@ -174,12 +179,7 @@ def test_killing_the_bridge_stops_the_robot_within_cmd_timeout(procs, endpoint, 
     from geometry_msgs.msg import Twist
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     dom = domain_id(2)
-    procs.diffbot("plant", "--world", "empty", "--mode", "realtime", "--endpoint", endpoint,
-                  name="plant")
-    s = bus()
-    gt = []
-    s.declare_subscriber(Keys().topic("robot1", "ground_truth"), lambda smp: gt.append(
-        codec.decode(smp.payload.to_bytes(), "nav_msgs/msg/Odometry")))
+    gt = _realtime_plant_and_truth(procs, endpoint, bus)
     bridge = procs.diffbot("ros2", "--endpoint", endpoint, "--domain-id", str(dom), name="bridge")
     peer = peer_factory(dom)
     pub = peer.node.create_publisher(
