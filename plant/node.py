@@ -36,7 +36,7 @@ from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION, delays
 from bus.session import BusConfigError, add_bus_args, open_session
 
 from .raycast import Scene
-from .sensors import RobotSensors
+from .sensors import RobotSensors, scan_all
 from .sim import Simulation
 from .world import WorldError, WorldSpec, load_world
 
@@ -236,8 +236,10 @@ class Plant:
         scene = None
         if any(s.needs_scene(tick) for s in self.sensors.values()):
             scene = Scene(self.sim.shapes())
+        states = {name: self.sim.state(name) for name in self.sensors}
+        scans = scan_all(self.sensors, states, tick, scene) if scene is not None else {}
         for name, sensors in self.sensors.items():
-            for topic, msg in sensors.messages(tick, t, self.sim.state(name), scene):
+            for topic, msg in sensors.messages(tick, t, states[name], scene, scans.get(name)):
                 self._put(self.keys.topic(name, topic), msg, t)
         self._put(self.keys.clock, codec.clock(t), t)
 
