@@ -159,8 +159,13 @@ def serve(conn: Connection) -> int:
                 conn.send(snapshot(sim, with_parts))
             else:
                 raise ValueError(f"unknown request {msg[0]!r}")
+        except OSError:                              # the plant went while we answered
+            return 0
         except Exception:                            # told to the plant, which raises it
-            conn.send(("error", traceback.format_exc()))
+            try:
+                conn.send(("error", traceback.format_exc()))
+            except OSError:
+                pass
             return 1
 
 
