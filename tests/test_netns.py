@@ -79,9 +79,10 @@ class Net:
             sh("ip", "netns", "add", ns)
             self.made.append(ns)
             sh("ip", "-n", ns, "link", "set", "lo", "up")
-        if wire:     # the wire's own stack stays quiet: no IPv6 autoconfiguration there
-            sh("ip", "netns", "exec", self.ns["wire"], "sysctl", "-qw",
-               "net.ipv6.conf.all.disable_ipv6=1", "net.ipv6.conf.default.disable_ipv6=1")
+        if wire:     # the wire's own stack stays quiet (no IPv6 autoconfiguration): best effort
+            subprocess.run(["ip", "netns", "exec", self.ns["wire"], sys.executable, "-c",
+                            "for k in ('all', 'default'): open(f'/proc/sys/net/ipv6/conf/{k}"
+                            "/disable_ipv6', 'w').write('1')"], capture_output=True, timeout=20)
         for side, (r_ip, o_ip) in (("plant", ("192.0.2.1", "192.0.2.2")),
                                    ("ctrl", ("192.0.2.5", "192.0.2.6"))):
             a, b = f"dbr{side[0]}{tag}", f"dbo{side[0]}{tag}"      # <= 15 characters
@@ -117,12 +118,13 @@ class Net:
             self.netem(f"{delay_ms}ms")
             return
         self.stop_wire()
-        log = open(os.path.join(log_dir, f"wire-{delay_ms}ms.log"), "wb")
-        self.wire_proc = p = subprocess.Popen(
-            ["ip", "netns", "exec", self.ns["wire"], sys.executable, "-m", "tests.netwire",
-             *self.wire_ifaces, "--delay-ms", str(delay_ms), "--realtime"],
-            cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        with open(os.path.join(log_dir, f"wire-{delay_ms}ms.log"), "wb") as log:
+            self.wire_proc = p = subprocess.Popen(
+                ["ip", "netns", "exec", self.ns["wire"], sys.executable, "-m",
+                 "tests.netwire", *self.wire_ifaces, "--delay-ms", str(delay_ms),
+                 "--realtime"],
+                cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
         p.log_path = log.name
         wait_for(lambda: "wire up" in self.wire_log() or p.poll() is not None, 20,
                  what="the delay wire")
@@ -156,7 +158,8 @@ class Net:
 def netprobe(ns: str, *args: str, timeout_s: float = 30) -> dict:
     """``tests/netprobe.py`` run in namespace ``ns``; its JSON line."""
     out = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-m", "tests.netprobe",
-                          *args], cwd=ROOT, capture_output=True, timeout=timeout_s, check=True)
+                          *args], cwd=ROOT, capture_output=True, timeout=timeout_s)
+    assert out.returncode == 0, f"netprobe {' '.join(args)}: {out.stderr.decode()}"
     return json.loads(out.stdout.decode().strip().splitlines()[-1])
 
 
