@@ -71,6 +71,7 @@ class Run:
     duration_s: float | None = None
     timeout_s: float = 900.0
     coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
+    physics_process: bool = False   # --physics-process: DART in a process of its own
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
     ros2: bool = False              # --ros2: the ROS 2 bridge (bridges/ros2.py), free running
@@ -106,6 +107,8 @@ class Run:
             plant += ["--end-with", ",".join(enders)]
         if self.duration_s is not None:
             plant += ["--duration", repr(self.duration_s)]
+        if self.physics_process and "--physics-process" not in plant:
+            plant.append("--physics-process")
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
         self._add_recorder(logs)
         if self.ros2:
@@ -260,6 +263,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "parallel, one tick of actuation delay); default: the scenario's")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S simulated seconds")
+    p.add_argument("--physics-process", action=argparse.BooleanOptionalAction, default=None,
+                   help="the plant steps DART in a process of its own, publishing while it "
+                        "steps (pipelined lockstep, fast mode; same bytes); default: the "
+                        "scenario's physics_process")
     p.add_argument("--seed", type=nonneg_int, default=0)
     p.add_argument("--out", default=None, help="output directory (default out/<scenario>)")
     p.add_argument("--endpoint", default=None,
@@ -342,7 +349,9 @@ def main(argv: list[str] | None = None) -> int:
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
               args.timeout, coupling=args.coupling or spec.coupling, record=args.record,
-              ros2=args.ros2)
+              ros2=args.ros2,
+              physics_process=(spec.physics_process if args.physics_process is None
+                               else args.physics_process))
     if args.view:
         run.view_port, run.view_host = args.view_port, args.view_host
     run.build()

@@ -6,6 +6,7 @@ A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
     world = "living_room"      # world name or path
     mode = "lockstep"          # lockstep | realtime | fast
     coupling = "sequential"    # lockstep: sequential | pipelined (docs/PROTOCOL.md)
+    physics_process = false    # DART in a process of its own (worth it for many robots)
     duration_s = 300.0        # upper bound in simulated time (optional)
     analysis = "square"        # what to plot and summarise afterwards
     robot = "robot1"           # the robot the analysis looks at
@@ -53,6 +54,7 @@ class ScenarioSpec:
     world: str = "living_room"
     mode: str = "lockstep"
     coupling: str = "sequential"
+    physics_process: bool = False
     duration_s: float | None = None
     analysis: str = "none"
     robot: str = "robot1"
@@ -95,6 +97,7 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
     spec.world = s.string("world", "living_room")
     spec.mode = s.string("mode", "lockstep", choices=("lockstep", "realtime", "fast"))
     spec.coupling = s.string("coupling", "sequential", choices=COUPLINGS)
+    spec.physics_process = s.boolean("physics_process", False)
     spec.duration_s = s.number("duration_s", -1.0)
     if spec.duration_s == -1.0:
         spec.duration_s = None

@@ -36,10 +36,11 @@ from typing import Sequence
 
 import numpy as np
 
-from plant.raycast import Scene, cast_distances
+from plant.raycast import Scene, cast_elements
 from plant.shapes import Shape, pose_matrix
 
-__all__ = ["LidarConfig", "scan", "apply_noise", "measure", "ray_directions", "sensor_pose"]
+__all__ = ["LidarConfig", "scan", "scan_many", "apply_noise", "measure", "ray_directions",
+           "sensor_pose"]
 
 
 @dataclass(frozen=True)
@@ -126,38 +127,76 @@ def scan(config: LidarConfig, robot_pose: np.ndarray,
     than ``min_range_m``. Pass the robot's name as ``exclude_owner`` so the sensor
     ignores its own robot.
     """
-    pose = sensor_pose(config, robot_pose)
-    scene = Scene.from_shapes(shapes)
-    dirs = _local_dirs(config.num_rays, config.fov_rad) @ pose[:3, :3].T
-    keep = _candidates(config, pose, scene, exclude_owner)
-    dist = cast_distances(pose[:3, 3], dirs, scene, max_range=config.max_range_m,
-                          include=keep)
+    return scan_many(config, [robot_pose], Scene.from_shapes(shapes), [exclude_owner])[0]
+
+
+def scan_many(config: LidarConfig, robot_poses, scene: Scene,
+              exclude_owners: Sequence[str | None]) -> np.ndarray:
+    """:func:`scan` for G robots carrying the same lidar: (G, num_rays), row g bit for bit
+    what ``scan(config, robot_poses[g], scene, exclude_owners[g])`` gives.
+
+    Every robot's (shape, ray) pairs go through one :func:`~plant.raycast.cast_elements`,
+    each shape tested only on the rays of its bearing sector: a swarm's scans cost a few
+    array operations per tick, not a few per robot."""
+    poses = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4) @ config.mount_pose()
+    rot = poses[:, :3, :3]
+    dirs = np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None], rot.transpose(0, 2, 1))
+    fan, shape, lo, hi = _cull(config, poses, scene, exclude_owners)
+    # element k of pair p: ray lo[p] + k, for k < count[p]
+    count = hi - lo + 1
+    start = np.repeat(np.cumsum(count) - count, count)
+    ray = np.repeat(lo, count) + (np.arange(count.sum()) - start)
+    dist = cast_elements(np.ascontiguousarray(poses[:, :3, 3]), dirs, scene,
+                         np.repeat(fan, count), np.repeat(shape, count), ray,
+                         config.max_range_m)
     dist[dist < config.min_range_m] = np.inf
     return dist
 
 
-def _candidates(config: LidarConfig, pose: np.ndarray, scene: Scene,
-                exclude_owner: str | None) -> np.ndarray:
-    """Shapes whose bounding sphere meets the scan fan (plane, range, angular sector):
-    a cheap, conservative cull before the exact cast."""
-    keep = scene.include_mask(exclude_owner)
-    if len(scene) == 0:
-        return keep
-    rel = (scene.centers - pose[:3, 3]) @ pose[:3, :3]          # centres in the sensor frame
-    r = scene.radii
-    h = np.abs(rel[:, 2])
+def _cull(config: LidarConfig, poses: np.ndarray, scene: Scene,
+          exclude_owners: Sequence[str | None]):
+    """(fan, shape, first ray, last ray) for each sensor and each shape whose bounding
+    sphere meets its scan plane within range, with the rays of the angular sector that
+    sphere covers: a conservative cull, so a cast finds exactly what casting every ray at
+    every shape would."""
+    g_n, s_n, n = poses.shape[0], len(scene), config.num_rays
+    if s_n == 0:
+        return (np.zeros(0, dtype=np.intp),) * 4
+    owner_ids = np.array([scene.owner_id(o) if o else -1 for o in exclude_owners])
+    keep = scene.owner_ids[None, :] != owner_ids[:, None]
+    rot, pos = poses[:, :3, :3], poses[:, :3, 3]
+    rel = np.matmul(scene.centers[None] - pos[:, None, :], rot)      # (G, S, 3) sensor frame
+    r = scene.radii[None]
+    h = np.abs(rel[..., 2])
     # meets the scan plane: |distance| <= the bounding box's extent along the normal
-    n_local = np.abs(scene.rotations.transpose(0, 2, 1) @ pose[:3, 2])   # (S, 3)
-    keep &= h <= (n_local * scene.halves).sum(axis=1) + 1e-12
+    # (the normal in each shape's frame: n_local[g, s, i] = sum_j R_s[j, i] z_g[j])
+    n_local = np.abs(np.tensordot(rot[:, :, 2], scene.rotations, axes=([1], [1])))
+    extent = (n_local[..., 0] * scene.halves[:, 0] + n_local[..., 1] * scene.halves[:, 1]
+              + n_local[..., 2] * scene.halves[:, 2])
+    keep &= h <= extent + 1e-12
     r_plane = np.sqrt(np.maximum(r * r - h * h, 0.0))
-    rho = np.hypot(rel[:, 0], rel[:, 1])
+    rho = np.hypot(rel[..., 0], rel[..., 1])
     keep &= rho - r_plane <= config.max_range_m
-    if config.fov_rad < 2.0 * math.pi - 1e-9:
+    fan, shape = np.nonzero(keep)
+    lo = np.zeros(fan.size, dtype=np.intp)
+    hi = np.full(fan.size, n - 1, dtype=np.intp)
+    if n > 1 and fan.size:
+        rp, rh = r_plane[fan, shape], rho[fan, shape]
         with np.errstate(invalid="ignore", divide="ignore"):
-            half = np.arcsin(np.minimum(r_plane / rho, 1.0))
-        bearing = np.abs(np.arctan2(rel[:, 1], rel[:, 0]))
-        keep &= (rho <= r_plane) | (bearing <= 0.5 * config.fov_rad + half + 1e-9)
-    return keep
+            half = np.arcsin(np.minimum(rp / rh, 1.0))
+        bearing = np.arctan2(rel[fan, shape, 1], rel[fan, shape, 0])
+        a0, inc = config.angle_min, config.angle_increment
+        # a sector crossing the +-pi seam (or a sensor inside the sphere): every ray
+        sector = (rh > rp) & (np.abs(bearing) + half < math.pi)
+        # rays whose angle lies in [bearing - half, bearing + half], with a slack of 1e-6
+        # of a ray spacing, far above the rounding of these angles
+        first = np.ceil((bearing - half - a0) / inc - 1e-6).astype(np.intp)
+        last = np.floor((bearing + half - a0) / inc + 1e-6).astype(np.intp)
+        lo = np.where(sector, np.maximum(first, 0), 0)
+        hi = np.where(sector, np.minimum(last, n - 1), n - 1)
+        seen = lo <= hi                                 # the sector meets the field of view
+        fan, shape, lo, hi = fan[seen], shape[seen], lo[seen], hi[seen]
+    return fan, shape, lo, hi
 
 
 def apply_noise(config: LidarConfig, ranges: np.ndarray, noise=None) -> np.ndarray:

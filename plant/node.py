@@ -35,8 +35,9 @@ from bus.node import write_json
 from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION, delays
 from bus.session import BusConfigError, add_bus_args, open_session
 
+from .physics_process import PhysicsError, PhysicsProcess
 from .raycast import Scene
-from .sensors import RobotSensors
+from .sensors import RobotSensors, scan_all
 from .sim import Simulation
 from .world import WorldError, WorldSpec, load_world
 
@@ -69,7 +70,8 @@ class Plant:
     def __init__(self, spec: WorldSpec, session: zenoh.Session, keys: Keys, mode: str, log,
                  rate: float = 1.0, expect: tuple[str, ...] = (), duration_s: float | None = None,
                  join_timeout_s: float = 30.0, disabled: tuple[str, ...] = (),
-                 end_with: tuple[str, ...] = (), coupling: str = "sequential") -> None:
+                 end_with: tuple[str, ...] = (), coupling: str = "sequential",
+                 physics_process: bool = False) -> None:
         self.spec = spec
         self.session = session
         self.keys = keys
@@ -87,6 +89,9 @@ class Plant:
         self.delay_ns = self.delays["actuation_delay_ticks"] * self.tick_ns
         self.disabled = set(disabled)
         self.seed = spec.seed
+        # DART in a process of its own (plant/physics_process.py); None: stepped here
+        self.physics: PhysicsProcess | None = None
+        self.physics_process = physics_process
         self.build()
         self.rejects = RejectCounter(log)
         self.stop_event = threading.Event()
@@ -148,6 +153,42 @@ class Plant:
         self.sim = Simulation(self.spec)
         self.sensors = {r.name: RobotSensors(r, self.spec.control_tick_s, self.seed)
                         for r in self.spec.robots}
+        self._robot_index = {name: i for i, name in enumerate(self.sim.robots)}
+        if self.physics_process:
+            if self.physics is None:
+                self.physics = PhysicsProcess(self.spec)
+            else:
+                self.physics.build(self.spec)
+
+    # ------------------------------------------------------------------ the world's state
+    def _state(self, robot: str):
+        if self.physics is None:
+            return self.sim.state(robot)
+        return self.physics.state(self._robot_index[robot])
+
+    def _shapes(self):
+        if self.physics is None:
+            return self.sim.shapes()
+        assert self.physics.parts is not None, "a scene is due but the snapshot has no parts"
+        return self.sim.shapes(self.physics.parts)
+
+    def _finite(self) -> bool:
+        return self.sim.is_finite() if self.physics is None else self.physics.finite
+
+    def _start_step(self) -> None:
+        """Step one tick with the targets apply_commands set; with a physics process, only
+        start it (:meth:`_finish_step` waits for it)."""
+        if self.physics is None:
+            self.sim.step_tick()
+            return
+        tick = self.sim.time_ns // self.tick_ns + 1
+        self.physics.start_step([r.targets for r in self.sim.robots.values()],
+                                any(s.needs_scene(tick) for s in self.sensors.values()))
+
+    def _finish_step(self) -> None:
+        if self.physics is not None:
+            self.physics.finish_step()
+            self.sim.steps += self.spec.substeps      # the clock of the plant's own copy
 
     # ------------------------------------------------------------------ queryables
     def info(self) -> dict:
@@ -229,15 +270,22 @@ class Plant:
         self._publisher(key).put(codec.encode(msg), attachment=codec.attachment(self._seq, t_ns))
         self.published[key] = self.published.get(key, 0) + 1
 
+    def _publish(self) -> None:
+        self.publish_tick()
+        for sensors in self.sensors.values():
+            sensors.prefetch()
+
     def publish_tick(self) -> None:
         """The sensors due at this tick, robot by robot, then ``sim/clock``."""
         t = self.sim.time_ns
         tick = t // self.tick_ns
         scene = None
         if any(s.needs_scene(tick) for s in self.sensors.values()):
-            scene = Scene(self.sim.shapes())
+            scene = Scene(self._shapes())
+        states = {name: self._state(name) for name in self.sensors}
+        scans = scan_all(self.sensors, states, tick, scene) if scene is not None else {}
         for name, sensors in self.sensors.items():
-            for topic, msg in sensors.messages(tick, t, self.sim.state(name), scene):
+            for topic, msg in sensors.messages(tick, t, states[name], scene, scans.get(name)):
                 self._put(self.keys.topic(name, topic), msg, t)
         self._put(self.keys.clock, codec.clock(t), t)
 
@@ -502,18 +550,26 @@ class Plant:
             return 1 if not self.stop_event.is_set() else 0
         self.wall_start = self._pace0 = time.monotonic()
         tick_ns = self.tick_ns
-        self.log.info("running %s (%s mode, tick %.0f ms, %d physics steps per tick)",
-                      self.spec.name, self.mode, tick_ns / 1e6, self.spec.substeps)
+        # With a physics process, tick k is published while the physics steps to k + 1:
+        # when the commands for that step do not wait for tick k's sensors (pipelined
+        # lockstep; fast mode, which takes what has come).
+        overlap = self.physics is not None and (
+            self.mode == "fast" or (self.mode == "lockstep" and self.delay_ns > 0))
+        self.log.info("running %s (%s mode, tick %.0f ms, %d physics steps per tick%s)",
+                      self.spec.name, self.mode, tick_ns / 1e6, self.spec.substeps,
+                      "" if self.physics is None else ", physics in its own process"
+                      + (", stepping while publishing" if overlap else ""))
         try:
             while not self.stop_event.is_set():
                 t = self.sim.time_ns
                 required = set(self.members)
                 c0 = time.perf_counter()
-                self.publish_tick()
-                for sensors in self.sensors.values():
-                    sensors.prefetch()
+                if not overlap:
+                    self._publish()
                 c1 = time.perf_counter()
                 if self.duration_ns is not None and t >= self.duration_ns:
+                    if overlap:
+                        self._publish()
                     if self.mode == "lockstep":
                         self.wait_for_acks(t, required)
                     self.end_reason = "duration reached"
@@ -526,6 +582,8 @@ class Plant:
                         self.wait_for_acks(due, required)
                     ended = [m for m in self.end_with if self.finished.get(m, due + 1) <= due]
                     if ended:
+                        if overlap:
+                            self._publish()
                         if self.delay_ns:   # pipelined: the others' outputs of tick t too,
                             self.wait_for_acks(t, required)    # so the end is exact
                         self.end_reason = f"{ended[0]} finished"
@@ -559,13 +617,19 @@ class Plant:
                     continue
                 c2 = time.perf_counter()
                 self.apply_commands()
-                self.sim.step_tick()
+                self._start_step()
+                publish_s = c1 - c0
+                if overlap:                     # while the physics process steps
+                    self._publish()
+                    publish_s = time.perf_counter() - c2
+                self._finish_step()
                 c3 = time.perf_counter()
                 self.ticks += 1
-                self.timing["publish_s"] += c1 - c0
+                self.timing["publish_s"] += publish_s
                 self.timing["wait_s"] += c2 - c1
-                self.timing["physics_s"] += c3 - c2
-                if not self.sim.is_finite():
+                # (overlapped: the part of the step that publishing did not hide)
+                self.timing["physics_s"] += c3 - c2 - (publish_s if overlap else 0.0)
+                if not self._finite():
                     self.log.error("physics diverged at t=%.3f s; rebuilding the world", t * 1e-9)
                     self.build()
         finally:
@@ -582,6 +646,7 @@ class Plant:
                 "published": self.published, "rejected": dict(self.rejects.counts),
                 "members_seen": sorted(self.members_seen), "stalls": self.stalls,
                 "protocol": PROTOCOL_VERSION, "coupling": self.coupling, **self.delays,
+                "physics_process": self.physics is not None,
                 "protocol_errors": dict(self.protocol.counts),
                 "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
                                 for k, v in self.timing.items()}}
@@ -603,6 +668,8 @@ class Plant:
         for q in self._queryables:
             q.undeclare()
         self.inbox.close()
+        if self.physics is not None:
+            self.physics.close()
 
 
 class _QueryEvent:
@@ -658,6 +725,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "these members finishes (so a run's length is reproducible)")
     p.add_argument("--disable", default="", metavar="SENSORS",
                    help="comma-separated sensors of the world file to leave off: lidar, camera")
+    p.add_argument("--physics-process", action="store_true",
+                   help="step DART in a process of its own; with pipelined lockstep or fast "
+                        "mode the plant then publishes tick k while the physics steps to k+1 "
+                        "(two cores; same bytes)")
     p.add_argument("--stats", metavar="FILE", help="write counters and timing as JSON at exit")
     p.add_argument("--log-level", default="INFO")
     add_bus_args(p)
@@ -692,7 +763,7 @@ def main(argv: list[str] | None = None) -> int:
                       duration_s=args.duration, join_timeout_s=args.join_timeout,
                       disabled=disabled,
                       end_with=tuple(n for n in args.end_with.split(",") if n),
-                      coupling=args.coupling)
+                      coupling=args.coupling, physics_process=args.physics_process)
 
         def on_signal(signum, frame):
             plant.stop_event.set()
@@ -703,6 +774,11 @@ def main(argv: list[str] | None = None) -> int:
         log.info("stopped at t=%.2f s after %d ticks (%.1fx real time)", st["sim_time_s"],
                  st["ticks"], st["real_time_factor"] or 0.0)
         return code
+    except PhysicsError as exc:
+        log.error("%s", exc)
+        if plant is not None:
+            plant.end_reason = "physics process failed"
+        return 1
     finally:
         if plant is not None:
             if args.stats:

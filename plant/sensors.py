@@ -63,8 +63,14 @@ class RobotSensors:
         return any(tick % self.periods[t] == 0 for t in ("scan", "camera/image")
                    if t in self.periods)
 
-    def messages(self, tick: int, t_ns: int, st: RobotState, scene: Scene | None):
-        """(topic, message) pairs due at ``tick``, in a fixed order."""
+    def lidar_due(self, tick: int) -> bool:
+        return self.lidar is not None and tick % self.periods["scan"] == 0
+
+    def messages(self, tick: int, t_ns: int, st: RobotState, scene: Scene | None,
+                 exact_scan: np.ndarray | None = None):
+        """(topic, message) pairs due at ``tick``, in a fixed order. ``exact_scan``: this
+        robot's noise-free lidar ranges when the caller cast them already (with
+        :func:`scan_all`, for every robot at once)."""
         out = []
         pos = st.enc_pos
         if self.enc_noise is not None:
@@ -76,8 +82,10 @@ class RobotSensors:
         out.append(("ground_truth", codec.odometry(
             t_ns, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id="world", z=z,
             quaternion=st.quaternion)))
-        if self.lidar and tick % self.periods["scan"] == 0:
-            ranges = lid.measure(self.lidar, st.tf, scene, self.lidar_noise, exclude_owner=self.name)
+        if self.lidar_due(tick):
+            if exact_scan is None:
+                exact_scan = lid.scan(self.lidar, st.tf, scene, exclude_owner=self.name)
+            ranges = lid.apply_noise(self.lidar, exact_scan, self.lidar_noise)
             c = self.lidar
             out.append(("scan", codec.laser_scan(t_ns, c.angle_min, c.angle_max, c.angle_increment,
                                                  1.0 / c.rate_hz, c.min_range_m, c.max_range_m,
@@ -92,3 +100,18 @@ class RobotSensors:
         return out
 
 
+
+
+def scan_all(sensors: dict[str, RobotSensors], states: dict[str, RobotState], tick: int,
+             scene: Scene) -> dict[str, np.ndarray]:
+    """Noise-free ranges of every lidar due at ``tick``: robots carrying the same lidar are
+    cast together (:func:`plant.lidar.scan_many`), the same bits as one by one."""
+    groups: dict[lid.LidarConfig, list[str]] = {}
+    for name, s in sensors.items():
+        if s.lidar_due(tick):
+            groups.setdefault(s.lidar, []).append(name)
+    out = {}
+    for cfg, names in groups.items():
+        rows = lid.scan_many(cfg, [states[n].tf for n in names], scene, names)
+        out.update(zip(names, rows))
+    return out

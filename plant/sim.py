@@ -205,11 +205,19 @@ class Simulation:
         return Shape(o.shape, tuple(o.size), tf if parent is None else parent @ tf, o.color,
                      o.name, owner)
 
-    def shapes(self) -> list[Shape]:
-        """Every solid of the world in world coordinates, robots included."""
+    def part_transforms(self) -> np.ndarray:
+        """(P, 4, 4) world poses of the robots' visible parts, in :meth:`shapes` order."""
+        return np.array([sn.getWorldTransform().matrix() for sn, *_ in self._robot_parts]
+                        ).reshape(-1, 4, 4)
+
+    def shapes(self, part_tfs: np.ndarray | None = None) -> list[Shape]:
+        """Every solid of the world in world coordinates, robots included (their parts at
+        ``part_tfs``, from :meth:`part_transforms`, if given: a physics process's)."""
         out = list(self._static_shapes)
-        for sn, kind, size, color, name, owner in self._robot_parts:
-            out.append(Shape(kind, size, sn.getWorldTransform().matrix(), color, name, owner))
+        if part_tfs is None:
+            part_tfs = [sn.getWorldTransform().matrix() for sn, *_ in self._robot_parts]
+        for (sn, kind, size, color, name, owner), tf in zip(self._robot_parts, part_tfs):
+            out.append(Shape(kind, size, tf, color, name, owner))
         for o in self.objects:
             if not o.static:
                 out.append(self._shape_of(o))

@@ -87,3 +87,50 @@ def test_limiter_clamps_and_ramps():
     lim2 = drive.DriveLimiter(spec2)
     wl, wr = lim2.from_wheels(8.0, 4.0, 0.02)
     assert (wl, wr) == pytest.approx((2.0, 1.0))     # scaled together: curvature kept
+
+
+def _trajectory(spec, commands, robot="robot1"):
+    sim = Simulation(spec)
+    out = []
+    for wl, wr, ticks in commands:
+        for _ in range(ticks):
+            sim.command_wheels(robot, wl, wr)
+            sim.step_tick()
+            out.append(sim.state(robot).tf.copy())
+    return np.array(out)
+
+
+def test_walled_floor_collides_as_a_plane_with_the_box_floors_motion(monkeypatch):
+    """The cheaper plane floor (walled worlds, Bullet) moves the robot as the box floor
+    did, to a fraction of a millimetre after 6 s of gentle and hard (slipping) driving."""
+    from plant import robot as robot_mod
+    spec = load_world("living_room")
+    assert robot_mod.floor_is_plane(spec)
+    assert not robot_mod.floor_is_plane(load_world("living_room", ["walls.height_m=0"]))
+    commands = [(1, 1, 100), (1, -1, 50), (8, 8, 75), (0, 0, 50), (-8, -8, 40)]
+    plane = _trajectory(spec, commands)
+    monkeypatch.setattr(robot_mod, "floor_is_plane", lambda world: False)
+    box = _trajectory(load_world("living_room"), commands)
+    assert np.abs(plane[:, :3, 3] - box[:, :3, 3]).max() < 5e-4
+    assert plane[-1][2, 3] == pytest.approx(0.12, abs=1e-3)     # resting on its wheels
+
+
+def test_swarm_world_dantzig_keeps_the_pgs_trajectories(tmp_path):
+    """The swarm world picks Dantzig first: there PGS fails on ~95 % of the solves and
+    falls back to Dantzig anyway, so the robots' paths barely move."""
+    from plant.swarm_world import write_swarm_world
+    path = write_swarm_world(str(tmp_path / "swarm.toml"), 6, seed=2)
+    runs = {}
+    for solver in ("dantzig", "pgs"):
+        spec = load_world(path, [f'world.contact_solver="{solver}"'])
+        sim = Simulation(spec)
+        out = []
+        for k in range(60):
+            for i, name in enumerate(sim.robots):
+                sim.command_twist(name, 0.3, 0.4 * math.sin(k / 10 + i))
+            sim.step_tick()
+            out.append([sim.state(name).tf for name in sim.robots])
+        runs[solver] = np.array(out)
+    assert load_world(path).contact_solver == "dantzig"
+    gap = np.abs(runs["dantzig"][..., :3, 3] - runs["pgs"][..., :3, 3]).max()
+    assert gap < 1e-3

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from plant.lidar import LidarConfig, apply_noise, measure, scan, sensor_pose
+from plant.lidar import LidarConfig, apply_noise, measure, scan, scan_many, sensor_pose
 from plant.noise import NoiseModel, make_rng, webots_lidar
 from plant.raycast import Scene, cast_distances, cast_rays
 from plant.shapes import Shape, pose_matrix
@@ -162,6 +162,40 @@ def test_culling_does_not_change_the_scan():
         want, _, _ = cast_rays(pose[:3, 3], dirs, world, max_range=cfg.max_range_m)
         want[want < cfg.min_range_m] = np.inf
         assert np.array_equal(scan(cfg, robot, world), want)
+
+
+@pytest.mark.parametrize("fov", [1.5 * math.pi, 2.0 * math.pi])
+def test_many_lidars_at_once_scan_what_each_alone_and_every_ray_at_every_shape_do(fov):
+    """A swarm's scans in one pass (scan_many, each shape tried only on the rays of its
+    bearing sector): row for row the bits of scan() alone and of casting every ray at
+    every shape, robots seeing each other, tilted, near walls, with a full-circle fan
+    (its sector seam) too."""
+    rng = np.random.default_rng(5)
+    cfg = LidarConfig(fov_rad=fov, num_rays=72, max_range_m=6.0, mount_z_m=0.2)
+    names = [f"r{i}" for i in range(7)]
+    poses = [pose_matrix(*rng.uniform(-3.5, 3.5, 1), *rng.uniform(-2.5, 2.5, 1),
+                         rng.uniform(0, 0.05), *rng.uniform(-0.1, 0.1, 2),
+                         rng.uniform(-math.pi, math.pi)) for _ in names]
+    poses[1] = pose_matrix(3.85, 0.0, 0.0, yaw=0.2)            # its lidar against a wall
+    world = [s for s in _room() if s.owner != "robot2"]
+    for name, pose in zip(names, poses):
+        for part in (Shape("box", (0.4, 0.3, 0.3), pose_matrix(0, 0, 0.15)),
+                     Shape("sphere", (0.1,), pose_matrix(0.05, 0.16, 0.1)),
+                     Shape("cylinder", (0.05, 0.5), pose_matrix(-0.15, 0, 0.25))):
+            world.append(Shape(part.kind, part.size, pose @ part.pose, name=name, owner=name))
+    scene = Scene(world)
+    got = scan_many(cfg, poses, scene, names)
+    a = np.linspace(-fov / 2, fov / 2, cfg.num_rays)
+    for g, (name, pose) in enumerate(zip(names, poses)):
+        assert np.array_equal(got[g], scan(cfg, pose, scene, exclude_owner=name))
+        sp = sensor_pose(cfg, pose)
+        dirs = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1) @ sp[:3, :3].T
+        want, _, _ = cast_rays(sp[:3, 3], dirs, world, max_range=cfg.max_range_m,
+                               exclude_owner=name)
+        want[want < cfg.min_range_m] = np.inf
+        assert np.array_equal(got[g], want)
+    assert np.isfinite(got).mean() > 0.5
+    assert np.all(np.isinf(scan_many(cfg, poses, Scene([]), names)))
 
 
 def test_rays_through_the_opening_hit_nothing():

@@ -1,6 +1,7 @@
 """Suite ``swarm``: many robots. Physics alone (dynamic and kinematic), the swarm's lidar
-per robot, and ``diffbot run swarm`` in lockstep with 8/16/24 robots from 3 controller
-processes and from one process per robot, under both couplings."""
+per robot and for all robots in one pass, and ``diffbot run swarm`` in lockstep with
+8/16/24 robots from 3 controller processes and from one process per robot, under both
+couplings (physics in a process of its own, the scenario's default; and once without)."""
 from __future__ import annotations
 
 import os
@@ -67,7 +68,12 @@ def swarm_suite(ctx: Context):
     st = sim.state("r0")
     yield Case(f"swarm lidar sweep ({cfg.num_rays} rays, 24 robots' world)",
                lambda: lidar.measure(cfg, st.tf, scene, None, "r0"),
-               notes=f"{len(scene)} shapes; one robot's scan at {cfg.rate_hz:g} Hz")
+               notes=f"{len(scene)} shapes; one robot's scan alone, at {cfg.rate_hz:g} Hz")
+    names = list(sim.robots)
+    tfs = [sim.state(n).tf for n in names]
+    yield Case("swarm lidar, all 24 robots' scans in one pass",
+               lambda: lidar.scan_many(cfg, tfs, scene, names),
+               notes="lidar.scan_many, what the plant does at a tick the lidars are due")
     yield Case("swarm scene snapshot (24 robots)", lambda: Scene(sim.shapes()),
                notes="once per tick a lidar is due, shared by every robot")
     duration = "5" if ctx.quick else "20"
@@ -83,6 +89,13 @@ def swarm_suite(ctx: Context):
                     Metric("real_time_factor", f"{what}: real-time factor", "x",
                            notes=f"summary.json real_time_factor, {duration} s simulated"),
                 ], repeats=1, warmup=0)
+    what = "swarm lockstep, 24 robots, 3 controller processes, pipelined, physics in the plant"
+    yield Probe(what, lambda: run_scenario(
+        ctx, "swarm", 600.0, "--robots", "24", "--no-physics-process",
+        "--coupling", "pipelined", "--duration", duration), [
+        Metric("real_time_factor", f"{what}: real-time factor", "x",
+               notes="--no-physics-process: DART stepped in the plant's own process, "
+                     "taking turns with publishing")], repeats=1, warmup=0)
     what = "swarm lockstep, 24 kinematic robots, 3 controller processes, pipelined"
     yield Probe(what, lambda: run_scenario(
         ctx, "swarm", 600.0, "--robots", "24", "--physics", "kinematic",
