@@ -7,6 +7,12 @@ Topology (made here, as root, with names unique to this test run; addresses from
 
     plant ns  192.0.2.2 --veth-- 192.0.2.1  router ns  192.0.2.5 --veth-- 192.0.2.6  ctrl ns
 
+The delay test adds 1 ms each way on every link: ``tc netem`` on the veth ends where
+the kernel has ``sch_netem``, else each veth becomes two, through a fourth namespace
+where a userspace wire (``tests/netwire.py``) forwards every frame 1 ms late:
+
+    plant ns --veth-- [wire ns: netwire] --veth-- router ns --veth-- [wire ns] --veth-- ctrl ns
+
 The router listens with TLS on both of its addresses (certificate made here with the
 ``openssl`` CLI, signed by a CA made here); plant, recorder and controller are Zenoh
 clients that verify it against that CA. Everything is deleted at the end, also on failure
@@ -47,26 +53,57 @@ def sh(*argv: str) -> None:
 
 
 class Net:
-    """Three namespaces and two veth pairs; ``close`` removes all of it."""
+    """Three namespaces and two links; ``close`` removes all of it (and stops the wire).
 
-    def __init__(self) -> None:
-        tag = uuid.uuid4().hex[:6]
-        self.ns = {role: f"dbt-{role}-{tag}" for role in ("router", "plant", "ctrl")}
+    ``wire=True`` makes each link two veth pairs through a fourth namespace, where
+    ``tests/netwire.py`` (a userspace delay wire) forwards the frames; ``set_delay_ms``
+    then delays them there instead of with ``tc netem`` on the veth ends."""
+
+    def __init__(self, wire: bool = False) -> None:
+        self.tag = tag = uuid.uuid4().hex[:6]
+        roles = ("router", "plant", "ctrl") + (("wire",) if wire else ())
+        self.ns = {role: f"dbt-{role}-{tag}" for role in roles}
         self.made: list[str] = []
+        self.wire_ifaces: list[str] = []
+        self.wire_proc: subprocess.Popen | None = None
+        self.links: list[tuple[str, str]] = []
+        try:
+            self._build(wire)
+        except BaseException:
+            self.close()
+            raise
+
+    def _build(self, wire: bool) -> None:
+        tag = self.tag
         for ns in self.ns.values():
             sh("ip", "netns", "add", ns)
             self.made.append(ns)
+            sh("ip", "-n", ns, "link", "set", "lo", "up")
+        if wire:     # the wire's own stack stays quiet (no IPv6 autoconfiguration): best effort
+            subprocess.run(["ip", "netns", "exec", self.ns["wire"], sys.executable, "-c",
+                            "for k in ('all', 'default'): open(f'/proc/sys/net/ipv6/conf/{k}"
+                            "/disable_ipv6', 'w').write('1')"], capture_output=True, timeout=20)
         for side, (r_ip, o_ip) in (("plant", ("192.0.2.1", "192.0.2.2")),
                                    ("ctrl", ("192.0.2.5", "192.0.2.6"))):
             a, b = f"dbr{side[0]}{tag}", f"dbo{side[0]}{tag}"      # <= 15 characters
-            sh("ip", "link", "add", a, "netns", self.ns["router"], "type", "veth",
-               "peer", "name", b, "netns", self.ns[side])
+            if wire:
+                wa, wb = f"dbwr{side[0]}{tag}", f"dbwo{side[0]}{tag}"
+                for end, ns, w in ((a, self.ns["router"], wa), (b, self.ns[side], wb)):
+                    sh("ip", "link", "add", end, "netns", ns, "type", "veth",
+                       "peer", "name", w, "netns", self.ns["wire"])
+                    sh("ip", "-n", self.ns["wire"], "link", "set", w, "up")
+                self.wire_ifaces += [wa, wb]
+            else:
+                sh("ip", "link", "add", a, "netns", self.ns["router"], "type", "veth",
+                   "peer", "name", b, "netns", self.ns[side])
             for ns, dev, ip in ((self.ns["router"], a, r_ip), (self.ns[side], b, o_ip)):
                 sh("ip", "-n", ns, "addr", "add", f"{ip}/30", "dev", dev)
                 sh("ip", "-n", ns, "link", "set", dev, "up")
-                sh("ip", "-n", ns, "link", "set", "lo", "up")
-        self.links = [(self.ns["router"], f"dbrp{tag}"), (self.ns["plant"], f"dbop{tag}"),
-                      (self.ns["router"], f"dbrc{tag}"), (self.ns["ctrl"], f"dboc{tag}")]
+            self.links += [(self.ns["router"], a), (self.ns[side], b)]
+
+    @property
+    def emulator(self) -> str:
+        return "userspace wire (tests/netwire.py)" if "wire" in self.ns else "tc netem"
 
     def netem(self, delay: str) -> None:
         """``tc netem delay`` on every veth end: each hop gets ``delay`` both ways."""
@@ -74,9 +111,56 @@ class Net:
             sh("ip", "netns", "exec", ns, "tc", "qdisc", "replace", "dev", dev, "root",
                "netem", "delay", delay)
 
+    def set_delay_ms(self, delay_ms: float, log_dir: str) -> None:
+        """Each hop gets ``delay_ms`` both ways: netem on the veth ends, or the wire
+        restarted with that delay (0 too: the reference goes through the same path)."""
+        if "wire" not in self.ns:
+            self.netem(f"{delay_ms}ms")
+            return
+        self.stop_wire()
+        with open(os.path.join(log_dir, f"wire-{delay_ms}ms.log"), "wb") as log:
+            self.wire_proc = p = subprocess.Popen(
+                ["ip", "netns", "exec", self.ns["wire"], sys.executable, "-m",
+                 "tests.netwire", *self.wire_ifaces, "--delay-ms", str(delay_ms),
+                 "--realtime"],
+                cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        p.log_path = log.name
+        wait_for(lambda: "wire up" in self.wire_log() or p.poll() is not None, 20,
+                 what="the delay wire")
+        assert p.poll() is None, self.wire_log()
+
+    def wire_log(self) -> str:
+        with open(self.wire_proc.log_path, "rb") as f:
+            return f.read().decode("utf-8", "replace")
+
+    def stop_wire(self) -> str:
+        """Stops the wire by PID (``ip netns exec`` execs: it is python's); its counters."""
+        p, self.wire_proc = self.wire_proc, None
+        if p is None:
+            return ""
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(5)
+        with open(p.log_path, "rb") as f:
+            return f.read().decode("utf-8", "replace")
+
     def close(self) -> None:
+        self.stop_wire()
         for ns in self.made:
             subprocess.run(["ip", "netns", "del", ns], capture_output=True, timeout=20)
+
+
+def netprobe(ns: str, *args: str, timeout_s: float = 30) -> dict:
+    """``tests/netprobe.py`` run in namespace ``ns``; its JSON line."""
+    out = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-m", "tests.netprobe",
+                          *args], cwd=ROOT, capture_output=True, timeout=timeout_s)
+    assert out.returncode == 0, f"netprobe {' '.join(args)}: {out.stderr.decode()}"
+    return json.loads(out.stdout.decode().strip().splitlines()[-1])
 
 
 def make_certs(d: str) -> dict:
@@ -192,20 +276,38 @@ def messages(mcap: str) -> list[tuple[str, int, bytes]]:
     return sorted(out)
 
 
-@pytest.fixture
-def net():
+def _make_net(**kw) -> Net:
     why = _why_no_netns()
     if why:
         pytest.skip(why)
-    n = None
     try:
-        n = Net()
+        return Net(**kw)
     except subprocess.CalledProcessError as exc:
-        if n is not None:
-            n.close()
         pytest.skip(f"cannot create network namespaces here: {exc.stderr.decode().strip()}")
+
+
+@pytest.fixture
+def net():
+    n = _make_net()
     try:
         yield n
+    finally:
+        n.close()
+
+
+@pytest.fixture
+def delay_net():
+    """(net, why the wire): veth pairs with ``tc netem`` where the kernel has it, else
+    the same topology through the userspace delay wire."""
+    n, why = _make_net(), ""
+    try:
+        n.netem("0ms")
+    except subprocess.CalledProcessError as exc:
+        n.close()
+        why = f"tc netem: {exc.stderr.decode().strip()}"
+        n = _make_net(wire=True)
+    try:
+        yield n, why
     finally:
         n.close()
 
@@ -228,24 +330,57 @@ def test_lockstep_over_tls_across_namespaces_is_byte_identical_to_loopback(tmp_p
           f"3 namespaces + router + TLS {sb['real_time_factor']:.2f}")
 
 
-def test_lockstep_with_1ms_netem_delay_per_link_keeps_the_bytes(tmp_path, net):
-    """With 1 ms more on every veth end, lockstep gives the same bytes; only the pace
-    drops. The real-time factors under both couplings are printed (speed is not asserted)."""
+def check_delay(net: Net, delay_ms: int) -> str:
+    """Every link now takes at least ``delay_ms`` each way, loses nothing, and carries a
+    1 MB TCP stream intact (GSO frames and checksum offload included)."""
+    report = []
+    for side, ip in (("plant", "192.0.2.1"), ("ctrl", "192.0.2.5")):
+        rtt = netprobe(net.ns[side], "ping", ip, "-c", "100", "-i", "0.01")
+        assert rtt["received"] == rtt["sent"], rtt
+        assert rtt["min_ms"] >= 2 * delay_ms, rtt
+        report.append(f"{side}<->router {rtt['min_ms']:.2f}/{rtt['avg_ms']:.2f}/"
+                      f"{rtt['max_ms']:.2f}")
+    sink = subprocess.Popen(["ip", "netns", "exec", net.ns["router"], sys.executable, "-m",
+                             "tests.netprobe", "sink", "192.0.2.1", "5001"],  # private netns
+                            cwd=ROOT, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
     try:
-        net.netem("1ms")
-    except subprocess.CalledProcessError as exc:
-        pytest.skip(f"tc netem is not available here: {exc.stderr.decode().strip()} "
-                    "(the kernel lacks sch_netem)")
+        assert sink.stdout.readline().strip() == b"listening"
+        sent = netprobe(net.ns["plant"], "send", "192.0.2.1", "5001", str(1 << 20))
+        got = json.loads(sink.communicate(timeout=20)[0])
+    finally:
+        if sink.poll() is None:
+            sink.kill()
+            sink.wait(5)
+    assert got == {k: sent[k] for k in ("bytes", "sha256")}
+    return f"ping RTT min/avg/max ms: {', '.join(report)}; 1 MB TCP in {sent['seconds']:.2f} s"
+
+
+def test_lockstep_with_1ms_delay_per_link_keeps_the_bytes(tmp_path, delay_net):
+    """With 1 ms more each way on every link, lockstep gives the same bytes under both
+    couplings; only the pace drops. The real-time factors are printed, with the same
+    path undelayed for reference (speed is not asserted)."""
+    net, why = delay_net
+    print(f"\ndelay by {net.emulator}" + (f" ({why})" if why else ""))
     certs = make_certs(str(tmp_path))
     cfg = configs(str(tmp_path), certs)
     remote = {"router": cfg["router"], "plant_args": ["--zenoh-config", cfg["plant"]],
               "ctrl_args": ["--zenoh-config", cfg["ctrl"]]}
     rtf, msgs = {}, {}
+    for delay_ms in (0, 1):
+        net.set_delay_ms(delay_ms, str(tmp_path))
+        if delay_ms:
+            print(f"{delay_ms} ms per link: {check_delay(net, delay_ms)}")
+        for coupling in ("sequential", "pipelined"):
+            c, sc = run_drive(str(tmp_path / f"{coupling}-{delay_ms}ms"), remote, net.ns,
+                              coupling)
+            rtf[coupling, delay_ms] = sc["real_time_factor"]
+            msgs[coupling, delay_ms] = messages(c)
+            assert len(msgs[coupling, delay_ms]) > 500
+        if "wire" in net.ns:
+            print(f"wire at {delay_ms} ms:\n" + net.stop_wire().replace("wire up\n", ""))
     for coupling in ("sequential", "pipelined"):
-        c, sc = run_drive(str(tmp_path / coupling), remote, net.ns, coupling)
-        rtf[coupling] = sc["real_time_factor"]
-        msgs[coupling] = messages(c)
-        assert len(msgs[coupling]) > 500
-    c, _ = run_drive(str(tmp_path / "again"), remote, net.ns, "sequential")
-    assert messages(c) == msgs["sequential"]
-    print(f"real-time factor with netem 1 ms per link: {rtf}")
+        assert msgs[coupling, 1] == msgs[coupling, 0], coupling
+    assert msgs["sequential", 0] != msgs["pipelined", 0]    # the coupling took effect
+    print("real-time factor, " + ", ".join(
+        f"{c} {rtf[c, 0]:.2f} -> {rtf[c, 1]:.2f}" for c in ("sequential", "pipelined"))
+        + f" (undelayed -> 1 ms per link, {net.emulator})")
