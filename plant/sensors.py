@@ -100,8 +100,6 @@ class RobotSensors:
         return out
 
 
-
-
 def scan_all(sensors: dict[str, RobotSensors], states: dict[str, RobotState], tick: int,
              scene: Scene) -> dict[str, np.ndarray]:
     """Noise-free ranges of every lidar due at ``tick``: robots carrying the same lidar are
