@@ -141,8 +141,10 @@ def test_bad_commands_are_counted_and_never_reach_the_physics(procs, endpoint, b
     assert pos.x > 0.01                                      # the good commands moved it
 
 
-def test_info_and_reset_queryables(procs, endpoint, bus, tmp_path):
-    plant(procs, endpoint, tmp_path, "--mode", "fast", world="living_room")
+@pytest.mark.parametrize("physics", ["in the plant", "own process"])
+def test_info_and_reset_queryables(procs, endpoint, bus, tmp_path, physics):
+    extra = ("--physics-process",) if physics == "own process" else ()
+    plant(procs, endpoint, tmp_path, "--mode", "fast", *extra, world="living_room")
     s = bus()
 
     def query(key, payload=None):
