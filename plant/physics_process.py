@@ -108,20 +108,26 @@ class PhysicsProcess:
         try:
             self.conn.send(msg)
         except OSError as exc:
-            raise PhysicsError(f"the physics process is gone ({self._exit()}): {exc}") from None
+            raise self._gone(exc) from None
 
     def _recv(self):
         try:
             msg = self.conn.recv()
         except (EOFError, OSError) as exc:
-            raise PhysicsError(f"the physics process is gone ({self._exit()}): {exc}") from None
+            raise self._gone(exc) from None
         if len(msg) == 2 and msg[0] == "error":
             raise PhysicsError(f"the physics process failed:\n{msg[1]}")
         return msg
 
-    def _exit(self) -> str:
-        code = self.proc.poll()
-        return "still running" if code is None else f"exit status {code}"
+    def _gone(self, exc: BaseException) -> PhysicsError:
+        try:
+            code = self.proc.wait(1.0)
+        except subprocess.TimeoutExpired:
+            code = None
+        how = ("still running" if code is None else f"killed by signal {-code}" if code < 0
+               else f"exit status {code}")
+        return PhysicsError(f"the physics process is gone ({how})"
+                            + (f": {exc}" if str(exc) else ""))
 
     def close(self) -> None:
         """Stop the process (it is waited for; killed if it does not go)."""
