@@ -435,6 +435,10 @@ def summarize(run: Run, wall: float, code: int) -> dict:
         "sim_time_s": plant.get("sim_time_s"), "wall_time_s": wall,
         "plant_wall_time_s": plant.get("wall_time_s"),
         "real_time_factor": plant.get("real_time_factor"),
+        # where the plant's wall time went per tick (ms): publishing, waiting for the
+        # nodes, physics (with a physics process: the part publishing did not hide)
+        "plant_per_tick_ms": plant.get("per_tick_ms"),
+        "physics_process": plant.get("physics_process", False),
         # A run that ended in the plant (duration reached, the ending node finished) says so.
         "end_reason": (f"plant: {plant['end_reason']}"
                        if code == 0 and plant.get("end_reason", "stopped") != "stopped"

@@ -92,6 +92,9 @@ def test_short_swarm_run_writes_summary_and_paths(tmp_path):
     assert all(0.3 < d < 1.85 for d in m["distance_m"].values()), m["distance_m"]
     assert m["collisions"]["robot_wall"] == 0
     assert s["real_time_factor"] > 0
+    assert s["physics_process"] is True                     # the scenario's default
+    assert set(s["plant_per_tick_ms"]) == {"publish", "wait", "physics"}
+    assert all(v >= 0 for v in s["plant_per_tick_ms"].values())
     assert (tmp_path / "paths.png").stat().st_size > 10_000
     assert (tmp_path / "world.toml").read_text() == swarm_world_text(4, 0)
 

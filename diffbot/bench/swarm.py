@@ -77,6 +77,20 @@ def swarm_suite(ctx: Context):
     yield Case("swarm scene snapshot (24 robots)", lambda: Scene(sim.shapes()),
                notes="once per tick a lidar is due, shared by every robot")
     duration = "5" if ctx.quick else "20"
+
+    def per_robot(summary: dict, n: int) -> dict:
+        ms = summary.get("plant_per_tick_ms") or {}
+        return {**summary, **{f"{k}_s_per_robot": v * 1e-3 / n for k, v in ms.items()}}
+    what = "swarm lockstep, 24 robots, 3 controller processes, pipelined: the plant's tick"
+    yield Probe(what, lambda: per_robot(run_scenario(
+        ctx, "swarm", 600.0, "--robots", "24", "--coupling", "pipelined",
+        "--duration", duration), 24), [
+        Metric("publish_s_per_robot", f"{what}, publishing per robot", "s",
+               notes="sensors, lidar, encoding and puts (plant_per_tick_ms / 24)"),
+        Metric("physics_s_per_robot", f"{what}, physics not hidden, per robot", "s",
+               notes="the physics process's step beyond the publishing it overlaps"),
+        Metric("wait_s_per_robot", f"{what}, waiting for the nodes, per robot", "s")],
+        repeats=1, warmup=0)
     for n in (8, 16, 24):
         for procs, label in ((3, "3 controller processes"), (0, "one process per robot")):
             if procs == 0 and n > 16 and ctx.quick:
