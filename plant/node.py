@@ -50,6 +50,10 @@ _RECENT = 32
 #: lockstep: waiting this long (wall s) on a tick makes the plant say who it waits for,
 #: again after twice as long each time, up to every WAIT_REPORT_MAX_S
 WAIT_REPORT_S = 2.0
+#: A member's last messages may reach the plant just after its sim/sync token is gone
+#: (liveliness and data take different paths): how long, once, the plant waits for the
+#: FINAL of an --end-with member that left without one, rather than run past its end.
+LEFT_FINAL_GRACE_S = 0.5
 WAIT_REPORT_MAX_S = 30.0
 #: realtime: falling this far behind the wall clock (s) re-anchors it instead of catching up
 STALL_S = 0.25
@@ -101,6 +105,7 @@ class Plant:
         # late or forged ack never hides the one the plant waits for
         self.acks: dict[str, dict[int, tuple[int, bool]]] = {}
         self.finished: dict[str, int] = {}      # member -> stamp of its FINAL tick
+        self._final_awaited: set[str] = set()   # ending members given their grace once
         # (member, tick stamp) -> messages of it on the keys the plant reads, for that tick
         self.member_msgs: dict[tuple[str, int], int] = {}
         # robot -> {tick stamp: Command} (lockstep: the command computed for each tick)
@@ -306,6 +311,7 @@ class Plant:
                 self.members.add(node)
                 self.members_seen.add(node)
                 self.finished.pop(node, None)
+                self._final_awaited.discard(node)
                 self.log.info("lockstep member joined: %s", node)
             else:
                 self.members.discard(node)
@@ -514,6 +520,9 @@ class Plant:
         since = time.monotonic()
         every = WAIT_REPORT_S
         report_at = since + every
+        # What came meanwhile, even when nobody is to be waited for (every member gone): a
+        # member joining, a late FINAL, a sim/reset query would otherwise stay queued.
+        self.drain(0.0)
         while not self.stop_event.is_set() and not self.reset_in_tick:
             # (a sim/reset answered meanwhile rebuilt the world: this tick is gone)
             waiting = [m for m in required if m in self.members and not self._acked(m, t_ns)
@@ -526,6 +535,19 @@ class Plant:
                 every = min(2 * every, WAIT_REPORT_MAX_S)
                 report_at = now + every
             self.drain(0.5)
+
+    def _await_final_of_leavers(self) -> None:
+        """An --end-with member that left without its FINAL having come: its last messages
+        may still be on their way, so give them LEFT_FINAL_GRACE_S once (a crashed member
+        costs the run that much), and the run ends at the member's last tick."""
+        for m in self.end_with:
+            if (m in self.members_seen and m not in self.members and m not in self.finished
+                    and m not in self._final_awaited):
+                self._final_awaited.add(m)
+                deadline = time.monotonic() + LEFT_FINAL_GRACE_S
+                while (m not in self.finished and not self.stop_event.is_set()
+                       and (left := deadline - time.monotonic()) > 0):
+                    self.drain(min(left, 0.05))
 
     def _report_wait(self, t_ns: int, waiting: list[str], waited_s: float) -> None:
         parts = []
@@ -580,6 +602,7 @@ class Plant:
                     due = t - self.delay_ns
                     if due >= 0:
                         self.wait_for_acks(due, required)
+                    self._await_final_of_leavers()
                     ended = [m for m in self.end_with if self.finished.get(m, due + 1) <= due]
                     if ended:
                         if overlap:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import queue
+import time
 
 import pytest
 import zenoh
@@ -62,3 +63,56 @@ def test_a_member_that_leaves_at_the_next_tick_after_final_still_ends_the_run(pr
     # the plant stops at the tick it has published when it takes the FINAL
     assert st["sim_time_s"] == pytest.approx((last + (TICK_NS if coupling == "pipelined"
                                                        else 0)) * 1e-9)
+
+
+@pytest.mark.slow
+def test_a_member_joining_after_every_member_left_is_waited_for(procs, endpoint, bus, tmp_path):
+    """With every member gone the plant runs on by itself; one that joins then is seen and
+    waited for again (it used to stay unseen: nothing drained the plant's inbox)."""
+    from .conftest import wait_for
+    stats = tmp_path / "plant.json"
+    plant = procs.diffbot("plant", "--world", "empty", "--expect", "first", "--endpoint",
+                          endpoint, "--stats", str(stats), name="plant")
+    s = bus()
+    clocks: queue.SimpleQueue = queue.SimpleQueue()
+    sub = s.declare_subscriber(K.clock, lambda smp: clocks.put(codec.msg_stamp_ns(
+        codec.decode(smp.payload.to_bytes(), "rosgraph_msgs/msg/Clock"))))
+    pub = s.declare_publisher(K.topic("robot1", "cmd_vel"),
+                              encoding=zenoh.Encoding.APPLICATION_CDR,
+                              congestion_control=zenoh.CongestionControl.BLOCK)
+    seq = 0
+
+    def answer(name: str, ticks: int, speed: float) -> int:
+        nonlocal seq
+        t = -1
+        for _ in range(ticks):
+            t = clocks.get(timeout=20)
+            seq += 1
+            pub.put(codec.encode(codec.twist_stamped(t, speed, 0.0)),
+                    attachment=codec.attachment(seq, t, codec.ACK, 1, name))
+        return t
+
+    try:
+        tok = s.liveliness().declare_token(K.sync("first"))
+        answer("first", 5, 0.0)
+        tok.undeclare()                       # the plant now runs on by itself
+        wait_for(lambda: "member left: first" in procs.log(plant), 10, what="first gone")
+        while not clocks.empty():
+            clocks.get()
+        tok = s.liveliness().declare_token(K.sync("second"))   # answers from now on
+        wait_for(lambda: "member joined: second" in procs.log(plant), 10,
+                 what="the plant to see the new member")
+        t = answer("second", 60, 0.3)
+        time.sleep(0.5)                       # the plant now waits for our next answer:
+        later = []                            # at most the one tick it published
+        while not clocks.empty():
+            later.append(clocks.get())
+        assert later in ([], [t + TICK_NS]), f"the plant ran on: {len(later)} ticks"
+        tok.undeclare()
+    finally:
+        pub.undeclare()
+        sub.undeclare()
+    plant.terminate()
+    assert plant.wait(20) == 0, procs.log(plant)
+    st = json.loads(stats.read_text())
+    assert st["members_seen"] == ["first", "second"]
