@@ -32,7 +32,7 @@ from bus.keys import Keys, check_name
 from bus.log import RejectCounter, setup_logging
 from bus.node import (ABSURD_INPUT, EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner,
                       close_session, install_stop_signals, query_info)
-from bus.session import BusConfigError, add_bus_args, open_session
+from bus.session import BusConfigError, add_bus_args, open_node
 
 from .ros2_types import OUT_TOPICS, ros_modules
 
@@ -352,9 +352,7 @@ def main(argv: list[str] | None = None) -> int:
                   "ROS 2 setup (Humble, Jazzy)", exc)
         return EXIT_BAD_CONFIG
     try:
-        keys = Keys(args.namespace)
-        check_name(args.name, "node name")
-        session = open_session("node", args.endpoint, args.zenoh_config)
+        keys, session = open_node(args, args.name)
     except (BusConfigError, ValueError) as exc:
         log.error("%s", exc)
         return EXIT_BAD_CONFIG

@@ -46,11 +46,11 @@ import zenoh
 
 from bus import codec, scene
 from bus.cliargs import ArgumentParser, nonneg_float, port, positive_float, positive_int
-from bus.keys import TOPICS, Keys, check_name
+from bus.keys import TOPICS, Keys
 from bus.log import RejectCounter, setup_logging
 from bus.node import (EXIT_PLANT_GONE, close_session, install_stop_signals, query_info,
                       write_json)
-from bus.session import BusConfigError, add_bus_args, open_session
+from bus.session import BusConfigError, add_bus_args, open_node
 
 EXIT_OK = 0
 EXIT_BAD_CONFIG = 2
@@ -703,9 +703,7 @@ def main(argv: list[str] | None = None) -> int:
         log.error("diffbot view needs foxglove-sdk: pip install 'diffbot-cosim[view]'")
         return EXIT_BAD_CONFIG
     try:
-        keys = Keys(args.namespace)
-        check_name(args.name, "node name")
-        session = open_session("node", args.endpoint, args.zenoh_config)
+        keys, session = open_node(args, args.name)
     except (BusConfigError, ValueError) as exc:
         log.error("%s", exc)
         return EXIT_BAD_CONFIG

@@ -99,9 +99,11 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
                    help="prefix for every key, so several simulations share one Zenoh network")
 
 
-def keys_from_args(args: argparse.Namespace) -> Keys:
-    return Keys(args.namespace)
-
-
-def validate_node_name(name: str) -> str:
-    return check_name(name, "node name")
+def open_node(args: argparse.Namespace, name: str) -> tuple[Keys, zenoh.Session]:
+    """A bus node's keys (``--namespace``) and client session (``--endpoint``,
+    ``--zenoh-config``) once its ``name`` is checked. Raises ValueError for a bad
+    namespace or name, BusConfigError when the plant cannot be reached: both are the
+    caller's one-line error and exit 2."""
+    keys = Keys(args.namespace)
+    check_name(name, "node name")
+    return keys, open_session("node", args.endpoint, args.zenoh_config)
