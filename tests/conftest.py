@@ -29,14 +29,19 @@ class Procs:
         self.tmp = tmp
         self.procs: list[subprocess.Popen] = []
 
-    def diffbot(self, *args: str, name: str = "proc", **kw) -> subprocess.Popen:
+    def diffbot(self, *args: str, name: str = "proc", netns: str | None = None,
+                **kw) -> subprocess.Popen:
+        """``diffbot ARGS`` as a process of its own, logged; in network namespace ``netns``
+        if given (``ip netns exec`` execs, so the PID is still python's)."""
         log = open(os.path.join(self.tmp, f"{name}-{len(self.procs)}.log"), "wb")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         kw.setdefault("stdout", log)
         kw.setdefault("stderr", subprocess.STDOUT)
         kw.setdefault("stdin", subprocess.DEVNULL)
-        p = subprocess.Popen([sys.executable, "-m", "diffbot.cli", *args], cwd=ROOT, env=env,
-                             start_new_session=True, **kw)
+        argv = [sys.executable, "-m", "diffbot.cli", *args]
+        if netns:
+            argv = ["ip", "netns", "exec", netns, *argv]
+        p = subprocess.Popen(argv, cwd=ROOT, env=env, start_new_session=True, **kw)
         p.log_path = log.name
         self.procs.append(p)
         return p

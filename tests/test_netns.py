@@ -26,12 +26,11 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 import uuid
 
 import pytest
 
-from .conftest import ROOT, wait_for
+from .conftest import ROOT, Procs, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -206,58 +205,27 @@ def configs(d: str, certs: dict) -> dict:
     return paths
 
 
-class Runner:
-    def __init__(self, tmp: str) -> None:
-        self.tmp = tmp
-        self.procs: list[subprocess.Popen] = []
-
-    def start(self, ns: str | None, name: str, *args: str) -> subprocess.Popen:
-        log = open(os.path.join(self.tmp, f"{name}.log"), "wb")
-        argv = [sys.executable, "-m", "diffbot.cli", *args]
-        if ns:
-            argv = ["ip", "netns", "exec", ns, *argv]    # ip execs: the PID is python's
-        p = subprocess.Popen(argv, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                             stdin=subprocess.DEVNULL, start_new_session=True,
-                             env=dict(os.environ, PYTHONUNBUFFERED="1"))
-        p.log_path = log.name
-        self.procs.append(p)
-        return p
-
-    def log(self, p) -> str:
-        with open(p.log_path, "rb") as f:
-            return f.read().decode("utf-8", "replace")
-
-    def cleanup(self) -> None:
-        for p in self.procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in self.procs:
-            try:
-                p.wait(5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(5)
-
-
 def run_drive(tmp: str, bus: dict, ns: dict, coupling: str = "sequential") -> tuple[str, dict]:
     """Plant (lockstep, empty world), recorder and a wheel schedule; returns the MCAP path
     and the plant's stats."""
     os.makedirs(tmp, exist_ok=True)
-    r = Runner(tmp)
+    r = Procs(tmp)
     mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
     try:
         if ns.get("router"):
-            r.start(ns["router"], "router", "router", "--zenoh-config", bus["router"])
-        plant = r.start(ns.get("plant"), "plant", "plant", "--world", "empty", "--mode",
-                        "lockstep", "--coupling", coupling, "--duration", DURATION_S,
-                        "--expect", "sched", "--stats", stats, *bus["plant_args"])
-        rec = r.start(ns.get("ctrl"), "recorder", "record", mcap, "--compression", "none",
-                      *bus["ctrl_args"])
+            r.diffbot("router", "--zenoh-config", bus["router"], name="router",
+                      netns=ns["router"])
+        plant = r.diffbot("plant", "--world", "empty", "--mode", "lockstep", "--coupling",
+                          coupling, "--duration", DURATION_S, "--expect", "sched", "--stats",
+                          stats, *bus["plant_args"], name="plant", netns=ns.get("plant"))
+        rec = r.diffbot("record", mcap, "--compression", "none", *bus["ctrl_args"],
+                        name="recorder", netns=ns.get("ctrl"))
         wait_for(lambda: "recording" in r.log(rec) or rec.poll() is not None, 30,
                  what="the recorder")
         assert rec.poll() is None, r.log(rec)
-        ctrl = r.start(ns.get("ctrl"), "sched", "controller", "wheel_schedule", "--robot",
-                       "robot1", "--name", "sched", "--schedule", SCHEDULE, *bus["ctrl_args"])
+        ctrl = r.diffbot("controller", "wheel_schedule", "--robot", "robot1", "--name",
+                         "sched", "--schedule", SCHEDULE, *bus["ctrl_args"], name="sched",
+                         netns=ns.get("ctrl"))
         assert plant.wait(90) == 0, r.log(plant)
         ctrl.wait(20)
         assert rec.wait(30) == 0, r.log(rec)
