@@ -17,6 +17,18 @@ K = Keys()
 TICK_NS = 20_000_000
 
 
+def member_ends(s):
+    """What a hand-driven member needs: the ``sim/clock`` stamps it sees (a queue, in order),
+    their subscriber, and robot1's cmd_vel publisher."""
+    clocks: queue.SimpleQueue = queue.SimpleQueue()
+    sub = s.declare_subscriber(K.clock, lambda smp: clocks.put(codec.msg_stamp_ns(
+        codec.decode(smp.payload.to_bytes(), "rosgraph_msgs/msg/Clock"))))
+    pub = s.declare_publisher(K.topic("robot1", "cmd_vel"),
+                              encoding=zenoh.Encoding.APPLICATION_CDR,
+                              congestion_control=zenoh.CongestionControl.BLOCK)
+    return clocks, sub, pub
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("coupling", ["sequential", "pipelined"])
 def test_a_member_that_leaves_at_the_next_tick_after_final_still_ends_the_run(procs, endpoint, bus,
@@ -26,13 +38,8 @@ def test_a_member_that_leaves_at_the_next_tick_after_final_still_ends_the_run(pr
                           "quitter", "--end-with", "quitter", "--endpoint", endpoint,
                           "--stats", str(stats), name="plant")
     s = bus()
-    clocks: queue.SimpleQueue = queue.SimpleQueue()
-    sub = s.declare_subscriber(K.clock, lambda smp: clocks.put(codec.msg_stamp_ns(
-        codec.decode(smp.payload.to_bytes(), "rosgraph_msgs/msg/Clock"))))
+    clocks, sub, pub = member_ends(s)
     tok = s.liveliness().declare_token(K.sync("quitter"))
-    pub = s.declare_publisher(K.topic("robot1", "cmd_vel"),
-                              encoding=zenoh.Encoding.APPLICATION_CDR,
-                              congestion_control=zenoh.CongestionControl.BLOCK)
     last = 10 * TICK_NS
     seq = 0
     try:
@@ -74,12 +81,7 @@ def test_a_member_joining_after_every_member_left_is_waited_for(procs, endpoint,
     plant = procs.diffbot("plant", "--world", "empty", "--expect", "first", "--endpoint",
                           endpoint, "--stats", str(stats), name="plant")
     s = bus()
-    clocks: queue.SimpleQueue = queue.SimpleQueue()
-    sub = s.declare_subscriber(K.clock, lambda smp: clocks.put(codec.msg_stamp_ns(
-        codec.decode(smp.payload.to_bytes(), "rosgraph_msgs/msg/Clock"))))
-    pub = s.declare_publisher(K.topic("robot1", "cmd_vel"),
-                              encoding=zenoh.Encoding.APPLICATION_CDR,
-                              congestion_control=zenoh.CongestionControl.BLOCK)
+    clocks, sub, pub = member_ends(s)
     seq = 0
 
     def answer(name: str, ticks: int, speed: float) -> int:
