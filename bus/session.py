@@ -16,6 +16,7 @@ import os
 import zenoh
 
 from .keys import Keys, check_name
+from .linkcheck import ConfigFileError, diagnose, load_config
 
 DEFAULT_ENDPOINT = os.environ.get("DIFFBOT_ENDPOINT", "tcp/127.0.0.1:7450")
 
@@ -33,15 +34,14 @@ def make_config(role: str, endpoint: str = DEFAULT_ENDPOINT, config_file: str | 
                 lease_ms: int = DEFAULT_LEASE_MS) -> zenoh.Config:
     """Zenoh configuration for ``role`` ("plant" listens, anything else connects).
 
-    With ``config_file`` the user's file is used as it is: their config, their rules.
+    With ``config_file`` the user's file is used as it is: their config, their rules
+    (``${VAR}`` filled in from the environment, see ``bus.linkcheck``).
     """
     if config_file:
-        if not os.path.isfile(config_file):
-            raise BusConfigError(f"{config_file}: no such Zenoh config file")
         try:
-            return zenoh.Config.from_file(config_file)
-        except Exception as exc:  # zenoh.ZError
-            raise BusConfigError(f"{config_file}: not a valid Zenoh config: {exc}") from None
+            return load_config(config_file)
+        except ConfigFileError as exc:
+            raise BusConfigError(str(exc)) from None
     conf = zenoh.Config()
 
     def put(key: str, value) -> None:
@@ -76,15 +76,17 @@ def make_config(role: str, endpoint: str = DEFAULT_ENDPOINT, config_file: str | 
 
 def open_session(role: str, endpoint: str = DEFAULT_ENDPOINT,
                  config_file: str | None = None) -> zenoh.Session:
+    """A session, or BusConfigError naming each endpoint and why it failed (refused,
+    timeout, unknown CA, name mismatch, certificate required, ...) and the config file."""
     conf = make_config(role, endpoint, config_file)
     try:
         return zenoh.open(conf)
     except Exception as exc:
-        where = config_file or endpoint
-        if role == "plant":
-            raise BusConfigError(f"cannot listen on {where}: {exc}") from None
-        raise BusConfigError(f"cannot reach the plant at {where}: {exc} "
-                             "(is `diffbot plant` running with the same --endpoint?)") from None
+        causes = "; ".join(diagnose(conf)) or str(exc)
+        src = f" (config {config_file})" if config_file else ""
+        hint = "" if config_file or role == "plant" else \
+            " [is `diffbot plant` running with the same --endpoint?]"
+        raise BusConfigError(f"{causes}{src}{hint}") from None
 
 
 def add_bus_args(parser: argparse.ArgumentParser) -> None:

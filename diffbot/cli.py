@@ -16,6 +16,7 @@
     diffbot echo KEY [--count N]    print a key's messages, decoded
     diffbot ros2 [--lockstep]       bridge the bus to ROS 2 (rclpy; `pip install -e '.[ros2]'`)
     diffbot router --listen E       a Zenoh router for several machines (--zenoh-config FILE)
+    diffbot certs --out DIR         a test CA and TLS certificates for router and clients
     diffbot scenarios               list the scenarios
 """
 from __future__ import annotations
@@ -40,7 +41,8 @@ CONTROLLERS = {
 USAGE = __doc__
 #: the sub-commands (for "did you mean")
 COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experiment", "figures",
-            "record", "replay", "topics", "echo", "router", "ros2", "scenarios")
+            "record", "replay", "topics", "echo", "router", "ros2", "scenarios",
+            "certs")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -106,6 +108,9 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "router":
         from .router import main as router_main
         return router_main(rest)
+    if cmd == "certs":
+        from .certs import main as certs_main
+        return certs_main(rest)
     if cmd == "ros2":
         from bridges.ros2 import main as ros2_main
         return ros2_main(rest)

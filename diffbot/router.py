@@ -4,15 +4,25 @@
     diffbot router --zenoh-config diffbot/configs/router_tls.json5   # TLS + access control
 
 Every diffbot process (plant included) then runs as a client of the router, with
-``--zenoh-config`` pointing at a copy of ``diffbot/configs/client.json5``. It is a Python
+``--zenoh-config`` pointing at its role's shipped config (``diffbot/configs/plant_tls.json5``,
+``node_tls.json5``, ...; ``client.json5`` for plain TCP); docs/several-machines.md. It is a Python
 Zenoh session in router mode (no zenohd needed): it routes, it declares nothing. Without a
 config file, scouting (multicast, gossip) is off, the lease is diffbot's 1 s, and it listens
 only where ``--listen`` says (default loopback). ``--listen`` also replaces the listen
 endpoints of a config file. Stops on Ctrl-C / SIGTERM; exit 2 on a bad endpoint or config.
+
+It logs every session: opened and closed at INFO with the client's address and the common
+name of its certificate (Zenoh's ``Link.auth_identifier``, on TLS links with mutual TLS),
+and every session Zenoh refused (a TLS handshake that failed: no client certificate, an
+unknown CA, ...) at WARNING with Zenoh's reason. Zenoh reports a refused handshake only in
+its own log, without the client's address, so the router reads that log (Zenoh writes it to
+stdout; the router takes over its stdout for that) and repeats the refusals in its own.
 """
 from __future__ import annotations
 
 import json
+import os
+import re
 import signal
 import sys
 import threading
@@ -20,15 +30,21 @@ import threading
 import zenoh
 
 from bus.cliargs import ArgumentParser
-from bus.log import setup_logging
-from bus.session import DEFAULT_LEASE_MS, BusConfigError, make_config
+from bus.linkcheck import ConfigFileError, diagnose, load_config
+from bus.log import RejectCounter, setup_logging
+from bus.session import DEFAULT_LEASE_MS, BusConfigError
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
 
 def router_config(listen: list[str] | None, config_file: str | None) -> zenoh.Config:
     if config_file:
-        conf = make_config("router", config_file=config_file)
+        # the file's listen endpoint (and its ${DIFFBOT_ROUTER}) is replaced by --listen
+        env = dict(os.environ, DIFFBOT_ROUTER="--listen") if listen else None
+        try:
+            conf = load_config(config_file, env)
+        except ConfigFileError as exc:
+            raise BusConfigError(str(exc)) from None
         conf.insert_json5("mode", '"router"')
     else:
         conf = zenoh.Config()
@@ -47,6 +63,47 @@ def router_config(listen: list[str] | None, config_file: str | None) -> zenoh.Co
     return conf
 
 
+def log_sessions(session: zenoh.Session, log) -> object:
+    """INFO line per link opened or closed: the client's address, certificate name, ZID."""
+    def on_link(event) -> None:
+        link = event.link
+        what = "opened" if event.kind == zenoh.SampleKind.PUT else "closed"
+        cert = f"certificate {link.auth_identifier!r}" if link.auth_identifier else \
+            "no client certificate"
+        log.info("session %s: %s (%s, zid %s)", what, link.dst, cert, link.zid)
+    return session.info.declare_link_events_listener(on_link)
+
+
+#: a Zenoh log line: time, level, thread..., target: message (colours stripped)
+_ZLOG = re.compile(r"^\S+\s+(?P<level>[A-Z]+)\s.*?(?P<target>zenoh[\w:]*): (?P<msg>.*)$")
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def relay_zenoh_log(log) -> None:
+    """Route Zenoh's own log (stdout, WARN and up) into ours: a refused TLS handshake is a
+    "refused a session" warning (rate limited per reason), anything else a warning."""
+    read, write = os.pipe()
+    real_stdout = os.dup(1)
+    os.dup2(write, 1)
+    os.close(write)
+    sys.stdout = os.fdopen(real_stdout, "w", buffering=1)
+    refused = RejectCounter(log, verb="refused a session:")
+
+    def pump() -> None:
+        with os.fdopen(read, "r", errors="replace") as f:
+            for line in f:
+                m = _ZLOG.match(_ANSI.sub("", line.strip()))
+                if not m:
+                    continue
+                msg = m.group("msg").split(". Hint:")[0]
+                if "zenoh_link_tls" in m.group("target") or "zenoh_link_tcp" in m.group("target"):
+                    refused.reject(msg)
+                else:
+                    log.warning("zenoh: %s", msg)
+    threading.Thread(target=pump, name="zenoh-log", daemon=True).start()
+    zenoh.init_log_from_env_or("warn")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = ArgumentParser(prog="diffbot router", description=__doc__.split("\n\n")[0])
     p.add_argument("--listen", action="append", metavar="ENDPOINT",
@@ -57,14 +114,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-level", default="INFO")
     args = p.parse_args(argv)
     log = setup_logging("router", args.log_level)
+    relay_zenoh_log(log)
     try:
         conf = router_config(args.listen, args.zenoh_config)
-        session = zenoh.open(conf)
     except BusConfigError as exc:
         log.error("%s", exc)
         return 2
+    try:
+        session = zenoh.open(conf)
     except Exception as exc:  # zenoh.ZError: cannot listen there
-        log.error("cannot start the router: %s", exc)
+        log.error("cannot start the router: %s (%s)", "; ".join(diagnose(conf)), exc)
         return 2
     stop = threading.Event()
 
@@ -72,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         stop.set()
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    sessions = log_sessions(session, log)
     try:
         where = json.loads(conf.get_json("listen/endpoints"))
         log.info("router %s listening on %s", session.info.zid(),
@@ -82,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     finally:
         try:
+            sessions.undeclare()
             session.close()
         except Exception as exc:
             log.warning("closing the session: %s", exc)

@@ -30,11 +30,12 @@ class Procs:
         self.procs: list[subprocess.Popen] = []
 
     def diffbot(self, *args: str, name: str = "proc", netns: str | None = None,
-                **kw) -> subprocess.Popen:
+                env: dict | None = None, **kw) -> subprocess.Popen:
         """``diffbot ARGS`` as a process of its own, logged; in network namespace ``netns``
-        if given (``ip netns exec`` execs, so the PID is still python's)."""
+        if given (``ip netns exec`` execs, so the PID is still python's); ``env``: extra
+        environment variables."""
         log = open(os.path.join(self.tmp, f"{name}-{len(self.procs)}.log"), "wb")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
         kw.setdefault("stdout", log)
         kw.setdefault("stderr", subprocess.STDOUT)
         kw.setdefault("stdin", subprocess.DEVNULL)

@@ -1,11 +1,15 @@
-"""Several machines, emulated: router, plant and controller in three Linux network
-namespaces joined by veth pairs, over TLS, in lockstep; the recording must be byte for
-byte the one of the same run on loopback.
+"""Several machines, emulated: router, plant and controllers in three Linux network
+namespaces joined by veth pairs, over mutual TLS through the shipped access control, in
+lockstep; the recording must be byte for byte the one of the same run on loopback.
+The machines are set up as docs/several-machines.md says: certificates from
+``diffbot certs``, the shipped ``diffbot/configs/*_tls.json5`` used as they are, pointed at
+with ``DIFFBOT_CERTS`` and ``DIFFBOT_ROUTER``.
 
 Topology (made here, as root, with names unique to this test run; addresses from
-192.0.2.0/24, TEST-NET-1, only on these veth interfaces inside these namespaces):
+198.51.100.0/24, TEST-NET-2, which no host interface uses, only on these veth interfaces
+inside these namespaces):
 
-    plant ns  192.0.2.2 --veth-- 192.0.2.1  router ns  192.0.2.5 --veth-- 192.0.2.6  ctrl ns
+    plant ns  .2 --veth-- .1  router ns  .5 --veth-- .6  ctrl ns      (198.51.100.x/30)
 
 The delay test adds 1 ms each way on every link: ``tc netem`` on the veth ends where
 the kernel has ``sch_netem``, else each veth becomes two, through a fourth namespace
@@ -13,10 +17,11 @@ where a userspace wire (``tests/netwire.py``) forwards every frame 1 ms late:
 
     plant ns --veth-- [wire ns: netwire] --veth-- router ns --veth-- [wire ns] --veth-- ctrl ns
 
-The router listens with TLS on both of its addresses (certificate made here with the
-``openssl`` CLI, signed by a CA made here); plant, recorder and controller are Zenoh
-clients that verify it against that CA. Everything is deleted at the end, also on failure
-(deleting a namespace deletes its veth ends and every address in it).
+The router listens with TLS on both of its addresses (its certificate names both); plant,
+recorder and controllers are Zenoh clients, each with its role's certificate. Everything is
+deleted at the end, also on failure (deleting a namespace deletes its veth ends and every
+address in it). ``Net``, ``tls_machines`` and ``start_router`` are the pieces a test of a
+disturbed split run (a router blip) reuses.
 """
 from __future__ import annotations
 
@@ -36,6 +41,9 @@ pytestmark = pytest.mark.slow
 
 DURATION_S = "4"
 SCHEDULE = "2:1,1;2:1,-1"
+#: the router's address as each side dials it (DIFFBOT_ROUTER there)
+ROUTER_IP = {"plant": "198.51.100.1", "ctrl": "198.51.100.5"}
+CONFIGS = os.path.join(ROOT, "diffbot", "configs")
 
 
 def _why_no_netns() -> str | None:
@@ -82,8 +90,8 @@ class Net:
             subprocess.run(["ip", "netns", "exec", self.ns["wire"], sys.executable, "-c",
                             "for k in ('all', 'default'): open(f'/proc/sys/net/ipv6/conf/{k}"
                             "/disable_ipv6', 'w').write('1')"], capture_output=True, timeout=20)
-        for side, (r_ip, o_ip) in (("plant", ("192.0.2.1", "192.0.2.2")),
-                                   ("ctrl", ("192.0.2.5", "192.0.2.6"))):
+        for side, (r_ip, o_ip) in (("plant", (ROUTER_IP["plant"], "198.51.100.2")),
+                                   ("ctrl", (ROUTER_IP["ctrl"], "198.51.100.6"))):
             a, b = f"dbr{side[0]}{tag}", f"dbo{side[0]}{tag}"      # <= 15 characters
             if wire:
                 wa, wb = f"dbwr{side[0]}{tag}", f"dbwo{side[0]}{tag}"
@@ -162,47 +170,39 @@ def netprobe(ns: str, *args: str, timeout_s: float = 30) -> dict:
     return json.loads(out.stdout.decode().strip().splitlines()[-1])
 
 
-def make_certs(d: str) -> dict:
-    """A CA and a router certificate for both router addresses (openssl CLI)."""
-    def ossl(*a):
-        sh("openssl", *a)
-    ca, ca_key = os.path.join(d, "ca.pem"), os.path.join(d, "ca-key.pem")
-    crt, key = os.path.join(d, "router.pem"), os.path.join(d, "router-key.pem")
-    csr, ext = os.path.join(d, "router.csr"), os.path.join(d, "router.ext")
-    ossl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj",
-         "/CN=diffbot test CA", "-keyout", ca_key, "-out", ca)
-    ossl("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=router", "-keyout", key,
-         "-out", csr)
-    with open(ext, "w") as f:
-        f.write("subjectAltName=IP:192.0.2.1,IP:192.0.2.5\n"
-                "basicConstraints=CA:FALSE\nextendedKeyUsage=serverAuth\n")
-    ossl("x509", "-req", "-in", csr, "-CA", ca, "-CAkey", ca_key, "-CAcreateserial",
-         "-days", "2", "-extfile", ext, "-out", crt)
-    return {"ca": ca, "crt": crt, "key": key}
+def tls_machines(d: str) -> dict:
+    """The documented set-up: ``diffbot certs`` for the router's two addresses, then the
+    shipped configs; per side, the extra arguments and environment of its processes."""
+    certs = os.path.join(d, "certs")
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "certs", "--out", certs,
+                        "--router", ROUTER_IP["plant"], "--router", ROUTER_IP["ctrl"]],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    cfg = lambda role: ["--zenoh-config", os.path.join(CONFIGS, f"{role}_tls.json5")]  # noqa
+    return {
+        "router_args": [*cfg("router"), *(x for ip in ROUTER_IP.values()
+                                          for x in ("--listen", f"tls/{ip}:7447"))],
+        "router_env": {"DIFFBOT_CERTS": certs},
+        "plant_args": cfg("plant"), "node_args": cfg("node"), "rec_args": cfg("recorder"),
+        "plant_env": {"DIFFBOT_CERTS": certs, "DIFFBOT_ROUTER": ROUTER_IP["plant"]},
+        "ctrl_env": {"DIFFBOT_CERTS": certs, "DIFFBOT_ROUTER": ROUTER_IP["ctrl"]},
+        "certs": certs,
+    }
 
 
-def configs(d: str, certs: dict) -> dict:
-    common = {"scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-              "timestamping": {"enabled": False}}
-    router = dict(common, mode="router",
-                  listen={"endpoints": ["tls/192.0.2.1:7447", "tls/192.0.2.5:7447"]},
-                  connect={"endpoints": []},
-                  transport={"link": {"tx": {"lease": 1000, "keep_alive": 4},
-                                      "tls": {"listen_certificate": certs["crt"],
-                                              "listen_private_key": certs["key"]}}})
-    out = {"router": router}
-    for side, ip in (("plant", "192.0.2.1"), ("ctrl", "192.0.2.5")):
-        out[side] = dict(common, mode="client", listen={"endpoints": []},
-                         connect={"endpoints": [f"tls/{ip}:7447"], "timeout_ms": 15000,
-                                  "exit_on_failure": True},
-                         transport={"link": {"tx": {"lease": 1000, "keep_alive": 4},
-                                             "tls": {"root_ca_certificate": certs["ca"]}}})
-    paths = {}
-    for name, cfg in out.items():
-        paths[name] = os.path.join(d, f"{name}.json5")
-        with open(paths[name], "w") as f:
-            json.dump(cfg, f)
-    return paths
+def start_router(r: Procs, bus: dict, ns: str):
+    """``diffbot router`` in namespace ``ns``, waited for until it listens."""
+    router = r.diffbot("router", *bus["router_args"], name="router", netns=ns,
+                       env=bus["router_env"])
+    wait_for(lambda: "listening on" in r.log(router) or router.poll() is not None, 30,
+             what="the router")
+    assert router.poll() is None, r.log(router)
+    return router
+
+
+def loopback(tmp: str) -> dict:
+    sock = ["--endpoint", f"unixsock-stream/{tmp}/bus.sock"]
+    return {"plant_args": sock, "node_args": sock, "rec_args": sock}
 
 
 def run_drive(tmp: str, bus: dict, ns: dict, coupling: str = "sequential") -> tuple[str, dict]:
@@ -213,19 +213,19 @@ def run_drive(tmp: str, bus: dict, ns: dict, coupling: str = "sequential") -> tu
     mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
     try:
         if ns.get("router"):
-            r.diffbot("router", "--zenoh-config", bus["router"], name="router",
-                      netns=ns["router"])
+            start_router(r, bus, ns["router"])
         plant = r.diffbot("plant", "--world", "empty", "--mode", "lockstep", "--coupling",
                           coupling, "--duration", DURATION_S, "--expect", "sched", "--stats",
-                          stats, *bus["plant_args"], name="plant", netns=ns.get("plant"))
-        rec = r.diffbot("record", mcap, "--compression", "none", *bus["ctrl_args"],
-                        name="recorder", netns=ns.get("ctrl"))
+                          stats, *bus["plant_args"], name="plant", netns=ns.get("plant"),
+                          env=bus.get("plant_env"))
+        rec = r.diffbot("record", mcap, "--compression", "none", *bus["rec_args"],
+                        name="recorder", netns=ns.get("ctrl"), env=bus.get("ctrl_env"))
         wait_for(lambda: "recording" in r.log(rec) or rec.poll() is not None, 30,
                  what="the recorder")
         assert rec.poll() is None, r.log(rec)
         ctrl = r.diffbot("controller", "wheel_schedule", "--robot", "robot1", "--name",
-                         "sched", "--schedule", SCHEDULE, *bus["ctrl_args"], name="sched",
-                         netns=ns.get("ctrl"))
+                         "sched", "--schedule", SCHEDULE, *bus["node_args"], name="sched",
+                         netns=ns.get("ctrl"), env=bus.get("ctrl_env"))
         assert plant.wait(90) == 0, r.log(plant)
         ctrl.wait(20)
         assert rec.wait(30) == 0, r.log(rec)
@@ -281,13 +281,8 @@ def delay_net():
 
 
 def test_lockstep_over_tls_across_namespaces_is_byte_identical_to_loopback(tmp_path, net):
-    certs = make_certs(str(tmp_path))
-    cfg = configs(str(tmp_path), certs)
-    sock = f"unixsock-stream/{tmp_path}/bus.sock"
-    loop = {"plant_args": ["--endpoint", sock], "ctrl_args": ["--endpoint", sock]}
-    remote = {"router": cfg["router"], "plant_args": ["--zenoh-config", cfg["plant"]],
-              "ctrl_args": ["--zenoh-config", cfg["ctrl"]]}
-    a, sa = run_drive(str(tmp_path / "loopback"), loop, {})
+    remote = tls_machines(str(tmp_path))
+    a, sa = run_drive(str(tmp_path / "loopback"), loopback(str(tmp_path)), {})
     b, sb = run_drive(str(tmp_path / "netns"), remote, net.ns)
     ma, mb = messages(a), messages(b)
     assert len(ma) > 500 and any(t.endswith("robot1/cmd_vel") or t.endswith("wheel_cmd")
@@ -302,18 +297,18 @@ def check_delay(net: Net, delay_ms: int) -> str:
     """Every link now takes at least ``delay_ms`` each way, loses nothing, and carries a
     1 MB TCP stream intact (GSO frames and checksum offload included)."""
     report = []
-    for side, ip in (("plant", "192.0.2.1"), ("ctrl", "192.0.2.5")):
+    for side, ip in ROUTER_IP.items():
         rtt = netprobe(net.ns[side], "ping", ip, "-c", "100", "-i", "0.01")
         assert rtt["received"] == rtt["sent"], rtt
         assert rtt["min_ms"] >= 2 * delay_ms, rtt
         report.append(f"{side}<->router {rtt['min_ms']:.2f}/{rtt['avg_ms']:.2f}/"
                       f"{rtt['max_ms']:.2f}")
     sink = subprocess.Popen(["ip", "netns", "exec", net.ns["router"], sys.executable, "-m",
-                             "tests.netprobe", "sink", "192.0.2.1", "5001"],  # private netns
+                             "tests.netprobe", "sink", ROUTER_IP["plant"], "5001"],  # private netns
                             cwd=ROOT, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
     try:
         assert sink.stdout.readline().strip() == b"listening"
-        sent = netprobe(net.ns["plant"], "send", "192.0.2.1", "5001", str(1 << 20))
+        sent = netprobe(net.ns["plant"], "send", ROUTER_IP["plant"], "5001", str(1 << 20))
         got = json.loads(sink.communicate(timeout=20)[0])
     finally:
         if sink.poll() is None:
@@ -329,10 +324,7 @@ def test_lockstep_with_1ms_delay_per_link_keeps_the_bytes(tmp_path, delay_net):
     path undelayed for reference (speed is not asserted)."""
     net, why = delay_net
     print(f"\ndelay by {net.emulator}" + (f" ({why})" if why else ""))
-    certs = make_certs(str(tmp_path))
-    cfg = configs(str(tmp_path), certs)
-    remote = {"router": cfg["router"], "plant_args": ["--zenoh-config", cfg["plant"]],
-              "ctrl_args": ["--zenoh-config", cfg["ctrl"]]}
+    remote = tls_machines(str(tmp_path))
     rtf, msgs = {}, {}
     for delay_ms in (0, 1):
         net.set_delay_ms(delay_ms, str(tmp_path))

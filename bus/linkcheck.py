@@ -1,0 +1,225 @@
+"""Zenoh config files as diffbot reads them, and what went wrong when a session cannot open.
+
+* ``load_config(path)``: the file's text with ``${VAR}`` / ``${VAR:-default}`` filled in
+  from the environment (Zenoh itself does no substitution; comment lines are left alone),
+  so the shipped configs work once ``DIFFBOT_ROUTER`` and ``DIFFBOT_CERTS`` are set; an
+  unset variable, or a TLS file that does not exist, is an error naming the file and key.
+* ``diagnose(conf)``: after ``zenoh.open`` failed (Zenoh says only "Unable to connect to
+  any of [...]! Timeout"), probe each endpoint with the standard library and say why:
+  refused, timed out, no route, a unix socket that is not there; for ``tls/`` the TLS
+  handshake with the config's CA and certificate: unknown CA, name mismatch, certificate
+  required (mutual TLS), certificate rejected. Stdlib only.
+"""
+from __future__ import annotations
+
+import errno
+import json
+import os
+import re
+import socket
+import ssl
+
+import zenoh
+
+_VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
+#: the TLS keys that name files, and who needs each
+TLS_FILES = ("root_ca_certificate", "listen_certificate", "listen_private_key",
+             "connect_certificate", "connect_private_key")
+PROBE_TIMEOUT_S = 3.0
+
+
+class ConfigFileError(ValueError):
+    pass
+
+
+def expand(text: str, path: str, env=os.environ) -> str:
+    """``${VAR}`` and ``${VAR:-default}`` replaced outside ``//`` comment lines."""
+    out = []
+    for n, line in enumerate(text.splitlines(keepends=True), 1):
+        if not line.lstrip().startswith("//"):
+            def sub(m: re.Match) -> str:
+                value = env.get(m.group(1))
+                if value is None or (value == "" and m.group(2) is not None):
+                    if m.group(2) is None:
+                        raise ConfigFileError(
+                            f"{path}:{n}: ${{{m.group(1)}}} is not set (export {m.group(1)}=... "
+                            "first; see docs/several-machines.md)")
+                    return m.group(2)
+                return value
+            line = _VAR.sub(sub, line)
+        out.append(line)
+    return "".join(out)
+
+
+def _get(conf: zenoh.Config, key: str):
+    try:
+        return json.loads(conf.get_json(key))
+    except Exception:       # an unknown key
+        return None
+
+
+def load_config(path: str, env=None) -> zenoh.Config:
+    """The Zenoh config in ``path``, variables filled in (from ``env``, default the
+    process's environment), TLS files checked."""
+    if not os.path.isfile(path):
+        raise ConfigFileError(f"{path}: no such Zenoh config file")
+    with open(path, encoding="utf-8") as f:
+        text = expand(f.read(), path, os.environ if env is None else env)
+    try:
+        conf = zenoh.Config.from_json5(text)
+    except Exception as exc:  # zenoh.ZError
+        raise ConfigFileError(f"{path}: not a valid Zenoh config: {exc}") from None
+    for key in TLS_FILES:
+        value = _get(conf, f"transport/link/tls/{key}")
+        if value and not os.path.isfile(value):
+            raise ConfigFileError(
+                f"{path}: transport.link.tls.{key}: {value}: no such file (make certificates "
+                "with `diffbot certs --out DIR`, then export DIFFBOT_CERTS=DIR)")
+    return conf
+
+
+def _split(endpoint: str) -> tuple[str, str]:
+    proto, _, rest = endpoint.partition("/")
+    return proto, rest.split("#", 1)[0].split("?", 1)[0]
+
+
+def _host_port(addr: str) -> tuple[str, int]:
+    host, _, port = addr.rpartition(":")
+    return host.strip("[]"), int(port)
+
+
+def _tcp(host: str, port: int) -> tuple[socket.socket | None, str]:
+    try:
+        return socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S), ""
+    except socket.gaierror as exc:
+        return None, f"cannot resolve {host!r} ({exc.strerror})"
+    except ConnectionRefusedError:
+        return None, "connection refused (nothing listens there: is the router running?)"
+    except (socket.timeout, TimeoutError):
+        return None, f"no answer within {PROBE_TIMEOUT_S:g} s (timeout: host down or filtered)"
+    except OSError as exc:
+        if exc.errno in (errno.ENETUNREACH, errno.EHOSTUNREACH):
+            return None, f"no route to {host} ({exc.strerror})"
+        return None, exc.strerror or str(exc)
+
+
+def _tls_cause(exc: Exception, host: str) -> str:
+    text = str(exc)
+    if isinstance(exc, ssl.SSLCertVerificationError):
+        msg = exc.verify_message or text
+        if "mismatch" in msg.lower():
+            return (f"name mismatch: the router's certificate does not name {host!r} in its "
+                    "subjectAltName (make it with `diffbot certs --router ADDR`)")
+        if "issuer" in msg or "self-signed" in msg or "self signed" in msg:
+            return ("unknown CA: the router's certificate is not signed by the CA in "
+                    "root_ca_certificate")
+        if "expired" in msg:
+            return "the router's certificate has expired"
+        return f"the router's certificate was not accepted: {msg}"
+    up = text.upper()
+    if "CERTIFICATE_REQUIRED" in up:
+        return ("certificate required: the router wants a client certificate (mutual TLS): "
+                "set enable_mtls, connect_certificate and connect_private_key")
+    if "UNKNOWN_CA" in up:
+        return "the router does not know the CA that signed this client's certificate"
+    if "BAD_CERTIFICATE" in up or "DECRYPT_ERROR" in up or "CERTIFICATE_UNKNOWN" in up:
+        return "the router rejected this client's certificate (not signed by its CA?)"
+    if "WRONG_VERSION_NUMBER" in up or "RECORD_LAYER" in up:
+        return "the other end does not speak TLS (a tcp/ endpoint?)"
+    return f"TLS handshake failed: {text}"
+
+
+def _probe_tls(conf: zenoh.Config, host: str, port: int) -> str:
+    sock, why = _tcp(host, port)
+    if sock is None:
+        return why
+    tls = _get(conf, "transport/link/tls") or {}
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname = tls.get("verify_name_on_connect", True) is not False
+    try:
+        if tls.get("root_ca_certificate"):
+            ctx.load_verify_locations(tls["root_ca_certificate"])
+        else:
+            ctx.load_default_certs()
+        if tls.get("connect_certificate") and tls.get("connect_private_key"):
+            ctx.load_cert_chain(tls["connect_certificate"], tls["connect_private_key"])
+    except (OSError, ssl.SSLError) as exc:
+        sock.close()
+        return f"cannot load this client's TLS files: {exc}"
+    try:
+        with ctx.wrap_socket(sock, server_hostname=host) as s:
+            s.settimeout(1.0)
+            try:         # TLS 1.3: a refused client certificate arrives as an alert now
+                s.recv(1)
+            except (socket.timeout, TimeoutError):
+                pass
+        return ("the TLS handshake succeeds: the router accepted this certificate, so it "
+                "refused the session itself (access control? a Zenoh version mismatch?)")
+    except ssl.SSLError as exc:
+        return _tls_cause(exc, host)
+    except (socket.timeout, TimeoutError):
+        return "TLS handshake timed out"
+    except OSError as exc:
+        return f"connection closed during the TLS handshake ({exc})"
+
+
+def probe(conf: zenoh.Config, endpoint: str) -> str:
+    """Why a client cannot open a session to ``endpoint``, in a few words."""
+    proto, addr = _split(endpoint)
+    try:
+        if proto == "unixsock-stream":
+            if not os.path.exists(addr):
+                return f"no socket file {addr} (is the plant running with this --endpoint?)"
+            with socket.socket(socket.AF_UNIX) as s:
+                s.settimeout(PROBE_TIMEOUT_S)
+                s.connect(addr)
+            return "the socket accepts connections, but no Zenoh session opened"
+        host, port = _host_port(addr)
+    except (ValueError, OSError) as exc:
+        return getattr(exc, "strerror", None) or str(exc)
+    if proto == "tls":
+        return _probe_tls(conf, host, port)
+    if proto == "tcp":
+        sock, why = _tcp(host, port)
+        if sock is None:
+            return why
+        sock.close()
+        return ("TCP connects, but no Zenoh session opened (a tls/ router? the wrong "
+                "port? refused by the router?)")
+    return "cannot probe this kind of endpoint"
+
+
+def listen_problem(endpoint: str) -> str:
+    """Why listening on ``endpoint`` fails: address in use, not this machine's, ..."""
+    proto, addr = _split(endpoint)
+    try:
+        if proto == "unixsock-stream":
+            if os.path.exists(addr):
+                return f"{addr} exists (another plant? a stale socket file?)"
+            return f"cannot create {addr}"
+        host, port = _host_port(addr)
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        with socket.socket(family) as s:
+            s.bind((host, port))
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            return "address already in use (another plant or router?)"
+        if exc.errno == errno.EADDRNOTAVAIL:
+            return f"{host} is not an address of this machine"
+        return exc.strerror or str(exc)
+    except ValueError as exc:
+        return str(exc)
+    return "the address is free: see the Zenoh error"
+
+
+def diagnose(conf: zenoh.Config) -> list[str]:
+    """One "endpoint: cause" line per endpoint of ``conf`` (connect, else listen)."""
+    connect = _get(conf, "connect/endpoints") or []
+    if isinstance(connect, dict):       # per-mode endpoints
+        connect = connect.get(_get(conf, "mode") or "client", [])
+    if connect:
+        return [f"cannot connect to {e}: {probe(conf, e)}" for e in connect]
+    listen = _get(conf, "listen/endpoints") or []
+    if isinstance(listen, dict):
+        listen = listen.get(_get(conf, "mode") or "router", [])
+    return [f"cannot listen on {e}: {listen_problem(e)}" for e in listen]
