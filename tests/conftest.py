@@ -42,7 +42,8 @@ class Procs:
         argv = [sys.executable, "-m", "diffbot.cli", *args]
         if netns:
             argv = ["ip", "netns", "exec", netns, *argv]
-        p = subprocess.Popen(argv, cwd=ROOT, env=env, start_new_session=True, **kw)
+        kw.setdefault("cwd", ROOT)
+        p = subprocess.Popen(argv, env=env, start_new_session=True, **kw)
         p.log_path = log.name
         self.procs.append(p)
         return p

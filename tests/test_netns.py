@@ -11,6 +11,9 @@ inside these namespaces):
 
     plant ns  .2 --veth-- .1  router ns  .5 --veth-- .6  ctrl ns      (198.51.100.x/30)
 
+The ctrl namespace routes 198.51.100.0/30 via .5, so every machine dials the router at one
+address, 198.51.100.1, as the documentation's commands do.
+
 The delay test adds 1 ms each way on every link: ``tc netem`` on the veth ends where
 the kernel has ``sch_netem``, else each veth becomes two, through a fourth namespace
 where a userspace wire (``tests/netwire.py``) forwards every frame 1 ms late:
@@ -41,8 +44,8 @@ pytestmark = pytest.mark.slow
 
 DURATION_S = "4"
 SCHEDULE = "2:1,1;2:1,-1"
-#: the router's address as each side dials it (DIFFBOT_ROUTER there)
-ROUTER_IP = {"plant": "198.51.100.1", "ctrl": "198.51.100.5"}
+#: the router's address, as every machine dials it (DIFFBOT_ROUTER)
+ROUTER = "198.51.100.1"
 CONFIGS = os.path.join(ROOT, "diffbot", "configs")
 
 
@@ -90,8 +93,8 @@ class Net:
             subprocess.run(["ip", "netns", "exec", self.ns["wire"], sys.executable, "-c",
                             "for k in ('all', 'default'): open(f'/proc/sys/net/ipv6/conf/{k}"
                             "/disable_ipv6', 'w').write('1')"], capture_output=True, timeout=20)
-        for side, (r_ip, o_ip) in (("plant", (ROUTER_IP["plant"], "198.51.100.2")),
-                                   ("ctrl", (ROUTER_IP["ctrl"], "198.51.100.6"))):
+        for side, (r_ip, o_ip) in (("plant", (ROUTER, "198.51.100.2")),
+                                   ("ctrl", ("198.51.100.5", "198.51.100.6"))):
             a, b = f"dbr{side[0]}{tag}", f"dbo{side[0]}{tag}"      # <= 15 characters
             if wire:
                 wa, wb = f"dbwr{side[0]}{tag}", f"dbwo{side[0]}{tag}"
@@ -107,6 +110,7 @@ class Net:
                 sh("ip", "-n", ns, "addr", "add", f"{ip}/30", "dev", dev)
                 sh("ip", "-n", ns, "link", "set", dev, "up")
             self.links += [(self.ns["router"], a), (self.ns[side], b)]
+        sh("ip", "-n", self.ns["ctrl"], "route", "add", "198.51.100.0/30", "via", "198.51.100.5")
 
     @property
     def emulator(self) -> str:
@@ -175,19 +179,13 @@ def tls_machines(d: str) -> dict:
     shipped configs; per side, the extra arguments and environment of its processes."""
     certs = os.path.join(d, "certs")
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "certs", "--out", certs,
-                        "--router", ROUTER_IP["plant"], "--router", ROUTER_IP["ctrl"]],
-                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+                        "--router", ROUTER], cwd=ROOT, capture_output=True, text=True,
+                       timeout=60)
     assert r.returncode == 0, r.stderr
     cfg = lambda role: ["--zenoh-config", os.path.join(CONFIGS, f"{role}_tls.json5")]  # noqa
-    return {
-        "router_args": [*cfg("router"), *(x for ip in ROUTER_IP.values()
-                                          for x in ("--listen", f"tls/{ip}:7447"))],
-        "router_env": {"DIFFBOT_CERTS": certs},
-        "plant_args": cfg("plant"), "node_args": cfg("node"), "rec_args": cfg("recorder"),
-        "plant_env": {"DIFFBOT_CERTS": certs, "DIFFBOT_ROUTER": ROUTER_IP["plant"]},
-        "ctrl_env": {"DIFFBOT_CERTS": certs, "DIFFBOT_ROUTER": ROUTER_IP["ctrl"]},
-        "certs": certs,
-    }
+    env = {"DIFFBOT_CERTS": certs, "DIFFBOT_ROUTER": ROUTER}
+    return {"router_args": cfg("router"), "plant_args": cfg("plant"), "node_args": cfg("node"),
+            "rec_args": cfg("recorder"), "router_env": env, "plant_env": env, "ctrl_env": env}
 
 
 def start_router(r: Procs, bus: dict, ns: str):
@@ -297,18 +295,18 @@ def check_delay(net: Net, delay_ms: int) -> str:
     """Every link now takes at least ``delay_ms`` each way, loses nothing, and carries a
     1 MB TCP stream intact (GSO frames and checksum offload included)."""
     report = []
-    for side, ip in ROUTER_IP.items():
-        rtt = netprobe(net.ns[side], "ping", ip, "-c", "100", "-i", "0.01")
+    for side in ("plant", "ctrl"):
+        rtt = netprobe(net.ns[side], "ping", ROUTER, "-c", "100", "-i", "0.01")
         assert rtt["received"] == rtt["sent"], rtt
         assert rtt["min_ms"] >= 2 * delay_ms, rtt
         report.append(f"{side}<->router {rtt['min_ms']:.2f}/{rtt['avg_ms']:.2f}/"
                       f"{rtt['max_ms']:.2f}")
     sink = subprocess.Popen(["ip", "netns", "exec", net.ns["router"], sys.executable, "-m",
-                             "tests.netprobe", "sink", ROUTER_IP["plant"], "5001"],  # private netns
+                             "tests.netprobe", "sink", ROUTER, "5001"],  # private netns
                             cwd=ROOT, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
     try:
         assert sink.stdout.readline().strip() == b"listening"
-        sent = netprobe(net.ns["plant"], "send", ROUTER_IP["plant"], "5001", str(1 << 20))
+        sent = netprobe(net.ns["plant"], "send", ROUTER, "5001", str(1 << 20))
         got = json.loads(sink.communicate(timeout=20)[0])
     finally:
         if sink.poll() is None:
@@ -344,3 +342,94 @@ def test_lockstep_with_1ms_delay_per_link_keeps_the_bytes(tmp_path, delay_net):
     print("real-time factor, " + ", ".join(
         f"{c} {rtf[c, 0]:.2f} -> {rtf[c, 1]:.2f}" for c in ("sequential", "pipelined"))
         + f" (undelayed -> 1 ms per link, {net.emulator})")
+
+
+# ------------------------------------------------------------ the documented split run
+
+DOC = os.path.join(ROOT, "docs", "several-machines.md")
+#: the doc's machines -> this test's namespaces ("any": the host, no network needed)
+MACHINE_NS = {"any": None, "router": "router", "plant": "plant", "robot": "ctrl"}
+
+
+def doc_steps() -> list[tuple[str, dict, list[list[str]]]]:
+    """The doc's ``# machine: NAME`` shell blocks, in order: (machine, exported variables,
+    commands as argv lists; a trailing ``&`` dropped)."""
+    import re
+    import shlex
+    text = open(DOC).read().split("## The square on three machines", 1)[1].split("\n## ", 1)[0]
+    steps = []
+    for block in re.findall(r"```sh\n(.*?)```", text, re.S):
+        lines = block.replace("\\\n", " ").splitlines()
+        m = re.match(r"# machine: (\w+)$", lines[0])
+        assert m, f"a shell block without '# machine: NAME': {lines[0]}"
+        env, cmds = {}, []
+        for line in lines[1:]:
+            argv = shlex.split(line, comments=True)
+            if argv and argv[0] == "export":
+                env.update(a.split("=", 1) for a in argv[1:])
+            elif argv:
+                cmds.append([a for a in argv if a != "&"])
+        steps.append((m.group(1), env, cmds))
+    return steps
+
+
+def run_doc_steps(tmp: str, net: Net, r: Procs) -> dict:
+    """Runs the doc's blocks as printed, each machine's in its namespace, with ``~`` the test
+    directory and cwd the test directory (paths into the checkout made absolute); returns
+    the processes by command name."""
+    started = {}
+    for machine, env, cmds in doc_steps():
+        env = {k: v.replace("~", tmp) for k, v in env.items()}
+        for argv in cmds:
+            assert argv[0] == "diffbot", argv
+            args = [a.replace("~", tmp) for a in argv[1:]]
+            args = [os.path.join(ROOT, a) if "/" in a and os.path.exists(os.path.join(ROOT, a))
+                    else a for a in args]
+            if machine == "any":
+                out = subprocess.run([sys.executable, "-m", "diffbot.cli", *args], cwd=tmp,
+                                     capture_output=True, text=True, timeout=60)
+                assert out.returncode == 0, out.stderr
+                continue
+            p = r.diffbot(*args, name=args[0], netns=net.ns[MACHINE_NS[machine]], env=env,
+                          cwd=tmp)
+            started[args[0]] = p
+            ready = {"router": "listening on", "record": "recording"}.get(args[0])
+            if ready:
+                wait_for(lambda: ready in r.log(p) or p.poll() is not None, 30,
+                         what=f"`diffbot {args[0]}` on {machine}")
+                assert p.poll() is None, r.log(p)
+    return started
+
+
+def test_documented_square_on_three_machines_records_what_one_machine_does(tmp_path, net):
+    """docs/several-machines.md's commands, as printed, in three namespaces through the
+    shipped mutual-TLS, access-controlled router: the square ends where `diffbot run
+    square` ends, and the recorder (certificate "recorder") gets every topic, every
+    message, byte for byte the one-machine recording."""
+    tmp = str(tmp_path)
+    local = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square", "--seed", "0",
+                            "--out", os.path.join(tmp, "local"), "--record",
+                            os.path.join(tmp, "local.mcap")],
+                           cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert local.returncode == 0, local.stderr
+    summary = json.load(open(os.path.join(tmp, "local", "summary.json")))
+    r = Procs(tmp)
+    try:
+        p = run_doc_steps(tmp, net, r)
+        assert p["plant"].wait(300) == 0, r.log(p["plant"])
+        for name in ("controller", "fmu-node", "record"):
+            assert p[name].wait(30) == 0, r.log(p[name])
+        router_log = r.log(p["router"])
+    finally:
+        r.cleanup()
+    stats = json.load(open(os.path.join(tmp, "plant.json")))
+    assert stats["sim_time_s"] == pytest.approx(summary["sim_time_s"])
+    a, b = messages(os.path.join(tmp, "local.mcap")), messages(os.path.join(tmp, "square.mcap"))
+    topics = sorted({t for t, _, _ in a})
+    assert sorted({t for t, _, _ in b}) == topics
+    assert b == a
+    for cert in ("plant", "node", "recorder"):         # the router saw who came
+        assert f"certificate '{cert}'" in router_log, router_log
+    print(f"split square: t = {stats['sim_time_s']} s, {len(b)} messages on {len(topics)} "
+          f"topics through the ACL'd router, identical to one machine; real-time factor "
+          f"{stats['real_time_factor']:.2f} (one machine {summary['real_time_factor']:.2f})")
