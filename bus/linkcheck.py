@@ -120,12 +120,13 @@ def _tls_cause(exc: Exception, host: str) -> str:
     if "CERTIFICATE_REQUIRED" in up:
         return ("certificate required: the router wants a client certificate (mutual TLS): "
                 "set enable_mtls, connect_certificate and connect_private_key")
-    if "UNKNOWN_CA" in up:
-        return "the router does not know the CA that signed this client's certificate"
-    if "BAD_CERTIFICATE" in up or "DECRYPT_ERROR" in up or "CERTIFICATE_UNKNOWN" in up:
-        return "the router rejected this client's certificate (not signed by its CA?)"
-    if "WRONG_VERSION_NUMBER" in up or "RECORD_LAYER" in up:
-        return "the other end does not speak TLS (a tcp/ endpoint?)"
+    if any(a in up for a in ("UNKNOWN_CA", "BAD_CERTIFICATE", "DECRYPT_ERROR",
+                             "CERTIFICATE_UNKNOWN")):
+        return ("the router rejected this client's certificate (unknown CA: not signed by "
+                "the CA in the router's root_ca_certificate?)")
+    if "WRONG_VERSION_NUMBER" in up or "RECORD_LAYER" in up or "EOF" in up:
+        return ("the other end closed the connection in the TLS handshake: not a TLS "
+                "endpoint (a tcp/ router?)")
     return f"TLS handshake failed: {text}"
 
 
@@ -158,9 +159,11 @@ def _probe_tls(conf: zenoh.Config, host: str, port: int) -> str:
     except ssl.SSLError as exc:
         return _tls_cause(exc, host)
     except (socket.timeout, TimeoutError):
-        return "TLS handshake timed out"
+        return (f"no TLS answer within {PROBE_TIMEOUT_S:g} s (timeout): not a TLS endpoint "
+                "(a tcp/ router?), or a frozen router")
     except OSError as exc:
-        return f"connection closed during the TLS handshake ({exc})"
+        return (f"the other end closed the connection in the TLS handshake ({exc}): not a "
+                "TLS endpoint (a tcp/ router?)")
 
 
 def probe(conf: zenoh.Config, endpoint: str) -> str:

@@ -71,7 +71,8 @@ def log_sessions(session: zenoh.Session, log) -> object:
         cert = f"certificate {link.auth_identifier!r}" if link.auth_identifier else \
             "no client certificate"
         log.info("session %s: %s (%s, zid %s)", what, link.dst, cert, link.zid)
-    return session.info.declare_link_events_listener(on_link)
+    # history: links opened between the session's start and this declaration are told too
+    return session.info.declare_link_events_listener(on_link, history=True)
 
 
 #: a Zenoh log line: time, level, thread..., target: message (colours stripped)

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -226,18 +225,7 @@ def test_example_configs_parse_and_say_what_they_claim():
     assert json.loads(client.get_json("listen/endpoints")) == []
     assert json.loads(client.get_json("scouting/multicast/enabled")) is False
     assert json.loads(client.get_json("scouting/gossip/enabled")) is False
-    router = zenoh.Config.from_file(os.path.join(CONFIGS, "router_tls.json5"))
-    assert json.loads(router.get_json("mode")) == "router"
-    listen = json.loads(router.get_json("listen/endpoints"))
-    assert listen and all(e.startswith("tls/") and "0.0.0.0" not in e for e in listen)
-    assert json.loads(router.get_json("scouting/multicast/enabled")) is False
-    acl = json.loads(router.get_json("access_control"))
-    assert acl["enabled"] is True and acl["default_permission"] == "deny"
-    assert json.loads(router.get_json("transport/link/tls/enable_mtls")) is True
-    # the access-control section is accepted by a real router (TLS replaced by loopback TCP)
-    router.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{free_port()}"]))
-    router.insert_json5("transport/link/tls", "{}")
-    zenoh.open(router).close()
+    # the TLS files and their access control: tests/test_tls.py
 
 
 def client_config(tmp_path, endpoint: str, name="client.json5", tls: dict | None = None):
@@ -281,93 +269,3 @@ def test_scenario_runs_through_diffbot_router_with_client_configs(tmp_path):
         _, rerr = _finish(router, 20)
     assert router.returncode == 0, rerr
     assert "listening on " + ep in rerr
-
-
-# ---------------------------------------------------------------------- TLS + access control
-
-def _openssl(*args, cwd):
-    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True)
-
-
-def make_pki(d) -> dict[str, tuple[str, str]]:
-    """A CA and certificates (CN = name) for the router and three clients: name -> (cert, key)."""
-    _openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca-key.pem", "-out",
-             "ca.pem", "-days", "2", "-subj", "/CN=diffbot-test-ca", cwd=d)
-    out = {}
-    for name, san in (("router", "DNS:localhost,IP:127.0.0.1"), ("diffbot-plant", None),
-                      ("diffbot-controller", None), ("diffbot-observer", None)):
-        _openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{name}-key.pem", "-out",
-                 f"{name}.csr", "-subj", f"/CN={name}", cwd=d)
-        ext = os.path.join(d, f"{name}.ext")
-        with open(ext, "w") as f:
-            f.write(f"subjectAltName={san or 'DNS:' + name}\n"
-                    "basicConstraints=CA:FALSE\n")
-        _openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca-key.pem",
-                 "-CAcreateserial", "-out", f"{name}.pem", "-days", "2", "-extfile", ext, cwd=d)
-        out[name] = (os.path.join(d, f"{name}.pem"), os.path.join(d, f"{name}-key.pem"))
-    return out
-
-
-@pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl to make certificates")
-def test_tls_router_with_access_control_example(tmp_path):
-    """router_tls.json5 as shipped, with test certificates and a loopback address: the plant
-    and a controller run a lockstep drive over mutual TLS; an observer's certificate may
-    listen but its commands never reach the plant."""
-    pki = make_pki(str(tmp_path))
-    ca = str(tmp_path / "ca.pem")
-    port = free_port()
-    ep = f"tls/localhost:{port}"
-    rconf = zenoh.Config.from_file(os.path.join(CONFIGS, "router_tls.json5"))
-    rconf.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
-    cert, key = pki["router"]
-    rconf.insert_json5("transport/link/tls", json.dumps({
-        "root_ca_certificate": ca, "listen_certificate": cert, "listen_private_key": key,
-        "enable_mtls": True}))
-    rpath = tmp_path / "router.json5"
-    rpath.write_text(str(rconf))
-
-    def tls_client(name):
-        cert, key = pki[name]
-        return client_config(tmp_path, ep, f"{name}.json5", {
-            "root_ca_certificate": ca, "connect_certificate": cert, "connect_private_key": key,
-            "enable_mtls": True})
-
-    router = start_router("--zenoh-config", str(rpath))
-    plant = ctrl = None
-    try:
-        wait_for(lambda: ("127.0.0.1", port) in listeners([router.pid]) or router.poll(), 30,
-                 what="the TLS router to listen")
-        assert router.poll() is None, _finish(router)[1]
-        stats = tmp_path / "plant.json"
-        plant = diffbot("plant", "--world", "empty", "--duration", "3", "--expect",
-                        "wheel_schedule_robot1", "--stats", str(stats),
-                        "--zenoh-config", tls_client("diffbot-plant"))
-        ctrl = diffbot("controller", "wheel_schedule", "--schedule", "100:2,2",
-                       "--zenoh-config", tls_client("diffbot-controller"))
-        # an observer: may listen, may not command
-        from bus.keys import Keys
-        K = Keys()
-        obs = zenoh.open(zenoh.Config.from_file(tls_client("diffbot-observer")))
-        try:
-            clocks = []
-            sub = obs.declare_subscriber(K.clock, lambda s: clocks.append(1))
-            wait_for(lambda: clocks, 60, what="the observer to hear the clock over TLS")
-            for _ in range(50):
-                obs.put(K.topic("robot1", "cmd_vel"), b"not a command")
-                time.sleep(0.01)
-            sub.undeclare()
-        finally:
-            obs.close()
-        _, perr = _finish(plant, 90)
-        assert plant.returncode == 0, perr
-        st = json.load(open(stats))
-        assert st["sim_time_s"] == pytest.approx(3.0)
-        assert st["members_seen"] == ["wheel_schedule_robot1"]
-        # the observer's puts were denied by the router: the plant never saw them
-        assert st["rejected"].get("robot1/cmd_vel", 0) == 0, st["rejected"]
-        assert exposure_problems([router.pid, plant.pid]) == []
-    finally:
-        for p in (ctrl, plant, router):
-            if p is not None and p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                _finish(p, 20)

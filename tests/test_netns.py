@@ -174,22 +174,25 @@ def netprobe(ns: str, *args: str, timeout_s: float = 30) -> dict:
     return json.loads(out.stdout.decode().strip().splitlines()[-1])
 
 
-def tls_machines(d: str) -> dict:
-    """The documented set-up: ``diffbot certs`` for the router's two addresses, then the
-    shipped configs; per side, the extra arguments and environment of its processes."""
+def tls_machines(d: str, router: str = ROUTER, port: int | None = None) -> dict:
+    """The documented set-up: ``diffbot certs`` for the router's address, then the shipped
+    configs; the extra arguments and environment of each kind of process (``port``: a
+    DIFFBOT_PORT other than 7447, for a router on loopback)."""
     certs = os.path.join(d, "certs")
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "certs", "--out", certs,
-                        "--router", ROUTER], cwd=ROOT, capture_output=True, text=True,
+                        "--router", router], cwd=ROOT, capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0, r.stderr
     cfg = lambda role: ["--zenoh-config", os.path.join(CONFIGS, f"{role}_tls.json5")]  # noqa
-    env = {"DIFFBOT_CERTS": certs, "DIFFBOT_ROUTER": ROUTER}
+    env = {"DIFFBOT_CERTS": certs, "DIFFBOT_ROUTER": router}
+    if port:
+        env["DIFFBOT_PORT"] = str(port)
     return {"router_args": cfg("router"), "plant_args": cfg("plant"), "node_args": cfg("node"),
             "rec_args": cfg("recorder"), "router_env": env, "plant_env": env, "ctrl_env": env}
 
 
-def start_router(r: Procs, bus: dict, ns: str):
-    """``diffbot router`` in namespace ``ns``, waited for until it listens."""
+def start_router(r: Procs, bus: dict, ns: str | None):
+    """``diffbot router`` (in namespace ``ns``), waited for until it listens."""
     router = r.diffbot("router", *bus["router_args"], name="router", netns=ns,
                        env=bus["router_env"])
     wait_for(lambda: "listening on" in r.log(router) or router.poll() is not None, 30,
@@ -210,8 +213,8 @@ def run_drive(tmp: str, bus: dict, ns: dict, coupling: str = "sequential") -> tu
     r = Procs(tmp)
     mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
     try:
-        if ns.get("router"):
-            start_router(r, bus, ns["router"])
+        if "router_args" in bus:
+            start_router(r, bus, ns.get("router"))
         plant = r.diffbot("plant", "--world", "empty", "--mode", "lockstep", "--coupling",
                           coupling, "--duration", DURATION_S, "--expect", "sched", "--stats",
                           stats, *bus["plant_args"], name="plant", netns=ns.get("plant"),
