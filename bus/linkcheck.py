@@ -94,7 +94,8 @@ def _tcp(host: str, port: int) -> tuple[socket.socket | None, str]:
     except socket.gaierror as exc:
         return None, f"cannot resolve {host!r} ({exc.strerror})"
     except ConnectionRefusedError:
-        return None, "connection refused (nothing listens there: is the router running?)"
+        return None, ("connection refused (nothing listens there: is the router, or the plant, "
+                      "running?)")
     except (socket.timeout, TimeoutError):
         return None, f"no answer within {PROBE_TIMEOUT_S:g} s (timeout: host down or filtered)"
     except OSError as exc:

@@ -81,7 +81,7 @@ ROSBAG2_VERSION = 9
 #: ROS 2 tools use their defaults.
 QOS_NONE = "[]"
 #: After ``sim/end``, keep listening until the bus has been quiet this long (the last
-#: outputs of other nodes), but no longer than END_MAX_S.
+#: outputs of other nodes) and no lockstep member is left, but no longer than END_MAX_S.
 END_GRACE_S = 0.3
 END_MAX_S = 5.0
 
@@ -530,10 +530,22 @@ class Recorder:
                 if end_at is None:
                     end_at = now
                     self.log.info("the simulation ended (%s); finishing", self.end_reason)
-                elif ((quiet_since is not None and now - quiet_since >= END_GRACE_S)
-                      or now - end_at >= END_MAX_S):
+                elif now - end_at >= END_MAX_S:
+                    break
+                elif (quiet_since is not None and now - quiet_since >= END_GRACE_S
+                      and not self._members_left()):
                     break
         return EXIT_OK
+
+    def _members_left(self) -> bool:
+        """Whether a lockstep member (``sim/sync/*``) is still on the bus: its last outputs
+        may still be on their way (a node starved of CPU, a slow link), so a quiet bus
+        alone does not end the recording while one is there (END_MAX_S still does)."""
+        try:
+            return any(True for _ in self.session.liveliness().get(self.keys.sync(),
+                                                                     timeout=0.2))
+        except Exception:
+            return False
 
     def close(self) -> None:
         """Stop listening, write what is still queued, close the file."""
