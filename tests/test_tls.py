@@ -274,7 +274,7 @@ def test_a_run_through_the_shipped_router_records_every_topic(tmp_path):
     bus = tls_machines(tmp, "127.0.0.1", free_port())
     _leaf(os.path.join(tmp, "certs"), "intruder", "DNS:intruder", "clientAuth", 2)
     a, sa = run_drive(os.path.join(tmp, "loopback"), loopback(tmp), {})
-    stop, errors = [], []
+    stop, errors, refused = [], [], []
 
     def intrude() -> None:
         try:
@@ -290,6 +290,12 @@ def test_a_run_through_the_shipped_router_records_every_topic(tmp_path):
         conf.insert_json5("transport/link/tls/connect_private_key",
                           json.dumps(cert + "-key.pem"))
         with zenoh.open(conf) as s:
+            # and a client without a certificate, which the router refuses (and logs)
+            nocert = load_config(os.path.join(CONFIGS, "node_tls.json5"), env)
+            for key in ("connect_certificate", "connect_private_key"):
+                nocert.insert_json5(f"transport/link/tls/{key}", '""')
+            ep = json.loads(nocert.get_json("connect/endpoints"))[0]
+            refused.append(probe(nocert, ep))
             while not stop:
                 s.put("robot1/cmd_vel", b"not a command")
                 time.sleep(0.02)
@@ -311,5 +317,7 @@ def test_a_run_through_the_shipped_router_records_every_topic(tmp_path):
                      for f in os.listdir(os.path.join(tmp, "acl")) if f.startswith("router")]
     for cert in ("plant", "node", "recorder", "intruder"):
         assert f"(certificate '{cert}'" in router_log, router_log
+    assert "certificate required" in refused[0], refused
+    assert "WARNING refused a session: peer sent no certificates" in router_log, router_log
     print(f"through the ACL'd router: {len(mb)} messages on {len({t for t, _, _ in mb})} "
           "topics, identical to the unix-socket run")
