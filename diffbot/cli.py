@@ -9,6 +9,7 @@
     diffbot bench ...               benchmarks
     diffbot experiment NAME ...     the study's sensor experiments, --out DIR (-h lists them)
     diffbot figures --out DIR       all twelve figures of the study + index.html (--only 4,12)
+    diffbot sweep SCENARIO ...      a scenario over a grid of parameters x seeds, local or on Ray
     diffbot record FILE.mcap [KEYS] record the bus into MCAP (Foxglove, ros2 bag, rosbags)
     diffbot replay FILE.mcap        play a recording back onto the bus (--rate R | --fast)
     diffbot view [--port 8765]      watch live in Foxglove (3D, lidar, camera, plots) + teleop
@@ -41,7 +42,7 @@ CONTROLLERS = {
 USAGE = __doc__
 #: the sub-commands (for "did you mean")
 COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experiment", "figures",
-            "record", "replay", "topics", "echo", "router", "ros2", "scenarios",
+            "sweep", "record", "replay", "topics", "echo", "router", "ros2", "scenarios",
             "certs")
 
 
@@ -97,11 +98,14 @@ def _dispatch(argv: list[str] | None) -> int:
         from fmus.node import main as fmu_node_main
         return fmu_node_main(rest)
     if cmd == "experiment":
-        from .experiments import main as experiment_main
+        from .study.experiments import main as experiment_main
         return experiment_main(rest)
     if cmd == "figures":
-        from .figures import main as figures_main
+        from .study.figures import main as figures_main
         return figures_main(rest)
+    if cmd == "sweep":
+        from .sweep import main as sweep_main
+        return sweep_main(rest)
     if cmd == "bench":
         from .bench import main as bench_main
         return bench_main(rest)

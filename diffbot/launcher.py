@@ -268,6 +268,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "steps (pipelined lockstep, fast mode; same bytes); default: the "
                         "scenario's physics_process")
     p.add_argument("--seed", type=nonneg_int, default=0)
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a world key for this run (as `diffbot plant --set`, e.g. "
+                        "robots.follower.camera.noise.std=20); repeatable")
     p.add_argument("--out", default=None, help="output directory (default out/<scenario>)")
     p.add_argument("--endpoint", default=None,
                    help="Zenoh endpoint (default: a unix socket private to this run)")
@@ -334,7 +337,10 @@ def main(argv: list[str] | None = None) -> int:
         if spec.generate:
             os.makedirs(out, exist_ok=True)
             generate(spec, args, out)
-        world = load_world(spec.world)
+        for item in args.set:                  # after the scenario's own: they win
+            spec.plant_args += ["--set", item]
+        pa = spec.plant_args
+        world = load_world(spec.world, [v for k, v in zip(pa, pa[1:]) if k == "--set"])
         keys = Keys(args.namespace)
     except (WorldError, ValueError) as exc:
         print(f"diffbot run: {exc}", file=sys.stderr)

@@ -10,8 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from diffbot import figures
-from diffbot.figures_render import colour_fraction
+from diffbot.study import figures
+from diffbot.study.figures_render import colour_fraction
 
 from .conftest import ROOT
 

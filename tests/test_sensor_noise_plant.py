@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from diffbot.experiments import expected_clipped_std
+from diffbot.study.experiments import expected_clipped_std
 from plant import camera as cam
 from plant import lidar as lid
 from plant.raycast import Scene

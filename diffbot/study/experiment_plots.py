@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from .plots import plt, save
+from ..plots import plt, save
 
 
 def save_with_suptitle(fig, path: str, title: str) -> str:

@@ -31,7 +31,7 @@ from typing import Callable
 
 from bus.cliargs import ArgumentParser, nonneg_int, positive_float, positive_int
 
-from . import procs
+from .. import procs
 from .jobs import Job, Progress, read_json, run_jobs, stop_jobs
 from .report import build_report, write_outputs
 
@@ -63,7 +63,7 @@ JOBS = {j.name: j for j in (
     JobSpec("drive-test", ("run", "drive-test"), 5.5, "wheel speeds 1,1 then 1,-1 rad/s"),
     JobSpec("noisy-lidar", ("experiment", "noisy-lidar"), 5.0, "lidar scan with noise 0.2"),
     JobSpec("render", (), 3.5, "third-person renders of robot1 and the living room",
-            module="diffbot.figures_render"),
+            module="diffbot.study.figures_render"),
 )}
 
 
@@ -162,7 +162,7 @@ def _schedule(spec) -> list[tuple[float, float, float]]:
 def _drive_test(ctx: Context) -> tuple[dict, list, float, float, "object"]:
     from plant.world import load_world
 
-    from .scenario import load_scenario
+    from ..scenario import load_scenario
     s = ctx.summary("drive-test")
     spec = load_scenario("drive-test")
     drive = load_world(spec.world).robot(spec.robot).drive
@@ -178,7 +178,7 @@ def _velocity_plot(a, col: int, sched, expected: list[float], key: int, measured
                    dest: str) -> None:
     """One velocity against time, the schedule's phases shaded and labelled, the expected
     value of each phase dashed (phase ``key``'s value and formula written out)."""
-    from .plots import plt, save
+    from ..plots import plt, save
     fig, ax = plt.subplots(figsize=(8, 4.4))
     t0 = 0.0
     for i, (dur, left, right) in enumerate(sched):
@@ -325,7 +325,7 @@ def fig_odometry(ctx: Context, dest: str) -> Made:
 
 
 def _camera_plot(ctx: Context, name: str, dest: str, title: str) -> None:
-    from .plots import plt, save
+    from ..plots import plt, save
     img = plt.imread(ctx.file("camera", name))
     h, w = img.shape[:2]
     fig, ax = plt.subplots(figsize=(8, 8 * h / w + 0.6))

@@ -1,0 +1,129 @@
+"""The Ray engine: each run a Ray task on any node of a cluster (or of a Ray instance this
+process starts on its own machine), reserving the CPUs its processes use.
+
+The only module of ``diffbot`` that imports Ray (the ``cluster`` extra). A task is
+:func:`.task.execute` itself, so a run behaves the same wherever it lands. Ray re-runs a
+task whose worker or node died (``max_retries``); :func:`.core.run_all` re-submits a run
+that failed. Cancelling a running task raises ``KeyboardInterrupt`` in it, and
+``execute`` stops its command by PID before it returns: nothing is left on any node.
+
+:meth:`RayEngine.start_on` starts one command on a given node and gives back a handle
+whose result holds its exit code, summary and log tail: the building block for placing a
+scenario's processes on nodes.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import tempfile
+
+from .task import execute, unpack
+
+#: Ray's own retries of a task whose worker process or node died
+SYSTEM_RETRIES = 3
+#: how long a cancel waits for running tasks to stop their commands (s)
+CANCEL_WAIT_S = 40.0
+
+
+def _ray():
+    try:
+        import ray
+    except ImportError:
+        raise SystemExit("diffbot: --engine ray needs Ray: pip install -e '.[cluster]' "
+                         "(make setup installs it)") from None
+    return ray
+
+
+def _on_node(argv, out, log_path, timeout_s, driver_host):
+    """The task: :func:`execute` with the Ray node id as ``node``; the output folder comes
+    back in the result when this node is not the driver's machine."""
+    import ray
+    node = ray.get_runtime_context().get_node_id()
+    return execute(argv, out, log_path, timeout_s, node=node,
+                   ship=socket.gethostname() != driver_host)
+
+
+class RayEngine:
+    name = "ray"
+
+    def __init__(self, address: str | None = None, max_parallel: int | None = None) -> None:
+        ray = self.ray = _ray()
+        self._tmp = None
+        if address:
+            ray.init(address=address, log_to_driver=False, include_dashboard=False)
+        else:                                  # a private instance on this machine
+            self._tmp = tempfile.mkdtemp(prefix="diffbot-ray-")
+            ray.init(num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False,
+                     _temp_dir=self._tmp, _node_ip_address="127.0.0.1")
+        self.address = address or "local"
+        self._task = ray.remote(_on_node)
+        self._host = socket.gethostname()
+        self.slots = max_parallel              # None: every run queued in Ray at once
+        self.max_parallel = max_parallel
+        self._refs: dict = {}                  # ref -> run
+
+    def describe(self) -> str:
+        nodes = [n for n in self.ray.nodes() if n.get("Alive")]
+        cpus = self.ray.cluster_resources().get("CPU", 0)
+        return (f"Ray engine ({self.address}): {len(nodes)} node(s), {cpus:g} CPU(s)"
+                + (f", at most {self.max_parallel} run(s) at a time" if self.max_parallel else ""))
+
+    def nodes(self) -> list[dict]:
+        """The cluster's live nodes: id, address, CPUs."""
+        return [{"id": n["NodeID"], "address": n["NodeManagerAddress"],
+                 "cpus": n["Resources"].get("CPU", 0)}
+                for n in self.ray.nodes() if n.get("Alive")]
+
+    def submit(self, run, node_id: str | None = None):
+        """Queue ``run`` (its ``cpus`` reserved) on any node, spread over the cluster, or on
+        ``node_id`` only."""
+        if node_id:
+            from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+            strategy = NodeAffinitySchedulingStrategy(node_id, soft=False)
+        else:
+            strategy = "SPREAD"
+        ref = self._task.options(num_cpus=run.cpus, max_retries=SYSTEM_RETRIES,
+                                 scheduling_strategy=strategy, name=run.name).remote(
+            run.argv, run.out, run.log_path, run.timeout_s, self._host)
+        self._refs[ref] = run
+        return ref
+
+    def start_on(self, node_id: str, run):
+        """Start one command (a :class:`.core.Run`) on the given node; ``wait`` gives its
+        result (exit code, summary, log tail)."""
+        return self.submit(run, node_id)
+
+    def wait(self, handles: list, timeout_s: float) -> list[tuple]:
+        ready, _ = self.ray.wait(handles, num_returns=1, timeout=timeout_s)
+        if ready:                              # and whatever else is ready by now
+            ready, _ = self.ray.wait(handles, num_returns=len(handles), timeout=0)
+        return [(h, self._get(h)) for h in ready]
+
+    def _get(self, ref):
+        run = self._refs.pop(ref, None)
+        try:
+            result = self.ray.get(ref)
+        except Exception as exc:               # a task the cluster could not run
+            return exc
+        files = result.pop("files", None)
+        if files and run is not None:          # it ran on another machine: its folder
+            unpack(files, run.out)
+        return result
+
+    def cancel(self, handles: list) -> dict:
+        """Cancel queued tasks, interrupt running ones (they stop their commands) and wait
+        for them: a handle's result, or None for a run that never started."""
+        for h in handles:
+            self.ray.cancel(h, force=False)
+        ready, _ = self.ray.wait(handles, num_returns=len(handles), timeout=CANCEL_WAIT_S)
+        out = {}
+        for h in handles:
+            r = self._get(h) if h in ready else None
+            out[h] = None if isinstance(r, BaseException) else r
+        return out
+
+    def close(self) -> None:
+        self.ray.shutdown()
+        if self._tmp:
+            shutil.rmtree(self._tmp, ignore_errors=True)
