@@ -13,7 +13,9 @@ scenario's processes on nodes.
 """
 from __future__ import annotations
 
+import logging
 import os
+import secrets
 import shutil
 import socket
 import tempfile
@@ -50,12 +52,18 @@ class RayEngine:
     def __init__(self, address: str | None = None, max_parallel: int | None = None) -> None:
         ray = self.ray = _ray()
         self._tmp = None
-        if address:
-            ray.init(address=address, log_to_driver=False, include_dashboard=False)
+        quiet = dict(log_to_driver=False, logging_level=logging.WARNING)
+        if address:                            # (a cluster with token auth: RAY_AUTH_MODE
+            ray.init(address=address, **quiet)  # and RAY_AUTH_TOKEN come from the environment)
         else:                                  # a private instance on this machine
+            if not os.environ.get("RAY_AUTH_TOKEN"):
+                # its own token, in the environment only (Ray would otherwise write one
+                # into ~/.ray/auth_token for every later cluster of this user to find)
+                os.environ.setdefault("RAY_AUTH_MODE", "token")
+                os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
             self._tmp = tempfile.mkdtemp(prefix="diffbot-ray-")
-            ray.init(num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False,
-                     _temp_dir=self._tmp, _node_ip_address="127.0.0.1")
+            ray.init(num_cpus=os.cpu_count(), include_dashboard=False, _temp_dir=self._tmp,
+                     _node_ip_address="127.0.0.1", **quiet)
         self.address = address or "local"
         self._task = ray.remote(_on_node)
         self._host = socket.gethostname()

@@ -1,0 +1,83 @@
+"""A real Ray cluster on this machine for tests: a head and worker nodes, each a
+``ray start --block`` process of its own (own temp dir, free ports, 127.0.0.1 only, token
+auth), stopped by PID with its whole process tree -- never a global ``ray stop``, which
+would end other people's clusters on the same machine."""
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+from diffbot import procs
+
+RAY = os.path.join(os.path.dirname(sys.executable), "ray")
+PORT_OPTIONS = ("--node-manager-port", "--object-manager-port", "--metrics-export-port",
+                "--dashboard-agent-listen-port", "--dashboard-agent-grpc-port",
+                "--runtime-env-agent-port")
+
+
+def free_ports(n: int) -> list[int]:
+    socks = []
+    for _ in range(n):
+        s = socket.socket()
+        s.bind(("127.0.0.1", 0))
+        socks.append(s)
+    ports = [s.getsockname()[1] for s in socks]
+    for s in socks:
+        s.close()
+    return ports
+
+
+class Cluster:
+    def __init__(self) -> None:
+        self.tmp = tempfile.mkdtemp(prefix="dbray-", dir="/tmp")   # short: unix sockets
+        self.env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32),
+                        RAY_USAGE_STATS_ENABLED="0",
+                        # a dead node is noticed in ~3 s instead of ~30 s
+                        RAY_health_check_period_ms="1000", RAY_health_check_timeout_ms="1000",
+                        RAY_health_check_failure_threshold="3")
+        self.nodes: list[procs.Child] = []
+        self.address = ""
+
+    def start_node(self, num_cpus: int, head: bool = False) -> procs.Child:
+        i = len(self.nodes)
+        ports = free_ports(len(PORT_OPTIONS) + 1 + 10)
+        argv = [RAY, "start", "--block", "--node-ip-address=127.0.0.1", f"--num-cpus={num_cpus}",
+                "--disable-usage-stats", "--include-log-monitor=false",
+                *[f"{o}={p}" for o, p in zip(PORT_OPTIONS, ports)],
+                f"--worker-port-list={','.join(map(str, ports[len(PORT_OPTIONS) + 1:]))}"]
+        if head:
+            self.address = f"127.0.0.1:{ports[len(PORT_OPTIONS)]}"
+            argv += ["--head", f"--port={ports[len(PORT_OPTIONS)]}", "--include-dashboard=false",
+                     f"--temp-dir={self.tmp}"]
+        else:
+            argv += [f"--address={self.address}"]
+        node = procs.Child(f"ray{i}", argv, os.path.join(self.tmp, f"node{i}.log"),
+                           env=self.env, die_with_parent=True).start()
+        self.nodes.append(node)
+        return node
+
+    def wait_nodes(self, n: int, timeout_s: float = 60.0) -> None:
+        """Wait until ``ray status`` shows ``n`` live nodes."""
+        deadline = time.monotonic() + timeout_s
+        out = ""
+        while time.monotonic() < deadline:
+            for node in self.nodes:
+                if node.poll() is not None:
+                    raise RuntimeError(f"{node.name} exited {node.exit_code}:\n{node.tail(30)}")
+            r = subprocess.run([RAY, "status", f"--address={self.address}"], env=self.env,
+                               capture_output=True, text=True, timeout=60)
+            out = r.stdout
+            if r.returncode == 0 and out.count(" node_") >= n:
+                return
+            time.sleep(1.0)
+        raise RuntimeError(f"not {n} Ray nodes after {timeout_s:g} s:\n{out}")
+
+    def stop(self) -> None:
+        procs.stop(self.nodes, grace_s=10.0)
+        shutil.rmtree(self.tmp, ignore_errors=True)
