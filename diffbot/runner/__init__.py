@@ -37,8 +37,9 @@ def make_engine(name: str, address: str | None = None, max_parallel: int | None 
     return LocalEngine(max_parallel or default_parallel(cpus_per_run))
 
 
-def add_engine_args(p, default_parallel_help: str) -> None:
-    """``--engine``, ``--address``, ``--max-parallel`` on a command's parser."""
+def add_engine_args(p, default_parallel_help: str | None) -> None:
+    """``--engine``, ``--address`` and (unless ``default_parallel_help`` is None: the
+    command has its own option for it) ``--max-parallel`` on a command's parser."""
     from bus.cliargs import positive_int
     p.add_argument("--engine", choices=ENGINES, default="local",
                    help="where runs go: local (a process pool on this machine, the default) "
@@ -46,5 +47,7 @@ def add_engine_args(p, default_parallel_help: str) -> None:
     p.add_argument("--address", default=None, metavar="auto|HOST:PORT",
                    help="the Ray cluster to use with --engine ray (auto: the one this "
                         "machine belongs to); default: start a Ray instance on this machine")
+    if default_parallel_help is None:
+        return
     p.add_argument("--max-parallel", type=positive_int, default=None, metavar="N",
                    help=f"runs at the same time ({default_parallel_help})")

@@ -129,6 +129,10 @@ def run_all(runs: list[Run], engine, stop_flag: list, say: Progress,
             run.attempts += 1
             run.status = "running"
             pending[engine.submit(run)] = run
+            if not say.bar:
+                what = getattr(run.spec, "what", "")
+                say(f"{'start' if engine.name == 'local' else 'submit'} {run.name}"
+                    f"{': ' + what if what else ''} (log {run.log_path})")
         for h, result in engine.wait(list(pending), timeout_s=0.2):
             run = pending.pop(h)
             if isinstance(result, BaseException):        # the engine could not run it

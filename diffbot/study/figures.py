@@ -2,7 +2,9 @@
 
 Every figure comes from a run of this project's own commands, each started as a
 ``diffbot`` subprocess into ``DIR/runs/<job>/`` (its stdout and stderr in
-``DIR/runs/<job>.log``); independent jobs run in parallel (``--jobs``, longest first).
+``DIR/runs/<job>.log``); independent jobs run in parallel (``--jobs``, longest first),
+through :mod:`diffbot.runner`: on this machine, or as Ray tasks (``--engine ray``,
+``--address``; the runs' folders come back to ``DIR`` from another machine).
 A figure is copied from its run's output or re-plotted from its CSV/PNG; nothing here
 re-implements an experiment. Then ``DIR`` holds::
 
@@ -11,9 +13,9 @@ re-implements an experiment. Then ``DIR`` holds::
     REPORT.md     the same in Markdown
     figures.json  all the numbers, the parameters and each job's command, exit code and times
 
-Ctrl-C (or SIGTERM) sends SIGINT to every running job by PID (each job stops its own
-processes), then SIGKILLs by PID whatever of a job's process tree is left after a grace
-period; the report is still written for what finished. Exit codes: 0 all figures
+Ctrl-C (or SIGTERM) cancels the queued jobs and stops the running ones (each by PID:
+SIGINT, a grace period, SIGKILL to its process tree); the report is still written for
+what finished. Exit codes: 0 all figures
 written, 1 a job or a figure failed (the others are still written), 2 bad arguments,
 130 interrupted.
 """
@@ -31,8 +33,8 @@ from typing import Callable
 
 from bus.cliargs import ArgumentParser, nonneg_int, positive_float, positive_int
 
-from .. import procs
-from .jobs import Job, Progress, read_json, run_jobs, stop_jobs
+from .. import runner
+from ..runner import Progress, read_json
 from .report import build_report, write_outputs
 
 EXIT_FAILED = 1
@@ -49,10 +51,12 @@ class JobSpec:
     est_s: float                 # measured wall time alone on the 2-core machine: run longest first
     what: str
     module: str = ""             # run `python -m module` instead of `diffbot`
+    cpus: float = 1.0            # CPUs its processes keep busy (pipelined lockstep: 2)
 
 
 JOBS = {j.name: j for j in (
-    JobSpec("follow", ("run", "follow"), 48.0, "follow scenario: leader + camera follower, 60 s"),
+    JobSpec("follow", ("run", "follow"), 48.0, "follow scenario: leader + camera follower, 60 s",
+            cpus=2.0),
     JobSpec("motion-noise", ("experiment", "motion-noise"), 45.0,
             "100 noisy open-loop 0.3 m runs in one plant"),
     JobSpec("square", ("run", "square"), 18.0, "1.5 m square on odometry vs GPS"),
@@ -99,7 +103,7 @@ class FigureError(Exception):
 @dataclass
 class Context:
     out: str
-    jobs: dict[str, Job]
+    jobs: dict[str, runner.Run]
 
     def run_dir(self, job: str) -> str:
         return self.jobs[job].out
@@ -497,6 +501,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=nonneg_int, default=0, help="seed for every run (default 0)")
     p.add_argument("--timeout", type=positive_float, default=480.0, metavar="S",
                    help="wall-clock limit per job (default 480 s)")
+    runner.add_engine_args(p, None)
     return p
 
 
@@ -515,24 +520,30 @@ def main(argv: list[str] | None = None) -> int:
             if os.path.exists(os.path.join(out, name)):
                 os.remove(os.path.join(out, name))
     needed = sorted({j for n in numbers for j in FIGURES[n].jobs}, key=list(JOBS).index)
-    jobs = {name: Job(JOBS[name], os.path.join(runs, name), os.path.join(runs, f"{name}.log"),
-                      job_argv(JOBS[name], os.path.join(runs, name), args.seed))
+    jobs = {name: runner.Run(name, job_argv(JOBS[name], os.path.join(runs, name), args.seed),
+                             os.path.join(runs, name), os.path.join(runs, f"{name}.log"),
+                             est_s=JOBS[name].est_s, cpus=JOBS[name].cpus,
+                             timeout_s=args.timeout, spec=JOBS[name])
             for name in needed}
     ctx = Context(out, jobs)
-    say = Progress()
+    say = Progress("figures", bar=False)
+    try:
+        engine = runner.make_engine(args.engine, args.address, args.jobs)
+    except (ValueError, RuntimeError, ConnectionError) as exc:
+        print(f"diffbot figures: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     say(f"{len(numbers)} figure(s) ({_ranges(numbers)}) from {len(jobs)} job(s) "
-        f"({', '.join(needed)}), {args.jobs} at a time on {os.cpu_count()} CPU(s), seed "
-        f"{args.seed}; output in {out}")
+        f"({', '.join(needed)}) on the {engine.describe()}, seed {args.seed}; output in {out}")
     results: dict[int, dict] = {}
 
-    def on_done(job: Job) -> None:
+    def on_done(job: runner.Run) -> None:
         for n in numbers:
             f = FIGURES[n]
             if n in results or job.name not in f.jobs:
                 continue
             if all(jobs[j].status == "ok" for j in f.jobs):
                 results[n] = make_figure(ctx, f, say)
-            elif all(jobs[j].exit_code is not None for j in f.jobs):
+            elif all(jobs[j].status not in ("waiting", "running") for j in f.jobs):
                 bad = [j for j in f.jobs if jobs[j].status != "ok"]
                 results[n] = {"status": "not made",
                               "error": f"job {', '.join(bad)} {jobs[bad[0]].status} "
@@ -541,18 +552,17 @@ def main(argv: list[str] | None = None) -> int:
     stop_flag: list[str] = []
 
     def on_signal(signum, frame):
-        if stop_flag:                               # a second Ctrl-C: no more grace
-            for j in jobs.values():
-                procs.kill_tree(j)
         stop_flag.append(signal.Signals(signum).name)
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     t0 = time.monotonic()
     try:
-        run_jobs(list(jobs.values()), args.jobs, args.timeout, stop_flag, say, on_done)
+        runner.run_all(list(jobs.values()), engine, stop_flag, say, on_done)
     finally:
-        stop_jobs(list(jobs.values()))              # nothing outlives us, even on an error
-        for s, h in old.items():
-            signal.signal(s, h)
+        try:
+            engine.close()                          # nothing outlives us, even on an error
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
     wall = time.monotonic() - t0
     for n in numbers:
         results.setdefault(n, {"status": "not made", "error": "interrupted before its jobs finished"

@@ -75,7 +75,7 @@ def build_report(figures: dict, ctx, numbers: list[int], results: dict, args, wa
                                   str(args.seed)] if not j.spec.module
                       else ["python", "-m", j.spec.module, "--out", j.out],
                       "what": j.spec.what, "status": j.status, "exit_code": j.exit_code,
-                      "wall_time_s": j.wall_s, "real_time_factor": rtf,
+                      "wall_time_s": j.wall_s, "real_time_factor": rtf, "node": j.node,
                       "sim_time_s": s.get("sim_time_s", s.get("run", {}).get("sim_time_s"))
                       if s else None,
                       "out": os.path.relpath(j.out, ctx.out),

@@ -1,0 +1,88 @@
+"""`diffbot sweep --engine ray --address` on a real two-node Ray cluster on this machine
+(tests/ray_cluster.py): runs land on both nodes, give the local engine's metrics to the
+bit, and a worker node killed mid-sweep loses no row."""
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+from diffbot import procs as dprocs
+
+from .conftest import wait_for
+from .test_sweep import NOISE, read_rows
+
+ray = pytest.importorskip("ray", reason="the [cluster] extra (make setup installs it)")
+from .ray_cluster import Cluster  # noqa: E402
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(420)]
+SWEEP = ("sweep", "drive-test", "--grid", f"{NOISE}=0.05,0.2", "--seeds", "0-2",
+         "--duration", "10.5")
+#: what must be identical between engines: the parameters and every metric
+NOT_COMPARED = {"run", "wall_time_s", "real_time_factor", "node", "host", "out", "log_tail"}
+
+
+@pytest.fixture
+def cluster():
+    c = Cluster()
+    try:
+        c.start_node(1, head=True)
+        c.wait_nodes(1)
+        c.start_node(1)
+        c.wait_nodes(2)
+        yield c
+    finally:
+        pids = {p for n in c.nodes if n.pid for p in [n.pid, *dprocs.descendants(n.pid)]}
+        c.stop()
+        assert not [p for p in pids if dprocs.alive(p)], "a Ray process outlived the cluster"
+
+
+def sweep(procs, out: str, *extra: str, env=None):
+    p = procs.diffbot(*SWEEP, "--out", out, *extra, env=env)
+    return p
+
+
+def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster, procs,
+                                                                        tmp_path):
+    env = dict(os.environ, **{k: v for k, v in cluster.env.items() if k.startswith("RAY_")})
+    local = str(tmp_path / "local")
+    p = sweep(procs, local)
+    assert p.wait(150) == 0, procs.log(p)
+
+    on_ray = str(tmp_path / "ray")
+    p = sweep(procs, on_ray, "--engine", "ray", "--address", cluster.address, env=env)
+    assert p.wait(150) == 0, procs.log(p)
+    rows, ref = read_rows(on_ray), read_rows(local)
+    assert len({r["node"] for r in rows}) == 2, [r["node"] for r in rows]
+    for a, b in zip(rows, ref):
+        assert a["status"] == "ok"
+        assert {k: v for k, v in a.items() if k not in NOT_COMPARED} == \
+            {k: v for k, v in b.items() if k not in NOT_COMPARED}
+
+    # the worker node dies while its runs are in flight: Ray runs them again on the head
+    killed = str(tmp_path / "killed")
+    p = sweep(procs, killed, "--engine", "ray", "--address", cluster.address, env=env)
+    worker = cluster.nodes[1]
+
+    def run_on_worker() -> bool:
+        return any("diffbot.cli run" in _cmdline(pid) for pid in dprocs.descendants(worker.pid))
+    wait_for(run_on_worker, 120, 0.05, "a run on the worker node")
+    time.sleep(0.5)
+    dprocs.stop([worker], grace_s=0.0, sig=9)            # the whole node, at once
+    t_kill = time.monotonic()
+    assert p.wait(240) == 0, procs.log(p)
+    rows = read_rows(killed)
+    assert len(rows) == 6 and all(r["status"] == "ok" for r in rows), rows
+    for a, b in zip(rows, ref):
+        assert {k: v for k, v in a.items() if k not in NOT_COMPARED} == \
+            {k: v for k, v in b.items() if k not in NOT_COMPARED}
+    assert time.monotonic() - t_kill < 200
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode("utf-8", "replace")
+    except OSError:
+        return ""
