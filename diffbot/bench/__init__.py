@@ -44,7 +44,8 @@ __all__ = ["DEFAULT_REPEATS", "QUICK_REPEATS", "ROOT", "SUITES", "Case", "Contex
            "stats", "suite", "table", "load_suites"]
 
 #: the shipped suites' modules, in the order ``--list`` shows and a full run runs them
-ORDER = ("physics", "lidar", "camera", "messages", "roundtrip", "lockstep", "scenario", "fmu")
+ORDER = ("physics", "lidar", "camera", "messages", "roundtrip", "lockstep", "scenario", "fmu",
+         "sweep")
 _NOT_SUITES = {"harness", "common", "echo", "__main__"}
 
 
