@@ -11,7 +11,7 @@ import pytest
 from diffbot import procs as dprocs
 
 from .conftest import wait_for
-from .test_sweep import NOISE, read_rows
+from .test_sweep import NOISE, _cmdline, read_rows
 
 ray = pytest.importorskip("ray", reason="the [cluster] extra (make setup installs it)")
 from .ray_cluster import Cluster  # noqa: E402
@@ -79,10 +79,3 @@ def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster
             {k: v for k, v in b.items() if k not in NOT_COMPARED}
     assert time.monotonic() - t_kill < 200
 
-
-def _cmdline(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            return f.read().replace(b"\0", b" ").decode("utf-8", "replace")
-    except OSError:
-        return ""

@@ -15,11 +15,11 @@ stops running ones.
 """
 from __future__ import annotations
 
-from .core import Progress, Run, indent, run_all
+from .core import Progress, Run, indent, run_all, run_until_done
 from .local import LocalEngine, default_parallel
 from .task import execute, read_json
 
-__all__ = ["Progress", "Run", "run_all", "indent", "execute", "read_json", "make_engine",
+__all__ = ["Progress", "Run", "run_all", "run_until_done", "indent", "execute", "read_json", "make_engine",
            "LocalEngine", "default_parallel", "add_engine_args", "ENGINES"]
 
 ENGINES = ("local", "ray")

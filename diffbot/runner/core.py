@@ -9,6 +9,7 @@ goes; the run itself is :func:`.task.execute` wherever it lands.
 """
 from __future__ import annotations
 
+import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -165,6 +166,27 @@ def run_all(runs: list[Run], engine, stop_flag: list, say: Progress,
         if not say.bar and pending and now - last_beat >= HEARTBEAT_S:
             last_beat = now
             say(f"{done}/{len(runs)} done, {len(pending)} submitted, {len(queue)} waiting")
+
+
+def run_until_done(runs: list[Run], engine, say: Progress,
+                   on_done: Callable[[Run], None] = lambda r: None, retries: int = 0) -> list[str]:
+    """:func:`run_all` with Ctrl-C and SIGTERM turned into a stop request, the engine closed
+    afterwards whatever happens (nothing outlives us), the handlers restored. Returns the
+    names of the signals that stopped it (empty: it ran to the end)."""
+    stop_flag: list[str] = []
+
+    def on_signal(signum, frame):
+        stop_flag.append(signal.Signals(signum).name)
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        run_all(runs, engine, stop_flag, say, on_done, retries)
+    finally:
+        try:
+            engine.close()
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
+    return stop_flag
 
 
 def indent(text: str) -> str:

@@ -25,7 +25,6 @@ import argparse
 import math
 import os
 import shutil
-import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -549,20 +548,8 @@ def main(argv: list[str] | None = None) -> int:
                               "error": f"job {', '.join(bad)} {jobs[bad[0]].status} "
                                        f"(exit code {jobs[bad[0]].exit_code})"}
 
-    stop_flag: list[str] = []
-
-    def on_signal(signum, frame):
-        stop_flag.append(signal.Signals(signum).name)
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     t0 = time.monotonic()
-    try:
-        runner.run_all(list(jobs.values()), engine, stop_flag, say, on_done)
-    finally:
-        try:
-            engine.close()                          # nothing outlives us, even on an error
-        finally:
-            for s, h in old.items():
-                signal.signal(s, h)
+    stop_flag = runner.run_until_done(list(jobs.values()), engine, say, on_done)
     wall = time.monotonic() - t0
     for n in numbers:
         results.setdefault(n, {"status": "not made", "error": "interrupted before its jobs finished"

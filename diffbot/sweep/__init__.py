@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 import time
 
@@ -155,20 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     say(f"{spec.name}: {len(pts)} run(s) ({' x '.join(str(len(a.texts)) for a in axes) or '1'}"
         f" point(s) x {len(seeds)} seed(s)); {len(runs) - len(todo)} already done in {out}, "
         f"{len(todo)} to run on the {engine.describe()}")
-    stop_flag: list[str] = []
-
-    def on_signal(signum, frame):
-        stop_flag.append(signal.Signals(signum).name)
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     t0 = time.monotonic()
-    try:
-        runner.run_all(todo, engine, stop_flag, say, on_done, retries=args.retries)
-    finally:
-        try:
-            engine.close()
-        finally:
-            for s, h in old.items():
-                signal.signal(s, h)
+    stop_flag = runner.run_until_done(todo, engine, say, on_done, args.retries)
     wall = time.monotonic() - t0
     all_rows = [rows[r] for r in order if r in rows]
     written = write_table(all_rows, params, out) if all_rows else []
