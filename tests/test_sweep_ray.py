@@ -23,7 +23,7 @@ SWEEP = ("sweep", "drive-test", "--grid", f"{NOISE}=0.05,0.2", "--seeds", "0-2",
 NOT_COMPARED = {"run", "wall_time_s", "real_time_factor", "node", "host", "out", "log_tail"}
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def cluster():
     c = Cluster()
     try:
@@ -43,9 +43,31 @@ def sweep(procs, out: str, *extra: str, env=None):
     return p
 
 
+def ray_env(cluster) -> dict:
+    return dict(os.environ, **{k: v for k, v in cluster.env.items() if k.startswith("RAY_")})
+
+
+def test_ctrl_c_stops_the_runs_on_every_node(cluster, procs, tmp_path):
+    out = str(tmp_path / "stopped")
+    p = procs.diffbot("sweep", "follow", "--grid", "robots.follower.camera.noise.std=0,10",
+                      "--duration", "300", "--cpus-per-run", "1", "--out", out,
+                      "--engine", "ray", "--address", cluster.address, env=ray_env(cluster))
+
+    def runs_on(node) -> list[int]:
+        return [pid for pid in dprocs.descendants(node.pid) if out in _cmdline(pid)]
+    wait_for(lambda: all(runs_on(n) for n in cluster.nodes), 120, 0.1, "a run on each node")
+    time.sleep(1.0)
+    tree = [pid for n in cluster.nodes for pid in dprocs.descendants(n.pid)
+            if "diffbot.cli" in _cmdline(pid)]
+    p.send_signal(2)
+    assert p.wait(120) == 130, procs.log(p)
+    assert not [pid for pid in tree if dprocs.alive(pid)]
+    assert [r["status"] for r in read_rows(out)] == ["interrupted", "interrupted"]
+
+
 def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster, procs,
                                                                         tmp_path):
-    env = dict(os.environ, **{k: v for k, v in cluster.env.items() if k.startswith("RAY_")})
+    env = ray_env(cluster)
     local = str(tmp_path / "local")
     p = sweep(procs, local)
     assert p.wait(150) == 0, procs.log(p)

@@ -10,6 +10,7 @@ apart; it is paid once per sweep.
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 import tempfile
@@ -51,22 +52,21 @@ def batch(ctx: Context, engine_name: str, n: int, parallel: int | None) -> dict:
 @suite("sweep", "the runner: runs per minute of a batch of short drive-test runs and the "
                 "per-run overhead, local engine and a local Ray instance")
 def sweep_suite(ctx: Context):
-    n = 4 if ctx.quick else 8
+    n = 4 if ctx.quick else 6
     engines = ["local"]
-    try:
-        import ray  # noqa: F401
+    if importlib.util.find_spec("ray"):      # (not imported here: see ray_engine)
         engines.append("ray")
-    except ImportError:                      # the [cluster] extra is missing: local only
+    else:                                    # the [cluster] extra is missing: local only
         ctx.progress("bench sweep: ray is not installed; the local engine only")
     for name in engines:
         yield Probe(f"{name}: {n} runs, machine-wide", lambda name=name: batch(ctx, name, n, None), [
             Metric("runs_per_min", f"{name}: runs per minute ({n} x drive-test {SIM_S:g} s, "
                                    "all CPUs)", "runs/min"),
             Metric("run_wall_s", f"{name}: one run's own wall time (parallel)"),
-        ], repeats=1 if ctx.quick else 3)
+        ], repeats=1 if ctx.quick else 2)
         yield Probe(f"{name}: {n} runs, one at a time", lambda name=name: batch(ctx, name, n, 1), [
             Metric("overhead_s", f"{name}: per-run overhead (batch wall - runs' wall) / runs",
                    notes="submit, schedule, result back; the run's own start-up not included"),
             Metric("run_wall_s", f"{name}: one run's own wall time (serial)"),
             Metric("startup_s", f"{name}: engine start-up (once per sweep)"),
-        ], repeats=1 if ctx.quick else 3)
+        ], repeats=1 if ctx.quick else 2)

@@ -18,19 +18,25 @@ import os
 import secrets
 import shutil
 import socket
+import sys
 import tempfile
+import time
 
-from .task import execute, unpack
+from .task import STOP_GRACE_S, execute, unpack
 
 #: Ray's own retries of a task whose worker process or node died
 SYSTEM_RETRIES = 3
 #: how long a cancel waits for running tasks to stop their commands (s)
-CANCEL_WAIT_S = 40.0
+CANCEL_WAIT_S = STOP_GRACE_S + 30.0
 
 
 def _ray():
+    already = "ray" in sys.modules
     try:
         import ray
+        if already:                            # it read RAY_AUTH_MODE before we set it
+            from ray._raylet import Config
+            Config.initialize("")
     except ImportError:
         raise SystemExit("diffbot: --engine ray needs Ray: pip install -e '.[cluster]' "
                          "(make setup installs it)") from None
@@ -46,21 +52,32 @@ def _on_node(argv, out, log_path, timeout_s, driver_host):
                    ship=socket.gethostname() != driver_host)
 
 
+def _started(run, since: float) -> bool:
+    """A cancelled task had started its run: the run's log was written after it was
+    submitted (Ray reports running and queued tasks alike as cancelled; the log is seen
+    where the output folder is shared with the driver's machine)."""
+    try:
+        return os.path.getmtime(run.log_path) >= since
+    except OSError:
+        return False
+
+
 class RayEngine:
     name = "ray"
 
     def __init__(self, address: str | None = None, max_parallel: int | None = None) -> None:
+        if not address and not os.environ.get("RAY_AUTH_TOKEN"):
+            # a private instance gets its own token, in the environment only (Ray would
+            # otherwise write one into ~/.ray/auth_token for this user's later clusters);
+            # set before Ray reads its configuration, at import
+            os.environ.setdefault("RAY_AUTH_MODE", "token")
+            os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
         ray = self.ray = _ray()
         self._tmp = None
         quiet = dict(log_to_driver=False, logging_level=logging.WARNING)
         if address:                            # (a cluster with token auth: RAY_AUTH_MODE
             ray.init(address=address, **quiet)  # and RAY_AUTH_TOKEN come from the environment)
         else:                                  # a private instance on this machine
-            if not os.environ.get("RAY_AUTH_TOKEN"):
-                # its own token, in the environment only (Ray would otherwise write one
-                # into ~/.ray/auth_token for every later cluster of this user to find)
-                os.environ.setdefault("RAY_AUTH_MODE", "token")
-                os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
             self._tmp = tempfile.mkdtemp(prefix="diffbot-ray-")
             ray.init(num_cpus=os.cpu_count(), include_dashboard=False, _temp_dir=self._tmp,
                      _node_ip_address="127.0.0.1", **quiet)
@@ -70,6 +87,7 @@ class RayEngine:
         self.slots = max_parallel              # None: every run queued in Ray at once
         self.max_parallel = max_parallel
         self._refs: dict = {}                  # ref -> run
+        self._submitted: dict = {}             # ref -> when (wall clock)
 
     def describe(self) -> str:
         nodes = [n for n in self.ray.nodes() if n.get("Alive")]
@@ -91,11 +109,16 @@ class RayEngine:
             strategy = NodeAffinitySchedulingStrategy(node_id, soft=False)
         else:
             strategy = "SPREAD"
-        ref = self._task.options(num_cpus=run.cpus, max_retries=SYSTEM_RETRIES,
+        # more CPUs than the largest node has would queue it forever
+        ref = self._task.options(num_cpus=min(run.cpus, self._largest_node()), max_retries=SYSTEM_RETRIES,
                                  scheduling_strategy=strategy, name=run.name).remote(
             run.argv, run.out, run.log_path, run.timeout_s, self._host)
         self._refs[ref] = run
+        self._submitted[ref] = time.time()
         return ref
+
+    def _largest_node(self) -> float:
+        return max((n["cpus"] for n in self.nodes()), default=1.0) or 1.0
 
     def start_on(self, node_id: str, run):
         """Start one command (a :class:`.core.Run`) on the given node; ``wait`` gives its
@@ -127,8 +150,12 @@ class RayEngine:
         ready, _ = self.ray.wait(handles, num_returns=len(handles), timeout=CANCEL_WAIT_S)
         out = {}
         for h in handles:
+            run = self._refs.get(h)
             r = self._get(h) if h in ready else None
             out[h] = None if isinstance(r, BaseException) else r
+            if out[h] is None and run is not None and _started(run, self._submitted.get(h, 0)):
+                out[h] = {"status": "interrupted", "exit_code": None, "wall_time_s": None,
+                          "summary": {}, "log_tail": "", "node": "", "host": ""}
         return out
 
     def close(self) -> None:
