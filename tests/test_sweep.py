@@ -138,3 +138,18 @@ def _cmdline(pid: int) -> str:
             return f.read().replace(b"\0", b" ").decode("utf-8", "replace")
     except OSError:
         return ""
+
+
+def test_a_run_folder_from_another_machine_arrives_whole(tmp_path):
+    from diffbot.runner.task import pack, unpack
+    src = tmp_path / "remote"
+    (src / "logs").mkdir(parents=True)
+    (src / "summary.json").write_text('{"metrics": {"x": 1.5}}')
+    (src / "logs" / "plant.log").write_bytes(b"\x00\xffbinary")
+    dest = tmp_path / "here"
+    dest.mkdir()
+    (dest / "stale.txt").write_text("from an earlier attempt")
+    unpack(pack(str(src)), str(dest))
+    assert sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*")) == \
+        ["logs", "logs/plant.log", "summary.json"]
+    assert (dest / "logs" / "plant.log").read_bytes() == b"\x00\xffbinary"
