@@ -13,6 +13,7 @@ from diffbot.sweep.grid import parse_axis, parse_seeds, points, split_values
 from diffbot.sweep.table import flatten
 
 from .conftest import wait_for
+from .test_exposure import cmdline as _cmdline
 
 NOISE = "robots.robot1.motion.command_noise_std_radps"
 
@@ -131,13 +132,6 @@ def test_ctrl_c_cancels_queued_runs_and_stops_running_ones(procs, tmp_path):
     status = sorted(r["status"] for r in rows)
     assert status.count("interrupted") == 2 and status.count("skipped") == 6, status
 
-
-def _cmdline(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            return f.read().replace(b"\0", b" ").decode("utf-8", "replace")
-    except OSError:
-        return ""
 
 
 def test_a_run_folder_from_another_machine_arrives_whole(tmp_path):
