@@ -79,8 +79,12 @@ class RayEngine:
             ray.init(address=address, **quiet)  # and RAY_AUTH_TOKEN come from the environment)
         else:                                  # a private instance on this machine
             self._tmp = tempfile.mkdtemp(prefix="diffbot-ray-")
-            ray.init(num_cpus=os.cpu_count(), include_dashboard=False, _temp_dir=self._tmp,
-                     _node_ip_address="127.0.0.1", **quiet)
+            try:
+                ray.init(num_cpus=os.cpu_count(), include_dashboard=False,
+                         _temp_dir=self._tmp, _node_ip_address="127.0.0.1", **quiet)
+            except BaseException:
+                shutil.rmtree(self._tmp, ignore_errors=True)
+                raise
         self.address = address or "local"
         self._task = ray.remote(_on_node)
         self._host = socket.gethostname()
