@@ -105,6 +105,15 @@ FMU_INTERNAL const char *variableName(unsigned int vr);
 FMU_INTERNAL Status getFloat64(ModelInstance *comp, unsigned int vr, double *value);
 FMU_INTERNAL Status setFloat64(ModelInstance *comp, unsigned int vr, double value);
 
+#ifndef HAS_INT32
+#define HAS_INT32 0   /* config.h: 1 if the model has Int32 (FMI 2: Integer) variables */
+#endif
+#if HAS_INT32
+/* Get / set one Int32 (FMI 2: Integer) variable, as getFloat64 / setFloat64. */
+FMU_INTERNAL Status getInt32(ModelInstance *comp, unsigned int vr, int *value);
+FMU_INTERNAL Status setInt32(ModelInstance *comp, unsigned int vr, int value);
+#endif
+
 /* Model exchange: continuous states, nominals and derivatives (arrays of NX). */
 FMU_INTERNAL void getContinuousStates(ModelInstance *comp, double x[], size_t nx);
 FMU_INTERNAL Status setContinuousStates(ModelInstance *comp, const double x[], size_t nx);
