@@ -53,7 +53,7 @@ class RateMeter:
                     s[3] = t if s[3] is None else min(s[3], t)
                     s[4] = t if s[4] is None else max(s[4], t)
 
-    def table(self, keys: Keys) -> list[dict]:
+    def table(self, keys: Keys, types: dict[str, str] | None = None) -> list[dict]:
         rows = []
         with self.lock:
             items = sorted(self.seen.items())
@@ -61,7 +61,8 @@ class RateMeter:
             hz = (n - 1) / (w1 - w0) if n > 1 and w1 > w0 else None
             sim_hz = ((n - 1) / ((s1 - s0) * 1e-9)
                       if n > 1 and s0 is not None and s1 is not None and s1 > s0 else None)
-            rows.append({"key": key, "type": keys.msgtype_of(key) or "-", "count": n,
+            kind = keys.msgtype_of(key) or (types or {}).get(key) or "-"
+            rows.append({"key": key, "type": kind, "count": n,
                          "hz": hz, "sim_hz": sim_hz})
         return rows
 
@@ -73,6 +74,26 @@ def alive_nodes(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> l
         if reply.ok is not None:
             names.append(keys.node_of(str(reply.ok.key_expr)))
     return sorted(set(names))
+
+
+def fmu_nodes(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> list[dict]:
+    """What the FMU nodes answer on ``fmu/<instance>/info`` (docs/fmu.md)."""
+    out = []
+    for reply in session.get(keys.fmu_info("*"), target=zenoh.QueryTarget.ALL,
+                             consolidation=zenoh.ConsolidationMode.NONE,
+                             timeout=timeout_s):
+        if reply.ok is not None:
+            try:
+                out.append(json.loads(reply.ok.payload.to_bytes()))
+            except ValueError:
+                continue
+    return sorted(out, key=lambda i: str(i.get("instance")))
+
+
+def _fmu_types(infos: list[dict]) -> dict[str, str]:
+    """key -> message type of every FMU node's variables."""
+    return {v["key"]: v["type"] for i in infos for v in i.get("variables", ())
+            if isinstance(v, dict) and v.get("key") and v.get("type")}
 
 
 def _fmt_hz(v) -> str:
@@ -105,11 +126,12 @@ def topics_main(argv: list[str] | None = None) -> int:
             pass
         sub.undeclare()
         nodes = alive_nodes(session, keys)
+        fmus = fmu_nodes(session, keys)
     finally:
         session.close()
-    rows = meter.table(keys)
+    rows = meter.table(keys, _fmu_types(fmus))
     if args.json:
-        print(jsonio.dumps({"topics": rows, "nodes": nodes}, indent=2))
+        print(jsonio.dumps({"topics": rows, "nodes": nodes, "fmus": fmus}, indent=2))
         return EXIT_OK
     if not rows:
         print(f"no messages in {args.duration:g} s on {args.endpoint or args.zenoh_config} "
@@ -122,6 +144,10 @@ def topics_main(argv: list[str] | None = None) -> int:
         print(f"{r['key']:{w}s}  {r['type']:{tw}s}  {_fmt_hz(r['hz'])}  "
               f"{_fmt_hz(r['sim_hz'])}  {r['count']:7d}")
     print(f"nodes alive: {', '.join(nodes) or 'none'}")
+    for i in fmus:
+        step = f"own step {i['step_size_s']:g} s" if i.get("step_size_s") else "step per tick"
+        print(f"FMU {i.get('instance')} ({i.get('fmu')}, FMI {i.get('fmi_version')}, {step}, "
+              f"start at {i.get('start')}): fmu/{i.get('instance')}/info")
     return EXIT_OK if rows else EXIT_NOTHING
 
 

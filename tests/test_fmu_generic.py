@@ -190,6 +190,14 @@ def test_missing_binary_names_the_platforms_shipped_and_how_to_compile(models, t
     assert f"`fmpy compile {other}`" in line
 
 
+def test_zenoh_errors_carry_no_rust_source_paths():
+    from bus.session import zenoh_error
+    exc = RuntimeError("Unable to connect to any of [Single(unixsock-stream//tmp/b.sock)]. "
+                       "Timeout! at /root/.cargo/git/checkouts/zenoh-9c599d5ef3e0480e/cc83980/"
+                       "zenoh/src/net/runtime/orchestrator.rs:388.")
+    assert zenoh_error(exc) == "nothing answered there (timed out)"
+
+
 def test_extraction_folders_of_killed_nodes_are_swept(tmp_path):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
@@ -244,6 +252,14 @@ def test_stairs_and_bouncing_on_the_bus_equal_fmpy_in_lockstep(procs, endpoint, 
              step=0.2, what="fmu/bouncing/h up to t=3 s")
     info = query_json(s, K.fmu_info("Stair"))
     assert info["step_size_s"] == 0.2 and info["variables"][0]["key"] == "fmu/Stair/counter"
+    listed = subprocess.run([sys.executable, "-m", "diffbot.cli", "topics", "--json",
+                             "--duration", "1", "--endpoint", endpoint], cwd=ROOT,
+                            capture_output=True, text=True, timeout=60)
+    table = json.loads(listed.stdout)
+    types = {r["key"]: r["type"] for r in table["topics"]}
+    assert types["fmu/Stair/counter"] == "std_msgs/msg/Int32"
+    assert types["fmu/bouncing/v"] == "std_msgs/msg/Float64"
+    assert {i["instance"] for i in table["fmus"]} == {"Stair", "bouncing"}
     for key, model, var, dt in (("fmu/Stair/counter", "stairs_fmi2", "counter", 0.2),
                                 ("fmu/bouncing/h", "bouncing_fmi3", "h", 0.01)):
         got = tap.copy(key)
