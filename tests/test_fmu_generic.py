@@ -315,3 +315,25 @@ def _try_connect(bus):
         return bus()
     except Exception:
         return None
+
+
+def test_late_joiner_starts_at_bus_time_or_waits_for_zero(models, caplog):
+    late = {**INFO, "time_ns": 7_580_000_000}
+    node = fmu_node.open_node(models["bouncing_fmi3"])
+    try:
+        with caplog.at_level("INFO"):
+            node.configure(late, "robot1")
+        assert "joins at t=7.580 s: its model starts at the current bus time" in caplog.text
+        out = node.step(Observation(7_600_000_000, "robot1", {}))
+        assert out["fmu/bouncing/h"].data == 1.0 and node.info()["started_at_s"] == pytest.approx(7.6)
+    finally:
+        node.close()
+    node = fmu_node.open_node(models["bouncing_fmi3"], from_zero=True)
+    try:
+        node.configure(late, "robot1")
+        assert node.step(Observation(7_600_000_000, "robot1", {})) is None
+        assert node.step(Observation(7_620_000_000, "robot1", {})) is None
+        assert node.step(Observation(0, "robot1", {}))["fmu/bouncing/h"].data == 1.0  # reset
+        assert node.info()["started_at_s"] == 0.0
+    finally:
+        node.close()
