@@ -201,7 +201,9 @@ def to_text(obj, indent: int = 0, width: int = 88) -> list[str]:
     return lines
 
 
-def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Keys) -> str:
+def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Keys,
+                   types: dict[str, str] | None = None) -> str:
+    """The message on ``key``, decoded (``types``: the types of FMU nodes' fmu/ keys)."""
     a = codec.parse_attachment(attachment)
     head = f"--- /{key}"
     if a is not None:
@@ -213,7 +215,7 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
                      + (f"  n_plant {a.n_plant}" if a.flags & codec.ACK else ""))
     elif attachment:
         head += f"  (malformed attachment of {len(attachment)} bytes: {attachment[:24].hex()})"
-    msgtype = keys.msgtype_of(key)
+    msgtype = keys.msgtype_of(key) or (types or {}).get(key)
     if msgtype is None and not payload:
         return f"{head}\n(empty payload)"
     if msgtype is None:
@@ -277,6 +279,8 @@ def echo_main(argv: list[str] | None = None) -> int:
         q.put((str(sample.key_expr), sample.payload.to_bytes(),
                att.to_bytes() if att is not None else None))
 
+    # the types of fmu/ keys come from the FMU nodes' fmu/<instance>/info
+    types = _fmu_types(fmu_nodes(session, keys)) if "fmu" in args.key else {}
     n = 0
     code = EXIT_OK
     idle_s = args.timeout or None
@@ -296,7 +300,7 @@ def echo_main(argv: list[str] | None = None) -> int:
                     key, payload, att = q.get(timeout=min(left, 0.2) if left else 0.2)
                 except queue.Empty:
                     continue
-                print(format_message(key, payload, att, keys), flush=True)
+                print(format_message(key, payload, att, keys, types), flush=True)
                 n += 1
                 if idle_s:
                     deadline = time.monotonic() + idle_s
