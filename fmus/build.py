@@ -1,6 +1,7 @@
 """Build the odometry FMUs (FMI 2.0 and FMI 3.0) from the C sources in fmus/, and the
 small test models of fmus/models/ (stairs: FMI 2 Integer counter; bouncing: FMI 3 ball;
-gain: FMI 3 y = k u) that the tests run on the bus with no mapping (docs/fmu.md).
+gain: FMI 3 y = k u; signals: FMI 3 Boolean, String, Float64 arrays) that the tests run
+on the bus with no mapping (docs/fmu.md).
 
 Each FMU offers Model Exchange and Co-Simulation, ships its binary for the
 build platform and its C sources (so that ``fmpy compile X.fmu`` rebuilds it
@@ -58,7 +59,7 @@ _HERE = Path(__file__).resolve().parent
 _WRAPPER_DIR = _HERE / "wrapper"
 #: the test models: fmus/models/<name>/ (config.h, model.c, modelDescription<N>.xml)
 MODELS_DIR = _HERE / "models"
-TEST_MODELS = ("stairs", "bouncing", "gain")
+TEST_MODELS = ("stairs", "bouncing", "gain", "signals")
 
 _WRAPPERS = {
     2: (_WRAPPER_DIR / "fmi2Functions.c", "fmi2Functions.c"),

@@ -337,3 +337,46 @@ def test_late_joiner_starts_at_bus_time_or_waits_for_zero(models, caplog):
         assert node.info()["started_at_s"] == 0.0
     finally:
         node.close()
+
+
+def test_boolean_string_and_array_variables_on_their_keys(models):
+    """signals (FMI 3): Boolean, String and Float64[3] inputs, Float64[3], String and Int32
+    outputs, as Bool, String, Float64MultiArray and Int32 messages."""
+    path = models["signals_fmi3"]
+    node, outs = run_offline(path, 0.2)
+    try:
+        assert sorted(node.inputs) == ["fmu/signals/enable", "fmu/signals/prefix", "fmu/signals/u"]
+        types = {t: node.topics[t].msgtype for t in node.inputs}
+        assert types == {"fmu/signals/enable": "std_msgs/msg/Bool",
+                         "fmu/signals/prefix": "std_msgs/msg/String",
+                         "fmu/signals/u": "std_msgs/msg/Float64MultiArray"}
+        ref = fmpy_values(path, "y", 0.2, 0.005)
+        last = outs[200_000_000]
+        y = last["fmu/signals/y"]
+        assert y.__msgtype__ == "std_msgs/msg/Float64MultiArray"
+        assert [d.size for d in y.layout.dim] == [3]
+        assert all(list(o["fmu/signals/y"].data) == list(at_tick(ref, t, 0.005))
+                   for t, o in outs.items()), "not fmpy's y"
+        assert last["fmu/signals/label"].data == "ball on"
+        assert last["fmu/signals/count"].data == 40
+        # round trip through CDR, as on the bus
+        assert list(codec.decode(codec.encode(y), y.__msgtype__).data) == list(y.data)
+        # inputs: a Bool, a String and an array; a wrong-sized array is rejected and held
+        T = codec.T
+        u = node.outputs["y"]
+        msgs = {"fmu/signals/enable": T["std_msgs/msg/Bool"](data=False),
+                "fmu/signals/prefix": T["std_msgs/msg/String"](data="arm "),
+                "fmu/signals/u": fmu_node.Variable.message(node.fmu.bus_variable("u"),
+                                                           [9.0, 9.0, 9.0])}
+        out = node.step(Observation(220_000_000, "robot1", msgs))
+        assert out["fmu/signals/label"].data == "arm off"
+        assert list(out["fmu/signals/y"].data) == u          # not enabled: y holds
+        msgs = {"fmu/signals/enable": T["std_msgs/msg/Bool"](data=True),
+                "fmu/signals/u": fmu_node.Variable.message(node.fmu.bus_variable("gain"), [1.0])}
+        out = node.step(Observation(240_000_000, "robot1", msgs))
+        assert node.rejects.counts["input"] == 1
+        h = 0.02 / 4
+        assert list(out["fmu/signals/y"].data) == pytest.approx(
+            [u[k] + 4 * 2.0 * 9.0 * h for k in range(3)], abs=1e-12)
+    finally:
+        node.close()
