@@ -9,6 +9,7 @@ whatever the real-time factor).
 from __future__ import annotations
 
 import json
+import math
 import queue
 import sys
 import threading
@@ -18,7 +19,7 @@ import zenoh
 
 from . import codec, jsonio
 from .cliargs import ArgumentParser, nonneg_float, positive_float, positive_int
-from .keys import Keys
+from .keys import Keys, is_fmu_topic
 from .session import BusConfigError, add_bus_args, open_session
 
 EXIT_OK = 0
@@ -94,6 +95,26 @@ def _fmu_types(infos: list[dict]) -> dict[str, str]:
     """key -> message type of every FMU node's variables."""
     return {v["key"]: v["type"] for i in infos for v in i.get("variables", ())
             if isinstance(v, dict) and v.get("key") and v.get("type")}
+
+
+class FmuTypes:
+    """The message types of fmu/ keys, asked from the FMU nodes' info when a key is first
+    seen (at most once per second while a key stays unknown)."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+        self.session, self.keys = session, keys
+        self.types: dict[str, str] = {}
+        self._asked = -math.inf
+
+    def __call__(self, key: str) -> str | None:
+        kind = self.types.get(key)
+        if kind is None and is_fmu_topic(key[len(self.keys.namespace) + 1:]
+                                         if self.keys.namespace else key) \
+                and time.monotonic() - self._asked > 1.0:
+            self._asked = time.monotonic()
+            self.types.update(_fmu_types(fmu_nodes(self.session, self.keys, 0.5)))
+            kind = self.types.get(key)
+        return kind
 
 
 def _fmt_hz(v) -> str:

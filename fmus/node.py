@@ -1,20 +1,23 @@
-"""Run any co-simulation FMU (FMI 2.0 or 3.0) as a node on the bus.
+"""Run any co-simulation FMU (FMI 2.0 or 3.0) as a node on the bus (docs/fmu.md).
 
-    diffbot fmu-node FMU --robot R [--mapping FILE] [--name NAME] [bus options]
+    diffbot fmu-node FMU [--instance I] [--connect VAR=fmu/OTHER/VAR] [--param NAME=VALUE]
+                         [--step-size fmu|tick|S] [--from-zero] [--mapping FILE] [bus options]
 
-The FMU is loaded with fmpy (``instantiate_fmu``: FMU2Slave / FMU3Slave) and wrapped in a
-controller object for :mod:`bus.node`, which does all of the bus work (session, lockstep,
-stamping). A small TOML *mapping file* (read and checked by :mod:`fmus.mapping`) says how
-messages and FMU variables meet::
+The FMU is loaded with fmpy (:mod:`fmus.fmu`) and wrapped in a controller object for
+:mod:`bus.node`, which does all of the bus work (session, lockstep, stamping). With no
+mapping file every output goes on ``fmu/<instance>/<variable>`` as the std_msgs type of its
+FMI type (:mod:`fmus.variables`) and every input is read from its key or another node's
+(:mod:`fmus.wiring`); the node answers ``fmu/<instance>/info``. A TOML *mapping file* (read
+and checked by :mod:`fmus.mapping`) wires the FMU to robot topics instead::
 
-    [[input]]                       # one per FMU input (Real / Float64)
+    [[input]]                       # one per FMU input (any numeric FMI type that fits)
     variable  = "omega_left"        # FMU input variable
-    topic     = "joint_states"      # robot topic (bus.keys.TOPICS) it is read from
+    topic     = "joint_states"      # robot topic (bus.keys.TOPICS), or fmu/<instance>/<var>
     field     = "position[0]"       # field path in the message: names, dots, [index]
     transform = "rate"              # "value" (default) or "rate" = delta value / delta t
     scale     = 1.0                 # optional factor on the field's value (deg -> rad...)
 
-    [output]                        # or [[output]] for several messages
+    [output]                        # or [[output]] for several messages; none: fmu/ keys
     topic   = "odom"                # robot topic the message is published on
     message = "odometry"            # builder: odometry, point, twist, wheel_speeds
     frame_id = "world"              # options of the builder
@@ -33,8 +36,9 @@ FMU built into ``fmus/build``.
 Stepping (co-simulation semantics: inputs are held over a communication step): at each
 control tick t_k the node reads the latest sample of each input topic, turns it into input
 values (``rate`` inputs: value difference since the previous *accepted* sample over
-h = t_k - t_prev), sets them, calls ``doStep(t_prev, h)`` and publishes the outputs
-stamped t_k. So the step covers the interval that ends at the tick and the outputs carry
+h = t_k - t_prev), sets them, calls ``doStep(t_prev, h)`` -- or, for an FMU stepping with
+its own step size, the doSteps between its grid points up to t_k -- and publishes the
+outputs stamped t_k. So the step covers the interval that ends at the tick and the outputs carry
 no lag; with encoder angles and ``rate`` this reproduces exact-arc dead reckoning. At the
 first tick there is no previous reading: the FMU is initialised at t_0 (``rate`` inputs 0)
 and its initial outputs are published (the start pose for the odometry FMU).

@@ -294,8 +294,9 @@ def test_two_fmu_nodes_chained_in_a_scenario_file_run_in_lockstep(procs, endpoin
                                                                      models, tmp_path):
     scenario = tmp_path / "chain.toml"
     scenario.write_text(CHAIN.format(bouncing=models["bouncing_fmi3"], gain=models["gain_fmi3"]))
+    mcap = tmp_path / "chain.mcap"
     run = procs.diffbot("run", str(scenario), "--endpoint", endpoint, "--out",
-                        str(tmp_path / "out"), name="run")
+                        str(tmp_path / "out"), "--record", str(mcap), name="run")
     s = wait_for(lambda: _try_connect(bus), 30, step=0.2, what="the run's plant")
     tap = Tap(s, {"fmu/bouncing/h": "std_msgs/msg/Float64", "fmu/gain/y": "std_msgs/msg/Float64"})
     assert run.wait(120) == 0, procs.log(run)
@@ -308,6 +309,17 @@ def test_two_fmu_nodes_chained_in_a_scenario_file_run_in_lockstep(procs, endpoin
     assert all(h[t] == at_tick(ref, t, 0.01) for t in common), "not fmpy's h"
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["sim_time_s"] == pytest.approx(2.0, abs=0.05)
+    # the recording has the fmu/ keys with their types (asked from the nodes' info)
+    from bus.record import Recorded, iter_recording
+    rec = Recorded(str(mcap))
+    recorded = {}
+    for m in iter_recording(str(mcap), rec):
+        ch = rec.channels[m.channel_id]
+        if ch.topic.lstrip("/") == "fmu/gain/y":
+            schema = rec.schemas[ch.schema_id].name
+            recorded[m.log_time] = codec.decode(m.data, schema).data
+    assert schema == "std_msgs/msg/Float64" and len(recorded) > 20
+    assert all(recorded[t] == y[t] for t in set(recorded) & set(y))
 
 
 def _try_connect(bus):
