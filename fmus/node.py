@@ -274,7 +274,8 @@ class FmuNode:
                 if not self.waiting_said:
                     self.log.info("%s: bus time is %.3f s; waiting for t=0 to start "
                                   "(--from-zero: a plant started with --expect %s, or a "
-                                  "reset)", self.instance, t_ns * 1e-9, "NODE")
+                                  "reset)", self.instance, t_ns * 1e-9,
+                                  getattr(self, "node_name", None) or self.instance)
                     self.waiting_said = True
                 return None
             return self._start(t_ns, raw)

@@ -392,3 +392,14 @@ def test_boolean_string_and_array_variables_on_their_keys(models):
             [u[k] + 4 * 2.0 * 9.0 * h for k in range(3)], abs=1e-12)
     finally:
         node.close()
+
+
+def test_protocol_page_and_fmu_page_give_the_keys_of_the_code():
+    protocol = (Path(ROOT) / "docs" / "PROTOCOL.md").read_text()
+    page = (Path(ROOT) / "docs" / "fmu.md").read_text()
+    for key in ("fmu/<instance>/<variable>", "fmu/<instance>/info"):
+        assert f"| `{key}` |" in protocol and f"| `{key}` |" in page
+    for name in ("der(x)", "a.b[1]", "info"):       # the rule's examples are the code's
+        assert f"`{name}` is" in page or f"named `{name}`" in page
+        assert escape_variable(name) in page
+    assert "[docs/fmu.md](docs/fmu.md)" in (Path(ROOT) / "README.md").read_text()
