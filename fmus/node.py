@@ -65,7 +65,7 @@ import sys
 from pathlib import Path
 
 from bus import jsonio
-from bus.keys import Keys, check_name, fmu_topic, is_fmu_topic
+from bus.keys import TOPICS, Keys, check_name, fmu_topic
 from bus.log import RejectCounter, setup_logging
 from bus.node import EXIT_BAD_CONFIG, _name_arg, node_arg_parser, run_node_args, write_json
 
@@ -164,6 +164,7 @@ class FmuNode:
     def configure(self, info: dict, robot: str) -> None:
         """Parameters (mapping file: numbers or sim/info paths; --param), checked against
         their min / max and set now, so a value the FMU refuses is a configuration error."""
+        self.robot = robot
         params = dict(self.cli_params)
         for name, spec in self.mapping.parameters.items():
             where = f"{self.mapping.where_parameters}.{name}"
@@ -207,12 +208,21 @@ class FmuNode:
     def info(self) -> dict:
         """What ``fmu/<instance>/info`` answers: the node, its time base, its variables."""
         keys = getattr(self, "bus_keys", None) or Keys()
+        robot = getattr(self, "robot", "<robot>")
+
         def key(topic):
-            return keys.topic("-", topic) if is_fmu_topic(topic) else f"<robot>/{topic}"
+            return keys.topic(robot, topic)
+
+        def mapped(topic, field):    # a field of a robot message (mapping file)
+            return {"type": TOPICS[topic].msgtype, "field": field} if topic in TOPICS else {}
         variables = [dict(f.var.info(key(f.topic)), direction="input",
-                          awaited=not f.external and is_fmu_topic(f.topic)) for f in self.feeds]
+                          **mapped(f.topic, str(f.field)),
+                          awaited=not f.external) for f in self.feeds]
         variables += [dict(v.info(key(t)), direction="output")
                       for v, t in zip(self.generic, self.generic_topics)]
+        variables += [dict(self.fmu.bus_variable(var).info(key(o.topic)), direction="output",
+                           message=o.message, **mapped(o.topic, f))
+                      for o in self.builders for f, var in o.fields.items()]
         variables += [dict(v.info(""), direction="parameter", value=x if v.shape else x[0])
                       for v, x in self.params]
         return {"instance": self.instance, "node": getattr(self, "node_name", None),

@@ -158,13 +158,3 @@ def _bound(v, which: str):
         value = getattr(v.declaredType, which, None)
     return value
 
-
-def from_fmi(text: str | None, var: Variable):
-    """A start value (model description text) as the Python value fmpy sets."""
-    if text is None:
-        return None
-    if var.msgtype == "std_msgs/msg/Bool":
-        return text.strip() in ("true", "1")
-    if var.msgtype == "std_msgs/msg/String":
-        return text
-    return float(text) if "Float" in var.msgtype else int(text)
