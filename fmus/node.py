@@ -59,6 +59,7 @@ initialised again from the current tick. The counters are in the ``--stats`` JSO
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import math
 import sys
@@ -196,6 +197,12 @@ class FmuNode:
     def on_session(self, session, keys) -> None:
         """Answer ``fmu/<instance>/info`` (bus.node calls this once the session is open)."""
         self.bus_keys = keys
+        if self.generic_topics:        # its keys must be its own
+            for reply in session.get(keys.fmu_info(self.instance), timeout=0.5):
+                if reply.ok is not None:
+                    other = json.loads(reply.ok.payload.to_bytes()).get("node") or "a node"
+                    raise FmuNodeError(f"instance {self.instance!r} is on the bus already "
+                                       f"({other}): give this one another --instance")
         self._queryable = session.declare_queryable(keys.fmu_info(self.instance),
                                                     self._answer_info)
 
@@ -568,7 +575,6 @@ def _check_unique(pairs: list[tuple[str, str]], option: str) -> None:
 
 def _merge_stats(path: str, node: FmuNode) -> None:
     """Add the node's own counters to the stats JSON bus.node wrote."""
-    import json
     try:
         with open(path) as f:
             data = json.load(f)

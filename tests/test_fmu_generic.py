@@ -260,6 +260,11 @@ def test_stairs_and_bouncing_on_the_bus_equal_fmpy_in_lockstep(procs, endpoint, 
     assert types["fmu/Stair/counter"] == "std_msgs/msg/Int32"
     assert types["fmu/bouncing/v"] == "std_msgs/msg/Float64"
     assert {i["instance"] for i in table["fmus"]} == {"Stair", "bouncing"}
+    twin = procs.diffbot("fmu-node", str(models["bouncing_fmi3"]), "--name", "twin",
+                         "--endpoint", endpoint, name="twin")
+    assert twin.wait(60) == 2
+    assert "instance 'bouncing' is on the bus already (bouncing): give this one another " \
+           "--instance" in procs.log(twin)
     for key, model, var, dt in (("fmu/Stair/counter", "stairs_fmi2", "counter", 0.2),
                                 ("fmu/bouncing/h", "bouncing_fmi3", "h", 0.01)):
         got = tap.copy(key)
