@@ -10,6 +10,7 @@ the folders of processes that are gone.
 from __future__ import annotations
 
 import atexit
+import functools
 import logging
 import os
 import shutil
@@ -219,22 +220,18 @@ class Fmu:
     def read(self, variables: list[Variable]) -> list[list]:
         """The values of ``variables`` (a list of values per variable), one FMI call per type."""
         out: list[list] = [[] for _ in variables]
-        for access, idx in _by_access(variables).items():
-            vrs = [variables[i].vr for i in idx]
-            n = sum(variables[i].size for i in idx)
+        for access, vrs, n, spans in _plan(tuple(variables)):
             flat = self._call(f"get{access}", f"get{access}", vrs) if self.version == 2 \
                 else self._call(f"get{access}", f"get{access}", vrs, n)
-            k = 0
-            for i in idx:
-                out[i] = list(flat[k:k + variables[i].size])
-                k += variables[i].size
+            for i, a, b in spans:
+                out[i] = flat[a:b]
         return out
 
     def write(self, variables: list[Variable], values: list[list], what: str = "set") -> None:
         """Set ``variables`` to ``values`` (a list of values per variable)."""
-        for access, idx in _by_access(variables).items():
-            self._call(f"{what} ({access})", f"set{access}", [variables[i].vr for i in idx],
-                       [x for i in idx for x in values[i]])
+        for access, vrs, _, spans in _plan(tuple(variables)):
+            self._call(f"{what} ({access})", f"set{access}", vrs,
+                       [x for i, _, _ in spans for x in values[i]])
 
     def initialize(self, t: float, start: list[tuple[Variable, list]]) -> None:
         """Set parameters and inputs (``start``: variable, values), initialise at time t; the
@@ -338,16 +335,22 @@ class Fmu:
         self._free_instance()
 
 
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
 
-
-def _by_access(variables: list[Variable]) -> dict[str, list[int]]:
+@functools.lru_cache(maxsize=64)
+def _plan(variables: tuple[Variable, ...]) -> list[tuple[str, list[int], int, list]]:
+    """One FMI call per type: (access, value references, number of values, [(index of the
+    variable, start, end) in the values])."""
     groups: dict[str, list[int]] = {}
     for i, v in enumerate(variables):
         groups.setdefault(v.access, []).append(i)
-    return groups
+    plan = []
+    for access, idx in groups.items():
+        spans, k = [], 0
+        for i in idx:
+            spans.append((i, k, k + variables[i].size))
+            k += variables[i].size
+        plan.append((access, [variables[i].vr for i in idx], k, spans))
+    return plan
 
 
 def _one_line(exc: BaseException) -> str:

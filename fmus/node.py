@@ -306,7 +306,7 @@ class FmuNode:
                 v = [(v[0] - self.prev[i][0]) / h] if self.prev is not None else [0.0]
             values.append(v)
         bad = [f.var.name for f, v in zip(self.feeds, values)
-               if v is not None and f.var.numeric and not all(math.isfinite(x) for x in v)]
+               if v is not None and f.var.numeric and not all(map(math.isfinite, v))]
         if bad:
             self.rejects.reject("input", f"{self.fmu.name}: {', '.join(bad)} not finite")
             self.held += 1
@@ -319,7 +319,7 @@ class FmuNode:
             self._advance(t_ns, h)
             out = self.fmu.read(self.out_vars)
             bad = [v.name for v, x in zip(self.out_vars, out)
-                   if v.numeric and not all(math.isfinite(float(y)) for y in x)]
+                   if v.numeric and not all(map(math.isfinite, x))]
             if bad:
                 raise FmuCallError(f"non-finite output {', '.join(bad)}")
         except FmuCallError as exc:

@@ -44,7 +44,7 @@ class Unsupported(ValueError):
     """A variable the bus cannot carry (the reason is the message)."""
 
 
-@dataclass
+@dataclass(eq=False)     # hashed by identity: fmus.fmu caches its call plans per variables
 class Variable:
     """One FMU variable as the bus sees it."""
     name: str
@@ -62,13 +62,12 @@ class Variable:
     description: str | None
     dtype: str | None = None   # numpy dtype of an array's elements
 
-    @property
-    def size(self) -> int:
-        return math.prod(self.shape) if self.shape else 1
+    def __post_init__(self) -> None:
+        #: number of values (1 for a scalar)
+        self.size = math.prod(self.shape) if self.shape else 1
+        #: a number (not a Bool or a String)
+        self.numeric = self.msgtype not in ("std_msgs/msg/Bool", "std_msgs/msg/String")
 
-    @property
-    def numeric(self) -> bool:
-        return self.msgtype not in ("std_msgs/msg/Bool", "std_msgs/msg/String")
 
     @property
     def segment(self) -> str:

@@ -34,6 +34,9 @@ class Feed:
     external: bool = False        # the node's own key: never awaited, last value holds
     where: str = ""
 
+    def __post_init__(self) -> None:
+        self.kind = self.var.msgtype.rsplit("/", 1)[1].replace("MultiArray", "")
+
     def raw(self, msg) -> list:
         """The values in ``msg`` as numbers (bool / str for those types); ValueError,
         LookupError or TypeError if the message does not carry them."""
@@ -50,7 +53,12 @@ class Feed:
     def convert(self, values: list) -> list:
         """``values`` as the variable's FMI type; ValueError when they do not fit (a
         fraction or an out-of-range number for an integer, a non-finite number)."""
-        kind = self.var.msgtype.rsplit("/", 1)[1].replace("MultiArray", "")
+        kind = self.kind
+        if kind == "Float64":           # the common case first
+            out = [float(v) for v in values]
+            if not all(map(math.isfinite, out)):
+                raise ValueError(f"{out} is not finite")
+            return out
         if kind == "String":
             return [str(v) for v in values]
         if kind == "Bool":
