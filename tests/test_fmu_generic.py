@@ -408,3 +408,22 @@ def test_protocol_page_and_fmu_page_give_the_keys_of_the_code():
         assert f"`{name}` is" in page or f"named `{name}`" in page
         assert escape_variable(name) in page
     assert "[docs/fmu.md](docs/fmu.md)" in (Path(ROOT) / "README.md").read_text()
+
+
+def test_a_sigkilled_node_s_extraction_folder_is_removed_by_the_next_start(models, tmp_path):
+    sock = tmp_path / "nobody.sock"
+    p = subprocess.Popen([sys.executable, "-m", "diffbot.cli", "fmu-node",
+                          str(models["gain_fmi3"]), "--wait", "--endpoint",
+                          f"unixsock-stream/{sock}"], cwd=ROOT, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert "waiting" in p.stderr.readline() + p.stderr.readline()   # FMU extracted
+        left = wait_for(lambda: list(fmu_mod.TMP_ROOT.glob(f"{p.pid}-*")), 10,
+                        what="the node's extraction folder")
+    finally:
+        p.kill()
+        p.wait(10)
+    assert all(d.is_dir() for d in left), "SIGKILL leaves it behind"
+    node = fmu_node.open_node(models["gain_fmi3"])          # the next start sweeps it
+    node.close()
+    assert not any(d.exists() for d in left)
