@@ -427,3 +427,25 @@ def test_a_sigkilled_node_s_extraction_folder_is_removed_by_the_next_start(model
     node = fmu_node.open_node(models["gain_fmi3"])          # the next start sweeps it
     node.close()
     assert not any(d.exists() for d in left)
+
+
+def test_mapping_file_feeds_an_input_from_another_node_s_key_of_another_type(models, tmp_path):
+    mapping = tmp_path / "gain.toml"
+    mapping.write_text('[[input]]\nvariable = "u"\ntopic = "fmu/Stair/counter"\n'
+                       'type = "Int32"\n\n[parameters]\nk = 0.5\n')
+    node = fmu_node.open_node(models["gain_fmi3"], mapping)
+    try:
+        node.configure(INFO, "robot1")
+        assert node.topics["fmu/Stair/counter"].msgtype == "std_msgs/msg/Int32"
+        assert node.generic_topics == ["fmu/gain/y"]          # no [output]: on its key
+        counter = codec.T["std_msgs/msg/Int32"](data=3)
+        out = node.step(Observation(0, "robot1", {"fmu/Stair/counter": counter}))
+        assert out["fmu/gain/y"].data == 1.5
+    finally:
+        node.close()
+    mapping.write_text('[[input]]\nvariable = "u"\ntopic = "fmu/Stair/counter"\n'
+                       'field = "data"\n')
+    with pytest.raises(fmu_node.FmuNodeError, match=r"gain.toml:input\[0\].field: "
+                                                    r"fmu/Stair/counter carries one FMU "
+                                                    r"variable: no field"):
+        fmu_node.open_node(models["gain_fmi3"], mapping)
