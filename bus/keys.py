@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from urllib.parse import quote, unquote
 
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
 
@@ -40,10 +41,16 @@ class Topic:
 
     suffix: str
     msgtype: str
-    source: str  # "plant", "controller" or "node" (a bus node other than the plant)
+    source: str  # "plant", "controller", "node" (a bus node other than the plant), or
+    #              "external" (anyone, e.g. a user's script: never waited for)
     rate: str
     units: str
     frame: str
+
+    @property
+    def awaited(self) -> bool:
+        """A lockstep reader waits for it at every tick (a plant sensor only when due)."""
+        return self.source in ("controller", "node")
 
 
 #: Per-robot topics. ``source == "node"`` topics are produced by bus nodes in
@@ -75,6 +82,56 @@ TOPICS: dict[str, Topic] = {
 }
 
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
+
+# ---------------------------------------------------------------- FMU variables
+#: FMU nodes publish their variables on ``fmu/<instance>/<variable>`` (bus-wide, not per
+#: robot); a node reads a variable's key as a "topic" named ``fmu/...`` (docs/fmu.md)
+FMU_ROOT = "fmu"
+#: the last segment of an FMU node's queryable (its variables, types, units, keys)
+FMU_INFO = "info"
+
+
+def escape_variable(name: str) -> str:
+    """An FMU variable name as one key segment (docs/fmu.md, "Keys"): percent-encoding
+    (RFC 3986) of every byte of its UTF-8 that is not a letter, digit, ``_ . - ~``; a
+    variable named ``info`` (the node's queryable) is written ``%69nfo``. So ``der(x)`` is
+    ``der%28x%29``, ``a.b[1]`` is ``a.b%5B1%5D``, and :func:`unescape_variable` inverts it."""
+    if not isinstance(name, str) or not name:
+        raise BadName(f"invalid FMU variable name {name!r}: empty")
+    seg = quote(name, safe="")
+    if seg == FMU_INFO:
+        seg = "%69nfo"
+    if seg in (".", ".."):
+        seg = seg.replace(".", "%2E")
+    return seg
+
+
+def unescape_variable(segment: str) -> str:
+    return unquote(segment)
+
+
+def is_fmu_topic(name: str) -> bool:
+    """True for a bus-wide FMU variable "topic" (``fmu/<instance>/<escaped variable>``)."""
+    return isinstance(name, str) and name.startswith(FMU_ROOT + "/")
+
+
+def fmu_topic(instance: str, variable: str) -> str:
+    """The topic name (the key without namespace) of an FMU node's variable."""
+    return f"{FMU_ROOT}/{check_name(instance, 'FMU instance name')}/{escape_variable(variable)}"
+
+
+def check_fmu_topic(name: str) -> str:
+    """``name`` if it is ``fmu/<instance>/<segment>`` with a valid instance and an escaped
+    variable segment (what :func:`fmu_topic` makes), else BadName."""
+    parts = name.split("/") if isinstance(name, str) else []
+    if len(parts) != 3 or parts[0] != FMU_ROOT:
+        raise BadName(f"invalid FMU key {name!r}: expected {FMU_ROOT}/<instance>/<variable>")
+    check_name(parts[1], "FMU instance name")
+    if parts[2] == FMU_INFO or escape_variable(unescape_variable(parts[2])) != parts[2]:
+        raise BadName(f"invalid FMU key {name!r}: {parts[2]!r} is not an escaped variable "
+                      f"name (variable {unescape_variable(parts[2])!r} is "
+                      f"{escape_variable(unescape_variable(parts[2]))!r}; docs/fmu.md)")
+    return name
 
 
 class Keys:
@@ -121,8 +178,20 @@ class Keys:
         """Every key of this simulation (for recorders and observers)."""
         return self._k("**")
 
+    # -- FMU nodes (docs/fmu.md)
+    def fmu(self, instance: str, variable: str) -> str:
+        """``fmu/<instance>/<variable>``: an FMU node's variable (escaped)."""
+        return self._k(fmu_topic(instance, variable))
+
+    def fmu_info(self, instance: str = "*") -> str:
+        """``fmu/<instance>/info``: the FMU node's queryable (``*``: every FMU node)."""
+        return self._k(f"{FMU_ROOT}/{instance}/{FMU_INFO}")
+
     # -- robot topics
     def topic(self, robot: str, name: str) -> str:
+        """A robot topic's key; an ``fmu/...`` name is bus-wide (the robot is not in it)."""
+        if is_fmu_topic(name):
+            return self._k(check_fmu_topic(name))
         if name not in TOPICS:
             raise BadName(f"unknown topic {name!r}; known: {', '.join(TOPICS)}")
         return self._k(f"{robot}/{TOPICS[name].suffix}")

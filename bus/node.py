@@ -182,10 +182,17 @@ class NodeRunner:
         #: --wait: when the plant goes away, wait for it to come back instead of exiting 3
         self.wait = wait
         self.slots: list[_Slot] = []
-        for r, ctrl in zip(robots, make_controllers(controller, robots)):
+        ctrls = make_controllers(controller, robots)
+        # the topic catalog, plus the bus-wide ``fmu/...`` keys a controller declares in
+        # ``topics`` ({name: bus.keys.Topic}; message types without a header are stamped by
+        # the attachment)
+        self.topics = dict(TOPICS)
+        for ctrl in ctrls:
+            self.topics.update(getattr(ctrl, "topics", {}))
+        for r, ctrl in zip(robots, ctrls):
             inputs = list(getattr(ctrl, "inputs", ()))
             for topic in inputs:
-                if topic not in TOPICS:
+                if topic not in self.topics:
                     raise ValueError(f"{type(ctrl).__name__}.inputs: unknown topic {topic!r}")
             # inputs with non-finite or absurd numbers, or wrong joint names, are rejected
             # here unless the controller validates its own (``check_inputs = False``)
@@ -210,6 +217,8 @@ class NodeRunner:
         for slot in self.slots:
             if hasattr(slot.controller, "configure"):
                 slot.controller.configure(self.info, slot.robot)
+            if hasattr(slot.controller, "on_session"):   # e.g. to declare a queryable
+                slot.controller.on_session(session, keys)
 
     def _apply_info(self, info: dict) -> None:
         """Take the simulation's protocol, mode, coupling, tick and sensor periods from the
@@ -228,13 +237,13 @@ class NodeRunner:
             # Sensors the plant publishes every `period` ticks; node outputs come every tick.
             slot.periods = dict(robots[slot.robot].get("topics", {}))
             slot.awaited = [t for t in slot.inputs
-                            if TOPICS[t].source != "plant" or t in slot.periods]
+                            if self.topics[t].awaited or t in slot.periods]
         self.periods = self.slots[0].periods
         self.tick_ns = int(round(info.get("control_tick_s", 0.0) * 1e9))
         # Pipelined coupling: other nodes' outputs are taken one tick old, so producer and
         # consumer work on the same tick in parallel (docs/PROTOCOL.md).
         lag = int(info.get("node_input_delay_ticks", 0)) * self.tick_ns if self.sync else 0
-        self.lag_ns = {t: lag if TOPICS[t].source != "plant" else 0 for t in TOPICS}
+        self.lag_ns = {t: lag if v.awaited else 0 for t, v in self.topics.items()}
 
     def _key(self, robot: str, topic: str) -> str:
         key = self._keys.get((robot, topic))
@@ -315,7 +324,7 @@ class NodeRunner:
         return [t for _, t, _ in self._needs(self.slots[0], t_ns)]
 
     # ----------------------------------------------------------------- input
-    def _input(self, key: str, payload: bytes) -> None:
+    def _input(self, key: str, payload: bytes, att: bytes | None = None) -> None:
         """Decode and check one input sample, and file it under its stamp.
 
         Samples are kept by stamp (a few per key), so a late, early or forged sample
@@ -325,11 +334,11 @@ class NodeRunner:
         """
         slot, topic = self._topic_of[key]
         try:
-            msg = codec.decode(payload, TOPICS[topic].msgtype)
+            msg = codec.decode(payload, self.topics[topic].msgtype)
         except codec.CodecError as exc:
             self.rejects.reject(topic, str(exc))
             return
-        stamp, problem = _stamp_of(msg, self.tick_ns)
+        stamp, problem = _stamp_of(msg, self.tick_ns, att, self._last_clock)
         if problem:
             self.rejects.reject(topic, problem)
             return
@@ -493,7 +502,7 @@ class NodeRunner:
                         self.rejects.reject("clock", f"tick t={old * 1e-9:.3f} s never "
                                                      "completed (a stray clock?)")
                 else:
-                    self._input(ev.key, ev.payload)
+                    self._input(ev.key, ev.payload, ev.attachment)
                     if not self.sync:
                         continue
                 finished = False
@@ -581,7 +590,7 @@ class NodeRunner:
             missing = [tp for slot in self.slots if not slot.done
                        for key, tp, s in self._needs(slot, t_ns)
                        if s not in self._buf.get(key, ())]
-            if not missing or any(TOPICS[tp].source == "plant" for tp in missing):
+            if not missing or any(not self.topics[tp].awaited for tp in missing):
                 continue
             gone = [n for n, w in left.items() if w >= came - PRODUCER_GRACE_S]
             if gone and now - max(came, max(left[n] for n in gone)) > PRODUCER_GRACE_S:
@@ -603,12 +612,19 @@ class NodeRunner:
                 "plant_lost": self.plant_lost, "exit_code": self.exit_code}
 
 
-def _stamp_of(msg, tick_ns: int) -> tuple[int, str | None]:
-    """(stamp in ns, problem or None): stamps must be valid times on the tick grid."""
-    st = msg.header.stamp if hasattr(msg, "header") else msg.clock
-    if st.sec < 0 or not 0 <= st.nanosec < 1_000_000_000:
-        return 0, f"invalid stamp ({st.sec} s, {st.nanosec} ns)"
-    t_ns = codec.stamp_ns(st)
+def _stamp_of(msg, tick_ns: int, att: bytes | None = None,
+              last_clock: int | None = None) -> tuple[int, str | None]:
+    """(stamp in ns, problem or None): stamps must be valid times on the tick grid. A
+    message with no header (std_msgs) has the attachment's stamp, or without one the
+    last clock tick (it came "now")."""
+    if hasattr(msg, "header") or hasattr(msg, "clock"):
+        st = msg.header.stamp if hasattr(msg, "header") else msg.clock
+        if st.sec < 0 or not 0 <= st.nanosec < 1_000_000_000:
+            return 0, f"invalid stamp ({st.sec} s, {st.nanosec} ns)"
+        t_ns = codec.stamp_ns(st)
+    else:
+        a = codec.parse_attachment(att)
+        t_ns = a.t_ns if a else (last_clock or 0)
     if tick_ns and t_ns % tick_ns:
         return t_ns, (f"stamp t={t_ns * 1e-9:.9f} s is not on the {tick_ns * 1e-6:g} ms "
                       "tick grid")

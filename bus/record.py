@@ -70,6 +70,7 @@ from .cliargs import ArgumentParser, positive_float, positive_int
 from .keys import Keys
 from .log import RejectCounter, setup_logging
 from .session import BusConfigError, add_bus_args, open_session
+from .topics import FmuTypes
 
 PROFILE = "ros2"
 MESSAGE_ENCODING = "cdr"
@@ -416,6 +417,7 @@ class Recorder:
         #: write /scene, /tf_static once and /tf per ground truth (see the module docstring)
         self.with_scene = True
         self.queue_max = 0
+        self.fmu_types = FmuTypes(session, keys)     # fmu/ keys: types from the nodes' info
         self._sim_ns = 0
         self._late_info_tried = False
         self._subs: list = []
@@ -476,7 +478,7 @@ class Recorder:
             if self.end_reason is None:
                 self.end_reason = payload.decode("utf-8", "replace") or "sim/end"
             return
-        msgtype = self.keys.msgtype_of(key)
+        msgtype = self.keys.msgtype_of(key) or self.fmu_types(key)
         if msgtype is None:
             self.skipped[key] = self.skipped.get(key, 0) + 1
             return

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 
 import zenoh
 
@@ -74,6 +75,17 @@ def make_config(role: str, endpoint: str = DEFAULT_ENDPOINT, config_file: str | 
     return conf
 
 
+_RUST_SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
+_NO_LISTENER = re.compile(r"Unable to connect to any of \[.*\]\.?\s*Timeout!?\.?")
+
+
+def zenoh_error(exc: BaseException) -> str:
+    """A Zenoh error as a user reads it: without the Rust source path it carries
+    (``at /root/.cargo/.../orchestrator.rs:388``), "nothing listens there" in words."""
+    text = _RUST_SOURCE.sub("", str(exc)).strip()
+    return _NO_LISTENER.sub("nothing answered there (timed out)", text) or type(exc).__name__
+
+
 def open_session(role: str, endpoint: str = DEFAULT_ENDPOINT,
                  config_file: str | None = None) -> zenoh.Session:
     """A session, or BusConfigError naming each endpoint and why it failed (refused,
@@ -82,7 +94,7 @@ def open_session(role: str, endpoint: str = DEFAULT_ENDPOINT,
     try:
         return zenoh.open(conf)
     except Exception as exc:
-        causes = "; ".join(diagnose(conf)) or str(exc)
+        causes = "; ".join(diagnose(conf)) or zenoh_error(exc)
         src = f" (config {config_file})" if config_file else ""
         hint = "" if config_file or role == "plant" else \
             " [is `diffbot plant` running with the same --endpoint?]"

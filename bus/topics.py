@@ -9,6 +9,7 @@ whatever the real-time factor).
 from __future__ import annotations
 
 import json
+import math
 import queue
 import sys
 import threading
@@ -18,7 +19,7 @@ import zenoh
 
 from . import codec, jsonio
 from .cliargs import ArgumentParser, nonneg_float, positive_float, positive_int
-from .keys import Keys
+from .keys import Keys, is_fmu_topic
 from .session import BusConfigError, add_bus_args, open_session
 
 EXIT_OK = 0
@@ -53,7 +54,7 @@ class RateMeter:
                     s[3] = t if s[3] is None else min(s[3], t)
                     s[4] = t if s[4] is None else max(s[4], t)
 
-    def table(self, keys: Keys) -> list[dict]:
+    def table(self, keys: Keys, types: dict[str, str] | None = None) -> list[dict]:
         rows = []
         with self.lock:
             items = sorted(self.seen.items())
@@ -61,7 +62,8 @@ class RateMeter:
             hz = (n - 1) / (w1 - w0) if n > 1 and w1 > w0 else None
             sim_hz = ((n - 1) / ((s1 - s0) * 1e-9)
                       if n > 1 and s0 is not None and s1 is not None and s1 > s0 else None)
-            rows.append({"key": key, "type": keys.msgtype_of(key) or "-", "count": n,
+            kind = keys.msgtype_of(key) or (types or {}).get(key) or "-"
+            rows.append({"key": key, "type": kind, "count": n,
                          "hz": hz, "sim_hz": sim_hz})
         return rows
 
@@ -73,6 +75,46 @@ def alive_nodes(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> l
         if reply.ok is not None:
             names.append(keys.node_of(str(reply.ok.key_expr)))
     return sorted(set(names))
+
+
+def fmu_nodes(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> list[dict]:
+    """What the FMU nodes answer on ``fmu/<instance>/info`` (docs/fmu.md)."""
+    out = []
+    for reply in session.get(keys.fmu_info("*"), target=zenoh.QueryTarget.ALL,
+                             consolidation=zenoh.ConsolidationMode.NONE,
+                             timeout=timeout_s):
+        if reply.ok is not None:
+            try:
+                out.append(json.loads(reply.ok.payload.to_bytes()))
+            except ValueError:
+                continue
+    return sorted(out, key=lambda i: str(i.get("instance")))
+
+
+def _fmu_types(infos: list[dict]) -> dict[str, str]:
+    """key -> message type of every FMU node's variables."""
+    return {v["key"]: v["type"] for i in infos for v in i.get("variables", ())
+            if isinstance(v, dict) and v.get("key") and v.get("type")}
+
+
+class FmuTypes:
+    """The message types of fmu/ keys, asked from the FMU nodes' info when a key is first
+    seen (at most once per second while a key stays unknown)."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+        self.session, self.keys = session, keys
+        self.types: dict[str, str] = {}
+        self._asked = -math.inf
+
+    def __call__(self, key: str) -> str | None:
+        kind = self.types.get(key)
+        if kind is None and is_fmu_topic(key[len(self.keys.namespace) + 1:]
+                                         if self.keys.namespace else key) \
+                and time.monotonic() - self._asked > 1.0:
+            self._asked = time.monotonic()
+            self.types.update(_fmu_types(fmu_nodes(self.session, self.keys, 0.5)))
+            kind = self.types.get(key)
+        return kind
 
 
 def _fmt_hz(v) -> str:
@@ -105,11 +147,12 @@ def topics_main(argv: list[str] | None = None) -> int:
             pass
         sub.undeclare()
         nodes = alive_nodes(session, keys)
+        fmus = fmu_nodes(session, keys)
     finally:
         session.close()
-    rows = meter.table(keys)
+    rows = meter.table(keys, _fmu_types(fmus))
     if args.json:
-        print(jsonio.dumps({"topics": rows, "nodes": nodes}, indent=2))
+        print(jsonio.dumps({"topics": rows, "nodes": nodes, "fmus": fmus}, indent=2))
         return EXIT_OK
     if not rows:
         print(f"no messages in {args.duration:g} s on {args.endpoint or args.zenoh_config} "
@@ -122,6 +165,10 @@ def topics_main(argv: list[str] | None = None) -> int:
         print(f"{r['key']:{w}s}  {r['type']:{tw}s}  {_fmt_hz(r['hz'])}  "
               f"{_fmt_hz(r['sim_hz'])}  {r['count']:7d}")
     print(f"nodes alive: {', '.join(nodes) or 'none'}")
+    for i in fmus:
+        step = f"own step {i['step_size_s']:g} s" if i.get("step_size_s") else "step per tick"
+        print(f"FMU {i.get('instance')} ({i.get('fmu')}, FMI {i.get('fmi_version')}, {step}, "
+              f"start at {i.get('start')}): fmu/{i.get('instance')}/info")
     return EXIT_OK if rows else EXIT_NOTHING
 
 
@@ -175,7 +222,9 @@ def to_text(obj, indent: int = 0, width: int = 88) -> list[str]:
     return lines
 
 
-def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Keys) -> str:
+def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Keys,
+                   types: dict[str, str] | None = None) -> str:
+    """The message on ``key``, decoded (``types``: the types of FMU nodes' fmu/ keys)."""
     a = codec.parse_attachment(attachment)
     head = f"--- /{key}"
     if a is not None:
@@ -187,7 +236,7 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
                      + (f"  n_plant {a.n_plant}" if a.flags & codec.ACK else ""))
     elif attachment:
         head += f"  (malformed attachment of {len(attachment)} bytes: {attachment[:24].hex()})"
-    msgtype = keys.msgtype_of(key)
+    msgtype = keys.msgtype_of(key) or (types or {}).get(key)
     if msgtype is None and not payload:
         return f"{head}\n(empty payload)"
     if msgtype is None:
@@ -251,6 +300,8 @@ def echo_main(argv: list[str] | None = None) -> int:
         q.put((str(sample.key_expr), sample.payload.to_bytes(),
                att.to_bytes() if att is not None else None))
 
+    # the types of fmu/ keys come from the FMU nodes' fmu/<instance>/info
+    types = _fmu_types(fmu_nodes(session, keys)) if "fmu" in args.key else {}
     n = 0
     code = EXIT_OK
     idle_s = args.timeout or None
@@ -270,7 +321,7 @@ def echo_main(argv: list[str] | None = None) -> int:
                     key, payload, att = q.get(timeout=min(left, 0.2) if left else 0.2)
                 except queue.Empty:
                     continue
-                print(format_message(key, payload, att, keys), flush=True)
+                print(format_message(key, payload, att, keys, types), flush=True)
                 n += 1
                 if idle_s:
                     deadline = time.monotonic() + idle_s

@@ -284,6 +284,33 @@ def node_tick(number: int) -> float:
     return elapsed
 
 
+def generic_tick(number: int) -> float:
+    """Seconds for ``number`` ticks of an fmu-node with no mapping (no bus): the FMI 3
+    test model bouncing steps twice per 20 ms tick with its own 0.01 s step, both outputs
+    are read and their std_msgs/Float64 messages built and CDR-encoded."""
+    if "generic" not in _cache:
+        from bus import codec
+        from bus.node import Observation
+        from .node import open_node
+        built = Path(__file__).resolve().parent / "build" / fmu_build.fmu_name("bouncing", 3)
+        if not built.is_file():
+            built = fmu_build.build_fmu(3, _tmpdir() / "fmus", "bouncing")
+        node = open_node(built)
+        node.configure({"robots": {}}, "r")
+        atexit.register(node.close)
+        _cache["generic"] = [node, 0, Observation, codec.encode]
+    state = _cache["generic"]
+    node, k, Observation, encode = state
+    start = time.perf_counter()
+    for _ in range(number):
+        k += 1
+        for msg in node.step(Observation(k * 20_000_000, "r", {})).values():
+            encode(msg)
+    elapsed = time.perf_counter() - start
+    state[1] = k
+    return elapsed
+
+
 def benchmarks() -> list[tuple[str, str, Callable[[int], float]]]:
     """(name, description, fn) per benchmark; fn(number) -> total seconds."""
     return [
@@ -297,6 +324,8 @@ def benchmarks() -> list[tuple[str, str, Callable[[int], float]]]:
          "timed in C", partial(c_step, 3)),
         ("fmu-node tick", "fmu-node controller step without the bus: joint_states -> "
          "wheel speeds -> FMI 2 step (+ state saved) -> nav_msgs/Odometry", node_tick),
+        ("fmu-node tick, no map", "fmu-node with no mapping, FMI 3 bouncing model: 2 doSteps "
+         "of its own 0.01 s per tick, 2 outputs -> std_msgs/Float64, encoded", generic_tick),
     ]
 
 

@@ -1,4 +1,7 @@
-"""Build the odometry FMUs (FMI 2.0 and FMI 3.0) from the C sources in fmus/.
+"""Build the odometry FMUs (FMI 2.0 and FMI 3.0) from the C sources in fmus/, and the
+small test models of fmus/models/ (stairs: FMI 2 Integer counter; bouncing: FMI 3 ball;
+gain: FMI 3 y = k u; signals: FMI 3 Boolean, String, Float64 arrays) that the tests run
+on the bus with no mapping (docs/fmu.md).
 
 Each FMU offers Model Exchange and Co-Simulation, ships its binary for the
 build platform and its C sources (so that ``fmpy compile X.fmu`` rebuilds it
@@ -53,24 +56,35 @@ MODEL_IDENTIFIER = "odometry"
 FMU_NAMES = {2: "odometry_fmi2.fmu", 3: "odometry_fmi3.fmu"}
 
 _HERE = Path(__file__).resolve().parent
-_MODEL_DIR = _HERE / "odometry"
 _WRAPPER_DIR = _HERE / "wrapper"
+#: the test models: fmus/models/<name>/ (config.h, model.c, modelDescription<N>.xml)
+MODELS_DIR = _HERE / "models"
+TEST_MODELS = ("stairs", "bouncing", "gain", "signals")
 
-# sources/ of the FMU: (file in the repository, name in sources/)
-_COMMON_SOURCES = [
-    (_MODEL_DIR / "config.h", "config.h"),
-    (_WRAPPER_DIR / "model.h", "model.h"),
-    (_MODEL_DIR / "model.c", "model.c"),
-]
 _WRAPPERS = {
     2: (_WRAPPER_DIR / "fmi2Functions.c", "fmi2Functions.c"),
     3: (_WRAPPER_DIR / "fmi3Functions.c", "fmi3Functions.c"),
 }
-_MODEL_DESCRIPTIONS = {
-    2: _MODEL_DIR / "modelDescription2.xml",
-    3: _MODEL_DIR / "modelDescription3.xml",
-}
-_BUILD_DESCRIPTION = _MODEL_DIR / "buildDescription.xml"
+
+
+def _model_dir(model: str) -> Path:
+    return _HERE / "odometry" if model == MODEL_IDENTIFIER else MODELS_DIR / model
+
+
+def _common_sources(model: str) -> list[tuple[Path, str]]:
+    """sources/ of the FMU: (file in the repository, name in sources/)."""
+    d = _model_dir(model)
+    return [(d / "config.h", "config.h"), (_WRAPPER_DIR / "model.h", "model.h"),
+            (d / "model.c", "model.c")]
+
+
+def model_versions(model: str) -> list[int]:
+    """The FMI versions a model has a model description for."""
+    return [v for v in (2, 3) if (_model_dir(model) / f"modelDescription{v}.xml").is_file()]
+
+
+def fmu_name(model: str, fmi_version: int) -> str:
+    return f"{model}_fmi{fmi_version}.fmu"
 
 _CFLAGS = ["-std=c99", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra"]
 
@@ -141,33 +155,37 @@ def _shared_library_suffix() -> str:
     return ".dylib" if sys.platform == "darwin" else ".so"
 
 
-def _read_token_from_config() -> str:
-    text = (_MODEL_DIR / "config.h").read_text(encoding="utf-8")
+def _read_token_from_config(model: str = MODEL_IDENTIFIER) -> str:
+    config = _model_dir(model) / "config.h"
+    text = config.read_text(encoding="utf-8")
     match = re.search(r'#define\s+INSTANTIATION_TOKEN\s+"([^"]+)"', text)
     if not match:
-        raise FmuBuildError("INSTANTIATION_TOKEN not found in fmus/odometry/config.h")
+        raise FmuBuildError(f"INSTANTIATION_TOKEN not found in {config}")
     return match.group(1)
 
 
-def _check_model_description(fmi_version: int) -> None:
-    """The model description must agree with config.h and the shipped sources."""
-    path = _MODEL_DESCRIPTIONS[fmi_version]
+def _check_model_description(fmi_version: int, model: str = MODEL_IDENTIFIER) -> None:
+    """The model description must agree with config.h and the shipped sources (the
+    odometry FMU offers both interfaces, a test model at least co-simulation)."""
+    path = _model_dir(model) / f"modelDescription{fmi_version}.xml"
     root = ElementTree.parse(path).getroot()
     token = root.get("guid" if fmi_version == 2 else "instantiationToken")
-    expected = _read_token_from_config()
+    expected = _read_token_from_config(model)
     if token != expected:
         raise FmuBuildError(f"{path.name}: token {token!r} differs from INSTANTIATION_TOKEN {expected!r} in config.h")
-    c_files = sorted(name for _, name in _COMMON_SOURCES + [_WRAPPERS[fmi_version]] if name.endswith(".c"))
+    c_files = sorted(name for _, name in _common_sources(model) + [_WRAPPERS[fmi_version]]
+                     if name.endswith(".c"))
     for interface in ("ModelExchange", "CoSimulation"):
         element = root.find(interface)
-        if element is None or element.get("modelIdentifier") != MODEL_IDENTIFIER:
-            raise FmuBuildError(f"{path.name}: <{interface} modelIdentifier={MODEL_IDENTIFIER!r}> missing")
-        if fmi_version == 2:
+        if element is None and (interface == "CoSimulation" or model == MODEL_IDENTIFIER) \
+                or element is not None and element.get("modelIdentifier") != model:
+            raise FmuBuildError(f"{path.name}: <{interface} modelIdentifier={model!r}> missing")
+        if fmi_version == 2 and element is not None:
             listed = sorted(f.get("name") for f in element.findall("SourceFiles/File"))
             if listed != c_files:
                 raise FmuBuildError(f"{path.name}: <{interface}><SourceFiles> lists {listed}, expected {c_files}")
     if fmi_version == 3:
-        build = ElementTree.parse(_BUILD_DESCRIPTION).getroot()
+        build = ElementTree.parse(_model_dir(model) / "buildDescription.xml").getroot()
         listed = sorted(f.get("name") for f in build.iter("SourceFile"))
         if listed != c_files:
             raise FmuBuildError(f"buildDescription.xml lists {listed}, expected {c_files}")
@@ -211,31 +229,35 @@ def _zip_directory(stage: Path, target: Path) -> None:
     os.replace(tmp, target)
 
 
-def build_fmu(fmi_version: int, out_dir: str | os.PathLike = "fmus/build") -> Path:
-    """Build the FMI ``fmi_version`` (2 or 3) odometry FMU into ``out_dir``; return its path."""
+def build_fmu(fmi_version: int, out_dir: str | os.PathLike = "fmus/build",
+              model: str = MODEL_IDENTIFIER) -> Path:
+    """Build the FMI ``fmi_version`` (2 or 3) FMU of ``model`` (the odometry FMU, or a test
+    model of fmus/models) into ``out_dir``; return its path."""
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version must be 2 or 3, not {fmi_version!r}")
 
     cc = find_c_compiler()
-    _check_model_description(fmi_version)
+    _check_model_description(fmi_version, model)
     fmi2_platform, fmi3_platform = platform_dirs()
     platform_dir = fmi2_platform if fmi_version == 2 else fmi3_platform
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    target = out / FMU_NAMES[fmi_version]
+    target = out / fmu_name(model, fmi_version)
+    model_dir = _model_dir(model)
 
-    with tempfile.TemporaryDirectory(prefix=f"odometry_fmi{fmi_version}_") as tmp:
+    with tempfile.TemporaryDirectory(prefix=f"{model}_fmi{fmi_version}_") as tmp:
         stage = Path(tmp)
         sources = stage / "sources"
         sources.mkdir()
-        for src, name in _COMMON_SOURCES + [_WRAPPERS[fmi_version]]:
+        for src, name in _common_sources(model) + [_WRAPPERS[fmi_version]]:
             shutil.copyfile(src, sources / name)
         if fmi_version == 3:
-            shutil.copyfile(_BUILD_DESCRIPTION, sources / "buildDescription.xml")
-        shutil.copyfile(_MODEL_DESCRIPTIONS[fmi_version], stage / "modelDescription.xml")
+            shutil.copyfile(model_dir / "buildDescription.xml", sources / "buildDescription.xml")
+        shutil.copyfile(model_dir / f"modelDescription{fmi_version}.xml",
+                        stage / "modelDescription.xml")
 
-        binary = stage / "binaries" / platform_dir / (MODEL_IDENTIFIER + _shared_library_suffix())
+        binary = stage / "binaries" / platform_dir / (model + _shared_library_suffix())
         _compile(cc, stage, fmi_version, binary)
 
         _zip_directory(stage, target)
@@ -251,13 +273,19 @@ def build_fmus(out_dir: str | os.PathLike = "fmus/build") -> dict[str, Path]:
     return {f"fmi{version}": build_fmu(version, out_dir) for version in (2, 3)}
 
 
+def build_test_fmus(out_dir: str | os.PathLike = "fmus/build") -> dict[str, Path]:
+    """Build the test models into ``out_dir``: {"stairs_fmi2": path, ...}."""
+    return {f"{m}_fmi{v}": build_fmu(v, out_dir, m) for m in TEST_MODELS
+            for v in model_versions(m)}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command line: ``python -m fmus.build [--out DIR]``; prints the built paths."""
     parser = argparse.ArgumentParser(prog="python -m fmus.build", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="fmus/build", help="output directory (default: fmus/build)")
     args = parser.parse_args(argv)
     try:
-        paths = build_fmus(args.out)
+        paths = {**build_fmus(args.out), **build_test_fmus(args.out)}
     except FmuBuildError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

@@ -20,7 +20,7 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 from bus import codec
-from bus.keys import TOPICS
+from bus.keys import TOPICS, BadName, check_fmu_topic, is_fmu_topic
 from bus.node import WHEEL_JOINTS
 
 FMUS_DIR = Path(__file__).resolve().parent
@@ -137,11 +137,13 @@ MESSAGES: dict[str, MessageKind] = {
 @dataclass
 class InputMap:
     variable: str
-    topic: str
-    field: FieldPath
+    topic: str                      # a robot topic, or an FMU node's key fmu/<instance>/<var>
+    field: FieldPath | None         # None: an fmu/ key, its whole value
     transform: str = "value"        # "value" or "rate"
     scale: float = 1.0
     where: str = ""                 # "file:input[0]" for messages
+    msgtype: str | None = None      # fmu/ key: the producer's std_msgs type (default: the
+    #                                 input variable's own)
 
 
 @dataclass
@@ -161,6 +163,9 @@ class Mapping:
     outputs: list[OutputMap] = field(default_factory=list)
     parameters: dict[str, float | str] = field(default_factory=dict)   # name -> number | path
     where_parameters: str = ""
+    #: the FMU's communication step: "fmu" (its DefaultExperiment stepSize), "tick" (one
+    #: doStep per control tick) or seconds; ``diffbot fmu-node --step-size`` overrides it
+    step_size: str | float = "fmu"
 
     @property
     def topics(self) -> list[str]:
@@ -236,27 +241,22 @@ def load_mapping(path: str | Path) -> Mapping:
             t.fail("variable", f"{var!r} is fed twice")
         seen.add(var)
         topic = t.string("topic")
-        if topic not in TOPICS:
-            t.fail("topic", f"unknown topic {topic!r} (topics: {', '.join(TOPICS)})")
-        try:
-            fp = FieldPath(t.string("field"))
-            fp.check_msgtype(TOPICS[topic].msgtype)
-        except ValueError as exc:
-            t.fail("field", str(exc))
+        fp, msgtype = _input_source(t, topic)
         transform = t.string("transform", "value")
         if transform not in TRANSFORMS:
             t.fail("transform", f"must be one of {', '.join(TRANSFORMS)}, got {transform!r}")
         scale = t.number("scale", 1.0)
-        t.done(("variable", "topic", "field", "transform", "scale"))
-        m.inputs.append(InputMap(var, topic, fp, transform, scale, f"{path}:input[{n}]"))
+        t.done(("variable", "topic", "field", "type", "transform", "scale"))
+        m.inputs.append(InputMap(var, topic, fp, transform, scale, f"{path}:input[{n}]",
+                                 msgtype))
 
     raw_outputs = data.get("output", [])
     top.used.add("output")
     single = isinstance(raw_outputs, dict)
     if single:
         raw_outputs = [raw_outputs]
-    if not isinstance(raw_outputs, list) or not raw_outputs:
-        top.fail("output", "missing: at least one [output] table is required")
+    if not isinstance(raw_outputs, list):
+        top.fail("output", "expected [output] tables")   # none: every output on fmu/ keys
     for n, raw in enumerate(raw_outputs):
         t = _Table(path, "output" if single else f"output[{n}]", raw)
         topic = t.string("topic")
@@ -292,8 +292,39 @@ def load_mapping(path: str | Path) -> Mapping:
                          f"\"robots.{{robot}}.wheel_radius_m\", got {v!r}")
         m.parameters[name] = v
     m.where_parameters = f"{path}:parameters"
-    top.done(("input", "output", "parameters"))
+    top.used.add("step_size")
+    step = data.get("step_size", "fmu")
+    if step not in ("fmu", "tick") and (isinstance(step, bool) or not isinstance(
+            step, (int, float)) or not 0 < step < math.inf):
+        top.fail("step_size", f"expected \"fmu\", \"tick\" or a step in s > 0, got {step!r}")
+    m.step_size = step
+    top.done(("input", "output", "parameters", "step_size"))
     return m
+
+
+def _input_source(t: _Table, topic: str) -> tuple[FieldPath | None, str | None]:
+    """(field path, producer's type) of an input: a robot topic needs a numeric field; an
+    ``fmu/<instance>/<variable>`` key carries one variable whole (``type`` optional)."""
+    if is_fmu_topic(topic):
+        try:
+            check_fmu_topic(topic)
+        except BadName as exc:
+            t.fail("topic", str(exc))
+        if "field" in t.data:
+            t.fail("field", f"{topic} carries one FMU variable: no field (docs/fmu.md)")
+        kind = t.string("type", "")
+        if kind and f"std_msgs/msg/{kind}" not in codec.TYPESTORE.fielddefs:
+            t.fail("type", f"unknown std_msgs type {kind!r} (e.g. Float64, Int32, Bool)")
+        return None, f"std_msgs/msg/{kind}" if kind else None
+    if topic not in TOPICS:
+        t.fail("topic", f"unknown topic {topic!r} (topics: {', '.join(TOPICS)}, or an FMU "
+                        "node's fmu/<instance>/<variable>)")
+    try:
+        fp = FieldPath(t.string("field"))
+        fp.check_msgtype(TOPICS[topic].msgtype)
+    except ValueError as exc:
+        t.fail("field", str(exc))
+    return fp, None
 
 
 def default_mapping(model_identifier: str) -> Path | None:

@@ -1,20 +1,23 @@
-"""Run any co-simulation FMU (FMI 2.0 or 3.0) as a node on the bus.
+"""Run any co-simulation FMU (FMI 2.0 or 3.0) as a node on the bus (docs/fmu.md).
 
-    diffbot fmu-node FMU --robot R [--mapping FILE] [--name NAME] [bus options]
+    diffbot fmu-node FMU [--instance I] [--connect VAR=fmu/OTHER/VAR] [--param NAME=VALUE]
+                         [--step-size fmu|tick|S] [--from-zero] [--mapping FILE] [bus options]
 
-The FMU is loaded with fmpy (``instantiate_fmu``: FMU2Slave / FMU3Slave) and wrapped in a
-controller object for :mod:`bus.node`, which does all of the bus work (session, lockstep,
-stamping). A small TOML *mapping file* (read and checked by :mod:`fmus.mapping`) says how
-messages and FMU variables meet::
+The FMU is loaded with fmpy (:mod:`fmus.fmu`) and wrapped in a controller object for
+:mod:`bus.node`, which does all of the bus work (session, lockstep, stamping). With no
+mapping file every output goes on ``fmu/<instance>/<variable>`` as the std_msgs type of its
+FMI type (:mod:`fmus.variables`) and every input is read from its key or another node's
+(:mod:`fmus.wiring`); the node answers ``fmu/<instance>/info``. A TOML *mapping file* (read
+and checked by :mod:`fmus.mapping`) wires the FMU to robot topics instead::
 
-    [[input]]                       # one per FMU input (Real / Float64)
+    [[input]]                       # one per FMU input (any numeric FMI type that fits)
     variable  = "omega_left"        # FMU input variable
-    topic     = "joint_states"      # robot topic (bus.keys.TOPICS) it is read from
+    topic     = "joint_states"      # robot topic (bus.keys.TOPICS), or fmu/<instance>/<var>
     field     = "position[0]"       # field path in the message: names, dots, [index]
     transform = "rate"              # "value" (default) or "rate" = delta value / delta t
     scale     = 1.0                 # optional factor on the field's value (deg -> rad...)
 
-    [output]                        # or [[output]] for several messages
+    [output]                        # or [[output]] for several messages; none: fmu/ keys
     topic   = "odom"                # robot topic the message is published on
     message = "odometry"            # builder: odometry, point, twist, wheel_speeds
     frame_id = "world"              # options of the builder
@@ -33,8 +36,9 @@ FMU built into ``fmus/build``.
 Stepping (co-simulation semantics: inputs are held over a communication step): at each
 control tick t_k the node reads the latest sample of each input topic, turns it into input
 values (``rate`` inputs: value difference since the previous *accepted* sample over
-h = t_k - t_prev), sets them, calls ``doStep(t_prev, h)`` and publishes the outputs
-stamped t_k. So the step covers the interval that ends at the tick and the outputs carry
+h = t_k - t_prev), sets them, calls ``doStep(t_prev, h)`` -- or, for an FMU stepping with
+its own step size, the doSteps between its grid points up to t_k -- and publishes the
+outputs stamped t_k. So the step covers the interval that ends at the tick and the outputs carry
 no lag; with encoder angles and ``rate`` this reproduces exact-arc dead reckoning. At the
 first tick there is no previous reading: the FMU is initialised at t_0 (``rate`` inputs 0)
 and its initial outputs are published (the start pose for the odometry FMU).
@@ -54,21 +58,22 @@ initialised again from the current tick. The counters are in the ``--stats`` JSO
 """
 from __future__ import annotations
 
-import atexit
+import argparse
+import json
 import logging
 import math
-import shutil
 import sys
-import tempfile
-import zipfile
-from collections import deque
-from ctypes import byref
 from pathlib import Path
 
+from bus import jsonio
+from bus.keys import TOPICS, Keys, check_name, fmu_topic
 from bus.log import RejectCounter, setup_logging
-from bus.node import EXIT_BAD_CONFIG, node_arg_parser, run_node_args, write_json
+from bus.node import EXIT_BAD_CONFIG, _name_arg, node_arg_parser, run_node_args, write_json
 
+from .fmu import Fmu, FmuCallError
 from .mapping import FieldPath, FmuNodeError, Mapping, default_mapping, load_mapping
+from .variables import Variable
+from .wiring import build_feeds, output_variables
 
 __all__ = ["FmuNodeError", "FieldPath", "Mapping", "load_mapping", "resolve_fmu", "Fmu",
            "FmuNode", "open_node", "main"]
@@ -102,289 +107,66 @@ def resolve_fmu(arg: str | Path) -> Path:
     raise FmuNodeError(f"{arg}: no such FMU file")
 
 
-# ====================================================================== the FMU
-
-class FmuCallError(RuntimeError):
-    """An FMI call returned an error at run time (the FMU's last log message attached)."""
-
-
-_TMP_DIRS: list[str] = []
-
-
-@atexit.register
-def _remove_tmp_dirs() -> None:
-    for d in _TMP_DIRS:
-        shutil.rmtree(d, ignore_errors=True)
-
-
-class Fmu:
-    """One co-simulation instance of an FMI 2 or 3 FMU through fmpy, addressed by variable
-    names; errors at load time raise FmuNodeError naming the FMU (and the variable)."""
-
-    def __init__(self, path: str | Path, instance_name: str = "fmu",
-                 log: logging.Logger | None = None) -> None:
-        from fmpy import extract, read_model_description
-        self.path = Path(path)
-        self.name = self.path.name
-        self.log = log or logging.getLogger("fmu")
-        self.messages: deque[str] = deque(maxlen=8)
-        self.fmu = None
-        if not zipfile.is_zipfile(self.path):
-            raise FmuNodeError(f"{self.path}: not an FMU (not a ZIP archive)")
-        try:
-            md = read_model_description(str(self.path))
-        except Exception as exc:
-            raise FmuNodeError(f"{self.path}: not a valid FMU: {_one_line(exc)}") from None
-        self.md = md
-        self.version = int(md.fmiVersion.split(".")[0]) if md.fmiVersion else 0
-        if self.version not in (2, 3):
-            raise FmuNodeError(f"{self.name}: FMI {md.fmiVersion} is not supported "
-                               "(FMI 2.0 or 3.0 co-simulation)")
-        if md.coSimulation is None:
-            offers = [k for k, v in (("model exchange", md.modelExchange),
-                                     ("scheduled execution",
-                                      getattr(md, "scheduledExecution", None))) if v is not None]
-            raise FmuNodeError(f"{self.name}: the FMU has no co-simulation interface "
-                               f"(it offers {', '.join(offers) or 'nothing'}); fmu-node "
-                               "runs co-simulation FMUs")
-        self.model_identifier = md.coSimulation.modelIdentifier
-        self.can_snapshot = bool(md.coSimulation.canGetAndSetFMUstate)
-        self.variables = {v.name: v for v in md.modelVariables}
-        self.unzipdir = tempfile.mkdtemp(prefix="fmu-node-")
-        _TMP_DIRS.append(self.unzipdir)
-        extract(str(self.path), self.unzipdir)
-        self.instance_name = instance_name
-        self._instantiate()
-        self._snapshot = None
-        self.time = 0.0
-
-    # ------------------------------------------------------------------ plumbing
-    def _logger(self):
-        if self.version == 2:
-            def log2(env, instance, status, category, message):
-                self._record(status, message)
-            return log2
-
-        def log3(env, status, category, message):
-            self._record(status, message)
-        return log3
-
-    def _record(self, status, message) -> None:
-        text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
-        self.messages.append(text)
-        if status >= 2:
-            self.log.debug("%s: %s", self.name, text)
-
-    def last_message(self) -> str:
-        return self.messages[-1] if self.messages else ""
-
-    def _instantiate(self) -> None:
-        from fmpy.simulation import instantiate_fmu
-        try:
-            self.fmu = instantiate_fmu(self.unzipdir, self.md, "CoSimulation",
-                                       logger=self._logger())
-        except Exception as exc:
-            raise FmuNodeError(f"{self.name}: cannot instantiate the FMU for co-simulation: "
-                               f"{_one_line(exc)}{self._why()}") from None
-        self._set, self._get = ("setReal", "getReal") if self.version == 2 else \
-            ("setFloat64", "getFloat64")
-
-    def _why(self) -> str:
-        m = self.last_message()
-        return f" ({m})" if m else ""
-
-    def variable(self, name: str, role: str, where: str):
-        """The model variable ``name`` checked for ``role`` (input, output, parameter)."""
-        v = self.variables.get(name)
-        if v is None:
-            close = [n for n in self.variables if n.lower() == name.lower()]
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise FmuNodeError(f"{where}: the FMU {self.name} has no variable {name!r}{hint}")
-        if v.type not in ("Real", "Float64"):
-            raise FmuNodeError(f"{where}: variable {name!r} of {self.name} is {v.type}; "
-                               "only Real / Float64 variables can be mapped")
-        ok = {"input": v.causality == "input",
-              "parameter": v.causality == "parameter" or
-              (v.causality in ("local", "output") and v.initial == "exact" and
-               v.variability != "constant"),
-              "output": v.causality in ("output", "local", "parameter",
-                                        "calculatedParameter", "input")}[role]
-        if not ok:
-            raise FmuNodeError(f"{where}: variable {name!r} of {self.name} has causality "
-                               f"{v.causality!r}; it cannot be used as an {role}"
-                               if role != "parameter" else
-                               f"{where}: variable {name!r} of {self.name} has causality "
-                               f"{v.causality!r}; it cannot be used as a parameter")
-        return v
-
-    def vrs(self, names: list[str]) -> list[int]:
-        return [self.variables[n].valueReference for n in names]
-
-    # ------------------------------------------------------------------ calls
-    def _call(self, what: str, method: str, *args):
-        """Call fmpy's ``method`` of the instance; FMI errors become FmuCallError."""
-        from fmpy.fmi1 import FMICallException
-        if self.fmu is None:
-            raise FmuCallError(f"{what}: the FMU has no instance (it could not be created again)")
-        try:
-            return getattr(self.fmu, method)(*args)
-        except FMICallException as exc:
-            raise FmuCallError(f"{what} failed with status {exc.status}{self._why()}") from None
-        except Exception as exc:  # ctypes errors
-            raise FmuCallError(f"{what} failed: {_one_line(exc)}") from None
-
-    def set(self, vrs: list[int], values: list[float]) -> None:
-        self._call("set", self._set, vrs, values)
-
-    def get(self, vrs: list[int]) -> list[float]:
-        return self._call("get", self._get, vrs)
-
-    def initialize(self, t: float, params: dict[int, float], inputs: dict[int, float]) -> None:
-        """Set parameters and inputs, initialise at time t; the instance is then in step mode."""
-        if self.fmu is None:
-            try:
-                self._instantiate()
-            except FmuNodeError as exc:
-                raise FmuCallError(str(exc)) from None
-        if params:
-            self._call("setting the parameters", self._set, list(params), list(params.values()))
-        if inputs:
-            self._call("setting the inputs", self._set, list(inputs), list(inputs.values()))
-        if self.version == 2:
-            self._call("setupExperiment", "setupExperiment", None, t)
-            self._call("enterInitializationMode", "enterInitializationMode")
-        else:
-            self._call("enterInitializationMode", "enterInitializationMode", None, t)
-        self._call("exitInitializationMode", "exitInitializationMode")
-        self.time = t
-        self.snapshot()
-
-    def do_step(self, h: float) -> None:
-        """Advance from self.time by h; raises FmuCallError (the instance is not advanced)."""
-        if self.version == 2:
-            self._call("doStep", "doStep", self.time, h)
-        else:
-            event, terminate, early, last = self._call("doStep", "doStep", self.time, h)
-            if terminate:
-                raise FmuCallError(f"doStep asked to terminate the simulation{self._why()}")
-        self.time += h
-
-    def snapshot(self) -> None:
-        """Remember the current state (FMUs that can get and set their state)."""
-        if not self.can_snapshot or self.fmu is None:
-            return
-        try:
-            if self._snapshot is None:
-                self._snapshot = self._call("getFMUstate", "getFMUState")
-            else:   # update the saved state in place (FMI: *FMUstate != NULL on entry)
-                f = "fmi2GetFMUstate" if self.version == 2 else "fmi3GetFMUState"
-                self._call("getFMUstate", f, self.fmu.component, byref(self._snapshot))
-        except FmuCallError as exc:
-            self.log.warning("%s: cannot save its state (%s): a failed step will "
-                             "initialise it again", self.name, exc)
-            self.can_snapshot = False
-            self._snapshot = None
-
-    def rollback(self, t_good: float) -> bool:
-        """Back to the state after the last good step; True if the state was kept."""
-        if self._snapshot is not None:
-            try:
-                self._call("setFMUstate", "setFMUState", self._snapshot)
-                self.time = t_good
-                return True
-            except FmuCallError:
-                pass
-        return False
-
-    def reset(self) -> None:
-        """Back to the instantiated state: fmiReset, else a new instance (never raises; if
-        no instance can be made, the next :meth:`initialize` tries again)."""
-        self._free_snapshot()
-        try:
-            self._call("reset", "reset")
-            return
-        except FmuCallError:
-            pass
-        self._free_instance()
-        try:
-            self._instantiate()
-        except FmuNodeError as exc:
-            self.log.error("%s", exc)
-
-    def _free_snapshot(self) -> None:
-        if self._snapshot is not None:
-            try:
-                self.fmu.freeFMUState(self._snapshot)
-            except Exception:
-                pass
-            self._snapshot = None
-
-    def _free_instance(self) -> None:
-        if self.fmu is None:
-            return
-        try:
-            self.fmu.freeInstance()
-        except Exception:
-            pass
-        self.fmu = None
-
-    def close(self) -> None:
-        """Terminate and free the instance (never raises)."""
-        if self.fmu is None:
-            return
-        self._free_snapshot()
-        try:
-            self.fmu.terminate()
-        except Exception:
-            pass
-        self._free_instance()
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
-
-
 # ====================================================================== the controller
 
 class FmuNode:
-    """A bus.node controller that steps an FMU once per control tick (see module docstring)."""
+    """A bus.node controller that steps an FMU at each control tick (module docstring)."""
 
     sync = True
-    check_inputs = False     # it checks its mapped fields itself (and holds its outputs)
+    check_inputs = False     # it checks its inputs itself (and holds its outputs)
 
-    def __init__(self, fmu: Fmu, mapping: Mapping, log: logging.Logger | None = None) -> None:
+    def __init__(self, fmu: Fmu, mapping: Mapping | None = None, log: logging.Logger | None = None,
+                 instance: str | None = None, connect: dict[str, str] | None = None,
+                 start_values: dict[str, str] | None = None, step: str | float | None = None,
+                 from_zero: bool = False) -> None:
         self.fmu = fmu
-        self.mapping = mapping
+        self.mapping = mapping or Mapping("")
         self.name = fmu.model_identifier
+        self.instance = check_name(instance or fmu.model_identifier, "FMU instance name")
         self.log = log or logging.getLogger(self.name)
         self.rejects = RejectCounter(self.log)
-        self.inputs = mapping.topics
-        for i in mapping.inputs:
-            fmu.variable(i.variable, "input", f"{i.where}.variable")
-        for o in mapping.outputs:
-            for f, var in o.fields.items():
-                fmu.variable(var, "output", f"{o.where}.{f}")
-        for p in mapping.parameters:
-            fmu.variable(p, "parameter", f"{mapping.where_parameters}.{p}")
-        self.in_vrs = fmu.vrs([i.variable for i in mapping.inputs])
-        self.rate = [i.transform == "rate" for i in mapping.inputs]
-        self.out_names = list(dict.fromkeys(v for o in mapping.outputs for v in o.fields.values()))
-        self.out_vrs = fmu.vrs(self.out_names)
-        self.params: dict[int, float] = {}
+        self.feeds, self.topics = build_feeds(fmu, self.instance, self.mapping.inputs,
+                                              connect or {}, self.log)
+        self.inputs = list(dict.fromkeys(f.topic for f in self.feeds))
+        self.rate = [f.rate for f in self.feeds]
+        self.builders = self.mapping.outputs
+        builder_vars = [fmu.variable(var, "output", f"{o.where}.{f}")
+                        for o in self.builders for f, var in o.fields.items()]
+        for v in builder_vars:
+            if not v.numeric or v.shape:
+                raise FmuNodeError(f"{self.mapping.path}: output {v.name!r} is {v.fmi_type}"
+                                   f"{' array' if v.shape else ''}: a message field takes a "
+                                   "number (leave [output] out to publish it on its fmu/ key)")
+        #: outputs published on their fmu/ keys: all of them when no [output] builds messages
+        self.generic = [] if self.builders else output_variables(fmu, self.log)
+        self.out_vars = list({v.name: v for v in builder_vars + self.generic}.values())
+        self.generic_topics = [fmu_topic(self.instance, v.name) for v in self.generic]
+        for p in self.mapping.parameters:
+            fmu.variable(p, "parameter", f"{self.mapping.where_parameters}.{p}")
+        self.cli_params = _cli_parameters(fmu, start_values or {})
+        self.params: list[tuple[Variable, list]] = []
+        self.step_size = _step_size(fmu, step if step is not None else self.mapping.step_size)
+        self.from_zero = from_zero
         # run state
-        self.t_ns: int | None = None         # tick of the FMU's current time
-        self.prev: list[float] | None = None  # raw input values of the last accepted sample
-        self.outputs: dict[str, float] | None = None
+        self.t_ns: int | None = None          # tick of the FMU's current time
+        self.t0 = 0.0                         # time the FMU was initialised at, s
+        self.j = 0                            # FMU steps since t0 (its own step size)
+        self.prev: list | None = None         # raw input values of the last accepted sample
+        self.held_inputs: list = [None] * len(self.feeds)   # external inputs: last good
+        self.outputs: dict[str, list] | None = None
         self.steps = 0
+        self.fmu_steps = 0
         self.held = 0
         self.rollbacks = 0
         self.reinitialised = 0
+        self.waiting_said = False
 
     # ------------------------------------------------------------------ configure
     def configure(self, info: dict, robot: str) -> None:
-        """Parameters from sim/info (the node API calls this once the plant answered)."""
-        params: dict[int, float] = {}
+        """Parameters (mapping file: numbers or sim/info paths; --param), checked against
+        their min / max and set now, so a value the FMU refuses is a configuration error."""
+        self.robot = robot
+        params = dict(self.cli_params)
         for name, spec in self.mapping.parameters.items():
             where = f"{self.mapping.where_parameters}.{name}"
             if isinstance(spec, str):
@@ -398,32 +180,92 @@ class FmuNode:
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
                     or not math.isfinite(value):
                 raise FmuNodeError(f"{where}: {spec} is {value!r}, not a finite number")
-            params[self.fmu.variables[name].valueReference] = float(value)
-        try:   # set them now, so that a value the FMU refuses is a configuration error
-            self.fmu.set(list(params), list(params.values()))
+            var = self.fmu.bus_variable(name)
+            params[name] = (var, [_in_bounds(var, value, where)])
+        self.params = list(params.values())
+        try:
+            if self.params:
+                self.fmu.write([v for v, _ in self.params], [x for _, x in self.params])
         except FmuCallError as exc:
-            raise FmuNodeError(f"{self.mapping.where_parameters}: the FMU {self.fmu.name} "
-                               f"refused the parameters: {exc}") from None
-        self.params = params
+            raise FmuNodeError(f"{self.mapping.where_parameters or '--param'}: the FMU "
+                               f"{self.fmu.name} refused the parameters: {exc}") from None
+        now = int(info.get("time_ns", 0) or 0)
+        if now > 0 and not self.from_zero:
+            self.log.info("%s joins at t=%.3f s: its model starts at the current bus time "
+                          "(not 0; --from-zero waits for t=0)", self.instance, now * 1e-9)
+
+    def on_session(self, session, keys) -> None:
+        """Answer ``fmu/<instance>/info`` (bus.node calls this once the session is open)."""
+        self.bus_keys = keys
+        if self.generic_topics:        # its keys must be its own
+            for reply in session.get(keys.fmu_info(self.instance), timeout=0.5):
+                if reply.ok is not None:
+                    other = json.loads(reply.ok.payload.to_bytes()).get("node") or "a node"
+                    raise FmuNodeError(f"instance {self.instance!r} is on the bus already "
+                                       f"({other}): give this one another --instance")
+        self._queryable = session.declare_queryable(keys.fmu_info(self.instance),
+                                                    self._answer_info)
+
+    def _answer_info(self, query) -> None:
+        try:
+            query.reply(query.key_expr, jsonio.dumps(self.info()).encode())
+        except Exception as exc:     # the asker went away
+            self.log.debug("fmu info reply: %s", exc)
+
+    def info(self) -> dict:
+        """What ``fmu/<instance>/info`` answers: the node, its time base, its variables."""
+        keys = getattr(self, "bus_keys", None) or Keys()
+        robot = getattr(self, "robot", "<robot>")
+
+        def key(topic):
+            return keys.topic(robot, topic)
+
+        def mapped(topic, field):    # a field of a robot message (mapping file)
+            return {"type": TOPICS[topic].msgtype, "field": field} if topic in TOPICS else {}
+        variables = [dict(f.var.info(key(f.topic)), direction="input",
+                          **mapped(f.topic, str(f.field)),
+                          awaited=not f.external) for f in self.feeds]
+        variables += [dict(v.info(key(t)), direction="output")
+                      for v, t in zip(self.generic, self.generic_topics)]
+        variables += [dict(self.fmu.bus_variable(var).info(key(o.topic)), direction="output",
+                           message=o.message, **mapped(o.topic, f))
+                      for o in self.builders for f, var in o.fields.items()]
+        variables += [dict(v.info(""), direction="parameter", value=x if v.shape else x[0])
+                      for v, x in self.params]
+        return {"instance": self.instance, "node": getattr(self, "node_name", None),
+                "model_identifier": self.fmu.model_identifier,
+                "fmu": self.fmu.name, "fmi_version": self.fmu.md.fmiVersion,
+                "step_size_s": self.step_size, "step": "own" if self.step_size else "tick",
+                "start": "from zero" if self.from_zero else "bus time",
+                "started_at_s": self.t0 if self.t_ns is not None else None,
+                "mapping": self.mapping.path or None,
+                "variables": variables}
 
     # ------------------------------------------------------------------ step
-    def read(self, obs) -> list[float] | None:
-        """Raw input values (scaled) from the latest messages, or None (and a reject)."""
+    def read(self, obs) -> list | None:
+        """Values per feed from the latest messages (None: nothing yet), or None and a
+        reject for a bad sample; an external input's bad value is rejected and its last
+        good one kept."""
         values = []
-        for m in self.mapping.inputs:
-            msg = obs[m.topic]
+        for i, f in enumerate(self.feeds):
+            msg = obs[f.topic]
             if msg is None:
+                if f.external:
+                    values.append(self.held_inputs[i])
+                    continue
                 return None               # nothing received yet: not a bad sample
             try:
-                v = float(m.field.get(msg)) * m.scale
+                v = f.convert(f.raw(msg))
             except (LookupError, TypeError, ValueError) as exc:
-                self.rejects.reject("input", f"{self.fmu.name}: {m.variable} from "
-                                             f"{m.topic}.{m.field}: {exc}")
+                self.rejects.reject("input", f"{self.fmu.name}: {f.var.name} from "
+                                             f"{f.topic}{'.' + str(f.field) if f.field else ''}"
+                                             f": {exc}")
+                if f.external:
+                    values.append(self.held_inputs[i])
+                    continue
                 return None
-            if not math.isfinite(v):
-                self.rejects.reject("input", f"{self.fmu.name}: {m.variable} from "
-                                             f"{m.topic}.{m.field} is {v}")
-                return None
+            if f.external:
+                self.held_inputs[i] = v
             values.append(v)
         return values
 
@@ -445,57 +287,92 @@ class FmuNode:
             self.t_ns = None
         raw = self.read(obs)
         if self.t_ns is None:
+            if self.from_zero and t_ns != 0:
+                if not self.waiting_said:
+                    self.log.info("%s: bus time is %.3f s; waiting for t=0 to start "
+                                  "(--from-zero: a plant started with --expect %s, or a "
+                                  "reset)", self.instance, t_ns * 1e-9,
+                                  getattr(self, "node_name", None) or self.instance)
+                    self.waiting_said = True
+                return None
             return self._start(t_ns, raw)
         if raw is None or t_ns == self.t_ns:      # bad sample, or this tick again
             self.held += raw is None
             return self.publish(t_ns)
-        h_ns = t_ns - self.t_ns
-        h = h_ns * 1e-9
+        h = (t_ns - self.t_ns) * 1e-9
         values = []
         for i, v in enumerate(raw):
-            if self.rate[i]:
-                v = (v - self.prev[i]) / h if self.prev is not None else 0.0
+            if self.rate[i] and v is not None:
+                v = [(v[0] - self.prev[i][0]) / h] if self.prev is not None else [0.0]
             values.append(v)
-        if not all(math.isfinite(v) for v in values):
-            bad = [m.variable for m, v in zip(self.mapping.inputs, values) if not math.isfinite(v)]
+        bad = [f.var.name for f, v in zip(self.feeds, values)
+               if v is not None and f.var.numeric and not all(map(math.isfinite, v))]
+        if bad:
             self.rejects.reject("input", f"{self.fmu.name}: {', '.join(bad)} not finite")
             self.held += 1
             return self.publish(t_ns)
-        t_good = self.fmu.time
+        t_good, j_good = self.fmu.time, self.j
         try:
-            if self.in_vrs:
-                self.fmu.set(self.in_vrs, values)
-            self.fmu.do_step(h)
-            out = self.fmu.get(self.out_vrs)
-            if not all(math.isfinite(v) for v in out):
-                bad = [n for n, v in zip(self.out_names, out) if not math.isfinite(v)]
+            given = [(f.var, v) for f, v in zip(self.feeds, values) if v is not None]
+            if given:
+                self.fmu.write([g[0] for g in given], [g[1] for g in given])
+            self._advance(t_ns, h)
+            out = self.fmu.read(self.out_vars)
+            bad = [v.name for v, x in zip(self.out_vars, out)
+                   if v.numeric and not all(map(math.isfinite, x))]
+            if bad:
                 raise FmuCallError(f"non-finite output {', '.join(bad)}")
         except FmuCallError as exc:
             self.rejects.reject("step", f"{self.fmu.name} at t={t_ns * 1e-9:.3f} s: {exc}")
+            self.j = j_good
             self._recover(t_good)
             self.held += 1
             return self.publish(t_ns)
         self.fmu.snapshot()
-        self.outputs = dict(zip(self.out_names, out))
+        self.outputs = {v.name: x for v, x in zip(self.out_vars, out)}
         self.prev = raw
         self.t_ns = t_ns
         self.steps += 1
         return self.publish(t_ns)
 
-    def _start(self, t_ns: int, raw: list[float] | None):
+    def _advance(self, t_ns: int, h: float) -> None:
+        """The FMU to the tick: one doStep over the tick, or (with its own step size dt)
+        doSteps between its grid points t0 + j dt up to the tick, as fmpy's simulate_fmu
+        steps (an FMU step longer than the tick happens at the tick that reaches it)."""
+        if self.step_size is None:
+            self.fmu.do_step(h)
+            self.fmu_steps += 1
+            return
+        t = t_ns * 1e-9
+        dt = self.step_size
+        while (self.j + 1) * dt <= (t - self.t0) * (1 + 1e-12) + 1e-12:
+            t_next = self.t0 + (self.j + 1) * dt
+            self.fmu.do_step(t_next - self.fmu.time, t_next)
+            self.j += 1
+            self.fmu_steps += 1
+
+    def _start(self, t_ns: int, raw: list | None):
         """First tick (or after a reset): initialise at t_ns, publish the initial outputs."""
-        inputs = {}
+        start = list(self.params)
         if raw is not None:
-            inputs = {vr: (0.0 if r else v) for vr, r, v in zip(self.in_vrs, self.rate, raw)}
+            start += [(f.var, [0.0] if r else v)
+                      for f, r, v in zip(self.feeds, self.rate, raw) if v is not None]
         try:
-            self.fmu.initialize(t_ns * 1e-9, self.params, inputs)
-            self.outputs = dict(zip(self.out_names, self.fmu.get(self.out_vrs)))
+            self.fmu.initialize(t_ns * 1e-9, start)
+            self.outputs = {v.name: x for v, x in zip(self.out_vars,
+                                                      self.fmu.read(self.out_vars))}
         except FmuCallError as exc:
             self.rejects.reject("step", f"{self.fmu.name}: initialisation at "
                                         f"t={t_ns * 1e-9:.3f} s failed: {exc}")
             self.fmu.reset()
             return self.publish(t_ns)
+        if self.t0 != t_ns * 1e-9 or self.steps == 0:
+            self.log.info("%s starts at t=%.3f s; %s", self.instance, t_ns * 1e-9,
+                          f"its own step {self.step_size:g} s" if self.step_size else
+                          "one doStep per control tick")
         self.t_ns = t_ns
+        self.t0 = t_ns * 1e-9
+        self.j = 0
         self.prev = raw
         return self.publish(t_ns)
 
@@ -509,7 +386,8 @@ class FmuNode:
         self.reinitialised += 1
         self.fmu.reset()
         try:
-            self.fmu.initialize(t_good, self.params, {})
+            self.fmu.initialize(t_good, self.params)
+            self.t0, self.j = t_good, 0
         except FmuCallError as exc:
             self.rejects.reject("step", f"{self.fmu.name}: initialisation failed: {exc}")
             self.fmu.reset()
@@ -517,59 +395,167 @@ class FmuNode:
             self.prev = None
 
     def publish(self, t_ns: int) -> dict | None:
-        """The mapped messages from the last good outputs, stamped t_ns."""
+        """The messages of the last good outputs, stamped t_ns (header) or by the
+        attachment (the std_msgs of fmu/ keys)."""
         if self.outputs is None:
             return None
         out = {}
-        for o in self.mapping.outputs:
-            values = {f: self.outputs[var] for f, var in o.fields.items()}
+        for o in self.builders:
+            values = {f: float(self.outputs[var][0]) for f, var in o.fields.items()}
             out[o.topic] = o.kind.build(t_ns, values, o.options)
+        for v, topic in zip(self.generic, self.generic_topics):
+            out[topic] = v.message(self.outputs[v.name])
         return out
 
     def stats(self) -> dict:
         return {"fmu": str(self.fmu.path), "fmi_version": self.fmu.version,
-                "steps": self.steps, "held": self.held, "rollbacks": self.rollbacks,
-                "reinitialised": self.reinitialised, "rejected": dict(self.rejects.counts)}
+                "instance": self.instance, "step_size_s": self.step_size,
+                "steps": self.steps, "fmu_steps": self.fmu_steps, "held": self.held,
+                "rollbacks": self.rollbacks, "reinitialised": self.reinitialised,
+                "rejected": dict(self.rejects.counts)}
 
     def close(self) -> None:
         self.fmu.close()
 
 
+def _step_size(fmu: Fmu, step: str | float) -> float | None:
+    """The FMU's communication step: its DefaultExperiment stepSize ("fmu", the default;
+    None if it declares none), one per control tick ("tick": None), or a number of s."""
+    if step == "tick":
+        return None
+    if step == "fmu":
+        return fmu.step_size
+    return float(step)
+
+
+def _in_bounds(var: Variable, value: float, where: str) -> float:
+    """``value`` if it is within the variable's declared min / max, else FmuNodeError."""
+    lo = var.min if var.min is not None else -math.inf
+    hi = var.max if var.max is not None else math.inf
+    if not lo <= value <= hi:
+        raise FmuNodeError(f"{where}: {value:g} is outside the bounds of {var.name!r} "
+                           f"[{lo:g}, {hi:g}] declared by the FMU")
+    if var.fmi_type not in ("Real", "Float64", "Float32") and value != int(value):
+        raise FmuNodeError(f"{where}: {var.name!r} is {var.fmi_type}: {value!r} is not an "
+                           "integer")
+    return value if var.fmi_type in ("Real", "Float64", "Float32") else int(value)
+
+
+def _cli_parameters(fmu: Fmu, given: dict[str, str]) -> dict[str, tuple[Variable, list]]:
+    """``--param NAME=VALUE``: checked against the variable's causality, type and bounds."""
+    out = {}
+    for name, text in given.items():
+        where = f"--param {name}={text}"
+        var = fmu.variable(name, "parameter", where)
+        if var.shape:
+            raise FmuNodeError(f"{where}: {name!r} is an array: set it in a mapping file")
+        if var.msgtype == "std_msgs/msg/String":
+            out[name] = (var, [text])
+            continue
+        if var.msgtype == "std_msgs/msg/Bool":
+            if text.lower() not in ("true", "false", "1", "0"):
+                raise FmuNodeError(f"{where}: {name!r} is Boolean: true or false")
+            out[name] = (var, [text.lower() in ("true", "1")])
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            raise FmuNodeError(f"{where}: {text!r} is not a number") from None
+        out[name] = (var, [_in_bounds(var, value, where)])
+    return out
+
+
 # ====================================================================== command line
 
 def open_node(fmu_arg: str | Path, mapping_path: str | Path | None = None,
-              log: logging.Logger | None = None, instance_name: str = "fmu") -> FmuNode:
-    """Load the FMU and its mapping and check them against each other (FmuNodeError)."""
+              log: logging.Logger | None = None, instance_name: str = "fmu",
+              **options) -> FmuNode:
+    """Load the FMU and its mapping (``mapping_path``, else the model's shipped
+    fmus/<modelIdentifier>/mapping.toml, else none: every variable on its fmu/ key) and
+    check them against each other (FmuNodeError). ``options`` go to :class:`FmuNode`."""
     path = resolve_fmu(fmu_arg)
     fmu = Fmu(path, instance_name, log)
     try:
         if mapping_path is None:
             mapping_path = default_mapping(fmu.model_identifier)
-            if mapping_path is None:
-                raise FmuNodeError(f"{fmu.name}: no mapping for model "
-                                   f"{fmu.model_identifier!r}: pass --mapping FILE")
-        return FmuNode(fmu, load_mapping(mapping_path), log)
+        mapping = load_mapping(mapping_path) if mapping_path is not None else None
+        return FmuNode(fmu, mapping, log, **options)
     except BaseException:
         fmu.close()
         raise
 
 
+def _pairs(what: str):
+    """argparse type: NAME=VALUE."""
+    def parse(text: str) -> tuple[str, str]:
+        name, eq, value = text.partition("=")
+        if not eq or not name or not value:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return name, value
+    parse.__name__ = what
+    return parse
+
+
+def _step_arg(text: str) -> str | float:
+    if text in ("fmu", "tick"):
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not v > 0 or not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected fmu, tick or a step in s > 0, got {text!r}")
+    return v
+
+
 def main(argv: list[str] | None = None) -> int:
-    p = node_arg_parser("Run a co-simulation FMU (FMI 2 or 3) as a node on the bus.")
+    p = node_arg_parser("Run a co-simulation FMU (FMI 2 or 3) as a node on the bus: with no "
+                        "mapping, every output on fmu/<instance>/<variable> and every input "
+                        "read from there (docs/fmu.md).")
     p.prog = "diffbot fmu-node"
     p.add_argument("fmu", metavar="FMU",
                    help="FMU file, or a name built into fmus/build (odometry, odometry_fmi3)")
     p.add_argument("--mapping", metavar="FILE",
-                   help="TOML mapping of messages to FMU variables "
-                        "(default fmus/<modelIdentifier>/mapping.toml)")
+                   help="TOML mapping of robot messages to FMU variables (default "
+                        "fmus/<modelIdentifier>/mapping.toml if there is one, else none)")
+    p.add_argument("--instance", type=_name_arg("FMU instance name"),
+                   help="the <instance> of its fmu/<instance>/... keys (default: the model "
+                        "identifier)")
+    p.add_argument("--connect", action="append", type=_pairs("VAR=fmu/INSTANCE/VARIABLE"),
+                   default=[], metavar="VAR=KEY",
+                   help="feed input VAR from another FMU node's key (awaited every tick in "
+                        "lockstep); repeatable")
+    p.add_argument("--param", action="append", type=_pairs("NAME=VALUE"), default=[],
+                   metavar="NAME=VALUE",
+                   help="set a parameter (checked against its min / max); repeatable")
+    p.add_argument("--step-size", type=_step_arg, default=None, metavar="fmu|tick|S",
+                   help="the FMU's communication step: its DefaultExperiment stepSize "
+                        "(fmu, the default unless the mapping file says otherwise; one doStep "
+                        "per tick if it declares none), one doStep per control tick (tick), "
+                        "or S seconds")
+    p.add_argument("--from-zero", action="store_true",
+                   help="start the model only at bus time 0 (a plant started with --expect "
+                        "this node, or after a reset) instead of at the current bus time")
     args = p.parse_args(argv)
     try:
-        node = open_node(args.fmu, args.mapping, instance_name=args.name or "fmu")
+        _check_unique(args.connect, "--connect")
+        _check_unique(args.param, "--param")
+        node = open_node(args.fmu, args.mapping, instance_name=args.name or "fmu",
+                         instance=args.instance,
+                         connect=dict(args.connect), start_values=dict(args.param),
+                         step=args.step_size, from_zero=args.from_zero)
     except FmuNodeError as exc:
         setup_logging(args.name or "fmu-node", args.log_level).error("%s", exc)
         return EXIT_BAD_CONFIG
-    name = args.name or f"{node.name}_{args.robot}"
+    name = args.name or (f"{node.name}_{args.robot}" if node.builders else node.instance)
     node.log = node.rejects.log = node.fmu.log = setup_logging(name, args.log_level)
+    node.node_name = name
+    node.log.info("%s: FMI %s, instance %s, %s; inputs %s; outputs %s", node.fmu.name,
+                  node.fmu.md.fmiVersion, node.instance,
+                  f"own step {node.step_size:g} s" if node.step_size else
+                  "one doStep per control tick",
+                  ", ".join(f"{f.var.name} <- {f.topic}" for f in node.feeds) or "none",
+                  ", ".join(node.generic_topics + [o.topic for o in node.builders]) or "none")
     try:
         code = run_node_args(node, args, name)
     finally:
@@ -579,9 +565,16 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
+def _check_unique(pairs: list[tuple[str, str]], option: str) -> None:
+    seen = set()
+    for name, _ in pairs:
+        if name in seen:
+            raise FmuNodeError(f"{option}: {name!r} is given twice")
+        seen.add(name)
+
+
 def _merge_stats(path: str, node: FmuNode) -> None:
     """Add the node's own counters to the stats JSON bus.node wrote."""
-    import json
     try:
         with open(path) as f:
             data = json.load(f)

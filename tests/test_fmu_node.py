@@ -210,17 +210,23 @@ def test_time_going_back_initialises_again(fmus):
 def test_parameters_come_from_sim_info(fmus):
     node = make_node(fmus[2])
     try:
-        vr = {n: node.fmu.variables[n].valueReference for n in
-              ("wheel_radius", "wheel_separation", "x0", "y0", "theta0")}
+        params = [node.fmu.bus_variable(n) for n in
+                  ("wheel_radius", "wheel_separation", "x0", "y0", "theta0")]
         node.step(obs(0, 0.0, 0.0))
-        assert node.fmu.get(list(vr.values())) == [R, D, *POSE0]
+        assert node.fmu.read(params) == [[R], [D], *([p] for p in POSE0)]
         with pytest.raises(fmu_node.FmuNodeError, match=r"mapping.toml:parameters.x0: "
                                                         r"sim/info has no robots.robot1.pose\[0\]"):
             node.configure({"robots": {"robot1": {"wheel_radius_m": R,
                                                   "wheel_separation_m": D, "pose": []}}}, "robot1")
-        with pytest.raises(fmu_node.FmuNodeError, match="refused the parameters"):
+        with pytest.raises(fmu_node.FmuNodeError, match=r"parameters.wheel_radius: -1 is "
+                                                        r"outside the bounds of 'wheel_radius' "
+                                                        r"\[0, inf\] declared by the FMU"):
             node.fmu.reset()
             node.configure({"robots": {"robot1": {"wheel_radius_m": -1.0, "wheel_separation_m": D,
+                                                  "pose": [0, 0, 0]}}}, "robot1")
+        with pytest.raises(fmu_node.FmuNodeError, match="refused the parameters"):
+            node.fmu.reset()
+            node.configure({"robots": {"robot1": {"wheel_radius_m": R, "wheel_separation_m": 0.0,
                                                   "pose": [0, 0, 0]}}}, "robot1")
     finally:
         node.close()

@@ -206,7 +206,11 @@ def test_cli_prints_paths(tmp_path):
     result = run([sys.executable, "-m", "fmus.build", "--out", str(tmp_path)],
                  cwd=Path(fmu_build.__file__).resolve().parents[1])
     assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == [str(tmp_path / "odometry_fmi2.fmu"), str(tmp_path / "odometry_fmi3.fmu")]
+    paths = result.stdout.split()
+    assert paths[:2] == [str(tmp_path / "odometry_fmi2.fmu"), str(tmp_path / "odometry_fmi3.fmu")]
+    # then the test models of fmus/models (docs/fmu.md)
+    assert paths[2:] == [str(tmp_path / fmu_build.fmu_name(m, v)) for m in fmu_build.TEST_MODELS
+                         for v in fmu_build.model_versions(m)]
 
 
 def test_missing_compiler_is_a_clear_error(tmp_path, monkeypatch, capsys):

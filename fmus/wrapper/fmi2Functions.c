@@ -391,9 +391,28 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 }
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
+#if HAS_INT32
+    size_t i;
+    int v;
+    BEGIN(fmi2GetInteger)
+    if (nvr == 0) {
+        return fmi2OK;
+    }
+    if (nullPointer(comp, "fmi2GetInteger", "vr", vr) || nullPointer(comp, "fmi2GetInteger", "value", value)) {
+        return fmi2Error;
+    }
+    for (i = 0; i < nvr; i++) {
+        if (getInt32(comp, vr[i], &v) > Warning) {
+            return fmi2Error;
+        }
+        value[i] = v;
+    }
+    return fmi2OK;
+#else
     BEGIN(fmi2GetInteger)
     (void)value;
     return noVariablesOfType(comp, "fmi2GetInteger", "Integer", vr, nvr);
+#endif
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
@@ -426,9 +445,26 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 }
 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
+#if HAS_INT32
+    size_t i;
+    BEGIN(fmi2SetInteger)
+    if (nvr == 0) {
+        return fmi2OK;
+    }
+    if (nullPointer(comp, "fmi2SetInteger", "vr", vr) || nullPointer(comp, "fmi2SetInteger", "value", value)) {
+        return fmi2Error;
+    }
+    for (i = 0; i < nvr; i++) {
+        if (setInt32(comp, vr[i], value[i]) > Warning) {
+            return fmi2Error;
+        }
+    }
+    return fmi2OK;
+#else
     BEGIN(fmi2SetInteger)
     (void)value;
     return noVariablesOfType(comp, "fmi2SetInteger", "Integer", vr, nvr);
+#endif
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) {

@@ -386,6 +386,58 @@ fmi3Status fmi3Reset(fmi3Instance instance) {
 
 /* ------------------------------------------------------- getting and setting */
 
+/* values expected for these Float64 variables: one each, or their array sizes */
+static size_t elementsOf(const fmi3ValueReference vr[], size_t nvr) {
+#if HAS_ARRAYS
+    size_t i, n = 0;
+    for (i = 0; i < nvr; i++) {
+        n += float64Size(vr[i]);
+    }
+    return n;
+#else
+    (void)vr;
+    return nvr;
+#endif
+}
+
+#define GET_SCALARS(T, CT, GETTER, CONVERT)                                                   \
+fmi3Status fmi3Get##T(fmi3Instance instance, const fmi3ValueReference valueReferences[],      \
+                      size_t nValueReferences, fmi3##T values[], size_t nValues) {            \
+    size_t i;                                                                                 \
+    CT v;                                                                                     \
+    BEGIN_MASK(fmi3Get##T, MASK_GET)                                                          \
+    if (nValueReferences == 0) return fmi3OK;                                                 \
+    if (nullPointer(comp, "fmi3Get" #T, "valueReferences", valueReferences) ||                \
+        nullPointer(comp, "fmi3Get" #T, "values", values) ||                                  \
+        invalidNumber(comp, "fmi3Get" #T, "nValues", nValues, nValueReferences)) {            \
+        return fmi3Error;                                                                     \
+    }                                                                                         \
+    for (i = 0; i < nValueReferences; i++) {                                                  \
+        if (GETTER(comp, valueReferences[i], &v) > Warning) return fmi3Error;                 \
+        values[i] = CONVERT(v);                                                               \
+    }                                                                                         \
+    return fmi3OK;                                                                            \
+}
+
+#define SET_SCALARS(T, SETTER, CONVERT)                                                       \
+fmi3Status fmi3Set##T(fmi3Instance instance, const fmi3ValueReference valueReferences[],      \
+                      size_t nValueReferences, const fmi3##T values[], size_t nValues) {      \
+    size_t i;                                                                                 \
+    BEGIN_MASK(fmi3Set##T, MASK_SET)                                                          \
+    if (nValueReferences == 0) return fmi3OK;                                                 \
+    if (nullPointer(comp, "fmi3Set" #T, "valueReferences", valueReferences) ||                \
+        nullPointer(comp, "fmi3Set" #T, "values", values) ||                                  \
+        invalidNumber(comp, "fmi3Set" #T, "nValues", nValues, nValueReferences)) {            \
+        return fmi3Error;                                                                     \
+    }                                                                                         \
+    for (i = 0; i < nValueReferences; i++) {                                                  \
+        if (SETTER(comp, valueReferences[i], CONVERT(values[i])) > Warning) return fmi3Error; \
+    }                                                                                         \
+    return fmi3OK;                                                                            \
+}
+
+#define AS_IS(x) (x)
+
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, fmi3Float64 values[], size_t nValues) {
     size_t i;
@@ -395,14 +447,27 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
     }
     if (nullPointer(comp, "fmi3GetFloat64", "valueReferences", valueReferences) ||
         nullPointer(comp, "fmi3GetFloat64", "values", values) ||
-        invalidNumber(comp, "fmi3GetFloat64", "nValues", nValues, nValueReferences)) {
+        invalidNumber(comp, "fmi3GetFloat64", "nValues", nValues, elementsOf(valueReferences, nValueReferences))) {
         return fmi3Error;
     }
+#if HAS_ARRAYS
+    {
+        size_t k, n = 0;
+        for (i = 0; i < nValueReferences; i++) {
+            for (k = 0; k < float64Size(valueReferences[i]); k++) {
+                if (getFloat64Element(comp, valueReferences[i], k, &values[n++]) > Warning) {
+                    return fmi3Error;
+                }
+            }
+        }
+    }
+#else
     for (i = 0; i < nValueReferences; i++) {
         if (getFloat64(comp, valueReferences[i], &values[i]) > Warning) {
             return fmi3Error;
         }
     }
+#endif
     return fmi3OK;
 }
 
@@ -415,14 +480,27 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
     }
     if (nullPointer(comp, "fmi3SetFloat64", "valueReferences", valueReferences) ||
         nullPointer(comp, "fmi3SetFloat64", "values", values) ||
-        invalidNumber(comp, "fmi3SetFloat64", "nValues", nValues, nValueReferences)) {
+        invalidNumber(comp, "fmi3SetFloat64", "nValues", nValues, elementsOf(valueReferences, nValueReferences))) {
         return fmi3Error;
     }
+#if HAS_ARRAYS
+    {
+        size_t k, n = 0;
+        for (i = 0; i < nValueReferences; i++) {
+            for (k = 0; k < float64Size(valueReferences[i]); k++) {
+                if (setFloat64Element(comp, valueReferences[i], k, values[n++]) > Warning) {
+                    return fmi3Error;
+                }
+            }
+        }
+    }
+#else
     for (i = 0; i < nValueReferences; i++) {
         if (setFloat64(comp, valueReferences[i], values[i]) > Warning) {
             return fmi3Error;
         }
     }
+#endif
     return fmi3OK;
 }
 
@@ -431,24 +509,48 @@ GET_OTHER(Int8)
 GET_OTHER(UInt8)
 GET_OTHER(Int16)
 GET_OTHER(UInt16)
+#if HAS_INT32
+GET_SCALARS(Int32, int, getInt32, AS_IS)
+#else
 GET_OTHER(Int32)
+#endif
 GET_OTHER(UInt32)
 GET_OTHER(Int64)
 GET_OTHER(UInt64)
+#if HAS_BOOLEAN
+GET_SCALARS(Boolean, bool, getBoolean, AS_IS)
+#else
 GET_OTHER(Boolean)
+#endif
+#if HAS_STRING
+GET_SCALARS(String, const char *, getString, AS_IS)
+#else
 GET_OTHER(String)
+#endif
 
 SET_OTHER(Float32)
 SET_OTHER(Int8)
 SET_OTHER(UInt8)
 SET_OTHER(Int16)
 SET_OTHER(UInt16)
+#if HAS_INT32
+SET_SCALARS(Int32, setInt32, AS_IS)
+#else
 SET_OTHER(Int32)
+#endif
 SET_OTHER(UInt32)
 SET_OTHER(Int64)
 SET_OTHER(UInt64)
+#if HAS_BOOLEAN
+SET_SCALARS(Boolean, setBoolean, AS_IS)
+#else
 SET_OTHER(Boolean)
+#endif
+#if HAS_STRING
+SET_SCALARS(String, setString, AS_IS)
+#else
 SET_OTHER(String)
+#endif
 
 fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                          size_t nValueReferences, size_t valueSizes[], fmi3Binary values[], size_t nValues) {

@@ -105,6 +105,41 @@ FMU_INTERNAL const char *variableName(unsigned int vr);
 FMU_INTERNAL Status getFloat64(ModelInstance *comp, unsigned int vr, double *value);
 FMU_INTERNAL Status setFloat64(ModelInstance *comp, unsigned int vr, double value);
 
+#ifndef HAS_INT32
+#define HAS_INT32 0   /* config.h: 1 if the model has Int32 (FMI 2: Integer) variables */
+#endif
+#if HAS_INT32
+/* Get / set one Int32 (FMI 2: Integer) variable, as getFloat64 / setFloat64. */
+FMU_INTERNAL Status getInt32(ModelInstance *comp, unsigned int vr, int *value);
+FMU_INTERNAL Status setInt32(ModelInstance *comp, unsigned int vr, int value);
+#endif
+
+#ifndef HAS_BOOLEAN
+#define HAS_BOOLEAN 0   /* config.h: 1 if the model has Boolean variables (FMI 3 wrapper) */
+#endif
+#ifndef HAS_STRING
+#define HAS_STRING 0    /* config.h: 1 if the model has String variables (FMI 3 wrapper) */
+#endif
+#ifndef HAS_ARRAYS
+#define HAS_ARRAYS 0    /* config.h: 1 if the model has Float64 arrays (FMI 3 wrapper) */
+#endif
+#if HAS_BOOLEAN
+FMU_INTERNAL Status getBoolean(ModelInstance *comp, unsigned int vr, bool *value);
+FMU_INTERNAL Status setBoolean(ModelInstance *comp, unsigned int vr, bool value);
+#endif
+#if HAS_STRING
+/* the string stays valid until the next call into the FMU */
+FMU_INTERNAL Status getString(ModelInstance *comp, unsigned int vr, const char **value);
+FMU_INTERNAL Status setString(ModelInstance *comp, unsigned int vr, const char *value);
+#endif
+#if HAS_ARRAYS
+/* Number of elements of a Float64 variable (1 for a scalar) and element k of it
+   (row-major), used instead of getFloat64 / setFloat64 by the FMI 3 wrapper. */
+FMU_INTERNAL size_t float64Size(unsigned int vr);
+FMU_INTERNAL Status getFloat64Element(ModelInstance *comp, unsigned int vr, size_t k, double *value);
+FMU_INTERNAL Status setFloat64Element(ModelInstance *comp, unsigned int vr, size_t k, double value);
+#endif
+
 /* Model exchange: continuous states, nominals and derivatives (arrays of NX). */
 FMU_INTERNAL void getContinuousStates(ModelInstance *comp, double x[], size_t nx);
 FMU_INTERNAL Status setContinuousStates(ModelInstance *comp, const double x[], size_t nx);
