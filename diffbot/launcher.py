@@ -26,7 +26,8 @@ import zenoh
 
 from bus.cliargs import ArgumentParser, nonneg_int, port, positive_float, positive_int
 from bus.keys import Keys
-from bus.node import EXIT_PLANT_GONE, write_json
+from bus.jsonio import write_json
+from bus.runtime import EXIT_PLANT_GONE
 from bus.protocol import COUPLINGS
 from bus.session import BusConfigError, open_session
 from plant.world import WorldError, load_world

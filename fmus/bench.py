@@ -265,7 +265,7 @@ def node_tick(number: int) -> float:
     for roll-back) and the nav_msgs/Odometry message built."""
     if "node" not in _cache:
         from bus import codec
-        from bus.node import Observation
+        from bus.controller import Observation
         from .node import open_node
         node = open_node(fmu_paths()[2])
         node.configure({"robots": {"r": {"wheel_radius_m": 0.12, "wheel_separation_m": 0.36,

@@ -66,7 +66,9 @@ from ctypes import byref
 from pathlib import Path
 
 from bus.log import RejectCounter, setup_logging
-from bus.node import EXIT_BAD_CONFIG, node_arg_parser, run_node_args, write_json
+from bus.jsonio import write_json
+from bus.node import node_arg_parser, run_node_args
+from bus.runtime import EXIT_BAD_CONFIG
 
 from .mapping import FieldPath, FmuNodeError, Mapping, default_mapping, load_mapping
 

@@ -83,7 +83,8 @@ def test_attachments_round_trip_and_malformed_ones_are_refused():
 # ---------------------------------------------------------------- a client from the document
 GO_STRAIGHT = textwrap.dedent('''
     import sys
-    from bus.node import Twist, run_node
+    from bus.controller import Twist
+    from bus.node import run_node
 
     class GoStraight:
         inputs = ["ground_truth"]
