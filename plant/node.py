@@ -80,8 +80,9 @@ class Plant:
         # Lockstep only: the coupling's delays, in ticks (docs/PROTOCOL.md).
         self.delays = delays(coupling) if mode == "lockstep" else delays("sequential")
         delay_ns = self.delays["actuation_delay_ticks"] * self.tick_ns
-        self.pacing = (modes.Lockstep(self, delay_ns) if mode == "lockstep"
-                       else modes.Realtime(self) if mode == "realtime" else modes.Fast(self))
+        # what the loop waits for between publishing and stepping (plant/modes.py)
+        self.strategy = (modes.Lockstep(self, delay_ns) if mode == "lockstep"
+                         else modes.Realtime(self) if mode == "realtime" else modes.Fast(self))
         self.disabled = set(disabled)
         self.seed = spec.seed
         # DART in a process of its own (plant/physics_process.py); None: stepped here
@@ -142,7 +143,7 @@ class Plant:
             else:
                 self.physics.build(self.spec)
         self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
-                               overlap=self.pacing.overlaps)
+                               overlap=self.strategy.overlaps)
 
     def restart_world(self, reason: str) -> None:
         """Rebuild the world at t = 0 (a sim/reset, or the physics diverged) and forget
@@ -151,7 +152,7 @@ class Plant:
         self.build()
         self.commands.clear()
         self.ledger.restart()
-        self.pacing.restarted()
+        self.strategy.restarted()
         self._info = self.info()
         self.log.info("world rebuilt (seed %d): %s", self.seed, reason)
 
@@ -265,10 +266,10 @@ class Plant:
         """Hand each robot the command that acts at this tick (the mode's), or zero if it
         has none or it timed out."""
         for name, robot in self.sim.robots.items():
-            cmd = self.pacing.command(name)
+            cmd = self.strategy.command(name)
             if cmd is not None:
                 timeout = robot.spec.drive.cmd_timeout_s
-                age = self.pacing.age_s(cmd)
+                age = self.strategy.age_s(cmd)
                 if age > timeout:
                     self.log.warning("%s: no command for %.2f s (cmd_timeout %.2f s): stopping it",
                                      name, age, timeout)
@@ -326,7 +327,7 @@ class Plant:
         if (self.mode == "lockstep" or self.expect) and not self.wait_for_members():
             return 1 if not self.stop_event.is_set() else 0
         self.wall_start = time.monotonic()
-        self.pacing.start()
+        self.strategy.start()
         self._say_running()
         try:
             while not self.stop_event.is_set():
@@ -334,7 +335,7 @@ class Plant:
                 self.ledger.begin_tick(t)
                 self.timing["publish_s"] += self.stepper.begin_tick(self.publish_sensors)
                 with self._timed("wait_s"):
-                    ended = self._duration_reached(t) or self.pacing.barrier(t)
+                    ended = self._duration_reached(t) or self.strategy.barrier(t)
                 if ended:
                     self.end_reason = ended
                     break
@@ -358,7 +359,7 @@ class Plant:
         if self.duration_ns is None or t_ns < self.duration_ns:
             return None
         self.publish_pending()
-        self.pacing.at_end(t_ns)
+        self.strategy.at_end(t_ns)
         return "duration reached"
 
     def _say_running(self) -> None:
@@ -376,7 +377,7 @@ class Plant:
                 "real_time_factor": sim_s / wall if wall else None,
                 "published": self.published, "rejected": dict(self.rejects.counts),
                 "members_seen": sorted(self.ledger.members_seen),
-                "stalls": getattr(self.pacing, "stalls", 0),
+                "stalls": getattr(self.strategy, "stalls", 0),
                 "protocol": PROTOCOL_VERSION, "coupling": self.coupling, **self.delays,
                 "physics_process": self.physics is not None,
                 "protocol_errors": dict(self.protocol_errors.counts),
