@@ -9,7 +9,7 @@ send, on the same topic, is stamped with the current sim time) and
 ``/<robot>/wheel_cmd`` (sensor_msgs/JointState, velocity in rad/s). Commands with
 non-finite or absurd numbers are rejected and counted.
 
-``--lockstep``: the bridge is a lockstep member of the simulation (bus.node's NodeRunner).
+``--lockstep``: the bridge is a lockstep member of the simulation (bus.runtime.NodeRunner).
 At each tick it hands the ROS 2 controller its trigger input (``odom`` by default) and
 ``/clock``, and waits for the controller's TwistStamped on ``cmd_vel`` stamped with the
 trigger's stamp; that command goes to the plant with the tick's ACK. When the controller
@@ -30,8 +30,9 @@ from bus.cliargs import ArgumentParser
 from bus.jsonio import write_json
 from bus.keys import Keys, check_name
 from bus.log import RejectCounter, setup_logging
-from bus.node import (ABSURD_INPUT, EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner,
-                      close_session, install_stop_signals, query_info)
+from bus.inputs import ABSURD_INPUT
+from bus.runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
+from bus.session import close_session, install_stop_signals, query_info
 from bus.session import BusConfigError, add_bus_args, open_node
 
 from .ros2_types import OUT_TOPICS, ros_modules

@@ -48,8 +48,9 @@ from bus import codec, scene
 from bus.cliargs import ArgumentParser, nonneg_float, port, positive_float, positive_int
 from bus.keys import TOPICS, Keys
 from bus.log import RejectCounter, setup_logging
-from bus.node import (EXIT_PLANT_GONE, close_session, install_stop_signals, query_info,
-                      write_json)
+from bus.jsonio import write_json
+from bus.runtime import EXIT_PLANT_GONE
+from bus.session import close_session, install_stop_signals, query_info
 from bus.session import BusConfigError, add_bus_args, open_node
 
 EXIT_OK = 0

@@ -3,6 +3,10 @@
 Zenoh delivers samples from one peer in the order they were sent; direct callback
 subscribers that all feed one queue keep that order across keys. The lockstep
 protocol does not depend on it (nodes check stamps), but it saves waiting.
+
+The thread rule of the plant and the nodes: Zenoh's callbacks (subscribers, liveliness,
+queryables) only put events here; the process's main thread takes them and alone touches
+its state.
 """
 from __future__ import annotations
 
@@ -19,6 +23,7 @@ class Event:
     payload: bytes
     attachment: bytes | None
     alive: bool = True   # liveliness: token appeared (True) or vanished (False)
+    query: zenoh.Query | None = None   # a query to answer (:meth:`Inbox.serve`)
 
 
 class Inbox:
@@ -52,6 +57,22 @@ class Inbox:
 
         self._handles.append(self.session.liveliness().declare_subscriber(
             key, zenoh.handlers.Callback(cb, indirect=False), history=True))
+
+    def serve(self, key: str, tag: str) -> None:
+        """Queries on ``key`` become events (``ev.query``) that the main thread answers."""
+        self._handles.append(self.session.declare_queryable(
+            key, lambda query: self.put_query(tag, query)))
+
+    def put_query(self, tag: str, query: zenoh.Query) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        self.queue.put(Event(tag, str(query.key_expr), payload, None, query=query))
+
+    def get_nowait(self) -> Event | None:
+        """The next event, or None if there is none (nothing else is caught)."""
+        try:
+            return self.queue.get_nowait()
+        except queue.Empty:
+            return None
 
     def get(self, timeout: float | None = None) -> Event | None:
         try:

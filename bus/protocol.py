@@ -18,8 +18,9 @@ COUPLINGS = ("sequential", "pipelined")
 PLANT_READS = ("cmd_vel", "wheel_cmd", "odom")
 
 
-class ProtocolError(ValueError):
-    """The other side speaks another protocol version (exit code 2)."""
+class ProtocolError(Exception):
+    """The other side speaks another protocol version: a node must not join (this project's
+    nodes exit 2, at the start and when a plant comes back, docs/PROTOCOL.md)."""
 
 
 def delays(coupling: str) -> dict[str, int]:

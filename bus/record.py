@@ -442,7 +442,7 @@ class Recorder:
         """The plant's ``sim/info``, stored as MCAP metadata (once)."""
         if self.info is not None:
             return
-        from .node import query_info
+        from .session import query_info
         try:
             self.info = query_info(self.session, self.keys, timeout_s)
         except (TimeoutError, ValueError) as exc:
@@ -677,7 +677,8 @@ def main(argv: list[str] | None = None) -> int:
         log.error("%s", exc)
         out.discard()
         return EXIT_BAD_INPUT
-    from .node import install_stop_signals, write_json
+    from .jsonio import write_json
+    from .session import install_stop_signals
     rec = Recorder(session, keys, out, exprs, log, args.name)
     rec.with_scene = args.scene
     install_stop_signals(rec.stop_event)

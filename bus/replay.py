@@ -322,7 +322,8 @@ def main(argv: list[str] | None = None) -> int:
     except BusConfigError as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT
-    from .node import install_stop_signals, write_json
+    from .jsonio import write_json
+    from .session import install_stop_signals
     rp = None
     code = EXIT_OK
     try:

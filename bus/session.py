@@ -13,6 +13,9 @@ import argparse
 import json
 import os
 import re
+import signal
+import threading
+import time
 
 import zenoh
 
@@ -121,3 +124,31 @@ def open_node(args: argparse.Namespace, name: str) -> tuple[Keys, zenoh.Session]
     keys = Keys(args.namespace)
     check_name(name, "node name")
     return keys, open_session("node", args.endpoint, args.zenoh_config)
+
+
+def query_info(session: zenoh.Session, keys: Keys, timeout_s: float = 15.0) -> dict:
+    """Ask the plant for ``sim/info``; retry until it answers or ``timeout_s`` passes."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        for reply in session.get(keys.info, timeout=1.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"no plant answered {keys.info} within {timeout_s:.0f} s")
+        time.sleep(0.1)
+
+
+def close_session(session: zenoh.Session, log) -> None:
+    """Close, even when the far end is gone (a close that times out is logged, not raised)."""
+    try:
+        session.close()
+    except Exception as exc:       # zenoh.ZError: "close operation timed out"
+        log.warning("closing the Zenoh session: %s", exc)
+
+
+def install_stop_signals(stop_event: threading.Event) -> None:
+    """SIGINT/SIGTERM end the loop cleanly (the session is closed on the way out)."""
+    def handler(signum, frame):
+        stop_event.set()
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)

@@ -254,7 +254,7 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
 
 def _what_is_published(session: zenoh.Session, keys: Keys) -> str:
     """What the plant says it publishes (from ``sim/info``), for a "nothing came" message."""
-    from .node import query_info
+    from .session import query_info
     try:
         info = query_info(session, keys, timeout_s=1.0)
     except (TimeoutError, ValueError):

@@ -15,7 +15,8 @@ import math
 import numpy as np
 
 from bus.cliargs import positive_float
-from bus.node import Twist, node_arg_parser, run_node_args
+from bus.controller import Twist
+from bus.node import node_arg_parser, run_node_args
 
 
 class Avoid:

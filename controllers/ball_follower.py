@@ -19,7 +19,8 @@ import numpy as np
 
 from bus import codec
 from bus.cliargs import nonneg_float, positive_float
-from bus.node import Twist, node_arg_parser, run_node_args
+from bus.controller import Twist
+from bus.node import node_arg_parser, run_node_args
 
 #: The ball's edge beyond minEnclosingCircle's radius of the pixel contour, px.
 EDGE_OFFSET_PX = 0.2

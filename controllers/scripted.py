@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import sys
 
-from bus.node import WheelSpeeds, node_arg_parser, run_node_args
+from bus.controller import WheelSpeeds
+from bus.node import node_arg_parser, run_node_args
 
 DRIVE_TEST = "5:1,1;5:1,-1"
 

@@ -12,7 +12,8 @@ import sys
 
 from bus import codec
 from bus.cliargs import positive_float, positive_int
-from bus.node import Twist, node_arg_parser, run_node_args
+from bus.controller import Twist
+from bus.node import node_arg_parser, run_node_args
 
 
 def wrap(a: float) -> float:

@@ -18,7 +18,8 @@ import threading
 import tty
 
 from bus.cliargs import positive_float
-from bus.node import Twist, node_arg_parser, run_node_args
+from bus.controller import Twist
+from bus.node import node_arg_parser, run_node_args
 
 #: at rest the zero command is repeated this many ticks (a lost one is covered), then withheld
 _REST_TICKS = 5

@@ -14,7 +14,8 @@ import numpy as np
 
 from bus import codec
 from bus.cliargs import positive_float
-from bus.node import Twist, node_arg_parser, run_node_args
+from bus.controller import Twist
+from bus.node import node_arg_parser, run_node_args
 
 
 class Wander:

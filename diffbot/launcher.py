@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import queue
 import shutil
 import signal
 import sys
@@ -26,7 +27,8 @@ import zenoh
 
 from bus.cliargs import ArgumentParser, nonneg_int, port, positive_float, positive_int
 from bus.keys import Keys
-from bus.node import EXIT_PLANT_GONE, write_json
+from bus.jsonio import write_json
+from bus.runtime import EXIT_PLANT_GONE
 from bus.protocol import COUPLINGS
 from bus.session import BusConfigError, open_session
 from plant.world import WorldError, load_world
@@ -81,8 +83,11 @@ class Run:
     reason: str = ""
     failed: Child | None = None
     #: bus liveliness of the processes (sim/alive/<name>): name -> wall time its token went,
-    #: None while it is there (filled by :meth:`on_alive` from the launcher's session)
+    #: None while it is there (kept by the supervising thread from :attr:`alive_events`)
     gone: dict[str, float | None] = field(default_factory=dict)
+    #: (name, wall time its token went or None if it came), queued by :meth:`on_alive` on
+    #: Zenoh's thread
+    alive_events: queue.SimpleQueue = field(default_factory=queue.SimpleQueue)
 
     def bus_args(self) -> list[str]:
         a = ["--endpoint", self.endpoint]
@@ -144,9 +149,19 @@ class Run:
         procs.stop(self.children, 0.0, signal.SIGKILL)
 
     def on_alive(self, sample) -> None:
-        """Liveliness callback: a process's ``sim/alive/<name>`` token came or went."""
+        """Liveliness callback (Zenoh's thread): a process's ``sim/alive/<name>`` token came or
+        went; only queued, :meth:`supervise` files it."""
         name = str(sample.key_expr).rsplit("/", 1)[-1]
-        self.gone[name] = None if sample.kind == zenoh.SampleKind.PUT else time.monotonic()
+        self.alive_events.put((name, None if sample.kind == zenoh.SampleKind.PUT
+                               else time.monotonic()))
+
+    def _take_alive_events(self) -> None:
+        while True:
+            try:
+                name, went = self.alive_events.get_nowait()
+            except queue.Empty:
+                return
+            self.gone[name] = went
 
     def unresponsive(self, c: Child) -> bool:
         """A process that is there but lost its bus lease: stopped (SIGSTOP) or wedged."""
@@ -161,6 +176,7 @@ class Run:
             if stop_flag:
                 self.reason = f"interrupted ({stop_flag[0]})"
                 return EXIT_INTERRUPTED
+            self._take_alive_events()
             for c in self.children:
                 code = c.poll()
                 if code is None:

@@ -265,7 +265,7 @@ def node_tick(number: int) -> float:
     for roll-back) and the nav_msgs/Odometry message built."""
     if "node" not in _cache:
         from bus import codec
-        from bus.node import Observation
+        from bus.controller import Observation
         from .node import open_node
         node = open_node(fmu_paths()[2])
         node.configure({"robots": {"r": {"wheel_radius_m": 0.12, "wheel_separation_m": 0.36,
@@ -290,7 +290,7 @@ def generic_tick(number: int) -> float:
     are read and their std_msgs/Float64 messages built and CDR-encoded."""
     if "generic" not in _cache:
         from bus import codec
-        from bus.node import Observation
+        from bus.controller import Observation
         from .node import open_node
         built = Path(__file__).resolve().parent / "build" / fmu_build.fmu_name("bouncing", 3)
         if not built.is_file():

@@ -21,7 +21,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 from bus import codec
 from bus.keys import TOPICS, BadName, check_fmu_topic, is_fmu_topic
-from bus.node import WHEEL_JOINTS
+from bus.controller import WHEEL_JOINTS
 
 FMUS_DIR = Path(__file__).resolve().parent
 

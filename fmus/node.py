@@ -68,7 +68,9 @@ from pathlib import Path
 from bus import jsonio
 from bus.keys import TOPICS, Keys, check_name, fmu_topic
 from bus.log import RejectCounter, setup_logging
-from bus.node import EXIT_BAD_CONFIG, _name_arg, node_arg_parser, run_node_args, write_json
+from bus.jsonio import write_json
+from bus.node import _name_arg, node_arg_parser, run_node_args
+from bus.runtime import EXIT_BAD_CONFIG
 
 from .fmu import Fmu, FmuCallError
 from .mapping import FieldPath, FmuNodeError, Mapping, default_mapping, load_mapping

@@ -45,11 +45,12 @@ from typing import Sequence
 
 import numpy as np
 
-try:                                   # only for distortion and a fast RGBA->RGB copy
+try:                                   # only for a fast RGBA->RGB copy
     import cv2
 except ImportError:                    # pragma: no cover
     cv2 = None
 
+from plant.lens import undistort
 from plant.raycast import Scene, quadratic_roots, shape_params
 from plant.shapes import Shape, pose_matrix
 
@@ -186,52 +187,6 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 # Ray grid (cached per image geometry)
 # ----------------------------------------------------------------------------------
 
-def _distort(x, y, d):
-    k1, k2, p1, p2, k3 = d
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return xd, yd
-
-
-def _undistort(xd, yd, d, k):
-    """Normalised undistorted coords whose distortion gives (xd, yd); nan if none.
-
-    OpenCV's iterative ``undistortPoints`` gives the start, Newton steps with the
-    analytic Jacobian polish it to < 1e-12 (normalised units)."""
-    x, y = xd.copy(), yd.copy()
-    if cv2 is not None:
-        pts = (np.stack([xd * k[0, 0] + k[0, 2], yd * k[1, 1] + k[1, 2]], -1)
-               .reshape(-1, 1, 2).astype(np.float64))
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-14)
-        und = cv2.undistortPoints(pts, k, np.asarray(d, float), criteria=crit).reshape(-1, 2)
-        if np.all(np.isfinite(und)):
-            x, y = und[:, 0].copy(), und[:, 1].copy()
-    k1, k2, p1, p2, k3 = d
-    with np.errstate(all="ignore"):
-        for _ in range(50):
-            fx, fy = _distort(x, y, d)
-            ex, ey = fx - xd, fy - yd
-            err = np.hypot(ex, ey)
-            if not (np.nanmax(err) > 1e-13):
-                break
-            r2 = x * x + y * y
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-            a = radial + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x
-            b = 2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y
-            e = radial + 2.0 * y * y * drad + 6.0 * p1 * y + 2.0 * p2 * x
-            det = a * e - b * b
-            x = x - (e * ex - b * ey) / det
-            y = y - (a * ey - b * ex) / det
-        fx, fy = _distort(x, y, d)
-        bad = ~(np.hypot(fx - xd, fy - yd) < 1e-9) | ~np.isfinite(x) | ~np.isfinite(y)
-    x[bad] = np.nan
-    y[bad] = np.nan
-    return x, y
-
-
 class _RayGrid:
     """Per-pixel optical-frame rays (x_n, y_n, 1) and culling structures."""
 
@@ -246,7 +201,7 @@ class _RayGrid:
         xd, yd = (u - cx) / f, (v - cy) / f
         self.distorted = any(c != 0.0 for c in dist)
         if self.distorted:
-            xn, yn = _undistort(xd.ravel(), yd.ravel(), dist, self.k)
+            xn, yn = undistort(xd.ravel(), yd.ravel(), dist, self.k)
             xn, yn = xn.reshape(height, width), yn.reshape(height, width)
         else:
             xn, yn = xd, yd

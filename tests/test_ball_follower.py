@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bus import codec
-from bus.node import Observation, Twist
+from bus.controller import Observation, Twist
 from controllers.ball_follower import BallFollower, detect_ball, distance_from_radius, locate_ball
 from plant import camera as cam
 from plant.noise import NoiseConfig, NoiseModel, make_rng

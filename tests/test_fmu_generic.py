@@ -21,7 +21,7 @@ import pytest
 
 from bus import codec
 from bus.keys import BadName, Keys, check_fmu_topic, escape_variable, unescape_variable
-from bus.node import Observation
+from bus.controller import Observation
 from bus.protocol import PROTOCOL_VERSION
 from fmus import build as fmu_build
 from fmus import fmu as fmu_mod

@@ -23,7 +23,7 @@ import pytest
 
 from bus import codec
 from bus.keys import Keys
-from bus.node import Observation
+from bus.controller import Observation
 from bus.protocol import PROTOCOL_VERSION
 from controllers.odometry import integrate
 from fmus import build as fmu_build

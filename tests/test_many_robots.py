@@ -9,7 +9,8 @@ import pytest
 
 from bus import codec
 from bus.keys import Keys
-from bus.node import Twist, make_controllers, node_arg_parser
+from bus.controller import Twist, make_controllers
+from bus.node import node_arg_parser
 
 K = Keys()
 

@@ -52,6 +52,35 @@ def test_every_key_is_in_the_document():
         assert c in text
 
 
+def test_the_lockstep_sections_name_the_code_that_implements_them():
+    """Every `module.Class.method` the page names exists; every rule of bus/lockstep.py is
+    named in the page, in a section its docstring cites."""
+    import importlib
+    import inspect
+
+    from bus import lockstep
+    named: dict[str, set[int]] = {}
+    section = 0
+    for line in doc().splitlines():
+        if (m := re.match(r"## (\d+)\.", line)):
+            section = int(m.group(1))
+        for ref in re.findall(r"`((?:bus|plant)\.\w+\.\w+\.\w+)`", line):
+            named.setdefault(ref, set()).add(section)
+    assert named, "PROTOCOL.md names no code"
+    for ref in named:
+        mod, cls, meth = ref.rsplit(".", 2)
+        assert callable(getattr(getattr(importlib.import_module(mod), cls), meth, None)), ref
+    for cls in (lockstep.AckLedger, lockstep.MemberTick):
+        for meth, fn in inspect.getmembers(cls, inspect.isfunction):
+            if meth.startswith("_"):
+                continue
+            ref = f"bus.lockstep.{cls.__name__}.{meth}"
+            assert ref in named, f"PROTOCOL.md does not name {ref}"
+            cited = {int(n) for n in re.findall(r"[Ss]ection (\d+)", fn.__doc__ or "")}
+            assert cited & named[ref], f"{ref} cites sections {cited}, the page names it in " \
+                                       f"{named[ref]}"
+
+
 def test_attachment_layout_in_the_document_is_the_codec_s():
     text = doc()
     rows = re.findall(r"^\| (\d+) \| (u8|u16|u64|bytes) \| `(\w+)` \|", text, re.M)
@@ -83,7 +112,8 @@ def test_attachments_round_trip_and_malformed_ones_are_refused():
 # ---------------------------------------------------------------- a client from the document
 GO_STRAIGHT = textwrap.dedent('''
     import sys
-    from bus.node import Twist, run_node
+    from bus.controller import Twist
+    from bus.node import run_node
 
     class GoStraight:
         inputs = ["ground_truth"]

@@ -4,7 +4,7 @@
 experiment (no ports shared with anything else) and always stops it by PID: it waits
 for the plant to end on its own (``--end-with``), then SIGINT, then SIGKILL.
 :func:`run_controller` runs a controller object as a lockstep member of that plant in
-this process (:class:`bus.node.NodeRunner`), with a wall-clock limit.
+this process (:class:`bus.runtime.NodeRunner`), with a wall-clock limit.
 :class:`Capture` is the controller that takes the first observation carrying every
 input it asks for (tick 0: every sensor is due then) and ends the run.
 """
@@ -20,7 +20,7 @@ import time
 
 from bus.keys import Keys
 from bus.log import setup_logging
-from bus.node import NodeRunner
+from bus.runtime import NodeRunner
 from bus.session import BusConfigError, open_session
 
 from .. import procs
@@ -164,14 +164,10 @@ def forget_inputs(runner: NodeRunner) -> None:
     """After a ``sim/reset`` sent from ``step``: make the runner forget the inputs and clock
     ticks of the old world. The new world's clock starts again at 0, and the runner would
     ignore stamps it has already acted on (it keeps (topic, stamp) pairs it used), so the
-    node would wait forever. Uses the runner's own reset (private: NodeRunner has no
-    public hook for a world reset); call it only from ``step``, between the reset's reply
-    and the step's return (the plant publishes the new world only after the ack)."""
-    hook = getattr(runner, "reset_inputs", None) or getattr(runner, "_reset_inputs", None)
-    if hook is None:
-        raise ExperimentError("bus.node.NodeRunner has no reset_inputs(): cannot follow a "
-                              "sim/reset from inside step()")
-    hook()
+    node would wait forever (:meth:`bus.runtime.NodeRunner.reset_inputs`). Call it only
+    from ``step``, between the reset's reply and the step's return (the plant publishes the
+    new world only after the ack)."""
+    runner.reset_inputs()
 
 
 class Capture:

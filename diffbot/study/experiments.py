@@ -34,7 +34,8 @@ import numpy as np
 
 from bus import codec, jsonio
 from bus.cliargs import ArgumentParser, nonneg_float, nonneg_int, positive_float, positive_int
-from bus.node import WheelSpeeds, write_json
+from bus.controller import WheelSpeeds
+from bus.jsonio import write_json
 from plant.world import WorldError, load_world
 
 from .experiment_bus import (ExperimentError, PlantProcess, capture, forget_inputs,
@@ -184,7 +185,6 @@ class StraightRuns:
             if reply.ok is None:
                 raise ExperimentError(
                     f"sim/reset refused: {reply.err.payload.to_bytes().decode()}")
-            # NodeRunner has no public hook for a world reset yet (see experiment_bus)
             forget_inputs(self.runner)
             return
         raise ExperimentError("no reply to sim/reset within 10 s")

@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     import sys
     import time
 
-    from bus.node import write_json
+    from bus.jsonio import write_json
     from plant.world import WorldError
 
     p = argparse.ArgumentParser(prog="python -m diffbot.study.figures_render",

@@ -1,0 +1,237 @@
+"""The lockstep rules of docs/PROTOCOL.md, one side each, with no Zenoh and no DART in them.
+
+* :class:`AckLedger` is the plant's half: who must answer which tick, the ACKs and
+  member messages that came for it, FINALs, members that left, missing outputs and
+  second ACKs (PROTOCOL.md section 4, "Each tick k" step 4, "Finishing", "Reset";
+  section 7 for what it counts as a protocol error).
+* :class:`MemberTick` is a member's half: which input stamps a tick needs (section 4,
+  step 2), what it owes for a tick and in which order (step 3), and when, after its
+  FINAL, it may leave ("Finishing").
+
+The plant (``plant/node.py``) and the node runtime (``bus/runtime.py``) are adapters:
+they move messages between Zenoh and these objects. Each method names its section.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from . import codec
+
+#: ACKs per member, member messages and the members owed per tick, remembered (ticks)
+RECENT_TICKS = 32
+
+
+class AckLedger:
+    """The plant's record of the lockstep handshake (docs/PROTOCOL.md section 4).
+
+    ``report(kind, text)`` counts and logs a protocol error (section 7); ``end_with`` are
+    the members whose FINAL ends the run.
+    """
+
+    def __init__(self, tick_ns: int, report: Callable[[str, str], None],
+                 end_with: tuple[str, ...] = ()) -> None:
+        self.tick_ns = tick_ns
+        self.report = report
+        self.end_with = tuple(end_with)
+        self.members: set[str] = set()          # holding a sim/sync token now
+        self.members_seen: set[str] = set()     # ever held one
+        # member -> {tick stamp: (n_plant, final)} from its ACKs, the last few ticks: a
+        # stray, late or forged ACK never hides the one the plant waits for
+        self.acks: dict[str, dict[int, tuple[int, bool]]] = {}
+        self.finished: dict[str, int] = {}      # member -> stamp of its FINAL tick
+        self.final_awaited: set[str] = set()    # ending members given their grace once
+        # (member, tick stamp) -> its messages on plant-read keys stamped for that tick
+        self.member_msgs: dict[tuple[str, int], int] = {}
+        # tick stamp -> the members present when the plant began that tick
+        self.owed_by: dict[int, frozenset[str]] = {}
+
+    # ------------------------------------------------------------ membership
+    def join(self, node: str) -> None:
+        """Section 4, "Joining": a member is waited for from the next tick the plant begins."""
+        self.members.add(node)
+        self.members_seen.add(node)
+        self.finished.pop(node, None)
+        self.final_awaited.discard(node)
+
+    def leave(self, node: str) -> None:
+        """Section 4, step 4: a member whose ``sim/sync`` token vanished is not waited for.
+        Its FINAL, if it came, is kept ("Finishing")."""
+        self.members.discard(node)
+        self.acks.pop(node, None)
+        for k in [k for k in self.member_msgs if k[0] == node]:
+            del self.member_msgs[k]
+
+    def begin_tick(self, t_ns: int) -> None:
+        """Section 4, step 4: tick ``t_ns`` is owed by the members present as it begins
+        (pipelined coupling looks at its ACKs a tick later, when others may have joined)."""
+        self.owed_by[t_ns] = frozenset(self.members)
+        while len(self.owed_by) > RECENT_TICKS:
+            del self.owed_by[next(iter(self.owed_by))]
+
+    # ------------------------------------------------------------ messages
+    def file(self, key: str, topic: str, att: codec.Attachment | None, raw: bytes | None,
+             now_ns: int) -> bool:
+        """File one message on a plant-read key or ``sim/ack/<node>`` (section 4, steps 3-4;
+        section 7 for what is wrong with it). False if it is not to be used at all."""
+        if att is None or att.node is None:
+            if topic == "odom":                  # a realtime-style odometry node: not ours
+                return False
+            why = ("no attachment" if not raw
+                   else "a malformed attachment" if att is None
+                   else "a plain 16-byte attachment (no member trailer)")
+            self.report(f"{key}: {why}",
+                        "a lockstep member's outputs carry seq, stamp and the trailer "
+                        "flags|n_plant|name (docs/PROTOCOL.md); "
+                        + ("applied as a command from a non-member" if topic != "ack"
+                           else "ignored"))
+            return topic != "ack"
+        member, t = att.node, att.t_ns
+        if self.tick_ns and t % self.tick_ns:
+            self.report(f"{key}: stamp off the tick grid", f"t={t * 1e-9:.9f} s from {member}; "
+                        "ignored")
+            return False
+        if t > now_ns:
+            self.report(f"{key}: stamped for a tick not due",
+                        f"t={t * 1e-9:.3f} s from {member}, the plant is at "
+                        f"t={now_ns * 1e-9:.3f} s; ignored")
+            return False
+        if member not in self.members and member not in self.members_seen:
+            self.report(f"{key}: from {member!r}, not a lockstep member",
+                        "(no sim/sync token); used, not waited for")
+        # A member that left is not waited for, but its ACK is still filed: its FINAL may
+        # arrive just after its sim/sync token went (liveliness and data take different
+        # paths), and --end-with must still end the run at that tick.
+        if topic != "ack":
+            k = (member, t)
+            self.member_msgs[k] = self.member_msgs.get(k, 0) + 1
+            if len(self.member_msgs) > 4 * RECENT_TICKS * max(1, len(self.members)):
+                del self.member_msgs[next(iter(self.member_msgs))]
+        if att.flags & codec.ACK:
+            self._ack(key, member, t, att.n_plant, bool(att.flags & codec.FINAL))
+        return True
+
+    def _ack(self, key: str, member: str, t: int, n_plant: int, final: bool) -> None:
+        """Section 7: a member ACKs a tick once; a second ACK is forged or a bug, and the
+        smaller ``n_plant`` is kept, so no stray ACK can hold the run forever."""
+        acks = self.acks.setdefault(member, {})
+        ack = (n_plant, final)
+        if t in acks:
+            self.report(f"{key}: a second ACK from {member}",
+                        f"for t={t * 1e-9:.3f} s (n_plant {acks[t][0]} and {n_plant})")
+            ack = (min(ack[0], acks[t][0]), ack[1] or acks[t][1])
+        acks[t] = ack
+        if ack[1]:
+            # Kept after the member leaves: under pipelined coupling it may leave before
+            # the plant has looked for its FINAL (--end-with must still see it).
+            self.finished[member] = t
+        if len(acks) > RECENT_TICKS:
+            del acks[next(iter(acks))]
+
+    # ------------------------------------------------------------ the barrier
+    def done(self, member: str, t_ns: int) -> bool:
+        """Section 4, step 4: the member ACKed tick ``t_ns`` and all ``n_plant`` of its
+        messages stamped ``t_ns`` are in."""
+        ack = self.acks.get(member, {}).get(t_ns)
+        return ack is not None and self.member_msgs.get((member, t_ns), 0) >= ack[0]
+
+    def waiting_for(self, t_ns: int) -> list[str]:
+        """Section 4, step 4 and "Finishing": the members owed tick ``t_ns`` (present when
+        it began, still present, not finished before it) whose answer is not complete."""
+        owed = self.owed_by.get(t_ns, self.members)
+        return [m for m in sorted(owed) if m in self.members and not self.done(m, t_ns)
+                and self.finished.get(m, t_ns) >= t_ns]
+
+    def missing_outputs(self, member: str, t_ns: int) -> tuple[int, int] | None:
+        """Section 7: (n_plant the member's ACK of ``t_ns`` announced, messages that came),
+        or None if it has not ACKed that tick."""
+        ack = self.acks.get(member, {}).get(t_ns)
+        return None if ack is None else (ack[0], self.member_msgs.get((member, t_ns), 0))
+
+    def describe_wait(self, t_ns: int, waiting: list[str]) -> list[str]:
+        """Section 7: for each member still owed ``t_ns``, whether its ACK came and how many
+        of its messages; an ACK whose messages did not all come is a protocol error."""
+        parts = []
+        for m in sorted(waiting):
+            missing = self.missing_outputs(m, t_ns)
+            got = self.member_msgs.get((m, t_ns), 0)
+            if missing is not None:
+                self.report("missing outputs", f"{m} ACKed t={t_ns * 1e-9:.3f} s with "
+                            f"n_plant={missing[0]} but {got} of its messages for it arrived")
+                parts.append(f"{m} (ACKed with n_plant={missing[0]}, {got} arrived)")
+            else:
+                last = max(self.acks.get(m, {}), default=None)
+                parts.append(f"{m} (no ACK; {got} message(s) for this tick; last ACK "
+                             + (f"t={last * 1e-9:.3f} s)" if last is not None else "none)"))
+        return parts
+
+    # ------------------------------------------------------------ the end
+    def ended(self, upto_ns: int) -> list[str]:
+        """Section 4, "Finishing": the ``--end-with`` members whose FINAL tick is at or
+        before ``upto_ns``."""
+        return [m for m in self.end_with if self.finished.get(m, upto_ns + 1) <= upto_ns]
+
+    def left_before_final(self) -> list[str]:
+        """Section 4, "Finishing": ``--end-with`` members whose token went before their FINAL
+        came and that were not yet given their grace (each is, once: marked here)."""
+        out = [m for m in self.end_with
+               if m in self.members_seen and m not in self.members and m not in self.finished
+               and m not in self.final_awaited]
+        self.final_awaited.update(out)
+        return out
+
+    def restart(self) -> None:
+        """Section 4, "Reset": the world restarted at t = 0, so the old world's ACKs, FINALs
+        and messages are forgotten (their stamps would match the new world's ticks)."""
+        self.acks.clear()
+        self.finished.clear()
+        self.member_msgs.clear()
+        self.owed_by.clear()
+
+
+@dataclass
+class Output:
+    """One message a member queued for the current tick."""
+    key: str
+    msg: Any
+    plant_read: bool       # on a key the plant reads (PLANT_READS): counted in n_plant
+
+
+class MemberTick:
+    """A lockstep member's half of the handshake (docs/PROTOCOL.md section 4)."""
+
+    def __init__(self, name: str, tick_ns: int, actuation_delay_ticks: int = 0) -> None:
+        self.name = name
+        self.tick_ns = tick_ns
+        self.actuation_delay_ticks = actuation_delay_ticks
+
+    def input_stamp(self, t_ns: int, period_ticks: int, lag_ns: int) -> int | None:
+        """Section 4, step 2: the stamp the sample of one input must carry before the member
+        acts on tick ``t_ns`` (a plant sensor: ``t_ns`` if due at this tick; another node's
+        output: ``t_ns`` less the coupling's input delay), or None if none is due."""
+        k = t_ns // self.tick_ns if self.tick_ns else 0
+        if k % period_ticks or t_ns - lag_ns < 0:
+            return None
+        return t_ns - lag_ns
+
+    def owed(self, outputs: list[Output], ack_key: str,
+             final: bool = False) -> list[tuple[str, Any, int, int]]:
+        """Section 4, step 3: what the member sends for a tick, in order, as (key, message or
+        None for the empty ACK, flags, n_plant): plant-read outputs last (a stable sort:
+        robot order kept), the very last with ``ACK`` (and ``FINAL``) and ``n_plant``; a tick
+        with no plant-read output ends with an empty message on ``sim/ack/<node>``."""
+        out = sorted(outputs, key=lambda o: o.plant_read)
+        n_plant = sum(1 for o in out if o.plant_read)
+        end = codec.ACK | (codec.FINAL if final else 0)
+        sent = [(o.key, o.msg, end if (n_plant and i == len(out) - 1) else 0,
+                 n_plant if (n_plant and i == len(out) - 1) else 0)
+                for i, o in enumerate(out)]
+        if not n_plant:
+            sent.append((ack_key, None, end, 0))
+        return sent
+
+    def may_leave(self, final_ns: int, clock_ns: int) -> bool:
+        """Section 4, "Finishing": after its FINAL at ``final_ns`` a member keeps its tokens
+        until a ``sim/clock`` stamped after ``final_ns`` + the actuation delay (the plant
+        publishes it only once it took the FINAL)."""
+        return clock_ns > final_ns + self.actuation_delay_ticks * self.tick_ns

@@ -1,0 +1,128 @@
+"""Commands the plant receives: decoded, checked, filed per robot, and picked for a tick.
+
+A bad command (undecodable, NaN/inf, absurd speeds, wrong frame, unknown joints, a stamp
+in the future or older than ``cmd_timeout_s``) raises :class:`ValueError` here and never
+reaches the physics (docs/PROTOCOL.md section 7). Which command acts at a tick follows
+the mode: in lockstep the one computed for the latest tick at or before ``t_k -
+actuation delay`` (section 4, "Couplings"), otherwise the latest one received.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bus import codec
+from bus.controller import Twist, WheelSpeeds
+
+#: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
+ABSURD_FACTOR = 10.0
+#: commands per robot remembered by tick stamp (lockstep)
+RECENT_TICKS = 32
+
+
+@dataclass
+class Command:
+    value: Twist | WheelSpeeds
+    t_ns: int          # the tick it was computed for (its stamp; sim time when received if 0)
+    wall: float        # monotonic wall time when received
+
+
+def wheel_speeds(msg) -> WheelSpeeds:
+    """The two wheel velocities of a ``wheel_cmd`` JointState (unnamed: left, right)."""
+    vel = np.asarray(msg.velocity, dtype=float)
+    if len(vel) != 2:
+        raise ValueError(f"wheel_cmd needs 2 velocities, got {len(vel)}")
+    names = list(msg.name)
+    if not names:
+        return WheelSpeeds(float(vel[0]), float(vel[1]))
+    if sorted(names) != ["left_wheel_joint", "right_wheel_joint"]:
+        raise ValueError(f"unknown joint names {names}")
+    d = dict(zip(names, vel))
+    return WheelSpeeds(float(d["left_wheel_joint"]), float(d["right_wheel_joint"]))
+
+
+def decode_command(payload: bytes, topic: str, drive, now_ns: int, tick_ns: int,
+                   check_age: bool) -> tuple[Twist | WheelSpeeds, int]:
+    """(command, stamp in ns, 0 if unstamped) of a ``cmd_vel`` or ``wheel_cmd`` payload for
+    a robot with ``drive`` limits; ValueError (or codec.CodecError) says why it is bad."""
+    if topic == "cmd_vel":
+        msg = codec.decode(payload, "geometry_msgs/msg/TwistStamped")
+        tw = msg.twist
+        if not all(math.isfinite(v) for v in (tw.linear.x, tw.linear.y, tw.linear.z,
+                                              tw.angular.x, tw.angular.y, tw.angular.z)):
+            raise ValueError("non-finite twist")
+        if msg.header.frame_id not in ("", "base_link"):
+            raise ValueError(f"twist in frame {msg.header.frame_id!r}; expected base_link")
+        value: Twist | WheelSpeeds = Twist(float(tw.linear.x), float(tw.angular.z))
+        a, b = value.linear, value.angular
+        lim_a, lim_b = drive.max_linear_mps, drive.max_angular_radps
+    else:
+        msg = codec.decode(payload, "sensor_msgs/msg/JointState")
+        value = wheel_speeds(msg)
+        a, b = value.left, value.right
+        lim_a = lim_b = drive.max_wheel_speed_radps
+    check_stamp(msg.header.stamp, now_ns, tick_ns, drive.cmd_timeout_s if check_age else None)
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ValueError(f"non-finite command ({a}, {b})")
+    if abs(a) > ABSURD_FACTOR * lim_a or abs(b) > ABSURD_FACTOR * lim_b:
+        raise ValueError(f"absurd command ({a:g}, {b:g}); limits are {lim_a:g}, {lim_b:g}")
+    return value, codec.stamp_ns(msg.header.stamp)
+
+
+def check_stamp(stamp, now_ns: int, tick_ns: int, timeout_s: float | None) -> None:
+    """Raise ValueError for a command stamped in the future, or (``timeout_s`` given) older
+    than the robot's ``cmd_timeout_s``. A zero stamp means "now" (unstamped)."""
+    if stamp.sec < 0 or not 0 <= stamp.nanosec < 1_000_000_000:
+        raise ValueError(f"invalid stamp ({stamp.sec} s, {stamp.nanosec} ns)")
+    t = codec.stamp_ns(stamp)
+    if t == 0:
+        return
+    if t > now_ns + tick_ns:
+        raise ValueError(f"stamped t={t * 1e-9:.3f} s, in the future (now "
+                         f"{now_ns * 1e-9:.3f} s)")
+    if timeout_s is not None and now_ns - t > timeout_s * 1e9:
+        raise ValueError(f"stamped t={t * 1e-9:.3f} s, older than cmd_timeout "
+                         f"{timeout_s:g} s (now {now_ns * 1e-9:.3f} s)")
+
+
+class CommandBook:
+    """The commands received per robot: the latest, and in lockstep one per tick stamp."""
+
+    def __init__(self, lockstep: bool) -> None:
+        self.lockstep = lockstep
+        self.latest: dict[str, Command] = {}
+        self.by_tick: dict[str, dict[int, Command]] = {}
+
+    def file(self, robot: str, cmd: Command) -> None:
+        self.latest[robot] = cmd
+        if self.lockstep:
+            by_tick = self.by_tick.setdefault(robot, {})
+            by_tick[cmd.t_ns] = cmd
+            if len(by_tick) > RECENT_TICKS:
+                del by_tick[min(by_tick)]
+
+    def for_tick(self, robot: str, upto_ns: int) -> Command | None:
+        """Lockstep: the command computed for the latest tick at or before ``upto_ns`` (the
+        current tick in sequential coupling, the one before in pipelined): what arrives early
+        for a later tick waits for its turn, so runs are the same whatever the timing."""
+        by_tick = self.by_tick.get(robot)
+        if not by_tick:
+            return None
+        ticks = [t for t in by_tick if t <= upto_ns]
+        if not ticks:
+            return None
+        best = max(ticks)
+        for t in [t for t in ticks if t < best]:          # older ones are done with
+            del by_tick[t]
+        return by_tick[best]
+
+    def forget(self, robot: str) -> None:
+        """The robot's command timed out: it holds none until a new one comes."""
+        self.latest.pop(robot, None)
+        self.by_tick.pop(robot, None)
+
+    def clear(self) -> None:
+        self.latest.clear()
+        self.by_tick.clear()

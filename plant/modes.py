@@ -1,0 +1,168 @@
+"""What the plant waits for between publishing a tick and stepping, one strategy per mode.
+
+* :class:`Lockstep` — the tick's barrier: the members' ACKs (sequential: of this tick;
+  pipelined: of the one before), and the end of the run when an ``--end-with`` member
+  has finished (docs/PROTOCOL.md section 4; the ledger is :class:`bus.lockstep.AckLedger`).
+* :class:`Realtime` — paces to the wall clock times ``--rate``; the last command is held
+  and one older than ``cmd_timeout_s`` of wall time stops its robot.
+* :class:`Fast` — free running: takes what has come, waits for nobody.
+
+Each says whether the physics may step while the tick is published (``overlaps``), which
+command acts at a tick, and how old it is.
+"""
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+from .commands import Command
+
+if TYPE_CHECKING:
+    from .node import Plant
+
+#: lockstep: waiting this long (wall s) on a tick makes the plant say who it waits for,
+#: again after twice as long each time, up to every WAIT_REPORT_MAX_S
+WAIT_REPORT_S = 2.0
+WAIT_REPORT_MAX_S = 30.0
+#: A member's last messages may reach the plant just after its sim/sync token is gone
+#: (liveliness and data take different paths): how long, once, the plant waits for the
+#: FINAL of an --end-with member that left without one, rather than run past its end.
+LEFT_FINAL_GRACE_S = 0.5
+#: realtime: falling this far behind the wall clock (s) re-anchors it instead of catching up
+STALL_S = 0.25
+
+
+class Fast:
+    """Free running: nobody is waited for."""
+    overlaps = True
+
+    def __init__(self, plant: Plant) -> None:
+        self.plant = plant
+
+    def start(self) -> None:
+        """The first tick is about to be published."""
+
+    def restarted(self) -> None:
+        """The world restarted at t = 0."""
+
+    def barrier(self, t_ns: int) -> str | None:
+        """Between publishing tick ``t_ns`` and stepping: wait for what the mode waits for;
+        the reason the run ends here, or None."""
+        self.plant.drain(0.0)
+        return None
+
+    def at_end(self, t_ns: int) -> None:
+        """The run ends at tick ``t_ns`` (its sensors are published)."""
+
+    def command(self, robot: str) -> Command | None:
+        return self.plant.commands.latest.get(robot)
+
+    def age_s(self, cmd: Command) -> float:
+        return time.monotonic() - cmd.wall
+
+
+class Realtime(Fast):
+    """Paced to the wall clock times ``rate``."""
+    overlaps = False
+
+    def __init__(self, plant: Plant) -> None:
+        super().__init__(plant)
+        self.pace0 = 0.0                 # wall time of sim time 0
+        self.stalls = 0                  # times the wall clock was re-anchored
+        self._stall_logged = -1e9
+
+    def start(self) -> None:
+        self.pace0 = time.monotonic()
+
+    def restarted(self) -> None:
+        self.pace0 = time.monotonic() - self.plant.sim.time_ns * 1e-9 / self.plant.rate
+
+    def barrier(self, t_ns: int) -> str | None:
+        p = self.plant
+        p.drain(0.0)
+        due = self.pace0 + (t_ns + p.tick_ns) * 1e-9 / p.rate
+        behind = time.monotonic() - due
+        if behind > max(STALL_S, 5 * p.tick_ns * 1e-9 / p.rate):
+            # Stopped (SIGSTOP, debugger) or starved: do not race to catch up, which would
+            # replay the missed wall time at full speed.
+            self.stalls += 1
+            self.pace0 += behind
+            due -= behind
+            if time.monotonic() - self._stall_logged > 5.0:
+                self._stall_logged = time.monotonic()
+                p.log.warning("realtime: %.2f s behind the wall clock at t=%.3f s (stopped "
+                              "or overloaded); carrying on from now", behind, t_ns * 1e-9)
+        while (left := due - time.monotonic()) > 0 and not p.stop_event.is_set():
+            p.drain(min(left, 0.05))
+        return None
+
+
+class Lockstep(Fast):
+    """The tick's barrier; ``delay_ns`` is the coupling's actuation delay (0: sequential)."""
+
+    def __init__(self, plant: Plant, delay_ns: int) -> None:
+        super().__init__(plant)
+        self.delay_ns = delay_ns
+        self.overlaps = delay_ns > 0     # pipelined: tick k's sensors do not feed this step
+
+    def barrier(self, t_ns: int) -> str | None:
+        """Sequential: tick t's ACKs; pipelined: tick t-1's, while the members compute tick
+        t's (none before the first tick). Then the end, if an --end-with member finished."""
+        p = self.plant
+        due = t_ns - self.delay_ns
+        if due >= 0:
+            self.wait_for_acks(due)
+        if p.reset_in_tick:
+            return None
+        self.await_final_of_leavers()
+        ended = p.ledger.ended(due)
+        if not ended:
+            return None
+        p.publish_pending()
+        if self.delay_ns:           # pipelined: the others' outputs of tick t too, so the
+            self.wait_for_acks(t_ns)          # end is exact
+        p.log.info("%s finished at t=%.3f s: stopping", ended[0], due * 1e-9)
+        return f"{ended[0]} finished"
+
+    def at_end(self, t_ns: int) -> None:
+        self.wait_for_acks(t_ns)
+
+    def command(self, robot: str) -> Command | None:
+        return self.plant.commands.for_tick(robot, self.plant.sim.time_ns - self.delay_ns)
+
+    def age_s(self, cmd: Command) -> float:
+        return (self.plant.sim.time_ns - cmd.t_ns) * 1e-9
+
+    def wait_for_acks(self, t_ns: int) -> None:
+        """Until every member owed tick ``t_ns`` has answered it in full (AckLedger.
+        waiting_for); after WAIT_REPORT_S of wall time, say whom it waits for (then less
+        and less often). A sim/reset answered meanwhile ends the wait: the tick is gone."""
+        p = self.plant
+        since = time.monotonic()
+        every = WAIT_REPORT_S
+        report_at = since + every
+        # What came meanwhile, even when nobody is to be waited for (every member gone): a
+        # member joining, a late FINAL, a sim/reset query would otherwise stay queued.
+        p.drain(0.0)
+        while not p.stop_event.is_set() and not p.reset_in_tick:
+            waiting = p.ledger.waiting_for(t_ns)
+            if not waiting:
+                return
+            now = time.monotonic()
+            if now >= report_at:
+                p.log.warning("lockstep: waited %.1f s for tick t=%.3f s: %s", now - since,
+                              t_ns * 1e-9, "; ".join(p.ledger.describe_wait(t_ns, waiting)))
+                every = min(2 * every, WAIT_REPORT_MAX_S)
+                report_at = now + every
+            p.drain(0.5)
+
+    def await_final_of_leavers(self) -> None:
+        """An --end-with member that left without its FINAL having come: its last messages
+        may still be on their way, so give them LEFT_FINAL_GRACE_S once (a crashed member
+        costs the run that much), and the run ends at the member's last tick."""
+        p = self.plant
+        for m in p.ledger.left_before_final():
+            deadline = time.monotonic() + LEFT_FINAL_GRACE_S
+            while (m not in p.ledger.finished and not p.stop_event.is_set()
+                   and (left := deadline - time.monotonic()) > 0):
+                p.drain(min(left, 0.05))

@@ -1,0 +1,176 @@
+"""The lockstep rules of docs/PROTOCOL.md section 4, each side on its own, without processes:
+the plant's ACK ledger and a member's tick (bus/lockstep.py)."""
+from __future__ import annotations
+
+from bus import codec
+from bus.lockstep import AckLedger, MemberTick, Output
+
+T = 20_000_000          # one control tick, ns
+CMD = "robot1/cmd_vel"
+
+
+def ledger(end_with=()):
+    errors: list[tuple[str, str]] = []
+    led = AckLedger(T, lambda kind, text: errors.append((kind, text)), end_with)
+    return led, errors
+
+
+def att(node, t, flags=0, n_plant=0, seq=1):
+    raw = codec.attachment(seq, t, flags, n_plant, node)
+    return codec.parse_attachment(raw), raw
+
+
+def send(led, node, t, flags=0, n_plant=0, key=CMD, topic="cmd_vel", now=10 * T):
+    a, raw = att(node, t, flags, n_plant)
+    return led.file(key, topic, a, raw, now)
+
+
+# ---------------------------------------------------------------- the plant's ledger
+def test_a_member_is_done_with_a_tick_once_its_ack_and_all_its_messages_are_in():
+    led, errors = ledger()
+    led.join("a")
+    led.begin_tick(0)
+    assert led.waiting_for(0) == ["a"]
+    send(led, "a", 0, key="robot1/odom", topic="odom")      # 1 of 2, no ACK
+    assert led.waiting_for(0) == ["a"]
+    send(led, "a", 0, codec.ACK, n_plant=2)                  # 2 of 2, with the ACK
+    assert led.waiting_for(0) == [] and led.done("a", 0)
+    assert errors == []
+
+
+def test_an_ack_whose_messages_did_not_all_come_is_reported_as_missing_outputs():
+    led, errors = ledger()
+    led.join("a")
+    led.begin_tick(0)
+    send(led, "a", 0, codec.ACK, n_plant=3)
+    assert led.missing_outputs("a", 0) == (3, 1)
+    assert led.waiting_for(0) == ["a"]
+    assert led.describe_wait(0, ["a"]) == ["a (ACKed with n_plant=3, 1 arrived)"]
+    assert errors[-1][0] == "missing outputs"
+
+
+def test_a_tick_is_owed_by_the_members_present_when_it_began():
+    """Pipelined: the ACKs of t_{k-1} are looked at during tick k; a member that joined
+    since tick k-1 began may never have seen its clock."""
+    led, _ = ledger()
+    led.join("a")
+    led.begin_tick(0)
+    led.join("late")
+    led.begin_tick(T)
+    send(led, "a", 0, codec.ACK, n_plant=1)
+    assert led.waiting_for(0) == []                 # late not owed t0
+    assert led.waiting_for(T) == ["a", "late"]      # but t1
+
+
+def test_a_member_that_leaves_is_not_waited_for_but_its_final_is_kept():
+    led, _ = ledger(end_with=("a",))
+    led.join("a")
+    led.join("b")
+    led.begin_tick(T)
+    send(led, "a", T, codec.ACK | codec.FINAL, n_plant=1)
+    led.leave("a")
+    assert led.ended(T) == ["a"] and led.ended(0) == []
+    assert led.waiting_for(T) == ["b"]
+    led.leave("b")
+    assert led.waiting_for(T) == []
+
+
+def test_nobody_is_waited_for_after_their_final():
+    led, _ = ledger()
+    led.join("a")
+    send(led, "a", T, codec.ACK | codec.FINAL, n_plant=1)
+    led.begin_tick(2 * T)
+    assert led.waiting_for(2 * T) == []
+
+
+def test_an_end_with_member_gone_before_its_final_gets_its_grace_once():
+    led, _ = ledger(end_with=("a",))
+    led.join("a")
+    led.leave("a")
+    assert led.left_before_final() == ["a"]
+    assert led.left_before_final() == []
+    led.join("a")                                   # back: it may be given it again
+    led.leave("a")
+    assert led.left_before_final() == ["a"]
+
+
+def test_a_second_ack_is_an_error_and_the_smaller_count_is_kept():
+    led, errors = ledger()
+    led.join("a")
+    led.begin_tick(0)
+    send(led, "a", 0, codec.ACK, n_plant=5)
+    send(led, "a", 0, codec.ACK, n_plant=1)
+    assert errors[-1][0] == f"{CMD}: a second ACK from a"
+    assert led.missing_outputs("a", 0) == (1, 2) and led.done("a", 0)
+
+
+def test_bad_member_messages_are_counted_and_ignored_or_applied_as_the_page_says():
+    led, errors = ledger()
+    led.join("a")
+    # no attachment: a command from a non-member, applied, never waited for
+    assert led.file(CMD, "cmd_vel", None, None, 0) is True
+    # an odometry node of realtime style: not ours, no error
+    assert led.file("robot1/odom", "odom", None, None, 0) is False
+    # an empty ACK without a trailer: ignored
+    plain = codec.attachment(1, 0)
+    assert led.file("sim/ack/a", "ack", codec.parse_attachment(plain), plain, 0) is False
+    assert send(led, "a", T + 1) is False                     # off the tick grid
+    assert send(led, "a", 11 * T, now=10 * T) is False        # not due yet
+    assert send(led, "stranger", 0) is True                   # used, not waited for
+    kinds = [k for k, _ in errors]
+    assert kinds == [f"{CMD}: no attachment", "sim/ack/a: a plain 16-byte attachment "
+                     "(no member trailer)", f"{CMD}: stamp off the tick grid",
+                     f"{CMD}: stamped for a tick not due",
+                     f"{CMD}: from 'stranger', not a lockstep member"]
+
+
+def test_a_restart_forgets_the_old_world_s_acks():
+    led, _ = ledger(end_with=("a",))
+    led.join("a")
+    led.begin_tick(0)
+    send(led, "a", 0, codec.ACK | codec.FINAL, n_plant=1)
+    led.restart()
+    led.begin_tick(0)
+    assert led.waiting_for(0) == ["a"] and led.ended(0) == []
+
+
+def test_the_ledger_remembers_a_bounded_number_of_ticks():
+    led, _ = ledger()
+    led.join("a")
+    for k in range(200):
+        led.begin_tick(k * T)
+        send(led, "a", k * T, codec.ACK, n_plant=1, now=k * T)
+    assert len(led.acks["a"]) <= 32 and len(led.owed_by) <= 32
+    assert len(led.member_msgs) <= 4 * 32
+
+
+# ---------------------------------------------------------------- the member's tick
+def test_a_member_sends_plant_read_outputs_last_and_acks_on_the_very_last():
+    m = MemberTick("n", T)
+    sent = m.owed([Output("robot1/cmd_vel", "c", True), Output("robot1/debug", "d", False),
+                   Output("robot2/cmd_vel", "c2", True)], "sim/ack/n")
+    assert [(k, f, n) for k, _, f, n in sent] == [("robot1/debug", 0, 0),
+                                                  ("robot1/cmd_vel", 0, 0),
+                                                  ("robot2/cmd_vel", codec.ACK, 2)]
+
+
+def test_a_member_with_no_plant_read_output_sends_an_empty_ack():
+    m = MemberTick("n", T)
+    sent = m.owed([Output("robot1/debug", "d", False)], "sim/ack/n", final=True)
+    assert sent[-1] == ("sim/ack/n", None, codec.ACK | codec.FINAL, 0)
+    assert m.owed([], "sim/ack/n") == [("sim/ack/n", None, codec.ACK, 0)]
+
+
+def test_the_stamp_a_tick_needs_of_an_input():
+    m = MemberTick("n", T)
+    assert m.input_stamp(4 * T, 1, 0) == 4 * T          # a plant sensor due every tick
+    assert m.input_stamp(4 * T, 5, 0) is None           # one due every 5 ticks
+    assert m.input_stamp(5 * T, 5, 0) == 5 * T
+    assert m.input_stamp(4 * T, 1, T) == 3 * T          # pipelined: another node's, t-1
+    assert m.input_stamp(0, 1, T) is None               # none at the first tick
+
+
+def test_a_member_leaves_after_a_clock_past_its_final_and_the_actuation_delay():
+    seq, pipe = MemberTick("n", T, 0), MemberTick("n", T, 1)
+    assert not seq.may_leave(5 * T, 5 * T) and seq.may_leave(5 * T, 6 * T)
+    assert not pipe.may_leave(5 * T, 6 * T) and pipe.may_leave(5 * T, 7 * T)
