@@ -1,20 +1,27 @@
 """`diffbot ros2`: the bus <-> ROS 2 bridge, one rclpy node plus one Zenoh session.
 
-Out to ROS 2 (the bus's CDR bytes pass through unchanged, no decode/re-encode):
-``/clock`` and, per robot under ``/<robot>/``: ``scan``, ``camera/image_raw``,
-``camera/camera_info``, ``joint_states``, ``odom``, ``ground_truth`` (nav_msgs/Odometry),
-``gps`` (geometry_msgs/PointStamped, as on the bus). In from ROS 2: ``/<robot>/cmd_vel``
-(geometry_msgs/TwistStamped passes through; plain geometry_msgs/Twist, what teleop nodes
-send, on the same topic, is stamped with the current sim time) and
-``/<robot>/wheel_cmd`` (sensor_msgs/JointState, velocity in rad/s). Commands with
-non-finite or absurd numbers are rejected and counted.
+The names and frames are the bus's (one table: docs/ros2.md). Out to ROS 2 (the bus's CDR
+bytes pass through unchanged, no decode/re-encode): ``/clock`` and, per robot under
+``/<robot>/``: ``scan``, ``camera/image_raw``, ``camera/camera_info``, ``joint_states``,
+``odom`` (frame ``<robot>/odom``), ``ground_truth`` (nav_msgs/Odometry in ``world``),
+``gps`` (geometry_msgs/PointStamped) and ``robot_description`` (std_msgs/String, the URDF,
+transient local). In from ROS 2: ``/<robot>/cmd_vel`` (geometry_msgs/TwistStamped, as
+ROS 2 Jazzy's diff_drive_controller takes it), ``/<robot>/cmd_vel_unstamped`` (plain
+geometry_msgs/Twist, what teleop_twist_keyboard sends with ``-r cmd_vel:=...``; stamped
+with the current sim time) and ``/<robot>/wheel_cmd`` (sensor_msgs/JointState, velocity
+in rad/s). Commands with non-finite or absurd numbers are rejected and counted. The
+service ``/reset_simulation`` (std_srvs/srv/Empty, Gazebo's name) resets the simulation
+through ``sim/reset``. ``/tf`` is not published: ``tf2_msgs`` has no PyPI wheel (the
+recordings and the live view carry it).
 
 ``--lockstep``: the bridge is a lockstep member of the simulation (bus.runtime.NodeRunner).
 At each tick it hands the ROS 2 controller its trigger input (``odom`` by default) and
 ``/clock``, and waits for the controller's TwistStamped on ``cmd_vel`` stamped with the
-trigger's stamp; that command goes to the plant with the tick's ACK. When the controller
-leaves the ROS graph (finished or killed) the bridge stops its robot and leaves the
-simulation like any finished node.
+trigger's stamp; that command goes to the plant with the tick's ACK. Until the controller has answered once, the bridge hands the
+tick's other sensors (scan, GPS, ...) over again with the trigger every RESEND_S, so a node
+started late that waits for its first scan does not hang the run; it logs what it waits
+for. When the controller leaves the ROS graph (finished or killed) the bridge stops its
+robot and leaves the simulation like any finished node.
 """
 from __future__ import annotations
 
@@ -25,7 +32,7 @@ import struct
 import threading
 import time
 
-from bus import codec
+from bus import codec, urdf
 from bus.cliargs import ArgumentParser
 from bus.jsonio import write_json
 from bus.keys import Keys, check_name
@@ -41,6 +48,8 @@ from .ros2_types import OUT_TOPICS, ros_modules
 _POLL_S = 0.05
 #: (--lockstep) the trigger is handed over again after this long without an answer
 RESEND_S = 0.5
+#: plain geometry_msgs/Twist goes here (one type per topic: cmd_vel is TwistStamped)
+UNSTAMPED = "cmd_vel_unstamped"
 #: a wrong-sized TwistStamped is rejected before it is looked at
 _TWIST6 = struct.Struct("<6d")
 
@@ -109,18 +118,18 @@ class Bridge:
         self.cond = threading.Condition()
         self._had: dict[str, bool] = {}
         self.resends = 0    # lockstep: the controller was seen
-        # Two DDS participants: one participant cannot hold a TwistStamped and a Twist
-        # reader of the same topic name (RCLError "incompatible type"), two can, and each
-        # writer matches the reader of its own type.
+        self.published: dict[str, int] = {}        # bus key -> messages put on the bus
+        self.latest: dict[str, bytes] = {}          # bus key -> its last sample (re-sent)
+        self.answered: set[str] = set()             # robots whose controller answered once
+        self.closing = False
+        self.info = info
         self.node = self._participant(args.name, args.domain_id)
-        self.twist_node = self._participant(args.name + "_twist", args.domain_id)
         self._zsubs = []
         self._pubs: dict[str, object] = {}
         self._zpubs: dict[str, object] = {}
         self._setup_out()
         self._setup_in()
-        self._spins = [threading.Thread(target=self._spin_loop, args=(n,), daemon=True)
-                       for n in (self.node, self.twist_node)]
+        self._spins = [threading.Thread(target=self._spin_loop, args=(self.node,), daemon=True)]
         for t in self._spins:
             t.start()
 
@@ -148,6 +157,11 @@ class Bridge:
                 self._pubs[self.keys.topic(robot, bus_topic)] = pub
                 self._zsubs.append(self.session.declare_subscriber(
                     self.keys.topic(robot, bus_topic), self._on_bus))
+            desc = self.node.create_publisher(ros.String, f"/{robot}/{urdf.DESCRIPTION_TOPIC}",
+                                              ros.qos_latched)
+            desc.publish(ros.String(data=urdf.robot_urdf(self.info, robot)))
+            self._pubs[f"/{robot}/{urdf.DESCRIPTION_TOPIC}"] = desc
+        self.node.create_service(ros.Empty, "/reset_simulation", self._on_reset)
 
     def _count(self, what: str) -> None:
         with self._lock:
@@ -159,14 +173,47 @@ class Bridge:
             sec, nsec = struct.unpack_from("<iI", data, 4)
             self.t_ns = sec * 1_000_000_000 + nsec
         if not self.lockstep:                      # in lockstep /clock follows the trigger
-            self.clock_pub.publish(data)
-            self._count("/clock")
+            self._publish(self.clock_pub, data)
 
     def _on_bus(self, sample) -> None:
-        pub = self._pubs.get(str(sample.key_expr))
+        key = str(sample.key_expr)
+        pub = self._pubs.get(key)
         if pub is not None:
-            pub.publish(bytes(sample.payload))
-            self._count(pub.topic_name)
+            data = bytes(sample.payload)
+            if self.lockstep:
+                self.latest[key] = data
+            self._publish(pub, data)
+
+    def _publish(self, pub, data: bytes) -> None:
+        """Publish and count; a Zenoh callback racing the shutdown is dropped, not raised."""
+        if self.closing:
+            return
+        try:
+            pub.publish(data)
+        except Exception:      # rclpy's InvalidHandle once the node is being destroyed
+            if not self.closing:
+                raise
+            return
+        self._count(pub.topic_name)
+
+    def resend_latest(self, robot: str) -> None:
+        """Hand a robot's last sensor samples over again (a node that joined late)."""
+        prefix = self.keys.topic(robot, "scan").rsplit("/", 1)[0] + "/"
+        for key, data in list(self.latest.items()):
+            if key.startswith(prefix):
+                self._publish(self._pubs[key], data)
+
+    def _on_reset(self, request, response):
+        """``/reset_simulation``: ``sim/reset`` with no arguments (start poses, same seed)."""
+        said = None
+        for reply in self.session.get(self.keys.reset, timeout=5.0):
+            if reply.ok is not None:
+                said = reply.ok.payload.to_bytes().decode("utf-8", "replace")
+            else:
+                said = "error: " + reply.err.payload.to_bytes().decode("utf-8", "replace")
+        self.log.info("/reset_simulation: %s", said or "no plant answered sim/reset")
+        self._count("/reset_simulation")
+        return response
 
     # ------------------------------------------------------------------ ROS 2 -> bus
     def _setup_in(self) -> None:
@@ -175,8 +222,8 @@ class Bridge:
             self.node.create_subscription(
                 ros.TwistStamped, f"/{robot}/cmd_vel",
                 lambda data, r=robot: self._on_cmd(r, data), ros.qos_cmd, raw=True)
-            self.twist_node.create_subscription(
-                ros.Twist, f"/{robot}/cmd_vel",
+            self.node.create_subscription(
+                ros.Twist, f"/{robot}/{UNSTAMPED}",
                 lambda data, r=robot: self._on_twist(r, data), ros.qos_cmd, raw=True)
             self.node.create_subscription(
                 ros.JointState, f"/{robot}/wheel_cmd",
@@ -192,6 +239,8 @@ class Bridge:
             seq = self._seq
         pub.put(data, attachment=codec.attachment(seq, t_ns))
         self._count(f"/{robot}/{topic}")
+        with self._lock:
+            self.published[key] = self.published.get(key, 0) + 1
 
     def _on_cmd(self, robot: str, data: bytes) -> None:
         why = _finite_twist(data)
@@ -215,13 +264,13 @@ class Bridge:
         try:
             t = codec.decode(data, "geometry_msgs/msg/Twist")
         except codec.CodecError as exc:
-            self.rejects.reject(str(exc), f"/{robot}/cmd_vel")
+            self.rejects.reject(str(exc), f"/{robot}/{UNSTAMPED}")
             return
         t_ns = self.t_ns
         out = codec.encode(codec.twist_stamped(t_ns, t.linear.x, t.angular.z))
         if self.lockstep:
             self.rejects.reject("unstamped Twist in lockstep (send TwistStamped on cmd_vel)",
-                                f"/{robot}/cmd_vel")
+                                f"/{robot}/{UNSTAMPED}")
             return
         self._on_cmd(robot, out)
 
@@ -255,6 +304,10 @@ class Bridge:
                     data = cmds.pop(stamp_ns)
                     for s in [s for s in cmds if s < stamp_ns]:
                         del cmds[s]
+                    if robot not in self.answered:
+                        self.answered.add(robot)
+                        self.log.info("%s: the ROS 2 controller answered (t=%.3f s)", topic,
+                                      stamp_ns * 1e-9)
                     return data
                 n = self.node.count_publishers(topic)
                 if n:
@@ -266,10 +319,16 @@ class Bridge:
                 now = time.monotonic()
                 if now - sent > RESEND_S:
                     resend()
+                    if robot not in self.answered:     # a late node: its first inputs too
+                        self.resend_latest(robot)
                     sent = now
                     self.resends += 1
-                if not seen and now - said > 5.0:
-                    self.log.info("waiting for a ROS 2 publisher on %s", topic)
+                if now - said > 5.0:
+                    self.log.info("waiting for a TwistStamped on %s stamped t=%.3f s (%s; "
+                                  "handing /%s/%s and the tick's sensors over again every "
+                                  "%.1f s)", topic, stamp_ns * 1e-9,
+                                  "a publisher is there" if seen else "no ROS 2 publisher yet",
+                                  robot, OUT_TOPICS[self.trigger][0], RESEND_S)
                     said = time.monotonic()
                 self.cond.wait(_POLL_S)
         return None
@@ -286,14 +345,16 @@ class Bridge:
 
     def stats(self) -> dict:
         with self._lock:
-            return {"forwarded": dict(self.forwarded), "rejected": dict(self.rejects.counts),
+            return {"forwarded": dict(self.forwarded), "published": dict(self.published),
+                    "rejected": dict(self.rejects.counts),
                     "rejected_total": self.rejects.total, "lockstep_resends": self.resends}
 
     def close(self) -> None:
         for sub in self._zsubs:
             sub.undeclare()
         self._zsubs = []
-        for node in (self.node, self.twist_node):
+        self.closing = True
+        for node in (self.node,):
             context = node.context
             try:
                 node.executor_.shutdown(timeout_sec=1.0)
@@ -329,9 +390,8 @@ class _RosController:
         clock, data = codec.encode(codec.clock(obs.t_ns)), codec.encode(trig)
 
         def hand_over() -> None:
-            b.clock_pub.publish(clock)
-            self.pub.publish(data)
-            b._count(self.pub.topic_name)
+            b._publish(b.clock_pub, clock)
+            b._publish(self.pub, data)
         hand_over()
         data = b.command_for(self.robot, stamp, self.stop, hand_over)
         if data is None:

@@ -8,15 +8,19 @@ it), and serves a Foxglove WebSocket (``foxglove-sdk``, subprotocol
 ``--host`` says otherwise). Channels, all ``cdr`` with full ``ros2msg`` schemas, so
 Foxglove needs nothing installed:
 
-* every bus topic as ``/<key>`` (``/robot1/odom``, ``/sim/clock`` ...), bytes unchanged,
-  except ``scan`` and ``camera/image`` / ``camera/info``, whose frame becomes
-  ``<robot>/laser`` / ``<robot>/camera_optical`` so several robots never share a frame;
-* ``/scene``, ``/tf_static``, ``/tf`` (:mod:`bus.scene`, the same as in recordings);
+* every bus topic as ``/<key>`` (``/robot1/odom``, ``/robot1/camera/image_raw``,
+  ``/sim/clock`` ...), bytes unchanged: the same names and frames as on the bus, over ROS 2
+  and in recordings (docs/ros2.md). The plant's topics are advertised from ``sim/info``;
+  the nodes' topics (``odom``, ``cmd_vel``, ``wheel_cmd``, ``follower/debug``) once a first
+  sample shows the scenario has them;
+* ``/scene``, ``/tf_static`` (with ``world -> <robot>/odom``), ``/tf`` (:mod:`bus.scene`,
+  the same as in recordings) and ``/<robot>/robot_description`` (the URDF, :mod:`bus.urdf`;
+  Foxglove's 3D panel: add a URDF layer with this topic);
 * ``/<robot>/path/{ground_truth,odom,gps}`` (``nav_msgs/Path``, 2 Hz wall);
 * ``/<robot>/metrics/odometry_error_m`` (odometry vs ground truth, m) and
   ``/<robot>/metrics/tracking_distance_m`` (this robot's camera to another robot's ball);
-* ``/<robot>/camera/image_annotated``: the camera image with the follower's detection
-  (``follower/debug``) drawn on it.
+* ``/<robot>/camera/image_annotated`` (when the robot's ``follower/debug`` exists): the
+  camera image with the follower's detection drawn on it.
 
 Costs: every key goes through a latest-only slot and leaves at most ``--rate`` times per
 wall second (30; images and camera info ``--image-rate``, 15): what came in between is
@@ -25,9 +29,10 @@ one but the images). Each client's queue is bounded (``--backlog`` messages, the
 dropped). Derived channels are computed only while a client subscribes to them, and
 only for the samples that are sent. Measured: ``diffbot bench --suite view``.
 
-Teleop: a client may publish ``geometry_msgs/msg/Twist`` (or ``TwistStamped``) on
-``/<robot>/cmd_vel``, ``cdr`` or ``json`` encoded (Foxglove's Teleop panel); it goes on the
-bus as the robot's ``cmd_vel`` (TwistStamped) stamped with the latest simulated time.
+Teleop: a client may publish ``geometry_msgs/msg/Twist`` on ``/<robot>/cmd_vel_unstamped``
+(Foxglove's Teleop panel; the shipped layout's) or ``TwistStamped`` on ``/<robot>/cmd_vel``
+(as over ROS 2), ``cdr`` or ``json`` encoded; it goes on the bus as the robot's
+``cmd_vel`` (TwistStamped) stamped with the latest simulated time.
 """
 from __future__ import annotations
 
@@ -44,7 +49,7 @@ from collections import deque
 import numpy as np
 import zenoh
 
-from bus import codec, scene
+from bus import codec, scene, urdf
 from bus.cliargs import ArgumentParser, nonneg_float, port, positive_float, positive_int
 from bus.keys import TOPICS, Keys
 from bus.log import RejectCounter, setup_logging
@@ -68,8 +73,9 @@ IDLE_LOOP_S = 0.05
 _GT_KEEP = 64
 TWIST_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/Twist",
                "geometry_msgs/msg/TwistStamped", "geometry_msgs/TwistStamped")
-REFRAMED = {"scan": "laser", "camera/image": "camera_optical", "camera/info": "camera_optical"}
-RATE_LIMITED = ("camera/image", "camera/info")
+RATE_LIMITED = ("camera/image_raw", "camera/camera_info")
+#: topics nodes publish: advertised when their first sample shows the scenario has them
+NODE_TOPICS = ("odom", "cmd_vel", "wheel_cmd", "follower/debug")
 
 
 def ros2msg_schema(msgtype: str):
@@ -171,6 +177,8 @@ class View:
         # (payload, attachment) as Zenoh handed them (ZBytes, copied only when used)
         self._gt: dict[str, deque] = {}                      # robot -> the last ground truths
         self._debug: dict[str, tuple] = {}                   # robot -> the last follower/debug
+        self._found: set[str] = set()                        # node topics' keys seen
+        self._probes: dict[str, object] = {}                 # key -> subscriber until seen
         self._resend = threading.Event()
         self._client_channels: dict[tuple[int, int], tuple[str, str, str]] = {}
         self._subs: list = []
@@ -257,8 +265,9 @@ class View:
         prefix = self.topic_name("")
         rest = topic[len(prefix):] if topic.startswith(prefix) else topic.lstrip("/")
         robot, _, suffix = rest.partition("/")
-        if suffix != "cmd_vel":
-            raise ValueError("teleop takes /<robot>/cmd_vel only")
+        if suffix not in ("cmd_vel", "cmd_vel_unstamped"):
+            raise ValueError("teleop takes /<robot>/cmd_vel_unstamped (Twist) or "
+                             "/<robot>/cmd_vel (TwistStamped)")
         if robot not in self.info.get("robots", {}):
             raise ValueError(f"no robot {robot!r} in the simulation "
                              f"(robots: {', '.join(self.info.get('robots', {})) or 'none'})")
@@ -354,20 +363,23 @@ class View:
             if sensors.get("lidar"):
                 plant_topics.add("scan")
             if sensors.get("camera"):
-                plant_topics |= {"camera/image", "camera/info"}
-            for topic in sorted(plant_topics | {"odom", "cmd_vel", "wheel_cmd", "follower/debug"}):
+                plant_topics |= {"camera/image_raw", "camera/camera_info"}
+            found = {t for t in NODE_TOPICS if k.topic(r, t) in self._found}
+            for topic in sorted(plant_topics | found):
                 if topic in TOPICS:
                     key = k.topic(r, topic)
                     deps["/" + key], types["/" + key] = {key}, TOPICS[topic].msgtype
             gt, odom = k.topic(r, "ground_truth"), k.topic(r, "odom")
             derived = {f"{r}/path/ground_truth": ({gt}, "nav_msgs/msg/Path"),
-                       f"{r}/path/odom": ({odom}, "nav_msgs/msg/Path"),
                        f"{r}/path/gps": ({k.topic(r, "gps")}, "nav_msgs/msg/Path"),
-                       f"{r}/metrics/odometry_error_m": ({odom, gt}, "std_msgs/msg/Float64")}
-            if "camera/image" in plant_topics:
+                       f"{r}/{urdf.DESCRIPTION_TOPIC}": (set(), urdf.DESCRIPTION_TYPE)}
+            if "odom" in found:
+                derived[f"{r}/path/odom"] = ({odom}, "nav_msgs/msg/Path")
+                derived[f"{r}/metrics/odometry_error_m"] = ({odom, gt}, "std_msgs/msg/Float64")
+            if "camera/image_raw" in plant_topics and "follower/debug" in found:
                 derived[f"{r}/camera/image_annotated"] = (
-                    {k.topic(r, "camera/image"), k.topic(r, "follower/debug")},
-                    TOPICS["camera/image"].msgtype)
+                    {k.topic(r, "camera/image_raw"), k.topic(r, "follower/debug")},
+                    TOPICS["camera/image_raw"].msgtype)
             targets = [b for a, _, b, _ in self._pairs if a == r]
             if targets:
                 derived[f"{r}/metrics/tracking_distance_m"] = (
@@ -377,8 +389,36 @@ class View:
         self._deps = deps
         for topic, msgtype in types.items():
             self.channel(topic, msgtype)
+        self._probe(info)
         self._resub.set()
         self._resend.set()
+
+    def _probe(self, info: dict) -> None:
+        """Listen for the first sample of each node topic not seen yet (then stop: the
+        channel, once advertised, is fed like any other)."""
+        q = self.queue
+        for r in info.get("robots", {}):
+            for t in NODE_TOPICS:
+                key = self.keys.topic(r, t)
+                if key in self._found or key in self._probes:
+                    continue
+
+                def cb(sample: zenoh.Sample, key=key) -> None:
+                    q.put(("found", key.encode(), None))
+                self._probes[key] = self.session.declare_subscriber(
+                    key, zenoh.handlers.Callback(cb, indirect=False))
+
+    def found(self, key: str) -> None:
+        """A node topic's first sample: advertise its channel and what derives from it."""
+        probe = self._probes.pop(key, None)
+        if probe is not None:
+            probe.undeclare()
+        if key in self._found:
+            return
+        self._found.add(key)
+        self.log.info("%s appeared: advertising it", key)
+        if self.info:
+            self.load_info(self.info)
 
     def send_static(self) -> None:
         t = self.sim_ns
@@ -386,6 +426,9 @@ class View:
                   codec.encode(scene.scene(self.info, t)), t)
         self.send(self.topic_name(scene.TF_STATIC_TOPIC), scene.TF_TYPE,
                   codec.encode(scene.static_tf(self.info, t)), t)
+        for r in self.info.get("robots", {}):
+            self.send(self.topic_name(f"{r}/{urdf.DESCRIPTION_TOPIC}"), urdf.DESCRIPTION_TYPE,
+                      codec.encode(urdf.description_message(self.info, r)), t)
 
     def route(self, key: str) -> tuple[str, str] | None:
         """(robot, topic) of a bus key, or None (the clock, keys that are no topic); cached."""
@@ -398,6 +441,9 @@ class View:
     def handle(self, key: str, payload: bytes, att: bytes | None) -> None:
         """File one bus sample: into its key's latest-only slot (sent by :meth:`flush`), or
         straight through with ``--rate 0``. Costs nothing more than a dict store."""
+        if key == "found":
+            self.found(payload.decode())
+            return
         if key == "plant":
             try:
                 self.load_info(query_info(self.session, self.keys, 5.0))
@@ -458,15 +504,9 @@ class View:
             self.send(channel, msgtype, payload, t)
             return
         robot, topic = self.keys.robot_topic_of(key)
-        if topic == "camera/image":
+        if topic == "camera/image_raw":
             self.annotated(robot, payload, t)
-        if topic in REFRAMED:
-            if not self.wanted(channel, msgtype):
-                return
-            payload = self.reframe(payload, msgtype, robot, topic)
-            if payload is None:
-                return
-        elif topic == "ground_truth":
+        if topic == "ground_truth":
             self.on_ground_truth(robot, payload, t)
         elif topic == "odom":
             self.on_odom(robot, payload, t)
@@ -483,13 +523,6 @@ class View:
         except codec.CodecError as exc:
             self.rejects.reject(key, str(exc))
             return None
-
-    def reframe(self, payload: bytes, msgtype: str, robot: str, topic: str) -> bytes | None:
-        m = self.decode(payload, msgtype, f"{robot}/{topic}")
-        if m is None:
-            return None
-        m.header.frame_id = scene.frame(robot, REFRAMED[topic])
-        return codec.encode(m)
 
     def path(self, robot: str, kind: str) -> Path:
         return self._paths.setdefault(f"{robot}/path/{kind}", Path())
@@ -538,9 +571,10 @@ class View:
         if self.wanted(self.topic_name(f"{robot}/metrics/odometry_error_m"),
                        "std_msgs/msg/Float64"):
             gt = self.ground_truth_at(robot, t)
-            if gt is not None:
+            if gt is not None:             # odometry is in <robot>/odom: compared in world
                 g = gt.pose.pose.position
-                self.metric(robot, "odometry_error_m", math.hypot(p.x - g.x, p.y - g.y), t)
+                x, y, _ = scene.to_world(self.info["robots"][robot]["pose"], p.x, p.y)
+                self.metric(robot, "odometry_error_m", math.hypot(x - g.x, y - g.y), t)
 
     def metric(self, robot: str, name: str, value: float, t: int) -> None:
         topic = self.topic_name(f"{robot}/metrics/{name}")
@@ -551,16 +585,16 @@ class View:
     def annotated(self, robot: str, payload: bytes, t: int) -> None:
         """The image with the follower's detection (circle, centre, distance) drawn on it."""
         topic = self.topic_name(f"{robot}/camera/image_annotated")
-        msgtype = TOPICS["camera/image"].msgtype
+        msgtype = TOPICS["camera/image_raw"].msgtype
         if not self.wanted(topic, msgtype):
             return
-        m = self.decode(payload, msgtype, f"{robot}/camera/image")
+        m = self.decode(payload, msgtype, f"{robot}/camera/image_raw")
         if m is None:
             return
         try:
             rgb = codec.image_to_array(m).copy()
         except ValueError as exc:
-            self.rejects.reject(f"{robot}/camera/image", str(exc))
+            self.rejects.reject(f"{robot}/camera/image_raw", str(exc))
             return
         dbg = None
         if robot in self._debug:
@@ -578,15 +612,17 @@ class View:
                 if len(dbg[1]) >= 5 and math.isfinite(dbg[1][4]):
                     cv2.putText(rgb, f"{dbg[1][4]:.2f} m", (2, rgb.shape[0] - 4),
                                 cv2.FONT_HERSHEY_PLAIN, 0.8, (255, 0, 255), 1)
-        out = codec.image(t, rgb, scene.frame(robot, "camera_optical"))
+        out = codec.image(t, rgb, m.header.frame_id)
         self.send(topic, msgtype, codec.encode(out), t)
 
     def flush_paths(self) -> None:
         for name, p in self._paths.items():
             if p.dirty:
                 p.dirty = False
-                self.send(self.topic_name(name), "nav_msgs/msg/Path", codec.encode(p.message()),
-                          p.points[-1][0])
+                robot, _, kind = name.partition("/path/")
+                frame = scene.frame(robot, "odom") if kind == "odom" else scene.WORLD_FRAME
+                self.send(self.topic_name(name), "nav_msgs/msg/Path",
+                          codec.encode(p.message(frame)), p.points[-1][0])
 
     # ------------------------------------------------------------------ loop
     def run(self) -> int:
@@ -622,13 +658,14 @@ class View:
         return EXIT_OK
 
     def close(self) -> None:
-        for s in [*self._subs, *self._key_subs.values()]:
+        for s in [*self._subs, *self._key_subs.values(), *self._probes.values()]:
             try:
                 s.undeclare()
             except Exception:
                 pass
         self._subs.clear()
         self._key_subs.clear()
+        self._probes.clear()
         if self._token is not None:
             self._token.undeclare()
             self._token = None

@@ -59,7 +59,7 @@ class Topic:
 TOPICS: dict[str, Topic] = {
     "cmd_vel": Topic("cmd_vel", "geometry_msgs/msg/TwistStamped", "controller",
                      "every control tick (or any rate in realtime)",
-                     "m/s, rad/s", "base_link"),
+                     "m/s, rad/s", "<robot>/base_link"),
     "wheel_cmd": Topic("wheel_cmd", "sensor_msgs/msg/JointState", "controller",
                        "every control tick (or any rate in realtime)",
                        "rad/s (velocity field)", "-"),
@@ -68,18 +68,31 @@ TOPICS: dict[str, Topic] = {
     "gps": Topic("gps", "geometry_msgs/msg/PointStamped", "plant",
                  "every control tick", "m", "world"),
     "ground_truth": Topic("ground_truth", "nav_msgs/msg/Odometry", "plant",
-                          "every control tick", "m, rad, m/s, rad/s", "world -> base_link"),
-    "scan": Topic("scan", "sensor_msgs/msg/LaserScan", "plant", "10 Hz", "m, rad", "laser"),
-    "camera/image": Topic("camera/image", "sensor_msgs/msg/Image", "plant", "30 Hz",
-                          "rgb8", "camera"),
-    "camera/info": Topic("camera/info", "sensor_msgs/msg/CameraInfo", "plant", "with image",
-                         "px", "camera"),
+                          "every control tick", "m, rad, m/s, rad/s",
+                          "world -> <robot>/base_link"),
+    "scan": Topic("scan", "sensor_msgs/msg/LaserScan", "plant", "10 Hz", "m, rad",
+                  "<robot>/laser"),
+    "camera/image_raw": Topic("camera/image_raw", "sensor_msgs/msg/Image", "plant", "30 Hz",
+                              "rgb8", "<robot>/camera_optical"),
+    "camera/camera_info": Topic("camera/camera_info", "sensor_msgs/msg/CameraInfo", "plant",
+                                "with image", "px", "<robot>/camera_optical"),
     "odom": Topic("odom", "nav_msgs/msg/Odometry", "node", "every control tick",
-                  "m, rad, m/s, rad/s", "odom -> base_link"),
+                  "m, rad, m/s, rad/s", "<robot>/odom -> <robot>/base_link"),
     "follower/debug": Topic("follower/debug", "std_msgs/msg/Float64MultiArray", "controller",
                             "with each camera frame",
-                            "found, u px, v px, radius px, distance m, bearing rad", "camera"),
+                            "found, u px, v px, radius px, distance m, bearing rad",
+                            "<robot>/camera_optical"),
 }
+
+#: the world's fixed frame (ground truth, GPS, the scene)
+WORLD_FRAME = "world"
+
+
+def frame(robot: str, name: str) -> str:
+    """A robot's frame: ``<robot>/<name>`` (``base_link``, ``odom``, ``laser``,
+    ``camera``, ``camera_optical``), so several robots never share one (docs/PROTOCOL.md)."""
+    return f"{robot}/{name}"
+
 
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 

@@ -25,14 +25,13 @@
   close a ``rosbag2`` metadata record (``serialized_metadata``, as rosbag2 writes).
 * **scene** — so the file opens in Foxglove's 3-D panel as a room, not only numbers, the
   recorder adds what :mod:`bus.scene` derives (the live view sends the same): ``/scene``
-  (``visualization_msgs/msg/MarkerArray``: every world object and robot part) and
-  ``/tf_static`` (sensor mounts) once, when ``sim/info`` arrives, and ``/tf``
-  (``tf2_msgs/msg/TFMessage``: ``world -> <robot>/base_link``) with every ground truth;
-  ``--no-scene`` leaves them out. They are ordinary ROS 2 messages (``ros2 bag play``
-  publishes them; ``diffbot replay`` skips them, they are no bus keys). The sensor frames
-  ``<robot>/laser`` and ``<robot>/camera`` are the robot's; the bus's scans and images say
-  ``laser`` / ``camera``, so when only one robot has a lidar (camera), ``/tf_static`` also
-  names the bare frame after it (:func:`bus.scene.alias_transforms`).
+  (``visualization_msgs/msg/MarkerArray``: every world object and robot part),
+  ``/tf_static`` (``world -> <robot>/odom``, sensor mounts) and
+  ``/<robot>/robot_description`` (the URDF, :mod:`bus.urdf`) once, when ``sim/info``
+  arrives, and ``/tf`` (``tf2_msgs/msg/TFMessage``: ``world -> <robot>/base_link``) with
+  every ground truth; ``--no-scene`` leaves them out. They are ordinary ROS 2 messages
+  (``ros2 bag play`` publishes them; ``diffbot replay`` skips them, they are no bus keys).
+  Frames and topic names are the bus's, as in the live view and over ROS 2.
 * **skipped** — keys that carry no message type (``sim/ack/*``, ``sim/end``,
   anything unknown) and payloads that do not decode as their key's type (counted,
   logged at a limited rate); liveliness tokens never reach a subscriber.
@@ -65,7 +64,7 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from . import codec, jsonio, scene
+from . import codec, jsonio, scene, urdf
 from .cliargs import ArgumentParser, positive_float, positive_int
 from .keys import Keys
 from .log import RejectCounter, setup_logging
@@ -462,7 +461,11 @@ class Recorder:
             self.out.write(self._derived(scene.SCENE_TOPIC), scene.SCENE_TYPE,
                            codec.encode(scene.scene(self.info, t)), t, now)
             self.out.write(self._derived(scene.TF_STATIC_TOPIC), scene.TF_TYPE,
-                           codec.encode(scene.static_tf(self.info, t, aliases=True)), t, now)
+                           codec.encode(scene.static_tf(self.info, t)), t, now)
+            for r in self.info.get("robots", {}):
+                self.out.write(self._derived(f"{r}/{urdf.DESCRIPTION_TOPIC}"),
+                               urdf.DESCRIPTION_TYPE,
+                               codec.encode(urdf.description_message(self.info, r)), t, now)
 
     def _derived(self, name: str) -> str:
         return f"{self.keys.namespace}/{name}" if self.keys.namespace else name

@@ -10,15 +10,16 @@ install), so Foxglove, RViz and ``ros2 bag play`` all understand it:
   colour from the world file) and one per visual part of each robot (chassis, wheels,
   caster, carried parts such as the leader's green ball; namespace ``<robot>``, frame
   ``<robot>/base_link``, ``frame_locked``, so it moves with the robot's transform).
-* ``/tf_static`` — ``tf2_msgs/msg/TFMessage``: the sensor mounts
-  ``<robot>/base_link -> <robot>/laser``, ``-> <robot>/camera`` (body convention, x
-  forward) and ``<robot>/camera -> <robot>/camera_optical`` (z forward, x right, y down:
-  the frame images are drawn in).
+* ``/tf_static`` — ``tf2_msgs/msg/TFMessage``: ``world -> <robot>/odom`` (the robot's
+  start pose: REP 105's odometry frame starts where the robot starts), and the sensor
+  mounts ``<robot>/base_link -> <robot>/laser``, ``-> <robot>/camera`` (body convention,
+  x forward) and ``<robot>/camera -> <robot>/camera_optical`` (REP 103's optical frame: z
+  forward, x right, y down: the frame images are drawn in).
 * ``/tf`` — ``tf2_msgs/msg/TFMessage``: ``world -> <robot>/base_link`` from each
   ground truth, every tick.
 
-Frames are prefixed with the robot's name so several robots' lasers and cameras never
-clash (the bus's own messages say ``laser`` / ``camera``: one robot's view of itself).
+Frames are the bus's own (:func:`bus.keys.frame`): prefixed with the robot's name so
+several robots' lasers and cameras never clash; the messages on the bus carry them.
 """
 from __future__ import annotations
 
@@ -28,8 +29,8 @@ import numpy as np
 
 from . import codec
 from .codec import T
+from .keys import WORLD_FRAME, frame  # noqa: F401  (scene.frame, scene.WORLD_FRAME)
 
-WORLD_FRAME = "world"
 SCENE_TOPIC = "scene"
 TF_TOPIC = "tf"
 TF_STATIC_TOPIC = "tf_static"
@@ -54,11 +55,6 @@ _EMPTY_U8 = np.zeros(0, dtype=np.uint8)
 
 #: camera body (x forward, y left, z up) -> optical (z forward, x right, y down): rpy(-pi/2, 0, -pi/2)
 OPTICAL_QUATERNION = (-0.5, 0.5, -0.5, 0.5)
-
-
-def frame(robot: str, name: str) -> str:
-    """A robot's frame as the scene names it: ``<robot>/<name>``."""
-    return f"{robot}/{name}"
 
 
 def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
@@ -164,24 +160,28 @@ def sensor_transforms(info: dict, t_ns: int = 0) -> list:
     return out
 
 
-def alias_transforms(info: dict, t_ns: int = 0) -> list:
-    """Identity transforms ``<robot>/laser -> laser`` and ``<robot>/camera_optical -> camera``
-    when exactly one robot has that sensor: the bus's own scans and images (frames ``laser``
-    and ``camera``, unchanged in recordings) then find their place in the scene."""
+def odom_transforms(info: dict, t_ns: int = 0) -> list:
+    """``world -> <robot>/odom`` of every robot: its start pose (``sim/info`` ``pose``)."""
     out = []
-    robots = info.get("robots", {})
-    for sensor, own, bare in (("lidar", "laser", "laser"), ("camera", "camera_optical", "camera")):
-        having = [r for r, v in robots.items() if (v.get("sensors") or {}).get(sensor)]
-        if len(having) == 1:
-            out.append(transform(frame(having[0], own), bare, (0.0, 0.0, 0.0),
-                                 (0.0, 0.0, 0.0, 1.0), t_ns))
+    for robot, r in info.get("robots", {}).items():
+        x, y, yaw = r["pose"][:3]
+        out.append(transform(WORLD_FRAME, frame(robot, "odom"), (x, y, 0.0),
+                             yaw_quaternion(yaw), t_ns))
     return out
 
 
-def static_tf(info: dict, t_ns: int = 0, aliases: bool = False):
-    """The sensor mounts (and, for recordings, :func:`alias_transforms`)."""
-    return _TFMessage(transforms=sensor_transforms(info, t_ns)
-                      + (alias_transforms(info, t_ns) if aliases else []))
+def static_tf(info: dict, t_ns: int = 0):
+    """Every fixed transform: each robot's odometry origin and its sensor mounts."""
+    return _TFMessage(transforms=odom_transforms(info, t_ns) + sensor_transforms(info, t_ns))
+
+
+def to_world(start_pose, x: float, y: float, yaw: float = 0.0) -> tuple[float, float, float]:
+    """A pose in ``<robot>/odom`` expressed in ``world``, through the robot's start pose
+    ``(x0, y0, yaw0)`` (``sim/info`` ``robots.<robot>.pose``): where odometry is compared
+    with GPS or ground truth."""
+    x0, y0, th0 = start_pose[:3]
+    c, s = math.cos(th0), math.sin(th0)
+    return x0 + c * x - s * y, y0 + s * x + c * y, yaw + th0
 
 
 def ground_truth_transform(robot: str, odom, t_ns: int | None = None):

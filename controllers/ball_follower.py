@@ -1,6 +1,6 @@
 """Follow a leader by tracking the green ball on its back bumper with the camera.
 
-Reads only its own camera (``camera/image``, ``camera/info``). Each new frame:
+Reads only its own camera (``camera/image_raw``, ``camera/camera_info``). Each new frame:
 HSV threshold for green, the largest contour, ``cv2.minEnclosingCircle``; the
 distance from the apparent radius through the pinhole model (ball radius given,
 focal length and principal point from CameraInfo); proportional steering that
@@ -98,7 +98,7 @@ def locate_ball(det: Detection, fx: float, fy: float, cx: float, cy: float,
 
 class BallFollower:
     name = "ball_follower"
-    inputs = ["camera/image", "camera/info"]
+    inputs = ["camera/image_raw", "camera/camera_info"]
 
     def __init__(self, target_m: float = 0.65, ball_radius_m: float = 0.06,
                  k_distance: float = 1.5, ki_distance: float = 0.4, k_turn: float = 2.5,
@@ -121,7 +121,7 @@ class BallFollower:
         self.frames = 0
 
     def step(self, obs):
-        img, info = obs["camera/image"], obs["camera/info"]
+        img, info = obs["camera/image_raw"], obs["camera/camera_info"]
         if img is None or info is None:
             return Twist()
         stamp = codec.msg_stamp_ns(img)

@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from bus import codec
+from bus import codec, scene
 from bus.keys import TOPICS, Keys
 
 
@@ -50,13 +50,17 @@ class SquareAnalysis:
         cmds = observer.messages(keys.topic(r, "cmd_vel"))
         # The path ends where the controller stopped the robot: its last command.
         t_end = _stamp(cmds[-1]) if cmds else max(odom, default=0)
+        # odometry lives in <robot>/odom (REP 105), GPS in world: compared in world, through
+        # the static transform world -> <robot>/odom (the start pose)
+        start = next(rs.pose for rs in world.robots if rs.name == r)
         rows = []
         for t in sorted(set(odom) & set(gps) & set(enc)):
             if t > t_end:
                 break
             o, g, e = odom[t].pose.pose, gps[t].point, enc[t]
-            rows.append((t * 1e-9, o.position.x, o.position.y,
-                         codec.quaternion_to_yaw(o.orientation), g.x, g.y, e[0], e[1]))
+            ox, oy, oth = scene.to_world(start, o.position.x, o.position.y,
+                                         codec.quaternion_to_yaw(o.orientation))
+            rows.append((t * 1e-9, ox, oy, oth, g.x, g.y, e[0], e[1]))
         path = os.path.join(out, "trajectory.csv")
         with open(path, "w", newline="") as f:
             w = csv.writer(f)

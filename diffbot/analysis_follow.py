@@ -47,7 +47,7 @@ class FollowAnalysis:
         return {keys.topic(LEADER, "ground_truth"): TOPICS["ground_truth"].msgtype,
                 keys.topic(FOLLOWER, "ground_truth"): TOPICS["ground_truth"].msgtype,
                 keys.topic(FOLLOWER, "follower/debug"): TOPICS["follower/debug"].msgtype,
-                keys.topic(FOLLOWER, "camera/image"): TOPICS["camera/image"].msgtype}
+                keys.topic(FOLLOWER, "camera/image_raw"): TOPICS["camera/image_raw"].msgtype}
 
     @staticmethod
     def analyse(observer, keys, spec, world, out) -> dict:
@@ -153,7 +153,7 @@ class TopDown:
 def write_animation(observer, keys, world, a: np.ndarray, path: str) -> int:
     """The follower's camera view beside a top-down view of both robots, as a GIF."""
     from PIL import Image
-    images = observer.messages(keys.topic(FOLLOWER, "camera/image"))
+    images = observer.messages(keys.topic(FOLLOWER, "camera/image_raw"))
     if not images:
         return 0
     td = TopDown(world)

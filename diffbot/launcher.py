@@ -100,14 +100,19 @@ class Run:
     def build(self) -> None:
         logs = os.path.join(self.out, "logs")
         os.makedirs(logs, exist_ok=True)
-        expect = [p.name for p in self.spec.processes if p.sync] + self._recorder_expect()
+        # `diffbot run sim --mode lockstep --ros2`: the bridge holds the ticks for the user's
+        # ROS 2 node, and when that node leaves the run ends
+        drives = self.ros2 and self.spec.ros2_drives and self.mode == "lockstep"
+        expect = [p.name for p in self.spec.processes if p.sync] + self._recorder_expect() \
+            + ([ROS2_BRIDGE] if drives else [])
         plant = diffbot_argv("plant", "--world", self.spec.world, "--mode", self.mode,
                              "--coupling", self.coupling, "--seed", str(self.seed), "--stats",
                              os.path.join(logs, "plant.json"), *self.spec.plant_args,
                              *self.bus_args())
         if expect:
             plant += ["--expect", ",".join(expect)]
-        enders = [p.name for p in self.spec.processes if p.ends_run and p.sync]
+        enders = [p.name for p in self.spec.processes if p.ends_run and p.sync] \
+            + ([ROS2_BRIDGE] if drives else [])
         if enders and self.mode == "lockstep":
             plant += ["--end-with", ",".join(enders)]
         if self.duration_s is not None:
@@ -121,7 +126,8 @@ class Run:
             # rviz) follow /clock; a scenario's own `["ros2", "--lockstep"]` process holds ticks
             self.children.append(Child(ROS2_BRIDGE, diffbot_argv(
                 "ros2", "--name", ROS2_BRIDGE, "--stats", os.path.join(logs, f"{ROS2_BRIDGE}.json"),
-                *self.bus_args()), required=False, log_path=os.path.join(logs, f"{ROS2_BRIDGE}.log")))
+                *(["--lockstep"] if drives else []), *self.bus_args()), required=drives,
+                ends_run=drives, log_path=os.path.join(logs, f"{ROS2_BRIDGE}.log")))
         if self.view_port is not None:
             # Not a lockstep member, not expected by the plant: it watches, it never holds.
             argv = diffbot_argv("view", "--port", str(self.view_port), "--host", self.view_host,
@@ -355,6 +361,8 @@ def main(argv: list[str] | None = None) -> int:
             generate(spec, args, out)
         for item in args.set:                  # after the scenario's own: they win
             spec.plant_args += ["--set", item]
+        # the world as the plant will build it (its --set overrides: the start pose the
+        # analysis compares odometry through)
         pa = spec.plant_args
         world = load_world(spec.world, [v for k, v in zip(pa, pa[1:]) if k == "--set"])
         keys = Keys(args.namespace)

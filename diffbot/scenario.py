@@ -11,6 +11,8 @@ A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
     analysis = "square"        # what to plot and summarise afterwards
     robot = "robot1"           # the robot the analysis looks at
     plant_args = ["--disable", "camera"]   # extra `diffbot plant` arguments
+    ros2_drives = false        # ROS 2 nodes drive the robots: with --ros2 in lockstep the
+                               # bridge is the lockstep member (and its end ends the run)
 
     [[process]]
     name = "square_path_robot1"
@@ -59,6 +61,7 @@ class ScenarioSpec:
     analysis: str = "none"
     robot: str = "robot1"
     plant_args: list[str] = field(default_factory=list)
+    ros2_drives: bool = False
     processes: list[ProcessSpec] = field(default_factory=list)
     #: a generated world (``generate = "swarm"``): the robot count is a run parameter
     #: (``robots``, default; ``diffbot run --robots N``), the world file is written into the
@@ -109,6 +112,7 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
     if not isinstance(plant_args, list) or not all(isinstance(a, str) for a in plant_args):
         s.fail("plant_args", "expected a list of strings (extra `diffbot plant` arguments)")
     spec.plant_args = list(plant_args)
+    spec.ros2_drives = s.boolean("ros2_drives", False)
     spec.generate = s.string("generate", "", choices=("", "swarm"))
     if spec.generate:
         spec.robots = s.integer("robots", 8)

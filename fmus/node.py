@@ -20,7 +20,7 @@ and checked by :mod:`fmus.mapping`) wires the FMU to robot topics instead::
     [output]                        # or [[output]] for several messages; none: fmu/ keys
     topic   = "odom"                # robot topic the message is published on
     message = "odometry"            # builder: odometry, point, twist, wheel_speeds
-    frame_id = "world"              # options of the builder
+    frame_id = "{robot}/odom"       # options of the builder ({robot}: the node's --robot)
     x = "x"                         # builder field = FMU variable
     yaw = "theta"
 
@@ -162,12 +162,16 @@ class FmuNode:
         self.rollbacks = 0
         self.reinitialised = 0
         self.waiting_said = False
+        self.options = [dict(o.options) for o in self.builders]
 
     # ------------------------------------------------------------------ configure
     def configure(self, info: dict, robot: str) -> None:
         """Parameters (mapping file: numbers or sim/info paths; --param), checked against
         their min / max and set now, so a value the FMU refuses is a configuration error."""
         self.robot = robot
+        # builder options may name the robot's frames: frame_id = "{robot}/odom"
+        self.options = [{k: v.replace("{robot}", robot) for k, v in o.options.items()}
+                        for o in self.builders]
         params = dict(self.cli_params)
         for name, spec in self.mapping.parameters.items():
             where = f"{self.mapping.where_parameters}.{name}"
@@ -402,9 +406,9 @@ class FmuNode:
         if self.outputs is None:
             return None
         out = {}
-        for o in self.builders:
+        for o, options in zip(self.builders, self.options):
             values = {f: float(self.outputs[var][0]) for f, var in o.fields.items()}
-            out[o.topic] = o.kind.build(t_ns, values, o.options)
+            out[o.topic] = o.kind.build(t_ns, values, options)
         for v, topic in zip(self.generic, self.generic_topics):
             out[topic] = v.message(self.outputs[v.name])
         return out

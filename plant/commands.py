@@ -15,6 +15,7 @@ import numpy as np
 
 from bus import codec
 from bus.controller import Twist, WheelSpeeds
+from bus.keys import frame
 
 #: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
 ABSURD_FACTOR = 10.0
@@ -27,6 +28,11 @@ class Command:
     value: Twist | WheelSpeeds
     t_ns: int          # the tick it was computed for (its stamp; sim time when received if 0)
     wall: float        # monotonic wall time when received
+
+    @property
+    def moving(self) -> bool:
+        """Whether the command asks for any motion (a zero command needs no stopping)."""
+        return any(float(v) != 0.0 for v in vars(self.value).values())
 
 
 def wheel_speeds(msg) -> WheelSpeeds:
@@ -44,17 +50,19 @@ def wheel_speeds(msg) -> WheelSpeeds:
 
 
 def decode_command(payload: bytes, topic: str, drive, now_ns: int, tick_ns: int,
-                   check_age: bool) -> tuple[Twist | WheelSpeeds, int]:
+                   check_age: bool, robot: str = "") -> tuple[Twist | WheelSpeeds, int]:
     """(command, stamp in ns, 0 if unstamped) of a ``cmd_vel`` or ``wheel_cmd`` payload for
-    a robot with ``drive`` limits; ValueError (or codec.CodecError) says why it is bad."""
+    ``robot`` with ``drive`` limits; ValueError (or codec.CodecError) says why it is bad.
+    A twist is in the robot's ``<robot>/base_link`` (or an unprefixed ``base_link``)."""
     if topic == "cmd_vel":
         msg = codec.decode(payload, "geometry_msgs/msg/TwistStamped")
         tw = msg.twist
         if not all(math.isfinite(v) for v in (tw.linear.x, tw.linear.y, tw.linear.z,
                                               tw.angular.x, tw.angular.y, tw.angular.z)):
             raise ValueError("non-finite twist")
-        if msg.header.frame_id not in ("", "base_link"):
-            raise ValueError(f"twist in frame {msg.header.frame_id!r}; expected base_link")
+        base = frame(robot, "base_link") if robot else "base_link"
+        if msg.header.frame_id not in ("", "base_link", base):
+            raise ValueError(f"twist in frame {msg.header.frame_id!r}; expected {base}")
         value: Twist | WheelSpeeds = Twist(float(tw.linear.x), float(tw.angular.z))
         a, b = value.linear, value.angular
         lim_a, lim_b = drive.max_linear_mps, drive.max_angular_radps

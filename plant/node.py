@@ -256,7 +256,8 @@ class Plant:
             drive = self.sim.robots[robot].spec.drive
             try:
                 value, t = decode_command(ev.payload, topic, drive, self.sim.time_ns,
-                                          self.tick_ns, check_age=self.mode != "fast")
+                                          self.tick_ns, check_age=self.mode != "fast",
+                                          robot=robot)
             except (codec.CodecError, ValueError) as exc:
                 self.rejects.reject(f"{robot}/{topic}", str(exc))
                 return
@@ -271,8 +272,9 @@ class Plant:
                 timeout = robot.spec.drive.cmd_timeout_s
                 age = self.strategy.age_s(cmd)
                 if age > timeout:
-                    self.log.warning("%s: no command for %.2f s (cmd_timeout %.2f s): stopping it",
-                                     name, age, timeout)
+                    if cmd.moving:       # a robot told to stand still needs no stopping
+                        self.log.warning("%s: no command for %.2f s (cmd_timeout %.2f s): "
+                                         "stopping it", name, age, timeout)
                     self.commands.forget(name)
                     cmd = None
             value = cmd.value if cmd is not None else None

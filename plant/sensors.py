@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from bus import codec
+from bus.keys import WORLD_FRAME, frame
 
 from . import camera as cam
 from . import lidar as lid
@@ -32,6 +33,8 @@ class RobotSensors:
         self.name = spec.name
         s = spec.sensors
         self.tick_s = tick_s
+        #: the frames this robot's messages carry (docs/PROTOCOL.md: one name everywhere)
+        self.frames = {f: frame(self.name, f) for f in ("base_link", "laser", "camera_optical")}
 
         def model(cfg, stream):
             return None if cfg.is_zero and cfg.resolution == 0 else NoiseModel(cfg, make_rng(seed, f"{self.name}/{stream}"))
@@ -46,8 +49,8 @@ class RobotSensors:
             self.periods["scan"] = period_ticks(self.lidar.rate_hz, tick_s)
         if self.camera:
             p = period_ticks(self.camera.rate_hz, tick_s)
-            self.periods["camera/image"] = p
-            self.periods["camera/info"] = p
+            self.periods["camera/image_raw"] = p
+            self.periods["camera/camera_info"] = p
             self._info_fields = cam.camera_info(self.camera)
 
     def prefetch(self) -> None:
@@ -60,7 +63,7 @@ class RobotSensors:
         return [t for t, p in self.periods.items() if tick % p == 0]
 
     def needs_scene(self, tick: int) -> bool:
-        return any(tick % self.periods[t] == 0 for t in ("scan", "camera/image")
+        return any(tick % self.periods[t] == 0 for t in ("scan", "camera/image_raw")
                    if t in self.periods)
 
     def lidar_due(self, tick: int) -> bool:
@@ -80,8 +83,8 @@ class RobotSensors:
         gx, gy, gz = self.gps_noise.apply(np.array([x, y, z])) if self.gps_noise else (x, y, z)
         out.append(("gps", codec.point_stamped(t_ns, gx, gy, gz)))
         out.append(("ground_truth", codec.odometry(
-            t_ns, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id="world", z=z,
-            quaternion=st.quaternion)))
+            t_ns, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id=WORLD_FRAME,
+            child_frame_id=self.frames["base_link"], z=z, quaternion=st.quaternion)))
         if self.lidar_due(tick):
             if exact_scan is None:
                 exact_scan = lid.scan(self.lidar, st.tf, scene, exclude_owner=self.name)
@@ -89,14 +92,16 @@ class RobotSensors:
             c = self.lidar
             out.append(("scan", codec.laser_scan(t_ns, c.angle_min, c.angle_max, c.angle_increment,
                                                  1.0 / c.rate_hz, c.min_range_m, c.max_range_m,
-                                                 ranges)))
-        if self.camera and tick % self.periods["camera/image"] == 0:
+                                                 ranges, frame_id=self.frames["laser"])))
+        if self.camera and tick % self.periods["camera/image_raw"] == 0:
             rgb = cam.render(self.camera, cam.camera_pose(self.camera, st.tf), scene,
                              exclude_owner=self.name)
             if self.camera_noise is not None:
                 rgb = self.camera_noise.apply(rgb)
-            out.append(("camera/image", codec.image(t_ns, rgb)))
-            out.append(("camera/info", codec.camera_info(t_ns, **self._info_fields)))
+            optical = self.frames["camera_optical"]
+            out.append(("camera/image_raw", codec.image(t_ns, rgb, optical)))
+            out.append(("camera/camera_info", codec.camera_info(t_ns, **self._info_fields,
+                                                                frame_id=optical)))
         return out
 
 

@@ -21,7 +21,7 @@ import time
 import zenoh
 from rosbags.typesys import Stores, get_typestore
 
-PROTOCOL = 2                                   # section "The diffbot-cosim bus protocol, version 2"
+PROTOCOL = 3                                   # section "The diffbot-cosim bus protocol, version 3"
 ACK, FINAL = 1, 2                              # section 3: flags
 TS = get_typestore(Stores.ROS2_JAZZY)
 T = TS.types

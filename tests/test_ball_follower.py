@@ -82,7 +82,7 @@ def observation(t_s, rgb):
     info = codec.camera_info(int(t_s * 1e9), CFG.width, CFG.height, "plumb_bob", d, k.ravel(),
                              np.eye(3).ravel(), np.hstack([k, np.zeros((3, 1))]).ravel())
     return Observation(int(t_s * 1e9), "follower",
-                       {"camera/image": codec.image(int(t_s * 1e9), rgb), "camera/info": info})
+                       {"camera/image_raw": codec.image(int(t_s * 1e9), rgb), "camera/camera_info": info})
 
 
 def test_control_law_closes_distance_steers_toward_ball_and_searches_when_lost():

@@ -35,6 +35,8 @@ K = Keys()
 TOL = 1e-9
 R, D = 0.12, 0.36
 POSE0 = (0.4, -0.3, 0.8)
+#: odometry is in <robot>/odom (REP 105): it starts at the origin whatever the start pose
+ODOM0 = (0.0, 0.0, 0.0)
 INFO = {"protocol": PROTOCOL_VERSION, "mode": "lockstep", "control_tick_s": 0.02,
         "robots": {"robot1": {"wheel_radius_m": R, "wheel_separation_m": D, "pose": list(POSE0),
                               "topics": {"joint_states": 1}}}}
@@ -107,7 +109,7 @@ def without_cosimulation(src: Path, dst: Path) -> Path:
 @pytest.mark.parametrize("version", (2, 3))
 def test_node_gives_the_reference_odometry(fmus, version):
     left, right = encoder_run(1500)
-    ref = integrate(left, right, R, D, POSE0)
+    ref = integrate(left, right, R, D, ODOM0)
     node = make_node(fmus[version])
     try:
         worst = 0.0
@@ -115,7 +117,7 @@ def test_node_gives_the_reference_odometry(fmus, version):
             out = node.step(obs(k, left[k], right[k]))
             msg = out["odom"]
             assert codec.msg_stamp_ns(msg) == 1_000_000_000 + k * TICK_NS
-            assert msg.header.frame_id == "world" and msg.child_frame_id == "base_link"
+            assert (msg.header.frame_id, msg.child_frame_id) == ("robot1/odom", "robot1/base_link")
             worst = max(worst, pose_error(msg, ref[k]))
         assert worst < TOL
         # First sample: the start pose, at rest.
@@ -130,7 +132,7 @@ def test_first_sample_publishes_the_start_pose_and_speed_zero(fmus):
     node = make_node(fmus[2])
     try:
         msg = node.step(obs(0, 123.0, -45.0))["odom"]
-        assert pose_error(msg, POSE0) < 1e-15
+        assert pose_error(msg, ODOM0) < 1e-15
         assert msg.twist.twist.linear.x == 0.0 and msg.twist.twist.angular.z == 0.0
     finally:
         node.close()
@@ -142,7 +144,7 @@ def test_bad_samples_are_skipped_and_the_next_good_one_covers_the_gap(fmus):
     node = make_node(fmus[3])
     try:
         good = [k for k in range(len(left)) if k not in bad]
-        ref = dict(zip(good, integrate(left[good], right[good], R, D, POSE0)))
+        ref = dict(zip(good, integrate(left[good], right[good], R, D, ODOM0)))
         last = None
         for k in range(len(left)):
             l, r = bad.get(k, (left[k], right[k]))
@@ -182,13 +184,13 @@ def test_failed_do_step_is_counted_and_rolled_back(fmus, snapshot):
         assert len(outs) == len(left)
         if snapshot:   # state kept: equals the reference that skips sample 30
             good = [k for k in range(len(left)) if k != 30]
-            ref = integrate(left[good], right[good], R, D, POSE0)
+            ref = integrate(left[good], right[good], R, D, ODOM0)
             assert node.rollbacks == 1
             assert max(pose_error(m, r) for m, r in zip([outs[k] for k in good], ref)) < TOL
         else:          # state lost: initialised again from the start pose, then goes on
             assert node.reinitialised == 1
             assert pose_of(outs[30]) == pose_of(outs[29])
-            ref = integrate(left[[29, 31]], right[[29, 31]], R, D, POSE0)
+            ref = integrate(left[[29, 31]], right[[29, 31]], R, D, ODOM0)
             assert pose_error(outs[31], ref[1]) < TOL
     finally:
         node.close()
@@ -200,9 +202,9 @@ def test_time_going_back_initialises_again(fmus):
         for k in range(20):
             node.step(obs(k, 0.1 * k, 0.2 * k))
         msg = node.step(obs(0, 5.0, 5.0, t0_ns=0))["odom"]
-        assert pose_error(msg, POSE0) < 1e-15
+        assert pose_error(msg, ODOM0) < 1e-15
         msg = node.step(obs(1, 5.1, 5.1, t0_ns=0))["odom"]
-        assert pose_of(msg)[0] != POSE0[0]
+        assert pose_of(msg)[0] != ODOM0[0]
     finally:
         node.close()
 
@@ -213,11 +215,11 @@ def test_parameters_come_from_sim_info(fmus):
         params = [node.fmu.bus_variable(n) for n in
                   ("wheel_radius", "wheel_separation", "x0", "y0", "theta0")]
         node.step(obs(0, 0.0, 0.0))
-        assert node.fmu.read(params) == [[R], [D], *([p] for p in POSE0)]
-        with pytest.raises(fmu_node.FmuNodeError, match=r"mapping.toml:parameters.x0: "
-                                                        r"sim/info has no robots.robot1.pose\[0\]"):
-            node.configure({"robots": {"robot1": {"wheel_radius_m": R,
-                                                  "wheel_separation_m": D, "pose": []}}}, "robot1")
+        assert node.fmu.read(params) == [[R], [D], *([p] for p in ODOM0)]
+        with pytest.raises(fmu_node.FmuNodeError, match=r"mapping.toml:parameters.wheel_radius: "
+                                                        r"sim/info has no robots.robot1.wheel_radius_m"):
+            node.configure({"robots": {"robot1": {"wheel_separation_m": D, "pose": []}}},
+                           "robot1")
         with pytest.raises(fmu_node.FmuNodeError, match=r"parameters.wheel_radius: -1 is "
                                                         r"outside the bounds of 'wheel_radius' "
                                                         r"\[0, inf\] declared by the FMU"):
@@ -461,7 +463,7 @@ def test_bad_joint_states_on_the_bus_are_counted_and_the_node_keeps_publishing(
         s.close()
     assert sorted(odom) == [k * TICK_NS for k in range(len(left))], "odom on every tick"
     good = [k for k in range(len(left)) if k not in bad]
-    ref = dict(zip(good, integrate(left[good], right[good], R, D, POSE0)))
+    ref = dict(zip(good, integrate(left[good], right[good], R, D, ODOM0)))
     assert max(pose_error(odom[k * TICK_NS], ref[k]) for k in good) < TOL
     st = json.loads(stats.read_text())
     assert st["rejected"]["input"] == len(bad)

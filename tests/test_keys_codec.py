@@ -20,7 +20,7 @@ def test_namespace_prefixes_every_key():
     k = Keys("lab2")
     assert k.clock == "lab2/sim/clock"
     assert k.topic("robot1", "cmd_vel") == "lab2/robot1/cmd_vel"
-    assert k.topic("robot1", "camera/image") == "lab2/robot1/camera/image"
+    assert k.topic("robot1", "camera/image_raw") == "lab2/robot1/camera/image_raw"
     assert k.sync("n1") == "lab2/sim/sync/n1"
     assert k.all == "lab2/**"
     assert k.robot_topic_of("lab2/robot1/odom") == ("robot1", "odom")

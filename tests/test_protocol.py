@@ -186,7 +186,7 @@ def test_a_node_exits_2_on_a_plant_of_another_protocol_version(procs, endpoint, 
         node = procs.diffbot("controller", "square_path", "--endpoint", endpoint, name="node")
         assert node.wait(60) == 2
         log = procs.log(node)
-        assert "the plant speaks bus protocol 1; this node speaks bus protocol 2" in log
+        assert "the plant speaks bus protocol 1; this node speaks bus protocol 3" in log
         assert "Traceback" not in log
     finally:
         q.undeclare()

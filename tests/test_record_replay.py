@@ -185,7 +185,7 @@ def test_echo_prints_readable_messages_with_large_arrays_summarised():
     assert "point: {x: 1.25, y: -2.0, z: 0.0}" in text
     import numpy as np
     img = codec.encode(codec.image(0, np.zeros((120, 160, 3), np.uint8)))
-    text = format_message("robot1/camera/image", img, None, K)
+    text = format_message("robot1/camera/image_raw", img, None, K)
     assert "data: <uint8[57600]>" in text and len(text) < 1000
 
 
@@ -335,7 +335,7 @@ def test_replayed_camera_gives_a_fresh_follower_the_same_commands(procs, endpoin
                 "--record", str(out / "follow.mcap"))
     assert r.returncode == 0, r.stderr
     replay = procs.diffbot("replay", str(out / "follow.mcap"), "--fast",
-                           "--keys", "sim/clock", "follower/camera/image", "follower/camera/info",
+                           "--keys", "sim/clock", "follower/camera/image_raw", "follower/camera/camera_info",
                            "--expect", "ball_follower_follower,tap", "--endpoint", endpoint,
                            name="replay")
     node = procs.diffbot("controller", "ball_follower", "--robot", "follower",

@@ -91,7 +91,7 @@ def test_camera_noise_std_levels_away_from_clipping():
     s, scene, st = sensors("living_room", ["robots.robot1.camera.noise={std = 10.0}"],
                            camera=True, lidar=False)
     clean = cam.render(s.camera, cam.camera_pose(s.camera, st.tf), scene, exclude_owner="robot1")
-    img = topic(s.messages(0, 0, st, scene), "camera/image")
+    img = topic(s.messages(0, 0, st, scene), "camera/image_raw")
     from bus import codec
     noisy = codec.image_to_array(img)
     mid = (clean >= 40) & (clean <= 215)                        # 4 sigma from 0 and 255
@@ -123,7 +123,7 @@ def test_webots_camera_noise_is_fraction_of_255():
     assert s.camera_noise.config.std == pytest.approx(0.2 * 255.0)  # 51 levels
     clean = cam.render(s.camera, cam.camera_pose(s.camera, st.tf), scene, exclude_owner="robot1")
     from bus import codec
-    noisy = codec.image_to_array(topic(s.messages(0, 0, st, scene), "camera/image"))
+    noisy = codec.image_to_array(topic(s.messages(0, 0, st, scene), "camera/image_raw"))
     resid = noisy.astype(float) - clean.astype(float)
     want = expected_clipped_std(clean.ravel(), 51.0, 0.0, 255.0)
     assert abs(resid.std() / want - 1) < 0.05
@@ -162,7 +162,7 @@ def test_enabling_the_camera_leaves_the_encoder_stream_unchanged():
             "robots.robot1.camera.noise={std = 20.0}"]
     with_cam, scene, st = sensors("living_room", sets, seed=3, camera=True)
     without, _, _ = sensors("living_room", sets, seed=3, camera=False)
-    assert "camera/image" in with_cam.periods and "camera/image" not in without.periods
+    assert "camera/image_raw" in with_cam.periods and "camera/image_raw" not in without.periods
     a = encoder_stream(with_cam, st, 20, scene)
     b = encoder_stream(without, st, 20, scene)
     assert np.array_equal(a, b)

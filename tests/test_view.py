@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import sys
 import time
+import types
 
 import numpy as np
 import pytest
@@ -83,11 +84,11 @@ def test_scene_has_every_world_object_with_its_size_pose_and_colour():
     assert [m.text for m in again.markers] == [m.text for m in markers]
 
 
-def test_sensor_frames_sit_at_their_mounts():
+def test_sensor_frames_sit_at_their_mounts_and_odom_at_the_start_pose():
     from plant.world import load_world
     spec = load_world("living_room")
     info = _info("living_room")
-    tfs = {t.child_frame_id: t for t in scene.static_tf(info, aliases=True).transforms}
+    tfs = {t.child_frame_id: t for t in scene.static_tf(info).transforms}
     lidar, cam = spec.robot("robot1").sensors.lidar, spec.robot("robot1").sensors.camera
     laser = tfs["robot1/laser"]
     assert laser.header.frame_id == "robot1/base_link"
@@ -95,11 +96,14 @@ def test_sensor_frames_sit_at_their_mounts():
         pytest.approx((lidar.mount_x_m, lidar.mount_z_m))
     assert tfs["robot1/camera"].transform.translation.x == pytest.approx(cam.mount_x_m)
     assert tfs["robot1/camera_optical"].header.frame_id == "robot1/camera"
-    # one robot with each sensor: the bus's bare frames are named after it (recordings)
-    assert tfs["laser"].header.frame_id == "robot1/laser"
-    assert tfs["camera"].header.frame_id == "robot1/camera_optical"
-    two = _info("living_room_follow")
-    assert "laser" in {t.child_frame_id for t in scene.static_tf(two, aliases=True).transforms}
+    # REP 105: world -> robot1/odom is the start pose; no bare frames any more
+    odom = tfs["robot1/odom"]
+    x0, y0, yaw0 = spec.robot("robot1").pose
+    assert odom.header.frame_id == "world"
+    assert (odom.transform.translation.x, odom.transform.translation.y) == (x0, y0)
+    assert codec.quaternion_to_yaw(odom.transform.rotation) == pytest.approx(yaw0)
+    assert not {"laser", "camera", "odom", "base_link"} & set(tfs)
+    assert scene.to_world((x0, y0, yaw0), 0.0, 0.0, 0.0) == (x0, y0, yaw0)
     gt = codec.odometry(40_000_000, 1.0, -2.0, 0.3, 0.0, 0.0, frame_id="world", z=0.12)
     t = scene.ground_truth_transform("robot1", gt)
     assert (t.header.frame_id, t.child_frame_id) == ("world", "robot1/base_link")
@@ -171,7 +175,7 @@ def test_foxglove_client_sees_scan_image_scene_drives_and_reconnects(procs, endp
 
     got = client("full")
     topics = {c["topic"]: c for c in got["channels"]}
-    assert {"/robot1/scan", "/robot1/camera/image", "/robot1/ground_truth", "/scene", "/tf",
+    assert {"/robot1/scan", "/robot1/camera/image_raw", "/robot1/ground_truth", "/scene", "/tf",
             "/tf_static"} <= set(topics)
     assert all(c["encoding"] == "cdr" and c["schemaEncoding"] == "ros2msg"
                for c in topics.values())
@@ -213,7 +217,7 @@ def test_foxglove_client_sees_scan_image_scene_drives_and_reconnects(procs, endp
     st = json.loads(stats.read_text())
     assert st["teleop_messages"] == got["twists_sent"] and st["rejected"] == {}
     # the camera renders 25 frames per second; the view sent at most --image-rate 5 of them
-    assert 0 < st["sent"]["/robot1/camera/image"] <= 5 * view_s + 2
+    assert 0 < st["sent"]["/robot1/camera/image_raw"] <= 5 * view_s + 2
 
 
 @pytest.mark.slow
@@ -267,7 +271,7 @@ def test_shipped_layout_names_only_channels_the_view_serves():
     pytest.importorskip("foxglove")
     import logging
 
-    from bridges.view import View
+    from bridges.view import NODE_TOPICS, View
     layout = json.loads(open(os.path.join(ROOT, "bridges", "foxglove_layout.json")).read())
     panels = set()
 
@@ -282,9 +286,37 @@ def test_shipped_layout_names_only_channels_the_view_serves():
     served = set()
     for world in ("living_room", "living_room_follow"):
         v = View(None, K, logging.getLogger("test"))
-        v.load_info(_info(world))
+        info = _info(world)
+        # the scenarios' nodes have spoken (the view advertises their topics only then)
+        v._found = {K.topic(r, t) for r in info["robots"] for t in NODE_TOPICS}
+        v.load_info(info)
         served |= set(v._deps)
     named = set(re.findall(r'"(/[A-Za-z0-9_/]+)', json.dumps(layout["configById"])))
-    publish_only = {"/move_base_simple/goal", "/clicked_point", "/initialpose"}
+    publish_only = {"/move_base_simple/goal", "/clicked_point", "/initialpose",
+                    "/robot1/cmd_vel_unstamped"}
     assert named - publish_only <= served, named - publish_only - served
-    assert layout["configById"]["Teleop!drive"]["topic"] == "/robot1/cmd_vel"
+    assert layout["configById"]["Teleop!drive"]["topic"] == "/robot1/cmd_vel_unstamped"
+    # the robots are drawn from their URDF (robot_description), as the view serves it
+    urdfs = {la["topic"] for la in layout["configById"]["3D!room"]["layers"].values()
+             if la["layerId"] == "foxglove.Urdf"}
+    assert urdfs == {"/robot1/robot_description", "/leader/robot_description",
+                     "/follower/robot_description"} and urdfs <= served
+
+
+def test_view_advertises_node_topics_only_once_a_node_published_them():
+    pytest.importorskip("foxglove")
+    import logging
+
+    from bridges.view import View
+
+    class Session:                     # the probes' subscribers, not a bus
+        def declare_subscriber(self, key, handler):
+            return types.SimpleNamespace(undeclare=lambda: None)
+    v = View(Session(), K, logging.getLogger("test"))
+    v.load_info(_info("living_room"))
+    assert "/robot1/scan" in v._deps and "/robot1/robot_description" in v._deps
+    assert not {"/robot1/odom", "/robot1/follower/debug", "/robot1/camera/image_annotated",
+                "/robot1/path/odom"} & set(v._deps)
+    v.found(K.topic("robot1", "odom"))
+    assert {"/robot1/odom", "/robot1/path/odom", "/robot1/metrics/odometry_error_m"} <= set(v._deps)
+    assert "/robot1/camera/image_annotated" not in v._deps

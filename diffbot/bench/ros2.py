@@ -37,7 +37,7 @@ def _messages() -> dict[str, tuple[str, str, bytes]]:
         is_bigendian=0, step=480, data=np.random.default_rng(0).integers(
             0, 255, 160 * 120 * 3, dtype=np.uint8))
     return {"scan 180 rays": ("scan", "LaserScan", codec.encode(scan)),
-            "image 160x120 rgb8": ("camera/image", "Image", codec.encode(img))}
+            "image 160x120 rgb8": ("camera/image_raw", "Image", codec.encode(img))}
 
 
 class _Rx:
@@ -135,7 +135,7 @@ def ros2_suite(ctx: Context):
     try:
         for label, (topic, tname, data) in _messages().items():
             msg = getattr(ros, tname)
-            ros_name = f"/{ROBOT}/" + {"scan": "scan", "camera/image": "camera/image_raw"}[topic]
+            ros_name = f"/{ROBOT}/{topic}"        # the same name on the bus and over ROS 2
             key = keys.topic(ROBOT, topic)
             pub = session.declare_publisher(key)
             att = codec.attachment(0, 1)

@@ -88,7 +88,7 @@ def compare(ctx: Context) -> dict:
             "slowdown_all": 1.0 - every / a,
             "layout_messages": float(sum(layout_counts.values())),
             "all_messages": float(sum(counts.values())),
-            "all_images": float(counts.get("/follower/camera/image", 0))}
+            "all_images": float(counts.get("/follower/camera/image_raw", 0))}
 
 
 @suite("view", "follow in lockstep with and without `diffbot view` + a client watching all")

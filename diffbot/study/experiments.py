@@ -474,14 +474,14 @@ def camera(args) -> dict:
         form = f"Webots noise {args.camera_noise:g} x 255 = std {std:g} levels"
     print(f"camera: {cfg.width}x{cfg.height} from ({pose[0]:g}, {pose[1]:g}, yaw {pose[2]:g}); "
           f"{form}", file=sys.stderr)
-    clean_cap = capture(args.out, "plant_noiseless", ["camera/image"], args.world,
+    clean_cap = capture(args.out, "plant_noiseless", ["camera/image_raw"], args.world,
                         [*base, f"robots.{robot}.camera.noise={{std = 0.0}}"], args.seed,
                         disable=("lidar",), robot=robot)
-    noisy_cap = capture(args.out, "plant_noisy", ["camera/image"], args.world,
+    noisy_cap = capture(args.out, "plant_noisy", ["camera/image_raw"], args.world,
                         [*base, f"robots.{robot}.camera.noise={tbl}"], args.seed,
                         disable=("lidar",), robot=robot)
-    clean = codec.image_to_array(clean_cap.obs["camera/image"])
-    noisy = codec.image_to_array(noisy_cap.obs["camera/image"])
+    clean = codec.image_to_array(clean_cap.obs["camera/image_raw"])
+    noisy = codec.image_to_array(noisy_cap.obs["camera/image_raw"])
     _save_rgb_png(os.path.join(args.out, "camera.png"), clean)
     _save_rgb_png(os.path.join(args.out, "camera_noisy.png"), noisy)
     from .experiment_plots import plot_camera_compare

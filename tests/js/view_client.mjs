@@ -4,7 +4,7 @@
 //
 // usage: node view_client.mjs URL ROBOT OUT.json [PHASE]
 //   full (default): receives the channels, decodes a LaserScan, an Image and the scene;
-//     publishes a Twist on /ROBOT/cmd_vel as the Teleop panel does (cdr) and reports the
+//     publishes a Twist on /ROBOT/cmd_vel_unstamped as the Teleop panel does (cdr) and reports the
 //     ground truth before and after; writes a summary to OUT.json.
 //   receive: the same without the Twist.
 //   watch: (the view bench) keeps trying to connect until the view is there, subscribes
@@ -37,7 +37,7 @@ let opened = false;
 function connect() {
   const ws = new WebSocket(url, ["foxglove.sdk.v1"]);
   ws.on("error", () => {});
-  ws.on("open", () => { opened = true; });
+  ws.on("open", () => { opened = true; out.subprotocol = ws.protocol; });
   ws.on("close", () => { if (watch && !opened && !done) setTimeout(connect, 200); });
   client = new FoxgloveClient({ ws });
   setup(client);
@@ -47,8 +47,9 @@ const subs = new Map();       // subscription id -> channel
 const out = { channels: [], scans: [], image: null, scene: null, ground_truth: [], tf: 0,
               errors: [] };
 out.counts = {};
-const want = new Set([`/${robot}/scan`, `/${robot}/camera/image`, "/scene", "/tf",
-                      `/${robot}/ground_truth`]);
+const want = new Set([`/${robot}/scan`, `/${robot}/camera/image_raw`, "/scene", "/tf",
+                      `/${robot}/ground_truth`, `/${robot}/robot_description`, "/tf_static",
+                      `/${robot}/odom`]);
 let done = false;
 
 function finish(code) {
@@ -92,7 +93,7 @@ client.on("message", ({ subscriptionId, data }) => {
   if (ch.topic.endsWith("/scan") && out.scans.length < 5) {
     out.scans.push({ stamp, frame_id: msg.header.frame_id, ranges: Array.from(msg.ranges,
       (r) => (Number.isFinite(r) ? r : null)) });
-  } else if (ch.topic.endsWith("/camera/image") && !out.image) {
+  } else if (ch.topic.endsWith("/camera/image_raw") && !out.image) {
     out.image = { stamp, frame_id: msg.header.frame_id, width: msg.width, height: msg.height,
                   encoding: msg.encoding, bytes: msg.data.length,
                   sum: msg.data.reduce((a, b) => a + b, 0) };
@@ -104,6 +105,14 @@ client.on("message", ({ subscriptionId, data }) => {
       scale: [m.scale.x, m.scale.y, m.scale.z], color: [m.color.r, m.color.g, m.color.b] }));
   } else if (ch.topic === "/tf") {
     out.tf += 1;
+  } else if (ch.topic === "/tf_static") {
+    out.tf_static = msg.transforms.map((t) => [t.header.frame_id, t.child_frame_id]);
+  } else if (ch.topic.endsWith("/robot_description")) {
+    out.robot_description = msg.data;
+  } else if (ch.topic.endsWith("/odom") && !out.odom) {
+    const p = msg.pose.pose.position;
+    out.odom = { stamp, frame_id: msg.header.frame_id, child_frame_id: msg.child_frame_id,
+                 x: p.x, y: p.y };
   } else if (ch.topic.endsWith("/ground_truth")) {
     const p = msg.pose.pose.position;
     out.ground_truth.push([stamp, p.x, p.y]);
@@ -115,7 +124,7 @@ client.on("message", ({ subscriptionId, data }) => {
     const def = "geometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n" +
       "================================================================================\n" +
       "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n";
-    twistChannel = client.advertise({ topic: `/${robot}/cmd_vel`, encoding: "cdr",
+    twistChannel = client.advertise({ topic: `/${robot}/cmd_vel_unstamped`, encoding: "cdr",
                                       schemaName: "geometry_msgs/msg/Twist", schema: def,
                                       schemaEncoding: "ros2msg" });
     const writer = new MessageWriter(parse(def, { ros2: true }));
