@@ -296,7 +296,8 @@ class Bridge:
         controller not discovered yet, a lost best-effort sample)."""
         topic = f"/{robot}/cmd_vel"
         seen = False
-        said = sent = time.monotonic()
+        sent = time.monotonic()
+        said = sent - 3.0                      # the first word after 2 s, then every 5 s
         with self.cond:
             while not stop.is_set():
                 cmds = self.cmds[robot]
@@ -439,7 +440,11 @@ def main(argv: list[str] | None = None) -> int:
                                 robots=bridge.robots)
             install_stop_signals(runner.stop_event)
             threading.Thread(target=_relay_stop, args=(runner.stop_event, ctrls), daemon=True).start()
-            return runner.run()
+            try:
+                return runner.run()
+            finally:       # the commands went on the bus through the runner: count them
+                for key, n in runner.published.items():
+                    bridge.published[key] = bridge.published.get(key, 0) + n
         install_stop_signals(stop)
         return _free_run(session, keys, args.name, stop, log)
     except KeyboardInterrupt:

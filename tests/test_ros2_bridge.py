@@ -96,7 +96,7 @@ def test_clock_and_scan_reach_ros2_as_on_the_bus(procs, endpoint, bus, peer_fact
     for t in both:
         assert len(on_ros[t][0]) == 180
         assert on_ros[t] == on_bus[t], f"scan at t={t} differs"
-    assert on_ros[both[0]][1] == "laser"           # the bus's frame id, unchanged
+    assert on_ros[both[0]][1] == "robot1/laser"    # the bus's frame id, unchanged
     wait_for(lambda: len(clock) > 10, 10, what="/clock")
     assert clock[-1] > clock[0] and all(b >= a for a, b in zip(clock, clock[1:]))
 
@@ -125,9 +125,10 @@ def test_cmd_vel_twist_stamped_and_wheel_cmd_move_the_robot_garbage_is_counted(
     bridge = procs.diffbot("ros2", "--endpoint", endpoint, "--domain-id", str(dom),
                            "--stats", stats, name="bridge")
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-    # one DDS participant cannot write two types on one topic name: two peers, as two nodes
-    twist = peer_factory(dom).node.create_publisher(Twist, "/robot1/cmd_vel", qos)
-    stamped = peer_factory(dom).node.create_publisher(TwistStamped, "/robot1/cmd_vel", qos)
+    # one type per topic: TwistStamped on cmd_vel, plain Twist on cmd_vel_unstamped
+    peer = peer_factory(dom)
+    twist = peer.node.create_publisher(Twist, "/robot1/cmd_vel_unstamped", qos)
+    stamped = peer.node.create_publisher(TwistStamped, "/robot1/cmd_vel", qos)
     wait_for(lambda: gt and twist.get_subscription_count() and stamped.get_subscription_count(),
              40, what="the bridge's cmd_vel subscriptions")
 
@@ -183,7 +184,8 @@ def test_killing_the_bridge_stops_the_robot_within_cmd_timeout(procs, endpoint, 
     bridge = procs.diffbot("ros2", "--endpoint", endpoint, "--domain-id", str(dom), name="bridge")
     peer = peer_factory(dom)
     pub = peer.node.create_publisher(
-        Twist, "/robot1/cmd_vel", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        Twist, "/robot1/cmd_vel_unstamped",
+        QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
     m = Twist()
     m.linear.x = 0.3
     stop = threading.Event()
@@ -260,3 +262,120 @@ def test_a_killed_ros2_controller_ends_the_bridge_like_a_node(tmp_path):
     assert summary["exit_codes"]["ros2_bridge"] == 0, why
     assert summary["metrics"]["robot1"]["path_length_m"] < 5.0, why   # the square was cut short
     assert "the ROS 2 controller left the graph" in bridge_log, why
+
+
+# ---------------------------------------------------------------- `diffbot run sim --ros2`
+AVOIDER = os.path.join(ROOT, "examples", "ros2", "wall_avoider.py")
+
+
+def _latched():
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def test_sim_over_ros2_rep105_odom_robot_description_one_type_and_reset(
+        procs, endpoint, peer_factory, tmp_path, monkeypatch):
+    import xml.etree.ElementTree as ET
+
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+    from std_srvs.srv import Empty
+
+    from plant.world import load_world
+    dom = domain_id(5)
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(dom))
+    out = tmp_path / "sim"
+    run = procs.diffbot("run", "sim", "--ros2", "--endpoint", endpoint, "--out", str(out),
+                        "--timeout", "300", name="run")
+    peer = peer_factory(dom)
+    odom, gt, desc, joints = [], [], [], []
+    peer.node.create_subscription(Odometry, "/robot1/odom", odom.append, qos_profile_sensor_data)
+    peer.node.create_subscription(Odometry, "/robot1/ground_truth", gt.append,
+                                  qos_profile_sensor_data)
+    peer.node.create_subscription(JointState, "/robot1/joint_states", joints.append,
+                                  qos_profile_sensor_data)
+    peer.node.create_subscription(String, "/robot1/robot_description", desc.append, _latched())
+    wait_for(lambda: odom and desc and joints and gt, 60, what="odom, joints, robot_description")
+    # REP 105: odometry in robot1/odom, starting at the origin (the robot starts at rest)
+    first = odom[0]
+    assert (first.header.frame_id, first.child_frame_id) == ("robot1/odom", "robot1/base_link")
+    assert math.hypot(first.pose.pose.position.x, first.pose.pose.position.y) < 1e-3
+    assert gt[0].header.frame_id == "world" and gt[0].child_frame_id == "robot1/base_link"
+    x0, y0, _ = load_world("living_room").robot("robot1").pose
+    # the URDF: links in the bus's frames, wheel joints named as in joint_states
+    robot = ET.fromstring(desc[0].data)
+    links = {e.get("name") for e in robot.iter("link")}
+    assert {"robot1/base_link", "robot1/left_wheel", "robot1/right_wheel", "robot1/caster",
+            "robot1/laser", "robot1/camera", "robot1/camera_optical"} <= links
+    kinds = {e.get("name"): e.get("type") for e in robot.iter("joint")}
+    assert set(joints[0].name) <= {n for n, k in kinds.items() if k == "continuous"}
+    # one type per topic, one bridge node
+    types = dict(peer.node.get_topic_names_and_types())
+    assert types["/robot1/cmd_vel"] == ["geometry_msgs/msg/TwistStamped"]
+    assert types["/robot1/cmd_vel_unstamped"] == ["geometry_msgs/msg/Twist"]
+    assert [n for n in peer.node.get_node_names() if n.startswith("ros2_bridge")] == ["ros2_bridge"]
+    plant_log = out / "logs" / "plant.log"
+    assert "no command for" not in plant_log.read_text()        # nobody has spoken yet
+    # drive away, then /reset_simulation puts it back: odometry at the origin again
+    pub = peer.node.create_publisher(Twist, "/robot1/cmd_vel_unstamped",
+                                     QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    wait_for(lambda: pub.get_subscription_count(), 20, what="the bridge's cmd_vel_unstamped")
+    m = Twist()
+    m.linear.x = 0.3
+    sent = 0
+    end = time.monotonic() + 2.0
+    while time.monotonic() < end:
+        pub.publish(m)
+        sent += 1
+        time.sleep(0.05)
+    wait_for(lambda: odom[-1].pose.pose.position.x > 0.1, 10, what="odometry to move")
+    assert gt[-1].pose.pose.position.x - x0 > 0.1
+    client = peer.node.create_client(Empty, "/reset_simulation")
+    assert client.wait_for_service(timeout_sec=20)
+    n_before = len(odom)
+    future = client.call_async(Empty.Request())
+    wait_for(future.done, 20, what="/reset_simulation's answer")
+    wait_for(lambda: len(odom) > n_before + 5 and abs(odom[-1].pose.pose.position.x) < 1e-3,
+             20, what="odometry back at the origin after the reset")
+    g = gt[-1].pose.pose.position
+    assert math.hypot(g.x - x0, g.y - y0) < 0.01
+    # Ctrl-C: clean, and the summary counts what the bridge put on the bus
+    run.send_signal(signal.SIGINT)
+    assert run.wait(60) == 130, procs.log(run)
+    summary = json.load(open(out / "summary.json"))
+    bridge = json.load(open(out / "logs" / "ros2_bridge.json"))
+    assert summary["exit_codes"]["ros2_bridge"] == 0, summary
+    assert summary["message_counts"]["robot1/cmd_vel"] == bridge["published"]["robot1/cmd_vel"]
+    assert 0.8 * sent <= summary["message_counts"]["robot1/cmd_vel"] <= sent
+    bridge_log = (out / "logs" / "ros2_bridge.log").read_text()
+    assert "Traceback" not in bridge_log and "InvalidHandle" not in bridge_log, bridge_log
+    assert "/reset_simulation: {\"ok\": true" in bridge_log
+
+
+def test_a_lockstep_ros2_node_started_late_that_waits_for_its_first_scan_runs_to_the_end(
+        procs, tmp_path, monkeypatch):
+    dom = domain_id(6)
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(dom))
+    out = tmp_path / "late"
+    run = procs.diffbot("run", "sim", "--mode", "lockstep", "--ros2", "--out", str(out),
+                        "--timeout", "300", name="run")
+    bridge_log = out / "logs" / "ros2_bridge.log"
+    wait_for(lambda: bridge_log.exists() and "lockstep member" in bridge_log.read_text(), 60,
+             what="the bridge in lockstep")
+    time.sleep(5.0)                   # the tick-0 sensors went out long before the node exists
+    node = subprocess.run([sys.executable, AVOIDER, "--seconds", "3"], env=dict(
+        os.environ, PYTHONUNBUFFERED="1"), capture_output=True, text=True, timeout=180)
+    assert node.returncode == 0, node.stdout + node.stderr
+    assert run.wait(120) == 0, procs.log(run)
+    summary = json.load(open(out / "summary.json"))
+    log = bridge_log.read_text()
+    assert summary["end_reason"] == "plant: ros2_bridge finished", summary
+    assert summary["sim_time_s"] >= 3.0, summary
+    # every tick answered by the node: its commands went on the bus, counted
+    assert summary["message_counts"]["robot1/cmd_vel"] >= 150, summary
+    assert "waiting for a TwistStamped on /robot1/cmd_vel stamped t=0.000 s" in log, log
+    assert "the ROS 2 controller answered (t=0.000 s)" in log, log
