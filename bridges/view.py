@@ -74,6 +74,8 @@ _GT_KEEP = 64
 TWIST_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/Twist",
                "geometry_msgs/msg/TwistStamped", "geometry_msgs/TwistStamped")
 RATE_LIMITED = ("camera/image_raw", "camera/camera_info")
+#: what foxglove-sdk's server speaks (clients asking only for foxglove.websocket.v1 get 400)
+SUBPROTOCOL = "foxglove.sdk.v1"
 #: topics nodes publish: advertised when their first sample shows the scenario has them
 NODE_TOPICS = ("odom", "cmd_vel", "wheel_cmd", "follower/debug")
 
@@ -586,7 +588,7 @@ class View:
         """The image with the follower's detection (circle, centre, distance) drawn on it."""
         topic = self.topic_name(f"{robot}/camera/image_annotated")
         msgtype = TOPICS["camera/image_raw"].msgtype
-        if not self.wanted(topic, msgtype):
+        if topic not in self._deps or not self.wanted(topic, msgtype):   # no follower: none
             return
         m = self.decode(payload, msgtype, f"{robot}/camera/image_raw")
         if m is None:
@@ -760,9 +762,10 @@ def main(argv: list[str] | None = None) -> int:
             log.error("cannot serve on %s:%d: %s", args.host, args.port, exc)
             return EXIT_BAD_CONFIG
         view.subscribe()
-        log.info("serving ws://%s:%d (Foxglove: Open connection -> Foxglove WebSocket); "
-                 "world %s, robots %s", args.host, server.port, view.info.get("world"),
-                 ", ".join(view.info.get("robots", {})))
+        log.info("serving ws://%s:%d, WebSocket subprotocol %s (Foxglove: Open connection -> "
+                 "Foxglove WebSocket; layout bridges/foxglove_layout.json; docs/live-view.md); "
+                 "world %s, robots %s", args.host, server.port, SUBPROTOCOL,
+                 view.info.get("world"), ", ".join(view.info.get("robots", {})))
         code = view.run()
     finally:
         view.close()
