@@ -74,6 +74,9 @@ _GT_KEEP = 64
 TWIST_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/Twist",
                "geometry_msgs/msg/TwistStamped", "geometry_msgs/TwistStamped")
 RATE_LIMITED = ("camera/image_raw", "camera/camera_info")
+RESET_SERVICE = "/reset_simulation"
+#: an empty ROS 2 message in CDR: the encapsulation header and the one placeholder byte
+EMPTY_CDR = b"\x00\x01\x00\x00\x00"
 #: what foxglove-sdk's server speaks (clients asking only for foxglove.websocket.v1 get 400)
 SUBPROTOCOL = "foxglove.sdk.v1"
 #: topics nodes publish: advertised when their first sample shows the scenario has them
@@ -164,6 +167,7 @@ class View:
         self.channels: dict[str, object] = {}
         self.sent: dict[str, int] = {}
         self.teleop_in = 0
+        self.resets = 0
         self.published: dict[str, int] = {}
         self.sim_ns = 0
         self._seq = itertools.count(1)
@@ -194,9 +198,36 @@ class View:
         from foxglove.websocket import Capability
         self.server = foxglove.start_server(
             name="diffbot-cosim", host=host, port=port, server_listener=self,
-            capabilities=[Capability.ClientPublish, Capability.Time],
-            supported_encodings=["cdr", "json"], message_backlog_size=backlog)
+            capabilities=[Capability.ClientPublish, Capability.Time, Capability.Services],
+            supported_encodings=["cdr", "json"], message_backlog_size=backlog,
+            services=[self.reset_service()])
         return self.server
+
+    def reset_service(self):
+        """``/reset_simulation`` (``std_srvs/srv/Empty``, as over ROS 2) for Foxglove's
+        Service Call panel: a ``sim/reset`` query with no arguments."""
+        import foxglove
+        from foxglove.websocket import MessageSchema, Service, ServiceSchema
+
+        def schema(part: str):
+            return MessageSchema(encoding="cdr", schema=foxglove.Schema(
+                name=f"std_srvs/srv/Empty_{part}", encoding="ros2msg", data=b""))
+
+        def handler(request) -> bytes:
+            said = None
+            for reply in self.session.get(self.keys.reset, timeout=5.0):
+                if reply.ok is not None:
+                    said = reply.ok.payload.to_bytes().decode("utf-8", "replace")
+                else:
+                    raise RuntimeError(reply.err.payload.to_bytes().decode("utf-8", "replace"))
+            if said is None:
+                raise RuntimeError(f"no plant answered {self.keys.reset}")
+            self.log.info("%s: %s", RESET_SERVICE, said)
+            self.resets += 1
+            return b"{}" if request.encoding == "json" else EMPTY_CDR
+        return Service(name=RESET_SERVICE, schema=ServiceSchema(
+            name="std_srvs/srv/Empty", request=schema("Request"), response=schema("Response")),
+            handler=handler)
 
     def topic_name(self, rest: str) -> str:
         return "/" + (f"{self.keys.namespace}/" if self.keys.namespace else "") + rest
@@ -677,6 +708,7 @@ class View:
     def stats(self) -> dict:
         return {"node": self.name, "sent": dict(sorted(self.sent.items())),
                 "published": dict(self.published), "teleop_messages": self.teleop_in,
+                "resets": self.resets,
                 "cpu_s": time.process_time(),
                 "rejected": dict(self.rejects.counts)}
 

@@ -26,7 +26,10 @@ OPTICAL_RPY = (-math.pi / 2, 0.0, -math.pi / 2)
 
 
 def _f(v: float) -> str:
-    return f"{float(v):.9g}"
+    """Rounded to 1e-6 (m, rad): the parts' poses come from a snapshot of the running world,
+    whose numerical dust (1e-35 rad) must not make one robot's URDF differ from query to
+    query."""
+    return f"{round(float(v), 6) + 0.0:.9g}"
 
 
 def _xyz(v) -> str:

@@ -66,7 +66,7 @@ def test_same_names_and_frames_over_ros2_in_foxglove_and_in_the_recording(
     # in Foxglove (the official client, asking for the subprotocol the docs name)
     res = tmp_path / "client.json"
     r = subprocess.run([node, os.path.join(JS, "view_client.mjs"), url, "robot1", str(res),
-                        "full"], cwd=JS, capture_output=True, text=True, timeout=90)
+                        "reset"], cwd=JS, capture_output=True, text=True, timeout=90)
     assert r.returncode == 0, r.stdout + r.stderr + (res.read_text() if res.exists() else "")
     fox = json.loads(res.read_text())
     run.send_signal(signal.SIGINT)
@@ -109,3 +109,9 @@ def test_same_names_and_frames_over_ros2_in_foxglove_and_in_the_recording(
     assert static == {(t.header.frame_id, t.child_frame_id) for t in tf_static.transforms}
     assert fox["robot_description"] == urdf_ros[0] == urdf_rec
     assert fox["moved_m"] > 0.1                     # the Teleop panel's Twist drove it
+    # ... and the Service Call panel's /reset_simulation put it back at its start pose
+    from plant.world import load_world
+    x0, y0, _ = load_world("living_room").robot("robot1").pose
+    assert fox["reset_response"]["encoding"] == "cdr"
+    for _, x, y in fox["after_reset"]:
+        assert abs(x - x0) < 0.01 and abs(y - y0) < 0.01, fox["after_reset"]

@@ -6,6 +6,8 @@
 //   full (default): receives the channels, decodes a LaserScan, an Image and the scene;
 //     publishes a Twist on /ROBOT/cmd_vel_unstamped as the Teleop panel does (cdr) and reports the
 //     ground truth before and after; writes a summary to OUT.json.
+//   reset: full, then calls the /reset_simulation service as the Service Call panel does and
+//     reports the ground truth after it.
 //   receive: the same without the Twist.
 //   watch: (the view bench) keeps trying to connect until the view is there, subscribes
 //     to every channel, decodes every message, and on SIGINT/SIGTERM writes the counts.
@@ -82,6 +84,14 @@ client.on("advertise", (chs) => {
 });
 
 let twistChannel = null;
+let resetAt = null;           // ground truths received when the reset answered
+const services = new Map();   // name -> service
+client.on("advertiseServices", (svcs) => { for (const s of svcs) services.set(s.name, s); });
+client.on("serviceCallResponse", (r) => {
+  out.reset_response = { encoding: r.encoding, bytes: r.data.byteLength };
+  resetAt = out.ground_truth.length;
+});
+client.on("serviceCallFailure", (f) => { out.errors.push(`service call: ${f.message}`); finish(1); });
 let twistTimer = null;
 client.on("message", ({ subscriptionId, data }) => {
   const ch = subs.get(subscriptionId);
@@ -119,7 +129,7 @@ client.on("message", ({ subscriptionId, data }) => {
   }
   const ready = out.scans.length >= 3 && out.image && out.scene && out.tf > 0;
   if (phase === "receive" && ready) finish(0);
-  if (phase === "full" && ready && !twistChannel) {
+  if ((phase === "full" || phase === "reset") && ready && !twistChannel) {
     // As Foxglove's Teleop panel: advertise geometry_msgs/msg/Twist (cdr) and publish it.
     const def = "geometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n" +
       "================================================================================\n" +
@@ -135,14 +145,24 @@ client.on("message", ({ subscriptionId, data }) => {
       out.twists_sent = (out.twists_sent || 0) + 1;
     }, 100);
   }
-  if (twistChannel && out.ground_truth.length - out.twist_from > 40) {
+  if (twistChannel && twistTimer && out.ground_truth.length - out.twist_from > 40) {
     const a = out.ground_truth[out.twist_from];
     const b = out.ground_truth[out.ground_truth.length - 1];
     out.moved_m = Math.hypot(b[1] - a[1], b[2] - a[2]);
-    if (out.moved_m > 0.1 || out.ground_truth.length - out.twist_from > 2000) {
+    if ((out.moved_m > 0.1 || out.ground_truth.length - out.twist_from > 2000) && twistTimer) {
       clearInterval(twistTimer);
-      finish(0);
+      twistTimer = null;
+      const reset = services.get("/reset_simulation");
+      if (phase !== "reset") finish(0);
+      else if (!reset) { out.errors.push("no /reset_simulation service"); finish(1); }
+      // as Foxglove's Service Call panel: std_srvs/srv/Empty, an empty request
+      else client.sendServiceCallRequest({ serviceId: reset.id, callId: 1, encoding: "cdr",
+                                           data: new Uint8Array([0, 1, 0, 0, 0]) });
     }
+  }
+  if (resetAt !== null && out.ground_truth.length > resetAt + 3) {
+    out.after_reset = out.ground_truth.slice(resetAt + 2, resetAt + 4);
+    finish(0);
   }
 });
 }
