@@ -63,7 +63,15 @@ def mcap_summary(file):
 
 
 #: what the recorder adds for 3-D viewers (bus/scene.py; tested in tests/test_view.py)
-DERIVED = {"/scene", "/tf", "/tf_static"}
+class _Derived(frozenset):
+    """What the recorder adds from sim/info (no bus keys): the scene, the transforms and
+    each robot's ``/<robot>/robot_description``."""
+
+    def __contains__(self, topic) -> bool:
+        return super().__contains__(topic) or str(topic).endswith("/robot_description")
+
+
+DERIVED = _Derived({"/scene", "/tf", "/tf_static"})
 
 
 def rosbags_storage(file):

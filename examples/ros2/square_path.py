@@ -49,7 +49,7 @@ class Square:
             th = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
             self.last = (stamp, (0.0, 0.0) if self.done else self.control(p.x, p.y, th))
         cmd = TwistStamped()
-        cmd.header.stamp, cmd.header.frame_id = m.header.stamp, "base_link"
+        cmd.header.stamp, cmd.header.frame_id = m.header.stamp, m.child_frame_id
         cmd.twist.linear.x, cmd.twist.angular.z = self.last[1]
         self.pub.publish(cmd)
 
