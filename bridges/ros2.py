@@ -450,11 +450,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 0
     finally:
-        if bridge is not None:
-            if args.stats:
-                write_json(args.stats, bridge.stats())
-            bridge.close()
-        close_session(session, log)
+        stats = bridge.stats() if bridge is not None else None
+        try:
+            if bridge is not None:
+                bridge.close()
+        finally:                        # the session always closes (else the exit hangs)
+            close_session(session, log)
+        if stats is not None and args.stats:
+            try:
+                write_json(args.stats, stats)
+            except OSError as exc:
+                log.error("cannot write --stats %s: %s", args.stats, exc)
 
 
 def _free_run(session, keys: Keys, name: str, stop: threading.Event, log) -> int:
