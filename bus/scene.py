@@ -164,7 +164,7 @@ def odom_transforms(info: dict, t_ns: int = 0) -> list:
     """``world -> <robot>/odom`` of every robot: its start pose (``sim/info`` ``pose``)."""
     out = []
     for robot, r in info.get("robots", {}).items():
-        x, y, yaw = r["pose"][:3]
+        x, y, yaw = (list(r.get("pose") or []) + [0.0, 0.0, 0.0])[:3]
         out.append(transform(WORLD_FRAME, frame(robot, "odom"), (x, y, 0.0),
                              yaw_quaternion(yaw), t_ns))
     return out

@@ -99,10 +99,11 @@ def robot_urdf(info: dict, robot: str) -> str:
                          caster["position"])]
     for joint, wheel in WHEELS.items():
         v = body.get(f"{robot}_{wheel}_visual")
-        y = r["wheel_separation_m"] / 2 * (1 if wheel.startswith("left") else -1)
+        # a sim/info without the body (a thin plant): the wheels from the drive's numbers
+        y = float(r.get("wheel_separation_m", 0.0)) / 2 * (1 if wheel.startswith("left") else -1)
         xyz = v["position"] if v is not None else (0.0, y, 0.0)
         shape = v if v is not None else {"name": wheel, "shape": "cylinder",
-                                         "size": [r["wheel_radius_m"], 0.04],
+                                         "size": [float(r.get("wheel_radius_m", 0.05)), 0.04],
                                          "color": [0.1, 0.1, 0.1]}
         # the cylinder's axis is its z: turned onto the wheel's axle (+y)
         lines += [_link(frame(robot, wheel), shape, rpy=(math.pi / 2, 0, 0), mass_kg=0.5),
