@@ -14,6 +14,7 @@ import pytest
 
 from bus import codec
 from bus.keys import Keys
+from bus.protocol import PROTOCOL_VERSION
 
 from .conftest import wait_for
 from .test_pipelined_end import TICK_NS, member_ends
@@ -72,7 +73,7 @@ def test_a_waiting_node_exits_2_when_the_plant_comes_back_speaking_another_versi
     exit 2. That holds for the plant that comes back while the node waits (--wait) too."""
     from bus.session import open_session
     s = open_session("plant", endpoint)
-    info = {"protocol": 2, "mode": "lockstep", "control_tick_s": 0.02,
+    info = {"protocol": PROTOCOL_VERSION, "mode": "lockstep", "control_tick_s": 0.02,
             "robots": {"robot1": {"topics": {"joint_states": 1}}}}
     served = {"info": info}
     q = s.declare_queryable(K.info, lambda query: query.reply(
@@ -87,11 +88,12 @@ def test_a_waiting_node_exits_2_when_the_plant_comes_back_speaking_another_versi
         alive.undeclare()                              # the plant goes ...
         wait_for(lambda: "waiting for it to come back" in procs.log(node), 20,
                  what="the node to wait")
-        served["info"] = dict(info, protocol=1)        # ... and another version comes back
+        served["info"] = dict(info, protocol=PROTOCOL_VERSION - 1)   # ... another comes back
         alive = s.liveliness().declare_token(K.alive("plant"))
         assert node.wait(60) == 2, procs.log(node)
         log = procs.log(node)
-        assert "the plant speaks bus protocol 1; this node speaks bus protocol 2" in log
+        assert (f"the plant speaks bus protocol {PROTOCOL_VERSION - 1}; "
+                f"this node speaks bus protocol {PROTOCOL_VERSION}") in log
         assert "Traceback" not in log
     finally:
         q.undeclare()
