@@ -305,6 +305,7 @@ class Bridge:
                     data = cmds.pop(stamp_ns)
                     for s in [s for s in cmds if s < stamp_ns]:
                         del cmds[s]
+                    self._had[robot] = True            # it answered: it was there
                     if robot not in self.answered:
                         self.answered.add(robot)
                         self.log.info("%s: the ROS 2 controller answered (t=%.3f s)", topic,

@@ -227,6 +227,12 @@ def _run_square(tmp_path, dom: int, tag: str, kill_after_s: float | None = None)
                           stderr=subprocess.STDOUT, start_new_session=True)
     try:
         if kill_after_s is not None:
+            # killed once it has commanded the robot for a while (its start-up under load
+            # can take longer than a fixed sleep)
+            bridge_log = out / "logs" / "ros2_bridge.log"
+            wait_for(lambda: bridge_log.exists()
+                     and "the ROS 2 controller answered" in bridge_log.read_text(), 90,
+                     what="the ROS 2 controller's first command")
             time.sleep(kill_after_s)
             ex.send_signal(signal.SIGKILL)
         ex.wait(120)
@@ -255,7 +261,7 @@ def test_rclpy_square_in_lockstep_closes_and_is_byte_identical(tmp_path):
 
 
 def test_a_killed_ros2_controller_ends_the_bridge_like_a_node(tmp_path):
-    code, log, out = _run_square(tmp_path, domain_id(4), "killed", kill_after_s=6.0)
+    code, log, out = _run_square(tmp_path, domain_id(4), "killed", kill_after_s=2.0)
     bridge_log = open(out / "logs" / "ros2_bridge.log").read()
     summary = json.load(open(out / "summary.json"))
     why = f"{log}\n{bridge_log}\n{summary}"
