@@ -486,8 +486,14 @@ def main(argv: list[str] | None = None) -> int:
             plant.end_reason = "physics process failed"
         return 1
     finally:
-        if plant is not None:
-            if args.stats:
-                write_json(args.stats, plant.stats())
-            plant.close(plant.end_reason)
-        session.close()
+        stats = plant.stats() if plant is not None else None
+        try:
+            if plant is not None:
+                plant.close(plant.end_reason)
+        finally:                        # the session always closes (else the exit hangs)
+            session.close()
+        if stats is not None and args.stats:
+            try:
+                write_json(args.stats, stats)
+            except OSError as exc:
+                log.error("cannot write --stats %s: %s", args.stats, exc)

@@ -170,3 +170,17 @@ def test_copied_readme_controller_exits_nonzero_without_a_plant(tmp_path):
     assert (f"cannot connect to unixsock-stream/{tmp_path}/nobody.sock: no socket file"
             in r.stderr), r.stderr
     assert str(conf) in r.stderr
+
+
+@pytest.mark.slow
+def test_an_unwritable_stats_path_is_an_error_line_not_a_hang(tmp_path):
+    """The plant closes its session before it writes --stats: a path it cannot write (a
+    test's deleted tmp dir, a typo) is one error line, and the process still exits."""
+    stats = tmp_path / "gone" / "plant.json"
+    p = subprocess.run([sys.executable, "-m", "diffbot.cli", "plant", "--world", "empty",
+                        "--mode", "fast", "--duration", "0.1", "--stats", str(stats),
+                        "--endpoint", f"unixsock-stream/{tmp_path}/bus.sock"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert f"cannot write --stats {stats}" in p.stderr, p.stderr
+    assert "Traceback" not in p.stderr, p.stderr
+    assert not stats.exists()
