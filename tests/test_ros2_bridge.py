@@ -239,9 +239,13 @@ def _run_square(tmp_path, dom: int, tag: str, kill_after_s: float | None = None)
         log = run.communicate(timeout=150)[0].decode()
     finally:
         for p in (ex, run):
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait(5)
+            if p.poll() is None:       # Ctrl-C first: the launcher stops what it started
+                os.killpg(p.pid, signal.SIGINT)
+                try:
+                    p.wait(15)
+                except subprocess.TimeoutExpired:
+                    os.killpg(p.pid, signal.SIGKILL)
+                    p.wait(5)
     return run.returncode, log, out
 
 
