@@ -34,7 +34,7 @@ import time
 
 from bus import codec, urdf
 from bus.cliargs import ArgumentParser
-from bus.jsonio import write_json
+from bus.jsonio import write_stats
 from bus.keys import Keys, check_name
 from bus.log import RejectCounter, setup_logging
 from bus.inputs import ABSURD_INPUT
@@ -457,11 +457,7 @@ def main(argv: list[str] | None = None) -> int:
                 bridge.close()
         finally:                        # the session always closes (else the exit hangs)
             close_session(session, log)
-        if stats is not None and args.stats:
-            try:
-                write_json(args.stats, stats)
-            except OSError as exc:
-                log.error("cannot write --stats %s: %s", args.stats, exc)
+        write_stats(args.stats, stats, log)
 
 
 def _free_run(session, keys: Keys, name: str, stop: threading.Event, log) -> int:

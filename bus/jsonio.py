@@ -23,6 +23,16 @@ def write_json(path: str, data: dict) -> None:
     os.replace(tmp, path)
 
 
+def write_stats(path: str | None, stats: dict | None, log) -> None:
+    """A process's ``--stats`` file, written last (after its session closed, so a path it
+    cannot write is one logged error, never a hang at exit)."""
+    if path and stats is not None:
+        try:
+            write_json(path, stats)
+        except OSError as exc:
+            log.error("cannot write --stats %s: %s", path, exc)
+
+
 def dumps(o, **kw) -> str:
     """``json.dumps`` of :func:`strict_json` ``(o)``, refusing NaN."""
     return json.dumps(strict_json(o), allow_nan=False, **kw)

@@ -38,7 +38,7 @@ from bus import codec, jsonio
 from bus.cliargs import ArgumentParser, nonneg_int, positive_float
 from bus.controller import Twist
 from bus.inbox import Event, Inbox
-from bus.jsonio import write_json
+from bus.jsonio import write_stats
 from bus.keys import Keys
 from bus.lockstep import AckLedger
 from bus.log import RejectCounter, setup_logging
@@ -492,8 +492,4 @@ def main(argv: list[str] | None = None) -> int:
                 plant.close(plant.end_reason)
         finally:                        # the session always closes (else the exit hangs)
             session.close()
-        if stats is not None and args.stats:
-            try:
-                write_json(args.stats, stats)
-            except OSError as exc:
-                log.error("cannot write --stats %s: %s", args.stats, exc)
+        write_stats(args.stats, stats, log)
