@@ -52,11 +52,13 @@ RECORDER_GRACE_S = 10.0
 
 
 class Child(procs.Child):
-    """A scenario's process: a :class:`procs.Child` and what its death means for the run."""
+    """A scenario's process: a :class:`procs.Child` and what its death means for the run.
+    It gets SIGTERM from the kernel if the launcher dies without stopping it (SIGKILL, OOM):
+    a run never leaves a plant or a node behind."""
 
     def __init__(self, name: str, argv: list[str], required: bool = True,
                  ends_run: bool = False, interactive: bool = False, log_path: str = "") -> None:
-        super().__init__(name, argv, log_path, interactive=interactive)
+        super().__init__(name, argv, log_path, interactive=interactive, die_with_parent=True)
         self.required = required
         self.ends_run = ends_run
 

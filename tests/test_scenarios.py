@@ -133,3 +133,26 @@ def test_ctrl_c_stops_every_process_and_leaves_a_summary(tmp_path):
     assert s["end_reason"] == "interrupted (SIGINT)"
     assert s["sim_time_s"] > 0.5
     assert (out / "trajectory.csv").read_text().startswith("t_s,")
+
+
+def test_a_sigkilled_launcher_leaves_no_process_behind(tmp_path):
+    """SIGKILL cannot be caught: the kernel stops the launcher's children instead."""
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "diffbot.cli", "run", "square", "--mode",
+                          "realtime", "--out", str(out), "--record", str(tmp_path / "run.mcap")], cwd=ROOT,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+    try:
+        plant_log = out / "logs" / "plant.log"
+        wait_for(lambda: plant_log.exists() and "running" in plant_log.read_text(), 60,
+                 what="the plant to start running")
+        wait_for(lambda: len(processes_mentioning(str(out))) >= 4, 30,
+                 what="the scenario's processes")
+        p.kill()
+        p.wait(10)
+        wait_for(lambda: not processes_mentioning(str(out)), 10, what="the children to go")
+    finally:
+        if p.poll() is None:
+            p.kill()
+        for pid in processes_mentioning(str(out)):
+            os.kill(pid, signal.SIGKILL)
