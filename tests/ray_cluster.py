@@ -4,6 +4,8 @@ auth), stopped by PID with its whole process tree -- never a global ``ray stop``
 would end other people's clusters on the same machine."""
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import secrets
 import shutil
@@ -44,13 +46,18 @@ class Cluster:
         self.nodes: list[procs.Child] = []
         self.address = ""
 
-    def start_node(self, num_cpus: int, head: bool = False) -> procs.Child:
+    def start_node(self, num_cpus: int, head: bool = False,
+                   resources: dict | None = None) -> procs.Child:
+        """A node; ``resources``: custom resources (``ray start --resources``), by which a
+        test can name the node (``diffbot run --place plant=NAME``)."""
         i = len(self.nodes)
         ports = free_ports(len(PORT_OPTIONS) + 1 + 10)
         argv = [RAY, "start", "--block", "--node-ip-address=127.0.0.1", f"--num-cpus={num_cpus}",
                 "--disable-usage-stats", "--include-log-monitor=false",
                 *[f"{o}={p}" for o, p in zip(PORT_OPTIONS, ports)],
                 f"--worker-port-list={','.join(map(str, ports[len(PORT_OPTIONS) + 1:]))}"]
+        if resources:
+            argv.append(f"--resources={json.dumps(resources)}")
         if head:
             self.address = f"127.0.0.1:{ports[len(PORT_OPTIONS)]}"
             argv += ["--head", f"--port={ports[len(PORT_OPTIONS)]}", "--include-dashboard=false",
@@ -81,3 +88,21 @@ class Cluster:
     def stop(self) -> None:
         procs.stop(self.nodes, grace_s=10.0)
         shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def two_nodes(cpus: int = 1):
+    """A head and a worker node (``cpus`` each; custom resources ``head`` and ``worker`` name
+    them), stopped afterwards; fails if a Ray process outlived the cluster."""
+    c = Cluster()
+    try:
+        c.start_node(cpus, head=True, resources={"head": 1})
+        c.wait_nodes(1)
+        c.start_node(cpus, resources={"worker": 1})
+        c.wait_nodes(2)
+        yield c
+    finally:
+        pids = {p for n in c.nodes if n.pid for p in [n.pid, *procs.descendants(n.pid)]}
+        c.stop()
+        assert not [p for p in pids if procs.alive(p)], "a Ray process outlived the cluster"
+

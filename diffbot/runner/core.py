@@ -32,6 +32,7 @@ class Run:
     timeout_s: float = 900.0
     params: dict = field(default_factory=dict)
     spec: object = None                # the caller's own description of it
+    env: dict = field(default_factory=dict)  # variables set for the command (on its node)
     # ---- filled in
     status: str = "waiting"            # waiting, running, ok, failed, timeout, interrupted, skipped
     exit_code: int | None = None

@@ -28,6 +28,8 @@ from .task import STOP_GRACE_S, execute, unpack
 SYSTEM_RETRIES = 3
 #: how long a cancel waits for running tasks to stop their commands (s)
 CANCEL_WAIT_S = STOP_GRACE_S + 30.0
+#: Ray's own resources (the rest of a node's resources are the user's: ``--resources``)
+_RAY_RESOURCES = {"CPU", "GPU", "memory", "object_store_memory", "accelerator_type"}
 
 
 def _ray():
@@ -43,13 +45,13 @@ def _ray():
     return ray
 
 
-def _on_node(argv, out, log_path, timeout_s, driver_host):
+def _on_node(argv, out, log_path, timeout_s, driver_host, env=None):
     """The task: :func:`execute` with the Ray node id as ``node``; the output folder comes
     back in the result when this node is not the driver's machine."""
     import ray
     node = ray.get_runtime_context().get_node_id()
     return execute(argv, out, log_path, timeout_s, node=node,
-                   ship=socket.gethostname() != driver_host)
+                   ship=socket.gethostname() != driver_host, env=env)
 
 
 def _started(run, since: float) -> bool:
@@ -100,10 +102,32 @@ class RayEngine:
                 + (f", at most {self.max_parallel} run(s) at a time" if self.max_parallel else ""))
 
     def nodes(self) -> list[dict]:
-        """The cluster's live nodes: id, address, CPUs."""
+        """The cluster's live nodes: id, address, host name, CPUs, and the names of the
+        custom resources each was started with (``ray start --resources``)."""
         return [{"id": n["NodeID"], "address": n["NodeManagerAddress"],
-                 "cpus": n["Resources"].get("CPU", 0)}
+                 "hostname": n.get("NodeManagerHostname", ""),
+                 "cpus": n["Resources"].get("CPU", 0),
+                 "resources": sorted(k for k in n["Resources"] if k not in _RAY_RESOURCES
+                                     and not k.startswith("node:"))}
                 for n in self.ray.nodes() if n.get("Alive")]
+
+    def local_node_id(self) -> str:
+        """The node of this machine that this driver joined."""
+        return self.ray.get_runtime_context().get_node_id()
+
+    def call_on(self, node_id: str, fn, *args, timeout_s: float = 120.0):
+        """``fn(*args)`` run on the given node (no CPU reserved); its value."""
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+        ref = self.ray.remote(fn).options(
+            num_cpus=0, scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=False)
+        ).remote(*args)
+        return self.ray.get(ref, timeout=timeout_s)
+
+    def stop(self, handle, force: bool = False) -> None:
+        """Ask a task to stop without waiting: a running one gets ``KeyboardInterrupt`` (its
+        command is stopped by PID, gracefully) or, with ``force``, its worker is killed
+        (the command gets SIGTERM from the kernel: ``die_with_parent``)."""
+        self.ray.cancel(handle, force=force)
 
     def submit(self, run, node_id: str | None = None):
         """Queue ``run`` (its ``cpus`` reserved) on any node, spread over the cluster, or on
@@ -116,7 +140,7 @@ class RayEngine:
         # more CPUs than the largest node has would queue it forever
         ref = self._task.options(num_cpus=min(run.cpus, self._largest_node()), max_retries=SYSTEM_RETRIES,
                                  scheduling_strategy=strategy, name=run.name).remote(
-            run.argv, run.out, run.log_path, run.timeout_s, self._host)
+            run.argv, run.out, run.log_path, run.timeout_s, self._host, run.env or None)
         self._refs[ref] = run
         self._submitted[ref] = time.time()
         return ref

@@ -29,19 +29,21 @@ SHIP_LIMIT_BYTES = 64 * 1024 * 1024
 
 
 def execute(argv: list[str], out: str, log_path: str, timeout_s: float = 900.0,
-            cancel=None, node: str = "", ship: bool = False) -> dict:
+            cancel=None, node: str = "", ship: bool = False, env: dict | None = None) -> dict:
     """Run ``argv`` into ``out`` (emptied first), its output in ``log_path``.
 
     ``cancel`` is anything with ``is_set()`` (a :class:`threading.Event`): once set, the
     command is stopped and the status is ``interrupted``. ``node`` names where it ran in
     the result (default: the host name). ``ship`` puts the output folder, as a tar archive,
-    into the result (``files``), for a driver on another machine.
+    into the result (``files``), for a driver on another machine. ``env``: variables set
+    for the command on top of this process's environment.
     """
     if os.path.isdir(out):
         shutil.rmtree(out)                     # no stale outputs from an earlier attempt
     os.makedirs(out)
     os.makedirs(os.path.dirname(os.path.abspath(log_path)), exist_ok=True)
-    child = procs.Child(os.path.basename(out), argv, log_path, die_with_parent=True)
+    child = procs.Child(os.path.basename(out), argv, log_path, die_with_parent=True,
+                        env=dict(os.environ, **env) if env else None)
     status = "failed"
     host = socket.gethostname()
     try:
