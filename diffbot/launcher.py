@@ -143,6 +143,10 @@ class Run:
             self.children.append(Child(p.name, argv, p.required, p.ends_run, p.interactive,
                                        log_path=os.path.join(logs, f"{p.name}.log")))
 
+    def open_observer(self):
+        """The launcher's own session: the observer that the analysis reads."""
+        return open_session("observer", self.endpoint, self.zenoh_config)
+
     def stop_all(self) -> None:
         """SIGINT the nodes, then the plant (so nodes do not see it vanish), then SIGKILL
         by PID whatever is left after the grace period, the recorder last."""
@@ -324,6 +328,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="port of --view (default 8765)")
     p.add_argument("--view-host", default="127.0.0.1", metavar="HOST",
                    help="address --view binds (default 127.0.0.1)")
+    from .placement import add_args
+    add_args(p)                        # --place, --address, --tls: diffbot/placement.py
     return p
 
 
@@ -371,11 +377,13 @@ def main(argv: list[str] | None = None) -> int:
     except (WorldError, ValueError) as exc:
         print(f"diffbot run: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    from . import placement
     from .analysis import ANALYSES
     os.makedirs(out, exist_ok=True)
     tmp = None
     endpoint = args.endpoint
-    if endpoint is None and args.zenoh_config is None:
+    placed = placement.wanted(args)
+    if endpoint is None and args.zenoh_config is None and not placed:
         tmp = tempfile.mkdtemp(prefix="diffbot-")
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
@@ -386,6 +394,12 @@ def main(argv: list[str] | None = None) -> int:
                                else args.physics_process))
     if args.view:
         run.view_port, run.view_host = args.view_port, args.view_host
+    if placed:                         # processes on Ray nodes (diffbot/placement.py)
+        try:
+            run = placement.place(run, args)
+        except (placement.PlacementError, BusConfigError) as exc:
+            print(f"diffbot run: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
     run.build()
     analysis = ANALYSES[spec.analysis]
     stop_flag: list[str] = []
@@ -401,7 +415,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         run.children[0].start(env)
         try:
-            session = open_session("observer", endpoint or "", args.zenoh_config)
+            session = run.open_observer()
         except BusConfigError as exc:
             run.reason = f"cannot connect to the plant: {exc}"
             run.failed = run.children[0]
@@ -416,6 +430,8 @@ def main(argv: list[str] | None = None) -> int:
                         c.start(env)
                 print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
                       f"{len(run.children)} processes, output in {out}", file=sys.stderr)
+                if placed:
+                    print(f"diffbot run: {placement.describe(run)}", file=sys.stderr)
                 code = run.supervise(stop_flag)
             elif stop_flag:
                 run.reason = f"interrupted ({stop_flag[0]})"
