@@ -73,6 +73,17 @@ def procs(tmp_path):
     pr.cleanup()
 
 
+@pytest.fixture(scope="session")
+def ray_cluster():
+    """A real two-node Ray cluster on this machine (tests/ray_cluster.py), started once for
+    the tests that need one; a module takes it with ``ray_cluster.revive()`` first (a test
+    may have killed the worker)."""
+    pytest.importorskip("ray", reason="the [cluster] extra (make setup installs it)")
+    from .ray_cluster import two_nodes
+    with two_nodes() as c:
+        yield c
+
+
 @pytest.fixture
 def bus(endpoint):
     """A client session to the test's endpoint (open it after the plant is started)."""

@@ -44,6 +44,7 @@ class Cluster:
                         RAY_health_check_period_ms="1000", RAY_health_check_timeout_ms="1000",
                         RAY_health_check_failure_threshold="3")
         self.nodes: list[procs.Child] = []
+        self.dead: list[procs.Child] = []      # nodes a test killed (see revive)
         self.address = ""
 
     def start_node(self, num_cpus: int, head: bool = False,
@@ -66,6 +67,7 @@ class Cluster:
             argv += [f"--address={self.address}"]
         node = procs.Child(f"ray{i}", argv, os.path.join(self.tmp, f"node{i}.log"),
                            env=self.env, die_with_parent=True).start()
+        node.spec = (num_cpus, head, resources)
         self.nodes.append(node)
         return node
 
@@ -80,20 +82,34 @@ class Cluster:
             r = subprocess.run([RAY, "status", f"--address={self.address}"], env=self.env,
                                capture_output=True, text=True, timeout=60)
             out = r.stdout
-            if r.returncode == 0 and out.count(" node_") >= n:
+            active = out.split("Active:", 1)[-1].split("Pending:", 1)[0]   # not the dead ones
+            if r.returncode == 0 and active.count(" node_") >= n:
                 return
             time.sleep(1.0)
         raise RuntimeError(f"not {n} Ray nodes after {timeout_s:g} s:\n{out}")
 
+    def revive(self) -> None:
+        """A new worker (same CPUs and resources) for each one a test killed, so that the
+        next test that shares this cluster finds all its nodes."""
+        dead = [n for n in self.nodes[1:] if n.poll() is not None]
+        if not dead:
+            return
+        for node in dead:
+            self.nodes.remove(node)
+            self.dead.append(node)
+            self.start_node(*node.spec)
+        self.wait_nodes(len(self.nodes))
+
     def stop(self) -> None:
-        procs.stop(self.nodes, grace_s=10.0)
+        procs.stop(self.nodes + self.dead, grace_s=10.0)
         shutil.rmtree(self.tmp, ignore_errors=True)
 
 
 @contextlib.contextmanager
 def two_nodes(cpus: int = 1):
     """A head and a worker node (``cpus`` each; custom resources ``head`` and ``worker`` name
-    them), stopped afterwards; fails if a Ray process outlived the cluster."""
+    them), stopped afterwards; fails if a Ray process outlived the cluster. The tests share
+    one (conftest's ``ray_cluster``, for the session): starting one takes tens of seconds."""
     c = Cluster()
     try:
         c.start_node(cpus, head=True, resources={"head": 1})
@@ -102,7 +118,8 @@ def two_nodes(cpus: int = 1):
         c.wait_nodes(2)
         yield c
     finally:
-        pids = {p for n in c.nodes if n.pid for p in [n.pid, *procs.descendants(n.pid)]}
+        pids = {p for n in c.nodes + c.dead if n.pid
+                for p in [n.pid, *procs.descendants(n.pid)]}
         c.stop()
         assert not [p for p in pids if procs.alive(p)], "a Ray process outlived the cluster"
 

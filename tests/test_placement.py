@@ -12,7 +12,9 @@ import time
 import pytest
 
 from diffbot import procs as dprocs
-from diffbot.placement import PlacementError, assign, parse_place, resolve
+from diffbot.launcher import RECORDER, VIEW
+from diffbot.placement import CONFIGS, PlacedRun, PlacementError, assign, parse_place, resolve
+from diffbot.scenario import load_scenario
 
 from .conftest import wait_for
 from .test_exposure import cmdline
@@ -57,6 +59,19 @@ def test_a_host_is_a_node_id_prefix_ip_host_name_or_resource_and_one_node_only()
         resolve("a1b", NODES)                          # too short a prefix to mean an id
 
 
+def test_with_tls_every_process_gets_the_shipped_config_of_its_role(tmp_path):
+    run = PlacedRun(load_scenario("square"), str(tmp_path), "lockstep", 0, "",
+                    zenoh_config=os.path.join(CONFIGS, "recorder_tls.json5"),
+                    record=str(tmp_path / "r.mcap"), view_port=0, tls=True)
+    run.build()
+    config = {c.name: os.path.basename(c.argv[c.argv.index("--zenoh-config") + 1])
+              for c in run.children}
+    assert config == {"plant": "plant_tls.json5", RECORDER: "recorder_tls.json5",
+                      VIEW: "view_tls.json5", "odometry_robot1": "node_tls.json5",
+                      "square_path_robot1": "node_tls.json5"}
+    assert all(c.argv.count("--zenoh-config") == 1 for c in run.children)
+
+
 def test_a_bad_placement_exits_2_before_anything_starts(procs, tmp_path):
     p = procs.diffbot("run", "square", "--place", "lidar=here", "--out", str(tmp_path / "o"))
     assert p.wait(60) == 2
@@ -68,14 +83,11 @@ def test_a_bad_placement_exits_2_before_anything_starts(procs, tmp_path):
 
 
 # ---------------------------------------------------------------- on a real cluster
-ray = pytest.importorskip("ray", reason="the [cluster] extra (make setup installs it)")
-from .ray_cluster import two_nodes  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    with two_nodes() as c:
-        yield c
+@pytest.fixture
+def cluster(ray_cluster):
+    """The session's two-node cluster (conftest), both nodes alive."""
+    ray_cluster.revive()
+    return ray_cluster
 
 
 def ray_env(cluster) -> dict:

@@ -13,7 +13,6 @@ from .conftest import wait_for
 from .test_sweep import NOISE, _cmdline, read_rows
 
 ray = pytest.importorskip("ray", reason="the [cluster] extra (make setup installs it)")
-from .ray_cluster import Cluster  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(420)]
 SWEEP = ("sweep", "drive-test", "--grid", f"{NOISE}=0.05,0.2", "--seeds", "0-2",
@@ -22,19 +21,11 @@ SWEEP = ("sweep", "drive-test", "--grid", f"{NOISE}=0.05,0.2", "--seeds", "0-2",
 NOT_COMPARED = {"run", "wall_time_s", "real_time_factor", "node", "host", "out", "log_tail"}
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    c = Cluster()
-    try:
-        c.start_node(1, head=True)
-        c.wait_nodes(1)
-        c.start_node(1)
-        c.wait_nodes(2)
-        yield c
-    finally:
-        pids = {p for n in c.nodes if n.pid for p in [n.pid, *dprocs.descendants(n.pid)]}
-        c.stop()
-        assert not [p for p in pids if dprocs.alive(p)], "a Ray process outlived the cluster"
+@pytest.fixture
+def cluster(ray_cluster):
+    """The session's two-node cluster (conftest), both nodes alive."""
+    ray_cluster.revive()
+    return ray_cluster
 
 
 def sweep(procs, out: str, *extra: str, env=None):
