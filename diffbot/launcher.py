@@ -455,6 +455,8 @@ def main(argv: list[str] | None = None) -> int:
               f"--- last lines of {run.failed.name}'s log ({run.failed.log_path}):\n"
               f"{run.failed.tail()}", file=sys.stderr)
     summary = summarize(run, wall, code)
+    if placed:
+        summary["placement"] = placement.where_ran(run)
     if observer is not None:
         try:
             summary["metrics"] = analysis.analyse(observer, keys, spec, world, out)

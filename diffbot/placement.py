@@ -327,6 +327,13 @@ def place(run: Run, args) -> PlacedRun:
     return placed
 
 
+def where_ran(run: PlacedRun) -> dict[str, dict]:
+    """Each process's Ray node (id, address, host name) for ``summary.json``; ``{}`` for
+    the ones that ran on this machine."""
+    return {c.name: ({k: c.node[k] for k in ("id", "address", "hostname")}
+                     if isinstance(c, RemoteChild) else {}) for c in run.children}
+
+
 def describe(run: PlacedRun) -> str:
     """Where each process runs, for the launcher's first line."""
     here = [c.name for c in run.children if not isinstance(c, RemoteChild)]

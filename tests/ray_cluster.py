@@ -71,8 +71,8 @@ class Cluster:
         self.nodes.append(node)
         return node
 
-    def wait_nodes(self, n: int, timeout_s: float = 60.0) -> None:
-        """Wait until ``ray status`` shows ``n`` live nodes."""
+    def wait_nodes(self, n: int, timeout_s: float = 60.0, exactly: bool = False) -> None:
+        """Wait until ``ray status`` shows ``n`` live nodes (at least, or ``exactly``)."""
         deadline = time.monotonic() + timeout_s
         out = ""
         while time.monotonic() < deadline:
@@ -83,7 +83,8 @@ class Cluster:
                                capture_output=True, text=True, timeout=60)
             out = r.stdout
             active = out.split("Active:", 1)[-1].split("Pending:", 1)[0]   # not the dead ones
-            if r.returncode == 0 and active.count(" node_") >= n:
+            live = active.count(" node_")
+            if r.returncode == 0 and (live == n if exactly else live >= n):
                 return
             time.sleep(1.0)
         raise RuntimeError(f"not {n} Ray nodes after {timeout_s:g} s:\n{out}")
@@ -97,8 +98,10 @@ class Cluster:
         for node in dead:
             self.nodes.remove(node)
             self.dead.append(node)
+        self.wait_nodes(len(self.nodes), exactly=True)   # Ray has seen them die
+        for node in dead:
             self.start_node(*node.spec)
-        self.wait_nodes(len(self.nodes))
+        self.wait_nodes(len(self.nodes), exactly=True)
 
     def stop(self) -> None:
         procs.stop(self.nodes + self.dead, grace_s=10.0)

@@ -22,7 +22,7 @@ from .test_exposure import cmdline
 SQUARE = ("run", "square", "--seed", "0", "--duration", "12")
 #: what differs between two runs of the same lockstep scenario, wherever they run
 NOT_COMPARED = {"wall_time_s", "plant_wall_time_s", "real_time_factor", "plant_per_tick_ms",
-                "exit_codes"}
+                "placement"}
 NODES = [{"id": "a1b2c3d4e5f6" * 4, "address": "10.0.0.1", "hostname": "sim", "cpus": 8,
           "resources": ["plant"]},
          {"id": "0f9e8d7c6b5a" * 4, "address": "10.0.0.2", "hostname": "robot", "cpus": 4,
@@ -131,6 +131,9 @@ def test_placed_square_gives_the_local_runs_summary(cluster, procs, tmp_path):
     with open(os.path.join(on_ray, "summary.json")) as f:
         got = json.load(f)
     assert got["metrics"]["final_odom_error_m"] is not None
+    ids = {n: got["placement"][n].get("id") for n in got["exit_codes"]}
+    assert ids["odometry_robot1"] == ids["square_path_robot1"] != ids["plant"], ids
+    assert None not in ids.values(), ids               # every process on a Ray node
     assert {k: v for k, v in got.items() if k not in NOT_COMPARED} == \
         {k: v for k, v in ref.items() if k not in NOT_COMPARED}
     # the same results folder as a local run: every process's log and statistics, the plots
