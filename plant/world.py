@@ -339,7 +339,7 @@ def parse_world(data: dict, path: str) -> WorldSpec:
     spec.physics_step_s = w.number("physics_step_s", 0.001, positive=True)
     spec.control_tick_s = w.number("control_tick_s", 0.02, positive=True)
     ratio = spec.control_tick_s / spec.physics_step_s
-    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+    if not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
         w.fail("control_tick_s", f"must be a whole multiple of physics_step_s "
                                  f"({spec.physics_step_s:g} s), got {spec.control_tick_s:g} s")
     if spec.physics_step_s > 0.01:
