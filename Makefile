@@ -12,7 +12,7 @@ setup: $(STAMP) $(FMUS)
 
 $(STAMP): pyproject.toml tests/js/package-lock.json
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet -e '.[test,view,ros2,cluster]'
+	$(BIN)/python -m pip install --quiet -e '.[test,view,ros2,cluster,learn]'
 	@touch $(STAMP)
 	@# The live view's tests drive it with the real Foxglove JS client (Node >= 18)
 	@if command -v npm >/dev/null; then (cd tests/js && npm ci --silent --no-audit --no-fund) \

@@ -3,7 +3,7 @@
     diffbot run SCENARIO ...        start a scenario's processes together and supervise them
     diffbot plant ...               the DART plant alone
     diffbot controller NAME ...     one controller (square_path, teleop, odometry, wheel_schedule,
-                                    wander, ball_follower, avoid)
+                                    wander, ball_follower, avoid, policy)
     diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
     diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
     diffbot bench ...               benchmarks
@@ -37,6 +37,7 @@ CONTROLLERS = {
     "wander": "controllers.wander",
     "ball_follower": "controllers.ball_follower",
     "avoid": "controllers.avoid",
+    "policy": "controllers.learned",
 }
 
 USAGE = __doc__

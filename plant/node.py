@@ -48,11 +48,9 @@ from bus.session import BusConfigError, add_bus_args, open_session
 from . import modes
 from .commands import Command, CommandBook, decode_command
 from .physics_process import PhysicsError, PhysicsProcess
-from .raycast import Scene
 from .reset import parse_reset
-from .sensors import RobotSensors, scan_all
-from .sim import Simulation
 from .stepper import Stepper
+from .tick import build_world, tick_messages
 from .world import WorldError, WorldSpec, load_world
 
 MODES = ("lockstep", "realtime", "fast")
@@ -129,14 +127,7 @@ class Plant:
 
     def build(self) -> None:
         """(Re)build the world and the sensors with the current seed."""
-        for r in self.spec.robots:
-            if "lidar" in self.disabled:
-                r.sensors.lidar = None
-            if "camera" in self.disabled:
-                r.sensors.camera = None
-        self.sim = Simulation(self.spec)
-        self.sensors = {r.name: RobotSensors(r, self.spec.control_tick_s, self.seed)
-                        for r in self.spec.robots}
+        self.sim, self.sensors = build_world(self.spec, self.seed, self.disabled)
         if self.physics_process:
             if self.physics is None:
                 self.physics = PhysicsProcess(self.spec)
@@ -210,15 +201,9 @@ class Plant:
         """The sensors due at this tick, robot by robot, then ``sim/clock``; then the next
         tick's sensor noise is drawn ahead (prefetch), off the members' critical path."""
         t = self.sim.time_ns
-        tick = t // self.tick_ns
-        scene = None
-        if any(s.needs_scene(tick) for s in self.sensors.values()):
-            scene = Scene(self.stepper.shapes())
-        states = {name: self.stepper.state(name) for name in self.sensors}
-        scans = scan_all(self.sensors, states, tick, scene) if scene is not None else {}
-        for name, sensors in self.sensors.items():
-            for topic, msg in sensors.messages(tick, t, states[name], scene, scans.get(name)):
-                self._put(self.keys.topic(name, topic), msg, t)
+        for name, topic, msg in tick_messages(t, self.tick_ns, self.sensors, self.stepper.state,
+                                              self.stepper.shapes):
+            self._put(self.keys.topic(name, topic), msg, t)
         self._put(self.keys.clock, codec.clock(t), t)
         for sensors in self.sensors.values():
             sensors.prefetch()

@@ -1,0 +1,225 @@
+"""A learned Avoid policy as a controller: the observation the Gymnasium environment
+``diffbot/Avoid-v0`` gives, built here from the robot's bus messages, and a small numpy
+MLP that maps it to a twist.
+
+The observation (:class:`AvoidObserver`) is the one place that turns messages into what
+a policy sees, used by the environment (``diffbot.envs``) in training and by
+``diffbot controller policy`` in deployment, so a policy trained in-process sees the
+same numbers on the bus:
+
+* ``scan``: the lidar's ranges (m; no return -> the range maximum);
+* ``odom``: x, y (m), yaw (rad, wrapped), v (m/s), w (rad/s) dead-reckoned from the wheel
+  encoders (:class:`controllers.odometry.Odometry`) from the start pose;
+* ``goal``: the goal in the robot's frame (m), from that odometry.
+
+A policy file (``.npz``, numpy only, no pickles) holds an MLP over :func:`features`
+(``W1 b1 W2 b2``), the action limits and the action repeat it was trained with.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+from bus.cliargs import positive_float
+from bus.node import Twist, node_arg_parser, run_node_args
+
+from .odometry import Odometry
+
+#: lidar sectors the policy features keep (the minimum range of each)
+SCAN_BINS = 12
+#: ranges beyond this (m) look the same to the policy
+SCAN_CLIP_M = 2.5
+GOAL_CLIP_M = 5.0
+
+
+def wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class AvoidObserver:
+    """One robot's Avoid observation, fed every control tick with its latest messages."""
+
+    def __init__(self, wheel_radius_m: float, wheel_separation_m: float, num_rays: int,
+                 max_range_m: float) -> None:
+        self.r, self.d = wheel_radius_m, wheel_separation_m
+        self.num_rays = num_rays
+        self.max_range = float(max_range_m)
+        self.reset((0.0, 0.0, 0.0), (0.0, 0.0))
+
+    def reset(self, pose0, goal) -> None:
+        self.odom = Odometry(self.r, self.d, tuple(float(v) for v in pose0))
+        self.goal = (float(goal[0]), float(goal[1]))
+        self.scan = np.full(self.num_rays, self.max_range, dtype=np.float32)
+        self._scan_msg = None
+
+    def feed(self, t_ns: int, msgs) -> None:
+        """One tick's messages (topic -> latest message): joint_states every tick, scan
+        whenever one is there."""
+        js = msgs.get("joint_states")
+        if js is not None:
+            self.odom.update(float(js.position[0]), float(js.position[1]), t_ns * 1e-9)
+        scan = msgs.get("scan")
+        if scan is not None and scan is not self._scan_msg:     # a new scan
+            self._scan_msg = scan
+            r = np.asarray(scan.ranges, dtype=np.float32)
+            self.scan = np.where(np.isfinite(r), np.clip(r, 0.0, self.max_range),
+                                 np.float32(self.max_range)).astype(np.float32)
+
+    def goal_in_robot_frame(self) -> tuple[float, float]:
+        o = self.odom
+        dx, dy = self.goal[0] - o.x, self.goal[1] - o.y
+        c, s = math.cos(o.theta), math.sin(o.theta)
+        return dx * c + dy * s, -dx * s + dy * c
+
+    def observation(self) -> dict:
+        o = self.odom
+        return {"scan": self.scan.copy(),
+                "odom": np.array([o.x, o.y, wrap(o.theta), o.v, o.w], dtype=np.float32),
+                "goal": np.array(self.goal_in_robot_frame(), dtype=np.float32)}
+
+
+def features(obs: dict, fov_rad: float = math.pi) -> np.ndarray:
+    """What the MLP reads: the lidar binned into SCAN_BINS sectors (min range, clipped and
+    scaled to 0..1), the goal's distance (scaled) and bearing (cos, sin), and v, w."""
+    scan = np.minimum(np.asarray(obs["scan"], dtype=np.float64), SCAN_CLIP_M) / SCAN_CLIP_M
+    n = len(scan)
+    edges = np.linspace(0, n, SCAN_BINS + 1).round().astype(int)
+    bins = np.array([scan[a:b].min() if b > a else 1.0 for a, b in zip(edges[:-1], edges[1:])])
+    gx, gy = (float(v) for v in obs["goal"])
+    dist = math.hypot(gx, gy)
+    bearing = math.atan2(gy, gx)
+    v, w = float(obs["odom"][3]), float(obs["odom"][4])
+    return np.concatenate([bins, [min(dist, GOAL_CLIP_M) / GOAL_CLIP_M, math.cos(bearing),
+                                  math.sin(bearing), v, w / 2.0]])
+
+
+N_FEATURES = SCAN_BINS + 5
+
+
+class MLPPolicy:
+    """tanh MLP, features -> (v, w) scaled to the action limits."""
+
+    def __init__(self, W1, b1, W2, b2, v_max: float, w_max: float, action_repeat: int,
+                 v_min: float | None = None) -> None:
+        self.W1, self.b1 = np.asarray(W1, float), np.asarray(b1, float)
+        self.W2, self.b2 = np.asarray(W2, float), np.asarray(b2, float)
+        if self.W1.shape[0] != N_FEATURES or self.W2.shape[1] != 2:
+            raise ValueError(f"policy expects {N_FEATURES} features and 2 outputs, got "
+                             f"{self.W1.shape} and {self.W2.shape}")
+        self.v_max, self.w_max = float(v_max), float(w_max)
+        self.v_min = -self.v_max if v_min is None else float(v_min)
+        self.action_repeat = int(action_repeat)
+
+    @classmethod
+    def random(cls, rng: np.random.Generator, hidden: int, **kw) -> "MLPPolicy":
+        return cls.from_vector(rng.normal(0, 0.5, cls.size(hidden)), hidden, **kw)
+
+    @staticmethod
+    def size(hidden: int) -> int:
+        return N_FEATURES * hidden + hidden + hidden * 2 + 2
+
+    @classmethod
+    def from_vector(cls, theta: np.ndarray, hidden: int, **kw) -> "MLPPolicy":
+        i = 0
+        parts = []
+        for shape in ((N_FEATURES, hidden), (hidden,), (hidden, 2), (2,)):
+            n = int(np.prod(shape))
+            parts.append(np.asarray(theta[i:i + n]).reshape(shape))
+            i += n
+        return cls(*parts, **kw)
+
+    def act(self, obs: dict) -> tuple[float, float]:
+        h = np.tanh(features(obs) @ self.W1 + self.b1)
+        a = np.tanh(h @ self.W2 + self.b2)
+        v = self.v_min + (a[0] + 1.0) / 2.0 * (self.v_max - self.v_min)
+        return float(v), float(a[1] * self.w_max)
+
+    def save(self, path: str) -> None:
+        np.savez(path, W1=self.W1, b1=self.b1, W2=self.W2, b2=self.b2,
+                 limits=np.array([self.v_min, self.v_max, self.w_max]),
+                 action_repeat=np.array(self.action_repeat))
+
+    @classmethod
+    def load(cls, path: str) -> "MLPPolicy":
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                v_min, v_max, w_max = (float(x) for x in z["limits"])
+                return cls(z["W1"], z["b1"], z["W2"], z["b2"], v_max, w_max,
+                           int(z["action_repeat"]), v_min=v_min)
+        except (OSError, KeyError, ValueError) as exc:
+            raise ValueError(f"{path}: not a policy file ({exc})") from None
+
+
+class PolicyController:
+    """Drives a robot to ``goal`` with a trained :class:`MLPPolicy`, deciding every
+    ``action_repeat`` ticks as in training; done when odometry puts it within
+    ``goal_radius_m`` of the goal."""
+    name = "policy"
+    inputs = ["joint_states", "scan"]
+
+    def __init__(self, policy: MLPPolicy, goal: tuple[float, float],
+                 goal_radius_m: float = 0.3) -> None:
+        self.policy = policy
+        self.goal = goal
+        self.goal_radius = goal_radius_m
+        self.observer: AvoidObserver | None = None
+        self.action = (0.0, 0.0)
+        self.ticks = 0
+        self.done = False
+
+    def configure(self, info: dict, robot: str) -> None:
+        """From the plant's sim/info: the start pose, the wheels and the lidar."""
+        r = info["robots"][robot]
+        lidar = (r.get("sensors") or {}).get("lidar")
+        if not lidar:
+            raise ValueError(f"{robot} has no lidar: the policy needs its scan")
+        self.observer = AvoidObserver(r["wheel_radius_m"], r["wheel_separation_m"],
+                                      int(lidar["num_rays"]), float(lidar["max_range_m"]))
+        self.observer.reset(r["pose"], self.goal)
+
+    def step(self, obs):
+        self.observer.feed(obs.t_ns, obs.msgs)
+        if self.ticks % max(1, self.policy.action_repeat) == 0:
+            o = self.observer.observation()
+            if math.hypot(*o["goal"]) < self.goal_radius:
+                self.done = True
+                return Twist(0.0, 0.0)
+            self.action = self.policy.act(o)
+        self.ticks += 1
+        return Twist(*self.action)
+
+
+def _goal(value: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in value.split(","))
+    except ValueError:
+        raise ValueError(f"--goal takes X,Y in metres, got {value!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise ValueError(f"--goal must be finite, got {value!r}")
+    return x, y
+
+
+def main(argv=None) -> int:
+    p = node_arg_parser("Drive to a goal with a policy trained on diffbot/Avoid-v0 "
+                        "(examples/learn).")
+    p.add_argument("--file", required=True, metavar="POLICY.npz", help="the trained policy")
+    p.add_argument("--goal", required=True, metavar="X,Y", type=lambda v: _checked(_goal, v),
+                   help="the goal in world coordinates, m")
+    p.add_argument("--goal-radius", type=positive_float, default=0.3, metavar="M",
+                   help="done within this distance of the goal (default 0.3 m)")
+    args = p.parse_args(argv)
+    try:
+        policy = MLPPolicy.load(args.file)
+    except ValueError as exc:
+        p.exit(2, f"diffbot controller policy: {exc}\n")
+    return run_node_args(PolicyController(policy, args.goal, args.goal_radius), args,
+                         args.name or f"policy_{args.robot}")
+
+
+def _checked(fn, value):
+    try:
+        return fn(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

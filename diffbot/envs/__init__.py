@@ -1,0 +1,19 @@
+"""Gymnasium and PettingZoo environments on the plant's own code (docs/learning.md).
+
+Importing this package registers them::
+
+    import gymnasium, diffbot.envs
+    env = gymnasium.make("diffbot/Avoid-v0")                  # in-process (fast)
+    env = gymnasium.make("diffbot/Avoid-v0", transport="bus")  # a lockstep plant over Zenoh
+    env = gymnasium.make("diffbot.envs:diffbot/Follow-v0")    # imports this package itself
+
+    from diffbot.envs import swarm_v0
+    penv = swarm_v0.parallel_env(n_robots=4)                   # PettingZoo ParallelEnv
+
+gymnasium and pettingzoo are the ``learn`` extra (``make setup`` installs it); nothing
+outside this package imports them.
+"""
+from gymnasium import register
+
+register(id="diffbot/Avoid-v0", entry_point="diffbot.envs.avoid:AvoidEnv")
+register(id="diffbot/Follow-v0", entry_point="diffbot.envs.follow:FollowEnv")

@@ -1,0 +1,231 @@
+"""``diffbot/Avoid-v0``: reach a goal in the living room without touching anything.
+
+One robot starts at a free pose and is given a free goal point 1-3 m away, both drawn
+from the episode's seed (which also seeds the plant's noise). Each step holds the action
+``[v m/s, w rad/s]`` (within the robot's drive limits from the world file) for
+``action_repeat`` control ticks: 5 x 20 ms, so ``dt`` = 0.1 s, the lidar's period, and
+every observation carries a fresh scan.
+
+Observation (:class:`controllers.learned.AvoidObserver`, the same code the deployed
+``diffbot controller policy`` runs): ``scan`` (the lidar's 180 ranges, m), ``odom``
+(x, y, yaw, v, w dead-reckoned from the wheel encoders) and ``goal`` (the goal in the
+robot's frame by that odometry).
+
+Reward, judged on ground truth at the end of each step: ``PROGRESS_GAIN`` x the metres
+gained toward the goal, minus ``STEP_COST`` each step; ``GOAL_BONUS`` and terminated on
+reaching the goal (within ``goal_radius_m``); ``-CONTACT_PENALTY`` and terminated when the
+footprint touches a wall, an object or another robot (:mod:`diffbot.envs.geometry`;
+checked once per step: the robot moves at most 5 cm in one); truncated after
+``max_episode_steps``.
+
+:class:`AvoidTask` holds this for any number of robots; the swarm's PettingZoo
+environment (:mod:`diffbot.envs.swarm_v0`) is the same task with one agent per robot.
+"""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from bus import codec
+from controllers.learned import AvoidObserver
+from plant.world import load_world
+
+from .geometry import Footprints
+from .transport import Bus, InProc
+
+PROGRESS_GAIN = 1.0
+STEP_COST = 0.005
+GOAL_BONUS = 1.0
+CONTACT_PENALTY = 1.0
+#: what the environment reads of each robot
+INPUTS = ["joint_states", "ground_truth", "scan"]
+TRANSPORTS = ("inproc", "bus")
+
+
+def make_transport(spec, world: str, inputs: dict, transport: str, endpoint, disabled,
+                   overrides):
+    if transport == "inproc":
+        if endpoint is not None:
+            raise ValueError("endpoint= is for transport='bus'")
+        return InProc(spec, disabled)
+    if transport == "bus":
+        return Bus(spec, world, inputs, disabled, overrides, endpoint)
+    raise ValueError(f"transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
+
+
+def true_pose(msg) -> tuple[float, float, float]:
+    p = msg.pose.pose
+    return p.position.x, p.position.y, codec.quaternion_to_yaw(p.orientation)
+
+
+class AvoidTask:
+    """Robots each reaching their own goal without contact (module docstring)."""
+
+    def __init__(self, world: str = "living_room", transport: str = "inproc",
+                 endpoint: str | None = None, action_repeat: int = 5,
+                 max_episode_steps: int = 300, goal_radius_m: float = 0.3,
+                 overrides: tuple[str, ...] = ()) -> None:
+        if int(action_repeat) < 1 or int(max_episode_steps) < 1:
+            raise ValueError("action_repeat and max_episode_steps must be >= 1")
+        self.spec = load_world(world, list(overrides))
+        self.robots = [r.name for r in self.spec.robots]
+        for r in self.spec.robots:
+            if r.sensors.lidar is None:
+                raise ValueError(f"{world}: robot {r.name} has no lidar (Avoid needs one)")
+        self.action_repeat = int(action_repeat)
+        self.max_steps = int(max_episode_steps)
+        self.goal_radius = float(goal_radius_m)
+        self.dt = self.action_repeat * self.spec.control_tick_s
+        self.geo = Footprints(self.spec)
+        self.observers = {r.name: AvoidObserver(r.drive.wheel_radius_m, r.drive.wheel_separation_m,
+                                                r.sensors.lidar.num_rays,
+                                                r.sensors.lidar.max_range_m)
+                          for r in self.spec.robots}
+        self.limits = {r.name: (r.drive.max_linear_mps, r.drive.max_angular_radps)
+                       for r in self.spec.robots}
+        self.transport = None
+        self.transport = make_transport(self.spec, world, {r: INPUTS for r in self.robots},
+                                        transport, endpoint, ("camera",), tuple(overrides))
+
+    # ---------------------------------------------------------------- spaces
+    def observation_space(self, robot: str) -> spaces.Dict:
+        lid = self.spec.robot(robot).sensors.lidar
+        inf = np.float32(np.inf)
+        return spaces.Dict({
+            "scan": spaces.Box(0.0, np.float32(lid.max_range_m), (lid.num_rays,), np.float32),
+            "odom": spaces.Box(-inf, inf, (5,), np.float32),
+            "goal": spaces.Box(-inf, inf, (2,), np.float32)})
+
+    def action_space(self, robot: str) -> spaces.Box:
+        v, w = self.limits[robot]
+        return spaces.Box(np.array([-v, -w], np.float32), np.array([v, w], np.float32),
+                          dtype=np.float32)
+
+    # ---------------------------------------------------------------- episode
+    def reset(self, rng: np.random.Generator) -> tuple[dict, dict]:
+        seed = int(rng.integers(0, 2**31))
+        poses, goals, starts = {}, {}, []
+        for name in self.robots:
+            p = self.geo.free_point(rng, 0.3, avoid=starts, away_m=1.0)
+            starts.append(p)
+            poses[name] = (float(p[0]), float(p[1]), float(rng.uniform(-math.pi, math.pi)))
+        for name, p in zip(self.robots, starts):
+            g = self.geo.free_point(rng, 0.2, avoid=[q for q in starts if q is not p],
+                                    away_m=0.8, within=(p, 1.0, 3.0))
+            goals[name] = (float(g[0]), float(g[1]))
+        self.goals = goals
+        self.steps = 0
+        self.active = set(self.robots)
+        for name in self.robots:
+            self.observers[name].reset(poses[name], goals[name])
+        self._ticks_left = 1
+        self.transport.reset(seed, poses, self._observe)
+        return self._obs(), {r: self._info(r, False) for r in self.robots}
+
+    def _observe(self, t_ns: int, msgs: dict) -> None:
+        """Every tick: the odometry integrates the encoders. At the step's last tick (and
+        at reset): the ground truth and the contacts."""
+        self.t_ns = t_ns
+        for name in self.robots:
+            self.observers[name].feed(t_ns, msgs[name])
+        self._ticks_left -= 1
+        if self._ticks_left <= 0:
+            self.truth = {name: true_pose(msgs[name]["ground_truth"]) for name in self.robots}
+            self.touched = self.geo.contacts({n: Footprints.centre(*p)
+                                              for n, p in self.truth.items()})
+
+    def _distance(self, robot: str) -> float:
+        x, y, _ = self.truth[robot]
+        g = self.goals[robot]
+        return math.hypot(g[0] - x, g[1] - y)
+
+    def _obs(self) -> dict:
+        return {r: self.observers[r].observation() for r in self.robots}
+
+    def _info(self, robot: str, success: bool) -> dict:
+        return {"pose": np.array(self.truth[robot]), "goal": np.array(self.goals[robot]),
+                "distance": self._distance(robot), "is_success": success,
+                "contact": robot in self.touched, "t": self.t_ns * 1e-9}
+
+    def step(self, actions: dict) -> tuple[dict, dict, dict, dict, dict]:
+        cmds = {}
+        for name in self.robots:
+            if name not in self.active:
+                continue
+            a = np.asarray(actions[name], dtype=np.float64).reshape(-1)
+            if a.shape != (2,) or not np.all(np.isfinite(a)):
+                raise ValueError(f"action for {name} must be 2 finite numbers [v, w], got "
+                                 f"{actions[name]!r}")
+            v, w = self.limits[name]
+            cmds[name] = (float(np.clip(a[0], -v, v)), float(np.clip(a[1], -w, w)))
+        before = {r: self._distance(r) for r in self.active}
+        self._ticks_left = self.action_repeat
+        self.transport.advance(self.action_repeat, lambda t, m: cmds, self._observe)
+        self.steps += 1
+        obs = self._obs()
+        rew, term, trunc, info = {}, {}, {}, {}
+        for name in list(self.active):
+            d = self._distance(name)
+            r = PROGRESS_GAIN * (before[name] - d) - STEP_COST
+            success = d < self.goal_radius
+            contact = name in self.touched
+            if success:
+                r += GOAL_BONUS
+            if contact:
+                r -= CONTACT_PENALTY
+            rew[name], term[name] = r, success or contact
+            trunc[name] = not term[name] and self.steps >= self.max_steps
+            info[name] = self._info(name, success and not contact)
+            if term[name] or trunc[name]:
+                self.active.discard(name)
+        return obs, rew, term, trunc, info
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+            self.transport = None
+
+
+class AvoidEnv(gym.Env):
+    """``diffbot/Avoid-v0`` (module docstring). ``transport="inproc"`` (default) runs the
+    plant's code in this process; ``"bus"`` starts a lockstep plant and joins it over
+    Zenoh (or joins the one at ``endpoint``): same seed and actions, same numbers."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, transport: str = "inproc", endpoint: str | None = None,
+                 world: str = "living_room", action_repeat: int = 5,
+                 max_episode_steps: int = 300, goal_radius_m: float = 0.3,
+                 overrides: tuple[str, ...] = (), render_mode: str | None = None) -> None:
+        if render_mode is not None:
+            raise ValueError("diffbot/Avoid-v0 renders nothing itself: watch it over the bus "
+                             "(transport='bus', diffbot view)")
+        self.task = AvoidTask(world, transport, endpoint, action_repeat, max_episode_steps,
+                              goal_radius_m, overrides)
+        if len(self.task.robots) != 1:
+            self.task.close()
+            raise ValueError(f"{world} has {len(self.task.robots)} robots; Avoid-v0 drives one "
+                             "(diffbot.envs.swarm_v0 drives many)")
+        self.robot = self.task.robots[0]
+        self.transport_name = transport
+        self.observation_space = self.task.observation_space(self.robot)
+        self.action_space = self.task.action_space(self.robot)
+        self.dt = self.task.dt
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        obs, info = self.task.reset(self.np_random)
+        return obs[self.robot], info[self.robot]
+
+    def step(self, action):
+        if not self.task.active:
+            raise RuntimeError("the episode is over: call reset()")
+        obs, rew, term, trunc, info = self.task.step({self.robot: action})
+        r = self.robot
+        return obs[r], float(rew[r]), bool(term[r]), bool(trunc[r]), info[r]
+
+    def close(self) -> None:
+        self.task.close()

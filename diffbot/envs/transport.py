@@ -1,0 +1,345 @@
+"""The two ways an environment runs the plant: in its own process, or over the bus.
+
+Both offer the same three calls, and give the same messages to the bit:
+
+* ``reset(seed, poses, observe)``: rebuild the world with that noise seed and start
+  poses; ``observe(0, msgs)`` gets tick 0's messages;
+* ``advance(n, command, observe)``: n control ticks; at each tick t ``command(t, msgs)``
+  gives every robot's ``(v, w)``, the world steps, and ``observe(t + tick, msgs)`` gets the
+  new tick's messages;
+* ``close()``.
+
+``msgs`` is ``{robot: {topic: latest message}}``, the latest sample of each topic stamped at
+or before the tick (what a bus node's observation holds).
+
+:class:`InProc` runs :mod:`plant.tick` directly. :class:`Bus` is a lockstep member of a
+plant (one it starts on a private unix socket, or one at ``endpoint``) under sequential
+coupling: the commands of tick t act at once, as in-process. See docs/learning.md.
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import logging
+import os
+import shutil
+import tempfile
+import threading
+import time
+import weakref
+from typing import Callable
+
+from bus.keys import Keys
+from bus.node import NodeRunner, Twist, close_session
+from bus.session import open_session
+from plant.tick import build_world, tick_messages
+from plant.world import WorldSpec
+
+Command = Callable[[int, dict], dict]
+Observe = Callable[[int, dict], None]
+
+#: wall seconds the environment waits for the plant before it gives up
+PLANT_TIMEOUT_S = 60.0
+
+
+class TransportError(RuntimeError):
+    """The plant went away or did not answer."""
+
+
+class InProc:
+    """The plant's world, physics and sensor code in this process (no Zenoh)."""
+
+    def __init__(self, spec: WorldSpec, disabled: tuple[str, ...] = ()) -> None:
+        self.spec = spec
+        self.disabled = tuple(disabled)
+        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.sim = None
+
+    def reset(self, seed: int, poses: dict, observe: Observe) -> None:
+        # as the plant's sim/reset: the seed and poses are kept in the spec, the world rebuilt
+        self.spec.seed = seed
+        for name, pose in poses.items():
+            self.spec.robot(name).pose = tuple(float(v) for v in pose)
+        self._build()
+        observe(0, self.latest)
+
+    def _build(self) -> None:
+        self.sim, self.sensors = build_world(self.spec, self.spec.seed, self.disabled)
+        self.latest: dict[str, dict] = {name: {} for name in self.sensors}
+        self._publish()
+
+    def _publish(self) -> None:
+        for name, topic, msg in tick_messages(self.sim.time_ns, self.tick_ns, self.sensors,
+                                              self.sim.state, self.sim.shapes):
+            self.latest[name][topic] = msg
+
+    def advance(self, n: int, command: Command, observe: Observe) -> None:
+        sim = self.sim
+        for _ in range(n):
+            cmds = command(sim.time_ns, self.latest)
+            for name in sim.robots:          # every robot, every tick, as the plant does
+                v, w = cmds.get(name, (0.0, 0.0))
+                sim.command_twist(name, v, w)
+            sim.step_tick()
+            if not sim.is_finite():          # the plant rebuilds a diverged world too
+                self._build()
+                sim = self.sim
+            else:
+                self._publish()
+            observe(sim.time_ns, self.latest)
+
+    def close(self) -> None:
+        self.sim = None
+
+
+# ------------------------------------------------------------------------------ bus
+class _Job:
+    """n ticks for the member thread: answer the tick it holds with ``command``, then
+    for each new tick ``observe`` it and (but after the last) answer it."""
+
+    def __init__(self, n: int, command: Command, observe: Observe) -> None:
+        self.n, self.command, self.observe = n, command, observe
+        self.done = threading.Event()
+        self.t_end: int | None = None
+        self.error: BaseException | None = None
+
+
+def _zero(t_ns: int, msgs: dict) -> dict:
+    return {}
+
+
+def _ignore(t_ns: int, msgs: dict) -> None:
+    pass
+
+
+class _Inputs:
+    """A robot's slot in the member: only what it reads (the member acts for all)."""
+    check_inputs = False     # the environment sees exactly what the plant sent
+
+    def __init__(self, inputs) -> None:
+        self.inputs = list(inputs)
+
+    def step(self, obs):     # not called: _Member._act answers for every robot
+        return None
+
+
+class _Member(NodeRunner):
+    """The environment as a lockstep member: the standard node (joining, inputs filed by
+    stamp, ACK trailer, FINAL, the plant watched), with one change: at each complete tick
+    it hands every robot's observation to the environment's thread and answers with the
+    commands it gets back (docs/PROTOCOL.md, section 4)."""
+
+    def __init__(self, *a, **kw) -> None:
+        super().__init__(*a, **kw)
+        self.cv = threading.Condition()
+        self.pending: _Job | None = None
+        self.current: _Job | None = None
+        self.closing = False
+
+    def submit(self, job: _Job) -> None:
+        with self.cv:
+            self.pending = job
+            self.cv.notify_all()
+
+    def shut(self) -> None:
+        with self.cv:
+            self.closing = True
+            self.cv.notify_all()
+        self.stop_event.set()
+
+    def _take(self) -> _Job | None:
+        with self.cv:
+            while self.pending is None and not self.closing:
+                self.cv.wait(0.2)
+            job, self.pending = self.pending, None
+            return job
+
+    def _act(self, t_ns: int) -> bool:
+        msgs = {s.robot: self._observation(s, t_ns).msgs for s in self.slots}
+        job = self.current
+        if job is not None:
+            try:
+                job.observe(t_ns, msgs)
+            except BaseException as exc:     # handed to the environment's thread
+                job.error = exc
+            job.n -= 1
+            if job.n <= 0 or job.error is not None:
+                job.t_end, self.current = t_ns, None
+                job.done.set()
+                job = None
+        if job is None:
+            job = self.current = self._take()
+        cmds = {}
+        if job is not None:
+            try:
+                cmds = job.command(t_ns, msgs)
+            except BaseException as exc:
+                job.error, job.t_end, self.current = exc, t_ns, None
+                job.done.set()
+        for slot in self.slots:
+            v, w = cmds.get(slot.robot, (0.0, 0.0))
+            self.publish(Twist(v, w), t_ns, slot.robot)
+        self.ticks += 1
+        self.flush(t_ns)
+        return False
+
+
+_names = itertools.count()
+
+
+class Bus:
+    """A lockstep member of a plant over Zenoh; starts that plant (lockstep, sequential
+    coupling, on a unix socket of its own) unless ``endpoint`` names a running one."""
+
+    def __init__(self, spec: WorldSpec, world: str, inputs: dict[str, list[str]],
+                 disabled: tuple[str, ...] = (), overrides: tuple[str, ...] = (),
+                 endpoint: str | None = None, namespace: str = "") -> None:
+        self.spec = spec
+        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.keys = Keys(namespace)
+        self.log = logging.getLogger("diffbot.envs")
+        res = self._res = _Resources()
+        # closed when the environment is, or garbage-collected, or at interpreter exit
+        self._finalizer = weakref.finalize(self, res.close)
+        try:
+            if endpoint is None:
+                res.tmpdir = tempfile.mkdtemp(prefix="diffbot-env-")
+                endpoint = f"unixsock-stream/{res.tmpdir}/bus.sock"
+                res.plant = _start_plant(world, overrides, disabled, endpoint, spec.seed,
+                                         namespace, res.tmpdir)
+            res.session = _open(endpoint, res.plant)
+            name = f"gym_{os.getpid()}_{next(_names)}"
+            robots = list(inputs)
+            member = _Member(lambda r: _Inputs(inputs[r]), robots[0], name, res.session,
+                             self.keys, self.log, wait_for_plant_s=PLANT_TIMEOUT_S,
+                             robots=robots)
+            info = member.info
+            if info.get("mode") != "lockstep" or info.get("coupling") != "sequential":
+                raise TransportError(
+                    f"the plant at {endpoint} runs {info.get('mode')} mode, "
+                    f"{info.get('coupling')} coupling: an environment needs lockstep with "
+                    "sequential coupling (diffbot plant --mode lockstep --coupling sequential)")
+            if abs(info.get("control_tick_s", 0) - spec.control_tick_s) > 1e-12:
+                raise TransportError(f"the plant's control tick {info.get('control_tick_s')} s "
+                                     f"is not the world's {spec.control_tick_s} s")
+            res.member = member
+            res.thread = threading.Thread(target=member.run, name=f"{name}-member",
+                                          daemon=True)
+            res.thread.start()
+        except BaseException:
+            self.close()
+            raise
+        self.endpoint = endpoint
+
+    @property
+    def plant_log(self) -> str | None:
+        return self._res.plant.log_path if self._res.plant is not None else None
+
+    def _run(self, job: _Job) -> _Job:
+        res = self._res
+        if res.member is None:
+            raise TransportError("the environment is closed")
+        res.member.submit(job)
+        while not job.done.wait(0.5):
+            if not res.thread.is_alive():
+                raise TransportError(self._gone())
+        if job.error is not None:
+            raise job.error
+        return job
+
+    def _gone(self) -> str:
+        why = "the bus member stopped (the plant went away?)"
+        if self._res.plant is not None:
+            code = self._res.plant.poll()
+            if code is not None:
+                why = f"the plant exited with code {code}:\n{self._res.plant.tail()}"
+        return why
+
+    def reset(self, seed: int, poses: dict, observe: Observe) -> None:
+        # Answer the tick held (old world) and stop at the next, so the tick the stale
+        # answer below is stamped with is >= 1: the new world ignores it (PROTOCOL.md 7)
+        # instead of taking it for its tick 0.
+        self._run(_Job(1, _zero, _ignore))
+        req = {"seed": int(seed), "poses": {r: [float(v) for v in p] for r, p in poses.items()}}
+        self._query_reset(req)
+        job = self._run(_Job(1, _zero, observe))
+        if job.t_end != 0:
+            raise TransportError(f"after sim/reset the plant published t={job.t_end} ns, "
+                                 "not the new world's t=0")
+        self.spec.seed = seed
+        for name, pose in poses.items():
+            self.spec.robot(name).pose = tuple(float(v) for v in pose)
+
+    def _query_reset(self, req: dict) -> None:
+        deadline = time.monotonic() + PLANT_TIMEOUT_S
+        while time.monotonic() < deadline:
+            for reply in self._res.session.get(self.keys.reset, payload=json.dumps(req).encode(),
+                                               timeout=5.0):
+                if reply.ok is not None:
+                    return
+                raise TransportError("sim/reset refused: "
+                                     + reply.err.payload.to_bytes().decode("utf-8", "replace"))
+        raise TransportError(f"no answer on {self.keys.reset}: {self._gone()}")
+
+    def advance(self, n: int, command: Command, observe: Observe) -> None:
+        self._run(_Job(n, command, observe))
+
+    def close(self) -> None:
+        self._finalizer()
+
+
+class _Resources:
+    """What a :class:`Bus` holds, closed in order by a finalizer that does not keep the
+    environment alive: the member, the plant it started, the session, the socket dir."""
+
+    def __init__(self) -> None:
+        self.plant = None
+        self.session = None
+        self.member: _Member | None = None
+        self.thread: threading.Thread | None = None
+        self.tmpdir: str | None = None
+
+    def close(self) -> None:
+        from diffbot.procs import stop
+        if self.member is not None:
+            self.member.shut()
+        if self.plant is not None:
+            stop([self.plant], grace_s=3.0)
+            self.plant.close_log()
+        if self.thread is not None:
+            self.thread.join(5.0)
+        if self.session is not None:
+            close_session(self.session, logging.getLogger("diffbot.envs"))
+        if self.tmpdir is not None:
+            shutil.rmtree(self.tmpdir, ignore_errors=True)
+        self.member = self.plant = self.session = self.thread = self.tmpdir = None
+
+
+def _start_plant(world: str, overrides, disabled, endpoint: str, seed: int, namespace: str,
+                 tmpdir: str):
+    from diffbot.procs import Child, diffbot_argv
+    argv = ["plant", "--world", world, "--mode", "lockstep", "--coupling", "sequential",
+            "--seed", str(int(seed)), "--endpoint", endpoint, "--log-level", "WARNING"]
+    for o in overrides:
+        argv += ["--set", o]
+    if disabled:
+        argv += ["--disable", ",".join(disabled)]
+    if namespace:
+        argv += ["--namespace", namespace]
+    return Child("plant", diffbot_argv(*argv), os.path.join(tmpdir, "plant.log"),
+                 die_with_parent=True).start()
+
+
+def _open(endpoint: str, plant):
+    """A client session to the plant's endpoint, once it listens."""
+    deadline = time.monotonic() + PLANT_TIMEOUT_S
+    while True:
+        try:
+            return open_session("node", endpoint)
+        except Exception as exc:
+            if plant is not None and plant.poll() is not None:
+                raise TransportError(f"the plant exited with code {plant.poll()}:\n"
+                                     f"{plant.tail()}") from None
+            if time.monotonic() > deadline:
+                raise TransportError(f"no plant at {endpoint}: {exc}") from None
+            time.sleep(0.05)
