@@ -15,5 +15,7 @@ outside this package imports them.
 """
 from gymnasium import register
 
-register(id="diffbot/Avoid-v0", entry_point="diffbot.envs.avoid:AvoidEnv")
-register(id="diffbot/Follow-v0", entry_point="diffbot.envs.follow:FollowEnv")
+register(id="diffbot/Avoid-v0", entry_point="diffbot.envs.avoid:AvoidEnv",
+         max_episode_steps=300)
+register(id="diffbot/Follow-v0", entry_point="diffbot.envs.follow:FollowEnv",
+         max_episode_steps=750)

@@ -15,8 +15,8 @@ Reward, judged on ground truth at the end of each step: ``PROGRESS_GAIN`` x the 
 gained toward the goal, minus ``STEP_COST`` each step; ``GOAL_BONUS`` and terminated on
 reaching the goal (within ``goal_radius_m``); ``-CONTACT_PENALTY`` and terminated when the
 footprint touches a wall, an object or another robot (:mod:`diffbot.envs.geometry`;
-checked once per step: the robot moves at most 5 cm in one); truncated after
-``max_episode_steps``.
+checked once per step: the robot moves at most 5 cm in one); truncated after 300 steps
+(30 s; the registration's ``max_episode_steps``, Gymnasium's TimeLimit).
 
 :class:`AvoidTask` holds this for any number of robots; the swarm's PettingZoo
 environment (:mod:`diffbot.envs.swarm_v0`) is the same task with one agent per robot.
@@ -66,17 +66,17 @@ class AvoidTask:
 
     def __init__(self, world: str = "living_room", transport: str = "inproc",
                  endpoint: str | None = None, action_repeat: int = 5,
-                 max_episode_steps: int = 300, goal_radius_m: float = 0.3,
+                 max_steps: int | None = None, goal_radius_m: float = 0.3,
                  overrides: tuple[str, ...] = ()) -> None:
-        if int(action_repeat) < 1 or int(max_episode_steps) < 1:
-            raise ValueError("action_repeat and max_episode_steps must be >= 1")
+        if int(action_repeat) < 1 or (max_steps is not None and int(max_steps) < 1):
+            raise ValueError("action_repeat and max_steps must be >= 1")
         self.spec = load_world(world, list(overrides))
         self.robots = [r.name for r in self.spec.robots]
         for r in self.spec.robots:
             if r.sensors.lidar is None:
                 raise ValueError(f"{world}: robot {r.name} has no lidar (Avoid needs one)")
         self.action_repeat = int(action_repeat)
-        self.max_steps = int(max_episode_steps)
+        self.max_steps = None if max_steps is None else int(max_steps)
         self.goal_radius = float(goal_radius_m)
         self.dt = self.action_repeat * self.spec.control_tick_s
         self.geo = Footprints(self.spec)
@@ -177,7 +177,8 @@ class AvoidTask:
             if contact:
                 r -= CONTACT_PENALTY
             rew[name], term[name] = r, success or contact
-            trunc[name] = not term[name] and self.steps >= self.max_steps
+            trunc[name] = (not term[name] and self.max_steps is not None
+                           and self.steps >= self.max_steps)
             info[name] = self._info(name, success and not contact)
             if term[name] or trunc[name]:
                 self.active.discard(name)
@@ -198,13 +199,13 @@ class AvoidEnv(gym.Env):
 
     def __init__(self, transport: str = "inproc", endpoint: str | None = None,
                  world: str = "living_room", action_repeat: int = 5,
-                 max_episode_steps: int = 300, goal_radius_m: float = 0.3,
-                 overrides: tuple[str, ...] = (), render_mode: str | None = None) -> None:
+                 goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
+                 render_mode: str | None = None) -> None:
         if render_mode is not None:
             raise ValueError("diffbot/Avoid-v0 renders nothing itself: watch it over the bus "
                              "(transport='bus', diffbot view)")
-        self.task = AvoidTask(world, transport, endpoint, action_repeat, max_episode_steps,
-                              goal_radius_m, overrides)
+        self.task = AvoidTask(world, transport, endpoint, action_repeat, None, goal_radius_m,
+                              overrides)
         if len(self.task.robots) != 1:
             self.task.close()
             raise ValueError(f"{world} has {len(self.task.robots)} robots; Avoid-v0 drives one "

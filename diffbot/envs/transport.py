@@ -198,9 +198,18 @@ class Bus:
         self.tick_ns = int(round(spec.control_tick_s * 1e9))
         self.keys = Keys(namespace)
         self.log = logging.getLogger("diffbot.envs")
+        self._args = (world, inputs, tuple(disabled), tuple(overrides), endpoint, namespace)
+        self.endpoint = endpoint
         res = self._res = _Resources()
         # closed when the environment is, or garbage-collected, or at interpreter exit
         self._finalizer = weakref.finalize(self, res.close)
+
+    def _start(self) -> None:
+        """Start the plant (or join it) and the member: at the first reset, not at
+        construction, so an environment made only for its spaces (make_vec's in the
+        parent process) starts nothing and a forked worker inherits no Zenoh runtime."""
+        world, inputs, disabled, overrides, endpoint, namespace = self._args
+        spec, res = self.spec, self._res
         try:
             if endpoint is None:
                 res.tmpdir = tempfile.mkdtemp(prefix="diffbot-env-")
@@ -230,13 +239,18 @@ class Bus:
             self.close()
             raise
         self.endpoint = endpoint
+        self._started = True
 
     @property
     def plant_log(self) -> str | None:
         return self._res.plant.log_path if self._res.plant is not None else None
 
+    _started = False
+
     def _run(self, job: _Job) -> _Job:
         res = self._res
+        if not self._started:
+            self._start()
         if res.member is None:
             raise TransportError("the environment is closed")
         res.member.submit(job)
@@ -286,6 +300,7 @@ class Bus:
 
     def close(self) -> None:
         self._finalizer()
+        self._started = True     # (closed: never started again)
 
 
 class _Resources:

@@ -1,0 +1,145 @@
+"""``diffbot/Follow-v0``: the study's follow task, with the follower learned.
+
+The leader drives the follow scenario's wander loop (:class:`controllers.wander.Wander`,
+run by the environment at every control tick on its ground truth, on both transports);
+the learner drives the follower and sees its camera: ``image`` (120 x 160 x 3, uint8), and
+with ``detection=True`` also ``ball`` = [seen, u / width, v / height, radius / width] from
+the ball follower's own detector (:func:`controllers.ball_follower.detect_ball`).
+
+The camera runs at 25 Hz, every 2nd 20 ms tick, so a step holds the action ``[v, w]``
+for ``action_repeat`` = 2 ticks: ``dt`` = 0.04 s, a fresh image every step.
+
+Reward, on ground truth (the follow analysis's distance, camera to ball): 1 while it is
+inside the 0.60-0.70 m band, else minus the distance outside it (at most 1); the episode
+is terminated when the follower's footprint touches anything (the leader too) and
+truncated after 750 steps (30 s; the registration's ``max_episode_steps``). The start
+poses are the world's; the seed sets the plant's noise (``overrides`` can turn it on, e.g.
+``("robots.follower.camera.noise={std = 10.0}",)`` as in the scenario).
+"""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from bus import codec
+from bus.node import Observation
+from controllers.ball_follower import detect_ball
+from controllers.wander import Wander
+from diffbot.analysis_follow import BAND_M, FOLLOWER, LEADER, ball_offset, pose_matrix_of
+from plant.world import load_world
+
+from .avoid import make_transport, true_pose
+from .geometry import Footprints
+
+INPUTS = {LEADER: ["ground_truth"], FOLLOWER: ["joint_states", "ground_truth", "camera/image"]}
+
+
+class FollowEnv(gym.Env):
+    metadata = {"render_modes": ["rgb_array"]}
+
+    def __init__(self, transport: str = "inproc", endpoint: str | None = None,
+                 world: str = "living_room_follow", action_repeat: int = 2,
+                 detection: bool = False,
+                 overrides: tuple[str, ...] = (), render_mode: str | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.transport = None
+        self.spec_ = spec = load_world(world, list(overrides))
+        names = {r.name for r in spec.robots}
+        if names != {LEADER, FOLLOWER} or spec.robot(FOLLOWER).sensors.camera is None:
+            raise ValueError(f"{world}: Follow-v0 needs robots {LEADER!r} and {FOLLOWER!r}, "
+                             "the follower with a camera")
+        self.action_repeat = int(action_repeat)
+        if self.action_repeat < 1:
+            raise ValueError("action_repeat must be >= 1")
+        self.dt = self.action_repeat * spec.control_tick_s
+        self.detection = bool(detection)
+        cam = spec.robot(FOLLOWER).sensors.camera
+        self.cam_size = (cam.height, cam.width)
+        self.cam_mount = cam.mount_pose()
+        self.ball = ball_offset(spec)
+        self.geo = Footprints(spec)
+        self.start = {r.name: tuple(r.pose) for r in spec.robots}
+        drive = spec.robot(FOLLOWER).drive
+        self.v_max, self.w_max = drive.max_linear_mps, drive.max_angular_radps
+        obs = {"image": spaces.Box(0, 255, (cam.height, cam.width, 3), np.uint8)}
+        if self.detection:
+            obs["ball"] = spaces.Box(0.0, np.float32(np.inf), (4,), np.float32)
+        self.observation_space = spaces.Dict(obs)
+        self.action_space = spaces.Box(np.array([-self.v_max, -self.w_max], np.float32),
+                                       np.array([self.v_max, self.w_max], np.float32),
+                                       dtype=np.float32)
+        self.transport = make_transport(spec, world, INPUTS, transport, endpoint, ("lidar",),
+                                        tuple(overrides))
+
+    # ---------------------------------------------------------------- ticks
+    def _observe(self, t_ns: int, msgs: dict) -> None:
+        self.t_ns, self.msgs = t_ns, msgs
+
+    def _command(self, t_ns: int, msgs: dict) -> dict:
+        tw = self.leader.step(Observation(t_ns, LEADER, dict(msgs[LEADER])))
+        return {LEADER: (float(tw.linear), float(tw.angular)), FOLLOWER: self.action}
+
+    def _obs(self) -> dict:
+        msg = self.msgs[FOLLOWER].get("camera/image")
+        img = (codec.image_to_array(msg).copy() if msg is not None
+               else np.zeros((*self.cam_size, 3), np.uint8))
+        self.image = img
+        out = {"image": img}
+        if self.detection:
+            det = detect_ball(img)
+            h, w = self.cam_size
+            out["ball"] = (np.zeros(4, np.float32) if det is None else
+                           np.array([1.0, det.u / w, det.v / h, det.radius / w], np.float32))
+        return out
+
+    def _distance(self) -> float:
+        lt = pose_matrix_of(self.msgs[LEADER]["ground_truth"])
+        ft = pose_matrix_of(self.msgs[FOLLOWER]["ground_truth"])
+        return float(np.linalg.norm((lt @ self.ball)[:3] - (ft @ self.cam_mount)[:3, 3]))
+
+    def _info(self) -> dict:
+        return {"distance": self._distance(), "t": self.t_ns * 1e-9,
+                "pose": np.array(true_pose(self.msgs[FOLLOWER]["ground_truth"])),
+                "leader_pose": np.array(true_pose(self.msgs[LEADER]["ground_truth"]))}
+
+    # ---------------------------------------------------------------- gymnasium
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.leader = Wander()
+        self.action = (0.0, 0.0)
+        self.over = False
+        self.transport.reset(int(self.np_random.integers(0, 2**31)), self.start, self._observe)
+        return self._obs(), self._info()
+
+    def step(self, action):
+        if self.over:
+            raise RuntimeError("the episode is over: call reset()")
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (2,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be 2 finite numbers [v, w], got {action!r}")
+        self.action = (float(np.clip(a[0], -self.v_max, self.v_max)),
+                       float(np.clip(a[1], -self.w_max, self.w_max)))
+        self.transport.advance(self.action_repeat, self._command, self._observe)
+        info = self._info()
+        d = info["distance"]
+        lo, hi = BAND_M
+        reward = 1.0 if lo <= d <= hi else -min(lo - d if d < lo else d - hi, 1.0)
+        centres = {n: Footprints.centre(*true_pose(self.msgs[n]["ground_truth"]))
+                   for n in (LEADER, FOLLOWER)}
+        terminated = FOLLOWER in self.geo.contacts(centres)
+        info["contact"] = terminated
+        self.over = terminated
+        return self._obs(), float(reward), terminated, False, info
+
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return getattr(self, "image", None)
+        return None
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+            self.transport = None

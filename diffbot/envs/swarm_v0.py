@@ -1,0 +1,88 @@
+"""``diffbot.envs.swarm_v0``: the swarm scenario as a PettingZoo ParallelEnv.
+
+One agent per robot of the swarm world (:mod:`plant.swarm_world`, laid out from
+``n_robots`` and ``layout_seed``), each with the Avoid observation, action and reward
+(:class:`diffbot.envs.avoid.AvoidTask`): every robot gets its own goal, and touching a
+wall, an obstacle or another robot ends that robot's episode (it then stands still while
+the others go on). Same two transports as the Gymnasium environments::
+
+    from diffbot.envs import swarm_v0
+    env = swarm_v0.parallel_env(n_robots=4)               # or transport="bus"
+    obs, infos = env.reset(seed=0)
+    while env.agents:
+        obs, rew, term, trunc, infos = env.step(
+            {a: env.action_space(a).sample() for a in env.agents})
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import weakref
+
+import numpy as np
+from pettingzoo import ParallelEnv
+
+from plant.swarm_world import write_swarm_world
+
+from .avoid import AvoidTask
+
+
+class SwarmEnv(ParallelEnv):
+    metadata = {"name": "diffbot_swarm_v0", "render_modes": [], "is_parallelizable": True}
+
+    def __init__(self, n_robots: int = 4, transport: str = "inproc", endpoint: str | None = None,
+                 layout_seed: int = 0, action_repeat: int = 5, max_steps: int = 300,
+                 goal_radius_m: float = 0.3, render_mode: str | None = None) -> None:
+        if render_mode is not None:
+            raise ValueError("swarm_v0 renders nothing itself: use transport='bus' and "
+                             "diffbot view")
+        self.render_mode = None
+        self._tmp = tempfile.mkdtemp(prefix="diffbot-swarm-")
+        self._cleanup = weakref.finalize(self, shutil.rmtree, self._tmp, True)
+        world = write_swarm_world(os.path.join(self._tmp, "swarm.toml"), int(n_robots),
+                                  int(layout_seed))
+        self.task = AvoidTask(world, transport, endpoint, action_repeat, max_steps,
+                              goal_radius_m)
+        self.possible_agents = list(self.task.robots)
+        self.agents: list[str] = []
+        self._obs_spaces = {a: self.task.observation_space(a) for a in self.possible_agents}
+        self._act_spaces = {a: self.task.action_space(a) for a in self.possible_agents}
+        self.dt = self.task.dt
+        self._rng = np.random.default_rng()
+
+    def observation_space(self, agent: str):
+        return self._obs_spaces[agent]
+
+    def action_space(self, agent: str):
+        return self._act_spaces[agent]
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        obs, infos = self.task.reset(self._rng)
+        self.agents = list(self.possible_agents)
+        return obs, infos
+
+    def step(self, actions: dict):
+        live = list(self.agents)
+        obs, rew, term, trunc, infos = self.task.step(actions)
+        self.agents = [a for a in live if not (term[a] or trunc[a])]
+        return ({a: obs[a] for a in live}, rew, term, trunc, infos)
+
+    def render(self):
+        return None
+
+    def close(self) -> None:
+        self.task.close()
+        self._cleanup()
+
+
+def parallel_env(**kwargs) -> SwarmEnv:
+    return SwarmEnv(**kwargs)
+
+
+def env(**kwargs):
+    """The AEC form (PettingZoo's conversion of :func:`parallel_env`)."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+    return parallel_to_aec(parallel_env(**kwargs))

@@ -1,0 +1,195 @@
+"""The Gymnasium / PettingZoo environments keep their APIs' contracts and clean up after
+themselves (the bit-identity of the two transports: test_envs_identity.py)."""
+from __future__ import annotations
+
+import gc
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+pytest.importorskip("pettingzoo")
+from gymnasium.utils.env_checker import check_env  # noqa: E402
+
+import diffbot.envs  # noqa: E402,F401
+from diffbot.procs import alive, descendants  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _shm() -> set[str]:
+    try:
+        return set(os.listdir("/dev/shm"))
+    except OSError:
+        return set()
+
+
+def _children() -> set[int]:
+    return set(descendants(os.getpid()))
+
+
+@pytest.mark.parametrize("env_id", ["diffbot/Avoid-v0", "diffbot/Follow-v0"])
+def test_check_env_inproc(env_id):
+    env = gym.make(env_id)
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", ["diffbot/Avoid-v0", "diffbot/Follow-v0"])
+def test_check_env_bus(env_id):
+    before = _children()
+    env = gym.make(env_id, transport="bus")
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+        assert _children() - before, "the bus transport started no plant"
+    finally:
+        env.close()
+    assert not (_children() - before), "close() left a process behind"
+
+
+def test_dt_is_simulated_seconds_per_step():
+    env = gym.make("diffbot/Avoid-v0")
+    try:
+        _, info = env.reset(seed=0)
+        assert env.unwrapped.dt == pytest.approx(0.1)
+        _, _, _, _, info = env.step(np.zeros(2, np.float32))
+        assert info["t"] == pytest.approx(0.1)
+    finally:
+        env.close()
+
+
+def test_reset_seed_gives_the_same_episode_and_seeds_differ():
+    env = gym.make("diffbot/Avoid-v0")
+    try:
+        a, ia = env.reset(seed=5)
+        b, ib = env.reset(seed=5)
+        c, ic = env.reset(seed=6)
+        assert all(np.array_equal(a[k], b[k]) for k in a)
+        assert np.array_equal(ia["goal"], ib["goal"])
+        assert not np.array_equal(ia["goal"], ic["goal"])
+    finally:
+        env.close()
+
+
+def test_bad_arguments_and_actions_are_clear_errors():
+    with pytest.raises(ValueError, match="transport"):
+        gym.make("diffbot/Avoid-v0", transport="tcp")
+    env = gym.make("diffbot/Avoid-v0").unwrapped
+    try:
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="finite"):
+            env.step(np.array([np.nan, 0.0], np.float32))
+        env.step(np.array([0.1, 0.0], np.float32))     # still usable
+    finally:
+        env.close()
+
+
+def test_the_module_id_form_imports_the_package_itself():
+    code = ("import gymnasium; e = gymnasium.make('diffbot.envs:diffbot/Avoid-v0'); "
+            "o, _ = e.reset(seed=1); print(o['scan'].shape); e.close()")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "(180,)"
+
+
+def test_swarm_parallel_api():
+    from pettingzoo.test import parallel_api_test
+    from diffbot.envs import swarm_v0
+    env = swarm_v0.parallel_env(n_robots=3)
+    try:
+        parallel_api_test(env, num_cycles=40)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_swarm_on_the_bus_matches_inproc():
+    from diffbot.envs import swarm_v0
+    envs = [swarm_v0.parallel_env(n_robots=2, transport=t) for t in ("inproc", "bus")]
+    try:
+        outs = [e.reset(seed=4) for e in envs]
+        rng = np.random.default_rng(1)
+        for _ in range(40):
+            live = envs[0].agents
+            if not live:
+                break
+            acts = {a: rng.uniform(-0.5, 0.5, 2).astype(np.float32) for a in live}
+            outs = [e.step(acts) for e in envs]
+            for a in outs[0][0]:
+                assert all(np.array_equal(outs[0][0][a][k], outs[1][0][a][k])
+                           for k in outs[0][0][a])
+            assert outs[0][1] == outs[1][1] and outs[0][2] == outs[1][2]
+            assert envs[0].agents == envs[1].agents
+    finally:
+        for e in envs:
+            e.close()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
+    shm, before = _shm(), _children()
+    tmp_before = set(os.listdir("/tmp"))
+    # spawn: this test process ran Zenoh sessions before (other tests), and a fork of a
+    # running Zenoh runtime hangs (docs/learning.md)
+    venv = gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="async",
+                        vector_kwargs={"context": "spawn"}, transport="bus")
+    try:
+        obs, _ = venv.reset(seed=3)
+        assert obs["scan"].shape == (2, 180)
+        assert not np.array_equal(obs["scan"][0], obs["scan"][1])   # seeds 3 and 4
+        for _ in range(5):
+            obs, rew, term, trunc, _ = venv.step(venv.action_space.sample())
+        plants = [p for p in _children() - before
+                  if b"plant" in open(f"/proc/{p}/cmdline", "rb").read()]
+        assert len(plants) == 2, "each env has a plant of its own"
+    finally:
+        venv.close()
+    # (multiprocessing's own resource tracker stays for the life of this process)
+    left = [p for p in _children() - before if alive(p)
+            and b"resource_tracker" not in open(f"/proc/{p}/cmdline", "rb").read()]
+    assert not left, f"processes left after close(): {left}"
+    assert not [d for d in set(os.listdir("/tmp")) - tmp_before
+                if d.startswith("diffbot-env-")], "socket directories left"
+    assert _shm() <= shm, f"shared memory left: {_shm() - shm}"
+
+
+@pytest.mark.slow
+def test_a_bus_env_dropped_without_close_stops_its_plant():
+    env = gym.make("diffbot/Avoid-v0", transport="bus")
+    env.reset(seed=0)
+    plant = env.unwrapped.task.transport._res.plant
+    pid = plant.pid
+    assert alive(pid)
+    del env, plant
+    gc.collect()
+    assert not alive(pid), "the plant outlived its garbage-collected environment"
+
+
+@pytest.mark.slow
+def test_a_bus_env_left_open_at_interpreter_exit_stops_its_plant():
+    code = ("import gymnasium, diffbot.envs; e = gymnasium.make('diffbot/Avoid-v0', "
+            "transport='bus'); e.reset(seed=0); "
+            "print(e.unwrapped.task.transport._res.plant.pid, flush=True)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert not alive(int(out.stdout.split()[-1]))
+
+
+def test_policy_controller_refuses_a_bad_file(tmp_path):
+    bad = tmp_path / "p.npz"
+    bad.write_bytes(b"not a policy")
+    out = subprocess.run([sys.executable, "-m", "diffbot.cli", "controller", "policy",
+                          "--file", str(bad), "--goal", "1,1"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert "not a policy file" in out.stderr
