@@ -148,18 +148,24 @@ def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
         assert not np.array_equal(obs["scan"][0], obs["scan"][1])   # seeds 3 and 4
         for _ in range(5):
             obs, rew, term, trunc, _ = venv.step(venv.action_space.sample())
-        plants = [p for p in _children() - before
-                  if b"plant" in open(f"/proc/{p}/cmdline", "rb").read()]
+        ours = _children() - before
+        plants = [p for p in ours if b"plant" in open(f"/proc/{p}/cmdline", "rb").read()]
         assert len(plants) == 2, "each env has a plant of its own"
     finally:
         venv.close()
+    del venv
+    gc.collect()
     # (multiprocessing's own resource tracker stays for the life of this process)
     left = [p for p in _children() - before if alive(p)
             and b"resource_tracker" not in open(f"/proc/{p}/cmdline", "rb").read()]
     assert not left, f"processes left after close(): {left}"
     assert not [d for d in set(os.listdir("/tmp")) - tmp_before
                 if d.startswith("diffbot-env-")], "socket directories left"
-    assert _shm() <= shm, f"shared memory left: {_shm() - shm}"
+    # /dev/shm is shared with whatever else runs here: judge the names this run made
+    # (Zenoh's are named for their process, multiprocessing's semaphores sem.mp-*)
+    new = _shm() - shm
+    assert not [n for n in new if n.startswith("sem.mp-")
+                or n.split(".")[0] in {str(p) for p in ours}], f"shared memory left: {new}"
 
 
 @pytest.mark.slow
