@@ -1,0 +1,69 @@
+"""Suite ``gym``: the Gymnasium environment diffbot/Avoid-v0 with random actions, on both
+transports, one env and ``make_vec`` (async, spawned workers) with 2 and 4 envs: environment
+steps per second and simulated seconds per wall second (each step is ``dt`` = 0.1 s, five
+20 ms control ticks). The plant's physics alone is measured beside them, as the bound."""
+from __future__ import annotations
+
+import time
+
+from .harness import Metric, Probe, Skip, suite
+
+
+def _physics_rtf(sim_s: float = 2.0) -> dict:
+    from plant.sim import Simulation
+    from plant.world import load_world
+    spec = load_world("living_room")
+    sim = Simulation(spec)
+    sim.command_twist("robot1", 0.3, 0.5)
+    ticks = int(round(sim_s / spec.control_tick_s))
+    t0 = time.perf_counter()
+    for _ in range(ticks):
+        sim.step_tick()
+    return {"real_time_factor": sim_s / (time.perf_counter() - t0)}
+
+
+def _env_rate(transport: str, num_envs: int, steps: int) -> dict:
+    import gymnasium as gym
+    import diffbot.envs  # noqa: F401
+    if num_envs == 1:
+        env = gym.make("diffbot/Avoid-v0", transport=transport)
+    else:
+        env = gym.make_vec("diffbot/Avoid-v0", num_envs=num_envs, vectorization_mode="async",
+                           vector_kwargs={"context": "spawn"}, transport=transport)
+    try:
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        dt = 0.1
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            _, _, term, trunc, _ = env.step(env.action_space.sample())
+            if num_envs == 1 and (term or trunc):
+                env.reset()
+        wall = time.perf_counter() - t0
+    finally:
+        env.close()
+    n = steps * num_envs
+    return {"steps_per_s": n / wall, "real_time_factor": n * dt / wall}
+
+
+@suite("gym", "diffbot/Avoid-v0 steps per second, in-process and over the bus, one env "
+              "and make_vec with 2 and 4")
+def gym_suite(ctx):
+    try:
+        import gymnasium  # noqa: F401
+    except ImportError:
+        raise Skip("gymnasium is not installed (the learn extra: make setup)") from None
+    steps = 100 if ctx.quick else 400
+    repeats = 1 if ctx.quick else 3
+    yield Probe("living room physics alone", _physics_rtf, [
+        Metric("real_time_factor", "living room physics alone: real-time factor", "x",
+               notes="Simulation.step_tick, one robot: the bound for inproc")],
+        repeats=repeats, warmup=0)
+    for transport in ("inproc", "bus"):
+        for n in (1, 2, 4):
+            what = f"Avoid-v0 {transport}, " + ("1 env" if n == 1 else f"make_vec {n} async")
+            yield Probe(what, lambda t=transport, n=n: _env_rate(t, n, steps), [
+                Metric("steps_per_s", f"{what}: env steps per second", "1/s",
+                       notes="all envs together; random actions"),
+                Metric("real_time_factor", f"{what}: simulated s per wall s", "x",
+                       notes="dt = 0.1 s per step")], repeats=repeats, warmup=0)
