@@ -155,7 +155,7 @@ class _Member(NodeRunner):
             return job
 
     def _act(self, t_ns: int) -> bool:
-        msgs = {s.robot: self._observation(s, t_ns).msgs for s in self.slots}
+        msgs = {s.robot: self.take_observation(s, t_ns).msgs for s in self.slots}
         job = self.current
         if job is not None:
             try:
@@ -178,9 +178,9 @@ class _Member(NodeRunner):
                 job.done.set()
         for slot in self.slots:
             v, w = cmds.get(slot.robot, (0.0, 0.0))
-            self.publish(Twist(v, w), t_ns, slot.robot)
+            self.queue_output(Twist(v, w), t_ns, slot.robot)
         self.ticks += 1
-        self.flush(t_ns)
+        self.send_tick(t_ns)
         return False
 
 
