@@ -9,11 +9,15 @@ same numbers on the bus:
 
 * ``scan``: the lidar's ranges (m; no return -> the range maximum);
 * ``odom``: x, y (m), yaw (rad, wrapped), v (m/s), w (rad/s) dead-reckoned from the wheel
-  encoders (:class:`controllers.odometry.Odometry`) from the start pose;
-* ``goal``: the goal in the robot's frame (m), from that odometry.
+  encoders (:class:`controllers.odometry.Odometry`) in the robot's odometry frame
+  ``<robot>/odom``: as the odometry node's ``<robot>/odom`` topic (REP 105), it starts at
+  the origin, where the robot starts; ``world -> <robot>/odom`` is the start pose;
+* ``goal``: the goal in the robot's own frame ``<robot>/base_link`` (m): the world goal
+  taken into ``<robot>/odom`` through the start pose, then relative to that odometry.
 
 A policy file (``.npz``, numpy only, no pickles) holds an MLP over :func:`features`
-(``W1 b1 W2 b2``), the action limits and the action repeat it was trained with.
+(``W0 b0 W1 b1 ...``, one pair per layer), the action limits and the action repeat it was
+trained with.
 """
 from __future__ import annotations
 
@@ -38,6 +42,21 @@ def wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
+def in_frame(pose, x: float, y: float) -> tuple[float, float]:
+    """The point (x, y) (m) in the frame whose origin and heading are ``pose`` = (x0, y0,
+    yaw0), both given in the same parent frame."""
+    x0, y0, th0 = (float(v) for v in pose[:3])
+    c, s = math.cos(th0), math.sin(th0)
+    dx, dy = x - x0, y - y0
+    return dx * c + dy * s, -dx * s + dy * c
+
+
+def as_action(a) -> np.ndarray:
+    """An action [v, w] as the environments take it: through float32, their action
+    space's type (so a policy run by the controller commands the very same numbers)."""
+    return np.asarray(a, dtype=np.float32).astype(np.float64).reshape(-1)
+
+
 class AvoidObserver:
     """One robot's Avoid observation, fed every control tick with its latest messages."""
 
@@ -49,8 +68,10 @@ class AvoidObserver:
         self.reset((0.0, 0.0, 0.0), (0.0, 0.0))
 
     def reset(self, pose0, goal) -> None:
-        self.odom = Odometry(self.r, self.d, tuple(float(v) for v in pose0))
-        self.goal = (float(goal[0]), float(goal[1]))
+        """``pose0``: the start pose in ``world`` (``world -> <robot>/odom``); ``goal``:
+        the goal (x, y) in ``world``."""
+        self.odom = Odometry(self.r, self.d, (0.0, 0.0, 0.0))
+        self.goal = in_frame(pose0, float(goal[0]), float(goal[1]))
         self.scan = np.full(self.num_rays, self.max_range, dtype=np.float32)
         self._scan_msg = None
 
@@ -69,9 +90,7 @@ class AvoidObserver:
 
     def goal_in_robot_frame(self) -> tuple[float, float]:
         o = self.odom
-        dx, dy = self.goal[0] - o.x, self.goal[1] - o.y
-        c, s = math.cos(o.theta), math.sin(o.theta)
-        return dx * c + dy * s, -dx * s + dy * c
+        return in_frame((o.x, o.y, o.theta), *self.goal)
 
     def observation(self) -> dict:
         o = self.odom
@@ -99,46 +118,61 @@ N_FEATURES = SCAN_BINS + 5
 
 
 class MLPPolicy:
-    """tanh MLP, features -> (v, w) scaled to the action limits."""
+    """tanh MLP, features -> (v, w) scaled to the action limits: ``layers`` is a list of
+    ``(W, b)``, tanh after each; one layer is a linear policy (squashed)."""
 
-    def __init__(self, W1, b1, W2, b2, v_max: float, w_max: float, action_repeat: int,
+    def __init__(self, layers, v_max: float, w_max: float, action_repeat: int,
                  v_min: float | None = None) -> None:
-        self.W1, self.b1 = np.asarray(W1, float), np.asarray(b1, float)
-        self.W2, self.b2 = np.asarray(W2, float), np.asarray(b2, float)
-        if self.W1.shape[0] != N_FEATURES or self.W2.shape[1] != 2:
-            raise ValueError(f"policy expects {N_FEATURES} features and 2 outputs, got "
-                             f"{self.W1.shape} and {self.W2.shape}")
+        self.layers = [(np.asarray(W, float), np.asarray(b, float)) for W, b in layers]
+        shapes = [W.shape for W, _ in self.layers]
+        n_in = N_FEATURES
+        for (W, b) in self.layers:
+            if W.ndim != 2 or W.shape[0] != n_in or b.shape != (W.shape[1],):
+                raise ValueError(f"policy layers {shapes} do not chain from {N_FEATURES} "
+                                 "features")
+            n_in = W.shape[1]
+        if n_in != 2:
+            raise ValueError(f"policy layers {shapes} do not end in 2 outputs (v, w)")
         self.v_max, self.w_max = float(v_max), float(w_max)
         self.v_min = -self.v_max if v_min is None else float(v_min)
         self.action_repeat = int(action_repeat)
 
-    @classmethod
-    def random(cls, rng: np.random.Generator, hidden: int, **kw) -> "MLPPolicy":
-        return cls.from_vector(rng.normal(0, 0.5, cls.size(hidden)), hidden, **kw)
-
     @staticmethod
-    def size(hidden: int) -> int:
-        return N_FEATURES * hidden + hidden + hidden * 2 + 2
+    def shapes(hidden=()) -> list[tuple[int, int]]:
+        sizes = [N_FEATURES, *hidden, 2]
+        return list(zip(sizes[:-1], sizes[1:]))
 
     @classmethod
-    def from_vector(cls, theta: np.ndarray, hidden: int, **kw) -> "MLPPolicy":
-        i = 0
-        parts = []
-        for shape in ((N_FEATURES, hidden), (hidden,), (hidden, 2), (2,)):
-            n = int(np.prod(shape))
-            parts.append(np.asarray(theta[i:i + n]).reshape(shape))
-            i += n
-        return cls(*parts, **kw)
+    def size(cls, hidden=()) -> int:
+        """Number of parameters of a policy with these hidden layer sizes."""
+        return sum(a * b + b for a, b in cls.shapes(hidden))
+
+    @classmethod
+    def from_vector(cls, theta: np.ndarray, hidden=(), **kw) -> "MLPPolicy":
+        theta = np.asarray(theta, float)
+        if theta.shape != (cls.size(hidden),):
+            raise ValueError(f"{theta.shape[0]} parameters for hidden layers {tuple(hidden)}, "
+                             f"which take {cls.size(hidden)}")
+        i, layers = 0, []
+        for a, b in cls.shapes(hidden):
+            W = theta[i:i + a * b].reshape(a, b)
+            i += a * b
+            layers.append((W, theta[i:i + b]))
+            i += b
+        return cls(layers, **kw)
 
     def act(self, obs: dict) -> tuple[float, float]:
-        h = np.tanh(features(obs) @ self.W1 + self.b1)
-        a = np.tanh(h @ self.W2 + self.b2)
-        v = self.v_min + (a[0] + 1.0) / 2.0 * (self.v_max - self.v_min)
-        return float(v), float(a[1] * self.w_max)
+        h = features(obs)
+        for W, b in self.layers:
+            h = np.tanh(h @ W + b)
+        v = self.v_min + (h[0] + 1.0) / 2.0 * (self.v_max - self.v_min)
+        return float(v), float(h[1] * self.w_max)
 
     def save(self, path: str) -> None:
-        np.savez(path, W1=self.W1, b1=self.b1, W2=self.W2, b2=self.b2,
-                 limits=np.array([self.v_min, self.v_max, self.w_max]),
+        arrays = {}
+        for k, (W, b) in enumerate(self.layers):
+            arrays[f"W{k}"], arrays[f"b{k}"] = W, b
+        np.savez(path, **arrays, limits=np.array([self.v_min, self.v_max, self.w_max]),
                  action_repeat=np.array(self.action_repeat))
 
     @classmethod
@@ -146,9 +180,10 @@ class MLPPolicy:
         try:
             with np.load(path, allow_pickle=False) as z:
                 v_min, v_max, w_max = (float(x) for x in z["limits"])
-                return cls(z["W1"], z["b1"], z["W2"], z["b2"], v_max, w_max,
-                           int(z["action_repeat"]), v_min=v_min)
-        except (OSError, KeyError, ValueError) as exc:
+                n = sum(1 for k in z.files if k.startswith("W"))
+                layers = [(z[f"W{k}"], z[f"b{k}"]) for k in range(n)]
+                return cls(layers, v_max, w_max, int(z["action_repeat"]), v_min=v_min)
+        except (OSError, KeyError, ValueError, TypeError) as exc:
             raise ValueError(f"{path}: not a policy file ({exc})") from None
 
 
@@ -186,7 +221,7 @@ class PolicyController:
             if math.hypot(*o["goal"]) < self.goal_radius:
                 self.done = True
                 return Twist(0.0, 0.0)
-            self.action = self.policy.act(o)
+            self.action = tuple(float(v) for v in as_action(self.policy.act(o)))
         self.ticks += 1
         return Twist(*self.action)
 

@@ -27,6 +27,22 @@ def _shm() -> set[str]:
         return set()
 
 
+def _shm_mapped(pids) -> set[str]:
+    """The /dev/shm names these processes have mapped (multiprocessing's semaphores,
+    Zenoh's segments): what they made or use, whatever else runs on the machine."""
+    names = set()
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/maps") as f:
+                for line in f:
+                    i = line.find("/dev/shm/")
+                    if i >= 0:
+                        names.add(line[i + 9:].split()[0])
+        except OSError:
+            pass
+    return names
+
+
 def _children() -> set[int]:
     return set(descendants(os.getpid()))
 
@@ -60,6 +76,32 @@ def test_dt_is_simulated_seconds_per_step():
         assert env.unwrapped.dt == pytest.approx(0.1)
         _, _, _, _, info = env.step(np.zeros(2, np.float32))
         assert info["t"] == pytest.approx(0.1)
+    finally:
+        env.close()
+
+
+def test_observation_odometry_starts_at_the_origin_and_the_goal_is_relative():
+    # REP 105: odom in <robot>/odom (origin = the start pose, info["pose"] at reset),
+    # goal in <robot>/base_link; info in world
+    import math
+    from controllers.learned import wrap
+    env = gym.make("diffbot/Avoid-v0")
+    try:
+        obs, info = env.reset(seed=2)
+        x0, y0, th0 = info["pose"]
+        assert np.array_equal(obs["odom"][:3], np.zeros(3, np.float32))
+        dx, dy = info["goal"] - info["pose"][:2]
+        rel = (dx * math.cos(th0) + dy * math.sin(th0), -dx * math.sin(th0) + dy * math.cos(th0))
+        assert obs["goal"] == pytest.approx(rel, abs=1e-5)
+        for _ in range(10):              # forward and turning left, no noise in this world
+            obs, _, term, _, info = env.step(np.array([0.2, 0.5], np.float32))
+            assert not term
+        x, y, th = info["pose"]
+        c, s = math.cos(th0), math.sin(th0)
+        odom = (c * (x - x0) + s * (y - y0), -s * (x - x0) + c * (y - y0))
+        assert obs["odom"][0] > 0.1 and obs["odom"][1] > 0.0      # ahead and to the left
+        assert obs["odom"][:2] == pytest.approx(odom, abs=0.02)   # wheel slip only
+        assert obs["odom"][2] == pytest.approx(wrap(th - th0), abs=0.03)
     finally:
         env.close()
 
@@ -136,7 +178,7 @@ def test_swarm_on_the_bus_matches_inproc():
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
-    shm, before = _shm(), _children()
+    before, mine = _children(), _shm_mapped([os.getpid()])
     tmp_before = set(os.listdir("/tmp"))
     # spawn: this test process ran Zenoh sessions before (other tests), and a fork of a
     # running Zenoh runtime hangs (docs/learning.md)
@@ -151,6 +193,8 @@ def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
         ours = _children() - before
         plants = [p for p in ours if b"plant" in open(f"/proc/{p}/cmdline", "rb").read()]
         assert len(plants) == 2, "each env has a plant of its own"
+        used = _shm_mapped([os.getpid(), *ours]) - mine
+        assert any(n.startswith("sem.mp-") for n in used), f"no semaphore seen: {used}"
     finally:
         venv.close()
     del venv
@@ -161,11 +205,10 @@ def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
     assert not left, f"processes left after close(): {left}"
     assert not [d for d in set(os.listdir("/tmp")) - tmp_before
                 if d.startswith("diffbot-env-")], "socket directories left"
-    # /dev/shm is shared with whatever else runs here: judge the names this run made
-    # (Zenoh's are named for their process, multiprocessing's semaphores sem.mp-*)
-    new = _shm() - shm
-    assert not [n for n in new if n.startswith("sem.mp-")
-                or n.split(".")[0] in {str(p) for p in ours}], f"shared memory left: {new}"
+    # /dev/shm is shared with whatever else runs here: judge the names the envs' processes
+    # had mapped (multiprocessing's semaphores sem.mp-*, Zenoh's segments)
+    left_shm = used & _shm()
+    assert not left_shm, f"shared memory left: {left_shm}"
 
 
 @pytest.mark.slow
@@ -199,3 +242,25 @@ def test_policy_controller_refuses_a_bad_file(tmp_path):
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert "not a policy file" in out.stderr
+
+
+def test_a_saved_policy_loads_with_the_same_actions_and_bad_shapes_are_refused(tmp_path):
+    from controllers.learned import MLPPolicy
+    env = gym.make("diffbot/Avoid-v0")
+    try:
+        obs, _ = env.reset(seed=0)
+    finally:
+        env.close()
+    rng = np.random.default_rng(0)
+    for hidden in ((), (6,)):
+        p = MLPPolicy.from_vector(rng.normal(size=MLPPolicy.size(hidden)), hidden, v_max=0.5,
+                                  w_max=2.0, action_repeat=5, v_min=-0.1)
+        p.save(str(tmp_path / "p.npz"))
+        q = MLPPolicy.load(str(tmp_path / "p.npz"))
+        assert q.act(obs) == p.act(obs) and q.action_repeat == 5
+        v, w = q.act(obs)
+        assert -0.1 <= v <= 0.5 and -2.0 <= w <= 2.0
+    with pytest.raises(ValueError, match="chain"):
+        MLPPolicy([(np.zeros((5, 2)), np.zeros(2))], 0.5, 2.0, 5)
+    with pytest.raises(ValueError, match="parameters"):
+        MLPPolicy.from_vector(np.zeros(3), (), v_max=0.5, w_max=2.0, action_repeat=5)

@@ -8,8 +8,10 @@ every observation carries a fresh scan.
 
 Observation (:class:`controllers.learned.AvoidObserver`, the same code the deployed
 ``diffbot controller policy`` runs): ``scan`` (the lidar's 180 ranges, m), ``odom``
-(x, y, yaw, v, w dead-reckoned from the wheel encoders) and ``goal`` (the goal in the
-robot's frame by that odometry).
+(x, y, yaw, v, w dead-reckoned from the wheel encoders, in ``<robot>/odom``: from the
+origin, where the episode starts, as the bus's ``<robot>/odom`` topic, REP 105) and
+``goal`` (the goal in the robot's own frame ``<robot>/base_link`` by that odometry).
+``info`` gives the true ``pose`` and the ``goal`` in ``world``.
 
 Reward, judged on ground truth at the end of each step: ``PROGRESS_GAIN`` x the metres
 gained toward the goal, minus ``STEP_COST`` each step; ``GOAL_BONUS`` and terminated on
@@ -30,7 +32,7 @@ import numpy as np
 from gymnasium import spaces
 
 from bus import codec
-from controllers.learned import AvoidObserver
+from controllers.learned import AvoidObserver, as_action
 from plant.world import load_world
 
 from .geometry import Footprints
@@ -155,7 +157,7 @@ class AvoidTask:
         for name in self.robots:
             if name not in self.active:
                 continue
-            a = np.asarray(actions[name], dtype=np.float64).reshape(-1)
+            a = as_action(actions[name])
             if a.shape != (2,) or not np.all(np.isfinite(a)):
                 raise ValueError(f"action for {name} must be 2 finite numbers [v, w], got "
                                  f"{actions[name]!r}")

@@ -25,6 +25,7 @@ from gymnasium import spaces
 from bus import codec
 from bus.node import Observation
 from controllers.ball_follower import detect_ball
+from controllers.learned import as_action
 from controllers.wander import Wander
 from diffbot.analysis_follow import BAND_M, FOLLOWER, LEADER, ball_offset, pose_matrix_of
 from plant.world import load_world
@@ -117,7 +118,7 @@ class FollowEnv(gym.Env):
     def step(self, action):
         if self.over:
             raise RuntimeError("the episode is over: call reset()")
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        a = as_action(action)
         if a.shape != (2,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be 2 finite numbers [v, w], got {action!r}")
         self.action = (float(np.clip(a[0], -self.v_max, self.v_max)),
