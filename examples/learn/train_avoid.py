@@ -59,56 +59,60 @@ def _policy(theta, hidden, env) -> MLPPolicy:
                                  v_min=-0.2 * float(v))
 
 
-def score(args) -> tuple[float, float]:
-    """Mean return and success rate of one candidate over the seeds (in a worker)."""
+def _worker_env():
     global _ENV
-    theta, hidden, seeds = args
     if _ENV is None:
         _ENV = _make_env()
-    pol = _policy(theta, hidden, _ENV)
-    out = [_episode(_ENV, pol.act, s) for s in seeds]
+    return _ENV
+
+
+def score(args) -> tuple[float, float]:
+    """Mean return and success rate of one candidate over the seeds (in a worker)."""
+    theta, hidden, seeds = args
+    env = _worker_env()
+    pol = _policy(theta, hidden, env)
+    out = [_episode(env, pol.act, s) for s in seeds]
     return float(np.mean([r for r, _ in out])), float(np.mean([s for _, s in out]))
 
 
-def random_rate(seeds, seed: int) -> float:
-    env = _make_env()
+def random_success(seed: int) -> bool:
+    """Whether random actions (drawn from ``seed``) win the episode of ``seed`` (a worker)."""
+    env = _worker_env()
     env.action_space.seed(seed)
-    try:
-        return float(np.mean([_episode(env, lambda o: env.action_space.sample(), s)[1]
-                              for s in seeds]))
-    finally:
-        env.close()
+    return _episode(env, lambda o: env.action_space.sample(), seed)[1]
 
 
-def train(args) -> tuple[np.ndarray, list[dict]]:
+def evaluate(pool, theta, hidden, seeds) -> tuple[list[bool], list[bool]]:
+    """Per held-out episode: did the policy win it, did random actions."""
+    learned = [s > 0 for _, s in pool.map(score, [(theta, hidden, [s]) for s in seeds])]
+    return learned, pool.map(random_success, seeds)
+
+
+def train(args, pool) -> tuple[np.ndarray, list[dict]]:
     rng = np.random.default_rng(args.seed)
     n = MLPPolicy.size(args.hidden)
     mean, std = np.zeros(n), np.full(n, 0.5)
     history = []
     t0 = time.monotonic()
-    best = (None, -np.inf)
-    with get_context("spawn").Pool(args.workers) as pool:
-        for it in range(args.iterations):
-            seeds = [1000 * it + k for k in range(args.episodes)]   # fresh seeds each time
-            pop = mean + std * rng.standard_normal((args.population, n))
-            scores = pool.map(score, [(theta, args.hidden, seeds) for theta in pop])
-            ret = np.array([s[0] for s in scores])
-            elite = pop[np.argsort(ret)[-args.elite:]]
-            mean = elite.mean(axis=0)
-            std = elite.std(axis=0) + 0.02
-            i = int(np.argmax(ret))
-            if ret[i] > best[1]:
-                best = (pop[i], ret[i])
-            history.append({"iteration": it, "best_return": float(ret.max()),
-                            "mean_return": float(ret.mean()),
-                            "best_success": float(scores[i][1]),
-                            "wall_s": round(time.monotonic() - t0, 1)})
-            print(f"iter {it:2d}  return best {ret.max():6.2f} mean {ret.mean():6.2f}  "
-                  f"success of best {scores[i][1]:.2f}  ({time.monotonic() - t0:.0f} s)",
-                  flush=True)
-            if time.monotonic() - t0 > args.minutes * 60:
-                print("time budget reached", flush=True)
-                break
+    for it in range(args.iterations):
+        seeds = [1000 * it + k for k in range(args.episodes)]   # fresh seeds each time
+        pop = mean + std * rng.standard_normal((args.population, n))
+        scores = pool.map(score, [(theta, args.hidden, seeds) for theta in pop])
+        ret = np.array([s[0] for s in scores])
+        elite = pop[np.argsort(ret)[-args.elite:]]
+        mean = elite.mean(axis=0)
+        std = elite.std(axis=0) + 0.02
+        i = int(np.argmax(ret))
+        history.append({"iteration": it, "best_return": float(ret.max()),
+                        "mean_return": float(ret.mean()),
+                        "best_success": float(scores[i][1]),
+                        "wall_s": round(time.monotonic() - t0, 1)})
+        print(f"iter {it:2d}  return best {ret.max():6.2f} mean {ret.mean():6.2f}  "
+              f"success of best {scores[i][1]:.2f}  ({time.monotonic() - t0:.0f} s)",
+              flush=True)
+        if time.monotonic() - t0 > args.minutes * 60:
+            print("time budget reached", flush=True)
+            break
     return mean, history
 
 
@@ -177,14 +181,14 @@ def main() -> int:
         print(json.dumps(deploy(policy, args.policy, held_out[0], args.out), indent=1))
         return 0
     t0 = time.monotonic()
-    theta, history = train(args)
-    train_s = time.monotonic() - t0
+    with get_context("spawn").Pool(args.workers) as pool:
+        theta, history = train(args, pool)
+        train_s = time.monotonic() - t0
+        outcomes, rand_outcomes = evaluate(pool, theta, args.hidden, held_out)
+    learned, rand = float(np.mean(outcomes)), float(np.mean(rand_outcomes))
     env = _make_env()
     policy = _policy(theta, args.hidden, env)
-    outcomes = [_episode(env, policy.act, s)[1] for s in held_out]
-    learned = float(np.mean(outcomes))
     env.close()
-    rand = random_rate(held_out, args.seed)
     path = os.path.join(args.out, "avoid_policy.npz")
     policy.save(path)
     print(f"success rate on {len(held_out)} held-out episodes: policy {learned:.2f}, "
