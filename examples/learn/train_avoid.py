@@ -10,7 +10,7 @@ as a swap-in controller with ``diffbot run`` over the bus (a lockstep plant, seq
 coupling, ``diffbot controller policy``): the same seed's start and goal, a separate
 process driving the robot.
 
-    python examples/learn/train_avoid.py --out out/learn          # ~8 min on two cores
+    python examples/learn/train_avoid.py --out out/learn          # < 10 min on two cores
     python examples/learn/train_avoid.py --out out/learn --quick  # a smoke run
 """
 from __future__ import annotations
