@@ -268,3 +268,37 @@ def test_a_saved_policy_loads_with_the_same_actions_and_bad_shapes_are_refused(t
         MLPPolicy([(np.zeros((5, 2)), np.zeros(2))], 0.5, 2.0, 5)
     with pytest.raises(ValueError, match="parameters"):
         MLPPolicy.from_vector(np.zeros(3), (), v_max=0.5, w_max=2.0, action_repeat=5)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_a_bus_env_joins_a_running_plant_and_leaves_it_running(procs, endpoint):
+    from diffbot.envs.transport import TransportError
+    plant = procs.diffbot("plant", "--world", "living_room", "--mode", "lockstep", "--coupling",
+                          "sequential", "--disable", "camera", "--endpoint", endpoint,
+                          name="plant")
+    own = gym.make("diffbot/Avoid-v0")
+    env = gym.make("diffbot/Avoid-v0", transport="bus", endpoint=endpoint)
+    try:
+        a, _ = own.reset(seed=9)
+        b, _ = env.reset(seed=9)
+        assert all(np.array_equal(a[k], b[k]) for k in a)
+        for _ in range(3):
+            act = np.array([0.2, 0.3], np.float32)
+            assert np.array_equal(own.step(act)[0]["scan"], env.step(act)[0]["scan"])
+    finally:
+        env.close()
+        own.close()
+    time.sleep(0.5)
+    assert plant.poll() is None, "the env stopped a plant it did not start"
+    plant2 = procs.diffbot("plant", "--world", "living_room", "--mode", "lockstep",
+                           "--coupling", "pipelined", "--disable", "camera", "--endpoint",
+                           endpoint.replace("bus.sock", "b2.sock"), name="plant2")
+    env = gym.make("diffbot/Avoid-v0", transport="bus",
+                   endpoint=endpoint.replace("bus.sock", "b2.sock"))
+    try:
+        with pytest.raises(TransportError, match="sequential coupling"):
+            env.reset(seed=0)
+    finally:
+        env.close()
+    assert plant2.poll() is None
