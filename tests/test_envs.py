@@ -302,3 +302,16 @@ def test_a_bus_env_joins_a_running_plant_and_leaves_it_running(procs, endpoint):
     finally:
         env.close()
     assert plant2.poll() is None
+
+
+def test_follow_sees_the_leader_ball_in_its_camera():
+    env = gym.make("diffbot/Follow-v0", detection=True)
+    try:
+        obs, info = env.reset(seed=0)
+        assert obs["image"].shape == (120, 160, 3) and obs["image"].std() > 5, "no camera image"
+        assert obs["ball"][0] == 1.0, "the leader's ball is not seen at the start"
+        assert 0.3 < info["distance"] < 1.5
+        obs, r, *_ = env.step(np.zeros(2, np.float32))
+        assert obs["ball"][0] == 1.0 and -1.0 <= r <= 1.0
+    finally:
+        env.close()
