@@ -33,7 +33,7 @@ from plant.world import load_world
 from .avoid import make_transport, true_pose
 from .geometry import Footprints
 
-INPUTS = {LEADER: ["ground_truth"], FOLLOWER: ["joint_states", "ground_truth", "camera/image"]}
+INPUTS = {LEADER: ["ground_truth"], FOLLOWER: ["joint_states", "ground_truth", "camera/image_raw"]}
 
 
 class FollowEnv(gym.Env):
@@ -84,7 +84,7 @@ class FollowEnv(gym.Env):
         return {LEADER: (float(tw.linear), float(tw.angular)), FOLLOWER: self.action}
 
     def _obs(self) -> dict:
-        msg = self.msgs[FOLLOWER].get("camera/image")
+        msg = self.msgs[FOLLOWER].get("camera/image_raw")
         img = (codec.image_to_array(msg).copy() if msg is not None
                else np.zeros((*self.cam_size, 3), np.uint8))
         self.image = img
