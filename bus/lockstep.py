@@ -30,10 +30,11 @@ class AckLedger:
     """
 
     def __init__(self, tick_ns: int, report: Callable[[str, str], None],
-                 end_with: tuple[str, ...] = ()) -> None:
+                 end_with: tuple[str, ...] = (), expect: tuple[str, ...] = ()) -> None:
         self.tick_ns = tick_ns
         self.report = report
         self.end_with = tuple(end_with)
+        self.expected = set(expect) | set(end_with)   # members the run cannot go on without
         self.members: set[str] = set()          # holding a sim/sync token now
         self.members_seen: set[str] = set()     # ever held one
         # member -> {tick stamp: (n_plant, final)} from its ACKs, the last few ticks: a
@@ -41,26 +42,59 @@ class AckLedger:
         self.acks: dict[str, dict[int, tuple[int, bool]]] = {}
         self.finished: dict[str, int] = {}      # member -> stamp of its FINAL tick
         self.final_awaited: set[str] = set()    # ending members given their grace once
-        # (member, tick stamp) -> its messages on plant-read keys stamped for that tick
-        self.member_msgs: dict[tuple[str, int], int] = {}
+        # (member, tick stamp) -> the plant-read keys of its messages stamped for that tick
+        self.member_msgs: dict[tuple[str, int], set[str]] = {}
+        # members gone without their FINAL that the plant holds time for ("Lost members")
+        self.lost: dict[str, int] = {}          # member -> the plant's tick when it went
+        self.rejoined: dict[str, int] = {}      # member -> the plant's tick when it came back
         # tick stamp -> the members present when the plant began that tick
         self.owed_by: dict[int, frozenset[str]] = {}
 
     # ------------------------------------------------------------ membership
-    def join(self, node: str) -> None:
-        """Section 4, "Joining": a member is waited for from the next tick the plant begins."""
+    def join(self, node: str, now_ns: int = 0) -> bool:
+        """Section 4, "Joining": a member is waited for from the next tick the plant begins;
+        "Lost members": one the plant held time for is owed again every tick it has not
+        ACKed yet, the one the plant is at included. True if it is such a rejoin."""
         self.members.add(node)
         self.members_seen.add(node)
         self.finished.pop(node, None)
         self.final_awaited.discard(node)
+        if node not in self.lost:
+            return False
+        del self.lost[node]
+        self.rejoined[node] = now_ns
+        last = max(self.acks.get(node, {}), default=-1)
+        for t, owed in self.owed_by.items():
+            if t > last or not self.done(node, t):
+                self.owed_by[t] = owed | {node}
+        return True
 
-    def leave(self, node: str) -> None:
-        """Section 4, step 4: a member whose ``sim/sync`` token vanished is not waited for.
-        Its FINAL, if it came, is kept ("Finishing")."""
+    def leave(self, node: str, link_lost: bool = False) -> str:
+        """Section 4, step 4 and "Lost members": a member whose ``sim/sync`` token vanished.
+        "finished" if its FINAL came (kept: "Finishing"); "lost" if the plant must hold time
+        for it (an ``--expect``/``--end-with`` member, the last member, or any member when
+        the plant lost its own router or link: ``link_lost``); "dropped" if the others go
+        on without it."""
         self.members.discard(node)
-        self.acks.pop(node, None)
-        for k in [k for k in self.member_msgs if k[0] == node]:
-            del self.member_msgs[k]
+        if node in self.finished:
+            return "finished"
+        if node in self.expected or not self.members or link_lost:
+            self.lost.setdefault(node, max(self.owed_by, default=0))
+            return "lost"
+        return "dropped"
+
+    def held_for(self) -> list[str]:
+        """Section 4, "Lost members": the members gone without their FINAL whose rejoin the
+        plant waits for before it advances time (an ``--end-with`` member's FINAL may still
+        come after its token: then it is not lost)."""
+        return sorted(m for m in self.lost if m not in self.finished)
+
+    def all_finished(self, due_ns: int) -> bool:
+        """Section 4, "Finishing": every member still present sent its FINAL for a tick
+        before ``due_ns`` (so its FINAL command has acted), none is lost, and at least one
+        took part: the run ends, ``--end-with`` or not (a lockstep plant never runs alone)."""
+        return (bool(self.members_seen) and not self.held_for()
+                and all(self.finished.get(m, due_ns) < due_ns for m in self.members))
 
     def begin_tick(self, t_ns: int) -> None:
         """Section 4, step 4: tick ``t_ns`` is owed by the members present as it begins
@@ -103,10 +137,19 @@ class AckLedger:
         # arrive just after its sim/sync token went (liveliness and data take different
         # paths), and --end-with must still end the run at that tick.
         if topic != "ack":
-            k = (member, t)
-            self.member_msgs[k] = self.member_msgs.get(k, 0) + 1
+            got = self.member_msgs.setdefault((member, t), set())
+            if key in got:
+                # First per key per tick wins: what a second one would do must not depend on
+                # whether it came before or after the plant applied the tick.
+                if t > self.rejoined.get(member, -1):     # else: re-sent after a rejoin
+                    self.report(f"{key}: a second message from {member} for one tick",
+                                f"t={t * 1e-9:.3f} s; the first is kept, this one ignored")
+                return False
+            got.add(key)
             if len(self.member_msgs) > 4 * RECENT_TICKS * max(1, len(self.members)):
                 del self.member_msgs[next(iter(self.member_msgs))]
+        elif t in self.acks.get(member, {}) and t <= self.rejoined.get(member, -1):
+            return False                                 # an empty ACK re-sent after a rejoin
         if att.flags & codec.ACK:
             self._ack(key, member, t, att.n_plant, bool(att.flags & codec.FINAL))
         return True
@@ -133,7 +176,7 @@ class AckLedger:
         """Section 4, step 4: the member ACKed tick ``t_ns`` and all ``n_plant`` of its
         messages stamped ``t_ns`` are in."""
         ack = self.acks.get(member, {}).get(t_ns)
-        return ack is not None and self.member_msgs.get((member, t_ns), 0) >= ack[0]
+        return ack is not None and len(self.member_msgs.get((member, t_ns), ())) >= ack[0]
 
     def waiting_for(self, t_ns: int) -> list[str]:
         """Section 4, step 4 and "Finishing": the members owed tick ``t_ns`` (present when
@@ -146,7 +189,7 @@ class AckLedger:
         """Section 7: (n_plant the member's ACK of ``t_ns`` announced, messages that came),
         or None if it has not ACKed that tick."""
         ack = self.acks.get(member, {}).get(t_ns)
-        return None if ack is None else (ack[0], self.member_msgs.get((member, t_ns), 0))
+        return None if ack is None else (ack[0], len(self.member_msgs.get((member, t_ns), ())))
 
     def describe_wait(self, t_ns: int, waiting: list[str]) -> list[str]:
         """Section 7: for each member still owed ``t_ns``, whether its ACK came and how many
@@ -154,7 +197,7 @@ class AckLedger:
         parts = []
         for m in sorted(waiting):
             missing = self.missing_outputs(m, t_ns)
-            got = self.member_msgs.get((m, t_ns), 0)
+            got = len(self.member_msgs.get((m, t_ns), ()))
             if missing is not None:
                 self.report("missing outputs", f"{m} ACKed t={t_ns * 1e-9:.3f} s with "
                             f"n_plant={missing[0]} but {got} of its messages for it arrived")
@@ -187,6 +230,7 @@ class AckLedger:
         self.finished.clear()
         self.member_msgs.clear()
         self.owed_by.clear()
+        self.rejoined.clear()
 
 
 @dataclass

@@ -47,6 +47,9 @@ PRODUCER_GRACE_S = 0.5
 #: an input older than this (simulated s, or three of its periods) is not shown to the
 #: controller: its producer is gone (realtime and fast modes, where nobody waits for it)
 STALE_S = 0.5
+#: lockstep: ticks of this member's outputs kept to re-send when the plant re-publishes
+#: them after a rejoin (the plant re-publishes its last three: plant.node.REPUBLISH_TICKS)
+RESEND_TICKS = 4
 #: samples kept per input topic (by stamp) and clock ticks waiting for their inputs
 _BUF_PER_TOPIC = 8
 _PENDING_MAX = 16
@@ -189,9 +192,22 @@ class NodeRunner:
             for o in out:
                 self._put(o.key, codec.encode(o.msg), codec.attachment(self._next_seq(), t_ns))
             return
-        for key, msg, flags, n_plant in self.member.owed(out, self.keys.ack(self.name), final):
-            att = codec.attachment(self._next_seq(), t_ns, flags, n_plant, self.name)
-            self._put(key, b"" if msg is None else codec.encode(msg), att)
+        sent = [(key, b"" if msg is None else codec.encode(msg), flags, n_plant)
+                for key, msg, flags, n_plant in self.member.owed(out, self.keys.ack(self.name),
+                                                                 final)]
+        self._sent[t_ns] = sent
+        while len(self._sent) > RESEND_TICKS:
+            del self._sent[min(self._sent)]
+        self._resend(t_ns)
+
+    def _resend(self, t_ns: int) -> None:
+        """Send (again) what this member sent for tick ``t_ns``, byte for byte but for the
+        seq: after a rejoin the plant re-publishes its last ticks, and a member answers a
+        tick it already answered this way, never by stepping again (docs/PROTOCOL.md
+        section 4, "Lost members")."""
+        for key, payload, flags, n_plant in self._sent[t_ns]:
+            self._put(key, payload, codec.attachment(self._next_seq(), t_ns, flags, n_plant,
+                                                     self.name))
 
     def _next_seq(self) -> int:
         self._seq += 1
@@ -308,6 +324,8 @@ class NodeRunner:
         self._used: set[tuple[str, int]] = set()
         self._pending: dict[int, float] = {}   # lockstep: clock stamp -> wall time it came
         self._last_clock: int | None = None
+        # lockstep: what this member sent for its last ticks, to re-send (stamp -> messages)
+        self._sent: dict[int, list[tuple[str, bytes, int, int]]] = {}
 
     # ----------------------------------------------------------------- loop
     def run(self, max_ticks: int | None = None) -> int:
@@ -341,7 +359,7 @@ class NodeRunner:
                     stall_s, stalled = now - last_loop, now
                 last_loop = now
                 if ev is None:
-                    if self.sync and self._producer_gone(left, now):
+                    if self.sync and plant_here and self._producer_gone(left, now):
                         break
                     continue
                 if ev.tag == "end":
@@ -364,8 +382,7 @@ class NodeRunner:
                         plant_seen = plant_here = True
                     elif plant_here:
                         plant_here = False
-                        self.reset_inputs()
-                        if self.wait:
+                        if self.wait:       # inputs kept: the plant may be the same, back
                             self.plant_lost += 1
                             self.log.warning("the plant is gone; waiting for it to come back "
                                              "(--wait)")
@@ -376,6 +393,7 @@ class NodeRunner:
                                            "simulation dropped it; stopping", stall_s, LEASE_S)
                         else:
                             self.log.error("the plant is gone; stopping")
+                        self.reset_inputs()
                         self.exit_code = EXIT_PLANT_GONE
                         break
                     continue
@@ -395,6 +413,9 @@ class NodeRunner:
                             break
                         if max_ticks is not None and self.ticks >= max_ticks:
                             break
+                        continue
+                    if t_ns in self._sent:       # re-published after a rejoin
+                        self._resend(t_ns)
                         continue
                     self._pending[t_ns] = now
                     if len(self._pending) > _PENDING_MAX:
@@ -481,9 +502,12 @@ class NodeRunner:
             tokens["sync"] = self.session.liveliness().declare_token(self.keys.sync(self.name))
         elif not self.sync and "sync" in tokens:
             tokens.pop("sync").undeclare()
-        self.reset_inputs()
+        t_plant = self.info.get("time_ns", 0)
+        if self._last_clock is None or t_plant < self._last_clock:
+            self.reset_inputs()                # another run (or world): start afresh
+        # else the same run, back after a blip (its router or link): carry on where we were
         self.log.warning("the plant is back (%s mode, t=%.3f s); carrying on", self.mode,
-                         self.info.get("time_ns", 0) * 1e-9)
+                         t_plant * 1e-9)
         return True
 
     def _producer_gone(self, left: dict[str, float], now: float) -> bool:

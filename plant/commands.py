@@ -28,6 +28,7 @@ class Command:
     value: Twist | WheelSpeeds
     t_ns: int          # the tick it was computed for (its stamp; sim time when received if 0)
     wall: float        # monotonic wall time when received
+    member: str | None = None   # lockstep: the member that sent it (its trailer's name)
 
     @property
     def moving(self) -> bool:
@@ -103,13 +104,26 @@ class CommandBook:
         self.latest: dict[str, Command] = {}
         self.by_tick: dict[str, dict[int, Command]] = {}
 
-    def file(self, robot: str, cmd: Command) -> None:
+    def file(self, robot: str, cmd: Command) -> str | None:
+        """Keep ``cmd``. Lockstep: one command per robot per tick, the same whatever the
+        arrival order (docs/PROTOCOL.md section 7): a member's first for the tick (the
+        ledger drops its later ones), and of two members' the one whose name sorts first;
+        then what is wrong, for the protocol error count."""
         self.latest[robot] = cmd
-        if self.lockstep:
-            by_tick = self.by_tick.setdefault(robot, {})
-            by_tick[cmd.t_ns] = cmd
+        if not self.lockstep:
+            return None
+        by_tick = self.by_tick.setdefault(robot, {})
+        had = by_tick.get(cmd.t_ns)
+        if had is None or had.member == cmd.member:
+            if had is None:
+                by_tick[cmd.t_ns] = cmd
             if len(by_tick) > RECENT_TICKS:
                 del by_tick[min(by_tick)]
+            return None
+        keep = min(had, cmd, key=lambda c: c.member or "")
+        by_tick[cmd.t_ns] = keep
+        return (f"{had.member} and {cmd.member} for t={cmd.t_ns * 1e-9:.3f} s; "
+                f"{keep.member}'s applied")
 
     def for_tick(self, robot: str, upto_ns: int) -> Command | None:
         """Lockstep: the command computed for the latest tick at or before ``upto_ns`` (the

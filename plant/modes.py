@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from .node import Plant
 
 #: lockstep: waiting this long (wall s) on a tick makes the plant say who it waits for,
-#: again after twice as long each time, up to every WAIT_REPORT_MAX_S
+#: then again after a gap twice the one before, at most WAIT_REPORT_MAX_S (wait_reports)
 WAIT_REPORT_S = 2.0
 WAIT_REPORT_MAX_S = 30.0
 #: A member's last messages may reach the plant just after its sim/sync token is gone
@@ -30,6 +30,17 @@ WAIT_REPORT_MAX_S = 30.0
 LEFT_FINAL_GRACE_S = 0.5
 #: realtime: falling this far behind the wall clock (s) re-anchors it instead of catching up
 STALL_S = 0.25
+
+
+def wait_reports():
+    """Seconds of waiting on one tick after which the plant says whom it waits for
+    (docs/PROTOCOL.md section 7): 2, 6, 14, 30, 60, 90, ... (each gap twice the one
+    before, at most WAIT_REPORT_MAX_S)."""
+    at, gap = WAIT_REPORT_S, WAIT_REPORT_S
+    while True:
+        yield at
+        gap = min(2 * gap, WAIT_REPORT_MAX_S)
+        at += gap
 
 
 class Fast:
@@ -107,16 +118,27 @@ class Lockstep(Fast):
 
     def barrier(self, t_ns: int) -> str | None:
         """Sequential: tick t's ACKs; pipelined: tick t-1's, while the members compute tick
-        t's (none before the first tick). Then the end, if an --end-with member finished."""
+        t's (none before the first tick). Time is held while a member is lost (up to
+        --rejoin-timeout), and waited for again once it is back. Then the end, if an
+        --end-with member finished, or every member did."""
         p = self.plant
         due = t_ns - self.delay_ns
-        if due >= 0:
-            self.wait_for_acks(due)
-        if p.reset_in_tick:
-            return None
-        self.await_final_of_leavers()
+        while True:
+            if due >= 0:
+                self.wait_for_acks(due)
+            if p.reset_in_tick or p.stop_event.is_set():
+                return None
+            self.await_final_of_leavers()
+            if not p.ledger.held_for():
+                break
+            lost = self.hold(t_ns)
+            if lost or p.reset_in_tick or p.stop_event.is_set():
+                return lost
         ended = p.ledger.ended(due)
         if not ended:
+            if p.ledger.all_finished(due):
+                p.log.info("every lockstep member finished: stopping at t=%.3f s", t_ns * 1e-9)
+                return "every member finished"
             return None
         p.publish_pending()
         if self.delay_ns:           # pipelined: the others' outputs of tick t too, so the
@@ -139,22 +161,47 @@ class Lockstep(Fast):
         and less often). A sim/reset answered meanwhile ends the wait: the tick is gone."""
         p = self.plant
         since = time.monotonic()
-        every = WAIT_REPORT_S
-        report_at = since + every
         # What came meanwhile, even when nobody is to be waited for (every member gone): a
         # member joining, a late FINAL, a sim/reset query would otherwise stay queued.
         p.drain(0.0)
+        reports = wait_reports()
+        report_at = since + next(reports)
         while not p.stop_event.is_set() and not p.reset_in_tick:
             waiting = p.ledger.waiting_for(t_ns)
-            if not waiting:
+            if not waiting or p.ledger.held_for():
                 return
             now = time.monotonic()
             if now >= report_at:
                 p.log.warning("lockstep: waited %.1f s for tick t=%.3f s: %s", now - since,
                               t_ns * 1e-9, "; ".join(p.ledger.describe_wait(t_ns, waiting)))
-                every = min(2 * every, WAIT_REPORT_MAX_S)
-                report_at = now + every
-            p.drain(0.5)
+                report_at = since + next(reports)
+            p.drain(min(0.5, max(report_at - now, 0.01)))
+
+    def hold(self, t_ns: int) -> str | None:
+        """Members are lost (docs/PROTOCOL.md section 4, "Lost members"): simulated time
+        stays at ``t_ns`` until they are back (the plant then re-publishes its last ticks,
+        Plant.republish) or ``--rejoin-timeout`` runs out: then the run ends with a reason
+        naming them, and the plant exits 1."""
+        p = self.plant
+        lost = p.ledger.held_for()
+        timeout = p.rejoin_timeout_s
+        if timeout > 0:
+            p.log.warning("lockstep: holding time at t=%.3f s: %s gone; waiting up to %.0f s "
+                          "for %s to rejoin (--rejoin-timeout)", t_ns * 1e-9, ", ".join(lost),
+                          timeout, "it" if len(lost) == 1 else "them")
+        deadline = time.monotonic() + timeout
+        while lost and not p.stop_event.is_set() and not p.reset_in_tick:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                p.exit_code = 1
+                why = (f"lost lockstep member {', '.join(lost)} at t={t_ns * 1e-9:.3f} s"
+                       + (f" (not back within --rejoin-timeout {timeout:g} s)" if timeout
+                          else " (gone without its FINAL)"))
+                p.log.error("%s: ending the run", why)
+                return why
+            p.drain(min(left, 0.05))
+            lost = p.ledger.held_for()
+        return None
 
     def await_final_of_leavers(self) -> None:
         """An --end-with member that left without its FINAL having come: its last messages

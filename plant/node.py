@@ -35,7 +35,7 @@ from contextlib import contextmanager
 import zenoh
 
 from bus import codec, jsonio
-from bus.cliargs import ArgumentParser, nonneg_int, positive_float
+from bus.cliargs import ArgumentParser, nonneg_float, nonneg_int, positive_float
 from bus.controller import Twist
 from bus.inbox import Event, Inbox
 from bus.jsonio import write_stats
@@ -54,6 +54,46 @@ from .tick import build_world, tick_messages
 from .world import WorldError, WorldSpec, load_world
 
 MODES = ("lockstep", "realtime", "fast")
+#: lockstep: ticks of published messages kept to re-publish for a rejoining member (the
+#: tick the plant is at, the one a pipelined plant waits for, and the one before it)
+REPUBLISH_TICKS = 3
+#: how long the sim/end text goes before the sim/end token (wall s)
+END_TEXT_HEAD_START_S = 0.1
+
+
+class RouterWatch:
+    """A plant that is a client of a router (a user's Zenoh config) notices losing it, as
+    nodes notice losing the plant (docs/PROTOCOL.md section 1): lockstep holds time (every
+    member is then lost, section 4), realtime and fast say they run on without the bus."""
+
+    CHECK_S = 0.25
+
+    def __init__(self, session: zenoh.Session, log, mode: str) -> None:
+        self.session = session
+        self.log = log
+        self.mode = mode
+        self.watching = bool(list(session.info.routers_zid()))   # a router session: never
+        self.gone = False
+        self._checked = 0.0
+
+    def lost(self) -> bool:
+        """No router now (asked of the session's transport, not remembered)."""
+        return self.watching and not list(self.session.info.routers_zid())
+
+    def check(self, t_ns: int) -> None:
+        now = time.monotonic()
+        if not self.watching or now - self._checked < self.CHECK_S:
+            return
+        self._checked = now
+        gone = self.lost()
+        if gone and not self.gone:
+            self.log.warning("lost the router at t=%.3f s: %s", t_ns * 1e-9,
+                             "simulated time is held until the members are back"
+                             if self.mode == "lockstep"
+                             else "running on; nothing published reaches anyone")
+        elif self.gone and not gone:
+            self.log.warning("the router is back at t=%.3f s", t_ns * 1e-9)
+        self.gone = gone
 
 
 class Plant:
@@ -63,7 +103,7 @@ class Plant:
                  rate: float = 1.0, expect: tuple[str, ...] = (), duration_s: float | None = None,
                  join_timeout_s: float = 30.0, disabled: tuple[str, ...] = (),
                  end_with: tuple[str, ...] = (), coupling: str = "sequential",
-                 physics_process: bool = False) -> None:
+                 physics_process: bool = False, rejoin_timeout_s: float = 0.0) -> None:
         self.spec = spec
         self.session = session
         self.keys = keys
@@ -73,6 +113,9 @@ class Plant:
         self.expect = tuple(expect)
         self.duration_ns = None if duration_s is None else int(round(duration_s * 1e9))
         self.join_timeout_s = join_timeout_s
+        # lockstep: how long time is held for a lost member to come back (0: end at once)
+        self.rejoin_timeout_s = rejoin_timeout_s
+        self.exit_code = 0
         self.tick_ns = int(round(spec.control_tick_s * 1e9))
         self.coupling = coupling
         # Lockstep only: the coupling's delays, in ticks (docs/PROTOCOL.md).
@@ -92,7 +135,7 @@ class Plant:
         # lockstep protocol problems (no or bad attachment, a tick not due, missing outputs),
         # counted per kind and said at most every 2 s
         self.protocol_errors = RejectCounter(log, verb="lockstep protocol:")
-        self.ledger = AckLedger(self.tick_ns, self.protocol_errors.reject, end_with)
+        self.ledger = AckLedger(self.tick_ns, self.protocol_errors.reject, end_with, expect)
         self.stop_event = threading.Event()
         self.reset_in_tick = False               # a sim/reset came during the current tick
         self.published: dict[str, int] = {}
@@ -102,6 +145,9 @@ class Plant:
         self.end_reason = "stopped"
         self.wall_end = 0.0
         self._seq = 0
+        # lockstep: the last ticks' messages as published, to re-publish for a member that
+        # rejoins (docs/PROTOCOL.md section 4, "Lost members"): stamp -> [(key, payload)]
+        self._recent: dict[int, list[tuple[str, bytes]]] = {}
         self._pubs: dict[str, zenoh.Publisher] = {}
         # In lockstep nothing may be lost: block rather than drop when a queue is full.
         self.congestion = (zenoh.CongestionControl.BLOCK if mode == "lockstep"
@@ -124,6 +170,7 @@ class Plant:
         self._info = self.info()
         self._info_queryable = session.declare_queryable(keys.info, self._answer_info)
         self._token = session.liveliness().declare_token(keys.alive("plant"))
+        self.router = RouterWatch(session, log, mode)
 
     def build(self) -> None:
         """(Re)build the world and the sensors with the current seed."""
@@ -193,9 +240,28 @@ class Plant:
         return pub
 
     def _put(self, key: str, msg, t_ns: int) -> None:
+        payload = codec.encode(msg)
+        self._put_raw(key, payload, t_ns)
+        if self.mode == "lockstep":
+            self._recent.setdefault(t_ns, []).append((key, payload))
+            while len(self._recent) > REPUBLISH_TICKS:
+                del self._recent[min(self._recent)]
+
+    def _put_raw(self, key: str, payload: bytes, t_ns: int) -> None:
         self._seq += 1
-        self._publisher(key).put(codec.encode(msg), attachment=codec.attachment(self._seq, t_ns))
+        self._publisher(key).put(payload, attachment=codec.attachment(self._seq, t_ns))
         self.published[key] = self.published.get(key, 0) + 1
+
+    def republish(self) -> None:
+        """A lost member is back: the messages of the last ticks again, as they were (the
+        member answers the ones it has not, re-sends its answer to the others; section 4,
+        "Lost members"); whatever of them the blip swallowed reaches everyone now."""
+        ticks = sorted(t for t in self._recent if t <= self.sim.time_ns)
+        for t in ticks:
+            for key, payload in self._recent[t]:
+                self._put_raw(key, payload, t)
+        if ticks:
+            self.log.info("re-published ticks t=%s s", ", ".join(f"{t * 1e-9:.3f}" for t in ticks))
 
     def publish_sensors(self) -> None:
         """The sensors due at this tick, robot by robot, then ``sim/clock``; then the next
@@ -223,11 +289,21 @@ class Plant:
         elif ev.tag == "member":
             node = self.keys.node_of(ev.key)
             if ev.alive:
-                self.ledger.join(node)
-                self.log.info("lockstep member joined: %s", node)
+                if self.ledger.join(node, self.sim.time_ns):
+                    self.log.warning("lockstep member rejoined: %s (at t=%.3f s)", node,
+                                     self.sim.time_ns * 1e-9)
+                    self.republish()
+                else:
+                    self.log.info("lockstep member joined: %s", node)
+                return
+            how = self.ledger.leave(node, self.router.lost())
+            if how == "finished":
+                self.log.info("lockstep member finished and left: %s", node)
             else:
-                self.ledger.leave(node)
-                self.log.warning("lockstep member left: %s", node)
+                self.log.warning("lockstep member lost: %s (gone without its FINAL at "
+                                 "t=%.3f s; %s)", node, self.sim.time_ns * 1e-9,
+                                 "time is held for it" if how == "lost"
+                                 else "the others go on without it")
 
     def _on_output(self, ev: Event) -> None:
         """A message on a key the plant reads: a command to apply, and in lockstep a
@@ -246,7 +322,13 @@ class Plant:
             except (codec.CodecError, ValueError) as exc:
                 self.rejects.reject(f"{robot}/{topic}", str(exc))
                 return
-            self.commands.file(robot, Command(value, t or self.sim.time_ns, time.monotonic()))
+            if self.mode == "lockstep" and att is not None:
+                t = att.t_ns           # the tick it was computed for (t = 0 is tick 0)
+            member = att.node if att is not None else None
+            problem = self.commands.file(robot, Command(value, t or self.sim.time_ns,
+                                                        time.monotonic(), member))
+            if problem:
+                self.protocol_errors.reject(f"{robot}: two members command it", problem)
 
     def apply_commands(self) -> None:
         """Hand each robot the command that acts at this tick (the mode's), or zero if it
@@ -272,6 +354,7 @@ class Plant:
 
     def drain(self, timeout: float | None = 0.0) -> bool:
         """Handle queued events; wait up to ``timeout`` for the first. True if any came."""
+        self.router.check(self.sim.time_ns)
         ev = self.inbox.get(timeout=timeout) if timeout else self.inbox.get_nowait()
         if ev is None:
             return False
@@ -364,6 +447,7 @@ class Plant:
                 "real_time_factor": sim_s / wall if wall else None,
                 "published": self.published, "rejected": dict(self.rejects.counts),
                 "members_seen": sorted(self.ledger.members_seen),
+                "members_lost": sorted(self.ledger.lost), "exit_code": self.exit_code,
                 "stalls": getattr(self.strategy, "stalls", 0),
                 "protocol": PROTOCOL_VERSION, "coupling": self.coupling, **self.delays,
                 "physics_process": self.physics is not None,
@@ -376,6 +460,10 @@ class Plant:
         end_token = None
         try:
             self.session.put(self.keys.end, reason.encode())
+            # The text goes first; data and liveliness take different paths, so give it a
+            # head start (a client that sees the token first waits for the text:
+            # docs/PROTOCOL.md section 4, "End").
+            time.sleep(END_TEXT_HEAD_START_S)
             # Also as a liveliness token: declarations are ordered with the undeclaration
             # of sim/alive/plant below, so a node always sees the end before the absence.
             end_token = self.session.liveliness().declare_token(self.keys.end)
@@ -410,7 +498,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=nonneg_int, default=None, help="noise seed (default: the world's)")
     p.add_argument("--expect", default="", metavar="NODES",
                    help="lockstep: comma-separated members to wait for before the first tick")
-    p.add_argument("--join-timeout", type=positive_float, default=30.0, metavar="S")
+    p.add_argument("--join-timeout", type=positive_float, default=30.0, metavar="S",
+                   help="how long to wait for the --expect members before the first tick "
+                        "(then exit 1 naming the missing; default 30)")
+    p.add_argument("--rejoin-timeout", type=nonneg_float, default=0.0, metavar="S",
+                   help="lockstep: how long to hold simulated time for a member gone without "
+                        "its FINAL (killed, frozen past the lease, router or link lost) to "
+                        "come back; 0 (default): end the run at once, naming it, exit 1")
     p.add_argument("--end-with", default="", metavar="NODES",
                    help="lockstep: stop, without stepping further, at the tick where one of "
                         "these members finishes (so a run's length is reproducible)")
@@ -454,13 +548,14 @@ def main(argv: list[str] | None = None) -> int:
                       duration_s=args.duration, join_timeout_s=args.join_timeout,
                       disabled=disabled,
                       end_with=tuple(n for n in args.end_with.split(",") if n),
-                      coupling=args.coupling, physics_process=args.physics_process)
+                      coupling=args.coupling, physics_process=args.physics_process,
+                      rejoin_timeout_s=args.rejoin_timeout)
 
         def on_signal(signum, frame):
             plant.stop_event.set()
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
-        code = plant.run()
+        code = plant.run() or plant.exit_code
         st = plant.stats()
         log.info("stopped at t=%.2f s after %d ticks (%.1fx real time)", st["sim_time_s"],
                  st["ticks"], st["real_time_factor"] or 0.0)

@@ -9,9 +9,9 @@ T = 20_000_000          # one control tick, ns
 CMD = "robot1/cmd_vel"
 
 
-def ledger(end_with=()):
+def ledger(end_with=(), expect=()):
     errors: list[tuple[str, str]] = []
-    led = AckLedger(T, lambda kind, text: errors.append((kind, text)), end_with)
+    led = AckLedger(T, lambda kind, text: errors.append((kind, text)), end_with, expect)
     return led, errors
 
 
@@ -99,8 +99,8 @@ def test_a_second_ack_is_an_error_and_the_smaller_count_is_kept():
     led.join("a")
     led.begin_tick(0)
     send(led, "a", 0, codec.ACK, n_plant=5)
-    send(led, "a", 0, codec.ACK, n_plant=1)
-    assert errors[-1][0] == f"{CMD}: a second ACK from a"
+    send(led, "a", 0, codec.ACK, n_plant=1, key="robot1/odom", topic="odom")
+    assert errors[-1][0] == "robot1/odom: a second ACK from a"
     assert led.missing_outputs("a", 0) == (1, 2) and led.done("a", 0)
 
 
@@ -142,6 +142,95 @@ def test_the_ledger_remembers_a_bounded_number_of_ticks():
         send(led, "a", k * T, codec.ACK, n_plant=1, now=k * T)
     assert len(led.acks["a"]) <= 32 and len(led.owed_by) <= 32
     assert len(led.member_msgs) <= 4 * 32
+
+
+def test_the_first_message_per_key_per_tick_wins_and_a_second_is_an_error():
+    """Issue 20: a second cmd_vel for the same tick was applied or not by timing."""
+    led, errors = ledger()
+    led.join("a")
+    led.begin_tick(0)
+    assert send(led, "a", 0, codec.ACK, n_plant=1) is True
+    assert send(led, "a", 0, codec.ACK, n_plant=1) is False          # never applied
+    assert errors == [(f"{CMD}: a second message from a for one tick",
+                       "t=0.000 s; the first is kept, this one ignored")]
+    # a duplicate is not one of the n_plant messages of the tick either
+    led.begin_tick(T)
+    send(led, "a", T, key="robot1/odom", topic="odom")
+    send(led, "a", T, key="robot1/odom", topic="odom")
+    assert led.waiting_for(T) == ["a"]
+    send(led, "a", T, codec.ACK, n_plant=2)
+    assert led.waiting_for(T) == []
+
+
+def test_an_expected_member_gone_without_final_is_lost_and_held_for():
+    led, _ = ledger(expect=("a",))
+    led.join("a")
+    led.join("b")
+    led.begin_tick(0)
+    assert led.leave("a") == "lost" and led.held_for() == ["a"]
+    assert led.leave("b") == "lost"                    # the last member: never run alone
+    assert led.held_for() == ["a", "b"]
+
+
+def test_an_unexpected_member_is_dropped_unless_last_or_the_link_is_lost():
+    led, _ = ledger()
+    for m in "abc":
+        led.join(m)
+    assert led.leave("a") == "dropped" and led.held_for() == []
+    assert led.leave("b", link_lost=True) == "lost"
+    assert led.leave("c") == "lost"
+
+
+def test_a_member_that_finished_is_not_lost_and_the_run_ends_when_all_have():
+    led, _ = ledger(expect=("a",))
+    led.join("a")
+    led.join("b")
+    send(led, "a", T, codec.ACK | codec.FINAL, n_plant=1)
+    assert led.leave("a") == "finished" and led.held_for() == []
+    assert not led.all_finished(2 * T)                   # b is still there
+    send(led, "b", 2 * T, codec.ACK | codec.FINAL, n_plant=1)
+    assert not led.all_finished(2 * T)                   # its FINAL command not acted yet
+    assert led.all_finished(3 * T)
+
+
+def test_a_rejoining_member_is_owed_every_tick_it_has_not_answered_none_it_has():
+    """Issue 27: after a blip the plant waited for a tick older than the member's last
+    ACK. Now a rejoin re-owes the ticks without its answer, and answers re-sent for ticks
+    the plant has are dropped silently."""
+    led, errors = ledger(expect=("a",))
+    led.join("a")
+    led.begin_tick(0)
+    send(led, "a", 0, codec.ACK, n_plant=1, now=T)
+    led.begin_tick(T)                                    # its answer to t1 is lost
+    assert led.leave("a") == "lost"
+    assert led.waiting_for(T) == []                      # gone: held for, not waited for
+    assert led.join("a", now_ns=T) is True and led.held_for() == []
+    assert led.waiting_for(0) == [] and led.waiting_for(T) == ["a"]
+    send(led, "a", 0, codec.ACK, n_plant=1, now=T)      # re-sent: already had it
+    send(led, "a", T, codec.ACK, n_plant=1, now=T)
+    assert led.waiting_for(T) == [] and errors == []
+    assert led.join("b") is False                        # a first join is no rejoin
+
+
+def test_the_wait_reports_come_at_2_6_14_30_then_every_30_s():
+    from itertools import islice
+
+    from plant.modes import wait_reports
+    assert list(islice(wait_reports(), 7)) == [2, 6, 14, 30, 60, 90, 120]
+
+
+def test_one_command_per_robot_per_tick_whatever_the_arrival_order():
+    from plant.commands import Command, CommandBook
+    for order in ([("b", 1.0), ("a", 2.0), ("b", 3.0)], [("b", 3.0), ("a", 2.0), ("b", 1.0)]):
+        book = CommandBook(lockstep=True)
+        problems = [book.file("robot1", Command(v, T, 0.0, m)) for m, v in order]
+        assert book.for_tick("robot1", T).value == 2.0             # a's: sorts first
+        assert problems[1] is not None and "a's applied" in problems[1]
+        book = CommandBook(lockstep=True)
+        for m, v in order:
+            if m == "b":
+                book.file("robot1", Command(v, T, 0.0, m))
+        assert book.for_tick("robot1", T).value == order[0][1]     # b's first stays
 
 
 # ---------------------------------------------------------------- the member's tick
