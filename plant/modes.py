@@ -137,6 +137,7 @@ class Lockstep(Fast):
         ended = p.ledger.ended(due)
         if not ended:
             if p.ledger.all_finished(due):
+                p.publish_pending()
                 p.log.info("every lockstep member finished: stopping at t=%.3f s", t_ns * 1e-9)
                 return "every member finished"
             return None

@@ -323,10 +323,11 @@ class Plant:
                 self.rejects.reject(f"{robot}/{topic}", str(exc))
                 return
             if self.mode == "lockstep" and att is not None:
-                t = att.t_ns           # the tick it was computed for (t = 0 is tick 0)
+                t_cmd = att.t_ns       # the tick it was computed for (0: tick 0, not "now")
+            else:
+                t_cmd = t or self.sim.time_ns
             member = att.node if att is not None else None
-            problem = self.commands.file(robot, Command(value, t or self.sim.time_ns,
-                                                        time.monotonic(), member))
+            problem = self.commands.file(robot, Command(value, t_cmd, time.monotonic(), member))
             if problem:
                 self.protocol_errors.reject(f"{robot}: two members command it", problem)
 

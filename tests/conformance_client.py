@@ -2,10 +2,15 @@
 
 It imports nothing of diffbot-cosim: only ``zenoh``, ``rosbags`` and the standard
 library. It joins a plant's lockstep, drives a robot forward on ground truth until it has
-covered ``--distance`` metres, sends its last command with FINAL, waits until the plant
-has moved past that tick and leaves.
+covered ``--distance`` metres (or for ``--ticks`` ticks), sends its last command with
+FINAL, waits until the plant has moved past that tick and leaves.
 
     python tests/conformance_client.py --endpoint unixsock-stream/... [--robot robot1]
+
+For the protocol's fixed points: ``--quit-at N`` leaves at tick N without answering it
+(a member that gives up: the plant ends the run naming it), ``--duplicates N`` sends a
+second, different command for some ticks, sooner or later (the plant must ignore them,
+whenever they come).
 
 Exit codes: 0 done, 2 a plant of another protocol version, 3 the plant went away.
 """
@@ -80,6 +85,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--name", default="conformance")
     p.add_argument("--distance", type=float, default=1.0, help="m (default 1)")
     p.add_argument("--speed", type=float, default=0.25, help="m/s (default 0.25)")
+    p.add_argument("--ticks", type=int, default=None, help="drive this many ticks instead")
+    p.add_argument("--quit-at", type=int, default=None, metavar="N")
+    p.add_argument("--duplicates", type=int, default=0, metavar="N",
+                   help="at ticks 5, 10, ... 5N send a second, different command, 0 to 40 ms "
+                        "after the first (before and after the plant applies it)")
     a = p.parse_args(argv)
     with zenoh.open(client_config(a.endpoint)) as s:
         info = get_info(s)
@@ -105,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         x_of: dict[int, float] = {}                # ground truth x by stamp
         x0 = None
         seq = 0
+        n = 0                                      # ticks answered
         final_tick = None
         code = 3
         try:
@@ -134,12 +145,28 @@ def main(argv: list[str] | None = None) -> int:
                     t = clocks.pop(0)
                     x = x_of.pop(t)
                     x0 = x if x0 is None else x0
-                    done = x - x0 >= a.distance
+                    if n == a.quit_at:
+                        print(f"conformance client: giving up at tick {n}", file=sys.stderr)
+                        return 1
+                    done = (n + 1 >= a.ticks if a.ticks is not None
+                            else x - x0 >= a.distance)
+                    # --ticks: the FINAL tick's command is the last of the drive (applied
+                    # without --end-with, section 4 "Finishing"); else it stops the robot
+                    speed = a.speed if not done or a.ticks is not None else 0.0
                     seq += 1
                     # Step 3: one command, the last plant-read output, so it carries the ACK.
-                    pub.put(twist_stamped(t, 0.0 if done else a.speed),
+                    pub.put(twist_stamped(t, speed),
                             attachment=attachment(seq, t, ACK | (FINAL if done else 0), 1,
                                                   a.name))
+                    n += 1
+                    i, r = divmod(n - 1, 5)
+                    if not r and 1 <= i <= a.duplicates:
+                        # Section 7: a second message on the key for the same tick is
+                        # ignored, however late it comes.
+                        time.sleep(0.01 * (i % 5) ** 2 / 4)
+                        seq += 1
+                        pub.put(twist_stamped(t, -a.speed),
+                                attachment=attachment(seq, t, ACK, 1, a.name))
                     if done:
                         final_tick = t             # finishing: keep the tokens until then
         except queue.Empty:
@@ -150,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
             for sub in subs:
                 sub.undeclare()
     print(f"conformance client: {'done' if final_tick is not None else 'stopped'} "
-          f"after {seq} ticks", file=sys.stderr)
+          f"after {n} ticks", file=sys.stderr)
     return code if final_tick is not None or code else 1
 
 
