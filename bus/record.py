@@ -410,6 +410,8 @@ class Recorder:
         self.queue: queue.SimpleQueue = queue.SimpleQueue()
         self.rejects = RejectCounter(log)
         self.skipped: dict[str, int] = {}
+        self.repeated: dict[str, int] = {}      # key -> messages received again (re-sent)
+        self._recent: dict[str, dict[int, int]] = {}   # key -> {stamp: hash of its bytes}
         self.stop_event = threading.Event()
         self.end_reason: str | None = None
         self.info: dict | None = None
@@ -493,6 +495,8 @@ class Recorder:
         a = codec.parse_attachment(att)
         if a is not None:
             seq, t_ns = a.seq, a.t_ns
+            if self._repeated(key, t_ns, payload):
+                return
             self._sim_ns = max(self._sim_ns, t_ns)
         else:
             seq, t_ns = 0, self._sim_ns
@@ -504,6 +508,20 @@ class Recorder:
         if self.info is None and key == self.keys.clock and not self._late_info_tried:
             self._late_info_tried = True      # the plant came after the recorder: ask once
             self.fetch_info(1.0)
+
+    def _repeated(self, key: str, t_ns: int, payload: bytes) -> bool:
+        """A message already recorded: the same key, stamp and bytes again, as lockstep
+        re-publishes (and members re-send) their last ticks after a rejoin (docs/PROTOCOL.md
+        section 4, "Lost members"). Counted in ``repeated``, not recorded twice."""
+        seen = self._recent.setdefault(key, {})
+        digest = hash(payload)
+        if seen.get(t_ns) == digest:
+            self.repeated[key] = self.repeated.get(key, 0) + 1
+            return True
+        seen[t_ns] = digest
+        if len(seen) > 8:
+            del seen[next(iter(seen))]
+        return False
 
     def run(self, stop_on_end: bool = True) -> int:
         end_at = None
@@ -582,6 +600,7 @@ class Recorder:
                 "messages": sum(self.out.counts.values()),
                 "bytes": self.out.size_bytes, "published": {},
                 "skipped": dict(sorted(self.skipped.items())),
+                "repeated": dict(sorted(self.repeated.items())),
                 "rejected": dict(self.rejects.counts),
                 "queue_max": self.queue_max,
                 "wall_time_s": (self.wall_end or time.monotonic()) - self.wall_start,
