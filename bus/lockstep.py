@@ -47,6 +47,7 @@ class AckLedger:
         # members gone without their FINAL that the plant holds time for ("Lost members")
         self.lost: dict[str, int] = {}          # member -> the plant's tick when it went
         self.rejoined: dict[str, int] = {}      # member -> the plant's tick when it came back
+        self.resent_upto = -1                   # the last tick the plant re-published
         # tick stamp -> the members present when the plant began that tick
         self.owed_by: dict[int, frozenset[str]] = {}
 
@@ -141,14 +142,15 @@ class AckLedger:
             if key in got:
                 # First per key per tick wins: what a second one would do must not depend on
                 # whether it came before or after the plant applied the tick.
-                if t > self.rejoined.get(member, -1):     # else: re-sent after a rejoin
+                if t > max(self.rejoined.get(member, -1), self.resent_upto):   # else re-sent
                     self.report(f"{key}: a second message from {member} for one tick",
                                 f"t={t * 1e-9:.3f} s; the first is kept, this one ignored")
                 return False
             got.add(key)
             if len(self.member_msgs) > 4 * RECENT_TICKS * max(1, len(self.members)):
                 del self.member_msgs[next(iter(self.member_msgs))]
-        elif t in self.acks.get(member, {}) and t <= self.rejoined.get(member, -1):
+        elif t in self.acks.get(member, {}) and t <= max(self.rejoined.get(member, -1),
+                                                          self.resent_upto):
             return False                                 # an empty ACK re-sent after a rejoin
         if att.flags & codec.ACK:
             self._ack(key, member, t, att.n_plant, bool(att.flags & codec.FINAL))
@@ -231,6 +233,7 @@ class AckLedger:
         self.member_msgs.clear()
         self.owed_by.clear()
         self.rejoined.clear()
+        self.resent_upto = -1
 
 
 @dataclass

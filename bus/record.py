@@ -80,6 +80,9 @@ ROSBAG2_VERSION = 9
 #: Channel metadata ``offered_qos_profiles``, YAML as rosbag2 writes it: none offered, so
 #: ROS 2 tools use their defaults.
 QOS_NONE = "[]"
+#: stamps per key remembered to drop a message re-sent after a lockstep rejoin (more than
+#: the plant re-publishes, plant.node.REPUBLISH_TICKS)
+REPEAT_WINDOW = 64
 #: After ``sim/end``, keep listening until the bus has been quiet this long (the last
 #: outputs of other nodes) and no lockstep member is left, but no longer than END_MAX_S.
 END_GRACE_S = 0.3
@@ -519,7 +522,7 @@ class Recorder:
             self.repeated[key] = self.repeated.get(key, 0) + 1
             return True
         seen[t_ns] = digest
-        if len(seen) > 8:
+        if len(seen) > REPEAT_WINDOW:
             del seen[next(iter(seen))]
         return False
 

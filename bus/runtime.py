@@ -48,8 +48,8 @@ PRODUCER_GRACE_S = 0.5
 #: controller: its producer is gone (realtime and fast modes, where nobody waits for it)
 STALE_S = 0.5
 #: lockstep: ticks of this member's outputs kept to re-send when the plant re-publishes
-#: them after a rejoin (the plant re-publishes its last three: plant.node.REPUBLISH_TICKS)
-RESEND_TICKS = 4
+#: them after a rejoin (more than the plant re-publishes: plant.node.REPUBLISH_TICKS, 25)
+RESEND_TICKS = 30
 #: samples kept per input topic (by stamp) and clock ticks waiting for their inputs
 _BUF_PER_TOPIC = 8
 _PENDING_MAX = 16

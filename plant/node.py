@@ -54,9 +54,10 @@ from .tick import build_world, tick_messages
 from .world import WorldError, WorldSpec, load_world
 
 MODES = ("lockstep", "realtime", "fast")
-#: lockstep: ticks of published messages kept to re-publish for a rejoining member (the
-#: tick the plant is at, the one a pipelined plant waits for, and the one before it)
-REPUBLISH_TICKS = 3
+#: lockstep: ticks of published messages kept to re-publish when a lost member rejoins:
+#: what the blip swallowed, for the members (at most the last three ticks) and for a
+#: recorder, whose share of the router's queue may lag further behind
+REPUBLISH_TICKS = 25
 #: how long the sim/end text goes before the sim/end token (wall s)
 END_TEXT_HEAD_START_S = 0.1
 
@@ -165,6 +166,7 @@ class Plant:
         self.inbox.watch_liveliness(keys.sync(), "member")
         self.inbox.watch_liveliness(keys.alive(), "alive")
         self.alive: set[str] = set()
+        self._vanished: set[str] = set()         # processes whose sim/alive token went
         self.inbox.serve(keys.reset, "reset")
         # sim/info is answered on Zenoh's thread, from what the main thread last put here
         self._info = self.info()
@@ -257,6 +259,7 @@ class Plant:
         member answers the ones it has not, re-sends its answer to the others; section 4,
         "Lost members"); whatever of them the blip swallowed reaches everyone now."""
         ticks = sorted(t for t in self._recent if t <= self.sim.time_ns)
+        self.ledger.resent_upto = max(ticks, default=-1)
         for t in ticks:
             for key, payload in self._recent[t]:
                 self._put_raw(key, payload, t)
@@ -285,7 +288,17 @@ class Plant:
         elif ev.tag == "out":
             self._on_output(ev)
         elif ev.tag == "alive":
-            (self.alive.add if ev.alive else self.alive.discard)(self.keys.node_of(ev.key))
+            node = self.keys.node_of(ev.key)
+            if not ev.alive:
+                self.alive.discard(node)
+                self._vanished.add(node)
+                return
+            self.alive.add(node)
+            if node in self._vanished and self.mode == "lockstep" and self.ticks:
+                # back after a blip (a recorder, say): what it missed of the last ticks
+                self._vanished.discard(node)
+                self.log.info("%s is back", node)
+                self.republish()
         elif ev.tag == "member":
             node = self.keys.node_of(ev.key)
             if ev.alive:

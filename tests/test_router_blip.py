@@ -17,12 +17,15 @@ from bus.protocol import COUPLINGS
 
 from .compare_recordings import compare
 from .conftest import ROOT, Procs, wait_for
+from .test_netns import net, start_router, tls_machines  # noqa: F401  (net: a fixture)
 
 pytestmark = pytest.mark.slow
 
 CLIENT = os.path.join(ROOT, "diffbot", "configs", "client.json5")
 DURATION_S = "5"
 BLIP_S = 2.0
+#: long enough in simulated time for five blips a few tenths of a second apart
+NETNS_DURATION_S = "15"
 
 
 def free_port() -> int:
@@ -31,64 +34,88 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def start_router(r: Procs, port: int):
-    router = r.diffbot("router", "--listen", f"tcp/127.0.0.1:{port}", name="router")
-    wait_for(lambda: "listening on" in r.log(router) or router.poll() is not None, 30,
-             what="the router")
-    assert router.poll() is None, r.log(router)
-    return router
-
-
-def square(tmp: str, coupling: str, blip_at: float | None) -> tuple[str, dict, str]:
-    """A square run through a loopback router: (MCAP path, plant stats, plant log); with
-    ``blip_at`` (simulated s) the router is SIGKILLed then and restarted BLIP_S later."""
-    os.makedirs(tmp, exist_ok=True)
-    r = Procs(tmp)
+def loopback_router() -> dict:
+    """A router on a free loopback port; every process a client by the shipped
+    client.json5 (docs/several-machines.md, plain TCP)."""
     port = free_port()
     env = {"DIFFBOT_ROUTER": "127.0.0.1", "DIFFBOT_PORT": str(port)}
-    bus = ["--zenoh-config", CLIENT]
+    client = ["--zenoh-config", CLIENT]
+    return {"router_args": ["--listen", f"tcp/127.0.0.1:{port}"], "plant_args": client,
+            "node_args": client, "rec_args": client, "router_env": env, "plant_env": env,
+            "ctrl_env": env}
+
+
+def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[float],
+           duration_s: str = DURATION_S) -> tuple[str, dict, str]:
+    """A square run through a router: (MCAP path, plant stats, plant log). For each of
+    ``blips`` (wall s after the run started or the last rejoin) the router is SIGKILLed
+    and restarted BLIP_S later; the plant must notice and the members rejoin each time."""
+    os.makedirs(tmp, exist_ok=True)
+    r = Procs(tmp)
     mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
     try:
-        router = start_router(r, port)
+        router = start_router(r, bus, ns.get("router"))
         plant = r.diffbot("plant", "--world", "living_room", "--disable", "camera",
-                          "--coupling", coupling, "--seed", "0", "--duration", DURATION_S,
+                          "--coupling", coupling, "--seed", "0", "--duration", duration_s,
                           "--expect", "odometry_robot1,square_path_robot1",
-                          "--rejoin-timeout", "30", "--stats", stats, "--log-level", "DEBUG",
-                          *bus, name="plant", env=env)
-        rec = r.diffbot("record", mcap, "--compression", "none", *bus, name="recorder",
-                        env=env)
+                          "--rejoin-timeout", "30", "--stats", stats, *bus["plant_args"],
+                          name="plant", netns=ns.get("plant"), env=bus["plant_env"])
+        rec = r.diffbot("record", mcap, "--compression", "none", *bus["rec_args"],
+                        name="recorder", netns=ns.get("ctrl"), env=bus["ctrl_env"])
         wait_for(lambda: "recording" in r.log(rec) or rec.poll() is not None, 30,
                  what="the recorder")
         r.diffbot("fmu-node", "fmus/build/odometry_fmi2.fmu", "--robot", "robot1", "--name",
-                  "odometry_robot1", "--wait", *bus, name="odometry", env=env)
+                  "odometry_robot1", "--wait", *bus["node_args"], name="odometry",
+                  netns=ns.get("ctrl"), env=bus["ctrl_env"])
         r.diffbot("controller", "square_path", "--robot", "robot1", "--side", "1.5",
-                  "--name", "square_path_robot1", "--wait", *bus, name="square", env=env)
-        if blip_at is not None:
-            wait_for(lambda: "running living_room" in r.log(plant), 60, what="the run")
-            # the plant logs nothing per tick: take the wall time the run needs to get there
-            time.sleep(blip_at)
+                  "--name", "square_path_robot1", "--wait", *bus["node_args"], name="square",
+                  netns=ns.get("ctrl"), env=bus["ctrl_env"])
+        wait_for(lambda: "running living_room" in r.log(plant), 60, what="the run")
+        for i, after in enumerate(blips):
+            time.sleep(after)
+            assert plant.poll() is None, f"the run ended before blip {i + 1}: {r.log(plant)}"
             router.send_signal(signal.SIGKILL)
             router.wait(5)
             time.sleep(BLIP_S)
-            start_router(r, port)
+            router = start_router(r, bus, ns.get("router"))
+            wait_for(lambda: r.log(plant).count("lockstep member rejoined") >= 2 * (i + 1),
+                     30, what=f"both members back after blip {i + 1}")
         assert plant.wait(120) == 0, r.log(plant)
         assert rec.wait(30) == 0, r.log(rec)
         log = r.log(plant)
     finally:
         r.cleanup()
+    assert log.count("lost the router") == len(blips), log
     with open(stats) as f:
         return mcap, json.load(f), log
 
 
+def same_run(ref: tuple, got: tuple, duration_s: str = DURATION_S) -> None:
+    lines = compare(ref[0], got[0])
+    assert lines and all(ln.startswith("same") for ln in lines), "\n".join(lines)
+    assert ref[1]["sim_time_s"] == got[1]["sim_time_s"] == pytest.approx(float(duration_s))
+    assert got[1]["protocol_errors"] == {}, got[1]
+
+
 @pytest.mark.parametrize("coupling", COUPLINGS)
 def test_a_router_blip_leaves_the_recording_as_an_undisturbed_run_s(tmp_path, coupling):
-    ref, st0, _ = square(str(tmp_path / "undisturbed"), coupling, None)
     blip_at = random.Random(coupling).uniform(0.3, 1.0)
-    got, st1, log = square(str(tmp_path / "blip"), coupling, blip_at)
-    assert "lost the router" in log and "lockstep member rejoined" in log, log[-3000:]
-    lines = compare(ref, got)
-    assert lines and all(ln.startswith("same") for ln in lines), "\n".join(lines)
-    assert st0["sim_time_s"] == st1["sim_time_s"] == pytest.approx(float(DURATION_S))
-    assert st1["protocol_errors"] == {}, st1
-    print(f"\n{coupling}: router blip at wall +{blip_at:.2f} s: recording identical "
-          f"({len(lines)} topics)")
+    ref = square(str(tmp_path / "undisturbed"), coupling, loopback_router(), {}, [])
+    got = square(str(tmp_path / "blip"), coupling, loopback_router(), {}, [blip_at])
+    assert "lockstep member rejoined" in got[2]
+    same_run(ref, got)
+    print(f"\n{coupling}: router blip at wall +{blip_at:.2f} s: recording identical")
+
+
+@pytest.mark.parametrize("coupling", COUPLINGS)
+def test_router_blips_across_namespaces_over_tls(tmp_path, net, coupling):
+    """The issue's version: three namespaces, the shipped TLS configs and the docs' steps
+    (tests/test_netns.py); five 2 s blips per coupling, ten in all, in one short run each."""
+    rng = random.Random(f"netns-{coupling}")
+    remote = tls_machines(str(tmp_path))
+    ref = square(str(tmp_path / "undisturbed"), coupling, remote, net.ns, [], NETNS_DURATION_S)
+    blips = [rng.uniform(0.1, 0.4) for _ in range(5)]
+    got = square(str(tmp_path / "blips"), coupling, remote, net.ns, blips, NETNS_DURATION_S)
+    same_run(ref, got, NETNS_DURATION_S)
+    print(f"\n{coupling}: {len(blips)} of {len(blips)} router blips across namespaces: "
+          "recording identical")
