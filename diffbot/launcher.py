@@ -210,6 +210,10 @@ class Run:
                         return 0
                     self.failed = c
                     self.reason = f"{c.name} {c.describe_exit()}"
+                    if c.name == "plant":     # e.g. a lockstep member lost: which, when
+                        why = _read_json(os.path.join(self.out, "logs", "plant.json"))
+                        if why.get("end_reason"):
+                            self.reason += f": {why['end_reason']}"
                     if code == EXIT_PLANT_GONE and c.name != "plant":
                         self._blame_plant(c)
                     return EXIT_FAILED
