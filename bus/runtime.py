@@ -195,17 +195,22 @@ class NodeRunner:
         sent = [(key, b"" if msg is None else codec.encode(msg), flags, n_plant)
                 for key, msg, flags, n_plant in self.member.owed(out, self.keys.ack(self.name),
                                                                  final)]
-        self._sent[t_ns] = sent
-        while len(self._sent) > RESEND_TICKS:
-            del self._sent[min(self._sent)]
-        self._resend(t_ns)
+        if self._keep_sent:           # (not the old world's last tick, after a reset)
+            self._sent[t_ns] = sent
+            while len(self._sent) > RESEND_TICKS:
+                del self._sent[min(self._sent)]
+        self._keep_sent = True
+        self._send(sent, t_ns)
 
     def _resend(self, t_ns: int) -> None:
+        self._send(self._sent[t_ns], t_ns)
+
+    def _send(self, sent: list[tuple[str, bytes, int, int]], t_ns: int) -> None:
         """Send (again) what this member sent for tick ``t_ns``, byte for byte but for the
         seq: after a rejoin the plant re-publishes its last ticks, and a member answers a
         tick it already answered this way, never by stepping again (docs/PROTOCOL.md
         section 4, "Lost members")."""
-        for key, payload, flags, n_plant in self._sent[t_ns]:
+        for key, payload, flags, n_plant in sent:
             self._put(key, payload, codec.attachment(self._next_seq(), t_ns, flags, n_plant,
                                                      self.name))
 
@@ -324,8 +329,10 @@ class NodeRunner:
         self._used: set[tuple[str, int]] = set()
         self._pending: dict[int, float] = {}   # lockstep: clock stamp -> wall time it came
         self._last_clock: int | None = None
-        # lockstep: what this member sent for its last ticks, to re-send (stamp -> messages)
+        # lockstep: what this member sent for its last ticks, to re-send (stamp -> messages);
+        # reset from inside step: the tick being answered is the old world's, not kept
         self._sent: dict[int, list[tuple[str, bytes, int, int]]] = {}
+        self._keep_sent = False
 
     # ----------------------------------------------------------------- loop
     def run(self, max_ticks: int | None = None) -> int:
@@ -345,6 +352,7 @@ class NodeRunner:
         if self.sync:
             tokens["sync"] = liveliness.declare_token(self.keys.sync(self.name))
         self.reset_inputs()
+        self._keep_sent = True
         plant_seen = plant_here = False
         left: dict[str, float] = {}          # lockstep members that left -> wall time
         last_loop, stalled, stall_s = time.monotonic(), -math.inf, 0.0
@@ -417,6 +425,8 @@ class NodeRunner:
                     if t_ns in self._sent:       # re-published after a rejoin
                         self._resend(t_ns)
                         continue
+                    if self._sent and t_ns < max(self._sent):    # the world went back
+                        self._sent.clear()
                     self._pending[t_ns] = now
                     if len(self._pending) > _PENDING_MAX:
                         old = next(iter(self._pending))

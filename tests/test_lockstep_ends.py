@@ -19,6 +19,7 @@ from bus.protocol import COUPLINGS
 from .conftest import ROOT, wait_for
 
 K = Keys()
+TOKEN = "<the sim/end token>"
 CLIENT = os.path.join(ROOT, "tests", "conformance_client.py")
 
 
@@ -41,7 +42,8 @@ class Watch:
                                  setdefault(codec.parse_attachment(smp.attachment.to_bytes())
                                             .t_ns, smp.payload.to_bytes())),
             s.declare_subscriber(K.end, lambda smp: self.end.append(
-                smp.payload.to_bytes().decode()))]
+                smp.payload.to_bytes().decode())),
+            s.liveliness().declare_subscriber(K.end, lambda smp: self.end.append(TOKEN))]
 
     def close(self) -> None:
         for sub in self.subs:
@@ -130,8 +132,10 @@ def test_a_lost_end_with_member_ends_the_run_at_once(procs, endpoint, tmp_path, 
     assert code == 1, procs.log(plant)
     w.close()
     assert took <= 3.0, f"the plant ended {took:.2f} s after the member went"
-    wait_for(lambda: w.end, 5, what="sim/end")
+    wait_for(lambda: len(w.end) >= 2, 5, what="sim/end, text and token")
+    # the text first (docs/PROTOCOL.md section 4, "End")
     assert w.end[0].startswith("lost lockstep member conformance at t="), w.end
+    assert w.end[1] == TOKEN
     st = json.loads(stats.read_text())
     assert st["end_reason"] == w.end[0] and st["exit_code"] == 1
     assert st["members_lost"] == ["conformance"]
