@@ -191,6 +191,7 @@ class Plant:
         the realtime pacing origin."""
         self.build()
         self.commands.clear()
+        self._recent.clear()           # the old world's ticks are never re-published
         self.ledger.restart()
         self.strategy.restarted()
         self._info = self.info()
