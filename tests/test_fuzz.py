@@ -493,7 +493,9 @@ class LiveRun:
             assert not self.bad_truth, f"robot state not finite / absurd: {self.bad_truth[:3]}"
 
     def stop(self) -> dict[str, dict]:
-        for name in list(self.NODES) + ["plant"]:
+        # the plant first: its members see the end (a member stopped before it is lost to
+        # a lockstep plant, which then ends the run with exit 1, docs/PROTOCOL.md)
+        for name in ["plant"] + list(self.NODES):
             p = self.procs[name]
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
