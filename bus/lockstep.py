@@ -266,8 +266,11 @@ class MemberTick:
         """Section 4, step 3: what the member sends for a tick, in order, as (key, message or
         None for the empty ACK, flags, n_plant): plant-read outputs last (a stable sort:
         robot order kept), the very last with ``ACK`` (and ``FINAL``) and ``n_plant``; a tick
-        with no plant-read output ends with an empty message on ``sim/ack/<node>``."""
-        out = sorted(outputs, key=lambda o: o.plant_read)
+        with no plant-read output ends with an empty message on ``sim/ack/<node>``. One
+        message per key and tick (the plant keeps only the first, section 7): of two
+        outputs queued on one key, the later (e.g. a stop after the last step's command)."""
+        last = {o.key: o for o in outputs}
+        out = sorted(last.values(), key=lambda o: o.plant_read)
         n_plant = sum(1 for o in out if o.plant_read)
         end = codec.ACK | (codec.FINAL if final else 0)
         sent = [(o.key, o.msg, end if (n_plant and i == len(out) - 1) else 0,

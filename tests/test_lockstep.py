@@ -243,6 +243,13 @@ def test_a_member_sends_plant_read_outputs_last_and_acks_on_the_very_last():
                                                   ("robot2/cmd_vel", codec.ACK, 2)]
 
 
+def test_a_member_sends_one_message_per_key_per_tick_the_last_queued():
+    m = MemberTick("n", T)
+    sent = m.owed([Output("robot1/cmd_vel", "go", True), Output("robot1/cmd_vel", "stop", True)],
+                  "sim/ack/n", final=True)
+    assert sent == [("robot1/cmd_vel", "stop", codec.ACK | codec.FINAL, 1)]
+
+
 def test_a_member_with_no_plant_read_output_sends_an_empty_ack():
     m = MemberTick("n", T)
     sent = m.owed([Output("robot1/debug", "d", False)], "sim/ack/n", final=True)

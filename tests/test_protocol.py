@@ -213,7 +213,8 @@ def test_the_plant_says_what_is_wrong_with_a_member_s_outputs(procs, endpoint, b
         s.put(key, cmd, attachment=codec.attachment(2, 0, codec.ACK, 2, "rogue"))  # 1 of 2
         wait_for(lambda: "lockstep: waited" in procs.log(plant), 15, what="the wait report")
         assert clocks.empty(), "the plant stepped without the member's second message"
-        s.put(key, cmd, attachment=codec.attachment(3, 0, 0, 0, "rogue"))          # 2 of 2
+        # 2 of 2, on another plant-read key (a second on cmd_vel would be a duplicate)
+        s.put(K.topic("robot1", "odom"), cmd, attachment=codec.attachment(3, 0, 0, 0, "rogue"))
         assert clocks.get(timeout=15) == 20_000_000
     finally:
         token.undeclare()
