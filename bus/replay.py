@@ -40,7 +40,7 @@ from . import codec, jsonio
 from .cliargs import ArgumentParser, nonneg_float, positive_float
 from .keys import Keys
 from .log import setup_logging
-from .record import Recorded, RecordError, iter_recording, layout
+from .mcapfile import Recorded, RecordError, iter_recording, layout
 from .session import BusConfigError, add_bus_args, open_session
 
 EXIT_OK = 0

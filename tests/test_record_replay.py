@@ -14,7 +14,7 @@ import pytest
 
 from bus import codec
 from bus.keys import Keys
-from bus.record import (INFO_METADATA, McapRecording, Recorded, RecordError, iter_recording,
+from bus.mcapfile import (INFO_METADATA, McapRecording, Recorded, RecordError, iter_recording,
                         layout, recover)
 
 from .conftest import ROOT, wait_for

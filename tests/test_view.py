@@ -222,7 +222,7 @@ def test_foxglove_client_sees_scan_image_scene_drives_and_reconnects(procs, endp
 
 @pytest.mark.slow
 def test_recording_holds_the_scene_and_a_transform_per_ground_truth(procs, endpoint, tmp_path):
-    from bus.record import Recorded, iter_recording
+    from bus.mcapfile import Recorded, iter_recording
     plant = procs.diffbot("plant", "--world", "living_room", "--mode", "fast", "--duration", "1",
                           "--expect", "recorder", "--endpoint", endpoint, name="plant")
     rec = procs.diffbot("record", str(tmp_path / "r.mcap"), "--endpoint", endpoint,
