@@ -207,12 +207,16 @@ def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
     assert not [d for d in set(os.listdir("/tmp")) - tmp_before
                 if d.startswith("diffbot-env-")], "socket directories left"
     # /dev/shm is shared with whatever else runs here: judge the names the envs' processes
-    # had mapped (multiprocessing's semaphores sem.mp-*, Zenoh's segments; Zenoh unlinks a
-    # segment a moment after the last process using it is gone)
+    # had mapped (multiprocessing's semaphores sem.mp-*, Zenoh's segments). Zenoh unlinks a
+    # segment a moment after the last process using it is gone, except sometimes a small
+    # watchdog segment that the next Zenoh process on the machine reclaims (seen on Zenoh
+    # 1.x whatever the env does): such a one may stay, but nothing may still map it.
     deadline = time.monotonic() + 5.0
     while (used & _shm()) and time.monotonic() < deadline:
         time.sleep(0.2)
-    assert not used & _shm(), f"shared memory left: {used & _shm()}"
+    left = used & _shm()
+    assert not {n for n in left if not n.endswith(".zenoh")}, f"shared memory left: {left}"
+    assert not _shm_mapped(_children()) & left, f"still mapped after close(): {left}"
 
 
 @pytest.mark.slow
@@ -289,8 +293,10 @@ def test_a_bus_env_joins_a_running_plant_and_leaves_it_running(procs, endpoint):
     finally:
         env.close()
         own.close()
-    time.sleep(0.5)
-    assert plant.poll() is None, "the env stopped a plant it did not start"
+    # the env left in order (FINAL): the plant ends its run as every member finished
+    # (docs/PROTOCOL.md "Finishing"), exit 0; it was not stopped by the env
+    assert plant.wait(30) == 0, procs.log(plant)
+    assert "member finished: stopping" in procs.log(plant)
     plant2 = procs.diffbot("plant", "--world", "living_room", "--mode", "lockstep",
                            "--coupling", "pipelined", "--disable", "camera", "--endpoint",
                            endpoint.replace("bus.sock", "b2.sock"), name="plant2")

@@ -97,8 +97,10 @@ class _Job:
     """n ticks for the member thread: answer the tick it holds with ``command``, then
     for each new tick ``observe`` it and (but after the last) answer it."""
 
-    def __init__(self, n: int, command: Command, observe: Observe) -> None:
+    def __init__(self, n: int, command: Command, observe: Observe,
+                 new_world: bool = False) -> None:
         self.n, self.command, self.observe = n, command, observe
+        self.new_world = new_world       # the world was reset since the member's last answer
         self.done = threading.Event()
         self.t_end: int | None = None
         self.error: BaseException | None = None
@@ -141,10 +143,15 @@ class _Member(NodeRunner):
             self.pending = job
             self.cv.notify_all()
 
-    def shut(self) -> None:
+    def shut(self, thread: threading.Thread | None, grace_s: float = 3.0) -> None:
+        """Leave the plant in order: the tick held is answered with FINAL (the plant ends a
+        run whose members all finished, docs/PROTOCOL.md "Finishing", instead of holding
+        time for a lost one), then the member stops."""
         with self.cv:
             self.closing = True
             self.cv.notify_all()
+        if thread is not None:
+            thread.join(grace_s)
         self.stop_event.set()
 
     def _take(self) -> _Job | None:
@@ -169,6 +176,10 @@ class _Member(NodeRunner):
                 job = None
         if job is None:
             job = self.current = self._take()
+            if job is not None and job.new_world:
+                # as a controller's reset from inside step: the tick answered now is the
+                # old world's, and the new one's ticks are no re-sends of the old one's
+                self.reset_inputs()
         cmds = {}
         if job is not None:
             try:
@@ -180,8 +191,11 @@ class _Member(NodeRunner):
             v, w = cmds.get(slot.robot, (0.0, 0.0))
             self.queue_output(Twist(v, w), t_ns, slot.robot)
         self.ticks += 1
-        self.send_tick(t_ns)
-        return False
+        final = job is None and self.closing
+        self.send_tick(t_ns, final=final)
+        if final:
+            self.final_tick = t_ns           # (the loop lingers until the plant took it)
+        return final
 
 
 _names = itertools.count()
@@ -276,7 +290,7 @@ class Bus:
         self._run(_Job(1, _zero, _ignore))
         req = {"seed": int(seed), "poses": {r: [float(v) for v in p] for r, p in poses.items()}}
         self._query_reset(req)
-        job = self._run(_Job(1, _zero, observe))
+        job = self._run(_Job(1, _zero, observe, new_world=True))
         if job.t_end != 0:
             raise TransportError(f"after sim/reset the plant published t={job.t_end} ns, "
                                  "not the new world's t=0")
@@ -317,7 +331,7 @@ class _Resources:
     def close(self) -> None:
         from diffbot.procs import stop
         if self.member is not None:
-            self.member.shut()
+            self.member.shut(self.thread)
         if self.plant is not None:
             stop([self.plant], grace_s=3.0)
             self.plant.close_log()
