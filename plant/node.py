@@ -47,6 +47,7 @@ from bus.session import BusConfigError, add_bus_args, open_session
 
 from . import modes
 from .commands import Command, CommandBook, decode_command
+from .memory import keep_freed_memory
 from .physics_process import PhysicsError, PhysicsProcess
 from .reset import parse_reset
 from .stepper import Stepper
@@ -538,6 +539,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     log = setup_logging("plant", args.log_level)
+    keep_freed_memory()
     try:
         spec = load_world(args.world, args.set)
         if args.seed is not None:

@@ -194,8 +194,13 @@ class Simulation:
         return RobotState(tf, yaw, v, w, pos, vel)
 
     def is_finite(self) -> bool:
-        return all(np.all(np.isfinite(r.skeleton.getPositions())) and
-                   np.all(np.isfinite(r.skeleton.getVelocities())) for r in self.robots.values())
+        """Whether every robot's positions and velocities are finite (checked every tick:
+        the array method, not the np.all wrapper, costs a third)."""
+        for r in self.robots.values():
+            sk = r.skeleton
+            if not (np.isfinite(sk.getPositions()).all() and np.isfinite(sk.getVelocities()).all()):
+                return False
+        return True
 
     # ------------------------------------------------------------------ geometry for sensors
     @staticmethod

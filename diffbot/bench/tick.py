@@ -1,0 +1,204 @@
+"""Suite ``tick``: where the plant's own tick goes, function by function.
+
+A sampling profile (py-spy, from PyPI: ``pip install -e '.[test]'`` brings it) of the plant
+process of a running ``diffbot run follow``, ``square`` and the 24-robot ``swarm``, a few
+seconds after start. Each sample of the plant's main thread is put in one *phase* by its
+innermost frame that names one (:data:`PHASES`): the shares say where a tick goes, and
+unlike wall times they hardly move with the machine's load. Also runnable alone, printing
+the phases and the top functions (self and inclusive)::
+
+    python -m diffbot.bench.tick follow [--seconds 6] [--rate 500] [-- extra run args]
+
+which is the documented way to redo the profile of docs/benchmarks.md.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+
+from diffbot import procs
+
+from .common import spawn, stop, tail
+from .harness import Context, Metric, Probe, Skip, suite
+
+#: (phase, frame predicate): a sample goes to the first phase whose predicate holds for
+#: its innermost matching frame (frames are "function (file:line)")
+PHASES: list[tuple[str, tuple[str, ...]]] = [
+    ("image noise", ("NoiseModel.prefetch_image", "NoiseModel._image_noise",
+                     "prefetch (plant/sensors.py")),
+    ("noise (other)", ("(plant/noise.py",)),
+    ("camera render", ("(plant/camera.py",)),
+    ("scene snapshot", ("Scene.__init__", "Scene.from_shapes", "Simulation.shapes",
+                        "Simulation.part_transforms", "Plant._shapes")),
+    ("lidar", ("(plant/lidar.py", "(plant/raycast.py", "scan_all (plant/sensors.py")),
+    ("encode", ("(bus/codec.py",)),
+    ("zenoh put", ("Plant._put", "Plant._publisher", "Publisher.put")),
+    ("robot state", ("Simulation.state", "(plant/robot.py", "Plant._state",
+                     "state_from_row")),
+    ("physics", ("Simulation.step_tick", "Plant._start_step", "Plant._finish_step",
+                 "(plant/physics_process.py", "Plant.apply_commands")),
+    ("waiting for nodes", ("Plant.wait_for_acks", "Plant.drain", "(bus/inbox.py",
+                           "Plant._await_final_of_leavers")),
+    ("sensor messages", ("RobotSensors.messages",)),
+]
+#: what the plant's main thread samples start with (other threads are zenoh callbacks)
+MAIN_ROOT = "_run_module_as_main"
+
+SCENARIOS = {
+    "follow": ["--coupling", "pipelined"],
+    "square": ["--coupling", "pipelined"],
+    "swarm": ["--robots", "24", "--controller-processes", "3", "--coupling", "pipelined",
+              "--duration", "30"],
+}
+
+
+def py_spy() -> str:
+    """The py-spy executable (next to this Python, else on PATH); Skip if there is none."""
+    here = os.path.join(os.path.dirname(sys.executable), "py-spy")
+    found = here if os.access(here, os.X_OK) else shutil.which("py-spy")
+    if not found:
+        raise Skip("py-spy is not installed (pip install py-spy; the [test] extra has it)")
+    return found
+
+
+def phase_of(frames: list[str]) -> str:
+    for frame in reversed(frames):                      # innermost first
+        for phase, marks in PHASES:
+            if any(m in frame for m in marks):
+                return phase
+    return "other"
+
+
+def parse_raw(text: str) -> list[tuple[list[str], int]]:
+    """py-spy's ``-f raw`` (collapsed stacks: ``f1;f2;...;leaf COUNT``), main thread only."""
+    out = []
+    for line in text.splitlines():
+        stack, _, count = line.rpartition(" ")
+        if not stack or not count.isdigit():
+            continue
+        frames = stack.split(";")
+        if frames[0].startswith(MAIN_ROOT):
+            out.append((frames, int(count)))
+    return out
+
+
+def _func(frame: str) -> str:
+    """``Plant._put (plant/node.py:276)`` -> ``Plant._put (plant/node.py)``: no line."""
+    name, _, where = frame.partition(" (")
+    return f"{name} ({where.rsplit(':', 1)[0]})" if where else name
+
+
+def summarise(stacks: list[tuple[list[str], int]], top: int = 15) -> dict:
+    """Phase shares, and the top functions by self and by inclusive share (fractions)."""
+    total = sum(c for _, c in stacks) or 1
+    phases, selfs, incl = Counter(), Counter(), Counter()
+    for frames, c in stacks:
+        phases[phase_of(frames)] += c
+        selfs[_func(frames[-1])] += c
+        for f in {_func(f) for f in frames}:
+            incl[f] += c
+    return {"samples": total,
+            "phases": {p: phases[p] / total for p, _ in [*PHASES, ("other", ())]},
+            "self": [(f, c / total) for f, c in selfs.most_common(top)],
+            "inclusive": [(f, c / total) for f, c in incl.most_common(top + 12)
+                          if c < total][:top]}
+
+
+def profile_run(scenario: str, extra: list[str], tmpdir: str, seconds: float = 6.0,
+                rate: int = 500, settle_s: float = 2.0) -> dict:
+    """Start ``diffbot run SCENARIO``, py-spy its plant for ``seconds`` once ``settle_s``
+    have passed since the plant appeared, let the run finish; the summary of the profile
+    plus the run's real-time factor and per-tick times."""
+    spy = py_spy()
+    out = tempfile.mkdtemp(prefix=f"tick-{scenario}-", dir=tmpdir)
+    run = spawn(["run", scenario, "--out", out, *extra], os.path.join(out, "run.log"))
+    try:
+        deadline, plant = time.monotonic() + 60, None
+        while plant is None and time.monotonic() < deadline and run.running():
+            time.sleep(0.1)
+            plant = next((p for p in procs.descendants(run.pid) if _is_plant(p)), None)
+        if plant is None:
+            raise RuntimeError(f"no plant process appeared: {tail(os.path.join(out, 'run.log'))}")
+        time.sleep(settle_s)
+        raw = os.path.join(out, "raw.txt")
+        r = subprocess.run([spy, "record", "-p", str(plant), "-d", f"{seconds:g}", "-r",
+                            str(rate), "-f", "raw", "-o", raw], capture_output=True, text=True)
+        if r.returncode != 0 or not os.path.exists(raw):
+            raise RuntimeError(f"py-spy failed: {r.stderr.strip()[-400:]}")
+        with open(raw) as f:
+            prof = summarise(parse_raw(f.read()))
+        if run.wait(900) != 0:
+            raise RuntimeError(f"diffbot run {scenario} failed: {tail(os.path.join(out, 'run.log'))}")
+        import json
+        with open(os.path.join(out, "summary.json")) as f:
+            summary = json.load(f)
+        prof["real_time_factor"] = summary.get("real_time_factor")
+        prof["plant_per_tick_ms"] = summary.get("plant_per_tick_ms")
+        return prof
+    finally:
+        stop([run], grace_s=15.0)
+        shutil.rmtree(out, ignore_errors=True)
+
+
+def _is_plant(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            argv = f.read().split(b"\0")
+    except OSError:
+        return False
+    return b"plant" in argv and b"diffbot.cli" in argv
+
+
+@suite("tick", "where the plant's tick goes: py-spy phase shares of follow, square and the "
+               "24-robot swarm (needs py-spy)")
+def tick_suite(ctx: Context):
+    py_spy()
+    for name, extra in SCENARIOS.items():
+        def run(name=name, extra=extra) -> dict:
+            p = profile_run(name, extra, ctx.tmpdir, seconds=3.0 if ctx.quick else 6.0)
+            return {**{k: v * 100 for k, v in p["phases"].items()},
+                    "real_time_factor": p["real_time_factor"]}
+        yield Probe(f"{name} plant", run, [
+            *(Metric(p, f"{name}: {p}", "%") for p, _ in [*PHASES, ("other", ())]),
+            Metric("real_time_factor", f"{name}: real-time factor (while profiled)", "x",
+                   notes="py-spy pauses the plant to sample it: slower than unprofiled")],
+            repeats=1, warmup=0, notes="share of the plant's main-thread samples")
+
+
+def print_profile(name: str, p: dict) -> None:
+    print(f"## {name}: {p['samples']} samples, real-time factor "
+          f"{p['real_time_factor'] or 0:.1f}x (profiled), per tick ms {p['plant_per_tick_ms']}")
+    print("| phase | share |\n|---|---|")
+    for k, v in sorted(p["phases"].items(), key=lambda kv: -kv[1]):
+        print(f"| {k} | {100 * v:.1f} % |")
+    for what in ("self", "inclusive"):
+        print(f"\n| function ({what}) | share |\n|---|---|")
+        for f, v in p[what]:
+            print(f"| `{f}` | {100 * v:.1f} % |")
+    print()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m diffbot.bench.tick",
+                                 description="py-spy the plant of a running scenario")
+    ap.add_argument("scenario", nargs="+", choices=sorted(SCENARIOS))
+    ap.add_argument("--seconds", type=float, default=6.0)
+    ap.add_argument("--rate", type=int, default=500)
+    ap.add_argument("extra", nargs=argparse.REMAINDER, help="after --: more run arguments")
+    args = ap.parse_args(argv)
+    extra = [a for a in args.extra if a != "--"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.scenario:
+            print_profile(name, profile_run(name, SCENARIOS[name] + extra, tmp,
+                                            args.seconds, args.rate))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
