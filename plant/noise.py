@@ -182,6 +182,18 @@ def make_rng(seed: int, stream_name: str) -> np.random.Generator:
 # Application
 # ----------------------------------------------------------------------------------
 
+_PREFETCHER = None
+
+
+def _prefetcher():
+    """The one worker thread that draws image noise ahead (NoiseModel.prefetch_image)."""
+    global _PREFETCHER
+    if _PREFETCHER is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _PREFETCHER = ThreadPoolExecutor(1, thread_name_prefix="noise-prefetch")
+    return _PREFETCHER
+
+
 class NoiseModel:
     """Applies a :class:`NoiseConfig` using its own generator.
 
@@ -198,19 +210,37 @@ class NoiseModel:
     def __init__(self, config: NoiseConfig, rng: np.random.Generator):
         self.config = config
         self.rng = rng
-        self._next_image_noise: np.ndarray | None = None
+        # the next image's noise: drawn (or being drawn, a Future) ahead of its apply
+        self._next_image_noise = None
+        self._spare: np.ndarray | None = None     # a buffer of the last image's shape
 
-    def prefetch_image(self, shape: tuple[int, ...]) -> None:
-        """Draw the next image's noise now (e.g. while the plant waits for its nodes).
+    def prefetch_image(self, shape: tuple[int, ...], background: bool = False) -> None:
+        """Draw the next image's noise now (e.g. while the plant waits for its nodes);
+        ``background``: on a worker thread (numpy draws without the GIL), so the caller
+        goes on at once and the draws overlap its waiting.
 
         The stream is the same with or without prefetching: the next ``apply`` of an
-        image of this shape uses exactly these draws."""
+        image of this shape uses exactly these draws (it waits for them if need be)."""
         if self.config.std > 0 and self._next_image_noise is None:
-            self._next_image_noise = self._image_noise(shape)
+            if background:
+                self._next_image_noise = _prefetcher().submit(self._image_noise, shape)
+            else:
+                self._next_image_noise = self._image_noise(shape)
 
     def _image_noise(self, shape) -> np.ndarray:
-        noise = self.rng.standard_normal(shape, dtype=np.float32)
+        buf, self._spare = self._spare, None
+        if buf is None or buf.shape != tuple(shape):
+            buf = np.empty(shape, dtype=np.float32)
+        noise = self.rng.standard_normal(dtype=np.float32, out=buf)
         noise *= np.float32(self.config.std)
+        return noise
+
+    def _take_image_noise(self, shape) -> np.ndarray:
+        noise, self._next_image_noise = self._next_image_noise, None
+        if noise is not None and not isinstance(noise, np.ndarray):
+            noise = noise.result()                   # a background draw: wait for it
+        if noise is None or noise.shape != shape:
+            noise = self._image_noise(shape)
         return noise
 
     def _noisy(self, x: np.ndarray) -> np.ndarray:
@@ -227,18 +257,24 @@ class NoiseModel:
             if c.is_zero and c.resolution == 0:
                 return arr.copy()
             # Images: single precision is plenty for 0..255 and several times faster.
-            out = arr.astype(np.float32)
-            out += np.float32(c.bias + c.mean)
+            offset = np.float32(c.bias + c.mean)
             if c.std > 0:
-                noise, self._next_image_noise = self._next_image_noise, None
-                if noise is None or noise.shape != arr.shape:
-                    noise = self._image_noise(arr.shape)
-                out += noise
+                # (x + offset) + noise, summed into the noise's own buffer (then reused)
+                noise = self._take_image_noise(arr.shape)
+                out = np.add(arr, offset, dtype=np.float32, out=np.empty_like(noise)) \
+                    if offset else arr
+                out = np.add(noise, out, out=noise, dtype=np.float32)
+            else:
+                out = arr.astype(np.float32)
+                out += offset
             if c.resolution > 0:
                 out = np.round(out / np.float32(c.resolution)) * np.float32(c.resolution)
             np.rint(out, out=out)
             np.clip(out, 0, 255, out=out)
-            return out.astype(np.uint8)
+            img = out.astype(np.uint8)
+            if c.std > 0 and out.base is None:
+                self._spare = out                    # the next draw goes into it
+            return img
         out = self._noisy(arr.astype(np.float64))
         if c.resolution > 0:
             with np.errstate(invalid="ignore"):

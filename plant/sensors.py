@@ -53,11 +53,13 @@ class RobotSensors:
             self.periods["camera/camera_info"] = p
             self._info_fields = cam.camera_info(self.camera)
 
-    def prefetch(self) -> None:
+    def prefetch(self, background: bool = True) -> None:
         """Work that does not depend on the state (the next image's noise), done while the
-        plant waits for its nodes."""
+        plant waits for its nodes: on a worker thread unless ``background`` is false (the
+        same values either way)."""
         if self.camera_noise is not None:
-            self.camera_noise.prefetch_image((self.camera.height, self.camera.width, 3))
+            self.camera_noise.prefetch_image((self.camera.height, self.camera.width, 3),
+                                             background)
 
     def due(self, tick: int) -> list[str]:
         return [t for t, p in self.periods.items() if tick % p == 0]
