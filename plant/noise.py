@@ -243,6 +243,17 @@ class NoiseModel:
             noise = self._image_noise(shape)
         return noise
 
+    def skip(self, shape: tuple[int, ...]) -> None:
+        """Draw what ``apply`` of a float array (a 1-D ``shape``) or of an image (a 3-D
+        ``shape``, uint8) would, and drop it: the stream stays where it would be had the
+        value been made (a topic nobody reads)."""
+        if self.config.std <= 0:
+            return
+        if len(shape) == 3:
+            self._spare = self._take_image_noise(tuple(shape))
+        else:
+            self.rng.normal(0.0, self.config.std, size=shape)
+
     def _noisy(self, x: np.ndarray) -> np.ndarray:
         c = self.config
         out = x + (c.bias + c.mean)

@@ -1,0 +1,62 @@
+"""A topic nobody reads is not built, and that changes no value of any topic: whoever
+listens, from whatever tick on, gets the bytes an always-listened run gets."""
+from __future__ import annotations
+
+import math
+
+from bus import codec
+from plant.raycast import Scene
+from plant.sensors import RobotSensors, scan_all
+from plant.sim import Simulation
+from plant.world import load_world
+
+NOISY = ["robots.leader.lidar.noise={std = 0.05}", "robots.follower.camera.noise={std = 10.0}",
+         "robots.leader.encoders.noise={std = 0.01}", "robots.follower.gps.noise={std = 0.02}"]
+
+
+def _run(ticks: int, wanted):
+    """{(tick, robot, topic): CDR bytes} of a follow-world run, building only what
+    ``wanted(tick, robot, topic)`` asks for (None: everything)."""
+    spec = load_world("living_room_follow", NOISY)
+    sim = Simulation(spec)
+    sensors = {r.name: RobotSensors(r, spec.control_tick_s, 3) for r in spec.robots}
+    tick_ns = int(round(spec.control_tick_s * 1e9))
+    out, built = {}, {"scan": 0, "camera/image_raw": 0}
+    for k in range(ticks):
+        t = sim.time_ns
+        tick = t // tick_ns
+        want = {n: (None if wanted is None else (lambda topic, n=n: wanted(tick, n, topic)))
+                for n in sensors}
+        due = [s.needs_scene(tick, want[n]) for n, s in sensors.items()]
+        scene = Scene(sim.shapes()) if any(due) else None
+        states = {n: sim.state(n) for n in sensors}
+        scans = scan_all(sensors, states, tick, scene,
+                         None if wanted is None else want) if scene is not None else {}
+        for n, s in sensors.items():
+            for topic, msg in s.messages(tick, t, states[n], scene, scans.get(n), want[n]):
+                out[(tick, n, topic)] = codec.encode(msg)
+                built[topic] = built.get(topic, 0) + 1
+            s.prefetch()
+        for i, n in enumerate(sim.robots):
+            sim.command_twist(n, 0.2, 0.8 * math.sin(0.1 * k + i))
+        sim.step_tick()
+    return out, built
+
+
+def test_unread_topics_are_not_built_and_change_no_value_of_the_others():
+    full, _ = _run(40, None)
+
+    def wanted(tick, robot, topic):
+        if topic in ("gps", "camera/camera_info"):
+            return False                                  # nobody, ever
+        if topic in ("scan", "camera/image_raw"):
+            return tick >= 17                             # a reader that joins late
+        return tick % 3 != 0                              # one that comes and goes
+    part, built = _run(40, wanted)
+    assert part and set(part) < set(full)
+    assert all(full[k] == v for k, v in part.items())
+    assert not any(topic in ("gps", "camera/camera_info") for _, _, topic in part)
+    assert min(tick for tick, _, topic in part if topic == "scan") >= 17
+    assert built["scan"] == sum(1 for tick, _, topic in full if topic == "scan" and tick >= 17)
+    assert built["camera/image_raw"] == sum(1 for tick, _, topic in full
+                                        if topic == "camera/image_raw" and tick >= 17)
