@@ -11,7 +11,7 @@ from typing import Callable
 
 import numpy as np
 
-from bus import codec
+from bus import codec, packed
 from bus.keys import WORLD_FRAME, frame
 
 from . import camera as cam
@@ -80,28 +80,40 @@ class RobotSensors:
         return self.lidar is not None and tick % self.periods["scan"] == 0
 
     def messages(self, tick: int, t_ns: int, st: RobotState, scene: Scene | None,
-                 exact_scan: np.ndarray | None = None, wanted: Wanted | None = None):
+                 exact_scan: np.ndarray | None = None, wanted: Wanted | None = None,
+                 encoded: bool = False):
         """(topic, message) pairs due at ``tick``, in a fixed order. ``exact_scan``: this
         robot's noise-free lidar ranges when the caller cast them already (with
         :func:`scan_all`, for every robot at once). ``wanted(topic)``: whether anyone reads
         that topic (None: every topic is built). A topic nobody reads is not built (no
         rays cast, no frame rendered, nothing encoded) but its noise is still drawn, so
-        every value of every topic is the same whoever listens, from whatever tick on."""
+        every value of every topic is the same whoever listens, from whatever tick on.
+        ``encoded``: (topic, CDR bytes) pairs instead, the bytes of ``codec.encode`` of
+        each message, the per-tick ones packed straight from the values
+        (:mod:`bus.packed`), several times faster."""
         want = _every if wanted is None else wanted
         out = []
         pos = st.enc_pos
         if self.enc_noise is not None:
             pos = self.enc_noise.apply(pos)
         if want("joint_states"):
-            out.append(("joint_states", codec.joint_state(t_ns, JOINTS, pos, st.enc_vel)))
+            out.append(("joint_states", packed.joint_state(t_ns, JOINTS, pos, st.enc_vel)
+                         if encoded else codec.joint_state(t_ns, JOINTS, pos, st.enc_vel)))
         x, y, z = st.xyz
         gx, gy, gz = self.gps_noise.apply(np.array([x, y, z])) if self.gps_noise else (x, y, z)
         if want("gps"):
-            out.append(("gps", codec.point_stamped(t_ns, gx, gy, gz)))
+            out.append(("gps", packed.point_stamped(t_ns, float(gx), float(gy), float(gz))
+                        if encoded else codec.point_stamped(t_ns, gx, gy, gz)))
         if want("ground_truth"):
-            out.append(("ground_truth", codec.odometry(
+            q = st.quaternion
+            base = self.frames["base_link"]
+            out.append(("ground_truth", packed.odometry(
+                t_ns, float(x), float(y), float(z), [float(v) for v in q], float(st.v_body[0]),
+                float(st.w_body[2]), frame_id=WORLD_FRAME, child_frame_id=base)
+                if encoded else codec.odometry(
                 t_ns, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id=WORLD_FRAME,
-                child_frame_id=self.frames["base_link"], z=z, quaternion=st.quaternion)))
+                child_frame_id=base, z=z, quaternion=q)))
+        enc = codec.encode if encoded else _same
         if self.lidar_due(tick):
             c = self.lidar
             if not want("scan"):
@@ -111,9 +123,9 @@ class RobotSensors:
                 if exact_scan is None:
                     exact_scan = lid.scan(c, st.tf, scene, exclude_owner=self.name)
                 ranges = lid.apply_noise(c, exact_scan, self.lidar_noise)
-                out.append(("scan", codec.laser_scan(
+                out.append(("scan", enc(codec.laser_scan(
                     t_ns, c.angle_min, c.angle_max, c.angle_increment, 1.0 / c.rate_hz,
-                    c.min_range_m, c.max_range_m, ranges, frame_id=self.frames["laser"])))
+                    c.min_range_m, c.max_range_m, ranges, frame_id=self.frames["laser"]))))
         if self.camera and tick % self.periods["camera/image_raw"] == 0:
             optical = self.frames["camera_optical"]
             if not want("camera/image_raw"):
@@ -124,11 +136,15 @@ class RobotSensors:
                                  exclude_owner=self.name)
                 if self.camera_noise is not None:
                     rgb = self.camera_noise.apply(rgb)
-                out.append(("camera/image_raw", codec.image(t_ns, rgb, optical)))
+                out.append(("camera/image_raw", enc(codec.image(t_ns, rgb, optical))))
             if want("camera/camera_info"):
-                out.append(("camera/camera_info", codec.camera_info(t_ns, **self._info_fields,
-                                                                    frame_id=optical)))
+                out.append(("camera/camera_info", enc(codec.camera_info(
+                    t_ns, **self._info_fields, frame_id=optical))))
         return out
+
+
+def _same(msg):
+    return msg
 
 
 def _every(topic: str) -> bool:

@@ -14,7 +14,7 @@ NOISY = ["robots.leader.lidar.noise={std = 0.05}", "robots.follower.camera.noise
          "robots.leader.encoders.noise={std = 0.01}", "robots.follower.gps.noise={std = 0.02}"]
 
 
-def _run(ticks: int, wanted):
+def _run(ticks: int, wanted, encoded: bool = False):
     """{(tick, robot, topic): CDR bytes} of a follow-world run, building only what
     ``wanted(tick, robot, topic)`` asks for (None: everything)."""
     spec = load_world("living_room_follow", NOISY)
@@ -33,8 +33,9 @@ def _run(ticks: int, wanted):
         scans = scan_all(sensors, states, tick, scene,
                          None if wanted is None else want) if scene is not None else {}
         for n, s in sensors.items():
-            for topic, msg in s.messages(tick, t, states[n], scene, scans.get(n), want[n]):
-                out[(tick, n, topic)] = codec.encode(msg)
+            for topic, msg in s.messages(tick, t, states[n], scene, scans.get(n), want[n],
+                                         encoded=encoded):
+                out[(tick, n, topic)] = msg if encoded else codec.encode(msg)
                 built[topic] = built.get(topic, 0) + 1
             s.prefetch()
         for i, n in enumerate(sim.robots):
@@ -59,4 +60,14 @@ def test_unread_topics_are_not_built_and_change_no_value_of_the_others():
     assert min(tick for tick, _, topic in part if topic == "scan") >= 17
     assert built["scan"] == sum(1 for tick, _, topic in full if topic == "scan" and tick >= 17)
     assert built["camera/image_raw"] == sum(1 for tick, _, topic in full
-                                        if topic == "camera/image_raw" and tick >= 17)
+                                            if topic == "camera/image_raw" and tick >= 17)
+
+
+def test_encoded_messages_are_the_bytes_of_the_messages():
+    """messages(encoded=True), packed straight from the values, gives codec.encode of
+    every message, tick after tick (noise, lidar, camera, ground truth included)."""
+    want, _ = _run(25, None)
+    got, _ = _run(25, None, encoded=True)
+    assert got == want
+    assert {topic for _, _, topic in got} >= {"joint_states", "gps", "ground_truth", "scan",
+                                               "camera/image_raw", "camera/camera_info"}
