@@ -1,0 +1,53 @@
+"""The plant's publishers: CDR bytes out with their attachment, and who reads what.
+
+One Zenoh publisher per key, declared on first use. :meth:`Outbox.reads` is Zenoh's
+matching status of a key's publisher: whether any subscriber (a node, the recorder, the
+launcher's observer, ``diffbot echo``...) would get a put on it now. The plant builds only
+the topics someone reads (:meth:`plant.sensors.RobotSensors.messages`'s ``wanted``): a
+``square`` run has nobody on its lidar, a swarm's controllers read one topic of four.
+The matching status comes from the same routing tables a put goes by, so a subscriber
+declared before a member's ``sim/sync`` token is always counted by the time the plant
+sees the member. Attachment sequence numbers count every due message, put or not, so a
+message's attachment is the same whoever listens.
+"""
+from __future__ import annotations
+
+import zenoh
+
+from bus import codec
+
+
+class Outbox:
+    def __init__(self, session: zenoh.Session, congestion: zenoh.CongestionControl) -> None:
+        self.session = session
+        self.congestion = congestion
+        self.seq = 0
+        self.published: dict[str, int] = {}
+        self._pubs: dict[str, zenoh.Publisher] = {}
+
+    def publisher(self, key: str) -> zenoh.Publisher:
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = self.session.declare_publisher(
+                key, encoding=zenoh.Encoding.APPLICATION_CDR,
+                congestion_control=self.congestion)
+        return pub
+
+    def reads(self, key: str) -> bool:
+        """Whether anyone subscribes to ``key`` now (Zenoh's matching status)."""
+        return self.publisher(key).matching_status.matching
+
+    def put(self, key: str, data: bytes, t_ns: int) -> None:
+        """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number."""
+        self.seq += 1
+        self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns))
+        self.published[key] = self.published.get(key, 0) + 1
+
+    def skip(self, n: int = 1) -> None:
+        """``n`` due messages nobody reads: their sequence numbers go unused."""
+        self.seq += n
+
+    def undeclare(self) -> None:
+        for pub in self._pubs.values():
+            pub.undeclare()
+        self._pubs.clear()
