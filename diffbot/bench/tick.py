@@ -4,16 +4,13 @@ A sampling profile (py-spy, from PyPI: ``pip install -e '.[test]'`` brings it) o
 process of a running ``diffbot run follow``, ``square`` and the 24-robot ``swarm``, a few
 seconds after start. Each sample of the plant's main thread is put in one *phase* by its
 innermost frame that names one (:data:`PHASES`): the shares say where a tick goes, and
-unlike wall times they hardly move with the machine's load. Also runnable alone, printing
-the phases and the top functions (self and inclusive)::
+unlike wall times they hardly move with the machine's load. The phases and the top
+functions (self and inclusive) as markdown tables, the way docs/benchmarks.md shows them::
 
-    python -m diffbot.bench.tick follow [--seconds 6] [--rate 500] [-- extra run args]
-
-which is the documented way to redo the profile of docs/benchmarks.md.
+    python -m diffbot.bench.plantprofile follow square swarm [--seconds 6] [--rate 500]
 """
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import subprocess
@@ -37,8 +34,8 @@ PHASES: list[tuple[str, tuple[str, ...]]] = [
     ("scene snapshot", ("Scene.__init__", "Scene.from_shapes", "Simulation.shapes",
                         "Simulation.part_transforms", "Plant._shapes")),
     ("lidar", ("(plant/lidar.py", "(plant/raycast.py", "scan_all (plant/sensors.py")),
-    ("encode", ("(bus/codec.py",)),
-    ("zenoh put", ("Plant._put", "Plant._publisher", "Publisher.put")),
+    ("encode", ("(bus/codec.py", "(bus/packed.py")),
+    ("zenoh put", ("Plant._put", "Plant._publisher", "Publisher.put", "(plant/outbox.py")),
     ("robot state", ("Simulation.state", "(plant/robot.py", "Plant._state",
                      "state_from_row")),
     ("physics", ("Simulation.step_tick", "Plant._start_step", "Plant._finish_step",
@@ -169,36 +166,3 @@ def tick_suite(ctx: Context):
             Metric("real_time_factor", f"{name}: real-time factor (while profiled)", "x",
                    notes="py-spy pauses the plant to sample it: slower than unprofiled")],
             repeats=1, warmup=0, notes="share of the plant's main-thread samples")
-
-
-def print_profile(name: str, p: dict) -> None:
-    print(f"## {name}: {p['samples']} samples, real-time factor "
-          f"{p['real_time_factor'] or 0:.1f}x (profiled), per tick ms {p['plant_per_tick_ms']}")
-    print("| phase | share |\n|---|---|")
-    for k, v in sorted(p["phases"].items(), key=lambda kv: -kv[1]):
-        print(f"| {k} | {100 * v:.1f} % |")
-    for what in ("self", "inclusive"):
-        print(f"\n| function ({what}) | share |\n|---|---|")
-        for f, v in p[what]:
-            print(f"| `{f}` | {100 * v:.1f} % |")
-    print()
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m diffbot.bench.tick",
-                                 description="py-spy the plant of a running scenario")
-    ap.add_argument("scenario", nargs="+", choices=sorted(SCENARIOS))
-    ap.add_argument("--seconds", type=float, default=6.0)
-    ap.add_argument("--rate", type=int, default=500)
-    ap.add_argument("extra", nargs=argparse.REMAINDER, help="after --: more run arguments")
-    args = ap.parse_args(argv)
-    extra = [a for a in args.extra if a != "--"]
-    with tempfile.TemporaryDirectory() as tmp:
-        for name in args.scenario:
-            print_profile(name, profile_run(name, SCENARIOS[name] + extra, tmp,
-                                            args.seconds, args.rate))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
