@@ -106,7 +106,8 @@ class Plant:
                  rate: float = 1.0, expect: tuple[str, ...] = (), duration_s: float | None = None,
                  join_timeout_s: float = 30.0, disabled: tuple[str, ...] = (),
                  end_with: tuple[str, ...] = (), coupling: str = "sequential",
-                 physics_process: bool = False, rejoin_timeout_s: float = 0.0) -> None:
+                 physics_process: bool = False, rejoin_timeout_s: float = 0.0,
+                 skip_unread: bool = True) -> None:
         self.spec = spec
         self.session = session
         self.keys = keys
@@ -152,7 +153,8 @@ class Plant:
         # In lockstep nothing may be lost: block rather than drop when a queue is full.
         self.congestion = (zenoh.CongestionControl.BLOCK if mode == "lockstep"
                            else zenoh.CongestionControl.DROP)
-        self.outbox = Outbox(session, self.congestion)
+        # (only on the plant's own router session: see plant/outbox.py)
+        self.outbox = Outbox(session, self.congestion, skip_unread)
         self.published = self.outbox.published
         self._keys: dict[tuple[str, str], str] = {}
         self.inbox = Inbox(session)
@@ -572,7 +574,8 @@ def main(argv: list[str] | None = None) -> int:
                       disabled=disabled,
                       end_with=tuple(n for n in args.end_with.split(",") if n),
                       coupling=args.coupling, physics_process=args.physics_process,
-                      rejoin_timeout_s=args.rejoin_timeout)
+                      rejoin_timeout_s=args.rejoin_timeout,
+                      skip_unread=args.zenoh_config is None)
 
         def on_signal(signum, frame):
             plant.stop_event.set()

@@ -182,18 +182,6 @@ def make_rng(seed: int, stream_name: str) -> np.random.Generator:
 # Application
 # ----------------------------------------------------------------------------------
 
-_PREFETCHER = None
-
-
-def _prefetcher():
-    """The one worker thread that draws image noise ahead (NoiseModel.prefetch_image)."""
-    global _PREFETCHER
-    if _PREFETCHER is None:
-        from concurrent.futures import ThreadPoolExecutor
-        _PREFETCHER = ThreadPoolExecutor(1, thread_name_prefix="noise-prefetch")
-    return _PREFETCHER
-
-
 class NoiseModel:
     """Applies a :class:`NoiseConfig` using its own generator.
 
@@ -210,22 +198,16 @@ class NoiseModel:
     def __init__(self, config: NoiseConfig, rng: np.random.Generator):
         self.config = config
         self.rng = rng
-        # the next image's noise: drawn (or being drawn, a Future) ahead of its apply
-        self._next_image_noise = None
+        self._next_image_noise: np.ndarray | None = None   # drawn ahead of its apply
         self._spare: np.ndarray | None = None     # a buffer of the last image's shape
 
-    def prefetch_image(self, shape: tuple[int, ...], background: bool = False) -> None:
-        """Draw the next image's noise now (e.g. while the plant waits for its nodes);
-        ``background``: on a worker thread (numpy draws without the GIL), so the caller
-        goes on at once and the draws overlap its waiting.
+    def prefetch_image(self, shape: tuple[int, ...]) -> None:
+        """Draw the next image's noise now (e.g. while the plant waits for its nodes).
 
         The stream is the same with or without prefetching: the next ``apply`` of an
-        image of this shape uses exactly these draws (it waits for them if need be)."""
+        image of this shape uses exactly these draws."""
         if self.config.std > 0 and self._next_image_noise is None:
-            if background:
-                self._next_image_noise = _prefetcher().submit(self._image_noise, shape)
-            else:
-                self._next_image_noise = self._image_noise(shape)
+            self._next_image_noise = self._image_noise(shape)
 
     def _image_noise(self, shape) -> np.ndarray:
         buf, self._spare = self._spare, None
@@ -237,8 +219,6 @@ class NoiseModel:
 
     def _take_image_noise(self, shape) -> np.ndarray:
         noise, self._next_image_noise = self._next_image_noise, None
-        if noise is not None and not isinstance(noise, np.ndarray):
-            noise = noise.result()                   # a background draw: wait for it
         if noise is None or noise.shape != shape:
             noise = self._image_noise(shape)
         return noise

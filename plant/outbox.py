@@ -7,8 +7,13 @@ the topics someone reads (:meth:`plant.sensors.RobotSensors.messages`'s ``wanted
 ``square`` run has nobody on its lidar, a swarm's controllers read one topic of four.
 The matching status comes from the same routing tables a put goes by, so a subscriber
 declared before a member's ``sim/sync`` token is always counted by the time the plant
-sees the member. Attachment sequence numbers count every due message, put or not, so a
-message's attachment is the same whoever listens.
+sees the member. That holds where the plant's session is the router every node connects
+to (its own configuration, the default): the routing tables are its own and a member's
+declarations reach it in order. Behind a user's Zenoh configuration (a separate router,
+peers) a newly declared publisher learns of the subscribers only some time later, so there
+the outbox says everything is read (``skip_unread=False``) and the plant builds it all, as
+before. Attachment sequence numbers count every due message, put or not, so a message's
+attachment is the same whoever listens.
 """
 from __future__ import annotations
 
@@ -18,8 +23,10 @@ from bus import codec
 
 
 class Outbox:
-    def __init__(self, session: zenoh.Session, congestion: zenoh.CongestionControl) -> None:
+    def __init__(self, session: zenoh.Session, congestion: zenoh.CongestionControl,
+                 skip_unread: bool = True) -> None:
         self.session = session
+        self.skip_unread = skip_unread
         self.congestion = congestion
         self.seq = 0
         self.published: dict[str, int] = {}
@@ -34,8 +41,9 @@ class Outbox:
         return pub
 
     def reads(self, key: str) -> bool:
-        """Whether anyone subscribes to ``key`` now (Zenoh's matching status)."""
-        return self.publisher(key).matching_status.matching
+        """Whether anyone subscribes to ``key`` now (Zenoh's matching status); always True
+        without ``skip_unread``."""
+        return not self.skip_unread or self.publisher(key).matching_status.matching
 
     def put(self, key: str, data: bytes, t_ns: int) -> None:
         """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number."""

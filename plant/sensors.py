@@ -59,13 +59,11 @@ class RobotSensors:
             self.periods["camera/camera_info"] = p
             self._info_fields = cam.camera_info(self.camera)
 
-    def prefetch(self, background: bool = True) -> None:
+    def prefetch(self) -> None:
         """Work that does not depend on the state (the next image's noise), done while the
-        plant waits for its nodes: on a worker thread unless ``background`` is false (the
-        same values either way)."""
+        plant waits for its nodes."""
         if self.camera_noise is not None:
-            self.camera_noise.prefetch_image((self.camera.height, self.camera.width, 3),
-                                             background)
+            self.camera_noise.prefetch_image((self.camera.height, self.camera.width, 3))
 
     def due(self, tick: int) -> list[str]:
         return [t for t, p in self.periods.items() if tick % p == 0]

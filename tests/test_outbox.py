@@ -36,3 +36,13 @@ def test_a_key_is_read_while_a_client_subscribes_and_its_puts_carry_seq_and_stam
         out.undeclare()
     finally:
         plant.close()
+
+
+def test_without_skip_unread_every_key_counts_as_read(endpoint):
+    plant = open_session("plant", endpoint)
+    try:
+        out = Outbox(plant, zenoh.CongestionControl.BLOCK, skip_unread=False)
+        assert out.reads("r/scan")
+        out.undeclare()
+    finally:
+        plant.close()
