@@ -158,12 +158,21 @@ class Simulation:
         return self.steps * int(round(self.spec.physics_step_s * 1e9))
 
     def step_tick(self) -> None:
-        """Advance one control tick (``substeps`` physics steps) with the current targets."""
+        """Advance one control tick (``substeps`` physics steps) with the current targets.
+
+        ``world.step(False)`` keeps the motor commands (``step()`` zeroes them), so a
+        dynamic robot's wheel commands are set once a tick, not once a step: the same
+        values, the same motion bit for bit, a tenth of the dartpy calls. A kinematic
+        robot's root command follows its yaw, so it is set every step."""
         robots = list(self.robots.values())
-        for _ in range(self.spec.substeps):
-            for r in robots:
-                r.apply()
-            self.world.step()
+        every_step = [r for r in robots if r.kinematic]
+        for r in robots:
+            r.apply()
+        for i in range(self.spec.substeps):
+            if i:
+                for r in every_step:
+                    r.apply()
+            self.world.step(False)
         self.steps += self.spec.substeps
 
     # ------------------------------------------------------------------ commands
