@@ -96,11 +96,15 @@ class LidarConfig:
         return _mount_pose(self).copy()
 
 
-@lru_cache(maxsize=64)
 def _mount_pose(config: LidarConfig) -> np.ndarray:
-    """The mount pose, computed once per configuration (read-only: shared)."""
-    m = pose_matrix(config.mount_x_m, config.mount_y_m, config.mount_z_m,
-                    yaw=config.mount_yaw_rad)
+    """The mount pose, computed once per mount (read-only: shared; keyed by its four
+    numbers, whose hash is cheaper than the whole configuration's)."""
+    return _mount_at(config.mount_x_m, config.mount_y_m, config.mount_z_m, config.mount_yaw_rad)
+
+
+@lru_cache(maxsize=64)
+def _mount_at(x: float, y: float, z: float, yaw: float) -> np.ndarray:
+    m = pose_matrix(x, y, z, yaw=yaw)
     m.flags.writeable = False
     return m
 

@@ -298,6 +298,7 @@ class Plant:
         elif ev.tag == "out":
             self._on_output(ev)
         elif ev.tag == "alive":
+            self.outbox.changed()          # its subscribers are in the tables by now
             node = self.keys.node_of(ev.key)
             if not ev.alive:
                 self.alive.discard(node)
@@ -310,6 +311,7 @@ class Plant:
                 self.log.info("%s is back", node)
                 self.republish()
         elif ev.tag == "member":
+            self.outbox.changed()
             node = self.keys.node_of(ev.key)
             if ev.alive:
                 if self.ledger.join(node, self.sim.time_ns):

@@ -7,7 +7,12 @@ the topics someone reads (:meth:`plant.sensors.RobotSensors.messages`'s ``wanted
 ``square`` run has nobody on its lidar, a swarm's controllers read one topic of four.
 The matching status comes from the same routing tables a put goes by, so a subscriber
 declared before a member's ``sim/sync`` token is always counted by the time the plant
-sees the member. That holds where the plant's session is the router every node connects
+sees the member. Asking costs a walk of those tables, so the answers are kept until
+something may have changed them: the plant calls :meth:`Outbox.changed` whenever a node
+comes or goes (its liveliness), before it publishes again, and a matching listener on
+each publisher says when any other subscriber (a recorder, ``diffbot echo``) appears or
+leaves (those callbacks come late and in no particular order, so they alone could not
+be trusted with a member's inputs). That holds where the plant's session is the router every node connects
 to (its own configuration, the default): the routing tables are its own and a member's
 declarations reach it in order. Behind a user's Zenoh configuration (a separate router,
 peers) a newly declared publisher learns of the subscribers only some time later, so there
@@ -31,6 +36,8 @@ class Outbox:
         self.seq = 0
         self.published: dict[str, int] = {}
         self._pubs: dict[str, zenoh.Publisher] = {}
+        self._listeners: list = []
+        self._reads: dict[str, bool] = {}      # matching status, asked since the last change
 
     def publisher(self, key: str) -> zenoh.Publisher:
         pub = self._pubs.get(key)
@@ -38,12 +45,27 @@ class Outbox:
             pub = self._pubs[key] = self.session.declare_publisher(
                 key, encoding=zenoh.Encoding.APPLICATION_CDR,
                 congestion_control=self.congestion)
+            if self.skip_unread:
+                self._listeners.append(pub.declare_matching_listener(self._on_matching))
         return pub
+
+    def _on_matching(self, status) -> None:
+        self._reads = {}                        # (Zenoh's thread: a new dict, not a clear)
+
+    def changed(self) -> None:
+        """Subscribers may have come or gone (a node joined or left): ask again."""
+        self._reads = {}
 
     def reads(self, key: str) -> bool:
         """Whether anyone subscribes to ``key`` now (Zenoh's matching status); always True
         without ``skip_unread``."""
-        return not self.skip_unread or self.publisher(key).matching_status.matching
+        if not self.skip_unread:
+            return True
+        reads = self._reads
+        known = reads.get(key)
+        if known is None:
+            known = reads[key] = self.publisher(key).matching_status.matching
+        return known
 
     def put(self, key: str, data: bytes, t_ns: int) -> None:
         """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number."""
@@ -56,6 +78,9 @@ class Outbox:
         self.seq += n
 
     def undeclare(self) -> None:
+        for listener in self._listeners:
+            listener.undeclare()
+        self._listeners.clear()
         for pub in self._pubs.values():
             pub.undeclare()
         self._pubs.clear()

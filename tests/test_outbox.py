@@ -46,3 +46,25 @@ def test_without_skip_unread_every_key_counts_as_read(endpoint):
         out.undeclare()
     finally:
         plant.close()
+
+
+def test_what_is_read_is_asked_again_after_a_change_and_when_a_subscriber_comes(endpoint, bus):
+    plant = open_session("plant", endpoint)
+    try:
+        out = Outbox(plant, zenoh.CongestionControl.BLOCK)
+        assert not out.reads("r/gps")
+        client = bus()
+        sub = client.declare_subscriber("r/gps", lambda s: None)
+        # a subscriber that is no lockstep member: its matching listener says so, soon
+        wait_for(lambda: out.reads("r/gps"), 5.0, what="the listener to forget the answer")
+        sub.undeclare()
+        wait_for(lambda: not out.reads("r/gps"), 5.0, what="the subscriber to be gone")
+        # a node joining: declared, then the plant is told (as on its liveliness token)
+        client.declare_subscriber("r/gps", lambda s: None)
+        wait_for(lambda: bool(plant.declare_publisher("r/gps").matching_status.matching), 5.0,
+                 what="the tables to have it")
+        out.changed()
+        assert out.reads("r/gps")
+        out.undeclare()
+    finally:
+        plant.close()
