@@ -323,16 +323,23 @@ def cast_elements(origins: np.ndarray, directions: np.ndarray, scene: Scene, fan
             b = q[0] * dr[0] * orr[0] + q[1] * dr[1] * orr[1] + q[2] * dr[2] * orr[2]
             c = (q[0] * orr[0] * orr[0] + q[1] * orr[1] * orr[1] + q[2] * orr[2] * orr[2]
                  - scene.rr[shape[rnd]])
-            r0, r1 = quadratic_roots(a, b, c)
-            flat = a == 0.0                   # rays along a cylinder's axis
-            if flat.any():
-                r0 = np.where(flat, np.where(c < 0.0, -np.inf, np.nan), r0)
-                r1 = np.where(flat, np.where(c < 0.0, np.inf, np.nan), r1)
-            tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
-            tf[rnd] = np.minimum(tf[rnd], r1)
+            _clip_round(tn, tf, rnd, a, b, c)
         hit = (tn <= tf) & (tn >= 0.0) & (tn <= max_range)
     np.minimum.at(out, ray_at[hit], tn[hit])
     return out.reshape(g_n, n)
+
+
+def _clip_round(tn: np.ndarray, tf: np.ndarray, rnd: np.ndarray, a: np.ndarray,
+                b: np.ndarray, c: np.ndarray) -> None:
+    """Narrow the entry/exit distances ``tn``/``tf`` of the elements ``rnd`` (rays against
+    round shapes) to the quadric ``a t^2 + 2 b t + c <= 0``, in place."""
+    r0, r1 = quadratic_roots(a, b, c)
+    flat = a == 0.0                   # rays along a cylinder's axis
+    if flat.any():
+        r0 = np.where(flat, np.where(c < 0.0, -np.inf, np.nan), r0)
+        r1 = np.where(flat, np.where(c < 0.0, np.inf, np.nan), r1)
+    tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
+    tf[rnd] = np.minimum(tf[rnd], r1)
 
 
 def cast_sectors(origins: np.ndarray, directions: np.ndarray, scene: Scene, fan: np.ndarray,
@@ -378,13 +385,7 @@ def cast_sectors(origins: np.ndarray, directions: np.ndarray, scene: Scene, fan:
             b = q[:, 0] * dr[0] * orr[0] + q[:, 1] * dr[1] * orr[1] + q[:, 2] * dr[2] * orr[2]
             c = (q[:, 0] * orr[0] * orr[0] + q[:, 1] * orr[1] * orr[1]
                  + q[:, 2] * orr[2] * orr[2] - scene.rr[shape][pair[rnd]])
-            r0, r1 = quadratic_roots(a, b, c)
-            flat = a == 0.0                   # rays along a cylinder's axis
-            if flat.any():
-                r0 = np.where(flat, np.where(c < 0.0, -np.inf, np.nan), r0)
-                r1 = np.where(flat, np.where(c < 0.0, np.inf, np.nan), r1)
-            tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
-            tf[rnd] = np.minimum(tf[rnd], r1)
+            _clip_round(tn, tf, rnd, a, b, c)
         hit = (tn <= tf) & (tn >= 0.0) & (tn <= max_range)
     np.minimum.at(out, ray_at[hit], tn[hit])
     return out.reshape(g_n, n)
