@@ -37,7 +37,7 @@ PHASES: list[tuple[str, tuple[str, ...]]] = [
                         "Simulation.part_transforms", "Stepper.shapes")),
     ("lidar", ("(plant/lidar.py", "(plant/raycast.py", "scan_all (plant/sensors.py")),
     ("encode", ("(bus/codec.py", "(bus/packed.py")),
-    ("zenoh put", ("Publisher.put", "(plant/outbox.py")),
+    ("zenoh put", ("Publisher.put", "(plant/outbox.py", "Plant._put", "Plant._publisher")),
     ("robot state", ("Simulation.state", "(plant/robot.py", "Stepper.state",
                      "state_from_row")),
     ("physics", ("Simulation.step_tick", "(plant/physics_process.py", "Plant.apply_commands",
