@@ -111,7 +111,7 @@ def summarise(stacks: list[tuple[list[str], int]], top: int = 15) -> dict:
 def profile_run(scenario: str, extra: list[str], tmpdir: str, seconds: float = 6.0,
                 rate: int = 500, settle_s: float = 2.0) -> dict:
     """Start ``diffbot run SCENARIO``, py-spy its plant for ``seconds`` once ``settle_s``
-    have passed since the plant appeared, let the run finish; the summary of the profile
+    have passed since the plant started running its ticks, let the run finish; the summary of the profile
     plus the run's real-time factor and per-tick times."""
     spy = py_spy()
     out = tempfile.mkdtemp(prefix=f"tick-{scenario}-", dir=tmpdir)
@@ -123,6 +123,7 @@ def profile_run(scenario: str, extra: list[str], tmpdir: str, seconds: float = 6
             plant = next((p for p in procs.descendants(run.pid) if _is_plant(p)), None)
         if plant is None:
             raise RuntimeError(f"no plant process appeared: {tail(os.path.join(out, 'run.log'))}")
+        _wait_until_running(os.path.join(out, "logs", "plant.log"), run, deadline)
         time.sleep(settle_s)
         raw = os.path.join(out, "raw.txt")
         r = subprocess.run([spy, "record", "-p", str(plant), "-d", f"{seconds:g}", "-r",
@@ -147,6 +148,19 @@ def profile_run(scenario: str, extra: list[str], tmpdir: str, seconds: float = 6
     finally:
         stop([run], grace_s=15.0)
         shutil.rmtree(out, ignore_errors=True)
+
+
+def _wait_until_running(log: str, run, deadline: float) -> None:
+    """Until the plant says it runs (its nodes joined: a loaded machine takes seconds), so
+    that the samples are of ticks, not of start-up."""
+    while time.monotonic() < deadline and run.running():
+        try:
+            with open(log, errors="replace") as f:
+                if " running " in f.read():
+                    return
+        except OSError:
+            pass
+        time.sleep(0.1)
 
 
 def _is_plant(pid: int) -> bool:
