@@ -2,8 +2,8 @@
 
 A sampling profile (py-spy, from PyPI: ``pip install -e '.[test]'`` brings it) of the plant
 process of a running ``diffbot run follow``, ``square`` and the 24-robot ``swarm``, a few
-seconds after start. Each sample of the plant's main thread is put in one *phase* by its
-innermost frame that names one (:data:`PHASES`): the shares say where a tick goes, and
+seconds after its ticks start. Each sample of the plant's main thread is put in one *phase*:
+the first of :data:`PHASES` one of whose marks is in one of its frames. The shares say where a tick goes, and
 unlike wall times they hardly move with the machine's load. The phases and the top
 functions (self and inclusive) as markdown tables, the way docs/benchmarks.md shows them::
 
