@@ -154,12 +154,18 @@ def _seq(buf: bytearray, arr, dtype: str, align: int) -> None:
         buf += a.data
 
 
-def _fast_image(m) -> bytes:
+def _frame_start(m, name: str) -> bytearray:
+    """An Image's or CameraInfo's first fields: header, height, width, then a string."""
     buf = bytearray(_CDR_LE)
     _header(buf, m.header)
     _pad(buf, 4)
     buf += _U32_U32.pack(m.height, m.width)
-    _string(buf, m.encoding)
+    _string(buf, name)
+    return buf
+
+
+def _fast_image(m) -> bytes:
+    buf = _frame_start(m, m.encoding)
     buf += bytes((m.is_bigendian,))
     _pad(buf, 4)
     buf += _U32.pack(m.step)
@@ -180,11 +186,7 @@ def _fast_laser_scan(m) -> bytes:
 
 
 def _fast_camera_info(m) -> bytes:
-    buf = bytearray(_CDR_LE)
-    _header(buf, m.header)
-    _pad(buf, 4)
-    buf += _U32_U32.pack(m.height, m.width)
-    _string(buf, m.distortion_model)
+    buf = _frame_start(m, m.distortion_model)
     _f64_seq(buf, m.d)
     for fixed, n in ((m.k, 9), (m.r, 9), (m.p, 12)):
         a = np.ascontiguousarray(fixed, dtype="<f8").reshape(-1)

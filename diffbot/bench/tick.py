@@ -11,7 +11,6 @@ functions (self and inclusive) as markdown tables, the way docs/benchmarks.md sh
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
@@ -22,7 +21,7 @@ from collections import Counter
 
 from diffbot import procs
 
-from .common import spawn, stop, tail
+from .common import run_summary, spawn, stop, tail
 from .harness import Context, Metric, Probe, Skip, suite
 
 #: (phase, frame marks): a sample goes to the first phase, in this order, one of whose marks
@@ -135,12 +134,7 @@ def profile_run(scenario: str, extra: list[str], tmpdir: str, seconds: float = 6
         # (a run may end non-zero because py-spy's pauses cost the plant its bus lease on a
         # loaded machine: the profile stands, the summary is read if there is one)
         code = run.wait(900)
-        try:
-            with open(os.path.join(out, "summary.json")) as f:
-                summary = json.load(f)
-        except (OSError, ValueError):
-            raise RuntimeError(f"diffbot run {scenario} exited {code}: "
-                               f"{tail(os.path.join(out, 'run.log'))}") from None
+        summary = run_summary(out, scenario, code)
         prof["exit_code"] = code
         prof["real_time_factor"] = summary.get("real_time_factor")
         prof["plant_per_tick_ms"] = summary.get("plant_per_tick_ms")
