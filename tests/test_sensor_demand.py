@@ -71,3 +71,32 @@ def test_encoded_messages_are_the_bytes_of_the_messages():
     assert got == want
     assert {topic for _, _, topic in got} >= {"joint_states", "gps", "ground_truth", "scan",
                                                "camera/image_raw", "camera/camera_info"}
+
+
+def test_tick_messages_gives_every_due_topic_and_none_for_the_unread():
+    """plant.tick.tick_messages, what the plant and the in-process envs share: with
+    ``wanted`` every due topic still comes, in order, the unread ones as None, and the
+    read ones are the bytes of the messages an everything-built tick gives."""
+    from plant.tick import build_world, tick_messages
+    spec = load_world("living_room_follow", NOISY)
+    tick_ns = int(round(spec.control_tick_s * 1e9))
+
+    def ticks(wanted, encoded):
+        sim, sensors = build_world(spec, 3)
+        out = []
+        for k in range(12):
+            out.append(list(tick_messages(sim.time_ns, tick_ns, sensors, sim.state, sim.shapes,
+                                          wanted and {n: wanted for n in sensors}, encoded)))
+            for n in sim.robots:
+                sim.command_twist(n, 0.2, 0.5)
+            sim.step_tick()
+        return out
+    full = ticks(None, False)
+    part = ticks(lambda topic: topic in ("scan", "camera/camera_info", "ground_truth"), True)
+    assert [[(r, t) for r, t, _ in tick] for tick in part] == \
+        [[(r, t) for r, t, _ in tick] for tick in full]
+    read = [(r, t, codec.encode(m)) for tick in full for r, t, m in tick
+            if t in ("scan", "camera/camera_info", "ground_truth")]
+    assert [x for tick in part for x in tick if x[2] is not None] == read
+    assert {t for tick in part for _, t, m in tick if m is None} == {
+        "joint_states", "gps", "camera/image_raw"}
