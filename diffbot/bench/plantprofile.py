@@ -29,9 +29,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("scenario", nargs="+", choices=sorted(SCENARIOS))
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--rate", type=int, default=500)
-    ap.add_argument("extra", nargs=argparse.REMAINDER, help="after --: more run arguments")
+    ap.epilog = "after --: more arguments for diffbot run"
+    argv = list(sys.argv[1:] if argv is None else argv)
+    extra: list[str] = []
+    if "--" in argv:                    # (argparse's REMAINDER would take --seconds too)
+        cut = argv.index("--")
+        argv, extra = argv[:cut], argv[cut + 1:]
     args = ap.parse_args(argv)
-    extra = [a for a in args.extra if a != "--"]
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenario:
             print_profile(name, profile_run(name, SCENARIOS[name] + extra, tmp,
