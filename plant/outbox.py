@@ -14,7 +14,11 @@ each publisher says when any other subscriber (a recorder, ``diffbot echo``) app
 leaves (those callbacks come late and in no particular order, so they alone could not
 be trusted with a member's inputs). That holds where the plant's session is the router every node connects
 to (its own configuration, the default): the routing tables are its own and a member's
-declarations reach it in order. Behind a user's Zenoh configuration (a separate router,
+declarations reach it in order. A key once read stays read for the rest of the run (even
+after its reader has gone): a reader whose link blips, or a member lost and back, finds
+every tick it missed built, whatever the order in which its subscriptions and its
+liveliness went and came, and a topic's bytes never depend on when a reader's
+subscription was seen to go. Behind a user's Zenoh configuration (a separate router,
 peers) a newly declared publisher learns of the subscribers only some time later, so there
 the outbox says everything is read (``skip_unread=False``) and the plant builds it all, as
 before. Attachment sequence numbers count every due message, put or not, so a message's
@@ -38,6 +42,7 @@ class Outbox:
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._listeners: list = []
         self._reads: dict[str, bool] = {}      # matching status, asked since the last change
+        self._ever: set[str] = set()            # keys someone has read: read from then on
 
     def publisher(self, key: str) -> zenoh.Publisher:
         pub = self._pubs.get(key)
@@ -57,14 +62,16 @@ class Outbox:
         self._reads = {}
 
     def reads(self, key: str) -> bool:
-        """Whether anyone subscribes to ``key`` now (Zenoh's matching status); always True
-        without ``skip_unread``."""
-        if not self.skip_unread:
+        """Whether anyone subscribes to ``key`` (Zenoh's matching status) or has since the
+        run began; always True without ``skip_unread``."""
+        if not self.skip_unread or key in self._ever:
             return True
         reads = self._reads
         known = reads.get(key)
         if known is None:
             known = reads[key] = self.publisher(key).matching_status.matching
+            if known:
+                self._ever.add(key)
         return known
 
     def put(self, key: str, data: bytes, t_ns: int) -> None:
