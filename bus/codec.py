@@ -140,12 +140,76 @@ def _fast_odometry(m) -> bytes:
     return bytes(buf)
 
 
+_F32_7 = struct.Struct("<7f")
+_U32_U32 = struct.Struct("<II")
+
+
+def _seq(buf: bytearray, arr, dtype: str, align: int) -> None:
+    """A sequence of a fixed-size type (length, then its elements aligned to ``align``)."""
+    a = np.ascontiguousarray(arr, dtype=dtype).reshape(-1)
+    _pad(buf, 4)
+    buf += _U32.pack(a.size)
+    if a.size:
+        _pad(buf, align)
+        buf += a.data
+
+
+def _frame_start(m, name: str) -> bytearray:
+    """An Image's or CameraInfo's first fields: header, height, width, then a string."""
+    buf = bytearray(_CDR_LE)
+    _header(buf, m.header)
+    _pad(buf, 4)
+    buf += _U32_U32.pack(m.height, m.width)
+    _string(buf, name)
+    return buf
+
+
+def _fast_image(m) -> bytes:
+    buf = _frame_start(m, m.encoding)
+    buf += bytes((m.is_bigendian,))
+    _pad(buf, 4)
+    buf += _U32.pack(m.step)
+    data = np.ascontiguousarray(m.data, dtype=np.uint8).reshape(-1)
+    buf += _U32.pack(data.size)
+    return b"".join((buf, data.data))      # the pixels copied once
+
+
+def _fast_laser_scan(m) -> bytes:
+    buf = bytearray(_CDR_LE)
+    _header(buf, m.header)
+    _pad(buf, 4)
+    buf += _F32_7.pack(m.angle_min, m.angle_max, m.angle_increment, m.time_increment,
+                       m.scan_time, m.range_min, m.range_max)
+    _seq(buf, m.ranges, "<f4", 4)
+    _seq(buf, m.intensities, "<f4", 4)
+    return bytes(buf)
+
+
+def _fast_camera_info(m) -> bytes:
+    buf = _frame_start(m, m.distortion_model)
+    _f64_seq(buf, m.d)
+    for fixed, n in ((m.k, 9), (m.r, 9), (m.p, 12)):
+        a = np.ascontiguousarray(fixed, dtype="<f8").reshape(-1)
+        if a.size != n:
+            raise ValueError(f"CameraInfo array of {a.size} values, expected {n}")
+        _pad(buf, 8)
+        buf += a.tobytes()
+    roi = m.roi
+    buf += _U32_U32.pack(m.binning_x, m.binning_y)
+    buf += struct.pack("<4I?", roi.x_offset, roi.y_offset, roi.height, roi.width,
+                       roi.do_rectify)
+    return bytes(buf)
+
+
 _FAST = {
     "rosgraph_msgs/msg/Clock": _fast_clock,
     "geometry_msgs/msg/TwistStamped": _fast_twist_stamped,
     "geometry_msgs/msg/PointStamped": _fast_point_stamped,
     "sensor_msgs/msg/JointState": _fast_joint_state,
     "nav_msgs/msg/Odometry": _fast_odometry,
+    "sensor_msgs/msg/Image": _fast_image,
+    "sensor_msgs/msg/LaserScan": _fast_laser_scan,
+    "sensor_msgs/msg/CameraInfo": _fast_camera_info,
 }
 
 

@@ -36,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from plant.raycast import Scene, cast_elements
+from plant.raycast import Scene, cast_sectors
 from plant.shapes import Shape, pose_matrix
 
 __all__ = ["LidarConfig", "scan", "scan_many", "apply_noise", "measure", "ray_directions",
@@ -93,7 +93,20 @@ class LidarConfig:
 
     def mount_pose(self) -> np.ndarray:
         """4x4 sensor->robot-base transform."""
-        return pose_matrix(self.mount_x_m, self.mount_y_m, self.mount_z_m, yaw=self.mount_yaw_rad)
+        return _mount_pose(self).copy()
+
+
+def _mount_pose(config: LidarConfig) -> np.ndarray:
+    """The mount pose, computed once per mount (read-only: shared; keyed by its four
+    numbers, whose hash is cheaper than the whole configuration's)."""
+    return _mount_at(config.mount_x_m, config.mount_y_m, config.mount_z_m, config.mount_yaw_rad)
+
+
+@lru_cache(maxsize=64)
+def _mount_at(x: float, y: float, z: float, yaw: float) -> np.ndarray:
+    m = pose_matrix(x, y, z, yaw=yaw)
+    m.flags.writeable = False
+    return m
 
 
 @lru_cache(maxsize=64)
@@ -116,7 +129,7 @@ def ray_directions(config: LidarConfig) -> np.ndarray:
 
 def sensor_pose(config: LidarConfig, robot_pose: np.ndarray) -> np.ndarray:
     """World pose (4x4) of the sensor for a robot-base world pose."""
-    return np.asarray(robot_pose, dtype=float) @ config.mount_pose()
+    return np.asarray(robot_pose, dtype=float) @ _mount_pose(config)
 
 
 def scan(config: LidarConfig, robot_pose: np.ndarray,
@@ -138,17 +151,12 @@ def scan_many(config: LidarConfig, robot_poses, scene: Scene,
     Every robot's (shape, ray) pairs go through one :func:`~plant.raycast.cast_elements`,
     each shape tested only on the rays of its bearing sector: a swarm's scans cost a few
     array operations per tick, not a few per robot."""
-    poses = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4) @ config.mount_pose()
+    poses = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4) @ _mount_pose(config)
     rot = poses[:, :3, :3]
     dirs = np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None], rot.transpose(0, 2, 1))
     fan, shape, lo, hi = _cull(config, poses, scene, exclude_owners)
-    # element k of pair p: ray lo[p] + k, for k < count[p]
-    count = hi - lo + 1
-    start = np.repeat(np.cumsum(count) - count, count)
-    ray = np.repeat(lo, count) + (np.arange(count.sum()) - start)
-    dist = cast_elements(np.ascontiguousarray(poses[:, :3, 3]), dirs, scene,
-                         np.repeat(fan, count), np.repeat(shape, count), ray,
-                         config.max_range_m)
+    dist = cast_sectors(np.ascontiguousarray(poses[:, :3, 3]), dirs, scene, fan, shape, lo, hi,
+                        config.max_range_m)
     dist[dist < config.min_range_m] = np.inf
     return dist
 
@@ -170,7 +178,9 @@ def _cull(config: LidarConfig, poses: np.ndarray, scene: Scene,
     h = np.abs(rel[..., 2])
     # meets the scan plane: |distance| <= the bounding box's extent along the normal
     # (the normal in each shape's frame: n_local[g, s, i] = sum_j R_s[j, i] z_g[j])
-    n_local = np.abs(np.tensordot(rot[:, :, 2], scene.rotations, axes=([1], [1])))
+    # (np.tensordot(rot[:, :, 2], scene.rotations, axes=([1], [1])) without its wrapping)
+    n_local = np.abs(np.dot(rot[:, :, 2], scene.rotations.transpose(1, 0, 2).reshape(3, -1))
+                     ).reshape(g_n, s_n, 3)
     extent = (n_local[..., 0] * scene.halves[:, 0] + n_local[..., 1] * scene.halves[:, 1]
               + n_local[..., 2] * scene.halves[:, 2])
     keep &= h <= extent + 1e-12

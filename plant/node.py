@@ -34,7 +34,7 @@ from contextlib import contextmanager
 
 import zenoh
 
-from bus import codec, jsonio
+from bus import codec, jsonio, packed
 from bus.cliargs import ArgumentParser, nonneg_float, nonneg_int, positive_float
 from bus.controller import Twist
 from bus.inbox import Event, Inbox
@@ -47,6 +47,8 @@ from bus.session import BusConfigError, add_bus_args, open_session
 
 from . import modes
 from .commands import Command, CommandBook, decode_command
+from .memory import keep_freed_memory
+from .outbox import Outbox
 from .physics_process import PhysicsError, PhysicsProcess
 from .reset import parse_reset
 from .stepper import Stepper
@@ -104,7 +106,8 @@ class Plant:
                  rate: float = 1.0, expect: tuple[str, ...] = (), duration_s: float | None = None,
                  join_timeout_s: float = 30.0, disabled: tuple[str, ...] = (),
                  end_with: tuple[str, ...] = (), coupling: str = "sequential",
-                 physics_process: bool = False, rejoin_timeout_s: float = 0.0) -> None:
+                 physics_process: bool = False, rejoin_timeout_s: float = 0.0,
+                 skip_unread: bool = True) -> None:
         self.spec = spec
         self.session = session
         self.keys = keys
@@ -139,20 +142,21 @@ class Plant:
         self.ledger = AckLedger(self.tick_ns, self.protocol_errors.reject, end_with, expect)
         self.stop_event = threading.Event()
         self.reset_in_tick = False               # a sim/reset came during the current tick
-        self.published: dict[str, int] = {}
         self.ticks = 0
         self.timing = {"publish_s": 0.0, "wait_s": 0.0, "physics_s": 0.0}
         self.wall_start = 0.0
         self.end_reason = "stopped"
         self.wall_end = 0.0
-        self._seq = 0
         # lockstep: the last ticks' messages as published, to re-publish for a member that
         # rejoins (docs/PROTOCOL.md section 4, "Lost members"): stamp -> [(key, payload)]
         self._recent: dict[int, list[tuple[str, bytes]]] = {}
-        self._pubs: dict[str, zenoh.Publisher] = {}
         # In lockstep nothing may be lost: block rather than drop when a queue is full.
         self.congestion = (zenoh.CongestionControl.BLOCK if mode == "lockstep"
                            else zenoh.CongestionControl.DROP)
+        # (only on the plant's own router session: see plant/outbox.py)
+        self.outbox = Outbox(session, self.congestion, skip_unread)
+        self.published = self.outbox.published
+        self._keys: dict[tuple[str, str], str] = {}
         self.inbox = Inbox(session)
         self._robot_of_key: dict[str, tuple[str, str]] = {}
         for name in self.sim.robots:
@@ -234,53 +238,58 @@ class Plant:
         query.reply(self.keys.reset, jsonio.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
 
     # ------------------------------------------------------------------ publishing
-    def _publisher(self, key: str) -> zenoh.Publisher:
-        pub = self._pubs.get(key)
-        if pub is None:
-            pub = self._pubs[key] = self.session.declare_publisher(
-                key, encoding=zenoh.Encoding.APPLICATION_CDR,
-                congestion_control=self.congestion)
-        return pub
-
-    def _put(self, key: str, msg, t_ns: int) -> None:
-        payload = codec.encode(msg)
-        self._put_raw(key, payload, t_ns)
+    def _put(self, key: str, payload: bytes, t_ns: int) -> None:
+        """``payload`` (CDR bytes) out on ``key``, and in lockstep kept for a re-publish."""
+        self.outbox.put(key, payload, t_ns)
         if self.mode == "lockstep":
             self._recent.setdefault(t_ns, []).append((key, payload))
             while len(self._recent) > REPUBLISH_TICKS:
                 del self._recent[min(self._recent)]
 
-    def _put_raw(self, key: str, payload: bytes, t_ns: int) -> None:
-        self._seq += 1
-        self._publisher(key).put(payload, attachment=codec.attachment(self._seq, t_ns))
-        self.published[key] = self.published.get(key, 0) + 1
-
     def republish(self) -> None:
         """A lost member is back: the messages of the last ticks again, as they were (the
         member answers the ones it has not, re-sends its answer to the others; section 4,
-        "Lost members"); whatever of them the blip swallowed reaches everyone now."""
+        "Lost members"); whatever of them the blip swallowed reaches everyone now. (A key
+        once read is built from then on, :mod:`plant.outbox`: the member's keys are here.)"""
         ticks = sorted(t for t in self._recent if t <= self.sim.time_ns)
         self.ledger.resent_upto = max(ticks, default=-1)
         for t in ticks:
             for key, payload in self._recent[t]:
-                self._put_raw(key, payload, t)
+                self.outbox.put(key, payload, t)
         if ticks:
             self.log.info("re-published ticks t=%s s", ", ".join(f"{t * 1e-9:.3f}" for t in ticks))
 
     def publish_sensors(self) -> None:
-        """The sensors due at this tick, robot by robot, then ``sim/clock``; then the next
-        tick's sensor noise is drawn ahead (prefetch), off the members' critical path."""
+        """The sensors due at this tick that someone reads (:mod:`plant.outbox`), robot by
+        robot, then ``sim/clock``; then the next tick's sensor noise is drawn ahead
+        (prefetch), off the members' critical path."""
         t = self.sim.time_ns
-        for name, topic, msg in tick_messages(t, self.tick_ns, self.sensors, self.stepper.state,
-                                              self.stepper.shapes):
-            self._put(self.keys.topic(name, topic), msg, t)
-        self._put(self.keys.clock, codec.clock(t), t)
+        out = self.outbox
+        wanted = {name: self._wanted(name) for name in self.sensors}
+        for name, topic, data in tick_messages(t, self.tick_ns, self.sensors, self.stepper.state,
+                                               self.stepper.shapes, wanted, encoded=True):
+            if data is None:
+                out.skip()                            # due, but nobody reads it
+            else:
+                self._put(self._key(name, topic), data, t)
+        self._put(self.keys.clock, packed.clock(t), t)
         for sensors in self.sensors.values():
             sensors.prefetch()
 
     def publish_pending(self) -> None:
         """This tick's sensors, if the stepper has not published them yet (the run ends)."""
         self.timing["publish_s"] += self.stepper.publish_pending(self.publish_sensors)
+
+    def _key(self, robot: str, topic: str) -> str:
+        key = self._keys.get((robot, topic))
+        if key is None:
+            key = self._keys[(robot, topic)] = self.keys.topic(robot, topic)
+        return key
+
+    def _wanted(self, robot: str):
+        """``wanted(topic)`` of ``robot``'s sensors: whether anyone reads it now."""
+        reads, key = self.outbox.reads, self._key
+        return lambda topic: reads(key(robot, topic))
 
     # ------------------------------------------------------------------ input
     def handle(self, ev: Event) -> None:
@@ -289,6 +298,7 @@ class Plant:
         elif ev.tag == "out":
             self._on_output(ev)
         elif ev.tag == "alive":
+            self.outbox.changed()          # its subscribers are in the tables by now
             node = self.keys.node_of(ev.key)
             if not ev.alive:
                 self.alive.discard(node)
@@ -301,6 +311,7 @@ class Plant:
                 self.log.info("%s is back", node)
                 self.republish()
         elif ev.tag == "member":
+            self.outbox.changed()
             node = self.keys.node_of(ev.key)
             if ev.alive:
                 if self.ledger.join(node, self.sim.time_ns):
@@ -538,6 +549,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     log = setup_logging("plant", args.log_level)
+    keep_freed_memory()
     try:
         spec = load_world(args.world, args.set)
         if args.seed is not None:
@@ -564,7 +576,8 @@ def main(argv: list[str] | None = None) -> int:
                       disabled=disabled,
                       end_with=tuple(n for n in args.end_with.split(",") if n),
                       coupling=args.coupling, physics_process=args.physics_process,
-                      rejoin_timeout_s=args.rejoin_timeout)
+                      rejoin_timeout_s=args.rejoin_timeout,
+                      skip_unread=args.zenoh_config is None)
 
         def on_signal(signum, frame):
             plant.stop_event.set()

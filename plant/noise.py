@@ -198,7 +198,8 @@ class NoiseModel:
     def __init__(self, config: NoiseConfig, rng: np.random.Generator):
         self.config = config
         self.rng = rng
-        self._next_image_noise: np.ndarray | None = None
+        self._next_image_noise: np.ndarray | None = None   # drawn ahead of its apply
+        self._spare: np.ndarray | None = None     # a buffer of the last image's shape
 
     def prefetch_image(self, shape: tuple[int, ...]) -> None:
         """Draw the next image's noise now (e.g. while the plant waits for its nodes).
@@ -209,9 +210,29 @@ class NoiseModel:
             self._next_image_noise = self._image_noise(shape)
 
     def _image_noise(self, shape) -> np.ndarray:
-        noise = self.rng.standard_normal(shape, dtype=np.float32)
+        buf, self._spare = self._spare, None
+        if buf is None or buf.shape != tuple(shape):
+            buf = np.empty(shape, dtype=np.float32)
+        noise = self.rng.standard_normal(dtype=np.float32, out=buf)
         noise *= np.float32(self.config.std)
         return noise
+
+    def _take_image_noise(self, shape) -> np.ndarray:
+        noise, self._next_image_noise = self._next_image_noise, None
+        if noise is None or noise.shape != shape:
+            noise = self._image_noise(shape)
+        return noise
+
+    def skip(self, shape: tuple[int, ...]) -> None:
+        """Draw what ``apply`` of a float array (a 1-D ``shape``) or of an image (a 3-D
+        ``shape``, uint8) would, and drop it: the stream stays where it would be had the
+        value been made (a topic nobody reads)."""
+        if self.config.std <= 0:
+            return
+        if len(shape) == 3:
+            self._spare = self._take_image_noise(tuple(shape))
+        else:
+            self.rng.normal(0.0, self.config.std, size=shape)
 
     def _noisy(self, x: np.ndarray) -> np.ndarray:
         c = self.config
@@ -227,18 +248,24 @@ class NoiseModel:
             if c.is_zero and c.resolution == 0:
                 return arr.copy()
             # Images: single precision is plenty for 0..255 and several times faster.
-            out = arr.astype(np.float32)
-            out += np.float32(c.bias + c.mean)
+            offset = np.float32(c.bias + c.mean)
             if c.std > 0:
-                noise, self._next_image_noise = self._next_image_noise, None
-                if noise is None or noise.shape != arr.shape:
-                    noise = self._image_noise(arr.shape)
-                out += noise
+                # (x + offset) + noise, summed into the noise's own buffer (then reused)
+                noise = self._take_image_noise(arr.shape)
+                out = np.add(arr, offset, dtype=np.float32, out=np.empty_like(noise)) \
+                    if offset else arr
+                out = np.add(noise, out, out=noise, dtype=np.float32)
+            else:
+                out = arr.astype(np.float32)
+                out += offset
             if c.resolution > 0:
                 out = np.round(out / np.float32(c.resolution)) * np.float32(c.resolution)
             np.rint(out, out=out)
             np.clip(out, 0, 255, out=out)
-            return out.astype(np.uint8)
+            img = out.astype(np.uint8)
+            if c.std > 0 and out.base is None:
+                self._spare = out                    # the next draw goes into it
+            return img
         out = self._noisy(arr.astype(np.float64))
         if c.resolution > 0:
             with np.errstate(invalid="ignore"):

@@ -27,6 +27,7 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
+from .memory import keep_freed_memory
 from .sim import RobotState, Simulation
 from .world import WorldSpec
 
@@ -184,6 +185,7 @@ def main(argv: list[str]) -> int:
         pass
     if os.getppid() != parent:
         return 0
+    keep_freed_memory()
     return serve(Connection(fd))
 
 

@@ -39,6 +39,7 @@ __all__ = [
     "cast_rays",
     "cast_distances",
     "cast_elements",
+    "cast_sectors",
     "quadratic_roots",
     "shape_params",
     "local_half_extents",
@@ -322,13 +323,69 @@ def cast_elements(origins: np.ndarray, directions: np.ndarray, scene: Scene, fan
             b = q[0] * dr[0] * orr[0] + q[1] * dr[1] * orr[1] + q[2] * dr[2] * orr[2]
             c = (q[0] * orr[0] * orr[0] + q[1] * orr[1] * orr[1] + q[2] * orr[2] * orr[2]
                  - scene.rr[shape[rnd]])
-            r0, r1 = quadratic_roots(a, b, c)
-            flat = a == 0.0                   # rays along a cylinder's axis
-            if flat.any():
-                r0 = np.where(flat, np.where(c < 0.0, -np.inf, np.nan), r0)
-                r1 = np.where(flat, np.where(c < 0.0, np.inf, np.nan), r1)
-            tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
-            tf[rnd] = np.minimum(tf[rnd], r1)
+            _clip_round(tn, tf, rnd, a, b, c)
+        hit = (tn <= tf) & (tn >= 0.0) & (tn <= max_range)
+    np.minimum.at(out, ray_at[hit], tn[hit])
+    return out.reshape(g_n, n)
+
+
+def _clip_round(tn: np.ndarray, tf: np.ndarray, rnd: np.ndarray, a: np.ndarray,
+                b: np.ndarray, c: np.ndarray) -> None:
+    """Narrow the entry/exit distances ``tn``/``tf`` of the elements ``rnd`` (rays against
+    round shapes) to the quadric ``a t^2 + 2 b t + c <= 0``, in place."""
+    r0, r1 = quadratic_roots(a, b, c)
+    flat = a == 0.0                   # rays along a cylinder's axis
+    if flat.any():
+        r0 = np.where(flat, np.where(c < 0.0, -np.inf, np.nan), r0)
+        r1 = np.where(flat, np.where(c < 0.0, np.inf, np.nan), r1)
+    tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
+    tf[rnd] = np.minimum(tf[rnd], r1)
+
+
+def cast_sectors(origins: np.ndarray, directions: np.ndarray, scene: Scene, fan: np.ndarray,
+                 shape: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 max_range: float = np.inf) -> np.ndarray:
+    """:func:`cast_elements` of the elements (fan[p], shape[p], ray) for ray in lo[p]..hi[p]
+    of each pair p: the same bits, with what depends only on the pair (the origin in the
+    shape's frame, its half extents, its rotation) computed once per pair, not per ray."""
+    g_n, n = directions.shape[0], directions.shape[1]
+    out = np.full(g_n * n, np.inf)
+    if fan.size == 0:
+        return out.reshape(g_n, n)
+    count = hi - lo + 1
+    total = int(count.sum())
+    pair = np.repeat(np.arange(fan.size), count)
+    ray_at = np.repeat(fan * n + lo - (np.cumsum(count) - count), count) + np.arange(total)
+    rot = scene.rotations[shape]                                               # (P, 3, 3)
+    o = origins[fan] - scene.centers[shape]                                    # (P, 3)
+    dflat = directions.reshape(-1, 3)
+    d = [np.ascontiguousarray(dflat[ray_at, j]) for j in range(3)]
+    with np.errstate(all="ignore"):
+        # local frame, p_local = R^T p: component k = sum_j p_j R[j, k] (as cast_rays sums)
+        rk = [[np.ascontiguousarray(rot[:, j, k])[pair] for k in range(3)] for j in range(3)]
+        dl = [d[0] * rk[0][k] + d[1] * rk[1][k] + d[2] * rk[2][k] for k in range(3)]
+        olp = o[:, 0:1] * rot[:, 0] + o[:, 1:2] * rot[:, 1] + o[:, 2:3] * rot[:, 2]  # (P, 3)
+        half = scene.halves[shape]
+        tn = tf = None
+        for k in range(3):
+            ol, h = olp[:, k], half[:, k]
+            inv = np.divide(1.0, dl[k])
+            t1 = (-h - ol)[pair] * inv
+            t2 = (h - ol)[pair] * inv
+            lo_k, hi_k = np.fmin(t1, t2), np.fmax(t1, t2, out=t2)
+            tn = lo_k if tn is None else np.maximum(tn, lo_k, out=tn)
+            tf = hi_k if tf is None else np.minimum(tf, hi_k, out=tf)
+        round_pairs = scene.quad[shape, 0] > 0
+        if round_pairs.any():
+            rnd = np.nonzero(round_pairs[pair])[0]
+            q = scene.quad[shape][pair[rnd]]
+            dr = [v[rnd] for v in dl]
+            orr = [olp[pair[rnd], k] for k in range(3)]
+            a = q[:, 0] * dr[0] * dr[0] + q[:, 1] * dr[1] * dr[1] + q[:, 2] * dr[2] * dr[2]
+            b = q[:, 0] * dr[0] * orr[0] + q[:, 1] * dr[1] * orr[1] + q[:, 2] * dr[2] * orr[2]
+            c = (q[:, 0] * orr[0] * orr[0] + q[:, 1] * orr[1] * orr[1]
+                 + q[:, 2] * orr[2] * orr[2] - scene.rr[shape][pair[rnd]])
+            _clip_round(tn, tf, rnd, a, b, c)
         hit = (tn <= tf) & (tn >= 0.0) & (tn <= max_range)
     np.minimum.at(out, ray_at[hit], tn[hit])
     return out.reshape(g_n, n)

@@ -7,9 +7,11 @@ to each reading (not accumulated); wheel speeds are reported exact.
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
-from bus import codec
+from bus import codec, packed
 from bus.keys import WORLD_FRAME, frame
 
 from . import camera as cam
@@ -20,6 +22,10 @@ from .sim import RobotState
 from .world import RobotSpec
 
 JOINTS = ("left_wheel_joint", "right_wheel_joint")
+
+#: ``wanted(topic) -> bool``: whether anyone reads a robot's topic (e.g. Zenoh's matching
+#: status of its publisher); a topic nobody reads is not built
+Wanted = Callable[[str], bool]
 
 
 def period_ticks(rate_hz: float, tick_s: float) -> int:
@@ -62,56 +68,95 @@ class RobotSensors:
     def due(self, tick: int) -> list[str]:
         return [t for t, p in self.periods.items() if tick % p == 0]
 
-    def needs_scene(self, tick: int) -> bool:
-        return any(tick % self.periods[t] == 0 for t in ("scan", "camera/image_raw")
-                   if t in self.periods)
+    def needs_scene(self, tick: int, wanted: Wanted | None = None) -> bool:
+        """Whether a sensor due at ``tick`` casts rays (the lidar, the camera), counting only
+        the topics ``wanted`` says someone reads (all if None)."""
+        return any(tick % self.periods[t] == 0 and (wanted is None or wanted(t))
+                   for t in ("scan", "camera/image_raw") if t in self.periods)
 
     def lidar_due(self, tick: int) -> bool:
         return self.lidar is not None and tick % self.periods["scan"] == 0
 
     def messages(self, tick: int, t_ns: int, st: RobotState, scene: Scene | None,
-                 exact_scan: np.ndarray | None = None):
+                 exact_scan: np.ndarray | None = None, wanted: Wanted | None = None,
+                 encoded: bool = False):
         """(topic, message) pairs due at ``tick``, in a fixed order. ``exact_scan``: this
         robot's noise-free lidar ranges when the caller cast them already (with
-        :func:`scan_all`, for every robot at once)."""
+        :func:`scan_all`, for every robot at once). ``wanted(topic)``: whether anyone reads
+        that topic (None: every topic is built). A topic nobody reads is not built (no
+        rays cast, no frame rendered, nothing encoded) but its noise is still drawn, so
+        every value of every topic is the same whoever listens, from whatever tick on.
+        ``encoded``: (topic, CDR bytes) pairs instead, the bytes of ``codec.encode`` of
+        each message, the per-tick ones packed straight from the values
+        (:mod:`bus.packed`), several times faster."""
+        want = _every if wanted is None else wanted
         out = []
         pos = st.enc_pos
         if self.enc_noise is not None:
             pos = self.enc_noise.apply(pos)
-        out.append(("joint_states", codec.joint_state(t_ns, JOINTS, pos, st.enc_vel)))
+        if want("joint_states"):
+            out.append(("joint_states", packed.joint_state(t_ns, JOINTS, pos, st.enc_vel)
+                         if encoded else codec.joint_state(t_ns, JOINTS, pos, st.enc_vel)))
         x, y, z = st.xyz
         gx, gy, gz = self.gps_noise.apply(np.array([x, y, z])) if self.gps_noise else (x, y, z)
-        out.append(("gps", codec.point_stamped(t_ns, gx, gy, gz)))
-        out.append(("ground_truth", codec.odometry(
-            t_ns, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id=WORLD_FRAME,
-            child_frame_id=self.frames["base_link"], z=z, quaternion=st.quaternion)))
+        if want("gps"):
+            out.append(("gps", packed.point_stamped(t_ns, float(gx), float(gy), float(gz))
+                        if encoded else codec.point_stamped(t_ns, gx, gy, gz)))
+        if want("ground_truth"):
+            q = st.quaternion
+            base = self.frames["base_link"]
+            out.append(("ground_truth", packed.odometry(
+                t_ns, float(x), float(y), float(z), [float(v) for v in q], float(st.v_body[0]),
+                float(st.w_body[2]), frame_id=WORLD_FRAME, child_frame_id=base)
+                if encoded else codec.odometry(
+                t_ns, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id=WORLD_FRAME,
+                child_frame_id=base, z=z, quaternion=q)))
+        enc = codec.encode if encoded else _same
         if self.lidar_due(tick):
-            if exact_scan is None:
-                exact_scan = lid.scan(self.lidar, st.tf, scene, exclude_owner=self.name)
-            ranges = lid.apply_noise(self.lidar, exact_scan, self.lidar_noise)
             c = self.lidar
-            out.append(("scan", codec.laser_scan(t_ns, c.angle_min, c.angle_max, c.angle_increment,
-                                                 1.0 / c.rate_hz, c.min_range_m, c.max_range_m,
-                                                 ranges, frame_id=self.frames["laser"])))
+            if not want("scan"):
+                if self.lidar_noise is not None:
+                    self.lidar_noise.skip((c.num_rays,))
+            else:
+                if exact_scan is None:
+                    exact_scan = lid.scan(c, st.tf, scene, exclude_owner=self.name)
+                ranges = lid.apply_noise(c, exact_scan, self.lidar_noise)
+                out.append(("scan", enc(codec.laser_scan(
+                    t_ns, c.angle_min, c.angle_max, c.angle_increment, 1.0 / c.rate_hz,
+                    c.min_range_m, c.max_range_m, ranges, frame_id=self.frames["laser"]))))
         if self.camera and tick % self.periods["camera/image_raw"] == 0:
-            rgb = cam.render(self.camera, cam.camera_pose(self.camera, st.tf), scene,
-                             exclude_owner=self.name)
-            if self.camera_noise is not None:
-                rgb = self.camera_noise.apply(rgb)
             optical = self.frames["camera_optical"]
-            out.append(("camera/image_raw", codec.image(t_ns, rgb, optical)))
-            out.append(("camera/camera_info", codec.camera_info(t_ns, **self._info_fields,
-                                                                frame_id=optical)))
+            if not want("camera/image_raw"):
+                if self.camera_noise is not None:
+                    self.camera_noise.skip((self.camera.height, self.camera.width, 3))
+            else:
+                rgb = cam.render(self.camera, cam.camera_pose(self.camera, st.tf), scene,
+                                 exclude_owner=self.name)
+                if self.camera_noise is not None:
+                    rgb = self.camera_noise.apply(rgb)
+                out.append(("camera/image_raw", enc(codec.image(t_ns, rgb, optical))))
+            if want("camera/camera_info"):
+                out.append(("camera/camera_info", enc(codec.camera_info(
+                    t_ns, **self._info_fields, frame_id=optical))))
         return out
 
 
+def _same(msg):
+    return msg
+
+
+def _every(topic: str) -> bool:
+    return True
+
+
 def scan_all(sensors: dict[str, RobotSensors], states: dict[str, RobotState], tick: int,
-             scene: Scene) -> dict[str, np.ndarray]:
-    """Noise-free ranges of every lidar due at ``tick``: robots carrying the same lidar are
-    cast together (:func:`plant.lidar.scan_many`), the same bits as one by one."""
+             scene: Scene, wanted: dict[str, Wanted] | None = None) -> dict[str, np.ndarray]:
+    """Noise-free ranges of every lidar due at ``tick`` (whose scan someone reads, with
+    ``wanted``: robot -> :data:`Wanted`): robots carrying the same lidar are cast together
+    (:func:`plant.lidar.scan_many`), the same bits as one by one."""
     groups: dict[lid.LidarConfig, list[str]] = {}
     for name, s in sensors.items():
-        if s.lidar_due(tick):
+        if s.lidar_due(tick) and (wanted is None or wanted[name]("scan")):
             groups.setdefault(s.lidar, []).append(name)
     out = {}
     for cfg, names in groups.items():

@@ -18,7 +18,7 @@ from __future__ import annotations
 from typing import Callable, Iterator
 
 from .raycast import Scene
-from .sensors import RobotSensors, scan_all
+from .sensors import RobotSensors, Wanted, scan_all
 from .sim import RobotState, Simulation
 from .world import WorldSpec
 
@@ -37,17 +37,32 @@ def build_world(spec: WorldSpec, seed: int, disabled=()) -> tuple[Simulation, di
 
 
 def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
-                  state: Callable[[str], RobotState], shapes: Callable[[], list]
+                  state: Callable[[str], RobotState], shapes: Callable[[], list],
+                  wanted: dict[str, Wanted] | None = None, encoded: bool = False
                   ) -> Iterator[tuple[str, str, object]]:
     """(robot, topic, message) of every sensor due at time ``t_ns``, robot by robot in a
     fixed order (the order the plant publishes them in). ``state(robot)`` gives a robot's
-    true state, ``shapes()`` the world's solids (called only when a lidar or camera is due)."""
+    true state, ``shapes()`` the world's solids (called only when a lidar or camera is due).
+
+    ``wanted`` (robot -> ``wanted(topic)``, the plant's "does anyone read it"): a due topic
+    nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
+    rendered) but its noise drawn, so every other value is what it would have been (None:
+    every topic is built). ``encoded``: the messages' CDR bytes instead of the messages
+    (:meth:`RobotSensors.messages`)."""
     tick = t_ns // tick_ns
+    want = wanted or {}
     scene = None
-    if any(s.needs_scene(tick) for s in sensors.values()):
+    if any(s.needs_scene(tick, want.get(name)) for name, s in sensors.items()):
         scene = Scene(shapes())
     states = {name: state(name) for name in sensors}
-    scans = scan_all(sensors, states, tick, scene) if scene is not None else {}
+    scans = scan_all(sensors, states, tick, scene, wanted) if scene is not None else {}
     for name, s in sensors.items():
-        for topic, msg in s.messages(tick, t_ns, states[name], scene, scans.get(name)):
-            yield name, topic, msg
+        built = iter(s.messages(tick, t_ns, states[name], scene, scans.get(name),
+                                want.get(name), encoded))
+        nxt = next(built, None)
+        for topic in s.due(tick):                     # the messages' order
+            if nxt is not None and nxt[0] == topic:
+                yield name, topic, nxt[1]
+                nxt = next(built, None)
+            else:
+                yield name, topic, None

@@ -201,3 +201,31 @@ def test_sensor_suites_time_the_lidar_sweep_and_camera_frames(tmp_path):
     assert all(c["median"] > 0 for c in doc["cases"])
     sweep = next(c for c in doc["cases"] if c["name"] == "sweep 180 rays")
     assert "32 shapes" in sweep["notes"] and "180 rays" in sweep["notes"]
+
+
+def test_tick_profile_puts_each_main_thread_sample_in_its_innermost_phase():
+    from diffbot.bench import tick
+    root = ("_run_module_as_main (<frozen runpy>:198);main (plant/node.py:795);"
+            "Plant.run (plant/node.py:590)")
+    pub = "Stepper.begin_tick (plant/stepper.py:9);Plant.publish_sensors (plant/node.py:279)"
+    raw = "\n".join([
+        f"{root};{pub};RobotSensors.messages (plant/sensors.py:9);"
+        "render (plant/camera.py:1);render_full (plant/camera.py:2) 6",
+        f"{root};{pub};Outbox.put (plant/outbox.py:76);"
+        "encode (bus/codec.py:53);_fast_image (bus/codec.py:99) 3",
+        f"{root};{pub};Outbox.put (plant/outbox.py:76) 2",
+        f"{root};Stepper.step (plant/stepper.py:1);Simulation.step_tick (plant/sim.py:2) 4",
+        f"{root};Plant.run (plant/node.py:600) 1",
+        "Thread-1 (zenoh);Inbox._on_sample (bus/inbox.py:40) 50",      # not the main thread
+        "garbage line",
+    ])
+    p = tick.summarise(tick.parse_raw(raw))
+    assert p["samples"] == 16
+    assert p["phases"]["camera render"] == pytest.approx(6 / 16)
+    assert p["phases"]["encode"] == pytest.approx(3 / 16)
+    assert p["phases"]["zenoh put"] == pytest.approx(2 / 16)
+    assert p["phases"]["physics"] == pytest.approx(4 / 16)
+    assert p["phases"]["other"] == pytest.approx(1 / 16)
+    assert sum(p["phases"].values()) == pytest.approx(1.0)
+    assert p["self"][0] == ("render_full (plant/camera.py)", pytest.approx(6 / 16))
+    assert ("Outbox.put (plant/outbox.py)", pytest.approx(5 / 16)) in p["inclusive"]

@@ -189,3 +189,31 @@ def test_prefetched_image_noise_is_the_same_stream():
         b.prefetch_image(img.shape)          # a second prefetch draws nothing more
         out_b.append(b.apply(img))
     assert all(np.array_equal(x, y) for x, y in zip(out_a, out_b))
+
+
+@pytest.mark.parametrize("bias", [0.0, 3.5])
+@pytest.mark.parametrize("resolution", [0.0, 4.0])
+def test_image_noise_is_the_stated_sum_drawn_ahead_or_not(bias, resolution):
+    """quantise(rint(clip((x + bias) + std * N(0, 1) float32))): the reference formula, drawn
+    image after image from the stream's own generator, whichever way the draws are fetched."""
+    from plant.noise import NoiseConfig, NoiseModel, make_rng
+    img = np.random.default_rng(1).integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    cfg = NoiseConfig(std=20.0, bias=bias, resolution=resolution)
+    ref_rng = make_rng(4, "robot1/camera")
+    want = []
+    for _ in range(4):
+        x = img.astype(np.float32) + np.float32(bias)
+        x = x + ref_rng.standard_normal(img.shape, dtype=np.float32) * np.float32(20.0)
+        if resolution:
+            x = np.round(x / np.float32(resolution)) * np.float32(resolution)
+        want.append(np.clip(np.rint(x), 0, 255).astype(np.uint8))
+    for how in ("none", "ahead"):
+        m = NoiseModel(cfg, make_rng(4, "robot1/camera"))
+        got = []
+        for _ in range(4):
+            if how != "none":
+                m.prefetch_image(img.shape)
+            got.append(m.apply(img))
+        assert all(np.array_equal(a, b) for a, b in zip(want, got)), how
+        assert len({id(g) for g in got}) == 4 and not any(np.shares_memory(a, b) for a in got
+                                                          for b in got if a is not b)

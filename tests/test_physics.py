@@ -134,3 +134,27 @@ def test_swarm_world_dantzig_keeps_the_pgs_trajectories(tmp_path):
     assert load_world(path).contact_solver == "dantzig"
     gap = np.abs(runs["dantzig"][..., :3, 3] - runs["pgs"][..., :3, 3]).max()
     assert gap < 1e-3
+
+
+@pytest.mark.parametrize("mode", ["dynamic", "kinematic"])
+def test_a_tick_moves_the_robots_as_commands_set_before_every_step_do_bit_for_bit(mode):
+    """step_tick sets a dynamic robot's wheel commands once a tick (world.step(False) keeps
+    them): the motion is the reference loop's (commands set, world.step(), every step)."""
+    import math
+
+    from plant.sim import Simulation
+    from plant.world import load_world
+    specs = [load_world("living_room_follow", [f"world.mode={mode}"]) for _ in range(2)]
+    fast, ref = Simulation(specs[0]), Simulation(specs[1])
+    for k in range(60):
+        for sim in (fast, ref):
+            for i, name in enumerate(sim.robots):
+                sim.command_twist(name, 0.4 * math.sin(0.1 * k + i), 1.5 * math.cos(0.1 * k))
+        fast.step_tick()
+        for _ in range(ref.spec.substeps):
+            for r in ref.robots.values():
+                r.apply()
+            ref.world.step()
+        for a, b in zip(fast.robots.values(), ref.robots.values()):
+            assert a.skeleton.getPositions().tobytes() == b.skeleton.getPositions().tobytes()
+            assert a.skeleton.getVelocities().tobytes() == b.skeleton.getVelocities().tobytes()

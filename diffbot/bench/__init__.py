@@ -46,7 +46,7 @@ __all__ = ["DEFAULT_REPEATS", "QUICK_REPEATS", "ROOT", "SUITES", "Case", "Contex
 #: the shipped suites' modules, in the order ``--list`` shows and a full run runs them
 ORDER = ("physics", "lidar", "camera", "messages", "roundtrip", "lockstep", "scenario", "fmu",
          "sweep")
-_NOT_SUITES = {"harness", "common", "echo", "__main__"}
+_NOT_SUITES = {"harness", "common", "echo", "plantprofile", "__main__"}
 
 
 def load_suites() -> None:

@@ -1,6 +1,7 @@
 """What several suites share: child processes on a private bus endpoint, sensor scenes."""
 from __future__ import annotations
 
+import json
 import os
 import sys
 import tempfile
@@ -24,6 +25,17 @@ def stop(children: list[procs.Child], grace_s: float = 3.0) -> None:
 def tail(path: str, n: int = 8) -> str:
     """The last ``n`` lines of a log, on one line."""
     return " | ".join(procs.tail(path, n).splitlines())
+
+
+def run_summary(out: str, name: str, rc) -> dict:
+    """The summary.json a ``diffbot run NAME --out OUT`` that exited ``rc`` wrote; a
+    RuntimeError with the end of its log if there is none."""
+    try:
+        with open(os.path.join(out, "summary.json")) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        raise RuntimeError(f"diffbot run {name} exited {rc} without a summary: "
+                           f"{tail(os.path.join(out, 'run.log'))}") from None
 
 
 def private_endpoint(ctx: Context, tag: str) -> tuple[str, str]:

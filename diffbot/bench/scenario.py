@@ -1,12 +1,11 @@
 """Suite ``scenario``: the square and follow scenarios end to end (``diffbot run``)."""
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import tempfile
 
-from .common import spawn, stop, tail
+from .common import run_summary, spawn, stop
 from bus.protocol import COUPLINGS
 
 from .harness import Context, Metric, Probe, suite
@@ -21,12 +20,7 @@ def run_scenario(ctx: Context, name: str, timeout_s: float = 900.0, *extra: str)
         rc = proc.wait(timeout_s + 60)
         if rc is None:
             raise RuntimeError(f"diffbot run {name} did not finish")
-        try:
-            with open(os.path.join(out, "summary.json")) as f:
-                summary = json.load(f)
-        except (OSError, ValueError):
-            raise RuntimeError(f"diffbot run {name} exited {rc} without a summary: "
-                               f"{tail(os.path.join(out, 'run.log'))}") from None
+        summary = run_summary(out, name, rc)
         if rc != 0:
             raise RuntimeError(f"diffbot run {name} exited {rc}: {summary.get('end_reason')}")
         return summary

@@ -1,0 +1,93 @@
+"""The plant's publishers: CDR bytes out with their attachment, and who reads what.
+
+One Zenoh publisher per key, declared on first use. :meth:`Outbox.reads` is Zenoh's
+matching status of a key's publisher: whether any subscriber (a node, the recorder, the
+launcher's observer, ``diffbot echo``...) would get a put on it now. The plant builds only
+the topics someone reads (:meth:`plant.sensors.RobotSensors.messages`'s ``wanted``): a
+``square`` run has nobody on its lidar, a swarm's controllers read one topic of four.
+The matching status comes from the same routing tables a put goes by, so a subscriber
+declared before a member's ``sim/sync`` token is always counted by the time the plant
+sees the member. Asking costs a walk of those tables, so the answers are kept until
+something may have changed them: the plant calls :meth:`Outbox.changed` whenever a node
+comes or goes (its liveliness), before it publishes again, and a matching listener on
+each publisher says when any other subscriber (a recorder, ``diffbot echo``) appears or
+leaves (those callbacks come late and in no particular order, so they alone could not
+be trusted with a member's inputs). That holds where the plant's session is the router every node connects
+to (its own configuration, the default): the routing tables are its own and a member's
+declarations reach it in order. A key once read stays read for the rest of the run (even
+after its reader has gone): a reader whose link blips, or a member lost and back, finds
+every tick it missed built, whatever the order in which its subscriptions and its
+liveliness went and came, and a topic's bytes never depend on when a reader's
+subscription was seen to go. Behind a user's Zenoh configuration (a separate router,
+peers) a newly declared publisher learns of the subscribers only some time later, so there
+the outbox says everything is read (``skip_unread=False``) and the plant builds it all, as
+before. Attachment sequence numbers count every due message, put or not, so a message's
+attachment is the same whoever listens.
+"""
+from __future__ import annotations
+
+import zenoh
+
+from bus import codec
+
+
+class Outbox:
+    def __init__(self, session: zenoh.Session, congestion: zenoh.CongestionControl,
+                 skip_unread: bool = True) -> None:
+        self.session = session
+        self.skip_unread = skip_unread
+        self.congestion = congestion
+        self.seq = 0
+        self.published: dict[str, int] = {}
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._listeners: list = []
+        self._reads: dict[str, bool] = {}      # matching status, asked since the last change
+        self._ever: set[str] = set()            # keys someone has read: read from then on
+
+    def publisher(self, key: str) -> zenoh.Publisher:
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = self.session.declare_publisher(
+                key, encoding=zenoh.Encoding.APPLICATION_CDR,
+                congestion_control=self.congestion)
+            if self.skip_unread:
+                self._listeners.append(pub.declare_matching_listener(self._on_matching))
+        return pub
+
+    def _on_matching(self, status) -> None:
+        self._reads = {}                        # (Zenoh's thread: a new dict, not a clear)
+
+    def changed(self) -> None:
+        """Subscribers may have come or gone (a node joined or left): ask again."""
+        self._reads = {}
+
+    def reads(self, key: str) -> bool:
+        """Whether anyone subscribes to ``key`` (Zenoh's matching status) or has since the
+        run began; always True without ``skip_unread``."""
+        if not self.skip_unread or key in self._ever:
+            return True
+        reads = self._reads
+        known = reads.get(key)
+        if known is None:
+            known = reads[key] = self.publisher(key).matching_status.matching
+            if known:
+                self._ever.add(key)
+        return known
+
+    def put(self, key: str, data: bytes, t_ns: int) -> None:
+        """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number."""
+        self.seq += 1
+        self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns))
+        self.published[key] = self.published.get(key, 0) + 1
+
+    def skip(self, n: int = 1) -> None:
+        """``n`` due messages nobody reads: their sequence numbers go unused."""
+        self.seq += n
+
+    def undeclare(self) -> None:
+        for listener in self._listeners:
+            listener.undeclare()
+        self._listeners.clear()
+        for pub in self._pubs.values():
+            pub.undeclare()
+        self._pubs.clear()
