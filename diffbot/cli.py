@@ -44,7 +44,7 @@ USAGE = __doc__
 #: the sub-commands (for "did you mean")
 COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experiment", "figures",
             "sweep", "record", "replay", "topics", "echo", "router", "ros2", "scenarios",
-            "certs")
+            "certs", "view")
 
 
 def main(argv: list[str] | None = None) -> int:
