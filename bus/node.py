@@ -25,7 +25,7 @@ value in it, under any key, is the command), or None. This module re-exports the
 controller's values (:class:`Twist`, :class:`WheelSpeeds`, :class:`Observation`) so a
 controller needs one import.
 
-Faults (see the README's "What happens when ..."): the plant is watched through its
+Faults (see docs/failures.md): the plant is watched through its
 liveliness token, so a killed plant is noticed within milliseconds and a frozen one
 (SIGSTOP) within the 1 s lease; the node then exits 3, or with ``--wait`` waits for a
 plant to come back, re-reads ``sim/info`` and carries on (this node's controller object

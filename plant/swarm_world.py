@@ -86,7 +86,7 @@ def swarm_world_text(n: int, seed: int = 0, mode: str = "dynamic") -> str:
            "control_tick_s = 0.02", f"seed = {int(seed)}",
            "# Robots cruising at 0.3 m/s: PGS (the default) fails to converge on ~95 % of",
            "# the contact solves and falls back to Dantzig anyway. Dantzig first moves the",
-           "# paths by under 1 mm and makes each step ~28 % cheaper (README, Benchmarks).",
+           "# paths by under 1 mm and makes each step ~28 % cheaper (docs/swarm.md).",
            'contact_solver = "dantzig"', "",
            "[floor]", f"size_m = {_v((side, side))}", "",
            "[walls]", "height_m = 0.5", ""]

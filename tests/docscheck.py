@@ -18,6 +18,7 @@ after ``VAR=value`` prefixes, ``$ `` prompts, ``&&``, ``;``, ``|``, ``&``) is pa
 real CLI: ``diffbot.cli`` dispatches to the sub-command's own ``argparse`` parser, whose
 ``parse_args`` is intercepted once it has parsed, so nothing runs. Backslash continuations
 are joined, and so are indented lines that go on a synopsis (starting with ``[`` or ``-``).
+In ```` ```toml ```` blocks, a scenario file's ``command = [...]`` is checked the same way.
 
 A usage line may be a synopsis: ``[--opt VALUE]`` (brackets dropped, the option checked),
 ``a|b|c`` or ``[--rate R | --fast]`` (each alternative parsed in turn), ``--[no-]flag``,
@@ -38,6 +39,7 @@ import re
 import shlex
 import subprocess
 import sys
+import tomllib
 from dataclasses import dataclass
 from urllib.parse import unquote
 
@@ -289,6 +291,9 @@ def commands(text: str) -> list[tuple[int, list[str]]]:
     blocks, _ = split_fences(text)
     found = []
     for block in blocks:
+        if block.lang == "toml":
+            found.extend(_toml_commands(block))
+            continue
         if block.lang not in SHELL_LANGS:
             continue
         for n, line in _logical_lines(block):
@@ -308,6 +313,19 @@ def commands(text: str) -> list[tuple[int, list[str]]]:
                     cmd = cmd[1:]
                 if cmd and _program(cmd[0]):
                     found.append((n, cmd[1:]))
+    return found
+
+
+def _toml_commands(block: Block) -> list[tuple[int, list[str]]]:
+    """A scenario file's ``command = ["controller", ...]``: the arguments of ``diffbot``."""
+    found = []
+    for n, line in enumerate(block.lines, block.line):
+        m = re.match(r"^\s*command\s*=\s*(\[.*?\])\s*(#.*)?$", line)
+        if m:
+            try:
+                found.append((n, [str(a) for a in tomllib.loads(f"c = {m.group(1)}")["c"]]))
+            except tomllib.TOMLDecodeError as exc:
+                found.append((n, ["<unparsable TOML>", str(exc), line]))
     return found
 
 

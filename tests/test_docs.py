@@ -31,6 +31,17 @@ def test_shown_commands_parse(path):
     assert not problems, "\n".join(problems)
 
 
+def test_the_readme_is_a_front_door_into_every_page():
+    text = open(os.path.join(dc.ROOT, "README.md"), encoding="utf-8").read()
+    assert len(text.splitlines()) <= 220
+    linked = {os.path.normpath(t.partition("#")[0]) for _, t in dc.links(text)}
+    missing = [p for p in FILES[1:] if p not in linked]
+    assert not missing, f"README.md does not link these pages of the manual: {missing}"
+    # the command check is not vacuous: the README shows commands and they are checked
+    n, _ = dc.check_commands("README.md")
+    assert n >= 3
+
+
 # ------------------------------------------------------------------ the checker itself
 
 @pytest.mark.parametrize("heading, slug", [
@@ -91,6 +102,8 @@ def test_command_lines_are_found_as_a_shell_would_split_them():
         ["run", "swarm", "[--robots", "N]", "[--seed", "S]"]]
     assert _cmds("$ diffbot scenarios\nsquare  robot1 drives a square", "console") == [["scenarios"]]
     assert _cmds("diffbot run square", "python") == []
+    assert _cmds('[[process]]\ncommand = ["controller", "avoid", "--robot", "r0"]   # c',
+                 "toml") == [["controller", "avoid", "--robot", "r0"]]
     assert _cmds("plant/  the plant (diffbot plant)", "") == []
 
 

@@ -1,7 +1,7 @@
 """Fault injection: kill -9 and freeze (SIGSTOP/SIGCONT) each kind of process at random
 points of lockstep and realtime runs, started by hand and under ``diffbot run``.
 
-What each test pins down is the README's "What happens when ..." table:
+What each test pins down is the table of docs/failures.md:
 
 * a controller dies       -> the plant stops its robot and carries on; under the launcher a
                              required one ends the run (exit 1, named), nothing is left over;

@@ -407,7 +407,7 @@ def test_protocol_page_and_fmu_page_give_the_keys_of_the_code():
     for name in ("der(x)", "a.b[1]", "info"):       # the rule's examples are the code's
         assert f"`{name}` is" in page or f"named `{name}`" in page
         assert escape_variable(name) in page
-    assert "[docs/fmu.md](docs/fmu.md)" in (Path(ROOT) / "README.md").read_text()
+    assert "](docs/fmu.md)" in (Path(ROOT) / "README.md").read_text()    # linked from the front door
 
 
 def test_a_sigkilled_node_s_extraction_folder_is_removed_by_the_next_start(models, tmp_path):
