@@ -1,6 +1,7 @@
 """The manual's checker: links resolve and shown ``diffbot`` command lines parse.
 
-Used by ``tests/test_docs.py`` on README.md and every ``docs/*.md``; runnable alone:
+Used by ``tests/test_docs.py`` on README.md, every ``docs/*.md`` and the other Markdown files
+of the repository (``fmus/README.md``, ...); runnable alone:
 
     .venv/bin/python -m tests.docscheck              # prints every problem, exit 1 if any
 
@@ -49,10 +50,27 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHELL_LANGS = {"", "sh", "bash", "shell", "console", "zsh"}
 
 
+#: folders never searched for Markdown (environments, build products, vendored packages)
+_SKIP_DIRS = {".git", ".venv", "node_modules", "out", "build", ".pytest_cache", "__pycache__"}
+
+
 def doc_files(root: str = ROOT) -> list[str]:
-    """README.md and every page of docs/, as paths relative to ``root``."""
+    """README.md, every page of docs/, then the other Markdown files of the repository
+    (``fmus/README.md``, ``examples/*/README.md``), as paths relative to ``root``."""
     docs = sorted(f for f in os.listdir(os.path.join(root, "docs")) if f.endswith(".md"))
-    return ["README.md"] + [f"docs/{f}" for f in docs]
+    others = []
+    for d, dirs, files in os.walk(root):
+        dirs[:] = sorted(x for x in dirs if x not in _SKIP_DIRS and not x.endswith(".egg-info"))
+        rel = os.path.relpath(d, root)
+        if rel in (".", "docs"):
+            continue
+        others += [f"{rel}/{f}" for f in sorted(files) if f.endswith(".md")]
+    return ["README.md"] + [f"docs/{f}" for f in docs] + others
+
+
+def manual_pages(root: str = ROOT) -> list[str]:
+    """The pages of the manual: docs/*.md."""
+    return [p for p in doc_files(root) if p.startswith("docs/")]
 
 
 # --------------------------------------------------------------------------- Markdown
