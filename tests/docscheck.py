@@ -163,19 +163,18 @@ def anchors(text: str) -> set[str]:
 
 
 _INLINE_LINK = re.compile(r"!?\[(?:[^\[\]]|\[[^\]]*\])*\]\(\s*<?([^)\s>]*)>?(?:\s+[\"'(][^)]*)?\)")
-_REF_DEF = re.compile(r"^ {0,3}\[[^\]]+\]:\s*<?(\S+?)>?(?:\s|$)")
+_REF_DEF = re.compile(r"^ {0,3}\[[^\]]+\]:[ \t]*<?(\S+?)>?(?:\s|$)", re.M)
 _HTML_LINK = re.compile(r"""\s(?:href|src)\s*=\s*["']([^"']+)["']""")
 
 
 def links(text: str) -> list[tuple[int, str]]:
     """(line, target) of every link outside code, in order."""
     _, prose = split_fences(text)
-    out = []
-    for n, line in enumerate(prose, 1):
-        line = re.sub(r"<!--.*?-->", "", _drop_code_spans(line))
-        for rx in (_INLINE_LINK, _REF_DEF, _HTML_LINK):
-            out.extend((n, m.group(1)) for m in rx.finditer(line))
-    return out
+    body = "\n".join(_drop_code_spans(line) for line in prose)
+    body = re.sub(r"<!--.*?-->", lambda m: re.sub(r"[^\n]", " ", m.group(0)), body, flags=re.S)
+    found = sorted((m.start(1), m.group(1)) for rx in (_INLINE_LINK, _REF_DEF, _HTML_LINK)
+                   for m in rx.finditer(body))           # a link's text may wrap lines
+    return [(body.count("\n", 0, at) + 1, target) for at, target in found]
 
 
 def _is_external(target: str) -> bool:

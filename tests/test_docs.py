@@ -78,12 +78,15 @@ def test_broken_links_are_found(tmp_path):
         "docs/b.md": "# B page\n\n## Part two\n",
         "README.md": "[ok](docs/b.md#part-two) [top](#readme) ![img](docs/b.md)\n"
                      "[gone](docs/c.md) [anchor](docs/b.md#part-three) [built](build/x.fmu)\n"
-                     "`[in code](nowhere.md)` [web](https://example.com/x#y)\n\n# Readme\n\n"
+                     "`[in code](nowhere.md)` [web](https://example.com/x#y) [wrapped\n"
+                     "text](docs/b.md#part-four)\n\n# Readme\n\n"
                      "```sh\n[also code](nowhere.md)\n```\n[ref]: docs/missing.md\n",
     })
     problems = dc.check_links("README.md", root=str(tmp_path), repo_files=files)
     assert [p.split(": ", 2)[1] for p in problems] == [
-        "docs/c.md", "docs/b.md#part-three", "build/x.fmu", "docs/missing.md"]
+        "docs/c.md", "docs/b.md#part-three", "build/x.fmu", "docs/b.md#part-four",
+        "docs/missing.md"]
+    assert problems[3].startswith("README.md:4: ")        # the line the link's target is on
     assert "no heading #part-three in docs/b.md" in problems[1]
     assert "not in the repository" in problems[2]
 
