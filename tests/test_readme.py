@@ -1,4 +1,4 @@
-"""The README's controller example works as printed."""
+"""The README's two commands are the ones CI runs, and its controller example works as printed."""
 from __future__ import annotations
 
 import os
@@ -19,6 +19,18 @@ def readme_example() -> str:
     text = open(os.path.join(ROOT, "README.md")).read()
     section = text.split("## Run your own controller", 1)[1]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+def test_the_two_commands_are_make_targets_and_ci_runs_the_test_one():
+    text = open(os.path.join(ROOT, "README.md")).read()
+    block = re.search(r"## The two commands\n+```sh\n(.*?)```", text, re.S).group(1)
+    commands = [ln.split("#")[0].split() for ln in block.splitlines() if ln.strip()]
+    assert commands == [["make", "demo"], ["make", "test"]]
+    makefile = open(os.path.join(ROOT, "Makefile")).read()
+    assert re.search(r"^demo:", makefile, re.M) and re.search(r"^test:", makefile, re.M)
+    ci = [ln.strip() for ln in open(os.path.join(ROOT, ".ci", "run")) if ln.strip()
+          and not ln.startswith("#")]
+    assert "make test" in ci
 
 
 def test_example_is_short():
