@@ -51,6 +51,7 @@ from .memory import keep_freed_memory
 from .outbox import Outbox
 from .physics_process import PhysicsError, PhysicsProcess
 from .reset import parse_reset
+from .routerwatch import RouterWatch
 from .stepper import Stepper
 from .tick import build_world, tick_messages
 from .world import WorldError, WorldSpec, load_world
@@ -62,41 +63,6 @@ MODES = ("lockstep", "realtime", "fast")
 REPUBLISH_TICKS = 25
 #: how long the sim/end text goes before the sim/end token (wall s)
 END_TEXT_HEAD_START_S = 0.1
-
-
-class RouterWatch:
-    """A plant that is a client of a router (a user's Zenoh config) notices losing it, as
-    nodes notice losing the plant (docs/PROTOCOL.md section 1): lockstep holds time (every
-    member is then lost, section 4), realtime and fast say they run on without the bus."""
-
-    CHECK_S = 0.25
-
-    def __init__(self, session: zenoh.Session, log, mode: str) -> None:
-        self.session = session
-        self.log = log
-        self.mode = mode
-        self.watching = bool(list(session.info.routers_zid()))   # a router session: never
-        self.gone = False
-        self._checked = 0.0
-
-    def lost(self) -> bool:
-        """No router now (asked of the session's transport, not remembered)."""
-        return self.watching and not list(self.session.info.routers_zid())
-
-    def check(self, t_ns: int) -> None:
-        now = time.monotonic()
-        if not self.watching or now - self._checked < self.CHECK_S:
-            return
-        self._checked = now
-        gone = self.lost()
-        if gone and not self.gone:
-            self.log.warning("lost the router at t=%.3f s: %s", t_ns * 1e-9,
-                             "simulated time is held until the members are back"
-                             if self.mode == "lockstep"
-                             else "running on; nothing published reaches anyone")
-        elif self.gone and not gone:
-            self.log.warning("the router is back at t=%.3f s", t_ns * 1e-9)
-        self.gone = gone
 
 
 class Plant:
