@@ -46,12 +46,15 @@ def _preexec(die_with_parent: bool):
         except (OSError, AttributeError):
             prctl = None
     PR_SET_PDEATHSIG = 1
+    parent = os.getpid()
 
     def preexec() -> None:
         signal.signal(signal.SIGINT, signal.SIG_DFL)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
         if prctl is not None:
             prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
+            if os.getppid() != parent:       # the parent died before prctl: no signal comes
+                os.kill(os.getpid(), signal.SIGTERM)
     return preexec
 
 

@@ -26,8 +26,9 @@ CLIENT = os.path.join(ROOT, "diffbot", "configs", "client.json5")
 #: (lockstep runs at up to ~10x real time here)
 DURATION_S = "15"
 BLIP_S = 2.0
-#: long enough in simulated time for five blips a few tenths of a second apart
-NETNS_DURATION_S = "15"
+#: long enough in simulated time for five blips 0.05-0.2 s of wall time apart, the plant
+#: running between them (time is held during a blip) at up to ~35x real time
+NETNS_DURATION_S = "60"
 
 
 def free_port() -> int:
@@ -116,7 +117,7 @@ def test_router_blips_across_namespaces_over_tls(tmp_path, net, coupling):
     rng = random.Random(f"netns-{coupling}")
     remote = tls_machines(str(tmp_path))
     ref = square(str(tmp_path / "undisturbed"), coupling, remote, net.ns, [], NETNS_DURATION_S)
-    blips = [rng.uniform(0.1, 0.4) for _ in range(5)]
+    blips = [rng.uniform(0.05, 0.2) for _ in range(5)]
     got = square(str(tmp_path / "blips"), coupling, remote, net.ns, blips, NETNS_DURATION_S)
     same_run(ref, got, NETNS_DURATION_S)
     print(f"\n{coupling}: {len(blips)} of {len(blips)} router blips across namespaces: "

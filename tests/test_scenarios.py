@@ -38,6 +38,17 @@ def processes_mentioning(text: str) -> list[int]:
     return pids
 
 
+def _cmdlines(pids: list[int]) -> list[str]:
+    out = []
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                out.append(f.read().replace(b"\0", b" ").decode("utf-8", "replace")[:120])
+        except OSError:
+            pass
+    return out
+
+
 def test_drive_test_matches_the_study(tmp_path):
     r = diffbot_run("drive-test", "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr
@@ -150,7 +161,9 @@ def test_a_sigkilled_launcher_leaves_no_process_behind(tmp_path):
                  what="the scenario's processes")
         p.kill()
         p.wait(10)
-        wait_for(lambda: not processes_mentioning(str(out)), 10, what="the children to go")
+        # (a node whose plant went at the same moment may spend a while closing its session)
+        wait_for(lambda: not processes_mentioning(str(out)), 40,
+                 what=f"the children to go: {_cmdlines(processes_mentioning(str(out)))}")
     finally:
         if p.poll() is None:
             p.kill()
