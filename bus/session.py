@@ -146,9 +146,29 @@ def close_session(session: zenoh.Session, log) -> None:
         log.warning("closing the Zenoh session: %s", exc)
 
 
+#: A process whose parent (``diffbot run``) was killed gets SIGTERM from the kernel
+#: (diffbot/procs.py) and stops cleanly; nobody is left to SIGKILL it if that hangs (a
+#: session closing towards a router that went at the same moment), so it ends itself this
+#: many seconds later (the launcher gives its recorder as long).
+ORPHAN_EXIT_S = 10.0
+_PARENT = os.getppid()
+_orphan_timer: threading.Timer | None = None
+
+
+def exit_if_orphaned() -> None:
+    """Called on a stop signal: if this process's parent is gone, exit (status 1) in
+    ORPHAN_EXIT_S seconds whether or not the clean stop has finished by then."""
+    global _orphan_timer
+    if _orphan_timer is None and os.getppid() != _PARENT:
+        _orphan_timer = threading.Timer(ORPHAN_EXIT_S, os._exit, (1,))
+        _orphan_timer.daemon = True
+        _orphan_timer.start()
+
+
 def install_stop_signals(stop_event: threading.Event) -> None:
     """SIGINT/SIGTERM end the loop cleanly (the session is closed on the way out)."""
     def handler(signum, frame):
         stop_event.set()
+        exit_if_orphaned()
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)

@@ -43,7 +43,7 @@ from bus.keys import Keys
 from bus.lockstep import AckLedger
 from bus.log import RejectCounter, setup_logging
 from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION, delays
-from bus.session import BusConfigError, add_bus_args, open_session
+from bus.session import BusConfigError, add_bus_args, exit_if_orphaned, open_session
 
 from . import modes
 from .commands import Command, CommandBook, decode_command
@@ -547,6 +547,7 @@ def main(argv: list[str] | None = None) -> int:
 
         def on_signal(signum, frame):
             plant.stop_event.set()
+            exit_if_orphaned()
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
         code = plant.run() or plant.exit_code

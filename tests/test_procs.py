@@ -112,3 +112,30 @@ def test_a_daemonised_grandchild_left_in_the_group_is_killed_too(tmp_path):
     assert orphan not in procs.descendants(c.pid)
     procs.stop([c], grace_s=2.0)
     wait_for(lambda: not procs.alive(orphan), 5, what="the orphan to die")
+
+
+def test_an_orphan_whose_clean_stop_hangs_ends_itself(tmp_path, monkeypatch):
+    """A launcher SIGKILLed: the kernel sends its children SIGTERM (die_with_parent); one
+    whose clean stop hangs (here: it never looks at its stop event) exits by itself
+    ORPHAN_EXIT_S later, since nobody is left to SIGKILL it."""
+    pidfile = tmp_path / "grandchild.pid"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    hang = ("import sys, threading, time; sys.path.insert(0, %r); import bus.session as s; "
+            "s.ORPHAN_EXIT_S = 1.0; s.install_stop_signals(threading.Event()); "
+            "print('ready', flush=True); time.sleep(60)" % root)
+    c = procs.Child("launcher", _py(f"""
+        import sys, time
+        sys.path.insert(0, {root!r})
+        from diffbot import procs
+        g = procs.Child("node", [sys.executable, "-c", {hang!r}], {str(tmp_path / 'node.log')!r},
+                        die_with_parent=True).start()
+        open({str(pidfile)!r}, "w").write(str(g.pid))
+        time.sleep(60)
+    """), str(tmp_path / "launcher.log")).start()
+    wait_for(lambda: pidfile.exists() and pidfile.read_text(), 20, what="the grandchild")
+    grandchild = int(pidfile.read_text())
+    wait_for(lambda: "ready" in procs.tail(str(tmp_path / "node.log")), 20,
+             what="the grandchild to start")
+    os.kill(c.pid, signal.SIGKILL)
+    c.wait(5)
+    wait_for(lambda: not procs.alive(grandchild), 8, what="the orphan to end itself")

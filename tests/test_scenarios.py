@@ -162,8 +162,10 @@ def test_a_sigkilled_launcher_leaves_no_process_behind(tmp_path):
         p.kill()
         p.wait(10)
         # (a node whose plant went at the same moment may spend a while closing its session)
-        wait_for(lambda: not processes_mentioning(str(out)), 40,
-                 what=f"the children to go: {_cmdlines(processes_mentioning(str(out)))}")
+        try:
+            wait_for(lambda: not processes_mentioning(str(out)), 40, what="the children to go")
+        except AssertionError as exc:         # name what is left now, not what was at the kill
+            raise AssertionError(f"{exc}: {_cmdlines(processes_mentioning(str(out)))}") from None
     finally:
         if p.poll() is None:
             p.kill()
