@@ -90,16 +90,17 @@ def test_observation_odometry_starts_at_the_origin_and_the_goal_is_relative():
     try:
         obs, info = env.reset(seed=2)
         x0, y0, th0 = info["pose"]
+        c, s = math.cos(th0), math.sin(th0)
+
+        def from_start(x, y):            # a world point in the start pose's frame
+            return c * (x - x0) + s * (y - y0), -s * (x - x0) + c * (y - y0)
         assert np.array_equal(obs["odom"][:3], np.zeros(3, np.float32))
-        dx, dy = info["goal"] - info["pose"][:2]
-        rel = (dx * math.cos(th0) + dy * math.sin(th0), -dx * math.sin(th0) + dy * math.cos(th0))
-        assert obs["goal"] == pytest.approx(rel, abs=1e-5)
+        assert obs["goal"] == pytest.approx(from_start(*info["goal"]), abs=1e-5)
         for _ in range(10):              # forward and turning left, no noise in this world
             obs, _, term, _, info = env.step(np.array([0.2, 0.5], np.float32))
             assert not term
         x, y, th = info["pose"]
-        c, s = math.cos(th0), math.sin(th0)
-        odom = (c * (x - x0) + s * (y - y0), -s * (x - x0) + c * (y - y0))
+        odom = from_start(x, y)
         assert obs["odom"][0] > 0.1 and obs["odom"][1] > 0.0      # ahead and to the left
         assert obs["odom"][:2] == pytest.approx(odom, abs=0.02)   # wheel slip only
         assert obs["odom"][2] == pytest.approx(wrap(th - th0), abs=0.03)
