@@ -261,9 +261,12 @@ class Plant:
     def handle(self, ev: Event) -> None:
         if ev.tag == "reset":
             self._reset(ev.query, ev.payload)
-        elif ev.tag == "out":
+            return
+        if ev.tag == "out":
             self._on_output(ev)
-        elif ev.tag == "alive":
+            return
+        self.router.check(self.sim.time_ns, now=True)   # a token came or went: the router?
+        if ev.tag == "alive":
             self.outbox.changed()          # its subscribers are in the tables by now
             node = self.keys.node_of(ev.key)
             if not ev.alive:

@@ -26,11 +26,14 @@ class RouterWatch:
         """No router now (asked of the session's transport, not remembered)."""
         return self.watching and not list(self.session.info.routers_zid())
 
-    def check(self, t_ns: int) -> None:
-        now = time.monotonic()
-        if not self.watching or now - self._checked < self.CHECK_S:
+    def check(self, t_ns: int, now: bool = False) -> None:
+        """Ask the session at most every CHECK_S, or at once with ``now`` (a liveliness
+        token came or went: the router may have gone or come back, and a blip shorter
+        than CHECK_S would otherwise be missed)."""
+        t = time.monotonic()
+        if not self.watching or (not now and t - self._checked < self.CHECK_S):
             return
-        self._checked = now
+        self._checked = t
         gone = self.lost()
         if gone and not self.gone:
             self.log.warning("lost the router at t=%.3f s: %s", t_ns * 1e-9,
