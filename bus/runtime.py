@@ -333,6 +333,16 @@ class NodeRunner:
         # reset from inside step: the tick being answered is the old world's, not kept
         self._sent: dict[int, list[tuple[str, bytes, int, int]]] = {}
         self._keep_sent = False
+        self._last_acted: int | None = None    # lockstep: the last tick acted on
+
+    def _is_next(self, t_ns: int) -> bool:
+        """Lockstep: ``t_ns`` is the tick after the last one this member acted on. A member
+        answers every tick in order (docs/PROTOCOL.md section 4), so while the next tick's
+        inputs are not all in, no later tick is acted on: after a blip the plant re-publishes
+        what was lost, and a later tick answered first would make the next one look like a
+        world gone back (stepped again, an FMU re-initialised)."""
+        return (self._last_acted is not None
+                and self._last_acted < t_ns <= self._last_acted + self.tick_ns)
 
     # ----------------------------------------------------------------- loop
     def run(self, max_ticks: int | None = None) -> int:
@@ -427,6 +437,7 @@ class NodeRunner:
                         continue
                     if self._sent and t_ns < max(self._sent):    # the world went back
                         self._sent.clear()
+                        self._last_acted = None
                     self._pending[t_ns] = now
                     if len(self._pending) > _PENDING_MAX:
                         old = next(iter(self._pending))
@@ -438,8 +449,13 @@ class NodeRunner:
                     if not self.sync:
                         continue
                 finished = False
-                for t_ns in [t for t in self._pending if self._complete(t)]:
+                for t_ns in sorted(self._pending):
+                    if not self._complete(t_ns):
+                        if self._is_next(t_ns):
+                            break      # ticks are answered in order: a later one waits
+                        continue       # (a stray or the old world's: never holds a tick)
                     del self._pending[t_ns]
+                    self._last_acted = t_ns
                     if self._act(t_ns):
                         finished = True
                         break

@@ -1,7 +1,8 @@
-"""Three defects that hid in the lockstep code before it had a home (issue 28), each pinned
-by what a user sees: a member joining between two pipelined ticks does not stall the
-plant; a node meeting a plant of another protocol version exits 2 also after --wait; a
-world rebuilt after the physics diverged waits for the new world's ACKs."""
+"""Defects that hid in the lockstep code, each pinned by what a user sees: a member joining
+between two pipelined ticks does not stall the plant; a node meeting a plant of another
+protocol version exits 2 also after --wait; a world rebuilt after the physics diverged
+waits for the new world's ACKs (these three from issue 28); a member whose next tick's
+inputs are late answers it before a later tick that is complete (a router blip)."""
 from __future__ import annotations
 
 import json
@@ -158,4 +159,76 @@ def test_a_world_rebuilt_after_divergence_waits_for_the_new_world_s_acks(endpoin
         pub.undeclare()
         sub.undeclare()
         plant.close()
+        ps.close()
+
+
+def test_a_member_answers_its_ticks_in_order_when_the_next_one_s_input_is_late(endpoint, bus):
+    """After a router blip a member may hold tick k without its sensors and tick k+1 in
+    full; the plant re-publishes what was lost. Acting on k+1 first made the re-published
+    k look like a world gone back: the FMU node re-initialised its FMU and the run left the
+    undisturbed one's bytes (a fresh-clone CI run). A member answers every tick in order."""
+    from bus.controller import Twist
+    from bus.runtime import NodeRunner
+    from bus.session import open_session
+
+    class Recorder:
+        inputs = ["joint_states"]
+
+        def __init__(self):
+            self.stepped: list[int] = []
+
+        def step(self, obs):
+            self.stepped.append(obs.t_ns)
+            return Twist(linear=0.1, angular=0.0)
+
+    ps = open_session("plant", endpoint)
+    info = {"protocol": PROTOCOL_VERSION, "mode": "lockstep", "coupling": "sequential",
+            "control_tick_s": TICK_NS * 1e-9,
+            "robots": {"robot1": {"topics": {"joint_states": 1}}}}
+    q = ps.declare_queryable(K.info, lambda query: query.reply(K.info, json.dumps(info)))
+    alive = ps.liveliness().declare_token(K.alive("plant"))
+    clock_pub = ps.declare_publisher(K.clock)
+    js_pub = ps.declare_publisher(K.topic("robot1", "joint_states"))
+    acks: queue.SimpleQueue = queue.SimpleQueue()
+    ack_sub = ps.declare_subscriber(K.topic("robot1", "cmd_vel"), lambda smp: acks.put(
+        codec.parse_attachment(smp.attachment.to_bytes()).t_ns))
+    ctrl = Recorder()
+    runner = NodeRunner(ctrl, "robot1", "m", bus(), K, logging.getLogger("m"))
+    thread = threading.Thread(target=runner.run, daemon=True)
+
+    def clock(t):
+        clock_pub.put(codec.encode(codec.clock(t)))
+
+    def js(t):
+        js_pub.put(codec.encode(codec.joint_state(t, ["left_wheel_joint", "right_wheel_joint"],
+                                                  [0.0, 0.0], [0.0, 0.0])))
+
+    def member_joined():
+        return any(r.ok is not None for r in ps.liveliness().get(K.sync("m"), timeout=1.0))
+
+    thread.start()
+    try:
+        wait_for(member_joined, 20, what="the member to join")
+        js(0)
+        clock(0)
+        assert acks.get(timeout=10) == 0
+        clock(TICK_NS)                     # t1's sensors lost in the blip ...
+        js(2 * TICK_NS)                    # ... t2 arrives whole
+        clock(2 * TICK_NS)
+        with pytest.raises(queue.Empty):
+            pytest.fail(f"answered t={acks.get(timeout=1.0)} before t1's inputs came")
+        js(TICK_NS)                        # re-published after the rejoin
+        assert [acks.get(timeout=10), acks.get(timeout=10)] == [TICK_NS, 2 * TICK_NS]
+        clock(TICK_NS)                     # re-published again: re-sent, not stepped
+        assert acks.get(timeout=10) == TICK_NS
+        js(3 * TICK_NS)
+        clock(3 * TICK_NS)
+        assert acks.get(timeout=10) == 3 * TICK_NS
+        assert ctrl.stepped == [0, TICK_NS, 2 * TICK_NS, 3 * TICK_NS]
+        assert runner.rejects.counts == {}
+    finally:
+        runner.stop_event.set()
+        thread.join(10)
+        for ent in (ack_sub, js_pub, clock_pub, alive, q):
+            ent.undeclare()
         ps.close()
