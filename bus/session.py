@@ -16,6 +16,7 @@ import re
 import signal
 import threading
 import time
+from collections.abc import Callable
 
 import zenoh
 
@@ -151,24 +152,49 @@ def close_session(session: zenoh.Session, log) -> None:
 #: session closing towards a router that went at the same moment), so it ends itself this
 #: many seconds later (the launcher gives its recorder as long).
 ORPHAN_EXIT_S = 10.0
+#: how long after a stop signal the process looks whether its parent is gone (the kernel
+#: sends the parent-death signal while it re-parents, so at once it may not show yet)
+ORPHAN_CHECK_S = 0.5
 _PARENT = os.getppid()
-_orphan_timer: threading.Timer | None = None
+_orphan_ending = False
 
 
-def exit_if_orphaned() -> None:
-    """Called on a stop signal: if this process's parent is gone, exit (status 1) in
-    ORPHAN_EXIT_S seconds whether or not the clean stop has finished by then."""
-    global _orphan_timer
-    if _orphan_timer is None and os.getppid() != _PARENT:
-        _orphan_timer = threading.Timer(ORPHAN_EXIT_S, os._exit, (1,))
-        _orphan_timer.daemon = True
-        _orphan_timer.start()
+def _check_orphan_soon() -> None:
+    """On a stop signal: in ORPHAN_CHECK_S, if this process's parent is gone, have the
+    kernel end it (SIGALRM, default action) ORPHAN_EXIT_S later, whether or not its clean
+    stop has finished by then. Signals and a timer only: no lock, no thread, so it is safe
+    inside a signal handler and works however the clean stop hangs."""
+    if _orphan_ending:
+        return
+    signal.signal(signal.SIGALRM, _orphan_check)
+    signal.setitimer(signal.ITIMER_REAL, ORPHAN_CHECK_S)
 
 
-def install_stop_signals(stop_event: threading.Event) -> None:
-    """SIGINT/SIGTERM end the loop cleanly (the session is closed on the way out)."""
+def _orphan_check(signum, frame) -> None:
+    global _orphan_ending
+    if os.getppid() != _PARENT:
+        _orphan_ending = True
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)
+        signal.setitimer(signal.ITIMER_REAL, ORPHAN_EXIT_S)
+
+
+def install_stop_signals(stop: threading.Event | Callable[[], None]) -> None:
+    """SIGINT/SIGTERM stop the process cleanly: ``stop`` (an event, or a function) is set,
+    or called, once; the session is closed on the way out.
+
+    The handler runs on the main thread between two bytecodes of whatever it interrupted,
+    so it does no more than it must. A process started with ``die_with_parent`` gets one
+    SIGTERM per thread when its parent dies (the kernel's parent-death signal is kept per
+    thread, and a Zenoh session runs a dozen), and an ``Event.set`` entered again by the
+    next signal while the first holds the event's lock hangs the process for good: later
+    signals only look again whether the parent is gone."""
+    do_stop = stop.set if isinstance(stop, threading.Event) else stop
+    stopping = []
+
     def handler(signum, frame):
-        stop_event.set()
-        exit_if_orphaned()
+        _check_orphan_soon()
+        if not stopping:
+            stopping.append(signum)
+            do_stop()
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)

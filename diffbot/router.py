@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import signal
 import sys
 import threading
 
@@ -32,7 +31,7 @@ import zenoh
 from bus.cliargs import ArgumentParser
 from bus.linkcheck import ConfigFileError, diagnose, load_config
 from bus.log import RejectCounter, setup_logging
-from bus.session import DEFAULT_LEASE_MS, BusConfigError
+from bus.session import DEFAULT_LEASE_MS, BusConfigError, install_stop_signals
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
@@ -127,11 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         log.error("cannot start the router: %s (%s)", "; ".join(diagnose(conf)), exc)
         return 2
     stop = threading.Event()
-
-    def on_signal(signum, frame):
-        stop.set()
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    install_stop_signals(stop)
     sessions = log_sessions(session, log)
     try:
         where = json.loads(conf.get_json("listen/endpoints"))

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import signal
 import threading
 import time
 from contextlib import contextmanager
@@ -43,7 +42,7 @@ from bus.keys import Keys
 from bus.lockstep import AckLedger
 from bus.log import RejectCounter, setup_logging
 from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION, delays
-from bus.session import BusConfigError, add_bus_args, exit_if_orphaned, open_session
+from bus.session import BusConfigError, add_bus_args, install_stop_signals, open_session
 
 from . import modes
 from .commands import Command, CommandBook, decode_command
@@ -547,12 +546,7 @@ def main(argv: list[str] | None = None) -> int:
                       coupling=args.coupling, physics_process=args.physics_process,
                       rejoin_timeout_s=args.rejoin_timeout,
                       skip_unread=args.zenoh_config is None)
-
-        def on_signal(signum, frame):
-            plant.stop_event.set()
-            exit_if_orphaned()
-        signal.signal(signal.SIGINT, on_signal)
-        signal.signal(signal.SIGTERM, on_signal)
+        install_stop_signals(plant.stop_event)
         code = plant.run() or plant.exit_code
         st = plant.stats()
         log.info("stopped at t=%.2f s after %d ticks (%.1fx real time)", st["sim_time_s"],
