@@ -92,7 +92,7 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "fmu":
         if rest[:1] == ["build"]:
             from fmus.build import main as build_main
-            return build_main(rest[1:])
+            return build_main(rest[1:], prog="diffbot fmu build")
         print("usage: diffbot fmu build [--out DIR]", file=sys.stderr)
         return 2
     if cmd == "fmu-node":

@@ -279,9 +279,11 @@ def build_test_fmus(out_dir: str | os.PathLike = "fmus/build") -> dict[str, Path
             for v in model_versions(m)}
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command line: ``python -m fmus.build [--out DIR]``; prints the built paths."""
-    parser = argparse.ArgumentParser(prog="python -m fmus.build", description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str = "python -m fmus.build") -> int:
+    """Command line: ``python -m fmus.build [--out DIR]`` (``diffbot fmu build``); prints the
+    built paths."""
+    parser = argparse.ArgumentParser(prog=prog, description=" ".join(
+        __doc__.split("\n\n")[0].split()))
     parser.add_argument("--out", default="fmus/build", help="output directory (default: fmus/build)")
     args = parser.parse_args(argv)
     try:

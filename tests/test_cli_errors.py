@@ -70,6 +70,14 @@ def test_controller_help_names_the_controller(capsys):
     assert capsys.readouterr().out.startswith("usage: diffbot controller square_path ")
 
 
+def test_fmu_build_help_names_the_command_a_user_typed(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli._dispatch(["fmu", "build", "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: diffbot fmu build ") and "fmus/models/" in out
+
+
 def test_a_bad_set_override_is_blamed_on_the_option_not_the_file():
     with pytest.raises(WorldError) as e:
         load_world("empty", ["world.physics_stepp_s=0.002"])
@@ -184,3 +192,4 @@ def test_an_unwritable_stats_path_is_an_error_line_not_a_hang(tmp_path):
     assert f"cannot write --stats {stats}" in p.stderr, p.stderr
     assert "Traceback" not in p.stderr, p.stderr
     assert not stats.exists()
+
