@@ -100,8 +100,8 @@ def open_session(role: str, endpoint: str = DEFAULT_ENDPOINT,
     except Exception as exc:
         causes = "; ".join(diagnose(conf)) or zenoh_error(exc)
         src = f" (config {config_file})" if config_file else ""
-        hint = "" if config_file or role == "plant" else \
-            " [is `diffbot plant` running with the same --endpoint?]"
+        hint = "" if config_file or role == "plant" or "running" in causes else \
+            " [is `diffbot plant` running with the same --endpoint?]"    # (asked once)
         raise BusConfigError(f"{causes}{src}{hint}") from None
 
 

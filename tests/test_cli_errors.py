@@ -193,3 +193,22 @@ def test_an_unwritable_stats_path_is_an_error_line_not_a_hang(tmp_path):
     assert "Traceback" not in p.stderr, p.stderr
     assert not stats.exists()
 
+
+def test_a_node_that_finds_no_plant_asks_once_whether_it_runs(tmp_path, monkeypatch):
+    import socket
+
+    from bus import session as bus_session
+
+    def refuse(conf):
+        raise RuntimeError("Unable to connect to any of [...]. Timeout!")
+    monkeypatch.setattr(bus_session.zenoh, "open", refuse)
+    with pytest.raises(bus_session.BusConfigError) as e:
+        bus_session.open_session("node", f"unixsock-stream/{tmp_path}/nobody.sock")
+    assert "no socket file" in str(e.value) and str(e.value).count("running") == 1, e.value
+    with socket.socket() as s:              # TCP answers, Zenoh does not: the hint helps
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        with pytest.raises(bus_session.BusConfigError) as e:
+            bus_session.open_session("node", f"tcp/127.0.0.1:{s.getsockname()[1]}")
+    assert "no Zenoh session opened" in str(e.value)
+    assert "[is `diffbot plant` running with the same --endpoint?]" in str(e.value)
