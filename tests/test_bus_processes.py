@@ -130,6 +130,15 @@ def test_bad_commands_are_counted_and_never_reach_the_physics(procs, endpoint, b
             put(key, good)                # good commands interleaved keep working
         for b in wheel_bad:
             put(K.topic("robot1", "wheel_cmd"), b)
+    # Last, a faster command: once the robot goes faster than any good one took it, the
+    # plant has taken everything before it (one session's samples arrive in order); a
+    # fast-mode plant can run 2 s ahead before a loaded machine delivers the burst.
+    put(key, codec.encode(codec.twist_stamped(0, 0.6, 0.0)))
+
+    def sentinel_acted() -> bool:
+        with tap.lock:
+            return any(m.twist.twist.linear.x > 0.45 for m in tap.gt)
+    wait_for(sentinel_acted, 30, what="the last command to act")
     t0 = tap.last_t()
     wait_for(lambda: tap.last_t() > t0 + 2e9, 30, what="plant to keep running")
     assert p.poll() is None
