@@ -48,7 +48,7 @@ import zenoh
 
 from .cliargs import ArgumentParser
 from .controller import Controller, Observation, Twist, WheelSpeeds, default_name
-from .jsonio import write_json
+from .jsonio import write_stats
 from .keys import Keys, check_name
 from .log import setup_logging
 from .protocol import ProtocolError
@@ -169,9 +169,9 @@ def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
         install_stop_signals(runner.stop_event)
         return runner.run()
     finally:
-        if runner is not None and getattr(args, "stats", None):
-            write_json(args.stats, runner.stats())
-        close_session(session, log)
+        close_session(session, log)          # first: a --stats it cannot write is one error
+        write_stats(getattr(args, "stats", None),
+                    runner.stats() if runner is not None else None, log)
 
 
 def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Session:

@@ -322,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     except BusConfigError as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT
-    from .jsonio import write_json
+    from .jsonio import write_stats
     from .session import install_stop_signals
     rp = None
     code = EXIT_OK
@@ -350,9 +350,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if rp is not None:
             rp.close(expect, args.linger)
-            if args.stats:
-                write_json(args.stats, rp.stats())
-        session.close()
+        session.close()                      # first: a --stats it cannot write is one error
+        write_stats(args.stats, rp.stats() if rp is not None else None, log)
     return code
 
 

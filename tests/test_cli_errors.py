@@ -194,6 +194,26 @@ def test_an_unwritable_stats_path_is_an_error_line_not_a_hang(tmp_path):
     assert not stats.exists()
 
 
+@pytest.mark.slow
+def test_a_node_s_unwritable_stats_path_is_an_error_line_too(tmp_path):
+    """As the plant's: written after the session closed, one error line, not a traceback."""
+    stats = tmp_path / "gone" / "node.json"
+    endpoint = f"unixsock-stream/{tmp_path}/bus.sock"
+    plant = subprocess.Popen([sys.executable, "-m", "diffbot.cli", "plant", "--world", "empty",
+                              "--mode", "realtime", "--duration", "3", "--endpoint", endpoint],
+                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        r = subprocess.run([sys.executable, "-m", "diffbot.cli", "controller", "square_path",
+                            "--stats", str(stats), "--endpoint", endpoint],
+                           cwd=ROOT, capture_output=True, text=True, timeout=60)
+    finally:
+        plant.kill()
+        plant.wait(10)
+    assert "square_path_robot1 on robot robot1" in r.stderr, r.stderr     # it ran
+    assert f"cannot write --stats {stats}" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr, r.stderr
+
+
 def test_a_node_that_finds_no_plant_asks_once_whether_it_runs(tmp_path, monkeypatch):
     import socket
 
