@@ -16,7 +16,6 @@ import re
 import signal
 import threading
 import time
-from collections.abc import Callable
 
 import zenoh
 
@@ -178,9 +177,9 @@ def _orphan_check(signum, frame) -> None:
         signal.setitimer(signal.ITIMER_REAL, ORPHAN_EXIT_S)
 
 
-def install_stop_signals(stop: threading.Event | Callable[[], None]) -> None:
-    """SIGINT/SIGTERM stop the process cleanly: ``stop`` (an event, or a function) is set,
-    or called, once; the session is closed on the way out.
+def install_stop_signals(stop_event: threading.Event) -> None:
+    """SIGINT/SIGTERM stop the process cleanly: ``stop_event`` is set, once; the session is
+    closed on the way out.
 
     The handler runs on the main thread between two bytecodes of whatever it interrupted,
     so it does no more than it must. A process started with ``die_with_parent`` gets one
@@ -188,13 +187,12 @@ def install_stop_signals(stop: threading.Event | Callable[[], None]) -> None:
     thread, and a Zenoh session runs a dozen), and an ``Event.set`` entered again by the
     next signal while the first holds the event's lock hangs the process for good: later
     signals only look again whether the parent is gone."""
-    do_stop = stop.set if isinstance(stop, threading.Event) else stop
     stopping = []
 
     def handler(signum, frame):
         _check_orphan_soon()
         if not stopping:
             stopping.append(signum)
-            do_stop()
+            stop_event.set()
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
