@@ -117,19 +117,21 @@ def test_a_daemonised_grandchild_left_in_the_group_is_killed_too(tmp_path):
     wait_for(lambda: not procs.alive(orphan), 5, what="the orphan to die")
 
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _orphan(tmp_path, node_code: str) -> tuple[procs.Child, int]:
-    """A launcher whose child (``die_with_parent``) runs ``node_code``, ready; the launcher
-    is then SIGKILLed. The launcher and the orphan's PID."""
+def test_an_orphan_whose_clean_stop_hangs_ends_itself(tmp_path, monkeypatch):
+    """A launcher SIGKILLed: the kernel sends its children SIGTERM (die_with_parent); one
+    whose clean stop hangs (here: it never looks at its stop event) exits by itself
+    ORPHAN_EXIT_S later, since nobody is left to SIGKILL it."""
     pidfile = tmp_path / "grandchild.pid"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    hang = ("import sys, threading, time; sys.path.insert(0, %r); import bus.session as s; "
+            "s.ORPHAN_EXIT_S = 1.0; s.install_stop_signals(threading.Event()); "
+            "print('ready', flush=True); time.sleep(60)" % root)
     c = procs.Child("launcher", _py(f"""
         import sys, time
-        sys.path.insert(0, {ROOT!r})
+        sys.path.insert(0, {root!r})
         from diffbot import procs
-        g = procs.Child("node", [sys.executable, "-c", {node_code!r}],
-                        {str(tmp_path / 'node.log')!r}, die_with_parent=True).start()
+        g = procs.Child("node", [sys.executable, "-c", {hang!r}], {str(tmp_path / 'node.log')!r},
+                        die_with_parent=True).start()
         open({str(pidfile)!r}, "w").write(str(g.pid))
         time.sleep(60)
     """), str(tmp_path / "launcher.log")).start()
@@ -139,17 +141,6 @@ def _orphan(tmp_path, node_code: str) -> tuple[procs.Child, int]:
              what="the grandchild to start")
     os.kill(c.pid, signal.SIGKILL)
     c.wait(5)
-    return c, grandchild
-
-
-def test_an_orphan_whose_clean_stop_hangs_ends_itself(tmp_path):
-    """A launcher SIGKILLed: the kernel sends its children SIGTERM (die_with_parent); one
-    whose clean stop hangs (here: it never looks at its stop event) exits by itself
-    ORPHAN_EXIT_S later, since nobody is left to SIGKILL it."""
-    _, grandchild = _orphan(tmp_path, (
-        "import sys, threading, time; sys.path.insert(0, %r); import bus.session as s; "
-        "s.ORPHAN_EXIT_S = 1.0; s.install_stop_signals(threading.Event()); "
-        "print('ready', flush=True); time.sleep(60)" % ROOT))
     wait_for(lambda: not procs.alive(grandchild), 8, what="the orphan to end itself")
 
 
@@ -159,6 +150,7 @@ def test_a_stop_signal_that_comes_again_inside_the_handler_does_not_hang_the_pro
     is inside Event.set, holding the event's lock. Setting the event again there hung the
     node for good (a fresh-clone CI run: a SIGKILLed launcher's recorder, controller or
     plant still there 40 s later). Here the second signal comes exactly there."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     code = _py("""
         import signal, sys, threading
         sys.path.insert(0, %r)
@@ -174,7 +166,7 @@ def test_a_stop_signal_that_comes_again_inside_the_handler_does_not_hang_the_pro
         stop._cond.notify_all = notify_all_with_a_signal_on_the_way
         handler(signal.SIGTERM, None)
         print("stopped" if stop.is_set() else "not stopped")
-    """ % ROOT)
+    """ % root)
     try:
         r = subprocess.run(code, capture_output=True, text=True, timeout=20)
     except subprocess.TimeoutExpired:
