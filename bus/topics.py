@@ -62,10 +62,22 @@ class RateMeter:
             hz = (n - 1) / (w1 - w0) if n > 1 and w1 > w0 else None
             sim_hz = ((n - 1) / ((s1 - s0) * 1e-9)
                       if n > 1 and s0 is not None and s1 is not None and s1 > s0 else None)
-            kind = keys.msgtype_of(key) or (types or {}).get(key) or "-"
+            kind = _msgtype(keys, key) or (types or {}).get(key) or "-"
             rows.append({"key": key, "type": kind, "count": n,
                          "hz": hz, "sim_hz": sim_hz})
         return rows
+
+
+def _msgtype(keys: Keys, key: str) -> str | None:
+    """The message type on ``key``. Without --namespace the listing covers every key, so a
+    namespaced run's ``<ns>/robot1/odom`` is typed too (a namespace is one segment)."""
+    kind = keys.msgtype_of(key)
+    if kind is None and not keys.namespace and "/" in key:
+        try:
+            kind = Keys(key.split("/", 1)[0]).msgtype_of(key)
+        except ValueError:             # not a name a namespace could have
+            pass
+    return kind
 
 
 def alive_nodes(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> list[str]:

@@ -29,6 +29,20 @@ def test_namespace_prefixes_every_key():
     assert Keys().topic("r", "gps") == "r/gps"
 
 
+def test_diffbot_topics_types_a_namespaced_run_s_keys_without_namespace():
+    from bus.topics import RateMeter
+    meter = RateMeter()
+    for key in ("lab2/robot1/odom", "lab2/sim/clock", "robot1/odom", "lab2/x/y", "a$b/robot1/odom"):
+        meter.seen[key] = [1, 0.0, 0.0, None, None]
+    types = {r["key"]: r["type"] for r in meter.table(Keys())}
+    assert types == {"lab2/robot1/odom": "nav_msgs/msg/Odometry",
+                     "lab2/sim/clock": "rosgraph_msgs/msg/Clock",
+                     "robot1/odom": "nav_msgs/msg/Odometry", "lab2/x/y": "-",
+                     "a$b/robot1/odom": "-"}
+    # with --namespace only that run's keys are its own
+    assert {r["key"]: r["type"] for r in meter.table(Keys("lab3"))}["lab2/robot1/odom"] == "-"
+
+
 def test_unknown_topic_is_an_error():
     with pytest.raises(BadName):
         Keys().topic("robot1", "nope")
