@@ -20,33 +20,32 @@ def diffbot_run(*args, timeout=300):
                           capture_output=True, text=True, timeout=timeout)
 
 
+def _cmdline(pid: int | str) -> str | None:
+    """A process's command line, or None if it is gone."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode("utf-8", "replace")
+    except OSError:
+        return None
+
+
 def processes_mentioning(text: str) -> list[int]:
     """PIDs of live processes whose command line contains ``text``."""
     pids = []
     for d in os.listdir("/proc"):
         if not d.isdigit() or int(d) == os.getpid():
             continue
+        cmd = _cmdline(d)
+        if cmd is None or text not in cmd:
+            continue
         try:
-            with open(f"/proc/{d}/cmdline", "rb") as f:
-                cmd = f.read().replace(b"\0", b" ").decode("utf-8", "replace")
             with open(f"/proc/{d}/stat") as f:
                 state = f.read().rsplit(")", 1)[1].split()[0]
         except OSError:
             continue
-        if text in cmd and state != "Z":
+        if state != "Z":
             pids.append(int(d))
     return pids
-
-
-def _cmdlines(pids: list[int]) -> list[str]:
-    out = []
-    for pid in pids:
-        try:
-            with open(f"/proc/{pid}/cmdline", "rb") as f:
-                out.append(f.read().replace(b"\0", b" ").decode("utf-8", "replace")[:120])
-        except OSError:
-            pass
-    return out
 
 
 def test_drive_test_matches_the_study(tmp_path):
@@ -165,7 +164,8 @@ def test_a_sigkilled_launcher_leaves_no_process_behind(tmp_path):
         try:
             wait_for(lambda: not processes_mentioning(str(out)), 40, what="the children to go")
         except AssertionError as exc:         # name what is left now, not what was at the kill
-            raise AssertionError(f"{exc}: {_cmdlines(processes_mentioning(str(out)))}") from None
+            left = [(_cmdline(p) or "")[:120] for p in processes_mentioning(str(out))]
+            raise AssertionError(f"{exc}: {left}") from None
     finally:
         if p.poll() is None:
             p.kill()
