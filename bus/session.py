@@ -187,7 +187,7 @@ def install_stop_signals(stop_event: threading.Event) -> None:
     thread, and a Zenoh session runs a dozen), and an ``Event.set`` entered again by the
     next signal while the first holds the event's lock hangs the process for good: later
     signals only look again whether the parent is gone."""
-    stopping = []
+    stopping = []        # (not stop_event.is_set(): its flag is set inside its lock)
 
     def handler(signum, frame):
         _check_orphan_soon()
