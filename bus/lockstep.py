@@ -1,20 +1,15 @@
-"""The lockstep rules of docs/PROTOCOL.md, one side each, with no Zenoh and no DART in them.
+"""The plant's half of the lockstep rules of docs/PROTOCOL.md, with no Zenoh and no DART.
 
-* :class:`AckLedger` is the plant's half: who must answer which tick, the ACKs and
-  member messages that came for it, FINALs, members that left, missing outputs and
-  second ACKs (PROTOCOL.md section 4, "Each tick k" step 4, "Finishing", "Reset";
-  section 7 for what it counts as a protocol error).
-* :class:`MemberTick` is a member's half: which input stamps a tick needs (section 4,
-  step 2), what it owes for a tick and in which order (step 3), and when, after its
-  FINAL, it may leave ("Finishing").
-
-The plant (``plant/node.py``) and the node runtime (``bus/runtime.py``) are adapters:
-they move messages between Zenoh and these objects. Each method names its section.
+:class:`AckLedger`: who must answer which tick, the ACKs and member messages that came for
+it, FINALs, members that left, missing outputs and second ACKs (PROTOCOL.md section 4,
+"Each tick k" step 4, "Finishing", "Reset"; section 7 for what it counts as a protocol
+error). The member's half is :class:`bus.member.MemberTick`. The plant (``plant/node.py``)
+is an adapter: it moves messages between Zenoh and the ledger. Each method names its
+section.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Callable
 
 from . import codec
 
@@ -234,54 +229,3 @@ class AckLedger:
         self.owed_by.clear()
         self.rejoined.clear()
         self.resent_upto = -1
-
-
-@dataclass
-class Output:
-    """One message a member queued for the current tick."""
-    key: str
-    msg: Any
-    plant_read: bool       # on a key the plant reads (PLANT_READS): counted in n_plant
-
-
-class MemberTick:
-    """A lockstep member's half of the handshake (docs/PROTOCOL.md section 4)."""
-
-    def __init__(self, name: str, tick_ns: int, actuation_delay_ticks: int = 0) -> None:
-        self.name = name
-        self.tick_ns = tick_ns
-        self.actuation_delay_ticks = actuation_delay_ticks
-
-    def input_stamp(self, t_ns: int, period_ticks: int, lag_ns: int) -> int | None:
-        """Section 4, step 2: the stamp the sample of one input must carry before the member
-        acts on tick ``t_ns`` (a plant sensor: ``t_ns`` if due at this tick; another node's
-        output: ``t_ns`` less the coupling's input delay), or None if none is due."""
-        k = t_ns // self.tick_ns if self.tick_ns else 0
-        if k % period_ticks or t_ns - lag_ns < 0:
-            return None
-        return t_ns - lag_ns
-
-    def owed(self, outputs: list[Output], ack_key: str,
-             final: bool = False) -> list[tuple[str, Any, int, int]]:
-        """Section 4, step 3: what the member sends for a tick, in order, as (key, message or
-        None for the empty ACK, flags, n_plant): plant-read outputs last (a stable sort:
-        robot order kept), the very last with ``ACK`` (and ``FINAL``) and ``n_plant``; a tick
-        with no plant-read output ends with an empty message on ``sim/ack/<node>``. One
-        message per key and tick (the plant keeps only the first, section 7): of two
-        outputs queued on one key, the later (e.g. a stop after the last step's command)."""
-        last = {o.key: o for o in outputs}
-        out = sorted(last.values(), key=lambda o: o.plant_read)
-        n_plant = sum(1 for o in out if o.plant_read)
-        end = codec.ACK | (codec.FINAL if final else 0)
-        sent = [(o.key, o.msg, end if (n_plant and i == len(out) - 1) else 0,
-                 n_plant if (n_plant and i == len(out) - 1) else 0)
-                for i, o in enumerate(out)]
-        if not n_plant:
-            sent.append((ack_key, None, end, 0))
-        return sent
-
-    def may_leave(self, final_ns: int, clock_ns: int) -> bool:
-        """Section 4, "Finishing": after its FINAL at ``final_ns`` a member keeps its tokens
-        until a ``sim/clock`` stamped after ``final_ns`` + the actuation delay (the plant
-        publishes it only once it took the FINAL)."""
-        return clock_ns > final_ns + self.actuation_delay_ticks * self.tick_ns

@@ -3,7 +3,8 @@ the plant's ACK ledger and a member's tick (bus/lockstep.py)."""
 from __future__ import annotations
 
 from bus import codec
-from bus.lockstep import AckLedger, MemberTick, Output
+from bus.lockstep import AckLedger
+from bus.member import MemberTick, Output
 
 T = 20_000_000          # one control tick, ns
 CMD = "robot1/cmd_vel"

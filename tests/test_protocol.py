@@ -58,7 +58,7 @@ def test_the_lockstep_sections_name_the_code_that_implements_them():
     import importlib
     import inspect
 
-    from bus import lockstep
+    from bus import lockstep, member
     named: dict[str, set[int]] = {}
     section = 0
     for line in doc().splitlines():
@@ -70,11 +70,11 @@ def test_the_lockstep_sections_name_the_code_that_implements_them():
     for ref in named:
         mod, cls, meth = ref.rsplit(".", 2)
         assert callable(getattr(getattr(importlib.import_module(mod), cls), meth, None)), ref
-    for cls in (lockstep.AckLedger, lockstep.MemberTick):
+    for cls in (lockstep.AckLedger, member.MemberTick):
         for meth, fn in inspect.getmembers(cls, inspect.isfunction):
             if meth.startswith("_"):
                 continue
-            ref = f"bus.lockstep.{cls.__name__}.{meth}"
+            ref = f"{cls.__module__}.{cls.__name__}.{meth}"
             assert ref in named, f"PROTOCOL.md does not name {ref}"
             cited = {int(n) for n in re.findall(r"[Ss]ection (\d+)", fn.__doc__ or "")}
             assert cited & named[ref], f"{ref} cites sections {cited}, the page names it in " \

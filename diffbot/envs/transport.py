@@ -162,7 +162,8 @@ class _Member(NodeRunner):
             return job
 
     def _act(self, t_ns: int) -> bool:
-        msgs = {s.robot: self.take_observation(s, t_ns).msgs for s in self.slots}
+        m = self.member
+        msgs = {s.robot: m.take_observation(s, t_ns).msgs for s in self.slots}
         job = self.current
         if job is not None:
             try:
@@ -189,12 +190,9 @@ class _Member(NodeRunner):
                 job.done.set()
         for slot in self.slots:
             v, w = cmds.get(slot.robot, (0.0, 0.0))
-            self.queue_output(Twist(v, w), t_ns, slot.robot)
-        self.ticks += 1
+            m.queue_output(Twist(v, w), t_ns, slot.robot)
         final = job is None and self.closing
-        self.send_tick(t_ns, final=final)
-        if final:
-            self.final_tick = t_ns           # (the loop lingers until the plant took it)
+        self._send(m.send_tick(t_ns, final=final), t_ns)
         return final
 
 

@@ -1,0 +1,351 @@
+"""A lockstep member's half of docs/PROTOCOL.md, with no Zenoh in it: :class:`MemberTick`.
+
+It holds everything a member keeps between messages: the input samples filed by stamp,
+the ticks the clock announced and not yet answered, what it sent for its last ticks (to
+re-send after a rejoin), and its controller objects (one per robot). Its adapters only move
+bytes: :class:`bus.runtime.NodeRunner` between Zenoh and it (a member as a process), and
+:class:`bus.composed.Composed` between the plant's tick and it (a member composed into the
+plant's process). Both hand it the same decoded messages and send what it returns, so a
+member behaves the same wherever it runs. Each public method names its section.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from . import codec
+from . import controller as hooks
+from .controller import WHEEL_JOINTS, Observation, Twist, WheelSpeeds
+from .inputs import check_input, stamp_of
+from .protocol import PLANT_READS
+
+#: an input older than this (simulated s, or three of its periods) is not shown to the
+#: controller: its producer is gone (realtime and fast modes, where nobody waits for it)
+STALE_S = 0.5
+#: lockstep: ticks of this member's outputs kept to re-send when the plant re-publishes
+#: them after a rejoin (more than the plant re-publishes: plant.node.REPUBLISH_TICKS, 25)
+RESEND_TICKS = 30
+#: samples kept per input topic (by stamp) and clock ticks waiting for their inputs
+BUF_PER_TOPIC = 8
+PENDING_MAX = 16
+_HELD = object()     # "a bad sample came for this tick": the tick goes on, the last good is held
+
+#: what a member sends for a tick: (key, CDR payload, flags, n_plant)
+Sent = list[tuple[str, bytes, int, int]]
+
+
+@dataclass
+class Output:
+    """One message a member queued for the current tick."""
+    key: str
+    msg: Any
+    plant_read: bool       # on a key the plant reads (PLANT_READS): counted in n_plant
+
+
+@dataclass
+class Slot:
+    """One robot a member drives: its controller object and what it reads."""
+    robot: str
+    controller: Any
+    inputs: list[str]
+    check_inputs: bool
+    periods: dict[str, int] = field(default_factory=dict)
+    awaited: list[str] = field(default_factory=list)
+    done: bool = False
+
+
+def make_slots(controller, robots: list[str], topics: dict) -> list[Slot]:
+    """One :class:`Slot` per robot: a controller object each (``controller`` is an object or
+    a factory, :func:`bus.controller.make_controllers`), its inputs checked against the
+    topic catalog ``topics`` (extended in place by the bus-wide topics a controller declares)."""
+    ctrls = hooks.make_controllers(controller, robots)
+    for ctrl in ctrls:
+        topics.update(hooks.extra_topics(ctrl))
+    slots = []
+    for r, ctrl in zip(robots, ctrls):
+        inputs = hooks.inputs_of(ctrl)
+        for topic in inputs:
+            if topic not in topics:
+                raise ValueError(f"{type(ctrl).__name__}.inputs: unknown topic {topic!r}")
+        # inputs with non-finite or absurd numbers, or wrong joint names, are rejected
+        # unless the controller validates its own (``check_inputs = False``)
+        slots.append(Slot(r, ctrl, inputs, hooks.checks_inputs(ctrl)))
+    return slots
+
+
+class MemberTick:
+    """A lockstep member's state and rules (docs/PROTOCOL.md section 4).
+
+    ``slots``: the robots it drives; ``topics``: the topic catalog (name -> bus.keys.Topic);
+    ``key(robot, topic)``: a topic's key; ``ack_key``: its ``sim/ack/<node>``; ``sync``: a
+    lockstep member (else it acts on every clock with what it has); ``input_delay_ns``: the
+    coupling's node-to-node input delay."""
+
+    def __init__(self, name: str, tick_ns: int, actuation_delay_ticks: int = 0,
+                 slots: list[Slot] | None = None, topics: dict | None = None,
+                 key: Callable[[str, str], str] | None = None, ack_key: str = "",
+                 sync: bool = True, input_delay_ns: int = 0,
+                 log: logging.Logger | None = None) -> None:
+        self.name = name
+        self.log = log or logging.getLogger(name)
+        self.tick_ns = tick_ns
+        self.actuation_delay_ticks = actuation_delay_ticks
+        self.slots = list(slots or [])
+        self.topics = dict(topics or {})
+        self.key = key or (lambda robot, topic: f"{robot}/{topic}")
+        self.ack_key = ack_key
+        self.sync = sync
+        self.lag_ns = {t: input_delay_ns if v.awaited else 0 for t, v in self.topics.items()}
+        self.slot_of = {self.key(s.robot, t): (s, t) for s in self.slots for t in s.inputs}
+        self.ticks = 0
+        self.final_tick: int | None = None   # the tick at which the last controller finished
+        self.mode = "lockstep"
+        self.coupling = "sequential"
+        self._out: list[Output] = []
+        self.reset()
+        self._keep_sent = True
+
+    def configure(self, info: dict) -> None:
+        """Section 5: take the simulation's mode, coupling, tick, delays and sensor periods
+        from the plant's ``sim/info`` (its state kept: the plant may be the same, back).
+        ValueError if a robot of this member is not in the plant's world."""
+        self.mode = info.get("mode", "lockstep")
+        self.coupling = info.get("coupling", "sequential")
+        self.sync = self.mode == "lockstep" and all(hooks.syncs(s.controller)
+                                                    for s in self.slots)
+        robots = info.get("robots", {})
+        for slot in self.slots:
+            if slot.robot not in robots:
+                raise ValueError(f"robot {slot.robot!r} is not in the plant's world "
+                                 f"(robots: {', '.join(robots) or 'none'})")
+            # Sensors the plant publishes every `period` ticks; node outputs come every tick.
+            slot.periods = dict(robots[slot.robot].get("topics", {}))
+            slot.awaited = [t for t in slot.inputs
+                            if self.topics[t].awaited or t in slot.periods]
+        self.tick_ns = int(round(info.get("control_tick_s", 0.0) * 1e9))
+        self.actuation_delay_ticks = int(info.get("actuation_delay_ticks", 0))
+        # Pipelined coupling: other nodes' outputs are taken one tick old, so producer and
+        # consumer work on the same tick in parallel (docs/PROTOCOL.md).
+        lag = int(info.get("node_input_delay_ticks", 0)) * self.tick_ns if self.sync else 0
+        self.lag_ns = {t: lag if v.awaited else 0 for t, v in self.topics.items()}
+
+    def reset(self) -> None:
+        """Section 4, "Reset": forget every input sample and pending tick (the plant went, or
+        its world was reset from inside ``step``: the new world's clock starts again at 0)."""
+        self.buf: dict[str, dict[int, Any]] = {}
+        self.used: set[tuple[str, int]] = set()
+        self.pending: dict[int, float] = {}    # lockstep: clock stamp -> wall time it came
+        self.last_clock: int | None = None
+        # what this member sent for its last ticks, to re-send (stamp -> messages); reset
+        # from inside step: the tick being answered is the old world's, not kept
+        self.sent: dict[int, Sent] = {}
+        self._keep_sent = False
+        self._last_acted: int | None = None    # lockstep: the last tick acted on
+
+    # ------------------------------------------------------------ input (section 4, step 2)
+    def input_stamp(self, t_ns: int, period_ticks: int, lag_ns: int) -> int | None:
+        """Section 4, step 2: the stamp the sample of one input must carry before the member
+        acts on tick ``t_ns`` (a plant sensor: ``t_ns`` if due at this tick; another node's
+        output: ``t_ns`` less the coupling's input delay), or None if none is due."""
+        k = t_ns // self.tick_ns if self.tick_ns else 0
+        if k % period_ticks or t_ns - lag_ns < 0:
+            return None
+        return t_ns - lag_ns
+
+    def needs(self, slot: Slot, t_ns: int) -> list[tuple[str, str, int]]:
+        """Section 4, step 2: (input key, topic, stamp) a robot needs before the member acts
+        on tick ``t_ns``: the plant's sensors due at this tick, and outputs of other lockstep
+        members (stamped ``t_ns``, or a tick earlier in pipelined coupling)."""
+        out = []
+        for t in slot.awaited:
+            stamp = self.input_stamp(t_ns, slot.periods.get(t, 1), self.lag_ns[t])
+            if stamp is not None:
+                out.append((self.key(slot.robot, t), t, stamp))
+        return out
+
+    def file_input(self, key: str, msg, att: bytes | None) -> str | None:
+        """Section 4, step 2: file one decoded sample under its stamp; what is wrong with it,
+        or None. Samples are kept by stamp (a few per key), so a late, early or forged one
+        never displaces the one a tick needs. One that decodes but carries bad values (NaN,
+        inf, absurd magnitudes, wrong joint names) is *held*: its tick still happens and
+        the controller sees the topic's last good message."""
+        slot, topic = self.slot_of[key]
+        stamp, problem = stamp_of(msg, self.tick_ns, att, self.last_clock)
+        if problem:
+            return problem
+        buf = self.buf.setdefault(key, {})
+        if slot.check_inputs and (problem := check_input(topic, msg)):
+            buf.setdefault(stamp, _HELD)       # never replaces a good sample of the tick
+            problem = f"{problem} (t={stamp * 1e-9:.3f} s; holding the last good one)"
+        else:
+            buf[stamp] = msg
+            self.used.discard((key, stamp))    # a new sample for that tick (a reset)
+        if len(buf) > BUF_PER_TOPIC:           # drop what lies farthest from the clock
+            ref = self.last_clock if self.last_clock is not None else stamp
+            del buf[max(buf, key=lambda s: abs(s - ref))]
+        return problem
+
+    def clock(self, t_ns: int, now: float = 0.0) -> tuple[Sent | None, str | None]:
+        """Section 4, steps 1 and "Lost members": a ``sim/clock`` for tick ``t_ns``. Returns
+        (what to re-send: a tick this member answered, re-published after a rejoin; a
+        problem to count, or None). Otherwise the tick waits for its inputs (:meth:`next_due`);
+        ``now``: the wall time it came."""
+        self.last_clock = t_ns
+        if not self.sync:
+            return None, None
+        if t_ns in self.sent:                  # re-published after a rejoin
+            return self.sent[t_ns], None
+        if self.sent and t_ns < max(self.sent):      # the world went back
+            self.sent.clear()
+            self._last_acted = None
+        self.pending[t_ns] = now or time.monotonic()
+        if len(self.pending) > PENDING_MAX:
+            old = next(iter(self.pending))
+            del self.pending[old]
+            return None, f"tick t={old * 1e-9:.3f} s never completed (a stray clock?)"
+        return None, None
+
+    def _complete(self, t_ns: int) -> bool:
+        """Every robot still driven has, for every input due at ``t_ns``, a sample (good or
+        held) of the stamp it needs that this member has not acted on yet."""
+        return all(s in self.buf.get(key, ()) and (key, s) not in self.used
+                   for slot in self.slots if not slot.done
+                   for key, _, s in self.needs(slot, t_ns))
+
+    def next_due(self) -> int | None:
+        """Section 4, step 2: the next tick to act on now, or None. A member answers every
+        tick in order: while the next tick's inputs are not all in, no later tick is acted
+        on (after a blip the plant re-publishes what was lost, and a later tick answered
+        first would make the next one look like a world gone back)."""
+        for t_ns in sorted(self.pending):
+            if not self._complete(t_ns):
+                if (self._last_acted is not None
+                        and self._last_acted < t_ns <= self._last_acted + self.tick_ns):
+                    return None      # the next tick: a later one waits
+                continue             # (a stray or the old world's: never holds a tick)
+            del self.pending[t_ns]
+            self._last_acted = t_ns
+            return t_ns
+        return None
+
+    def missing(self, t_ns: int) -> list[str]:
+        """Section 4, step 2: the topics tick ``t_ns`` still waits for (a member whose
+        producer left tells why it stops)."""
+        return [tp for slot in self.slots if not slot.done
+                for key, tp, s in self.needs(slot, t_ns) if s not in self.buf.get(key, ())]
+
+    def take_observation(self, slot: Slot, t_ns: int) -> Observation:
+        """Section 4, step 2: the latest good message of each of a robot's inputs stamped at
+        or before ``t_ns``
+        (a tick earlier for a lagged one), unless it is stale (older than ``STALE_S`` or
+        three of its periods: its producer is gone), so a controller never steers on a dead
+        input. Takes: the samples older than the one shown, and held marks, are dropped,
+        and the tick's stamps are marked used."""
+        msgs = {}
+        for topic in slot.inputs:
+            key = self.key(slot.robot, topic)
+            buf = self.buf.get(key)
+            if not buf:
+                continue
+            upto = t_ns - self.lag_ns[topic]       # a lagged input never shows a newer sample
+            good = [s for s, m in buf.items() if s <= upto and m is not _HELD]
+            if good:
+                best = max(good)
+                stale_ns = max(STALE_S * 1e9, 3 * slot.periods.get(topic, 1) * self.tick_ns)
+                if upto - best <= stale_ns:
+                    msgs[topic] = buf[best]
+            else:
+                best = None
+            for s in [s for s, m in buf.items()
+                      if s <= upto and (s != best) and (best is None or s < best or m is _HELD)]:
+                del buf[s]
+            self.used.add((key, upto))
+        if len(self.used) > 4 * BUF_PER_TOPIC * max(1, len(self.slot_of)):
+            self.used = {(k, s) for k, s in self.used if s >= t_ns - self.tick_ns}
+        return Observation(t_ns, slot.robot, msgs)
+
+    # ------------------------------------------------------------ output (section 4, step 3)
+    def act(self, t_ns: int) -> tuple[Sent, bool]:
+        """Section 4, step 3: step every robot's controller at tick ``t_ns``; (what to send,
+        whether every controller is done: then it is the FINAL). A robot whose controller
+        is done is sent its stop command every tick until the others are."""
+        for slot in self.slots:
+            if slot.done:
+                self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
+                continue
+            self.queue_output(slot.controller.step(self.take_observation(slot, t_ns)), t_ns,
+                              slot.robot)
+            if hooks.is_done(slot.controller):
+                slot.done = True
+                self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
+                self.log.info("%s%s done at t=%.3f s", self.name,
+                              f" ({slot.robot})" if len(self.slots) > 1 else "", t_ns * 1e-9)
+        finished = all(slot.done for slot in self.slots)
+        return self.send_tick(t_ns, final=finished), finished
+
+    def queue_output(self, out, t_ns: int, robot: str) -> None:
+        """Section 4, step 3: queue what ``step`` returned for tick ``t_ns`` for ``robot``
+        (a Twist as ``cmd_vel``, WheelSpeeds as ``wheel_cmd``, a dict of outputs)."""
+        if out is None:
+            return
+        if isinstance(out, Twist):
+            self._out.append(Output(self.key(robot, "cmd_vel"),
+                                    codec.twist_stamped(t_ns, out.linear, out.angular), True))
+        elif isinstance(out, WheelSpeeds):
+            self._out.append(Output(self.key(robot, "wheel_cmd"),
+                                    codec.joint_state(t_ns, WHEEL_JOINTS,
+                                                      velocity=(out.left, out.right)), True))
+        elif isinstance(out, dict):
+            for topic, msg in out.items():
+                if isinstance(msg, (Twist, WheelSpeeds)):     # a command among other outputs
+                    self.queue_output(msg, t_ns, robot)
+                else:
+                    self._out.append(Output(self.key(robot, topic), msg, topic in PLANT_READS))
+        else:
+            raise TypeError(f"step() returned {type(out).__name__}; expected Twist, "
+                            "WheelSpeeds, dict or None")
+
+    def send_tick(self, t_ns: int, final: bool = False) -> Sent:
+        """Section 4, step 3: the tick's queued outputs as sent (:meth:`owed`'s order and
+        flags), kept for a re-send; a member that is not in lockstep sends them as queued."""
+        out, self._out = self._out, []
+        self.ticks += 1
+        if final:
+            self.final_tick = t_ns
+        if not self.sync:
+            return [(o.key, codec.encode(o.msg), 0, 0) for o in out]
+        sent = [(key, b"" if msg is None else codec.encode(msg), flags, n_plant)
+                for key, msg, flags, n_plant in self.owed(out, self.ack_key, final)]
+        if self._keep_sent:           # (not the old world's last tick, after a reset)
+            self.sent[t_ns] = sent
+            while len(self.sent) > RESEND_TICKS:
+                del self.sent[min(self.sent)]
+        self._keep_sent = True
+        return sent
+
+    def owed(self, outputs: list[Output], ack_key: str,
+             final: bool = False) -> list[tuple[str, Any, int, int]]:
+        """Section 4, step 3: what the member sends for a tick, in order, as (key, message or
+        None for the empty ACK, flags, n_plant): plant-read outputs last (a stable sort:
+        robot order kept), the very last with ``ACK`` (and ``FINAL``) and ``n_plant``; a tick
+        with no plant-read output ends with an empty message on ``sim/ack/<node>``. One
+        message per key and tick (the plant keeps only the first, section 7): of two
+        outputs queued on one key, the later (e.g. a stop after the last step's command)."""
+        last = {o.key: o for o in outputs}
+        out = sorted(last.values(), key=lambda o: o.plant_read)
+        n_plant = sum(1 for o in out if o.plant_read)
+        end = codec.ACK | (codec.FINAL if final else 0)
+        sent = [(o.key, o.msg, end if (n_plant and i == len(out) - 1) else 0,
+                 n_plant if (n_plant and i == len(out) - 1) else 0)
+                for i, o in enumerate(out)]
+        if not n_plant:
+            sent.append((ack_key, None, end, 0))
+        return sent
+
+    def may_leave(self, final_ns: int, clock_ns: int) -> bool:
+        """Section 4, "Finishing": after its FINAL at ``final_ns`` a member keeps its tokens
+        until a ``sim/clock`` stamped after ``final_ns`` + the actuation delay (the plant
+        publishes it only once it took the FINAL)."""
+        return clock_ns > final_ns + self.actuation_delay_ticks * self.tick_ns
