@@ -65,6 +65,8 @@ class Controller(Protocol):
     * ``on_session(session, keys)`` — called once with the open Zenoh session, e.g. to
       declare a queryable (default: none).
     * ``stop_command()`` — what stops the robot (default ``Twist(0, 0)``).
+    * ``close()`` — called once when the node stops (default: none).
+    * ``stats()`` — its own counters, added to the node's ``--stats`` JSON (default: none).
     * ``step(obs)`` returns a :class:`Twist` (``cmd_vel``), :class:`WheelSpeeds`
       (``wheel_cmd``), a dict ``{topic: message}`` of outputs (a Twist or WheelSpeeds value
       in it, under any key, is the command), or None.
@@ -103,6 +105,20 @@ def on_session(ctrl, session, keys) -> None:
     hook = getattr(ctrl, "on_session", None)
     if hook is not None:
         hook(session, keys)
+
+
+def close(ctrl) -> None:
+    """The node stops: let the controller free what it holds (an FMU instance, a thread)."""
+    hook = getattr(ctrl, "close", None)
+    if callable(hook):
+        hook()
+
+
+def own_stats(ctrl) -> dict:
+    """The controller's own counters for the node's ``--stats`` (default: none): entries
+    added to the node's JSON, a ``rejected`` dict added to the node's counts."""
+    hook = getattr(ctrl, "stats", None)
+    return dict(hook()) if callable(hook) else {}
 
 
 def stop_command(ctrl):

@@ -32,7 +32,9 @@ class Inbox:
         self.queue: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._handles: list = []
 
-    def subscribe(self, key: str, tag: str) -> None:
+    def subscribe(self, key: str, tag: str, remote_only: bool = False) -> None:
+        """Samples on ``key`` become events tagged ``tag``; ``remote_only``: not this
+        session's own puts (the plant's, of the members composed into it)."""
         q = self.queue
 
         def cb(sample: zenoh.Sample) -> None:
@@ -44,7 +46,8 @@ class Inbox:
         # reach the queue in the order they arrived (the default hands every
         # subscriber its own Python thread, which reorders them).
         self._handles.append(self.session.declare_subscriber(
-            key, zenoh.handlers.Callback(cb, indirect=False)))
+            key, zenoh.handlers.Callback(cb, indirect=False),
+            allowed_origin=zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY))
 
     def watch_liveliness(self, key: str, tag: str) -> None:
         """Events for tokens on ``key`` appearing (alive=True) and vanishing (alive=False),

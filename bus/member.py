@@ -75,6 +75,16 @@ def make_slots(controller, robots: list[str], topics: dict) -> list[Slot]:
     return slots
 
 
+def with_own_stats(stats: dict, controllers) -> dict:
+    """A node's ``--stats`` with its controllers' own (:func:`bus.controller.own_stats`)."""
+    for ctrl in controllers:
+        own = hooks.own_stats(ctrl)
+        for reason, n in own.pop("rejected", {}).items():
+            stats.setdefault("rejected", {})[reason] = stats["rejected"].get(reason, 0) + n
+        stats.update(own)
+    return stats
+
+
 class MemberTick:
     """A lockstep member's state and rules (docs/PROTOCOL.md section 4).
 

@@ -43,14 +43,18 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from contextvars import ContextVar
+from dataclasses import dataclass
 
 import zenoh
 
+from . import controller as hooks
 from .cliargs import ArgumentParser
 from .controller import Controller, Observation, Twist, WheelSpeeds, default_name
 from .jsonio import write_stats
 from .keys import Keys, check_name
 from .log import setup_logging
+from .member import with_own_stats
 from .protocol import ProtocolError
 from .runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
 from .session import (BusConfigError, add_bus_args, close_session, install_stop_signals,
@@ -135,10 +139,46 @@ def run_node(controller, robot: str | None = None, argv: list[str] | None = None
     return run_node_args(controller, args, name or args.name or f"{base}_{args.robot}")
 
 
+@dataclass
+class MemberSpec:
+    """A member as its command line made it, not yet run: what :func:`capture_member` gives
+    the plant to compose (docs/scenarios.md, "Composed members")."""
+    controller: object
+    robots: list[str]
+    name: str
+    stats: str | None = None
+    log_level: str = "INFO"
+
+
+_capture: ContextVar[list | None] = ContextVar("diffbot_capture_member", default=None)
+
+
+def capture_member(main, argv: list[str]) -> MemberSpec:
+    """Run a node's ``main(argv)`` up to the point where it would join the bus, and take
+    the member it made (its controller object or factory, robots, name, ``--stats``)
+    instead of running it: the same parsing and checks as the process would do.
+    ValueError if it made none (bad options: its message went to stderr)."""
+    box: list[MemberSpec] = []
+    token = _capture.set(box)
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:            # argparse: --help or a bad option
+        code = exc.code
+    finally:
+        _capture.reset(token)
+    if not box:
+        raise ValueError(f"{' '.join(argv)!r} made no member (exit code {code})")
+    return box[0]
+
+
 def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
-    log = setup_logging(name, args.log_level)
     wait = bool(getattr(args, "wait", False))
     robots = getattr(args, "robots", None) or [args.robot]
+    if (box := _capture.get()) is not None:      # composed: the plant runs it (above)
+        box.append(MemberSpec(controller, list(robots), name, getattr(args, "stats", None),
+                              args.log_level))
+        return 0
+    log = setup_logging(name, args.log_level)
     try:
         keys = Keys(args.namespace)
         for r in robots:
@@ -170,8 +210,13 @@ def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
         return runner.run()
     finally:
         close_session(session, log)          # first: a --stats it cannot write is one error
+        made = ([s.controller for s in runner.slots] if runner is not None
+                else [controller] if hasattr(controller, "step")
+                and not isinstance(controller, type) else [])
+        for ctrl in made:
+            hooks.close(ctrl)
         write_stats(getattr(args, "stats", None),
-                    runner.stats() if runner is not None else None, log)
+                    with_own_stats(runner.stats(), made) if runner is not None else None, log)
 
 
 def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Session:

@@ -23,6 +23,7 @@
 from __future__ import annotations
 
 import importlib
+import shlex
 import signal
 import sys
 
@@ -47,6 +48,34 @@ COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experimen
             "certs", "view")
 
 
+#: controllers that cannot be composed into the plant: they keep threads of their own
+NOT_COMPOSABLE = {"teleop": "it reads the keyboard on a thread of its own"}
+
+
+def member_main(argv: list[str]):
+    """(main, its argv) of a member's command line (``controller NAME ...`` or
+    ``fmu-node ...``); ValueError if the command cannot be a composed member."""
+    if argv[:1] == ["controller"] and len(argv) > 1 and argv[1] in CONTROLLERS:
+        if argv[1] in NOT_COMPOSABLE:
+            raise ValueError(f"controller {argv[1]} cannot be composed: "
+                             f"{NOT_COMPOSABLE[argv[1]]}; run it as a process")
+        return importlib.import_module(CONTROLLERS[argv[1]]).main, argv[2:]
+    if argv[:1] == ["fmu-node"]:
+        from fmus.node import main as fmu_node_main
+        return fmu_node_main, argv[1:]
+    raise ValueError(f"{' '.join(argv)!r} cannot be composed into the plant: only "
+                     "`controller NAME ...` and `fmu-node FMU ...` members can")
+
+
+def compose_member(command: str | list[str]):
+    """The member a command line makes (``"controller square_path --robot robot1"``), built
+    by that command's own parser (bus.node.capture_member), to compose into the plant."""
+    from bus.node import capture_member
+    argv = shlex.split(command) if isinstance(command, str) else list(command)
+    main, rest = member_main(argv)
+    return capture_member(main, rest)
+
+
 def main(argv: list[str] | None = None) -> int:
     code = _dispatch(argv)
     # A stop signal arriving while the interpreter shuts down (handlers are reset then)
@@ -67,7 +96,7 @@ def _dispatch(argv: list[str] | None) -> int:
     sys.argv[0] = f"diffbot {cmd}"
     if cmd == "plant":
         from plant.node import main as plant_main
-        return plant_main(rest)
+        return plant_main(rest, compose=compose_member)
     if cmd == "controller":
         if not rest or rest[0] in ("-h", "--help"):
             print(f"usage: diffbot controller {{{','.join(CONTROLLERS)}}} [options]\n"

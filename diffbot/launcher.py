@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import queue
+import shlex
 import shutil
 import signal
 import sys
@@ -34,6 +35,7 @@ from bus.session import BusConfigError, open_session
 from plant.world import WorldError, load_world
 
 from . import procs
+from .observer import OBSERVER
 from .procs import diffbot_argv
 from .scenario import ProcessSpec, ScenarioSpec, load_scenario
 
@@ -76,6 +78,8 @@ class Run:
     timeout_s: float = 900.0
     coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
     physics_process: bool = False   # --physics-process: DART in a process of its own
+    compose: bool = False           # --compose: lockstep members hosted in the plant's process
+    composed: list[str] = field(default_factory=list)   # (the members that were)
     record: str | None = None       # --record FILE.mcap (see the recorder section)
     recorder: Child | None = None
     ros2: bool = False              # --ros2: the ROS 2 bridge (bridges/ros2.py), free running
@@ -107,6 +111,10 @@ class Run:
         drives = self.ros2 and self.spec.ros2_drives and self.mode == "lockstep"
         expect = [p.name for p in self.spec.processes if p.sync] + self._recorder_expect() \
             + ([ROS2_BRIDGE] if drives else [])
+        def own(p) -> list[str]:
+            """A member's command line, bus options aside."""
+            return [*p.command, "--name", p.name, "--stats", os.path.join(logs, f"{p.name}.json")]
+        self.composed = [p.name for p in self.spec.processes if self.compose and composable(p)]
         plant = diffbot_argv("plant", "--world", self.spec.world, "--mode", self.mode,
                              "--coupling", self.coupling, "--seed", str(self.seed), "--stats",
                              os.path.join(logs, "plant.json"), *self.spec.plant_args,
@@ -119,8 +127,15 @@ class Run:
             plant += ["--end-with", ",".join(enders)]
         if self.duration_s is not None:
             plant += ["--duration", repr(self.duration_s)]
+        if self.mode == "lockstep" and self.composed:
+            # composed members are there at once: the plant must not tick before the
+            # observer and the recorder listen (process members start only once they do)
+            plant += ["--wait-for", ",".join([OBSERVER] + ([RECORDER] if self.record else []))]
         if self.physics_process and "--physics-process" not in plant:
             plant.append("--physics-process")
+        for p in self.spec.processes:
+            if p.name in self.composed:
+                plant += ["--compose", shlex.join(own(p))]
         self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
         self._add_recorder(logs)
         if self.ros2:
@@ -138,9 +153,10 @@ class Run:
             self.children.append(Child(VIEW, argv, required=False,
                                        log_path=os.path.join(logs, f"{VIEW}.log")))
         for p in self.spec.processes:
-            argv = diffbot_argv(*p.command, "--name", p.name, "--stats",
-                                os.path.join(logs, f"{p.name}.json"), *self.bus_args())
-            self.children.append(Child(p.name, argv, p.required, p.ends_run, p.interactive,
+            if p.name in self.composed:
+                continue
+            self.children.append(Child(p.name, diffbot_argv(*own(p), *self.bus_args()), p.required,
+                                       p.ends_run, p.interactive,
                                        log_path=os.path.join(logs, f"{p.name}.log")))
 
     def open_observer(self):
@@ -322,6 +338,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--physics", choices=("dynamic", "kinematic"), default=None,
                    help="generated-world scenario: DART contact physics (default) or the "
                         "cheap kinematic mode (ideal unicycle, walls still stop robots)")
+    p.add_argument("--compose", action=argparse.BooleanOptionalAction, default=None,
+                   help="host the lockstep members (controllers, FMU nodes) inside the plant's "
+                        "process instead of one process each: the same bytes, no process hop "
+                        "per tick (docs/scenarios.md, \"Composed members\"); default: the "
+                        "scenario's compose")
     p.add_argument("--ros2", action="store_true",
                    help="also start the ROS 2 bridge (`diffbot ros2`; needs rclpy: "
                         "pip install -e '.[ros2]'), on the environment's ROS_DOMAIN_ID")
@@ -393,7 +414,7 @@ def main(argv: list[str] | None = None) -> int:
     run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
               args.timeout, coupling=args.coupling or spec.coupling, record=args.record,
-              ros2=args.ros2,
+              ros2=args.ros2, compose=spec.compose if args.compose is None else args.compose,
               physics_process=(spec.physics_process if args.physics_process is None
                                else args.physics_process))
     if args.view:
@@ -473,9 +494,23 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
+def composable(p) -> bool:
+    """Whether a scenario process can run composed into the plant: a lockstep member whose
+    command makes a Python member (diffbot.cli.member_main), not interactive, and not kept
+    a process (``compose = false``)."""
+    from .cli import member_main
+    if not (p.sync and p.compose and not p.interactive):
+        return False
+    try:
+        member_main(p.command)
+    except ValueError:
+        return False
+    return True
+
+
 def summarize(run: Run, wall: float, code: int) -> dict:
-    stats = {c.name: _read_json(os.path.join(run.out, "logs", f"{c.name}.json"))
-             for c in run.children}
+    names = [c.name for c in run.children] + run.composed
+    stats = {n: _read_json(os.path.join(run.out, "logs", f"{n}.json")) for n in names}
     plant = stats["plant"]
     counts: dict[str, int] = {}
     for st in stats.values():            # every process counts what it published
@@ -498,7 +533,9 @@ def summarize(run: Run, wall: float, code: int) -> dict:
                        if code == 0 and plant.get("end_reason", "stopped") != "stopped"
                        else run.reason),
         "exit_code": code,
-        "exit_codes": {c.name: c.exit_code for c in run.children},
+        "exit_codes": {**{c.name: c.exit_code for c in run.children},
+                       **{n: stats[n].get("exit_code") for n in run.composed}},
+        "composed": list(run.composed),
         "message_counts": dict(sorted(counts.items())),
         "rejected": {name: st.get("rejected", {}) for name, st in stats.items()},
     }

@@ -21,6 +21,11 @@ CHANNEL_CAPACITY = 1 << 16
 DRAIN_S = 0.05
 
 
+#: the observer's node name: its ``sim/alive/observer`` token says it listens (a plant that
+#: hosts its members waits for it before the first tick: ``diffbot plant --wait-for``)
+OBSERVER = "observer"
+
+
 class Observer:
     def __init__(self, session: zenoh.Session, keys: Keys, keep: dict[str, str]) -> None:
         """``keep`` maps concrete keys to message types whose decoded messages are stored.
@@ -38,6 +43,7 @@ class Observer:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._drain_loop, name="observer", daemon=True)
         self._thread.start()
+        self._token = session.liveliness().declare_token(keys.alive(OBSERVER))
 
     def _drain_loop(self) -> None:
         while not self._stop.wait(DRAIN_S):
@@ -73,6 +79,9 @@ class Observer:
         return [m for _, m in self.stamped(key)]
 
     def close(self) -> None:
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
         self._stop.set()
         self._thread.join()
         self.drain()                      # what arrived before the close is kept

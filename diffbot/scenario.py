@@ -46,6 +46,8 @@ class ProcessSpec:
     ends_run: bool = False
     sync: bool = True
     interactive: bool = False
+    #: ``compose = false``: stays a process when the run composes its members
+    compose: bool = True
 
 
 @dataclass
@@ -57,6 +59,8 @@ class ScenarioSpec:
     mode: str = "lockstep"
     coupling: str = "sequential"
     physics_process: bool = False
+    #: host the lockstep members in the plant's process (docs/scenarios.md, "Composed members")
+    compose: bool = False
     duration_s: float | None = None
     analysis: str = "none"
     robot: str = "robot1"
@@ -101,6 +105,7 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
     spec.mode = s.string("mode", "lockstep", choices=("lockstep", "realtime", "fast"))
     spec.coupling = s.string("coupling", "sequential", choices=COUPLINGS)
     spec.physics_process = s.boolean("physics_process", False)
+    spec.compose = s.boolean("compose", False)
     spec.duration_s = s.number("duration_s", -1.0)
     if spec.duration_s == -1.0:
         spec.duration_s = None
@@ -139,7 +144,7 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
         spec.processes.append(ProcessSpec(
             name=name, command=list(cmd), required=t.boolean("required", True),
             ends_run=t.boolean("ends_run", False), sync=t.boolean("sync", True),
-            interactive=t.boolean("interactive", False)))
+            interactive=t.boolean("interactive", False), compose=t.boolean("compose", True)))
         t.done()
     if spec.generate and spec.processes:
         top.fail("process", f"a generated-world scenario (generate = {spec.generate!r}) makes "

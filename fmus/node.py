@@ -68,7 +68,6 @@ from pathlib import Path
 from bus import jsonio
 from bus.keys import TOPICS, Keys, check_name, fmu_topic
 from bus.log import RejectCounter, setup_logging
-from bus.jsonio import write_json
 from bus.node import _name_arg, node_arg_parser, run_node_args
 from bus.runtime import EXIT_BAD_CONFIG
 
@@ -414,10 +413,12 @@ class FmuNode:
         return out
 
     def stats(self) -> dict:
-        return {"fmu": str(self.fmu.path), "fmi_version": self.fmu.version,
-                "instance": self.instance, "step_size_s": self.step_size,
-                "steps": self.steps, "fmu_steps": self.fmu_steps, "held": self.held,
-                "rollbacks": self.rollbacks, "reinitialised": self.reinitialised,
+        """The node's own counters (bus.controller.own_stats): under ``fmu`` in its
+        ``--stats`` JSON, its rejects added to the node's."""
+        return {"fmu": {"fmu": str(self.fmu.path), "fmi_version": self.fmu.version,
+                        "instance": self.instance, "step_size_s": self.step_size,
+                        "steps": self.steps, "fmu_steps": self.fmu_steps, "held": self.held,
+                        "rollbacks": self.rollbacks, "reinitialised": self.reinitialised},
                 "rejected": dict(self.rejects.counts)}
 
     def close(self) -> None:
@@ -562,13 +563,7 @@ def main(argv: list[str] | None = None) -> int:
                   "one doStep per control tick",
                   ", ".join(f"{f.var.name} <- {f.topic}" for f in node.feeds) or "none",
                   ", ".join(node.generic_topics + [o.topic for o in node.builders]) or "none")
-    try:
-        code = run_node_args(node, args, name)
-    finally:
-        node.close()
-    if args.stats:
-        _merge_stats(args.stats, node)
-    return code
+    return run_node_args(node, args, name)     # (it closes the node and adds its stats)
 
 
 def _check_unique(pairs: list[tuple[str, str]], option: str) -> None:
@@ -577,20 +572,6 @@ def _check_unique(pairs: list[tuple[str, str]], option: str) -> None:
         if name in seen:
             raise FmuNodeError(f"{option}: {name!r} is given twice")
         seen.add(name)
-
-
-def _merge_stats(path: str, node: FmuNode) -> None:
-    """Add the node's own counters to the stats JSON bus.node wrote."""
-    try:
-        with open(path) as f:
-            data = json.load(f)
-    except (OSError, ValueError):
-        return      # bus.node wrote nothing (the node never got on the bus)
-    st = node.stats()
-    for reason, n in st.pop("rejected").items():
-        data.setdefault("rejected", {})[reason] = data.get("rejected", {}).get(reason, 0) + n
-    data["fmu"] = st
-    write_json(path, data)
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ import zenoh
 
 from bus import codec, jsonio, packed
 from bus.cliargs import ArgumentParser, nonneg_float, nonneg_int, positive_float
-from bus.controller import Twist
+from bus.composed import Composed
 from bus.inbox import Event, Inbox
 from bus.jsonio import write_stats
 from bus.keys import Keys
@@ -48,11 +48,10 @@ from . import modes
 from .commands import Command, CommandBook, decode_command
 from .memory import keep_freed_memory
 from .outbox import Outbox
-from .physics_process import PhysicsError, PhysicsProcess
+from .physics_process import PhysicsError
 from .reset import parse_reset
 from .routerwatch import RouterWatch
-from .stepper import Stepper
-from .tick import build_world, tick_messages
+from .tick import Tick
 from .world import WorldError, WorldSpec, load_world
 
 MODES = ("lockstep", "realtime", "fast")
@@ -72,7 +71,8 @@ class Plant:
                  join_timeout_s: float = 30.0, disabled: tuple[str, ...] = (),
                  end_with: tuple[str, ...] = (), coupling: str = "sequential",
                  physics_process: bool = False, rejoin_timeout_s: float = 0.0,
-                 skip_unread: bool = True) -> None:
+                 skip_unread: bool = True, composed: Composed | None = None,
+                 watchers: tuple[str, ...] = ()) -> None:
         self.spec = spec
         self.session = session
         self.keys = keys
@@ -80,6 +80,7 @@ class Plant:
         self.log = log
         self.rate = rate
         self.expect = tuple(expect)
+        self.watchers = set(watchers)      # processes (sim/alive) to wait for, not members
         self.duration_ns = None if duration_s is None else int(round(duration_s * 1e9))
         self.join_timeout_s = join_timeout_s
         # lockstep: how long time is held for a lost member to come back (0: end at once)
@@ -93,13 +94,12 @@ class Plant:
         # what the loop waits for between publishing and stepping (plant/modes.py)
         self.strategy = (modes.Lockstep(self, delay_ns) if mode == "lockstep"
                          else modes.Realtime(self) if mode == "realtime" else modes.Fast(self))
-        self.disabled = set(disabled)
         self.seed = spec.seed
-        # DART in a process of its own (plant/physics_process.py); None: stepped here
-        self.physics: PhysicsProcess | None = None
-        self.physics_process = physics_process
+        # the world's tick (plant/tick.py); DART in a process of its own with physics_process
+        self.tick = Tick(spec, disabled, physics_process, overlap=self.strategy.overlaps)
         self.commands = CommandBook(lockstep=mode == "lockstep")
-        self.build()
+        # members composed into this process (bus/composed.py): fed the plant's bytes directly
+        self.composed = composed
         self.rejects = RejectCounter(log)
         # lockstep protocol problems (no or bad attachment, a tick not due, missing outputs),
         # counted per kind and said at most every 2 s
@@ -113,8 +113,9 @@ class Plant:
         self.end_reason = "stopped"
         self.wall_end = 0.0
         # lockstep: the last ticks' messages as published, to re-publish for a member that
-        # rejoins (docs/PROTOCOL.md section 4, "Lost members"): stamp -> [(key, payload)]
-        self._recent: dict[int, list[tuple[str, bytes]]] = {}
+        # rejoins (docs/PROTOCOL.md section 4, "Lost members"): stamp -> [(key, payload,
+        # a composed member's attachment or None)]
+        self._recent: dict[int, list[tuple[str, bytes, bytes | None]]] = {}
         # In lockstep nothing may be lost: block rather than drop when a queue is full.
         self.congestion = (zenoh.CongestionControl.BLOCK if mode == "lockstep"
                            else zenoh.CongestionControl.DROP)
@@ -130,8 +131,12 @@ class Plant:
                     continue                     # read only for lockstep members' ACKs
                 key = keys.topic(name, topic)
                 self._robot_of_key[key] = (name, topic)
-                self.inbox.subscribe(key, "out")
-        self.inbox.subscribe(keys.ack(), "out")
+                self.inbox.subscribe(key, "out", remote_only=True)
+        self.inbox.subscribe(keys.ack(), "out", remote_only=True)
+        self._ack_prefix = keys.ack("")
+        for key in sorted(composed.input_keys() if composed else ()):
+            if key not in self._robot_of_key:    # another process member's output
+                self.inbox.subscribe(key, "input", remote_only=True)
         self.inbox.watch_liveliness(keys.sync(), "member")
         self.inbox.watch_liveliness(keys.alive(), "alive")
         self.alive: set[str] = set()
@@ -143,22 +148,16 @@ class Plant:
         self._token = session.liveliness().declare_token(keys.alive("plant"))
         self.router = RouterWatch(session, log, mode)
 
-    def build(self) -> None:
-        """(Re)build the world and the sensors with the current seed."""
-        self.sim, self.sensors = build_world(self.spec, self.seed, self.disabled)
-        if self.physics_process:
-            if self.physics is None:
-                self.physics = PhysicsProcess(self.spec)
-            else:
-                self.physics.build(self.spec)
-        self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
-                               overlap=self.strategy.overlaps)
+    @property
+    def sim(self):
+        return self.tick.sim
 
-    def restart_world(self, reason: str) -> None:
-        """Rebuild the world at t = 0 (a sim/reset, or the physics diverged) and forget
-        everything of the old one: commands, ACKs (docs/PROTOCOL.md section 4, "Reset"),
-        the realtime pacing origin."""
-        self.build()
+    def restart_world(self, reason: str, rebuilt: bool = False) -> None:
+        """Rebuild the world at t = 0 (a sim/reset, or the physics diverged: ``rebuilt``
+        already) and forget everything of the old one: commands, ACKs (docs/PROTOCOL.md
+        section 4, "Reset"), the realtime pacing origin."""
+        if not rebuilt:
+            self.tick.build()
         self.commands.clear()
         self._recent.clear()           # the old world's ticks are never re-published
         self.ledger.restart()
@@ -170,7 +169,7 @@ class Plant:
     def info(self) -> dict:
         """What ``sim/info`` answers (docs/PROTOCOL.md section 5)."""
         d = self.sim.describe()
-        for name, sensors in self.sensors.items():
+        for name, sensors in self.tick.sensors.items():
             d["robots"][name]["topics"] = dict(sensors.periods)
         d.update(protocol=PROTOCOL_VERSION, mode=self.mode, coupling=self.coupling,
                  **self.delays, seed=self.seed, time_ns=self.sim.time_ns,
@@ -193,21 +192,24 @@ class Plant:
             return
         # Checked in full before anything changes: a bad request leaves the world as it was.
         if seed is not None:
-            self.seed = self.spec.seed = seed
-        for name, pose in poses.items():
-            self.spec.robot(name).pose = pose
-        self.restart_world("sim/reset")
+            self.seed = seed
+        self.tick.reset(seed, poses)
+        self.restart_world("sim/reset", rebuilt=True)
         # Answered at once, even while the plant waits for a tick's ACKs (a node may ask
         # from inside its step); the loop then starts over at the new world's t = 0.
         self.reset_in_tick = True
         query.reply(self.keys.reset, jsonio.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
 
     # ------------------------------------------------------------------ publishing
-    def _put(self, key: str, payload: bytes, t_ns: int) -> None:
-        """``payload`` (CDR bytes) out on ``key``, and in lockstep kept for a re-publish."""
-        self.outbox.put(key, payload, t_ns)
+    def _put(self, key: str, payload: bytes, t_ns: int, att: bytes | None = None) -> None:
+        """``payload`` (CDR bytes) out on ``key`` (``att``: a composed member's message), and
+        in lockstep kept for a re-publish."""
+        if att is None:
+            self.outbox.put(key, payload, t_ns)
+        else:
+            self.outbox.relay(key, payload, att)
         if self.mode == "lockstep":
-            self._recent.setdefault(t_ns, []).append((key, payload))
+            self._recent.setdefault(t_ns, []).append((key, payload, att))
             while len(self._recent) > REPUBLISH_TICKS:
                 del self._recent[min(self._recent)]
 
@@ -219,8 +221,11 @@ class Plant:
         ticks = sorted(t for t in self._recent if t <= self.sim.time_ns)
         self.ledger.resent_upto = max(ticks, default=-1)
         for t in ticks:
-            for key, payload in self._recent[t]:
-                self.outbox.put(key, payload, t)
+            for key, payload, att in self._recent[t]:
+                if att is None:
+                    self.outbox.put(key, payload, t)
+                else:
+                    self.outbox.relay(key, payload, att)
         if ticks:
             self.log.info("re-published ticks t=%s s", ", ".join(f"{t * 1e-9:.3f}" for t in ticks))
 
@@ -229,21 +234,40 @@ class Plant:
         robot, then ``sim/clock``; then the next tick's sensor noise is drawn ahead
         (prefetch), off the members' critical path."""
         t = self.sim.time_ns
-        out = self.outbox
-        wanted = {name: self._wanted(name) for name in self.sensors}
-        for name, topic, data in tick_messages(t, self.tick_ns, self.sensors, self.stepper.state,
-                                               self.stepper.shapes, wanted, encoded=True):
+        out, composed = self.outbox, self.composed
+        wanted = {name: self._wanted(name) for name in self.tick.sensors}
+        for name, topic, data in self.tick.messages(wanted, encoded=True):
             if data is None:
                 out.skip()                            # due, but nobody reads it
+                continue
+            key = self._key(name, topic)
+            if composed is None:
+                self._put(key, data, t)
+                continue
+            if out.reads(key):                        # (else only a composed member reads it)
+                self._put(key, data, t)
             else:
-                self._put(self._key(name, topic), data, t)
-        self._put(self.keys.clock, packed.clock(t), t)
-        for sensors in self.sensors.values():
-            sensors.prefetch()
+                out.skip()
+            composed.deliver(key, data, None)
+        clock = packed.clock(t)
+        self._put(self.keys.clock, clock, t)
+        if composed is not None:
+            composed.clock(t, self._emit)
+            composed.run(self._emit)
+        self.tick.prefetch()
 
     def publish_pending(self) -> None:
         """This tick's sensors, if the stepper has not published them yet (the run ends)."""
-        self.timing["publish_s"] += self.stepper.publish_pending(self.publish_sensors)
+        self.timing["publish_s"] += self.tick.publish_pending(self.publish_sensors)
+
+    def _emit(self, key: str, payload: bytes, att: bytes) -> None:
+        """A composed member's message (bus/composed.py): on the bus for whoever listens,
+        to the plant as if it came from Zenoh, and to the other composed members."""
+        t_ns = codec.parse_attachment(att).t_ns
+        self._put(key, payload, t_ns, att)
+        if key in self._robot_of_key or key.startswith(self._ack_prefix):
+            self._on_output(Event("out", key, payload, att))
+        self.composed.deliver(key, payload, att)
 
     def _key(self, robot: str, topic: str) -> str:
         key = self._keys.get((robot, topic))
@@ -254,7 +278,10 @@ class Plant:
     def _wanted(self, robot: str):
         """``wanted(topic)`` of ``robot``'s sensors: whether anyone reads it now."""
         reads, key = self.outbox.reads, self._key
-        return lambda topic: reads(key(robot, topic))
+        if self.composed is None:
+            return lambda topic: reads(key(robot, topic))
+        local = self.composed.reads
+        return lambda topic: reads(key(robot, topic)) or local(key(robot, topic))
 
     # ------------------------------------------------------------------ input
     def handle(self, ev: Event) -> None:
@@ -263,6 +290,9 @@ class Plant:
             return
         if ev.tag == "out":
             self._on_output(ev)
+        if ev.tag in ("out", "input"):
+            if self.composed is not None:     # a process member's output a composed one reads
+                self.composed.deliver(ev.key, ev.payload, ev.attachment)
             return
         self.router.check(self.sim.time_ns, now=True)   # a token came or went: the router?
         if ev.tag == "alive":
@@ -338,13 +368,7 @@ class Plant:
                                          "stopping it", name, age, timeout)
                     self.commands.forget(name)
                     cmd = None
-            value = cmd.value if cmd is not None else None
-            if value is None:
-                self.sim.command_twist(name, 0.0, 0.0)
-            elif isinstance(value, Twist):
-                self.sim.command_twist(name, value.linear, value.angular)
-            else:
-                self.sim.command_wheels(name, value.left, value.right)
+            self.tick.drive(name, cmd.value if cmd is not None else None)
 
     def drain(self, timeout: float | None = 0.0) -> bool:
         """Handle queued events; wait up to ``timeout`` for the first. True if any came."""
@@ -355,6 +379,8 @@ class Plant:
         self.handle(ev)
         while (ev := self.inbox.get_nowait()) is not None:
             self.handle(ev)
+        if self.composed is not None:
+            self.composed.run(self._emit)      # what came may complete a composed member's tick
         return True
 
     # ------------------------------------------------------------------ loop
@@ -363,18 +389,20 @@ class Plant:
         if none were named)."""
         want = set(self.expect)
         deadline = time.monotonic() + self.join_timeout_s
-        if want:
-            self.log.info("waiting for nodes: %s", ", ".join(sorted(want)))
+        if want or self.watchers:
+            self.log.info("waiting for nodes: %s", ", ".join(sorted(want | self.watchers)))
         else:
             self.log.info("lockstep: waiting for a controller to join (or use --mode fast)")
         while not self.stop_event.is_set():
             self.drain(0.1)
             present = self.ledger.members if self.mode == "lockstep" else self.alive
-            if (want and want <= present) or (not want and present):
+            watched = self.watchers <= self.alive
+            if watched and ((want and want <= present) or (not want and present)):
                 return True
-            if want and time.monotonic() > deadline:
+            if (want or self.watchers) and time.monotonic() > deadline:
+                missing = (want - present) | (self.watchers - self.alive)
                 self.log.error("nodes did not join within %.0f s: %s",
-                               self.join_timeout_s, ", ".join(sorted(want - present)))
+                               self.join_timeout_s, ", ".join(sorted(missing)))
                 return False
         return False
 
@@ -387,8 +415,11 @@ class Plant:
     def run(self) -> int:
         """Publish, wait at the barrier, step; until stopped, the duration, or an end-with
         member's FINAL."""
+        if self.composed is not None:
+            self.composed.start(self.info())
         self.drain(0.05)
-        if (self.mode == "lockstep" or self.expect) and not self.wait_for_members():
+        if (self.mode == "lockstep" or self.expect or self.watchers) \
+                and not self.wait_for_members():
             return 1 if not self.stop_event.is_set() else 0
         self.wall_start = time.monotonic()
         self.strategy.start()
@@ -397,7 +428,7 @@ class Plant:
             while not self.stop_event.is_set():
                 t = self.sim.time_ns
                 self.ledger.begin_tick(t)
-                self.timing["publish_s"] += self.stepper.begin_tick(self.publish_sensors)
+                self.timing["publish_s"] += self.tick.begin(self.publish_sensors)
                 with self._timed("wait_s"):
                     ended = self._duration_reached(t) or self.strategy.barrier(t)
                 if ended:
@@ -407,14 +438,14 @@ class Plant:
                     self.reset_in_tick = False
                     continue
                 self.apply_commands()
-                publish_s, physics_s = self.stepper.step(self.publish_sensors)
+                publish_s, physics_s, finite = self.tick.step(self.publish_sensors)
                 self.timing["publish_s"] += publish_s
                 self.timing["physics_s"] += physics_s
                 self.ticks += 1
                 self._info = dict(self._info, time_ns=self.sim.time_ns)
-                if not self.stepper.finite():
+                if not finite:
                     self.log.error("physics diverged at t=%.3f s", t * 1e-9)
-                    self.restart_world("the physics diverged")
+                    self.restart_world("the physics diverged", rebuilt=True)
         finally:
             self.wall_end = time.monotonic()
         return 0
@@ -429,8 +460,8 @@ class Plant:
     def _say_running(self) -> None:
         self.log.info("running %s (%s mode, tick %.0f ms, %d physics steps per tick%s)",
                       self.spec.name, self.mode, self.tick_ns / 1e6, self.spec.substeps,
-                      "" if self.physics is None else ", physics in its own process"
-                      + (", stepping while publishing" if self.stepper.overlap else ""))
+                      "" if self.tick.physics is None else ", physics in its own process"
+                      + (", stepping while publishing" if self.tick.stepper.overlap else ""))
 
     def stats(self) -> dict:
         wall = max(self.wall_end - self.wall_start, 1e-9) if self.wall_start else 0.0
@@ -444,7 +475,8 @@ class Plant:
                 "members_lost": sorted(self.ledger.lost), "exit_code": self.exit_code,
                 "stalls": getattr(self.strategy, "stalls", 0),
                 "protocol": PROTOCOL_VERSION, "coupling": self.coupling, **self.delays,
-                "physics_process": self.physics is not None,
+                "physics_process": self.tick.physics is not None,
+                "composed": self.composed.names if self.composed is not None else [],
                 "protocol_errors": dict(self.protocol_errors.counts),
                 "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
                                 for k, v in self.timing.items()}}
@@ -469,8 +501,9 @@ class Plant:
             end_token.undeclare()
         self._info_queryable.undeclare()
         self.inbox.close()
-        if self.physics is not None:
-            self.physics.close()
+        if self.composed is not None:
+            self.composed.close()
+        self.tick.close()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -492,6 +525,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=nonneg_int, default=None, help="noise seed (default: the world's)")
     p.add_argument("--expect", default="", metavar="NODES",
                    help="lockstep: comma-separated members to wait for before the first tick")
+    p.add_argument("--wait-for", default="", metavar="NODES",
+                   help="comma-separated processes that are not lockstep members (a recorder) "
+                        "to wait for, by their sim/alive token, before the first tick")
     p.add_argument("--join-timeout", type=positive_float, default=30.0, metavar="S",
                    help="how long to wait for the --expect members before the first tick "
                         "(then exit 1 naming the missing; default 30)")
@@ -508,13 +544,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="step DART in a process of its own; with pipelined lockstep or fast "
                         "mode the plant then publishes tick k while the physics steps to k+1 "
                         "(two cores; same bytes)")
+    p.add_argument("--compose", action="append", default=[], metavar="COMMAND",
+                   help="host a member in this process instead of its own (composed), given "
+                        "as its command line, e.g. \"controller square_path --robot robot1\" "
+                        "or \"fmu-node odometry --robot robot1\"; repeatable (docs/scenarios.md)")
     p.add_argument("--stats", metavar="FILE", help="write counters and timing as JSON at exit")
     p.add_argument("--log-level", default="INFO")
     add_bus_args(p)
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, compose=None) -> int:
+    """``diffbot plant``; ``compose(command) -> bus.node.MemberSpec`` builds a member for
+    ``--compose`` (the command line's, diffbot.cli.compose_member)."""
     args = build_parser().parse_args(argv)
     log = setup_logging("plant", args.log_level)
     keep_freed_memory()
@@ -528,6 +570,9 @@ def main(argv: list[str] | None = None) -> int:
         disabled = tuple(x for x in args.disable.split(",") if x)
         if set(disabled) - {"lidar", "camera"}:
             raise WorldError(f"--disable takes lidar and/or camera, got {args.disable!r}")
+        if args.compose and compose is None:
+            raise ValueError("--compose needs the diffbot command (diffbot plant --compose)")
+        members = [compose(c) for c in args.compose]
     except (WorldError, ValueError) as exc:
         log.error("%s", exc)
         return 2
@@ -538,20 +583,25 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     plant = None
     try:
+        composed = Composed(members, keys, session) if members else None
         plant = Plant(spec, session, keys, args.mode, log, rate=args.rate,
                       expect=tuple(n for n in args.expect.split(",") if n),
+                      watchers=tuple(n for n in args.wait_for.split(",") if n),
                       duration_s=args.duration, join_timeout_s=args.join_timeout,
                       disabled=disabled,
                       end_with=tuple(n for n in args.end_with.split(",") if n),
                       coupling=args.coupling, physics_process=args.physics_process,
                       rejoin_timeout_s=args.rejoin_timeout,
-                      skip_unread=args.zenoh_config is None)
+                      skip_unread=args.zenoh_config is None, composed=composed)
         install_stop_signals(plant.stop_event)
         code = plant.run() or plant.exit_code
         st = plant.stats()
         log.info("stopped at t=%.2f s after %d ticks (%.1fx real time)", st["sim_time_s"],
                  st["ticks"], st["real_time_factor"] or 0.0)
         return code
+    except ValueError as exc:               # a composed member that cannot join
+        log.error("%s", exc)
+        return 2
     except PhysicsError as exc:
         log.error("%s", exc)
         if plant is not None:

@@ -80,6 +80,11 @@ class Outbox:
         self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns))
         self.published[key] = self.published.get(key, 0) + 1
 
+    def relay(self, key: str, data: bytes, att: bytes) -> None:
+        """A composed member's message on the bus, with its own attachment (its counts are
+        the member's, not the plant's)."""
+        self.publisher(key).put(data, attachment=att)
+
     def skip(self, n: int = 1) -> None:
         """``n`` due messages nobody reads: their sequence numbers go unused."""
         self.seq += n

@@ -1,26 +1,123 @@
-"""What the plant does at one control tick, without a bus: shared by the plant node
-(:mod:`plant.node`) and the in-process Gymnasium environments (:mod:`diffbot.envs`), so
-both produce the same messages, bit for bit, from the same seed and commands.
+"""A world's control tick, without a bus: :class:`Tick`, the one object that steps a world.
 
-A lockstep plant's tick k (sequential coupling) is::
+The plant node (:mod:`plant.node`, with members over the bus or composed into its
+process), the in-process Gymnasium environments (:mod:`diffbot.envs`) and the plant FMU
+all drive it, so they produce the same messages, bit for bit, from the same seed and
+commands. Tick k is::
 
-    msgs = tick_messages(sim, sensors, ...)    # sensors due at t_k, noise drawn in order
-    ... publish msgs, then sim/clock; wait for the members' commands stamped t_k ...
-    sim.command_twist(robot, v, w)             # for every robot (zero if it has none)
-    sim.step_tick()                            # to t_{k+1}
+    for robot, topic, msg in tick.messages():  # sensors due at t_k, noise drawn in order
+        ...                                    # publish; sim/clock; the members answer t_k
+    tick.drive(robot, command)                 # for every robot (None: stand still)
+    tick.step()                                # to t_{k+1} (a diverged world is rebuilt)
 
 Anything that changes the order in which the noise streams are drawn, the sensors due at
-a tick, or a message's values changes both sides at once; ``tests/test_envs_identity.py``
-checks that the two transports still agree to the bit.
+a tick, or a message's values changes every host at once; ``tests/test_envs_identity.py``
+checks that the in-process and bus transports still agree to the bit.
 """
 from __future__ import annotations
 
 from typing import Callable, Iterator
 
+from bus.controller import Twist, WheelSpeeds
+
+from .physics_process import PhysicsProcess
 from .raycast import Scene
 from .sensors import RobotSensors, Wanted, scan_all
 from .sim import RobotState, Simulation
+from .stepper import Stepper
 from .world import WorldSpec
+
+
+class Tick:
+    """One world's tick: the sensors due at t_k (built only where wanted, noise always
+    drawn), the robots' commands for t_k, the physics step to t_{k+1}, the rebuild of a
+    diverged world, reset. ``disabled``: sensors taken off every robot ("lidar",
+    "camera"); ``physics_process``: DART in a process of its own (:mod:`plant.stepper`),
+    publishing overlapping the step where ``overlap`` (the mode's commands for the step do
+    not wait for tick k's sensors)."""
+
+    def __init__(self, spec: WorldSpec, disabled: tuple[str, ...] = (),
+                 physics_process: bool = False, overlap: bool = False) -> None:
+        self.spec = spec
+        self.disabled = tuple(disabled)
+        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.physics_process = physics_process
+        self.overlap = overlap
+        self.physics: PhysicsProcess | None = None
+        self.build()
+
+    def build(self) -> None:
+        """(Re)build the world at t = 0 with the spec's seed and start poses."""
+        self.sim, self.sensors = build_world(self.spec, self.spec.seed, self.disabled)
+        if self.physics_process:
+            if self.physics is None:
+                self.physics = PhysicsProcess(self.spec)
+            else:
+                self.physics.build(self.spec)
+        self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
+                               overlap=self.overlap)
+
+    def reset(self, seed: int | None = None, poses: dict | None = None) -> None:
+        """As ``sim/reset``: keep ``seed`` and the start ``poses`` ({robot: (x, y, yaw)}) in
+        the spec and rebuild the world at t = 0."""
+        if seed is not None:
+            self.spec.seed = int(seed)
+        for name, pose in (poses or {}).items():
+            self.spec.robot(name).pose = tuple(float(v) for v in pose)
+        self.build()
+
+    @property
+    def t_ns(self) -> int:
+        return self.sim.time_ns
+
+    def messages(self, wanted: dict[str, Wanted] | None = None, encoded: bool = False
+                 ) -> Iterator[tuple[str, str, object]]:
+        """(robot, topic, message) of every sensor due now, in the plant's order
+        (:func:`tick_messages`: ``None`` for a topic nobody wants; ``encoded``: CDR bytes)."""
+        return tick_messages(self.sim.time_ns, self.tick_ns, self.sensors, self.stepper.state,
+                             self.stepper.shapes, wanted, encoded)
+
+    def prefetch(self) -> None:
+        """Draw the next tick's sensor noise ahead (off a member's critical path)."""
+        for sensors in self.sensors.values():
+            sensors.prefetch()
+
+    def drive(self, robot: str, command: Twist | WheelSpeeds | None) -> None:
+        """The command that acts on ``robot`` from now to the next tick (None: stand still)."""
+        if command is None:
+            self.sim.command_twist(robot, 0.0, 0.0)
+        elif isinstance(command, Twist):
+            self.sim.command_twist(robot, command.linear, command.angular)
+        else:
+            self.sim.command_wheels(robot, command.left, command.right)
+
+    def begin(self, publish: Callable[[], None]) -> float:
+        """A new tick: ``publish()`` its sensors now, unless the step will (overlap).
+        Seconds spent publishing."""
+        return self.stepper.begin_tick(publish)
+
+    def publish_pending(self, publish: Callable[[], None]) -> float:
+        """This tick's sensors, if they have not gone out yet (the run ends here)."""
+        return self.stepper.publish_pending(publish)
+
+    def step(self, publish: Callable[[], None] | None = None) -> tuple[float, float, bool]:
+        """Step to the next tick with the commands driven (publishing this tick's sensors
+        meanwhile if an overlapping step still owes them); a diverged world is rebuilt at
+        t = 0. (publish s, physics s, False if it diverged)."""
+        publish_s, physics_s = self.stepper.step(publish or _nothing)
+        if self.stepper.finite():
+            return publish_s, physics_s, True
+        self.build()
+        return publish_s, physics_s, False
+
+    def close(self) -> None:
+        if self.physics is not None:
+            self.physics.close()
+            self.physics = None
+
+
+def _nothing() -> None:
+    pass
 
 
 def build_world(spec: WorldSpec, seed: int, disabled=()) -> tuple[Simulation, dict[str, RobotSensors]]:

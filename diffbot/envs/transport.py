@@ -32,7 +32,7 @@ from typing import Callable
 from bus.keys import Keys
 from bus.node import NodeRunner, Twist, close_session
 from bus.session import open_session
-from plant.tick import build_world, tick_messages
+from plant.tick import Tick
 from plant.world import WorldSpec
 
 Command = Callable[[int, dict], dict]
@@ -47,49 +47,45 @@ class TransportError(RuntimeError):
 
 
 class InProc:
-    """The plant's world, physics and sensor code in this process (no Zenoh)."""
+    """The plant's tick (:class:`plant.tick.Tick`) in this process (no Zenoh)."""
 
     def __init__(self, spec: WorldSpec, disabled: tuple[str, ...] = ()) -> None:
         self.spec = spec
         self.disabled = tuple(disabled)
         self.tick_ns = int(round(spec.control_tick_s * 1e9))
-        self.sim = None
+        self.tick: Tick | None = None
+
+    @property
+    def sim(self):
+        return self.tick.sim if self.tick is not None else None
 
     def reset(self, seed: int, poses: dict, observe: Observe) -> None:
         # as the plant's sim/reset: the seed and poses are kept in the spec, the world rebuilt
-        self.spec.seed = seed
-        for name, pose in poses.items():
-            self.spec.robot(name).pose = tuple(float(v) for v in pose)
-        self._build()
+        if self.tick is None:
+            self.tick = Tick(self.spec, self.disabled)
+        self.tick.reset(seed, poses)
+        self._publish()
         observe(0, self.latest)
 
-    def _build(self) -> None:
-        self.sim, self.sensors = build_world(self.spec, self.spec.seed, self.disabled)
-        self.latest: dict[str, dict] = {name: {} for name in self.sensors}
-        self._publish()
-
     def _publish(self) -> None:
-        for name, topic, msg in tick_messages(self.sim.time_ns, self.tick_ns, self.sensors,
-                                              self.sim.state, self.sim.shapes):
+        if self.tick.t_ns == 0:
+            self.latest: dict[str, dict] = {name: {} for name in self.tick.sensors}
+        for name, topic, msg in self.tick.messages():
             self.latest[name][topic] = msg
 
     def advance(self, n: int, command: Command, observe: Observe) -> None:
-        sim = self.sim
+        tick = self.tick
         for _ in range(n):
-            cmds = command(sim.time_ns, self.latest)
-            for name in sim.robots:          # every robot, every tick, as the plant does
+            cmds = command(tick.t_ns, self.latest)
+            for name in tick.sim.robots:     # every robot, every tick, as the plant does
                 v, w = cmds.get(name, (0.0, 0.0))
-                sim.command_twist(name, v, w)
-            sim.step_tick()
-            if not sim.is_finite():          # the plant rebuilds a diverged world too
-                self._build()
-                sim = self.sim
-            else:
-                self._publish()
-            observe(sim.time_ns, self.latest)
+                tick.drive(name, Twist(v, w))
+            tick.step()                      # (a diverged world is rebuilt, as the plant's)
+            self._publish()
+            observe(tick.t_ns, self.latest)
 
     def close(self) -> None:
-        self.sim = None
+        self.tick = None
 
 
 # ------------------------------------------------------------------------------ bus

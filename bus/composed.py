@@ -1,0 +1,201 @@
+"""Members composed into the plant's process: :class:`Composed`, the host.
+
+Where a member runs is a deployment choice, not a second API (ROS 2 component containers,
+dora-rs operators): a controller object, the FMU node, a policy, built by its own command
+line (:func:`bus.node.capture_member`), runs here with the same rules as over Zenoh. Each
+composed member is a :class:`bus.member.MemberTick`, exactly as a process member's; only
+the wire differs: the plant hands it the bytes it publishes (and the bytes other members
+send it) directly, decoded as a process would decode them, and takes what it sends back as
+bytes with the same attachment, through the same path as a message from Zenoh (the ACK
+ledger, the command checks). The host also puts those outputs on the bus and holds each
+member's liveliness tokens (``sim/alive/<node>``, ``sim/sync/<node>``) on the plant's
+session, so a recorder, a live view, a ROS 2 bridge or process members beside composed ones
+see the same bus as when every member is a process. A composed run's recording equals the
+all-process run's, byte for byte (docs/scenarios.md, "Composed members").
+
+A composed member must not block in ``step`` (it holds the plant's tick) nor keep threads
+of its own; one whose ``step`` raises is stopped and leaves as a crashed process would.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Callable
+
+import zenoh
+
+from . import codec
+from . import controller as hooks
+from .jsonio import write_stats
+from .keys import TOPICS, Keys
+from .log import RejectCounter
+from .member import MemberTick, Sent, make_slots, with_own_stats
+from .node import MemberSpec
+
+#: emit(key, payload, attachment): a composed member's message, handed to the plant
+Emit = Callable[[str, bytes, bytes], None]
+
+
+class _Hosted:
+    """One composed member: its MemberTick, tokens, counters."""
+
+    def __init__(self, spec: MemberSpec, keys: Keys) -> None:
+        self.spec = spec
+        self.name = spec.name
+        self.log = logging.getLogger(spec.name)
+        self.log.setLevel(getattr(logging, spec.log_level.upper(), logging.INFO))
+        self.topics = dict(TOPICS)
+        slots = make_slots(spec.controller, spec.robots, self.topics)
+        self.member = MemberTick(spec.name, 0, slots=slots, topics=self.topics, key=keys.topic,
+                                 ack_key=keys.ack(spec.name), log=self.log)
+        self.rejects = RejectCounter(self.log)
+        self.published: dict[str, int] = {}
+        self.seq = 0
+        self.exit_code = 0
+        self.tokens: list = []
+        self.gone = False                 # finished and left, or failed
+
+    def leave(self) -> None:
+        for tok in self.tokens:
+            tok.undeclare()
+        self.tokens = []
+        self.gone = True
+
+    def stats(self) -> dict:
+        return with_own_stats({
+            "node": self.name, "robot": self.spec.robots[0], "robots": self.spec.robots,
+            "ticks": self.member.ticks, "published": self.published,
+            "rejected": dict(self.rejects.counts), "plant_lost": 0,
+            "exit_code": self.exit_code, "composed": True},
+            [s.controller for s in self.member.slots])
+
+
+class Composed:
+    """The members composed into this plant (module docstring). The plant calls
+    :meth:`start` once it can answer ``sim/info``, :meth:`deliver` for every message a
+    member may read, :meth:`clock` once a tick's sensors and clock are out, :meth:`run`
+    whenever something came, and :meth:`close` at the end."""
+
+    def __init__(self, specs: list[MemberSpec], keys: Keys, session: zenoh.Session) -> None:
+        names = [s.name for s in specs]
+        if len(set(names)) != len(names):
+            raise ValueError(f"a composed member is named twice in {', '.join(names)}")
+        self.keys = keys
+        self.session = session
+        self.hosted = [_Hosted(s, keys) for s in specs]
+        self._readers: dict[str, list[_Hosted]] = {}
+        for h in self.hosted:
+            for key in h.member.slot_of:
+                self._readers.setdefault(key, []).append(h)
+
+    @property
+    def names(self) -> list[str]:
+        return [h.name for h in self.hosted]
+
+    def start(self, info: dict) -> None:
+        """Configure every member from the plant's ``sim/info`` and let it join: its
+        controllers' ``configure``/``on_session`` hooks, then its liveliness tokens."""
+        liveliness = self.session.liveliness()
+        for h in self.hosted:
+            h.member.configure(info)
+            for slot in h.member.slots:
+                hooks.configure(slot.controller, info, slot.robot)
+                hooks.on_session(slot.controller, self.session, self.keys)
+            h.tokens.append(liveliness.declare_token(self.keys.alive(h.name)))
+            if h.member.sync:
+                h.tokens.append(liveliness.declare_token(self.keys.sync(h.name)))
+            h.log.info("%s composed into the plant on robot%s %s: inputs %s%s", h.name,
+                       "s" if len(h.spec.robots) > 1 else "", ", ".join(h.spec.robots),
+                       ", ".join(h.member.slots[0].inputs) or "none",
+                       ", lockstep member" if h.member.sync else "")
+
+    def input_keys(self) -> set[str]:
+        """Every key a composed member reads."""
+        return set(self._readers)
+
+    def reads(self, key: str) -> bool:
+        """Whether a composed member reads ``key``."""
+        return key in self._readers
+
+    def deliver(self, key: str, payload: bytes, att: bytes | None) -> None:
+        """Section 4, step 2: a message on ``key`` reaches the members that read it, decoded
+        once, filed by stamp (docs/PROTOCOL.md)."""
+        readers = self._readers.get(key)
+        if not readers:
+            return
+        msg = None
+        for h in readers:
+            if h.gone:
+                continue
+            _, topic = h.member.slot_of[key]
+            if msg is None:
+                try:
+                    msg = codec.decode(payload, h.topics[topic].msgtype)
+                except codec.CodecError as exc:
+                    h.rejects.reject(topic, str(exc))
+                    continue
+            if (problem := h.member.file_input(key, msg, att)) is not None:
+                h.rejects.reject(topic, problem)
+
+    def clock(self, t_ns: int, emit: Emit) -> None:
+        """The plant published tick ``t_ns``'s sensors and clock: members that are not in
+        lockstep act now; a finished member leaves once the plant took its FINAL."""
+        for h in self.hosted:
+            if h.gone:
+                continue
+            m = h.member
+            if m.final_tick is not None:
+                if m.may_leave(m.final_tick, t_ns):
+                    h.leave()
+                continue
+            _, problem = m.clock(t_ns)      # (a re-published tick: the plant keeps our
+            if problem:                     #  answers and re-publishes them itself)
+                h.rejects.reject("clock", problem)
+            if not m.sync:
+                self._act(h, t_ns, emit)
+
+    def run(self, emit: Emit) -> None:
+        """Every member acts on every tick it has all inputs for, in order, until none can:
+        a member's output may complete another's tick (``emit`` delivers it)."""
+        acted = True
+        while acted:
+            acted = False
+            for h in self.hosted:
+                if h.gone or not h.member.sync or h.member.final_tick is not None:
+                    continue
+                while (t_ns := h.member.next_due()) is not None:
+                    acted = True
+                    if self._act(h, t_ns, emit):
+                        break
+
+    def _act(self, h: _Hosted, t_ns: int, emit: Emit) -> bool:
+        try:
+            sent, finished = h.member.act(t_ns)
+        except Exception:
+            h.log.exception("%s failed at t=%.3f s; it leaves the simulation", h.name,
+                            t_ns * 1e-9)
+            h.exit_code = 1
+            h.leave()
+            return True
+        self._send(h, sent, t_ns, emit)
+        return finished
+
+    def _send(self, h: _Hosted, sent: Sent, t_ns: int, emit: Emit) -> None:
+        name = h.name if h.member.sync else None
+        for key, payload, flags, n_plant in sent:
+            h.seq += 1
+            emit(key, payload, codec.attachment(h.seq, t_ns, flags, n_plant, name))
+            h.published[key] = h.published.get(key, 0) + 1
+
+    def close(self) -> None:
+        """The run ended: every member leaves, its controllers are closed and its
+        ``--stats`` written."""
+        for h in self.hosted:
+            h.leave()
+            controllers = [s.controller for s in h.member.slots]
+            stats = h.stats()
+            for ctrl in controllers:
+                try:
+                    hooks.close(ctrl)
+                except Exception as exc:
+                    h.log.error("closing %s: %s", h.name, exc)
+            write_stats(h.spec.stats, stats, h.log)
