@@ -8,17 +8,50 @@
 * :class:`Fast` — free running: takes what has come, waits for nobody.
 
 Each says whether the physics may step while the tick is published (``overlaps``), which
-command acts at a tick, and how old it is.
+command acts at a tick, and how old it is, and what its mode asks of the plant (``lockstep``:
+members, ACKs, nothing dropped, re-publishing; ``check_age``; the coupling's ``delays``).
+:func:`make` picks one by name: the plant never branches on a mode's name. A strategy sees
+the plant only through :class:`Host`.
 """
 from __future__ import annotations
 
+import threading
 import time
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from .commands import Command
+from bus.lockstep import AckLedger
+from bus.protocol import delays as coupling_delays
 
-if TYPE_CHECKING:
-    from .node import Plant
+from .commands import Command, CommandBook
+
+MODES = ("lockstep", "realtime", "fast")
+
+
+class Host(Protocol):
+    """What a mode strategy may use of the plant that runs it."""
+    tick_ns: int
+    rate: float
+    rejoin_timeout_s: float
+    exit_code: int
+    reset_in_tick: bool
+    stop_event: threading.Event
+    commands: CommandBook
+    ledger: AckLedger
+    log: object
+
+    @property
+    def time_ns(self) -> int: ...
+
+    def drain(self, timeout: float | None = 0.0) -> bool: ...
+
+    def publish_pending(self) -> None: ...
+
+
+def make(mode: str, host: Host, coupling: str = "sequential") -> "Mode":
+    """The strategy of ``mode`` (one of MODES); the coupling matters in lockstep only."""
+    if mode == "lockstep":
+        return Lockstep(host, coupling)
+    return Realtime(host) if mode == "realtime" else Fast(host)
 
 #: lockstep: waiting this long (wall s) on a tick makes the plant say who it waits for,
 #: then again after a gap twice the one before, at most WAIT_REPORT_MAX_S (wait_reports)
@@ -43,12 +76,16 @@ def wait_reports():
         at += gap
 
 
-class Fast:
-    """Free running: nobody is waited for."""
+class Mode:
+    """What every mode shares: free running, nobody waited for (the base of the others)."""
     overlaps = True
+    lockstep = False           # members hold the ticks: ACKs, nothing dropped, re-publishing
+    check_age = False          # commands older than cmd_timeout_s are rejected on arrival
+    stalls = 0                 # times the wall clock was re-anchored (realtime)
 
-    def __init__(self, plant: Plant) -> None:
+    def __init__(self, plant: Host) -> None:
         self.plant = plant
+        self.delays = coupling_delays("sequential")
 
     def start(self) -> None:
         """The first tick is about to be published."""
@@ -72,11 +109,16 @@ class Fast:
         return time.monotonic() - cmd.wall
 
 
-class Realtime(Fast):
+class Fast(Mode):
+    """Free running: nobody is waited for."""
+
+
+class Realtime(Mode):
     """Paced to the wall clock times ``rate``."""
     overlaps = False
+    check_age = True
 
-    def __init__(self, plant: Plant) -> None:
+    def __init__(self, plant: Host) -> None:
         super().__init__(plant)
         self.pace0 = 0.0                 # wall time of sim time 0
         self.stalls = 0                  # times the wall clock was re-anchored
@@ -86,7 +128,7 @@ class Realtime(Fast):
         self.pace0 = time.monotonic()
 
     def restarted(self) -> None:
-        self.pace0 = time.monotonic() - self.plant.sim.time_ns * 1e-9 / self.plant.rate
+        self.pace0 = time.monotonic() - self.plant.time_ns * 1e-9 / self.plant.rate
 
     def barrier(self, t_ns: int) -> str | None:
         p = self.plant
@@ -108,13 +150,17 @@ class Realtime(Fast):
         return None
 
 
-class Lockstep(Fast):
-    """The tick's barrier; ``delay_ns`` is the coupling's actuation delay (0: sequential)."""
+class Lockstep(Mode):
+    """The tick's barrier under ``coupling`` (its actuation delay: 0 sequential, a tick
+    pipelined)."""
+    lockstep = True
+    check_age = True
 
-    def __init__(self, plant: Plant, delay_ns: int) -> None:
+    def __init__(self, plant: Host, coupling: str) -> None:
         super().__init__(plant)
-        self.delay_ns = delay_ns
-        self.overlaps = delay_ns > 0     # pipelined: tick k's sensors do not feed this step
+        self.delays = coupling_delays(coupling)
+        self.delay_ns = self.delays["actuation_delay_ticks"] * plant.tick_ns
+        self.overlaps = self.delay_ns > 0   # pipelined: tick k's sensors do not feed this step
 
     def barrier(self, t_ns: int) -> str | None:
         """Sequential: tick t's ACKs; pipelined: tick t-1's, while the members compute tick
@@ -151,10 +197,10 @@ class Lockstep(Fast):
         self.wait_for_acks(t_ns)
 
     def command(self, robot: str) -> Command | None:
-        return self.plant.commands.for_tick(robot, self.plant.sim.time_ns - self.delay_ns)
+        return self.plant.commands.for_tick(robot, self.plant.time_ns - self.delay_ns)
 
     def age_s(self, cmd: Command) -> float:
-        return (self.plant.sim.time_ns - cmd.t_ns) * 1e-9
+        return (self.plant.time_ns - cmd.t_ns) * 1e-9
 
     def wait_for_acks(self, t_ns: int) -> None:
         """Until every member owed tick ``t_ns`` has answered it in full (AckLedger.

@@ -41,7 +41,7 @@ from bus.jsonio import write_stats
 from bus.keys import Keys
 from bus.lockstep import AckLedger
 from bus.log import RejectCounter, setup_logging
-from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION, delays
+from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION
 from bus.session import BusConfigError, add_bus_args, install_stop_signals, open_session
 
 from . import modes
@@ -54,7 +54,6 @@ from .routerwatch import RouterWatch
 from .tick import Tick
 from .world import WorldError, WorldSpec, load_world
 
-MODES = ("lockstep", "realtime", "fast")
 #: lockstep: ticks of published messages kept to re-publish when a lost member rejoins:
 #: what the blip swallowed, for the members (at most the last three ticks) and for a
 #: recorder, whose share of the router's queue may lag further behind
@@ -88,16 +87,15 @@ class Plant:
         self.exit_code = 0
         self.tick_ns = int(round(spec.control_tick_s * 1e9))
         self.coupling = coupling
-        # Lockstep only: the coupling's delays, in ticks (docs/PROTOCOL.md).
-        self.delays = delays(coupling) if mode == "lockstep" else delays("sequential")
-        delay_ns = self.delays["actuation_delay_ticks"] * self.tick_ns
-        # what the loop waits for between publishing and stepping (plant/modes.py)
-        self.strategy = (modes.Lockstep(self, delay_ns) if mode == "lockstep"
-                         else modes.Realtime(self) if mode == "realtime" else modes.Fast(self))
+        # what the loop waits for between publishing and stepping (plant/modes.py), and
+        # what the mode asks of the plant; the coupling's delays, in ticks (docs/PROTOCOL.md)
+        self.strategy = modes.make(mode, self, coupling)
+        self.delays = self.strategy.delays
+        lockstep = self.strategy.lockstep
         self.seed = spec.seed
         # the world's tick (plant/tick.py); DART in a process of its own with physics_process
         self.tick = Tick(spec, disabled, physics_process, overlap=self.strategy.overlaps)
-        self.commands = CommandBook(lockstep=mode == "lockstep")
+        self.commands = CommandBook(lockstep=lockstep)
         # members composed into this process (bus/composed.py): fed the plant's bytes directly
         self.composed = composed
         self.rejects = RejectCounter(log)
@@ -117,7 +115,7 @@ class Plant:
         # a composed member's attachment or None)]
         self._recent: dict[int, list[tuple[str, bytes, bytes | None]]] = {}
         # In lockstep nothing may be lost: block rather than drop when a queue is full.
-        self.congestion = (zenoh.CongestionControl.BLOCK if mode == "lockstep"
+        self.congestion = (zenoh.CongestionControl.BLOCK if lockstep
                            else zenoh.CongestionControl.DROP)
         # (only on the plant's own router session: see plant/outbox.py)
         self.outbox = Outbox(session, self.congestion, skip_unread)
@@ -127,7 +125,7 @@ class Plant:
         self._robot_of_key: dict[str, tuple[str, str]] = {}
         for name in self.sim.robots:
             for topic in PLANT_READS:
-                if topic == "odom" and mode != "lockstep":
+                if topic == "odom" and not lockstep:
                     continue                     # read only for lockstep members' ACKs
                 key = keys.topic(name, topic)
                 self._robot_of_key[key] = (name, topic)
@@ -151,6 +149,10 @@ class Plant:
     @property
     def sim(self):
         return self.tick.sim
+
+    @property
+    def time_ns(self) -> int:
+        return self.tick.sim.time_ns
 
     def restart_world(self, reason: str, rebuilt: bool = False) -> None:
         """Rebuild the world at t = 0 (a sim/reset, or the physics diverged: ``rebuilt``
@@ -208,7 +210,7 @@ class Plant:
             self.outbox.put(key, payload, t_ns)
         else:
             self.outbox.relay(key, payload, att)
-        if self.mode == "lockstep":
+        if self.strategy.lockstep:
             self._recent.setdefault(t_ns, []).append((key, payload, att))
             while len(self._recent) > REPUBLISH_TICKS:
                 del self._recent[min(self._recent)]
@@ -303,7 +305,7 @@ class Plant:
                 self._vanished.add(node)
                 return
             self.alive.add(node)
-            if node in self._vanished and self.mode == "lockstep" and self.ticks:
+            if node in self._vanished and self.strategy.lockstep and self.ticks:
                 # back after a blip (a recorder, say): what it missed of the last ticks
                 self._vanished.discard(node)
                 self.log.info("%s is back", node)
@@ -333,19 +335,20 @@ class Plant:
         member's output, filed in the ledger for its tick."""
         robot, topic = self._robot_of_key.get(ev.key, (None, "ack"))
         att = codec.parse_attachment(ev.attachment)
-        if self.mode == "lockstep" and not self.ledger.file(ev.key, topic, att, ev.attachment,
+        lockstep = self.strategy.lockstep
+        if lockstep and not self.ledger.file(ev.key, topic, att, ev.attachment,
                                                             self.sim.time_ns):
             return
         if topic in ("cmd_vel", "wheel_cmd"):
             drive = self.sim.robots[robot].spec.drive
             try:
                 value, t = decode_command(ev.payload, topic, drive, self.sim.time_ns,
-                                          self.tick_ns, check_age=self.mode != "fast",
+                                          self.tick_ns, check_age=self.strategy.check_age,
                                           robot=robot)
             except (codec.CodecError, ValueError) as exc:
                 self.rejects.reject(f"{robot}/{topic}", str(exc))
                 return
-            if self.mode == "lockstep" and att is not None:
+            if lockstep and att is not None:
                 t_cmd = att.t_ns       # the tick it was computed for (0: tick 0, not "now")
             else:
                 t_cmd = t or self.sim.time_ns
@@ -395,7 +398,7 @@ class Plant:
             self.log.info("lockstep: waiting for a controller to join (or use --mode fast)")
         while not self.stop_event.is_set():
             self.drain(0.1)
-            present = self.ledger.members if self.mode == "lockstep" else self.alive
+            present = self.ledger.members if self.strategy.lockstep else self.alive
             watched = self.watchers <= self.alive
             if watched and ((want and want <= present) or (not want and present)):
                 return True
@@ -418,7 +421,7 @@ class Plant:
         if self.composed is not None:
             self.composed.start(self.info())
         self.drain(0.05)
-        if (self.mode == "lockstep" or self.expect or self.watchers) \
+        if (self.strategy.lockstep or self.expect or self.watchers) \
                 and not self.wait_for_members():
             return 1 if not self.stop_event.is_set() else 0
         self.wall_start = time.monotonic()
@@ -473,7 +476,7 @@ class Plant:
                 "published": self.published, "rejected": dict(self.rejects.counts),
                 "members_seen": sorted(self.ledger.members_seen),
                 "members_lost": sorted(self.ledger.lost), "exit_code": self.exit_code,
-                "stalls": getattr(self.strategy, "stalls", 0),
+                "stalls": self.strategy.stalls,
                 "protocol": PROTOCOL_VERSION, "coupling": self.coupling, **self.delays,
                 "physics_process": self.tick.physics is not None,
                 "composed": self.composed.names if self.composed is not None else [],
@@ -513,7 +516,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a world-file value, e.g. world.mode=kinematic or "
                         "'robots.robot1.encoders.noise={webots_noise = 0.2}' (repeatable)")
-    p.add_argument("--mode", choices=MODES, default="lockstep")
+    p.add_argument("--mode", choices=modes.MODES, default="lockstep")
     p.add_argument("--coupling", choices=COUPLINGS, default="sequential",
                    help="lockstep: sequential (commands of tick k from tick k's sensors act at "
                         "once; exact) or pipelined (the plant steps while the nodes compute: "
