@@ -19,9 +19,13 @@ import time
 from .harness import Context, Metric, Probe, suite
 
 SIM_S = 2.0
+#: the square runs of the hosting comparison, simulated s
+SQUARE_S = 20.0
 
 
-def batch(ctx: Context, engine_name: str, n: int, parallel: int | None) -> dict:
+def batch(ctx: Context, engine_name: str, n: int, parallel: int | None,
+          scenario: str = "drive-test", hosting: str = "--no-compose",
+          sim_s: float = SIM_S) -> dict:
     from .. import runner
     from ..procs import diffbot_argv
     tmp = tempfile.mkdtemp(prefix="bench-sweep-", dir=ctx.tmpdir)
@@ -29,8 +33,8 @@ def batch(ctx: Context, engine_name: str, n: int, parallel: int | None) -> dict:
     engine = runner.make_engine(engine_name, None, parallel)
     t_up = time.monotonic() - t0
     try:
-        runs = [runner.Run(f"s{i}", diffbot_argv("run", "drive-test", "--duration", f"{SIM_S:g}",
-                                                 "--seed", str(i), "--out",
+        runs = [runner.Run(f"s{i}", diffbot_argv("run", scenario, "--duration", f"{sim_s:g}",
+                                                 "--seed", str(i), hosting, "--out",
                                                  os.path.join(tmp, f"s{i}")),
                            os.path.join(tmp, f"s{i}"), os.path.join(tmp, f"s{i}.log"))
                 for i in range(n)]
@@ -50,7 +54,8 @@ def batch(ctx: Context, engine_name: str, n: int, parallel: int | None) -> dict:
 
 
 @suite("sweep", "the runner: runs per minute of a batch of short drive-test runs and the "
-                "per-run overhead, local engine and a local Ray instance")
+                "per-run overhead, local engine and a local Ray instance; square runs with "
+                "their members over processes and composed")
 def sweep_suite(ctx: Context):
     n = 4 if ctx.quick else 6
     engines = ["local"]
@@ -70,3 +75,10 @@ def sweep_suite(ctx: Context):
             Metric("run_wall_s", f"{name}: one run's own wall time (serial)"),
             Metric("startup_s", f"{name}: engine start-up (once per sweep)"),
         ], repeats=1 if ctx.quick else 2)
+    # what `diffbot sweep` does by default: the members composed into each run's plant
+    for hosting, flag in (("processes", "--no-compose"), ("composed", "--compose")):
+        yield Probe(f"square {SQUARE_S:g} s, {hosting}",
+                    lambda flag=flag: batch(ctx, "local", n, None, "square", flag, SQUARE_S), [
+            Metric("runs_per_min", f"local: runs per minute ({n} x square {SQUARE_S:g} s, "
+                                   f"members {hosting})", "runs/min"),
+        ], repeats=1)

@@ -59,6 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run a failed run again up to N times (default 1)")
     p.add_argument("--timeout", type=positive_float, default=900.0, metavar="S",
                    help="wall-clock limit per run (default 900 s)")
+    p.add_argument("--compose", action=argparse.BooleanOptionalAction, default=True,
+                   help="host each run's lockstep members in its plant's process (default: "
+                        "the same bytes, no process hop per tick); --no-compose: a process "
+                        "each, as `diffbot run` without --compose")
     p.add_argument("--fresh", action="store_true",
                    help="run everything again, even runs a previous sweep into --out finished")
     p.add_argument("--progress", choices=("auto", "bar", "lines"), default="auto",
@@ -66,16 +70,18 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def cpus_for(spec, point_args: list[str]) -> float:
+def cpus_for(spec, point_args: list[str], composed: bool = False) -> float:
     """CPUs a run of this scenario keeps busy: sequential lockstep runs one process at a
-    time; pipelined, realtime, fast and physics-process runs keep two or more busy."""
+    time, and so does a lockstep run whose members are composed into the plant; pipelined,
+    realtime, fast and physics-process runs keep two or more busy."""
     coupling = spec.coupling
     mode = spec.mode
     if "--coupling" in point_args:
         coupling = point_args[point_args.index("--coupling") + 1]
     if "--mode" in point_args:
         mode = point_args[point_args.index("--mode") + 1]
-    if mode == "lockstep" and coupling == "sequential" and not spec.physics_process:
+    if mode == "lockstep" and (coupling == "sequential" or composed) \
+            and not spec.physics_process:
         return 1.0
     return float(min(2, 1 + max(1, len(spec.processes))))
 
@@ -123,9 +129,10 @@ def main(argv: list[str] | None = None) -> int:
         extra = pt.run_args(axes)
         cmd = diffbot_argv("run", scenario_arg, *extra, "--out", run_out,
                            "--timeout", f"{args.timeout:g}",
+                           "--compose" if args.compose else "--no-compose",
                            *(["--duration", f"{args.duration:g}"] if args.duration else []))
         run = runner.Run(rid, cmd, run_out, os.path.join(run_out, "run.log"),
-                         cpus=args.cpus_per_run or cpus_for(spec, extra),
+                         cpus=args.cpus_per_run or cpus_for(spec, extra, args.compose),
                          timeout_s=args.timeout + 60, params=dict(zip(params, pt.values)),
                          spec=pt)
         runs[rid] = run
