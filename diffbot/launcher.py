@@ -1,304 +1,28 @@
-"""``diffbot run``: start a scenario's processes, supervise them, analyse the run.
-
-Each process is its own OS process in its own session (process group), so the
-launcher decides the order of shutdown: on Ctrl-C, SIGTERM, the end of the run
-or a failure, it sends SIGINT to every child, waits, then SIGKILLs what is left,
-by PID. A required process that dies ends the run with a non-zero exit code and
-its last stderr lines; an optional one may die alone. A process marked
-``ends_run`` that exits 0 ends the run normally. A process that is still there but
-has lost its bus lease (stopped with SIGSTOP, or wedged) counts as dead: the launcher
-watches ``sim/alive/*`` and /proc. When nodes exit 3 because the plant went away,
-the report names the plant.
+"""``diffbot run``: a scenario's run (:class:`diffbot.scenario_run.ScenarioRun`) from the
+command line: start its processes (placed on other machines with ``--place``), supervise
+them, analyse the run, write ``summary.json``.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import queue
-import shlex
 import shutil
 import signal
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
-
-import zenoh
 
 from bus.cliargs import ArgumentParser, nonneg_int, port, positive_float, positive_int
-from bus.keys import Keys
 from bus.jsonio import write_json
-from bus.runtime import EXIT_PLANT_GONE
+from bus.keys import Keys
 from bus.protocol import COUPLINGS
-from bus.session import BusConfigError, open_session
+from bus.session import BusConfigError
 from plant.world import WorldError, load_world
 
-from . import procs
-from .observer import OBSERVER
-from .procs import diffbot_argv
-from .scenario import ProcessSpec, ScenarioSpec, load_scenario
-
-STOP_GRACE_S = 1.5
-#: a child whose bus token is gone but whose process still runs is taken as hung after this
-WEDGED_S = 3.0
-EXIT_FAILED = 1
-EXIT_BAD_INPUT = 2
-EXIT_INTERRUPTED = 130
-
-ROS2_BRIDGE = "ros2_bridge"  # the --ros2 process (bridges/ros2.py)
-RECORDER = "recorder"       # the --record process (bus/record.py); see Run's recorder section
-RECORDER_JOIN_S = 30.0
-VIEW = "view"               # the --view process (bridges/view.py): optional, never in lockstep
-RECORDER_GRACE_S = 10.0
-
-
-class Child(procs.Child):
-    """A scenario's process: a :class:`procs.Child` and what its death means for the run.
-    It gets SIGTERM from the kernel if the launcher dies without stopping it (SIGKILL, OOM):
-    a run never leaves a plant or a node behind."""
-
-    def __init__(self, name: str, argv: list[str], required: bool = True,
-                 ends_run: bool = False, interactive: bool = False, log_path: str = "") -> None:
-        super().__init__(name, argv, log_path, interactive=interactive, die_with_parent=True)
-        self.required = required
-        self.ends_run = ends_run
-
-
-@dataclass
-class Run:
-    spec: ScenarioSpec
-    out: str
-    mode: str
-    seed: int
-    endpoint: str
-    namespace: str = ""
-    zenoh_config: str | None = None
-    duration_s: float | None = None
-    timeout_s: float = 900.0
-    coupling: str = "sequential"    # lockstep coupling (docs/PROTOCOL.md)
-    physics_process: bool = False   # --physics-process: DART in a process of its own
-    compose: bool = False           # --compose: lockstep members hosted in the plant's process
-    composed: list[str] = field(default_factory=list)   # (the members that were)
-    record: str | None = None       # --record FILE.mcap (see the recorder section)
-    recorder: Child | None = None
-    ros2: bool = False              # --ros2: the ROS 2 bridge (bridges/ros2.py), free running
-    view_port: int | None = None    # --view [--view-port P]: serve the run to Foxglove
-    view_host: str = "127.0.0.1"
-    children: list[Child] = field(default_factory=list)
-    reason: str = ""
-    failed: Child | None = None
-    #: bus liveliness of the processes (sim/alive/<name>): name -> wall time its token went,
-    #: None while it is there (kept by the supervising thread from :attr:`alive_events`)
-    gone: dict[str, float | None] = field(default_factory=dict)
-    #: (name, wall time its token went or None if it came), queued by :meth:`on_alive` on
-    #: Zenoh's thread
-    alive_events: queue.SimpleQueue = field(default_factory=queue.SimpleQueue)
-
-    def bus_args(self) -> list[str]:
-        a = ["--endpoint", self.endpoint]
-        if self.namespace:
-            a += ["--namespace", self.namespace]
-        if self.zenoh_config:
-            a += ["--zenoh-config", self.zenoh_config]
-        return a
-
-    def build(self) -> None:
-        logs = os.path.join(self.out, "logs")
-        os.makedirs(logs, exist_ok=True)
-        # `diffbot run sim --mode lockstep --ros2`: the bridge holds the ticks for the user's
-        # ROS 2 node, and when that node leaves the run ends
-        drives = self.ros2 and self.spec.ros2_drives and self.mode == "lockstep"
-        expect = [p.name for p in self.spec.processes if p.sync] + self._recorder_expect() \
-            + ([ROS2_BRIDGE] if drives else [])
-        def own(p) -> list[str]:
-            """A member's command line, bus options aside."""
-            return [*p.command, "--name", p.name, "--stats", os.path.join(logs, f"{p.name}.json")]
-        self.composed = [p.name for p in self.spec.processes if self.compose and composable(p)]
-        plant = diffbot_argv("plant", "--world", self.spec.world, "--mode", self.mode,
-                             "--coupling", self.coupling, "--seed", str(self.seed), "--stats",
-                             os.path.join(logs, "plant.json"), *self.spec.plant_args,
-                             *self.bus_args())
-        if expect:
-            plant += ["--expect", ",".join(expect)]
-        enders = [p.name for p in self.spec.processes if p.ends_run and p.sync] \
-            + ([ROS2_BRIDGE] if drives else [])
-        if enders and self.mode == "lockstep":
-            plant += ["--end-with", ",".join(enders)]
-        if self.duration_s is not None:
-            plant += ["--duration", repr(self.duration_s)]
-        if self.mode == "lockstep" and self.composed:
-            # composed members are there at once: the plant must not tick before the
-            # observer and the recorder listen (process members start only once they do)
-            plant += ["--wait-for", ",".join([OBSERVER] + ([RECORDER] if self.record else []))]
-        if self.physics_process and "--physics-process" not in plant:
-            plant.append("--physics-process")
-        for p in self.spec.processes:
-            if p.name in self.composed:
-                plant += ["--compose", shlex.join(own(p))]
-        self.children.append(Child("plant", plant, log_path=os.path.join(logs, "plant.log")))
-        self._add_recorder(logs)
-        if self.ros2:
-            # a bus node like the others, but not a lockstep member: ROS 2 nodes (teleop,
-            # rviz) follow /clock; a scenario's own `["ros2", "--lockstep"]` process holds ticks
-            self.children.append(Child(ROS2_BRIDGE, diffbot_argv(
-                "ros2", "--name", ROS2_BRIDGE, "--stats", os.path.join(logs, f"{ROS2_BRIDGE}.json"),
-                *(["--lockstep"] if drives else []), *self.bus_args()), required=drives,
-                ends_run=drives, log_path=os.path.join(logs, f"{ROS2_BRIDGE}.log")))
-        if self.view_port is not None:
-            # Not a lockstep member, not expected by the plant: it watches, it never holds.
-            argv = diffbot_argv("view", "--port", str(self.view_port), "--host", self.view_host,
-                                "--name", VIEW, "--stats", os.path.join(logs, f"{VIEW}.json"),
-                                *self.bus_args())
-            self.children.append(Child(VIEW, argv, required=False,
-                                       log_path=os.path.join(logs, f"{VIEW}.log")))
-        for p in self.spec.processes:
-            if p.name in self.composed:
-                continue
-            self.children.append(Child(p.name, diffbot_argv(*own(p), *self.bus_args()), p.required,
-                                       p.ends_run, p.interactive,
-                                       log_path=os.path.join(logs, f"{p.name}.log")))
-
-    def open_observer(self):
-        """The launcher's own session: the observer that the analysis reads."""
-        return open_session("observer", self.endpoint, self.zenoh_config)
-
-    def stop_all(self) -> None:
-        """SIGINT the nodes, then the plant (so nodes do not see it vanish), then SIGKILL
-        by PID whatever is left after the grace period, the recorder last."""
-        plant = self.children[0]
-        nodes = [c for c in self.children[1:] if c is not self.recorder]
-        for c in nodes:
-            c.signal(signal.SIGINT)
-        procs.wait_all(nodes, STOP_GRACE_S / 2)
-        plant.signal(signal.SIGINT)
-        procs.wait_all([plant, *nodes], STOP_GRACE_S / 2)
-        self._stop_recorder()
-        procs.stop(self.children, 0.0, signal.SIGKILL)
-
-    def on_alive(self, sample) -> None:
-        """Liveliness callback (Zenoh's thread): a process's ``sim/alive/<name>`` token came or
-        went; only queued, :meth:`supervise` files it."""
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
-        self.alive_events.put((name, None if sample.kind == zenoh.SampleKind.PUT
-                               else time.monotonic()))
-
-    def _take_alive_events(self) -> None:
-        while True:
-            try:
-                name, went = self.alive_events.get_nowait()
-            except queue.Empty:
-                return
-            self.gone[name] = went
-
-    def unresponsive(self, c: Child) -> bool:
-        """A process that is there but lost its bus lease: stopped (SIGSTOP) or wedged."""
-        went = self.gone.get(c.name)
-        if went is None or c.poll() is not None:
-            return False
-        return c.stopped() or time.monotonic() - went > WEDGED_S
-
-    def supervise(self, stop_flag: list) -> int:
-        start = time.monotonic()
-        while True:
-            if stop_flag:
-                self.reason = f"interrupted ({stop_flag[0]})"
-                return EXIT_INTERRUPTED
-            self._take_alive_events()
-            for c in self.children:
-                code = c.poll()
-                if code is None:
-                    if self.unresponsive(c):
-                        what = ("stopped (SIGSTOP?)" if c.stopped()
-                                else f"not answering for {WEDGED_S:.0f} s")
-                        if c.name == "plant" or c.required:
-                            self.failed = c
-                            self.reason = (f"{c.name} stopped responding: its process is "
-                                           f"{what} and lost its bus lease")
-                            return EXIT_FAILED
-                        print(f"diffbot run: {c.name} (optional) stopped responding; "
-                              "killing it", file=sys.stderr)
-                        c.signal(signal.SIGKILL)
-                    continue
-                if c.name == "plant" or c.required:
-                    if code == 0:
-                        self.reason = f"{c.name} finished"
-                        return 0
-                    self.failed = c
-                    self.reason = f"{c.name} {c.describe_exit()}"
-                    if c.name == "plant":     # e.g. a lockstep member lost: which, when
-                        why = _read_json(os.path.join(self.out, "logs", "plant.json"))
-                        if why.get("end_reason"):
-                            self.reason += f": {why['end_reason']}"
-                    if code == EXIT_PLANT_GONE and c.name != "plant":
-                        self._blame_plant(c)
-                    return EXIT_FAILED
-            if time.monotonic() - start > self.timeout_s:
-                self.reason = f"wall-clock timeout after {self.timeout_s:.0f} s"
-                return EXIT_FAILED
-            time.sleep(0.02)
-
-    def _blame_plant(self, node: Child) -> None:
-        """A node exited 3 (it lost the plant): if the plant died or froze, name the plant."""
-        plant = self.children[0]
-        deadline = time.monotonic() + 0.5
-        while plant.poll() is None and not plant.stopped() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        if plant.poll() is not None:
-            self.failed = plant
-            self.reason = f"plant {plant.describe_exit()} ({node.name} lost it)"
-        elif plant.stopped():
-            self.failed = plant
-            self.reason = (f"plant stopped responding: its process is stopped (SIGSTOP?) "
-                           f"and lost its bus lease ({node.name} lost it)")
-        else:
-            self.reason += " (it lost the plant)"
-
-    # ------------------------------------------------------------ recorder (--record)
-    # An optional extra process, started right after the plant and before every other
-    # node; it declares sim/alive/recorder once subscribed. In lockstep the plant cannot
-    # tick before the nodes join, and they start only once that token is seen; in
-    # realtime/fast the plant --expects it too. It is stopped last, after the plant,
-    # with time to close its file.
-    def _recorder_expect(self) -> list[str]:
-        return [RECORDER] if self.record and self.mode != "lockstep" else []
-
-    def _add_recorder(self, logs: str) -> None:
-        if self.record:
-            argv = diffbot_argv("record", os.path.abspath(self.record), "--name", RECORDER,
-                                "--stats", os.path.join(logs, f"{RECORDER}.json"),
-                                *self.bus_args())
-            self.recorder = Child(RECORDER, argv, required=False,
-                                  log_path=os.path.join(logs, f"{RECORDER}.log"))
-            self.children.append(self.recorder)
-
-    def start_recorder(self, env: dict, session, stop_flag: list) -> bool:
-        """Start the recorder, then the view (--view), each waited for until it is on the
-        bus (so the whole run is recorded and watched, and neither one's start-up competes
-        with the first ticks); False (and ``failed``) if one does not come."""
-        view = next((c for c in self.children if c.name == VIEW), None)
-        return all(self._start_waited(c, env, session, stop_flag)
-                   for c in (self.recorder, view) if c is not None)
-
-    def _start_waited(self, child: Child, env: dict, session, stop_flag: list) -> bool:
-        child.start(env)
-        key = Keys(self.namespace).alive(child.name)
-        deadline = time.monotonic() + RECORDER_JOIN_S
-        while time.monotonic() < deadline and child.poll() is None and not stop_flag:
-            if any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5)):
-                return True
-            time.sleep(0.05)
-        if not stop_flag:
-            self.failed = child
-            self.reason = (f"{child.name} failed with exit code {child.exit_code}"
-                           if child.exit_code is not None
-                           else f"{child.name} did not start within {RECORDER_JOIN_S:.0f} s")
-        return False
-
-    def _stop_recorder(self) -> None:
-        if self.recorder is not None:
-            self.recorder.signal(signal.SIGINT)
-            procs.wait_all([self.recorder], RECORDER_GRACE_S)
+from . import placement
+from .scenario import ProcessSpec, load_scenario
+from .scenario_run import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, VIEW, ScenarioRun,
+                           summarize)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -353,8 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="port of --view (default 8765)")
     p.add_argument("--view-host", default="127.0.0.1", metavar="HOST",
                    help="address --view binds (default 127.0.0.1)")
-    from .placement import add_args
-    add_args(p)                        # --place, --address, --tls: diffbot/placement.py
+    placement.add_args(p)                        # --place, --address, --tls: diffbot/placement.py
     return p
 
 
@@ -402,7 +125,6 @@ def main(argv: list[str] | None = None) -> int:
     except (WorldError, ValueError) as exc:
         print(f"diffbot run: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    from . import placement
     from .analysis import ANALYSES
     os.makedirs(out, exist_ok=True)
     tmp = None
@@ -411,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     if endpoint is None and args.zenoh_config is None and not placed:
         tmp = tempfile.mkdtemp(prefix="diffbot-")
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
-    run = Run(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
+    run = ScenarioRun(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,
               args.timeout, coupling=args.coupling or spec.coupling, record=args.record,
               ros2=args.ros2, compose=spec.compose if args.compose is None else args.compose,
@@ -494,56 +216,3 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
-def composable(p) -> bool:
-    """Whether a scenario process can run composed into the plant: a lockstep member whose
-    command makes a Python member (diffbot.cli.member_main), not interactive, and not kept
-    a process (``compose = false``)."""
-    from .cli import member_main
-    if not (p.sync and p.compose and not p.interactive):
-        return False
-    try:
-        member_main(p.command)
-    except ValueError:
-        return False
-    return True
-
-
-def summarize(run: Run, wall: float, code: int) -> dict:
-    names = [c.name for c in run.children] + run.composed
-    stats = {n: _read_json(os.path.join(run.out, "logs", f"{n}.json")) for n in names}
-    plant = stats["plant"]
-    counts: dict[str, int] = {}
-    for st in stats.values():            # every process counts what it published
-        for key, n in st.get("published", {}).items():
-            counts[key] = counts.get(key, 0) + n
-    return {
-        "scenario": run.spec.name, "world": run.spec.world, "mode": run.mode, "seed": run.seed,
-        "coupling": plant.get("coupling", run.coupling),
-        "actuation_delay_ticks": plant.get("actuation_delay_ticks"),
-        "node_input_delay_ticks": plant.get("node_input_delay_ticks"),
-        "sim_time_s": plant.get("sim_time_s"), "wall_time_s": wall,
-        "plant_wall_time_s": plant.get("wall_time_s"),
-        "real_time_factor": plant.get("real_time_factor"),
-        # where the plant's wall time went per tick (ms): publishing, waiting for the
-        # nodes, physics (with a physics process: the part publishing did not hide)
-        "plant_per_tick_ms": plant.get("per_tick_ms"),
-        "physics_process": plant.get("physics_process", False),
-        # A run that ended in the plant (duration reached, the ending node finished) says so.
-        "end_reason": (f"plant: {plant['end_reason']}"
-                       if code == 0 and plant.get("end_reason", "stopped") != "stopped"
-                       else run.reason),
-        "exit_code": code,
-        "exit_codes": {**{c.name: c.exit_code for c in run.children},
-                       **{n: stats[n].get("exit_code") for n in run.composed}},
-        "composed": list(run.composed),
-        "message_counts": dict(sorted(counts.items())),
-        "rejected": {name: st.get("rejected", {}) for name, st in stats.items()},
-    }
-
-
-def _read_json(path: str) -> dict:
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return {}

@@ -35,11 +35,11 @@ import socket
 import time
 from dataclasses import dataclass, field, fields
 
-from bus.session import BusConfigError, make_config, open_session
+from bus.session import BusConfigError, make_config
 
 from . import procs
-from .launcher import RECORDER, ROS2_BRIDGE, VIEW, Child, Run
-from .runner import Run as Task
+from . import runner
+from .scenario_run import RECORDER, ROS2_BRIDGE, VIEW, Child, ScenarioRun
 
 CONFIGS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
 #: how long the observer keeps trying to reach a plant that a Ray worker is still starting
@@ -157,7 +157,7 @@ class RemoteChild(Child):
         self.final_log = child.log_path
         self.engine, self.node, self.folder = engine, node, folder
         _set_option(self.argv, "--stats", os.path.join(folder, f"{child.name}.json"))
-        self.task = Task(child.name, self.argv, folder, self.log_path, cpus=0.0,
+        self.task = runner.Run(child.name, self.argv, folder, self.log_path, cpus=0.0,
                          timeout_s=timeout_s)
         self.ref = None
         self.error = ""
@@ -232,8 +232,8 @@ class RemoteChild(Child):
 
 
 @dataclass
-class PlacedRun(Run):
-    """A :class:`Run` whose processes named by ``where`` (name -> node) are Ray tasks."""
+class PlacedRun(ScenarioRun):
+    """A :class:`ScenarioRun` whose processes named by ``where`` (name -> node) are Ray tasks."""
     engine: object = None
     where: dict = field(default_factory=dict)
     tls: bool = False
@@ -284,7 +284,7 @@ class PlacedRun(Run):
             self.engine.close()
 
 
-def place(run: Run, args) -> PlacedRun:
+def place(run: ScenarioRun, args) -> PlacedRun:
     """``run`` as a :class:`PlacedRun`: Ray joined, hosts resolved, the bus chosen.
     Raises :class:`PlacementError` (or BusConfigError) for bad input."""
     if args.tls and args.zenoh_config:

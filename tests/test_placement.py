@@ -12,7 +12,7 @@ import time
 import pytest
 
 from diffbot import procs as dprocs
-from diffbot.launcher import RECORDER, VIEW
+from diffbot.scenario_run import RECORDER, VIEW
 from diffbot.placement import CONFIGS, PlacedRun, PlacementError, assign, parse_place, resolve
 from diffbot.scenario import load_scenario
 

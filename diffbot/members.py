@@ -1,0 +1,46 @@
+"""The commands that make a bus member: which module runs each controller, and a member's
+command line turned into the member itself, to compose into the plant's process
+(docs/scenarios.md, "Composed members")."""
+from __future__ import annotations
+
+import importlib
+import shlex
+
+#: controller name -> module with a main(argv) function (`diffbot controller NAME`)
+CONTROLLERS = {
+    "square_path": "controllers.square_path",
+    "teleop": "controllers.teleop",
+    "odometry": "controllers.odometry_node",
+    "wheel_schedule": "controllers.scripted",
+    "wander": "controllers.wander",
+    "ball_follower": "controllers.ball_follower",
+    "avoid": "controllers.avoid",
+    "policy": "controllers.learned",
+}
+
+#: controllers that cannot be composed into the plant: they keep threads of their own
+NOT_COMPOSABLE = {"teleop": "it reads the keyboard on a thread of its own"}
+
+
+def member_main(argv: list[str]):
+    """(main, its argv) of a member's command line (``controller NAME ...`` or
+    ``fmu-node ...``); ValueError if the command cannot be a composed member."""
+    if argv[:1] == ["controller"] and len(argv) > 1 and argv[1] in CONTROLLERS:
+        if argv[1] in NOT_COMPOSABLE:
+            raise ValueError(f"controller {argv[1]} cannot be composed: "
+                             f"{NOT_COMPOSABLE[argv[1]]}; run it as a process")
+        return importlib.import_module(CONTROLLERS[argv[1]]).main, argv[2:]
+    if argv[:1] == ["fmu-node"]:
+        from fmus.node import main as fmu_node_main
+        return fmu_node_main, argv[1:]
+    raise ValueError(f"{' '.join(argv)!r} cannot be composed into the plant: only "
+                     "`controller NAME ...` and `fmu-node FMU ...` members can")
+
+
+def compose_member(command: str | list[str]):
+    """The member a command line makes (``"controller square_path --robot robot1"``), built
+    by that command's own parser (bus.node.capture_member), to compose into the plant."""
+    from bus.node import capture_member
+    argv = shlex.split(command) if isinstance(command, str) else list(command)
+    main, rest = member_main(argv)
+    return capture_member(main, rest)
