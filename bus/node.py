@@ -125,7 +125,7 @@ def run_node(controller, robot: str | None = None, argv: list[str] | None = None
     taking the robot name): with several ``robots`` (or ``--robots``) the node drives one
     controller per robot (:func:`make_controllers`).
     Returns the exit code (0 when stopped or done, 2 on bad configuration,
-    3 when the plant went away).
+    3 when the plant went away, 4 when an awaited input's producer left the simulation).
     """
     base = default_name(controller)
     parser = node_arg_parser(f"{base} controller")
@@ -134,8 +134,6 @@ def run_node(controller, robot: str | None = None, argv: list[str] | None = None
     if robots:
         parser.set_defaults(robots=list(robots))
     args = parser.parse_args(argv)
-    if args.robots:
-        args.robot = args.robots[0]
     return run_node_args(controller, args, name or args.name or f"{base}_{args.robot}")
 
 

@@ -14,13 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from bus import codec
+from bus.lockstep import RECENT_TICKS      # commands per robot remembered by tick stamp
 from bus.controller import Twist, WheelSpeeds
 from bus.keys import frame
 
 #: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
 ABSURD_FACTOR = 10.0
-#: commands per robot remembered by tick stamp (lockstep)
-RECENT_TICKS = 32
 
 
 @dataclass

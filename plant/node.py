@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import threading
 import time
 from contextlib import contextmanager
@@ -85,7 +84,7 @@ class Plant:
         # lockstep: how long time is held for a lost member to come back (0: end at once)
         self.rejoin_timeout_s = rejoin_timeout_s
         self.exit_code = 0
-        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.tick_ns = spec.tick_ns
         self.coupling = coupling
         # what the loop waits for between publishing and stepping (plant/modes.py), and
         # what the mode asks of the plant; the coupling's delays, in ticks (docs/PROTOCOL.md)
@@ -504,6 +503,7 @@ class Plant:
             end_token.undeclare()
         self._info_queryable.undeclare()
         self.inbox.close()
+        self.outbox.undeclare()
         if self.composed is not None:
             self.composed.close()
         self.tick.close()
@@ -568,8 +568,6 @@ def main(argv: list[str] | None = None, compose=None) -> int:
         if args.seed is not None:
             spec.seed = args.seed
         keys = Keys(args.namespace)
-        if args.rate <= 0 or not math.isfinite(args.rate):
-            raise WorldError(f"--rate must be > 0, got {args.rate}")
         disabled = tuple(x for x in args.disable.split(",") if x)
         if set(disabled) - {"lidar", "camera"}:
             raise WorldError(f"--disable takes lidar and/or camera, got {args.disable!r}")

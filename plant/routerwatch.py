@@ -18,7 +18,8 @@ class RouterWatch:
         self.session = session
         self.log = log
         self.mode = mode
-        self.watching = bool(list(session.info.routers_zid()))   # a router session: never
+        # a session connected to a router watches it; the router itself has none to lose
+        self.watching = bool(list(session.info.routers_zid()))
         self.gone = False
         self._checked = 0.0
 

@@ -25,7 +25,7 @@ class Stepper:
         self.physics = physics
         self.sensors = sensors
         self.overlap = overlap and physics is not None
-        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.tick_ns = spec.tick_ns
         self._index = {name: i for i, name in enumerate(sim.robots)}
         self._published = False           # this tick's sensors went out
 

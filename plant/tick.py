@@ -40,7 +40,7 @@ class Tick:
                  physics_process: bool = False, overlap: bool = False) -> None:
         self.spec = spec
         self.disabled = tuple(disabled)
-        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.tick_ns = spec.tick_ns
         self.physics_process = physics_process
         self.overlap = overlap
         self.physics: PhysicsProcess | None = None

@@ -119,6 +119,11 @@ class WorldSpec:
     def substeps(self) -> int:
         return int(round(self.control_tick_s / self.physics_step_s))
 
+    @property
+    def tick_ns(self) -> int:
+        """The control tick in ns (every stamp is a multiple of it)."""
+        return int(round(self.control_tick_s * 1e9))
+
     def robot(self, name: str) -> RobotSpec:
         for r in self.robots:
             if r.name == name:

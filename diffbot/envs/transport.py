@@ -52,7 +52,7 @@ class InProc:
     def __init__(self, spec: WorldSpec, disabled: tuple[str, ...] = ()) -> None:
         self.spec = spec
         self.disabled = tuple(disabled)
-        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.tick_ns = spec.tick_ns
         self.tick: Tick | None = None
 
     @property
@@ -203,7 +203,7 @@ class Bus:
                  disabled: tuple[str, ...] = (), overrides: tuple[str, ...] = (),
                  endpoint: str | None = None, namespace: str = "") -> None:
         self.spec = spec
-        self.tick_ns = int(round(spec.control_tick_s * 1e9))
+        self.tick_ns = spec.tick_ns
         self.keys = Keys(namespace)
         self.log = logging.getLogger("diffbot.envs")
         self._args = (world, inputs, tuple(disabled), tuple(overrides), endpoint, namespace)
