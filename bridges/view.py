@@ -56,7 +56,7 @@ from bus.log import RejectCounter, setup_logging
 from bus.jsonio import write_json
 from bus.runtime import EXIT_PLANT_GONE
 from bus.session import close_session, install_stop_signals, query_info
-from bus.session import BusConfigError, add_bus_args, open_node
+from bus.session import BusConfigError, add_process_args, open_node
 
 EXIT_OK = 0
 EXIT_BAD_CONFIG = 2
@@ -760,9 +760,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="view", help="node name on the bus (default view)")
     p.add_argument("--info-timeout", type=positive_float, default=15.0, metavar="S",
                    help="wait this long for the plant at the start (default 15)")
-    p.add_argument("--stats", metavar="FILE", help="write counters as JSON at exit")
-    p.add_argument("--log-level", default="INFO")
-    add_bus_args(p)
+    add_process_args(p)
     return p
 
 

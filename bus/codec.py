@@ -13,6 +13,9 @@ from typing import NamedTuple
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
+from .packed import (_CDR_LE, _U32, _doubles, _f64_seq, _header, _pad, _string,
+                     encode_clock, encode_joint_state, encode_odometry, encode_point_stamped)
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 T = TYPESTORE.types
 
@@ -54,89 +57,12 @@ def encode(msg) -> bytes:
     return bytes(TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
 
 
-# ---------------------------------------------------------------- fast CDR (little endian, XCDR1)
-_CDR_LE = b"\x00\x01\x00\x00"
-_I_I = struct.Struct("<iI")
-_U32 = struct.Struct("<I")
-
-
-def _pad(buf: bytearray, align: int) -> None:
-    # Alignment counts from the end of the 4-byte encapsulation header.
-    n = (-(len(buf) - 4)) % align
-    if n:
-        buf += b"\x00" * n
-
-
-def _string(buf: bytearray, s: str) -> None:
-    b = s.encode()
-    _pad(buf, 4)
-    buf += _U32.pack(len(b) + 1)
-    buf += b
-    buf += b"\x00"
-
-
-def _header(buf: bytearray, h) -> None:
-    buf += _I_I.pack(h.stamp.sec, h.stamp.nanosec)
-    _string(buf, h.frame_id)
-
-
-def _doubles(buf: bytearray, values) -> None:
-    _pad(buf, 8)
-    buf += struct.pack(f"<{len(values)}d", *values)
-
-
-def _f64_seq(buf: bytearray, arr) -> None:
-    a = np.ascontiguousarray(arr, dtype="<f8")
-    _pad(buf, 4)
-    buf += _U32.pack(a.size)
-    if a.size:
-        _pad(buf, 8)
-        buf += a.tobytes()
-
-
-def _fast_clock(m) -> bytes:
-    return _CDR_LE + _I_I.pack(m.clock.sec, m.clock.nanosec)
-
-
+# ---------------------------------------------------------------- fast CDR (bus/packed.py)
 def _fast_twist_stamped(m) -> bytes:
     buf = bytearray(_CDR_LE)
     _header(buf, m.header)
     t = m.twist
     _doubles(buf, (t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z))
-    return bytes(buf)
-
-
-def _fast_point_stamped(m) -> bytes:
-    buf = bytearray(_CDR_LE)
-    _header(buf, m.header)
-    _doubles(buf, (m.point.x, m.point.y, m.point.z))
-    return bytes(buf)
-
-
-def _fast_joint_state(m) -> bytes:
-    buf = bytearray(_CDR_LE)
-    _header(buf, m.header)
-    _pad(buf, 4)
-    buf += _U32.pack(len(m.name))
-    for n in m.name:
-        _string(buf, n)
-    _f64_seq(buf, m.position)
-    _f64_seq(buf, m.velocity)
-    _f64_seq(buf, m.effort)
-    return bytes(buf)
-
-
-def _fast_odometry(m) -> bytes:
-    buf = bytearray(_CDR_LE)
-    _header(buf, m.header)
-    _string(buf, m.child_frame_id)
-    p, q = m.pose.pose.position, m.pose.pose.orientation
-    _doubles(buf, (p.x, p.y, p.z, q.x, q.y, q.z, q.w))
-    buf += np.ascontiguousarray(m.pose.covariance, dtype="<f8").tobytes()
-    t = m.twist.twist
-    buf += struct.pack("<6d", t.linear.x, t.linear.y, t.linear.z,
-                       t.angular.x, t.angular.y, t.angular.z)
-    buf += np.ascontiguousarray(m.twist.covariance, dtype="<f8").tobytes()
     return bytes(buf)
 
 
@@ -202,11 +128,11 @@ def _fast_camera_info(m) -> bytes:
 
 
 _FAST = {
-    "rosgraph_msgs/msg/Clock": _fast_clock,
+    "rosgraph_msgs/msg/Clock": encode_clock,
     "geometry_msgs/msg/TwistStamped": _fast_twist_stamped,
-    "geometry_msgs/msg/PointStamped": _fast_point_stamped,
-    "sensor_msgs/msg/JointState": _fast_joint_state,
-    "nav_msgs/msg/Odometry": _fast_odometry,
+    "geometry_msgs/msg/PointStamped": encode_point_stamped,
+    "sensor_msgs/msg/JointState": encode_joint_state,
+    "nav_msgs/msg/Odometry": encode_odometry,
     "sensor_msgs/msg/Image": _fast_image,
     "sensor_msgs/msg/LaserScan": _fast_laser_scan,
     "sensor_msgs/msg/CameraInfo": _fast_camera_info,

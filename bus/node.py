@@ -57,7 +57,7 @@ from .log import setup_logging
 from .member import with_own_stats
 from .protocol import ProtocolError
 from .runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
-from .session import (BusConfigError, add_bus_args, close_session, install_stop_signals,
+from .session import (BusConfigError, add_process_args, close_session, install_stop_signals,
                       make_config, open_session)
 
 #: the API a controller script uses (``from bus.node import Twist, run_node``)
@@ -75,13 +75,11 @@ def node_arg_parser(description: str, default_name: str | None = None) -> argpar
                         "first robot)")
     p.add_argument("--name", default=default_name, type=_name_arg("node name"),
                    help="node name on the bus (default <controller>_<robot>)")
-    p.add_argument("--stats", metavar="FILE", help="write the node's counters as JSON at exit")
-    p.add_argument("--log-level", default="INFO")
     p.add_argument("--wait", action="store_true",
                    help="if the plant is not there yet or goes away (killed, frozen, "
                         "restarted), wait for it and carry on when it is back, instead of "
                         "exiting with code 3")
-    add_bus_args(p)
+    add_process_args(p, "the node's counters")
     return p
 
 

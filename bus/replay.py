@@ -41,7 +41,7 @@ from .cliargs import ArgumentParser, nonneg_float, positive_float
 from .keys import Keys
 from .log import setup_logging
 from .mcapfile import Recorded, RecordError, iter_recording, layout
-from .session import BusConfigError, add_bus_args, open_session
+from .session import BusConfigError, add_process_args, open_session
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -289,9 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--join-timeout", type=positive_float, default=30.0, metavar="S")
     p.add_argument("--linger", type=nonneg_float, default=10.0, metavar="S",
                    help="after sim/end, wait up to S s for the expected nodes to leave")
-    p.add_argument("--stats", metavar="FILE", help="write counters as JSON at exit")
-    p.add_argument("--log-level", default="INFO")
-    add_bus_args(p)
+    add_process_args(p)
     return p
 
 

@@ -116,6 +116,15 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
                    help="prefix for every key, so several simulations share one Zenoh network")
 
 
+def add_process_args(parser: argparse.ArgumentParser, stats: str = "counters") -> None:
+    """The options every diffbot process takes: ``--stats FILE`` (its ``stats`` as JSON at
+    exit), ``--log-level`` and the bus options (:func:`add_bus_args`)."""
+    parser.add_argument("--stats", metavar="FILE", help=f"write {stats} as JSON at exit")
+    parser.add_argument("--log-level", default="INFO",
+                        help="DEBUG, INFO (default), WARNING or ERROR")
+    add_bus_args(parser)
+
+
 def open_node(args: argparse.Namespace, name: str) -> tuple[Keys, zenoh.Session]:
     """A bus node's keys (``--namespace``) and client session (``--endpoint``,
     ``--zenoh-config``) once its ``name`` is checked. Raises ValueError for a bad
@@ -175,6 +184,16 @@ def _orphan_check(signum, frame) -> None:
         _orphan_ending = True
         signal.signal(signal.SIGALRM, signal.SIG_DFL)
         signal.setitimer(signal.ITIMER_REAL, ORPHAN_EXIT_S)
+
+
+def disarm_orphan_check() -> None:
+    """The process is done and about to exit: drop a pending orphan check (an exit already
+    armed because the parent is gone stays). Python hands its signal handlers back to the
+    defaults as the interpreter shuts down, and the check's timer firing then would end a
+    clean exit by SIGALRM (exit code -14)."""
+    if not _orphan_ending:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, signal.SIG_IGN)
 
 
 def install_stop_signals(stop_event: threading.Event) -> None:

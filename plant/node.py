@@ -41,7 +41,7 @@ from bus.keys import Keys
 from bus.lockstep import AckLedger
 from bus.log import RejectCounter, setup_logging
 from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION
-from bus.session import BusConfigError, add_bus_args, install_stop_signals, open_session
+from bus.session import BusConfigError, add_process_args, install_stop_signals, open_session
 
 from . import modes
 from .commands import Command, CommandBook, decode_command
@@ -551,9 +551,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="host a member in this process instead of its own (composed), given "
                         "as its command line, e.g. \"controller square_path --robot robot1\" "
                         "or \"fmu-node odometry --robot robot1\"; repeatable (docs/scenarios.md)")
-    p.add_argument("--stats", metavar="FILE", help="write counters and timing as JSON at exit")
-    p.add_argument("--log-level", default="INFO")
-    add_bus_args(p)
+    add_process_args(p, "counters and timing")
     return p
 
 
