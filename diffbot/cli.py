@@ -92,7 +92,7 @@ def _dispatch(argv: list[str] | None) -> int:
         from fmus.node import main as fmu_node_main
         return fmu_node_main(rest)
     if cmd == "experiment":
-        from .study.experiments import main as experiment_main
+        from .study.experiment_cli import main as experiment_main
         return experiment_main(rest)
     if cmd == "figures":
         from .study.figures import main as figures_main
