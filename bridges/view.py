@@ -36,33 +36,24 @@ Teleop: a client may publish ``geometry_msgs/msg/Twist`` on ``/<robot>/cmd_vel_u
 """
 from __future__ import annotations
 
-import argparse
 import itertools
-import json
-import math
 import queue
-import sys
 import threading
 import time
 from collections import deque
 
-import numpy as np
 import zenoh
 
 from bus import codec, scene, urdf
-from bus.cliargs import ArgumentParser, nonneg_float, port, positive_float, positive_int
 from bus.keys import TOPICS, Keys
-from bus.log import RejectCounter, setup_logging
-from bus.jsonio import write_json
-from bus.runtime import EXIT_PLANT_GONE
-from bus.session import close_session, install_stop_signals, query_info
-from bus.session import BusConfigError, add_process_args, open_node
+from bus.log import RejectCounter
+from bus.session import query_info
+
+from .view_clients import ClientInput
+from .view_derived import Derived, Path, tracking_pairs
 
 EXIT_OK = 0
 EXIT_BAD_CONFIG = 2
-#: paths: a point is added once the robot moved this far from the last one; at most this many
-PATH_STEP_M = 0.02
-PATH_MAX_POINTS = 5000
 PATH_PERIOD_S = 0.5
 TIME_PERIOD_S = 1 / 30
 #: the loop's period: samples wait at most this long (s)
@@ -71,12 +62,7 @@ LOOP_S = 0.005
 IDLE_LOOP_S = 0.05
 #: samples of ground truth kept per robot to pair with odometry of the same stamp
 _GT_KEEP = 64
-TWIST_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/Twist",
-               "geometry_msgs/msg/TwistStamped", "geometry_msgs/TwistStamped")
 RATE_LIMITED = ("camera/image_raw", "camera/camera_info")
-RESET_SERVICE = "/reset_simulation"
-#: an empty ROS 2 message in CDR: the encapsulation header and the one placeholder byte
-EMPTY_CDR = b"\x00\x01\x00\x00\x00"
 #: what foxglove-sdk's server speaks (clients asking only for foxglove.websocket.v1 get 400)
 SUBPROTOCOL = "foxglove.sdk.v1"
 #: topics nodes publish: advertised when their first sample shows the scenario has them
@@ -90,65 +76,7 @@ def ros2msg_schema(msgtype: str):
     return foxglove.Schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
 
 
-def quaternion_matrix(q) -> np.ndarray:
-    x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def pose_of(odom) -> tuple[np.ndarray, np.ndarray]:
-    """(position, rotation matrix) of an Odometry message."""
-    p, q = odom.pose.pose.position, odom.pose.pose.orientation
-    return np.array([p.x, p.y, p.z]), quaternion_matrix((q.x, q.y, q.z, q.w))
-
-
-def tracking_pairs(info: dict) -> list[tuple[str, np.ndarray, str, np.ndarray]]:
-    """(watcher, camera position on it, target, ball position on it): every robot with a
-    camera against every other robot that carries a sphere part (the follow task's ball)."""
-    out = []
-    robots = info.get("robots", {})
-    for a, ra in robots.items():
-        cam = (ra.get("sensors") or {}).get("camera")
-        if not cam:
-            continue
-        mount = np.array([cam["mount_x_m"], cam["mount_y_m"], cam["mount_z_m"]])
-        for b, rb in robots.items():
-            parts = {f"{b}_{p}" for p in rb.get("parts", [])}
-            balls = [v for v in rb.get("body", []) if v["shape"] == "sphere" and v["name"] in parts]
-            if b != a and balls:
-                out.append((a, mount, b, np.array(balls[0]["position"])))
-    return out
-
-
-class Path:
-    """A decimated, bounded trail of positions."""
-
-    def __init__(self) -> None:
-        self.points: deque[tuple[int, float, float, float]] = deque(maxlen=PATH_MAX_POINTS)
-        self.dirty = False
-
-    def add(self, t_ns: int, x: float, y: float, z: float) -> None:
-        if self.points:
-            _, px, py, pz = self.points[-1]
-            if math.hypot(x - px, y - py) < PATH_STEP_M:
-                return
-        self.points.append((t_ns, x, y, z))
-        self.dirty = True
-
-    def message(self, frame_id: str = scene.WORLD_FRAME):
-        T = codec.T
-        poses = [T["geometry_msgs/msg/PoseStamped"](
-            header=codec.header(t, frame_id),
-            pose=T["geometry_msgs/msg/Pose"](
-                position=T["geometry_msgs/msg/Point"](x=x, y=y, z=z),
-                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)))
-            for t, x, y, z in self.points]
-        t_last = self.points[-1][0] if self.points else 0
-        return T["nav_msgs/msg/Path"](header=codec.header(t_last, frame_id), poses=poses)
-
-
-class View:
+class View(Derived, ClientInput):
     """The bus side and the Foxglove side of ``diffbot view`` (see the module docstring)."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, log, name: str = "view",
@@ -203,32 +131,6 @@ class View:
             services=[self.reset_service()])
         return self.server
 
-    def reset_service(self):
-        """``/reset_simulation`` (``std_srvs/srv/Empty``, as over ROS 2) for Foxglove's
-        Service Call panel: a ``sim/reset`` query with no arguments."""
-        import foxglove
-        from foxglove.websocket import MessageSchema, Service, ServiceSchema
-
-        def schema(part: str):
-            return MessageSchema(encoding="cdr", schema=foxglove.Schema(
-                name=f"std_srvs/srv/Empty_{part}", encoding="ros2msg", data=b""))
-
-        def handler(request) -> bytes:
-            said = None
-            for reply in self.session.get(self.keys.reset, timeout=5.0):
-                if reply.ok is not None:
-                    said = reply.ok.payload.to_bytes().decode("utf-8", "replace")
-                else:
-                    raise RuntimeError(reply.err.payload.to_bytes().decode("utf-8", "replace"))
-            if said is None:
-                raise RuntimeError(f"no plant answered {self.keys.reset}")
-            self.log.info("%s: %s", RESET_SERVICE, said)
-            self.resets += 1
-            return b"{}" if request.encoding == "json" else EMPTY_CDR
-        return Service(name=RESET_SERVICE, schema=ServiceSchema(
-            name="std_srvs/srv/Empty", request=schema("Request"), response=schema("Response")),
-            handler=handler)
-
     def topic_name(self, rest: str) -> str:
         return "/" + (f"{self.keys.namespace}/" if self.keys.namespace else "") + rest
 
@@ -265,46 +167,6 @@ class View:
             else:
                 self._watched.pop(channel.topic, None)
         self._resub.set()
-
-    def on_client_advertise(self, client, channel) -> None:
-        self._client_channels[(client.id, channel.id)] = (
-            channel.topic, channel.encoding, channel.schema_name)
-
-    def on_client_unadvertise(self, client, client_channel_id: int) -> None:
-        self._client_channels.pop((client.id, client_channel_id), None)
-
-    def on_message_data(self, client, client_channel_id: int, data: bytes) -> None:
-        ch = self._client_channels.get((client.id, client_channel_id))
-        if ch is None:
-            self.rejects.reject("teleop", "data on a channel the client never advertised")
-            return
-        topic, encoding, schema = ch
-        try:
-            robot = self.teleop_robot(topic)
-            v, w = parse_twist(bytes(data), encoding, schema)
-        except ValueError as exc:
-            self.rejects.reject("teleop", f"{topic}: {exc}")
-            return
-        t = self.sim_ns
-        key = self.keys.topic(robot, "cmd_vel")
-        self.session.put(key, codec.encode(codec.twist_stamped(t, v, w)),
-                         encoding=zenoh.Encoding.APPLICATION_CDR,
-                         attachment=codec.attachment(next(self._seq), t))
-        self.teleop_in += 1
-        self.published[key] = self.published.get(key, 0) + 1
-
-    def teleop_robot(self, topic: str) -> str:
-        """The robot a client's ``/<robot>/cmd_vel`` topic drives (ValueError if none)."""
-        prefix = self.topic_name("")
-        rest = topic[len(prefix):] if topic.startswith(prefix) else topic.lstrip("/")
-        robot, _, suffix = rest.partition("/")
-        if suffix not in ("cmd_vel", "cmd_vel_unstamped"):
-            raise ValueError("teleop takes /<robot>/cmd_vel_unstamped (Twist) or "
-                             "/<robot>/cmd_vel (TwistStamped)")
-        if robot not in self.info.get("robots", {}):
-            raise ValueError(f"no robot {robot!r} in the simulation "
-                             f"(robots: {', '.join(self.info.get('robots', {})) or 'none'})")
-        return robot
 
     # ------------------------------------------------------------------ bus side
     def subscribe(self) -> None:
@@ -557,106 +419,6 @@ class View:
             self.rejects.reject(key, str(exc))
             return None
 
-    def path(self, robot: str, kind: str) -> Path:
-        return self._paths.setdefault(f"{robot}/path/{kind}", Path())
-
-    def ground_truth_at(self, robot: str, t: int):
-        """A robot's ground truth stamped ``t`` (decoded), if it is among the last ones."""
-        for item in reversed(self._gt.get(robot, ())):
-            payload, t_item = self.unpack(item)
-            if t_item == t:
-                return self.decode(payload, TOPICS["ground_truth"].msgtype, f"{robot}/ground_truth")
-            if t_item < t:
-                return None
-        return None
-
-    def on_ground_truth(self, robot: str, payload: bytes, t: int) -> None:
-        m = self.decode(payload, TOPICS["ground_truth"].msgtype, f"{robot}/ground_truth")
-        if m is None:
-            return
-        tf_topic = self.topic_name(scene.TF_TOPIC)
-        if self.wanted(tf_topic, scene.TF_TYPE):
-            self.send(tf_topic, scene.TF_TYPE,
-                      codec.encode(scene.tf([scene.ground_truth_transform(robot, m, t)])), t)
-        if self.wanted(self.topic_name(f"{robot}/path/ground_truth"), "nav_msgs/msg/Path"):
-            p = m.pose.pose.position
-            self.path(robot, "ground_truth").add(t, p.x, p.y, p.z)
-        for a, mount, b, ball in self._pairs:
-            if robot not in (a, b) or not self.wanted(
-                    self.topic_name(f"{a}/metrics/tracking_distance_m"), "std_msgs/msg/Float64"):
-                continue
-            ga = m if a == robot else self.ground_truth_at(a, t)
-            gb = m if b == robot else self.ground_truth_at(b, t)
-            if ga is None or gb is None:
-                continue
-            pa, ra = pose_of(ga)
-            pb, rb = pose_of(gb)
-            d = float(np.linalg.norm((pa + ra @ mount) - (pb + rb @ ball)))
-            self.metric(a, "tracking_distance_m", d, t)
-
-    def on_odom(self, robot: str, payload: bytes, t: int) -> None:
-        m = self.decode(payload, TOPICS["odom"].msgtype, f"{robot}/odom")
-        if m is None:
-            return
-        p = m.pose.pose.position
-        if self.wanted(self.topic_name(f"{robot}/path/odom"), "nav_msgs/msg/Path"):
-            self.path(robot, "odom").add(t, p.x, p.y, p.z)
-        if self.wanted(self.topic_name(f"{robot}/metrics/odometry_error_m"),
-                       "std_msgs/msg/Float64"):
-            gt = self.ground_truth_at(robot, t)
-            if gt is not None:             # odometry is in <robot>/odom: compared in world
-                g = gt.pose.pose.position
-                x, y, _ = scene.to_world(self.info["robots"][robot]["pose"], p.x, p.y)
-                self.metric(robot, "odometry_error_m", math.hypot(x - g.x, y - g.y), t)
-
-    def metric(self, robot: str, name: str, value: float, t: int) -> None:
-        topic = self.topic_name(f"{robot}/metrics/{name}")
-        if self.wanted(topic, "std_msgs/msg/Float64"):
-            self.send(topic, "std_msgs/msg/Float64",
-                      codec.encode(codec.T["std_msgs/msg/Float64"](data=float(value))), t)
-
-    def annotated(self, robot: str, payload: bytes, t: int) -> None:
-        """The image with the follower's detection (circle, centre, distance) drawn on it."""
-        topic = self.topic_name(f"{robot}/camera/image_annotated")
-        msgtype = TOPICS["camera/image_raw"].msgtype
-        if topic not in self._deps or not self.wanted(topic, msgtype):   # no follower: none
-            return
-        m = self.decode(payload, msgtype, f"{robot}/camera/image_raw")
-        if m is None:
-            return
-        try:
-            rgb = codec.image_to_array(m).copy()
-        except ValueError as exc:
-            self.rejects.reject(f"{robot}/camera/image_raw", str(exc))
-            return
-        dbg = None
-        if robot in self._debug:
-            raw, t_dbg = self.unpack(self._debug[robot])
-            d = self.decode(raw, TOPICS["follower/debug"].msgtype, f"{robot}/follower/debug") \
-                if abs(t_dbg - t) <= 0.2e9 else None
-            dbg = (t, [float(v) for v in d.data]) if d is not None else None
-        if dbg is not None and len(dbg[1]) >= 4 and dbg[1][0] > 0:
-            import cv2
-            _, u, v, r = dbg[1][:4]
-            if all(math.isfinite(x) for x in (u, v, r)):
-                c = (int(round(u)), int(round(v)))
-                cv2.circle(rgb, c, max(1, int(round(r))), (255, 0, 255), 1)
-                cv2.drawMarker(rgb, c, (255, 0, 255), cv2.MARKER_CROSS, 6, 1)
-                if len(dbg[1]) >= 5 and math.isfinite(dbg[1][4]):
-                    cv2.putText(rgb, f"{dbg[1][4]:.2f} m", (2, rgb.shape[0] - 4),
-                                cv2.FONT_HERSHEY_PLAIN, 0.8, (255, 0, 255), 1)
-        out = codec.image(t, rgb, m.header.frame_id)
-        self.send(topic, msgtype, codec.encode(out), t)
-
-    def flush_paths(self) -> None:
-        for name, p in self._paths.items():
-            if p.dirty:
-                p.dirty = False
-                robot, _, kind = name.partition("/path/")
-                frame = scene.frame(robot, "odom") if kind == "odom" else scene.WORLD_FRAME
-                self.send(self.topic_name(name), "nav_msgs/msg/Path",
-                          codec.encode(p.message(frame)), p.points[-1][0])
-
     # ------------------------------------------------------------------ loop
     def run(self) -> int:
         next_path = next_time = 0.0
@@ -711,99 +473,3 @@ class View:
                 "resets": self.resets,
                 "cpu_s": time.process_time(),
                 "rejected": dict(self.rejects.counts)}
-
-
-def parse_twist(data: bytes, encoding: str, schema_name: str) -> tuple[float, float]:
-    """(linear x m/s, angular z rad/s) of a client's Twist or TwistStamped; ValueError if bad."""
-    if schema_name and schema_name not in TWIST_TYPES:
-        raise ValueError(f"expected geometry_msgs/msg/Twist, got {schema_name!r}")
-    stamped = "Stamped" in (schema_name or "")
-    if encoding == "json":
-        try:
-            msg = json.loads(data)
-            tw = msg["twist"] if stamped else msg
-            v, w = float(tw["linear"]["x"]), float(tw["angular"]["z"])
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ValueError(f"not a JSON Twist: {exc}") from None
-    elif encoding == "cdr":
-        msgtype = "geometry_msgs/msg/TwistStamped" if stamped else "geometry_msgs/msg/Twist"
-        try:
-            m = codec.decode(data, msgtype)
-        except codec.CodecError as exc:
-            raise ValueError(str(exc)) from None
-        tw = m.twist if stamped else m
-        v, w = float(tw.linear.x), float(tw.angular.z)
-    else:
-        raise ValueError(f"unsupported encoding {encoding!r} (cdr, json)")
-    if not (math.isfinite(v) and math.isfinite(w)):
-        raise ValueError(f"non-finite twist ({v}, {w})")
-    return v, w
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = ArgumentParser(
-        prog="diffbot view",
-        description="Serve the simulation live to Foxglove (ws://HOST:PORT, subprotocol "
-                    "foxglove.sdk.v1) and take teleop from it. Runs until Ctrl-C.")
-    p.add_argument("--port", type=port, default=8765, help="WebSocket port (default 8765; "
-                   "0 picks a free one, logged at start)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to bind (default 127.0.0.1: this machine only)")
-    p.add_argument("--rate", type=nonneg_float, default=30.0, metavar="HZ",
-                   help="send each topic's latest message at most this many times per wall "
-                        "second (default 30; 0: every message). Recordings keep every one")
-    p.add_argument("--image-rate", type=positive_float, default=15.0, metavar="HZ",
-                   help="at most this many frames per second per camera (wall clock); "
-                        "older frames are dropped (default 15)")
-    p.add_argument("--backlog", type=positive_int, default=256, metavar="N",
-                   help="messages queued per client before the oldest are dropped (default 256)")
-    p.add_argument("--name", default="view", help="node name on the bus (default view)")
-    p.add_argument("--info-timeout", type=positive_float, default=15.0, metavar="S",
-                   help="wait this long for the plant at the start (default 15)")
-    add_process_args(p)
-    return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    log = setup_logging(args.name, args.log_level)
-    try:
-        import foxglove  # noqa: F401
-    except ImportError:
-        log.error("diffbot view needs foxglove-sdk: pip install 'diffbot-cosim[view]'")
-        return EXIT_BAD_CONFIG
-    try:
-        keys, session = open_node(args, args.name)
-    except (BusConfigError, ValueError) as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_CONFIG
-    view = View(session, keys, log, args.name, args.image_rate, args.rate)
-    install_stop_signals(view.stop_event)
-    code = EXIT_OK
-    try:
-        try:
-            view.load_info(query_info(session, keys, args.info_timeout))
-        except (TimeoutError, ValueError) as exc:
-            log.error("%s", exc)
-            return EXIT_PLANT_GONE
-        try:
-            server = view.start_server(args.host, args.port, args.backlog)
-        except Exception as exc:             # port in use, bad address
-            log.error("cannot serve on %s:%d: %s", args.host, args.port, exc)
-            return EXIT_BAD_CONFIG
-        view.subscribe()
-        log.info("serving ws://%s:%d, WebSocket subprotocol %s (Foxglove: Open connection -> "
-                 "Foxglove WebSocket; layout bridges/foxglove_layout.json; docs/live-view.md); "
-                 "world %s, robots %s", args.host, server.port, SUBPROTOCOL,
-                 view.info.get("world"), ", ".join(view.info.get("robots", {})))
-        code = view.run()
-    finally:
-        view.close()
-        close_session(session, log)
-        if args.stats:
-            write_json(args.stats, view.stats())
-    return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -119,7 +119,7 @@ def _dispatch(argv: list[str] | None) -> int:
         from bus.replay import main as replay_main
         return replay_main(rest)
     if cmd == "view":
-        from bridges.view import main as view_main
+        from bridges.view_cli import main as view_main
         return view_main(rest)
     if cmd == "topics":
         from bus.topics import topics_main

@@ -113,7 +113,7 @@ def test_sensor_frames_sit_at_their_mounts_and_odom_at_the_start_pose():
 
 def test_teleop_twist_parsing_cdr_json_and_bad_input():
     pytest.importorskip("foxglove")
-    from bridges.view import parse_twist
+    from bridges.view_clients import parse_twist
     tw = codec.T["geometry_msgs/msg/Twist"]
     v3 = codec.T["geometry_msgs/msg/Vector3"]
     cdr = codec.encode(tw(linear=v3(x=0.3, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=-0.5)))
