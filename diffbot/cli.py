@@ -95,7 +95,7 @@ def _dispatch(argv: list[str] | None) -> int:
         from .study.experiment_cli import main as experiment_main
         return experiment_main(rest)
     if cmd == "figures":
-        from .study.figures import main as figures_main
+        from .study.figures_cli import main as figures_main
         return figures_main(rest)
     if cmd == "sweep":
         from .sweep import main as sweep_main

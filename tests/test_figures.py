@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from diffbot.study import figures
+from diffbot.study import figures, figures_cli
 from diffbot.study.figures_render import colour_fraction
 
 from .conftest import ROOT
@@ -24,12 +24,12 @@ def run_figures(*args, timeout=80):
 
 
 def test_only_parses_lists_and_ranges():
-    assert figures.parse_only("4,12") == [4, 12]
-    assert figures.parse_only("1-3, 7") == [1, 2, 3, 7]
-    assert figures.parse_only(None) == list(range(1, 13))
+    assert figures_cli.parse_only("4,12") == [4, 12]
+    assert figures_cli.parse_only("1-3, 7") == [1, 2, 3, 7]
+    assert figures_cli.parse_only(None) == list(range(1, 13))
     for bad in ("13", "0", "x", "3-1", "", "4,13"):
         with pytest.raises(ValueError):
-            figures.parse_only(bad)
+            figures_cli.parse_only(bad)
 
 
 def test_every_figure_names_existing_jobs():
@@ -104,7 +104,7 @@ def test_a_failed_job_is_reported_and_the_rest_still_written(tmp_path, monkeypat
     monkeypatch.setitem(figures.JOBS, "drive-test",
                         figures.JobSpec(spec.name, ("run", "no-such-scenario"), spec.est_s,
                                         spec.what))
-    code = figures.main(["--out", str(out), "--only", "1,2"])
+    code = figures_cli.main(["--out", str(out), "--only", "1,2"])
     assert code == 1
     report = json.loads((out / "figures.json").read_text())
     figs = {f["number"]: f for f in report["figures"]}
