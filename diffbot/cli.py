@@ -89,7 +89,7 @@ def _dispatch(argv: list[str] | None) -> int:
         print("usage: diffbot fmu build [--out DIR]", file=sys.stderr)
         return 2
     if cmd == "fmu-node":
-        from fmus.node import main as fmu_node_main
+        from fmus.fmu_node_cli import main as fmu_node_main
         return fmu_node_main(rest)
     if cmd == "experiment":
         from .study.experiment_cli import main as experiment_main

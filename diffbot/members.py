@@ -31,7 +31,7 @@ def member_main(argv: list[str]):
                              f"{NOT_COMPOSABLE[argv[1]]}; run it as a process")
         return importlib.import_module(CONTROLLERS[argv[1]]).main, argv[2:]
     if argv[:1] == ["fmu-node"]:
-        from fmus.node import main as fmu_node_main
+        from fmus.fmu_node_cli import main as fmu_node_main
         return fmu_node_main, argv[1:]
     raise ValueError(f"{' '.join(argv)!r} cannot be composed into the plant: only "
                      "`controller NAME ...` and `fmu-node FMU ...` members can")

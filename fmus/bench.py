@@ -266,7 +266,7 @@ def node_tick(number: int) -> float:
     if "node" not in _cache:
         from bus import codec
         from bus.controller import Observation
-        from .node import open_node
+        from .fmu_node import open_node
         node = open_node(fmu_paths()[2])
         node.configure({"robots": {"r": {"wheel_radius_m": 0.12, "wheel_separation_m": 0.36,
                                           "pose": [0.0, 0.0, 0.0]}}}, "r")
@@ -291,7 +291,7 @@ def generic_tick(number: int) -> float:
     if "generic" not in _cache:
         from bus import codec
         from bus.controller import Observation
-        from .node import open_node
+        from .fmu_node import open_node
         built = Path(__file__).resolve().parent / "build" / fmu_build.fmu_name("bouncing", 3)
         if not built.is_file():
             built = fmu_build.build_fmu(3, _tmpdir() / "fmus", "bouncing")

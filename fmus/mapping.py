@@ -1,9 +1,9 @@
 """The mapping file of ``diffbot fmu-node``: which message fields feed which FMU inputs,
 which FMU outputs make which message, which FMU parameters come from ``sim/info``.
 
-The format is in fmus/README.md ("The FMU on the bus") and in fmus/node.py. This module
+The format is in fmus/README.md ("The FMU on the bus") and in fmus/fmu_node.py. This module
 checks the file on its own (keys, topics, message fields, message builders); the FMU's
-variables are checked against it when the node is built (fmus/node.py). Every error is
+variables are checked against it when the node is built (fmus/fmu_node.py). Every error is
 one line ``file:key: reason`` (:class:`FmuNodeError`).
 """
 from __future__ import annotations

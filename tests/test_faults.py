@@ -509,7 +509,7 @@ def test_launcher_fmu_odometry_killed_in_the_square(tmp_path, request, fmu_built
 @pytest.fixture
 def fmu_built():
     if not os.path.exists(os.path.join(ROOT, "fmus", "node.py")):
-        pytest.skip("no FMU node (fmus/node.py) yet")
+        pytest.skip("no FMU node (fmus/fmu_node.py) yet")
     if not os.path.exists(os.path.join(ROOT, "fmus", "build", "odometry_fmi2.fmu")):
         pytest.skip("FMUs not built (make setup)")
 

@@ -25,7 +25,7 @@ from bus.controller import Observation
 from bus.protocol import PROTOCOL_VERSION
 from fmus import build as fmu_build
 from fmus import fmu as fmu_mod
-from fmus import node as fmu_node
+from fmus import fmu_node
 
 from .conftest import ROOT, wait_for
 

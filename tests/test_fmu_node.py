@@ -27,7 +27,7 @@ from bus.controller import Observation
 from bus.protocol import PROTOCOL_VERSION
 from controllers.odometry import integrate
 from fmus import build as fmu_build
-from fmus import node as fmu_node
+from fmus import fmu_node
 
 from .conftest import ROOT, wait_for
 
