@@ -62,6 +62,7 @@ from .cliargs import ArgumentParser, positive_float, positive_int
 from .keys import Keys
 from .log import RejectCounter, setup_logging
 from .mcapfile import INFO_METADATA, McapRecording, RecordError, layout, recover
+from .plantwatch import EXIT_PLANT_GONE, PlantWatch
 from .session import BusConfigError, add_bus_args, open_session
 from .topics import FmuTypes
 
@@ -110,6 +111,9 @@ class Recorder:
         self._late_info_tried = False
         self._subs: list = []
         self._token = None
+        #: the plant's sim/alive token: a recorder whose plant is gone for longer than the
+        #: run's rejoin timeout ends by itself (its sim/end may never come: bus.plantwatch)
+        self.watch = PlantWatch()
         self.wall_start = time.monotonic()
         self.wall_end = 0.0
 
@@ -125,6 +129,16 @@ class Recorder:
             # Direct callbacks (Zenoh's receive thread) keep the arrival order across keys.
             self._subs.append(self.session.declare_subscriber(
                 expr, zenoh.handlers.Callback(cb, indirect=False)))
+        watch = self.watch
+
+        def on_plant(sample: zenoh.Sample) -> None:     # (Zenoh's thread: two assignments)
+            if sample.kind == zenoh.SampleKind.PUT:
+                watch.here()
+            else:
+                watch.gone(time.monotonic())
+        self._subs.append(self.session.liveliness().declare_subscriber(
+            self.keys.alive("plant"), zenoh.handlers.Callback(on_plant, indirect=False),
+            history=True))
 
     def fetch_info(self, timeout_s: float) -> None:
         """The plant's ``sim/info``, stored as MCAP metadata (once)."""
@@ -136,6 +150,7 @@ class Recorder:
         except (TimeoutError, ValueError) as exc:
             self.log.warning("no sim/info (%s); recording without it", exc)
             return
+        self.watch.learn(self.info)
         self.out.add_metadata(INFO_METADATA, {
             "sim_info": jsonio.dumps(self.info),
             "recorder": jsonio.dumps({"keys": self.exprs, "namespace": self.keys.namespace,
@@ -211,6 +226,8 @@ class Recorder:
         return False
 
     def run(self, stop_on_end: bool = True) -> int:
+        """Record until a stop signal, or ``sim/end`` (``stop_on_end``: then EXIT_OK), or the
+        plant gone for longer than the run's rejoin timeout (EXIT_PLANT_GONE)."""
         end_at = None
         quiet_since = time.monotonic()
         get = self.queue.get
@@ -236,6 +253,9 @@ class Recorder:
             if quiet_since is None and item is None:
                 quiet_since = now
             self.out.maybe_flush(now)
+            if stop_on_end and self.end_reason is None and self.watch.expired(now):
+                self.log.error("%s; closing the recording", self.watch.why(now))
+                return EXIT_PLANT_GONE
             if self.end_reason is not None and stop_on_end:
                 if end_at is None:
                     end_at = now

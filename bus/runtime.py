@@ -32,11 +32,11 @@ from .inputs import check_input, stamp_of
 from .keys import TOPICS, Keys, check_name
 from .lockstep import MemberTick, Output
 from .log import RejectCounter
+from .plantwatch import EXIT_PLANT_GONE, PlantWatch
 from .protocol import PLANT_READS, ProtocolError, check_version
 from .session import query_info
 
 EXIT_BAD_CONFIG = 2
-EXIT_PLANT_GONE = 3
 #: a lockstep node whose awaited input comes from a node that left (it would wait forever)
 EXIT_INPUT_GONE = 4
 
@@ -114,6 +114,8 @@ class NodeRunner:
         self.ticks = 0
         self.final_tick: int | None = None   # the tick at which the last controller finished
         self.plant_lost = 0           # times the plant went away while --wait kept us here
+        #: how long a lost plant is waited for (--wait): the run's rejoin timeout
+        self.watch = PlantWatch()
         self._seq = 0
         # the current tick's outputs, not sent yet
         self._out: list[Output] = []
@@ -131,6 +133,7 @@ class NodeRunner:
         plant's ``sim/info`` (a plant of another protocol version is a ProtocolError)."""
         check_version(info)
         self.info = info
+        self.watch.learn(info)
         self.mode = info.get("mode", "lockstep")
         self.coupling = info.get("coupling", "sequential")
         self.sync = self.mode == "lockstep" and all(hooks.syncs(s.controller)
@@ -376,6 +379,10 @@ class NodeRunner:
                 if now - last_loop > LEASE_S:      # this process was stopped (SIGSTOP) or starved
                     stall_s, stalled = now - last_loop, now
                 last_loop = now
+                if self.wait and self.watch.expired(now):      # --wait, not past a run's end
+                    self.log.error("%s; stopping", self.watch.why(now))
+                    self.exit_code = EXIT_PLANT_GONE
+                    break
                 if ev is None:
                     if self.sync and plant_here and self._producer_gone(left, now):
                         break
@@ -384,7 +391,7 @@ class NodeRunner:
                     if not ev.alive or (not plant_here and not ev.payload):
                         continue             # the end token withdrawn, or a repeat of the end
                     reason = ev.payload.decode("utf-8", "replace") or "the plant ended it"
-                    if self.wait:
+                    if self.wait and not plant_seen:     # --wait: for a plant to start
                         self.log.warning("the simulation ended (%s); waiting for a plant "
                                          "(--wait)", reason)
                         plant_here = False
@@ -398,12 +405,16 @@ class NodeRunner:
                             if not self._plant_back(tokens):
                                 break
                         plant_seen = plant_here = True
+                        self.watch.here()
                     elif plant_here:
                         plant_here = False
                         if self.wait:       # inputs kept: the plant may be the same, back
                             self.plant_lost += 1
+                            self.watch.gone(now)
                             self.log.warning("the plant is gone; waiting for it to come back "
-                                             "(--wait)")
+                                             "(--wait), up to %g s (the run's rejoin timeout "
+                                             "+ %g s)", self.watch.limit_s,
+                                             self.watch.limit_s - self.watch.rejoin_timeout_s)
                             continue
                         if now - stalled < 5.0:
                             self.log.error("the plant is gone: this process was stopped for "
