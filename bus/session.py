@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import signal
@@ -20,7 +21,7 @@ import time
 import zenoh
 
 from .keys import Keys, check_name
-from .linkcheck import ConfigFileError, diagnose, load_config
+from .linkcheck import ConfigFileError, diagnose, load_config, refusals
 
 DEFAULT_ENDPOINT = os.environ.get("DIFFBOT_ENDPOINT", "tcp/127.0.0.1:7450")
 
@@ -28,6 +29,10 @@ DEFAULT_ENDPOINT = os.environ.get("DIFFBOT_ENDPOINT", "tcp/127.0.0.1:7450")
 DEFAULT_LEASE_MS = 1000
 #: Handshake limit for opening a link, ms (bounds close() while the router is frozen).
 OPEN_TIMEOUT_MS = 500
+#: A client session is opened in attempts this long (of the config's connect/timeout_ms);
+#: between two the endpoints are probed, so a refusal (TLS, a tcp/ client at a tls/ router)
+#: is reported within a few seconds rather than when the whole timeout has run out.
+ATTEMPT_MS = 1000
 
 
 class BusConfigError(ValueError):
@@ -95,13 +100,51 @@ def open_session(role: str, endpoint: str = DEFAULT_ENDPOINT,
     timeout, unknown CA, name mismatch, certificate required, ...) and the config file."""
     conf = make_config(role, endpoint, config_file)
     try:
-        return zenoh.open(conf)
+        return _open_in_attempts(conf)
+    except BusConfigError as exc:
+        src = f" (config {config_file})" if config_file else ""
+        raise BusConfigError(f"{exc}{src}") from None
     except Exception as exc:
         causes = "; ".join(diagnose(conf)) or zenoh_error(exc)
         src = f" (config {config_file})" if config_file else ""
         hint = "" if config_file or role == "plant" or "running" in causes else \
             " [is `diffbot plant` running with the same --endpoint?]"    # (asked once)
         raise BusConfigError(f"{causes}{src}{hint}") from None
+
+
+def _json(conf: zenoh.Config, key: str):
+    try:
+        return json.loads(conf.get_json(key))
+    except Exception:
+        return None
+
+
+def _open_in_attempts(conf: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open(conf)``; a client that Zenoh would keep retrying for its whole
+    ``connect/timeout_ms`` (with ``exit_on_failure``) tries in ATTEMPT_MS slices instead,
+    and between two, a refusal that retrying cannot change (:func:`bus.linkcheck.refusals`:
+    an unknown CA, a missing certificate, a tcp/ client at a tls/ router, ...) is a
+    BusConfigError at once, naming the endpoint and the cause. A router not up yet (refused,
+    no socket file) is waited for as long as the config says."""
+    total = _json(conf, "connect/timeout_ms")
+    if (_json(conf, "mode") != "client" or _json(conf, "connect/exit_on_failure") is not True
+            or not isinstance(total, (int, float)) or isinstance(total, bool)
+            or 0 <= total <= ATTEMPT_MS):
+        return zenoh.open(conf)
+    deadline = time.monotonic() + (total / 1000 if total >= 0 else math.inf)
+    conf.insert_json5("connect/timeout_ms", str(ATTEMPT_MS))
+    try:
+        while True:
+            try:
+                return zenoh.open(conf)
+            except Exception as exc:
+                if "connect" not in str(exc).lower() or time.monotonic() >= deadline:
+                    raise
+            refused = refusals(conf)
+            if refused:
+                raise BusConfigError("; ".join(refused))
+    finally:
+        conf.insert_json5("connect/timeout_ms", json.dumps(total))   # (diagnose reads it)
 
 
 def add_bus_args(parser: argparse.ArgumentParser) -> None:
