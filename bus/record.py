@@ -146,7 +146,8 @@ class Recorder:
             return
         from .session import query_info
         try:
-            self.info = query_info(self.session, self.keys, timeout_s)
+            self.info = query_info(self.session, self.keys, timeout_s,
+                                   self.log if timeout_s > 1.0 else None)
         except (TimeoutError, ValueError) as exc:
             self.log.warning("no sim/info (%s); recording without it", exc)
             return

@@ -123,7 +123,7 @@ class NodeRunner:
         self._keys: dict[tuple[str, str], str] = {}
         # input key -> (slot, topic); filled by run()
         self._topic_of: dict[str, tuple[_Slot, str]] = {}
-        self._apply_info(query_info(session, keys, wait_for_plant_s))
+        self._apply_info(query_info(session, keys, wait_for_plant_s, log))
         for slot in self.slots:
             hooks.configure(slot.controller, self.info, slot.robot)
             hooks.on_session(slot.controller, session, keys)   # e.g. to declare a queryable

@@ -169,15 +169,32 @@ def open_node(args: argparse.Namespace, name: str) -> tuple[Keys, zenoh.Session]
     return keys, open_session("node", args.endpoint, args.zenoh_config)
 
 
-def query_info(session: zenoh.Session, keys: Keys, timeout_s: float = 15.0) -> dict:
-    """Ask the plant for ``sim/info``; retry until it answers or ``timeout_s`` passes."""
-    deadline = time.monotonic() + timeout_s
+#: a ``sim/info`` unanswered this long is said (``query_info(log=...)``) while it is waited for
+INFO_SILENCE_S = 4.0
+
+
+def query_info(session: zenoh.Session, keys: Keys, timeout_s: float = 15.0,
+               log=None) -> dict:
+    """Ask the plant for ``sim/info``; retry until it answers or ``timeout_s`` passes. With a
+    ``log``, a silence of INFO_SILENCE_S is said once, with its likely causes (the session is
+    open, so the link is not one: no plant yet, another namespace, or a router's access
+    control that admits this process but not its queries)."""
+    start = time.monotonic()
+    deadline = start + timeout_s
+    said = log is None
     while True:
         for reply in session.get(keys.info, timeout=1.0):
             if reply.ok is not None:
                 return json.loads(reply.ok.payload.to_bytes())
-        if time.monotonic() > deadline:
+        now = time.monotonic()
+        if now > deadline:
             raise TimeoutError(f"no plant answered {keys.info} within {timeout_s:.0f} s")
+        if not said and now - start >= INFO_SILENCE_S:
+            said = True
+            log.warning("no answer to %s for %.0f s: no plant yet, a plant of another "
+                        "--namespace, or (through a router with access control) a certificate "
+                        "it does not admit: the router's log names who came; still asking",
+                        keys.info, now - start)
         time.sleep(0.1)
 
 
