@@ -100,6 +100,7 @@ class Recorder:
         self.skipped: dict[str, int] = {}
         self.repeated: dict[str, int] = {}      # key -> messages received again (re-sent)
         self._recent: dict[str, dict[int, int]] = {}   # key -> {stamp: hash of its bytes}
+        self._epoch = 0                                # of the plant's world (its attachment)
         self.stop_event = threading.Event()
         self.end_reason: str | None = None
         self.info: dict | None = None
@@ -198,6 +199,9 @@ class Recorder:
         a = codec.parse_attachment(att)
         if a is not None:
             seq, t_ns = a.seq, a.t_ns
+            if a.epoch is not None and a.epoch != self._epoch:   # a reset: all new again
+                self._epoch = a.epoch
+                self._recent.clear()
             if self._repeated(key, t_ns, payload):
                 return
             self._sim_ns = max(self._sim_ns, t_ns)

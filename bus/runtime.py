@@ -337,6 +337,17 @@ class NodeRunner:
         self._sent: dict[int, list[tuple[str, bytes, int, int]]] = {}
         self._keep_sent = False
         self._last_acted: int | None = None    # lockstep: the last tick acted on
+        self._epoch: int | None = None         # lockstep: the epoch of the last clock
+
+    def _new_world(self, att: bytes | None) -> bool:
+        """Lockstep: the clock's epoch (docs/PROTOCOL.md section 3) differs from the last
+        one's: the plant's world was reset or rebuilt, so a clock stamped like a tick this
+        member answered is the new world's, to step, never one to re-send."""
+        a = codec.parse_attachment(att)
+        epoch = a.epoch if a is not None and a.epoch is not None else self._epoch
+        new = self._epoch is not None and epoch != self._epoch
+        self._epoch = epoch
+        return new
 
     def _is_next(self, t_ns: int) -> bool:
         """Lockstep: ``t_ns`` is the tick after the last one this member acted on. A member
@@ -443,6 +454,9 @@ class NodeRunner:
                         if max_ticks is not None and self.ticks >= max_ticks:
                             break
                         continue
+                    if self._new_world(ev.attachment):   # a reset, not a re-publish
+                        self._sent.clear()
+                        self._last_acted = None
                     if t_ns in self._sent:       # re-published after a rejoin
                         self._resend(t_ns)
                         continue

@@ -161,6 +161,7 @@ class Plant:
         self.build()
         self.commands.clear()
         self._recent.clear()           # the old world's ticks are never re-published
+        self.outbox.epoch += 1         # a new world: members tell it from a re-publish
         self.ledger.restart()
         self.strategy.restarted()
         self._info = self.info()
@@ -175,7 +176,8 @@ class Plant:
         d.update(protocol=PROTOCOL_VERSION, mode=self.mode, coupling=self.coupling,
                  **self.delays, seed=self.seed, time_ns=self.sim.time_ns,
                  namespace=self.keys.namespace, rate=self.rate,
-                 rejoin_timeout_s=self.rejoin_timeout_s)
+                 rejoin_timeout_s=self.rejoin_timeout_s,
+                 epoch=self.outbox.epoch)
         return d
 
     def _answer_info(self, query: zenoh.Query) -> None:
