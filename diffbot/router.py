@@ -82,7 +82,7 @@ _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 #: Zenoh's words for a refused TLS handshake -> what they mean here (kept after them)
 _REFUSAL_HINTS = (
     ("InvalidContentType", "not TLS: a client dialling tcp/ at this tls/ endpoint?"),
-    ("peer sent no certificates", "a client without a certificate (mutual TLS)"),
+    ("peer sent no certificates", "a client without a certificate, under mutual TLS"),
     ("UnknownIssuer", "a client certificate of another CA"),
     ("BadSignature", "a client certificate of another CA"),
     ("alert: UnknownCA", "the client does not know this router's CA: another CA in its "
