@@ -140,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         n = 0                                      # ticks answered (in this world)
         final_tick = None
         resetting = a.reset_at is not None         # drives backwards until the reset
+        reset_from = -1                            # the epoch this client reset away from
         code = 3
 
         def put(t: int, payload: bytes, flags: int) -> None:
@@ -162,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
                 elif tag == "clock":
                     t, _ = stamp_of(payload, "rosgraph_msgs/msg/Clock")
                     e = plant_epoch(att)
-                    if epoch is not None and e < epoch:
+                    if epoch is not None and e < epoch or e <= reset_from:
                         continue                   # the old world's, late
                     if e != epoch:                 # a new world (section 4, "Reset")
                         epoch, clocks, x0, n = e, [], None, 0
@@ -193,6 +194,7 @@ def main(argv: list[str] | None = None) -> int:
                             print("conformance client: sim/reset refused", file=sys.stderr)
                             return 1
                         resetting = False
+                        reset_from = epoch         # its clocks still on their way: not ours
                         clocks.clear()
                         break
                     done = (n + 1 >= a.ticks if a.ticks is not None
