@@ -348,6 +348,9 @@ def test_frozen_lockstep_member_is_dropped_within_the_lease_and_handled_on_resum
     if not wait:                # --rejoin-timeout 0: the run ends, naming it
         code, took = exits_within(p, 10)
         assert code == 1 and "lost lockstep member wheel_schedule_robot1" in procs.log(p)
+        # and the plant said what happens, not that it holds time (issue 35)
+        assert "time is held" not in procs.log(p)
+        assert "the run ends at this tick: --rejoin-timeout is 0" in procs.log(p)
     else:                       # time is held for it
         time.sleep(1.0)
         assert tap.last_t() == t_stop and p.poll() is None
