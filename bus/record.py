@@ -38,7 +38,9 @@
 
 Crash safety: chunks are closed and flushed to the OS at least every ``--flush``
 seconds of wall time (default 1 s) and whenever they reach ``--chunk-size``.
-SIGINT, SIGTERM and ``sim/end`` close the file properly (summary, index, footer).
+SIGINT, SIGTERM and ``sim/end`` close the file properly (summary, index, footer), and so
+does a plant gone for longer than the run's rejoin timeout + 2 s (its ``sim/end`` may never
+come, :mod:`bus.plantwatch`; exit 3).
 After a **SIGKILL** (or a power cut after the OS wrote it) the file has everything up
 to the last flushed chunk — at most about one flush period is lost — but no summary
 or footer: ``diffbot replay`` reads such a file as it is, and
@@ -357,7 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="node name: liveliness token sim/alive/NAME is declared once "
                         "subscribed (default recorder)")
     p.add_argument("--no-stop-on-end", dest="stop_on_end", action="store_false",
-                   help="keep recording after sim/end (until Ctrl-C)")
+                   help="keep recording after sim/end or a lost plant (until Ctrl-C)")
     p.add_argument("--flush", type=positive_float, default=1.0, metavar="S",
                    help="close and flush a chunk at least every S wall seconds: what a "
                         "SIGKILL can lose (default 1)")
