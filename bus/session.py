@@ -10,6 +10,7 @@ defaults unchanged.
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import math
 import os
@@ -227,6 +228,16 @@ def _check_orphan_soon() -> None:
         return
     signal.signal(signal.SIGALRM, _orphan_check)
     signal.setitimer(signal.ITIMER_REAL, ORPHAN_CHECK_S)
+    atexit.register(_cancel_orphan_check)
+
+
+def _cancel_orphan_check() -> None:
+    """At exit: the look at the parent is not due any more. Python's finalization puts
+    SIGALRM back to its default action, so a check timer still running then would kill a
+    process that stops cleanly within ORPHAN_CHECK_S (exit -14). An orphan's end timer
+    (``_orphan_ending``) is kept: it is there for an exit that hangs."""
+    if not _orphan_ending:
+        signal.setitimer(signal.ITIMER_REAL, 0)
 
 
 def _orphan_check(signum, frame) -> None:
