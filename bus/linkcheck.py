@@ -196,9 +196,9 @@ def probe(conf: zenoh.Config, endpoint: str) -> str:
 
 
 def _speaks_tls(sock: socket.socket) -> bool:
-    """Whether the endpoint ``sock`` is connected to answers a TLS ClientHello with a TLS record (a ``tls/`` router
-    dialled with ``tcp/``): the hello goes out, the first record header comes back, and the
-    socket closes (the router logs one refused handshake). A plain Zenoh router waits for a
+    """Whether the endpoint ``sock`` is connected to answers a TLS ClientHello with a TLS
+    record (a ``tls/`` router dialled with ``tcp/``): the hello goes out, the first record
+    header comes back, and the socket closes (the router logs one refused handshake). A plain Zenoh router waits for a
     frame the hello does not complete: no answer, no. Closes ``sock``."""
     ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
     ctx.check_hostname = False

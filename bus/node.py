@@ -31,8 +31,8 @@ liveliness token, so a killed plant is noticed within milliseconds and a frozen 
 plant to come back, up to the run's rejoin timeout (``sim/info`` ``rejoin_timeout_s``) +
 2 s, re-reads ``sim/info`` and carries on (this node's controller object keeps its state);
 past that it exits 3 (:mod:`bus.plantwatch`). The end of the run (``sim/end``) ends a
-node that took part in it, ``--wait`` or not (exit 0). A plant of another protocol version makes the node exit 2, whether it
-is met at the start or comes back. A node that was itself frozen longer than the lease
+node that took part in it, ``--wait`` or not (exit 0). A plant of another protocol version
+makes the node exit 2, whether it is met at the start or comes back. A node that was itself frozen longer than the lease
 has been dropped by the simulation; when it resumes it sees the plant gone and exits 3
 (with ``--wait`` it rejoins at the current tick). Inputs are filed by stamp, so stray,
 stale or forged samples never displace the one a tick needs; bad values are rejected and
