@@ -13,6 +13,7 @@ from typing import NamedTuple
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
+from .keys import NAME_MAX
 from .packed import (_CDR_LE, _U32, _doubles, _f64_seq, _header, _pad, _string,
                      encode_clock, encode_joint_state, encode_odometry, encode_point_stamped)
 
@@ -32,6 +33,9 @@ _Twist = T["geometry_msgs/msg/Twist"]
 #: member trailer: flags (u8), n_plant (u16 LE), name length (u8), node name (UTF-8).
 ATTACHMENT = struct.Struct("<QQ")
 TRAILER = struct.Struct("<BHB")
+#: the plant's attachment ends with its world's epoch: 0 for the world it started with, +1 at
+#: each reset or rebuild (docs/PROTOCOL.md section 3), so a reset is told from a re-publish
+EPOCH = struct.Struct("<I")
 #: trailer flags: ACK = the member published everything for this tick (this is its last
 #: message for it); FINAL = the member's last tick (it leaves after it)
 ACK, FINAL = 1, 2
@@ -154,32 +158,37 @@ class Attachment(NamedTuple):
     flags: int = 0
     n_plant: int = 0
     node: str | None = None
+    epoch: int | None = None     # the plant's attachment only
 
 
 def attachment(seq: int, t_ns: int, flags: int = 0, n_plant: int = 0,
-               node: str | None = None) -> bytes:
+               node: str | None = None, epoch: int | None = None) -> bytes:
     """Attachment bytes: ``seq``, ``t_ns`` and, for a lockstep member (``node`` given), the
-    trailer with ``flags`` (:data:`ACK`, :data:`FINAL`) and ``n_plant``."""
+    trailer with ``flags`` (:data:`ACK`, :data:`FINAL`) and ``n_plant``; for the plant
+    (``epoch`` given), its world's epoch."""
     head = ATTACHMENT.pack(seq & 0xFFFFFFFFFFFFFFFF, t_ns)
     if node is None:
-        return head
+        return head if epoch is None else head + EPOCH.pack(epoch & 0xFFFFFFFF)
     name = node.encode("utf-8")
     return head + TRAILER.pack(flags, n_plant, len(name)) + name
 
 
 def parse_attachment(data: bytes | None) -> Attachment | None:
-    """The :class:`Attachment` in ``data``, or None if absent or malformed (wrong length,
+    """The :class:`Attachment` in ``data`` (plain: 16 bytes; the plant's: 20, with the epoch;
+    a member's: 21 and more, with the trailer), or None if absent or malformed (wrong length,
     unknown flag bits, a name that is not UTF-8 or not as long as it says)."""
     if data is None or len(data) < ATTACHMENT.size:
         return None
     seq, t_ns = ATTACHMENT.unpack_from(data)
     if len(data) == ATTACHMENT.size:
         return Attachment(seq, t_ns)
+    if len(data) == ATTACHMENT.size + EPOCH.size:          # (a trailer is longer)
+        return Attachment(seq, t_ns, epoch=EPOCH.unpack_from(data, ATTACHMENT.size)[0])
     if len(data) < ATTACHMENT.size + TRAILER.size:
         return None
     flags, n_plant, n = TRAILER.unpack_from(data, ATTACHMENT.size)
     name = data[ATTACHMENT.size + TRAILER.size:]
-    if flags & ~_FLAGS or len(name) != n or n == 0:
+    if flags & ~_FLAGS or len(name) != n or not 0 < n <= NAME_MAX:
         return None
     try:
         return Attachment(seq, t_ns, flags, n_plant, name.decode("utf-8"))

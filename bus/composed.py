@@ -136,9 +136,10 @@ class Composed:
             if (problem := h.member.file_input(key, msg, att)) is not None:
                 h.rejects.reject(topic, problem)
 
-    def clock(self, t_ns: int, emit: Emit) -> None:
-        """The plant published tick ``t_ns``'s sensors and clock: members that are not in
-        lockstep act now; a finished member leaves once the plant took its FINAL."""
+    def clock(self, t_ns: int, emit: Emit, epoch: int | None = None) -> None:
+        """The plant published tick ``t_ns``'s sensors and clock (of its world ``epoch``):
+        members that are not in lockstep act now; a finished member leaves once the plant
+        took its FINAL."""
         for h in self.hosted:
             if h.gone:
                 continue
@@ -147,7 +148,7 @@ class Composed:
                 if m.may_leave(m.final_tick, t_ns):
                     h.leave()
                 continue
-            _, problem = m.clock(t_ns)      # (a re-published tick: the plant keeps our
+            _, problem = m.clock(t_ns, 0.0, epoch)   # (a re-published tick: the plant keeps our
             if problem:                     #  answers and re-publishes them itself)
                 h.rejects.reject("clock", problem)
             if not m.sync:

@@ -10,7 +10,9 @@ import re
 from dataclasses import dataclass
 from urllib.parse import quote, unquote
 
-NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
+#: a robot or node name's longest (ASCII, so as many bytes: the attachment's name_len)
+NAME_MAX = 64
+NAME_RE = re.compile(rf"^[A-Za-z][A-Za-z0-9_-]{{0,{NAME_MAX - 1}}}$")
 
 # Names that would be read as the simulation's own key space.
 RESERVED = {"sim"}
@@ -29,7 +31,7 @@ def check_name(name: str, what: str = "name") -> str:
     if not isinstance(name, str) or not NAME_RE.match(name):
         raise BadName(
             f"invalid {what} {name!r}: use a letter then letters, digits, '_' or '-' "
-            "(no '/', '*', '$', spaces; at most 64 characters)")
+            f"(no '/', '*', '$', spaces; at most {NAME_MAX} characters)")
     if name in RESERVED:
         raise BadName(f"invalid {what} {name!r}: reserved")
     return name

@@ -187,10 +187,58 @@ def probe(conf: zenoh.Config, endpoint: str) -> str:
         sock, why = _tcp(host, port)
         if sock is None:
             return why
-        sock.close()
-        return ("TCP connects, but no Zenoh session opened (a tls/ router? the wrong "
-                "port? refused by the router?)")
+        if _speaks_tls(sock):
+            return (f"{NOT_TLS_CLIENT}: connect to tls/{addr} with your role's TLS config "
+                    "(diffbot/configs/<role>_tls.json5, docs/several-machines.md)")
+        return ("TCP connects, but no Zenoh session opened (the wrong port? refused by the "
+                "router?)")
     return "cannot probe this kind of endpoint"
+
+
+def _speaks_tls(sock: socket.socket) -> bool:
+    """Whether the endpoint ``sock`` is connected to answers a TLS ClientHello with a TLS
+    record (a ``tls/`` router dialled with ``tcp/``): the hello goes out, the first record
+    header comes back, and the socket closes (the router logs one refused handshake). A plain Zenoh router waits for a
+    frame the hello does not complete: no answer, no. Closes ``sock``."""
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname = False
+    ctx.verify_mode = ssl.CERT_NONE
+    out = ssl.MemoryBIO()
+    tls = ctx.wrap_bio(ssl.MemoryBIO(), out)
+    try:
+        tls.do_handshake()
+    except ssl.SSLWantReadError:
+        pass
+    try:
+        sock.settimeout(1.0)
+        sock.sendall(out.read())
+        head = sock.recv(3)
+        # a TLS record: content type handshake (22) or alert (21), version 3.x
+        return len(head) >= 2 and head[0] in (21, 22) and head[1] == 3
+    except OSError:
+        return False
+    finally:
+        sock.close()
+
+
+#: the probe's words for a client that dials ``tcp/`` at a TLS endpoint
+NOT_TLS_CLIENT = "the endpoint speaks TLS and this client connects without (tcp/)"
+#: probe results that retrying will not change: a TLS or protocol refusal, reported at once
+#: (:func:`refusals`); "connection refused", "no socket file", timeouts and a successful TLS
+#: handshake are not among them (the router may still be starting, or be slow)
+REFUSALS = ("unknown CA", "name mismatch", "certificate required", "rejected this client's "
+            "certificate", "has expired", "was not accepted", "closed the connection in the "
+            "TLS handshake", "cannot load this client's TLS files", NOT_TLS_CLIENT)
+
+
+def refusals(conf: zenoh.Config) -> list[str]:
+    """The "endpoint: cause" lines of :func:`diagnose` if every endpoint the client may
+    connect to refused it for good (a TLS or protocol mismatch); else [] (keep trying)."""
+    lines = diagnose(conf)
+    connect = _get(conf, "connect/endpoints")
+    if not lines or not connect or not all(any(r in ln for r in REFUSALS) for ln in lines):
+        return []
+    return lines
 
 
 def listen_problem(endpoint: str) -> str:

@@ -153,6 +153,7 @@ class MemberTick:
         self.sent: dict[int, Sent] = {}
         self._keep_sent = False
         self._last_acted: int | None = None    # lockstep: the last tick acted on
+        self.epoch: int | None = None          # lockstep: the plant's epoch of the last clock
 
     # ------------------------------------------------------------ input (section 4, step 2)
     def input_stamp(self, t_ns: int, period_ticks: int, lag_ns: int) -> int | None:
@@ -197,14 +198,22 @@ class MemberTick:
             del buf[max(buf, key=lambda s: abs(s - ref))]
         return problem
 
-    def clock(self, t_ns: int, now: float = 0.0) -> tuple[Sent | None, str | None]:
-        """Section 4, steps 1 and "Lost members": a ``sim/clock`` for tick ``t_ns``. Returns
-        (what to re-send: a tick this member answered, re-published after a rejoin; a
-        problem to count, or None). Otherwise the tick waits for its inputs (:meth:`next_due`);
-        ``now``: the wall time it came."""
+    def clock(self, t_ns: int, now: float = 0.0,
+              epoch: int | None = None) -> tuple[Sent | None, str | None]:
+        """Section 4, steps 1 and "Lost members": a ``sim/clock`` for tick ``t_ns`` of the
+        plant's world ``epoch`` (section 3; None: not said). Returns (what to re-send: a
+        tick this member answered, re-published after a rejoin; a problem to count, or
+        None). Otherwise the tick waits for its inputs (:meth:`next_due`); ``now``: the
+        wall time it came. A clock of another epoch is a new world's (a reset), never a
+        re-publish, whatever its stamp."""
         self.last_clock = t_ns
         if not self.sync:
             return None, None
+        if epoch is not None:
+            if self.epoch is not None and epoch != self.epoch:
+                self.sent.clear()
+                self._last_acted = None
+            self.epoch = epoch
         if t_ns in self.sent:                  # re-published after a rejoin
             return self.sent[t_ns], None
         if self.sent and t_ns < max(self.sent):      # the world went back

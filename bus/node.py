@@ -28,9 +28,11 @@ controller needs one import.
 Faults (see docs/failures.md): the plant is watched through its
 liveliness token, so a killed plant is noticed within milliseconds and a frozen one
 (SIGSTOP) within the 1 s lease; the node then exits 3, or with ``--wait`` waits for a
-plant to come back, re-reads ``sim/info`` and carries on (this node's controller object
-keeps its state). A plant of another protocol version makes the node exit 2, whether it
-is met at the start or comes back. A node that was itself frozen longer than the lease
+plant to come back, up to the run's rejoin timeout (``sim/info`` ``rejoin_timeout_s``) +
+2 s, re-reads ``sim/info`` and carries on (this node's controller object keeps its state);
+past that it exits 3 (:mod:`bus.plantwatch`). The end of the run (``sim/end``) ends a
+node that took part in it, ``--wait`` or not (exit 0). A plant of another protocol version
+makes the node exit 2, whether it is met at the start or comes back. A node that was itself frozen longer than the lease
 has been dropped by the simulation; when it resumes it sees the plant gone and exits 3
 (with ``--wait`` it rejoins at the current tick). Inputs are filed by stamp, so stray,
 stale or forged samples never displace the one a tick needs; bad values are rejected and
@@ -76,9 +78,10 @@ def node_arg_parser(description: str, default_name: str | None = None) -> argpar
     p.add_argument("--name", default=default_name, type=_name_arg("node name"),
                    help="node name on the bus (default <controller>_<robot>)")
     p.add_argument("--wait", action="store_true",
-                   help="if the plant is not there yet or goes away (killed, frozen, "
-                        "restarted), wait for it and carry on when it is back, instead of "
-                        "exiting with code 3")
+                   help="wait for a plant to start, and when it goes away (killed, frozen, "
+                        "its router lost) wait for it up to the run's rejoin timeout + 2 s "
+                        "and carry on when it is back, instead of exiting with code 3 at "
+                        "once; the end of the run (sim/end) still ends the node (exit 0)")
     add_process_args(p, "the node's counters")
     return p
 

@@ -38,7 +38,9 @@
 
 Crash safety: chunks are closed and flushed to the OS at least every ``--flush``
 seconds of wall time (default 1 s) and whenever they reach ``--chunk-size``.
-SIGINT, SIGTERM and ``sim/end`` close the file properly (summary, index, footer).
+SIGINT, SIGTERM and ``sim/end`` close the file properly (summary, index, footer), and so
+does a plant gone for longer than the run's rejoin timeout + 2 s (its ``sim/end`` may never
+come, :mod:`bus.plantwatch`; exit 3).
 After a **SIGKILL** (or a power cut after the OS wrote it) the file has everything up
 to the last flushed chunk — at most about one flush period is lost — but no summary
 or footer: ``diffbot replay`` reads such a file as it is, and
@@ -62,6 +64,7 @@ from .cliargs import ArgumentParser, positive_float, positive_int
 from .keys import Keys
 from .log import RejectCounter, setup_logging
 from .mcapfile import INFO_METADATA, McapRecording, RecordError, layout, recover
+from .plantwatch import EXIT_PLANT_GONE, PlantWatch
 from .session import BusConfigError, add_bus_args, open_session
 from .topics import FmuTypes
 
@@ -99,6 +102,7 @@ class Recorder:
         self.skipped: dict[str, int] = {}
         self.repeated: dict[str, int] = {}      # key -> messages received again (re-sent)
         self._recent: dict[str, dict[int, int]] = {}   # key -> {stamp: hash of its bytes}
+        self._epoch = 0                                # of the plant's world (its attachment)
         self.stop_event = threading.Event()
         self.end_reason: str | None = None
         self.info: dict | None = None
@@ -110,6 +114,9 @@ class Recorder:
         self._late_info_tried = False
         self._subs: list = []
         self._token = None
+        #: the plant's sim/alive token: a recorder whose plant is gone for longer than the
+        #: run's rejoin timeout ends by itself (its sim/end may never come: bus.plantwatch)
+        self.watch = PlantWatch()
         self.wall_start = time.monotonic()
         self.wall_end = 0.0
 
@@ -125,6 +132,16 @@ class Recorder:
             # Direct callbacks (Zenoh's receive thread) keep the arrival order across keys.
             self._subs.append(self.session.declare_subscriber(
                 expr, zenoh.handlers.Callback(cb, indirect=False)))
+        watch = self.watch
+
+        def on_plant(sample: zenoh.Sample) -> None:     # (Zenoh's thread: two assignments)
+            if sample.kind == zenoh.SampleKind.PUT:
+                watch.here()
+            else:
+                watch.gone(time.monotonic())
+        self._subs.append(self.session.liveliness().declare_subscriber(
+            self.keys.alive("plant"), zenoh.handlers.Callback(on_plant, indirect=False),
+            history=True))
 
     def fetch_info(self, timeout_s: float) -> None:
         """The plant's ``sim/info``, stored as MCAP metadata (once)."""
@@ -132,10 +149,12 @@ class Recorder:
             return
         from .session import query_info
         try:
-            self.info = query_info(self.session, self.keys, timeout_s)
+            self.info = query_info(self.session, self.keys, timeout_s,
+                                   self.log if timeout_s > 1.0 else None)
         except (TimeoutError, ValueError) as exc:
             self.log.warning("no sim/info (%s); recording without it", exc)
             return
+        self.watch.learn(self.info)
         self.out.add_metadata(INFO_METADATA, {
             "sim_info": jsonio.dumps(self.info),
             "recorder": jsonio.dumps({"keys": self.exprs, "namespace": self.keys.namespace,
@@ -182,6 +201,9 @@ class Recorder:
         a = codec.parse_attachment(att)
         if a is not None:
             seq, t_ns = a.seq, a.t_ns
+            if a.epoch is not None and a.epoch != self._epoch:   # a reset: all new again
+                self._epoch = a.epoch
+                self._recent.clear()
             if self._repeated(key, t_ns, payload):
                 return
             self._sim_ns = max(self._sim_ns, t_ns)
@@ -211,6 +233,8 @@ class Recorder:
         return False
 
     def run(self, stop_on_end: bool = True) -> int:
+        """Record until a stop signal, or ``sim/end`` (``stop_on_end``: then EXIT_OK), or the
+        plant gone for longer than the run's rejoin timeout (EXIT_PLANT_GONE)."""
         end_at = None
         quiet_since = time.monotonic()
         get = self.queue.get
@@ -236,6 +260,9 @@ class Recorder:
             if quiet_since is None and item is None:
                 quiet_since = now
             self.out.maybe_flush(now)
+            if stop_on_end and self.end_reason is None and self.watch.expired(now):
+                self.log.error("%s; closing the recording", self.watch.why(now))
+                return EXIT_PLANT_GONE
             if self.end_reason is not None and stop_on_end:
                 if end_at is None:
                     end_at = now
@@ -332,7 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="node name: liveliness token sim/alive/NAME is declared once "
                         "subscribed (default recorder)")
     p.add_argument("--no-stop-on-end", dest="stop_on_end", action="store_false",
-                   help="keep recording after sim/end (until Ctrl-C)")
+                   help="keep recording after sim/end or a lost plant (until Ctrl-C)")
     p.add_argument("--flush", type=positive_float, default=1.0, metavar="S",
                    help="close and flush a chunk at least every S wall seconds: what a "
                         "SIGKILL can lose (default 1)")

@@ -29,11 +29,11 @@ from .inputs import stamp_of
 from .keys import TOPICS, Keys, check_name
 from .log import RejectCounter
 from .member import MemberTick, Sent, make_slots
+from .plantwatch import EXIT_PLANT_GONE, PlantWatch
 from .protocol import ProtocolError, check_version
 from .session import query_info
 
 EXIT_BAD_CONFIG = 2
-EXIT_PLANT_GONE = 3
 #: a lockstep node whose awaited input comes from a node that left (it would wait forever)
 EXIT_INPUT_GONE = 4
 
@@ -77,9 +77,11 @@ class NodeRunner:
         self.exit_code = 0
         self.published: dict[str, int] = {}
         self.plant_lost = 0           # times the plant went away while --wait kept us here
+        #: how long a lost plant is waited for (--wait): the run's rejoin timeout
+        self.watch = PlantWatch()
         self._seq = 0
         self._pubs: dict[str, zenoh.Publisher] = {}
-        self._apply_info(query_info(session, keys, wait_for_plant_s))
+        self._apply_info(query_info(session, keys, wait_for_plant_s, log))
         for slot in self.slots:
             hooks.configure(slot.controller, self.info, slot.robot)
             hooks.on_session(slot.controller, session, keys)   # e.g. to declare a queryable
@@ -89,6 +91,7 @@ class NodeRunner:
         plant's ``sim/info`` (a plant of another protocol version is a ProtocolError)."""
         check_version(info)
         self.info = info
+        self.watch.learn(info)
         self.member.configure(info)
         self.mode, self.coupling, self.sync = self.member.mode, self.member.coupling, \
             self.member.sync
@@ -186,6 +189,10 @@ class NodeRunner:
                 if now - last_loop > LEASE_S:      # this process was stopped (SIGSTOP) or starved
                     stall_s, stalled = now - last_loop, now
                 last_loop = now
+                if self.wait and self.watch.expired(now):      # --wait, not past a run's end
+                    self.log.error("%s; stopping", self.watch.why(now))
+                    self.exit_code = EXIT_PLANT_GONE
+                    break
                 if ev is None:
                     if self.sync and plant_here and self._producer_gone(left, now):
                         break
@@ -194,7 +201,7 @@ class NodeRunner:
                     if not ev.alive or (not plant_here and not ev.payload):
                         continue             # the end token withdrawn, or a repeat of the end
                     reason = ev.payload.decode("utf-8", "replace") or "the plant ended it"
-                    if self.wait:
+                    if self.wait and not plant_seen:     # --wait: for a plant to start
                         self.log.warning("the simulation ended (%s); waiting for a plant "
                                          "(--wait)", reason)
                         plant_here = False
@@ -208,12 +215,16 @@ class NodeRunner:
                             if not self._plant_back(tokens):
                                 break
                         plant_seen = plant_here = True
+                        self.watch.here()
                     elif plant_here:
                         plant_here = False
                         if self.wait:       # inputs kept: the plant may be the same, back
                             self.plant_lost += 1
+                            self.watch.gone(now)
                             self.log.warning("the plant is gone; waiting for it to come back "
-                                             "(--wait)")
+                                             "(--wait), up to %g s (the run's rejoin timeout "
+                                             "+ %g s)", self.watch.limit_s,
+                                             self.watch.limit_s - self.watch.rejoin_timeout_s)
                             continue
                         if now - stalled < 5.0:
                             self.log.error("the plant is gone: this process was stopped for "
@@ -236,7 +247,9 @@ class NodeRunner:
                     t_ns = self._clock(ev.payload)
                     if t_ns is None:
                         continue
-                    resend, problem = self.member.clock(t_ns, now)
+                    att = codec.parse_attachment(ev.attachment)
+                    resend, problem = self.member.clock(t_ns, now,
+                                                        att.epoch if att is not None else None)
                     if problem:
                         self.rejects.reject("clock", problem)
                     if not self.sync:

@@ -10,7 +10,9 @@ defaults unchanged.
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
+import math
 import os
 import re
 import signal
@@ -20,7 +22,7 @@ import time
 import zenoh
 
 from .keys import Keys, check_name
-from .linkcheck import ConfigFileError, diagnose, load_config
+from .linkcheck import ConfigFileError, diagnose, load_config, refusals
 
 DEFAULT_ENDPOINT = os.environ.get("DIFFBOT_ENDPOINT", "tcp/127.0.0.1:7450")
 
@@ -28,6 +30,10 @@ DEFAULT_ENDPOINT = os.environ.get("DIFFBOT_ENDPOINT", "tcp/127.0.0.1:7450")
 DEFAULT_LEASE_MS = 1000
 #: Handshake limit for opening a link, ms (bounds close() while the router is frozen).
 OPEN_TIMEOUT_MS = 500
+#: A client session is opened in attempts this long (of the config's connect/timeout_ms);
+#: between two the endpoints are probed, so a refusal (TLS, a tcp/ client at a tls/ router)
+#: is reported within a few seconds rather than when the whole timeout has run out.
+ATTEMPT_MS = 1000
 
 
 class BusConfigError(ValueError):
@@ -95,13 +101,51 @@ def open_session(role: str, endpoint: str = DEFAULT_ENDPOINT,
     timeout, unknown CA, name mismatch, certificate required, ...) and the config file."""
     conf = make_config(role, endpoint, config_file)
     try:
-        return zenoh.open(conf)
+        return _open_in_attempts(conf)
+    except BusConfigError as exc:
+        src = f" (config {config_file})" if config_file else ""
+        raise BusConfigError(f"{exc}{src}") from None
     except Exception as exc:
         causes = "; ".join(diagnose(conf)) or zenoh_error(exc)
         src = f" (config {config_file})" if config_file else ""
         hint = "" if config_file or role == "plant" or "running" in causes else \
             " [is `diffbot plant` running with the same --endpoint?]"    # (asked once)
         raise BusConfigError(f"{causes}{src}{hint}") from None
+
+
+def _json(conf: zenoh.Config, key: str):
+    try:
+        return json.loads(conf.get_json(key))
+    except Exception:
+        return None
+
+
+def _open_in_attempts(conf: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open(conf)``; a client that Zenoh would keep retrying for its whole
+    ``connect/timeout_ms`` (with ``exit_on_failure``) tries in ATTEMPT_MS slices instead,
+    and between two, a refusal that retrying cannot change (:func:`bus.linkcheck.refusals`:
+    an unknown CA, a missing certificate, a tcp/ client at a tls/ router, ...) is a
+    BusConfigError at once, naming the endpoint and the cause. A router not up yet (refused,
+    no socket file) is waited for as long as the config says."""
+    total = _json(conf, "connect/timeout_ms")
+    if (_json(conf, "mode") != "client" or _json(conf, "connect/exit_on_failure") is not True
+            or not isinstance(total, (int, float)) or isinstance(total, bool)
+            or 0 <= total <= ATTEMPT_MS):
+        return zenoh.open(conf)
+    deadline = time.monotonic() + (total / 1000 if total >= 0 else math.inf)
+    conf.insert_json5("connect/timeout_ms", str(ATTEMPT_MS))
+    try:
+        while True:
+            try:
+                return zenoh.open(conf)
+            except Exception as exc:
+                if "connect" not in str(exc).lower() or time.monotonic() >= deadline:
+                    raise
+            refused = refusals(conf)
+            if refused:
+                raise BusConfigError("; ".join(refused))
+    finally:
+        conf.insert_json5("connect/timeout_ms", json.dumps(total))   # (diagnose reads it)
 
 
 def add_bus_args(parser: argparse.ArgumentParser) -> None:
@@ -135,15 +179,32 @@ def open_node(args: argparse.Namespace, name: str) -> tuple[Keys, zenoh.Session]
     return keys, open_session("node", args.endpoint, args.zenoh_config)
 
 
-def query_info(session: zenoh.Session, keys: Keys, timeout_s: float = 15.0) -> dict:
-    """Ask the plant for ``sim/info``; retry until it answers or ``timeout_s`` passes."""
-    deadline = time.monotonic() + timeout_s
+#: a ``sim/info`` unanswered this long is said (``query_info(log=...)``) while it is waited for
+INFO_SILENCE_S = 4.0
+
+
+def query_info(session: zenoh.Session, keys: Keys, timeout_s: float = 15.0,
+               log=None) -> dict:
+    """Ask the plant for ``sim/info``; retry until it answers or ``timeout_s`` passes. With a
+    ``log``, a silence of INFO_SILENCE_S is said once, with its likely causes (the session is
+    open, so the link is not one: no plant yet, another namespace, or a router's access
+    control that admits this process but not its queries)."""
+    start = time.monotonic()
+    deadline = start + timeout_s
+    said = log is None
     while True:
         for reply in session.get(keys.info, timeout=1.0):
             if reply.ok is not None:
                 return json.loads(reply.ok.payload.to_bytes())
-        if time.monotonic() > deadline:
+        now = time.monotonic()
+        if now > deadline:
             raise TimeoutError(f"no plant answered {keys.info} within {timeout_s:.0f} s")
+        if not said and now - start >= INFO_SILENCE_S:
+            said = True
+            log.warning("no answer to %s for %.0f s: no plant yet, a plant of another "
+                        "--namespace, or (through a router with access control) a certificate "
+                        "it does not admit: the router's log names who came; still asking",
+                        keys.info, now - start)
         time.sleep(0.1)
 
 
@@ -176,6 +237,16 @@ def _check_orphan_soon() -> None:
         return
     signal.signal(signal.SIGALRM, _orphan_check)
     signal.setitimer(signal.ITIMER_REAL, ORPHAN_CHECK_S)
+    atexit.register(_cancel_orphan_check)
+
+
+def _cancel_orphan_check() -> None:
+    """At exit: the look at the parent is not due any more. Python's finalization puts
+    SIGALRM back to its default action, so a check timer still running then would kill a
+    process that stops cleanly within ORPHAN_CHECK_S (exit -14). An orphan's end timer
+    (``_orphan_ending``) is kept: it is there for an exit that hangs."""
+    if not _orphan_ending:
+        signal.setitimer(signal.ITIMER_REAL, 0)
 
 
 def _orphan_check(signum, frame) -> None:
@@ -184,16 +255,6 @@ def _orphan_check(signum, frame) -> None:
         _orphan_ending = True
         signal.signal(signal.SIGALRM, signal.SIG_DFL)
         signal.setitimer(signal.ITIMER_REAL, ORPHAN_EXIT_S)
-
-
-def disarm_orphan_check() -> None:
-    """The process is done and about to exit: drop a pending orphan check (an exit already
-    armed because the parent is gone stays). Python hands its signal handlers back to the
-    defaults as the interpreter shuts down, and the check's timer firing then would end a
-    clean exit by SIGALRM (exit code -14)."""
-    if not _orphan_ending:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, signal.SIG_IGN)
 
 
 def install_stop_signals(stop_event: threading.Event) -> None:

@@ -241,6 +241,8 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
     head = f"--- /{key}"
     if a is not None:
         head += f"  seq {a.seq}  t {a.t_ns * 1e-9:.6f} s"
+        if a.epoch is not None:         # the plant's: its world's epoch (resets)
+            head += f"  epoch {a.epoch}"
         if a.node is not None:          # a lockstep member's trailer (docs/PROTOCOL.md)
             flags = [f for f, bit in (("ACK", codec.ACK), ("FINAL", codec.FINAL))
                      if a.flags & bit]

@@ -40,12 +40,9 @@ COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experimen
 def main(argv: list[str] | None = None) -> int:
     code = _dispatch(argv)
     # A stop signal arriving while the interpreter shuts down (handlers are reset then)
-    # would turn a clean exit into death by signal: ignore them from here on, and the
-    # orphan check's timer with them.
+    # would turn a clean exit into death by signal: ignore them from here on.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    if "bus.session" in sys.modules:        # (a process that installed stop signals)
-        sys.modules["bus.session"].disarm_orphan_check()
     return code
 
 

@@ -79,6 +79,27 @@ _ZLOG = re.compile(r"^\S+\s+(?P<level>[A-Z]+)\s.*?(?P<target>zenoh[\w:]*): (?P<m
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
+#: Zenoh's words for a refused TLS handshake -> what they mean here (kept after them)
+_REFUSAL_HINTS = (
+    ("InvalidContentType", "not TLS: a client dialling tcp/ at this tls/ endpoint?"),
+    ("peer sent no certificates", "a client without a certificate, under mutual TLS"),
+    ("UnknownIssuer", "a client certificate of another CA"),
+    ("BadSignature", "a client certificate of another CA"),
+    ("alert: UnknownCA", "the client does not know this router's CA: another CA in its "
+                         "root_ca_certificate?"),
+    ("alert: DecryptError", "the client's certificate or CA is another PKI's"),
+    ("alert: BadCertificate", "the client rejected this router's certificate"),
+)
+
+
+def refusal_words(msg: str) -> str:
+    """Zenoh's reason for a refused session, with what it means in a diffbot setup."""
+    for needle, hint in _REFUSAL_HINTS:
+        if needle in msg:
+            return f"{msg} ({hint})"
+    return msg
+
+
 def relay_zenoh_log(log) -> None:
     """Route Zenoh's own log (stdout, WARN and up) into ours: a refused TLS handshake is a
     "refused a session" warning (rate limited per reason), anything else a warning."""
@@ -97,7 +118,7 @@ def relay_zenoh_log(log) -> None:
                     continue
                 msg = m.group("msg").split(". Hint:")[0]
                 if "zenoh_link_tls" in m.group("target") or "zenoh_link_tcp" in m.group("target"):
-                    refused.reject(msg)
+                    refused.reject(refusal_words(msg))
                 else:
                     log.warning("zenoh: %s", msg)
     threading.Thread(target=pump, name="zenoh-log", daemon=True).start()

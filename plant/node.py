@@ -161,6 +161,7 @@ class Plant:
             self.tick.build()
         self.commands.clear()
         self._recent.clear()           # the old world's ticks are never re-published
+        self.outbox.epoch += 1         # a new world: members tell it from a re-publish
         self.ledger.restart()
         self.strategy.restarted()
         self._info = self.info()
@@ -174,7 +175,9 @@ class Plant:
             d["robots"][name]["topics"] = dict(sensors.periods)
         d.update(protocol=PROTOCOL_VERSION, mode=self.mode, coupling=self.coupling,
                  **self.delays, seed=self.seed, time_ns=self.sim.time_ns,
-                 namespace=self.keys.namespace, rate=self.rate)
+                 namespace=self.keys.namespace, rate=self.rate,
+                 rejoin_timeout_s=self.rejoin_timeout_s,
+                 epoch=self.outbox.epoch)
         return d
 
     def _answer_info(self, query: zenoh.Query) -> None:
@@ -253,7 +256,7 @@ class Plant:
         clock = packed.clock(t)
         self._put(self.keys.clock, clock, t)
         if composed is not None:
-            composed.clock(t, self._emit)
+            composed.clock(t, self._emit, self.outbox.epoch)
             composed.run(self._emit)
         self.tick.prefetch()
 
@@ -326,8 +329,7 @@ class Plant:
             else:
                 self.log.warning("lockstep member lost: %s (gone without its FINAL at "
                                  "t=%.3f s; %s)", node, self.sim.time_ns * 1e-9,
-                                 "time is held for it" if how == "lost"
-                                 else "the others go on without it")
+                                 lost_note(how, self.rejoin_timeout_s))
 
     def _on_output(self, ev: Event) -> None:
         """A message on a key the plant reads: a command to apply, and in lockstep a
@@ -509,6 +511,16 @@ class Plant:
         self.tick.close()
 
 
+def lost_note(how: str, rejoin_timeout_s: float) -> str:
+    """What happens to a lockstep member that left without its FINAL (``AckLedger.leave``
+    said ``how``), as the plant's warning says it."""
+    if how != "lost":
+        return "the others go on without it"
+    if rejoin_timeout_s > 0:
+        return f"time is held for it, up to --rejoin-timeout {rejoin_timeout_s:g} s"
+    return "the run ends at this tick: --rejoin-timeout is 0, so time is not held for it"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = ArgumentParser(prog="diffbot plant", description="Run the DART plant on the bus.")
     p.add_argument("--world", default="living_room",
@@ -537,7 +549,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rejoin-timeout", type=nonneg_float, default=0.0, metavar="S",
                    help="lockstep: how long to hold simulated time for a member gone without "
                         "its FINAL (killed, frozen past the lease, router or link lost) to "
-                        "come back; 0 (default): end the run at once, naming it, exit 1")
+                        "come back; 0 (default): end the run at once, naming it, exit 1. "
+                        "Announced in sim/info (rejoin_timeout_s): a node or recorder that "
+                        "lost this plant waits as long (+ 2 s) for it, then exits 3")
     p.add_argument("--end-with", default="", metavar="NODES",
                    help="lockstep: stop, without stepping further, at the tick where one of "
                         "these members finishes (so a run's length is reproducible)")

@@ -38,6 +38,9 @@ class Outbox:
         self.skip_unread = skip_unread
         self.congestion = congestion
         self.seq = 0
+        #: the world's epoch in every attachment: +1 at each reset or rebuild (the plant's
+        #: restart_world; docs/PROTOCOL.md section 3)
+        self.epoch = 0
         self.published: dict[str, int] = {}
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._listeners: list = []
@@ -77,7 +80,8 @@ class Outbox:
     def put(self, key: str, data: bytes, t_ns: int) -> None:
         """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number."""
         self.seq += 1
-        self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns))
+        self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns,
+                                                                  epoch=self.epoch))
         self.published[key] = self.published.get(key, 0) + 1
 
     def relay(self, key: str, data: bytes, att: bytes) -> None:

@@ -9,8 +9,13 @@ FINAL, waits until the plant has moved past that tick and leaves.
 
 For the protocol's fixed points: ``--quit-at N`` leaves at tick N without answering it
 (a member that gives up: the plant ends the run naming it), ``--duplicates N`` sends a
-second, different command for some ticks, sooner or later (the plant must ignore them,
-whenever they come).
+second, different command for some ticks, sooner or later, carrying the ACK again (the
+plant must ignore them, ACK included, whenever they come), ``--future N`` sends N commands
+stamped for a tick the plant has not published yet (ignored, counted as protocol errors),
+``--reset-at N`` drives backwards until tick N, then resets the world (``sim/reset``) instead
+of answering it and drives the new world from its tick 0 (told from a re-publish by the
+epoch of the plant's attachment: N may be below 26). A clock for a tick it answered already,
+in the same epoch, is answered again byte for byte (a re-publish after a rejoin).
 
 Exit codes: 0 done, 2 a plant of another protocol version, 3 the plant went away.
 """
@@ -26,8 +31,9 @@ import time
 import zenoh
 from rosbags.typesys import Stores, get_typestore
 
-PROTOCOL = 3                                   # section "The diffbot-cosim bus protocol, version 3"
+PROTOCOL = 4                                   # section "The diffbot-cosim bus protocol, version 4"
 ACK, FINAL = 1, 2                              # section 3: flags
+KEEP_TICKS = 26                                # section 4, "Lost members": answers kept
 TS = get_typestore(Stores.ROS2_JAZZY)
 T = TS.types
 
@@ -36,6 +42,11 @@ def attachment(seq: int, stamp_ns: int, flags: int, n_plant: int, name: str) -> 
     """Section 3: u64 seq, u64 stamp_ns, u8 flags, u16 n_plant, u8 name_len, name."""
     raw = name.encode("utf-8")
     return struct.pack("<QQBHB", seq, stamp_ns, flags, n_plant, len(raw)) + raw
+
+
+def plant_epoch(att: bytes | None) -> int:
+    """Section 3: the plant's attachment is u64 seq, u64 stamp_ns, u32 epoch (20 bytes)."""
+    return struct.unpack_from("<I", att, 16)[0] if att is not None and len(att) == 20 else 0
 
 
 def twist_stamped(stamp_ns: int, linear_mps: float) -> bytes:
@@ -88,8 +99,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ticks", type=int, default=None, help="drive this many ticks instead")
     p.add_argument("--quit-at", type=int, default=None, metavar="N")
     p.add_argument("--duplicates", type=int, default=0, metavar="N",
-                   help="at ticks 5, 10, ... 5N send a second, different command, 0 to 40 ms "
-                        "after the first (before and after the plant applies it)")
+                   help="at ticks 5, 10, ... 5N send a second, different command with the ACK "
+                        "again, 0 to 40 ms after the first (before and after the plant applies "
+                        "it)")
+    p.add_argument("--future", type=int, default=0, metavar="N",
+                   help="at ticks 7, 14, ... 7N also send a command stamped 10 ticks ahead")
+    p.add_argument("--reset-at", type=int, default=None, metavar="N",
+                   help="drive backwards until tick N, then reset the world instead of "
+                        "answering it, and drive the new world from its tick 0")
     a = p.parse_args(argv)
     with zenoh.open(client_config(a.endpoint)) as s:
         info = get_info(s)
@@ -98,10 +115,13 @@ def main(argv: list[str] | None = None) -> int:
                   f"{info.get('mode')} mode; this client speaks {PROTOCOL}, lockstep",
                   file=sys.stderr)
             return 2
+        tick_ns = round(info["control_tick_s"] * 1e9)
         events: queue.SimpleQueue = queue.SimpleQueue()
 
         def on(tag):
-            return lambda sample: events.put((tag, sample.payload.to_bytes(), sample.kind))
+            return lambda sample: events.put((
+                tag, sample.payload.to_bytes(), sample.kind,
+                sample.attachment.to_bytes() if sample.attachment is not None else None))
         # Section 4, joining: subscribe first, then declare the tokens.
         subs = [s.declare_subscriber("sim/clock", on("clock")),
                 s.declare_subscriber(f"{a.robot}/ground_truth", on("truth")),
@@ -112,15 +132,24 @@ def main(argv: list[str] | None = None) -> int:
         tokens = [s.liveliness().declare_token(f"sim/alive/{a.name}"),
                   s.liveliness().declare_token(f"sim/sync/{a.name}")]
         clocks: list[int] = []
-        x_of: dict[int, float] = {}                # ground truth x by stamp
+        x_of: dict[tuple[int, int], float] = {}    # ground truth x by (epoch, stamp)
+        sent: dict[int, list[tuple[bytes, int]]] = {}   # tick -> (payload, flags) answered
+        epoch = None                               # of the world the clocks are of
         x0 = None
         seq = 0
-        n = 0                                      # ticks answered
+        n = 0                                      # ticks answered (in this world)
         final_tick = None
+        resetting = a.reset_at is not None         # drives backwards until the reset
+        reset_from = -1                            # the epoch this client reset away from
         code = 3
+
+        def put(t: int, payload: bytes, flags: int) -> None:
+            nonlocal seq
+            seq += 1
+            pub.put(payload, attachment=attachment(seq, t, flags, 1, a.name))
         try:
             while True:
-                tag, payload, kind = events.get(timeout=30)
+                tag, payload, kind, att = events.get(timeout=30)
                 if tag == "end":
                     code = 0
                     break
@@ -130,43 +159,67 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 if tag == "truth":
                     t, msg = stamp_of(payload, "nav_msgs/msg/Odometry")
-                    x_of[t] = msg.pose.pose.position.x
+                    x_of[plant_epoch(att), t] = msg.pose.pose.position.x
                 elif tag == "clock":
                     t, _ = stamp_of(payload, "rosgraph_msgs/msg/Clock")
+                    e = plant_epoch(att)
+                    if epoch is not None and e < epoch or e <= reset_from:
+                        continue                   # the old world's, late
+                    if e != epoch:                 # a new world (section 4, "Reset")
+                        epoch, clocks, x0, n = e, [], None, 0
+                        sent.clear()
                     if final_tick is not None:
                         if t > final_tick:         # the plant moved past our last tick
                             code = 0
                             break
                         continue
+                    if t in sent:                  # a re-publish: the same answer again
+                        for data, flags in sent[t]:
+                            put(t, data, flags)
+                        continue
                     clocks.append(t)
                 # Section 4, step 2: act on a tick once its clock and every input due are in
                 # (ground truth is published every tick).
-                while clocks and clocks[0] in x_of and final_tick is None:
+                while clocks and (epoch, clocks[0]) in x_of and final_tick is None:
                     t = clocks.pop(0)
-                    x = x_of.pop(t)
+                    x = x_of.pop((epoch, t))
                     x0 = x if x0 is None else x0
                     if n == a.quit_at:
                         print(f"conformance client: giving up at tick {n}", file=sys.stderr)
                         return 1
+                    if resetting and n == a.reset_at:
+                        # Section 6: the world restarts at t = 0 instead of this tick
+                        replies = list(s.get("sim/reset", payload=b"{}", timeout=10.0))
+                        if not replies or replies[0].ok is None:
+                            print("conformance client: sim/reset refused", file=sys.stderr)
+                            return 1
+                        resetting = False
+                        reset_from = epoch         # its clocks still on their way: not ours
+                        clocks.clear()
+                        break
                     done = (n + 1 >= a.ticks if a.ticks is not None
                             else x - x0 >= a.distance)
                     # --ticks: the FINAL tick's command is the last of the drive (applied
                     # without --end-with, section 4 "Finishing"); else it stops the robot
                     speed = a.speed if not done or a.ticks is not None else 0.0
-                    seq += 1
+                    flags = ACK | (FINAL if done else 0)
+                    data = twist_stamped(t, -speed if resetting else speed)
                     # Step 3: one command, the last plant-read output, so it carries the ACK.
-                    pub.put(twist_stamped(t, speed),
-                            attachment=attachment(seq, t, ACK | (FINAL if done else 0), 1,
-                                                  a.name))
+                    put(t, data, flags)
+                    sent[t] = [(data, flags)]
+                    while len(sent) > KEEP_TICKS:
+                        del sent[min(sent)]
                     n += 1
                     i, r = divmod(n - 1, 5)
                     if not r and 1 <= i <= a.duplicates:
                         # Section 7: a second message on the key for the same tick is
-                        # ignored, however late it comes.
+                        # ignored, however late it comes, and so is the ACK it carries.
                         time.sleep(0.01 * (i % 5) ** 2 / 4)
-                        seq += 1
-                        pub.put(twist_stamped(t, -a.speed),
-                                attachment=attachment(seq, t, ACK, 1, a.name))
+                        put(t, twist_stamped(t, -a.speed), ACK)
+                    i, r = divmod(n, 7)
+                    if not r and 1 <= i <= a.future:
+                        # Section 7: a stamp for a tick not published yet is ignored.
+                        put(t + 10 * tick_ns, twist_stamped(t + 10 * tick_ns, -a.speed), 0)
                     if done:
                         final_tick = t             # finishing: keep the tokens until then
         except queue.Empty:

@@ -324,6 +324,7 @@ def commands(text: str) -> list[tuple[int, list[str]]]:
                 found.append((n, ["<unparsable shell line>", str(exc), line]))
                 continue
             for cmd in _split_commands(words):
+                cmd = _drop_redirections(cmd)
                 while cmd and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*=.*", cmd[0]):
                     cmd = cmd[1:]                          # VAR=value prefixes
                 if cmd and cmd[0] in ("exec", "nohup", "time"):
@@ -331,6 +332,25 @@ def commands(text: str) -> list[tuple[int, list[str]]]:
                 if cmd and _program(cmd[0]):
                     found.append((n, cmd[1:]))
     return found
+
+
+_REDIRECT = re.compile(r"(\d*|&)(>>?|<)(&\d+|&-)?(.*)")
+
+
+def _drop_redirections(cmd: list[str]) -> list[str]:
+    """A command's words without its shell redirections (``2> FILE``, ``>log``, ``2>&1``):
+    they are the shell's, not the command's arguments."""
+    out, skip = [], False
+    for word in cmd:
+        if skip:
+            skip = False
+            continue
+        m = _REDIRECT.fullmatch(word)
+        if m:
+            skip = not m.group(3) and not m.group(4)    # the target is the next word
+            continue
+        out.append(word)
+    return out
 
 
 def _toml_commands(block: Block) -> list[tuple[int, list[str]]]:

@@ -221,6 +221,38 @@ def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_make_vec_async_forked_after_a_bus_env_refuses_with_the_reason_at_once():
+    """The default "fork" context after a bus env ran in this process: the forked workers
+    would hang in their first Zenoh session; they refuse at once, naming the remedy, and
+    leave no plant and no socket folder."""
+    env = gym.make("diffbot/Avoid-v0", transport="bus")
+    try:
+        env.reset(seed=0)                       # Zenoh's runtime now runs in this process
+    finally:
+        env.close()
+    before = _children()
+    tmp_before = set(os.listdir("/tmp"))
+    t0 = time.monotonic()
+    venv = gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="async",
+                        vector_kwargs={"context": "fork"}, transport="bus")
+    try:
+        with pytest.warns(UserWarning), pytest.raises(Exception, match="forked from one that "
+                                                      "runs Zenoh") as err:
+            venv.reset(seed=3)
+        took = time.monotonic() - t0
+    finally:
+        venv.close()
+    assert 'vector_kwargs={"context": "spawn"}' in str(err.value)
+    assert took < 30, f"refused only after {took:.1f} s"
+    left = [p for p in _children() - before if alive(p)
+            and b"resource_tracker" not in open(f"/proc/{p}/cmdline", "rb").read()]
+    assert not left, f"processes left: {left}"
+    assert not [d for d in set(os.listdir("/tmp")) - tmp_before
+                if d.startswith("diffbot-env-")], "socket directories left"
+
+
+@pytest.mark.slow
 def test_a_bus_env_dropped_without_close_stops_its_plant():
     env = gym.make("diffbot/Avoid-v0", transport="bus")
     env.reset(seed=0)

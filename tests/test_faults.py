@@ -250,18 +250,20 @@ def test_plant_killed_every_node_exits_3_within_1_s(mode, procs, endpoint, bus, 
     report(f"plant killed ({mode}) -> every node exited", took)
 
 
-@pytest.mark.parametrize("restart", ["kill", "sigint"])
-def test_plant_restarted_nodes_with_wait_reconnect_and_go_on(restart, procs, endpoint, bus,
-                                                            tmp_path):
-    p = start_plant(procs, endpoint, tmp_path, "realtime", tag="plant1")
+def test_plant_killed_nodes_with_wait_carry_on_with_a_plant_back_within_the_rejoin_timeout(
+        procs, endpoint, bus, tmp_path):
+    """--wait across an outage: the plant's sim/info says how long (rejoin_timeout_s); a
+    plant back within it is carried on with, and its end ends the nodes (exit 0)."""
+    p = start_plant(procs, endpoint, tmp_path, "realtime", "--rejoin-timeout", "30",
+                    tag="plant1")
     nodes = [odometry(procs, endpoint, tmp_path, "--wait"),
              drive(procs, endpoint, tmp_path, "--wait")]
     tap = Tap(bus())
     wait_for(lambda: tap.speed_at(0) == tap.speed_at(0) and tap.last_t() > 1e9, 60,
              what="driving")
-    p.send_signal(signal.SIGKILL if restart == "kill" else signal.SIGINT)
+    p.send_signal(signal.SIGKILL)
     p.wait(10)
-    time.sleep(2.0)
+    time.sleep(3.0)                      # longer than the grace alone (bus.plantwatch)
     assert all(n.poll() is None for n in nodes), "--wait nodes wait for the plant"
     with tap.lock:
         seen = len(tap.gt)
@@ -272,20 +274,44 @@ def test_plant_restarted_nodes_with_wait_reconnect_and_go_on(restart, procs, end
         with tap.lock:
             return any(abs(m.twist.twist.linear.x) > 0.3 for _, m in tap.gt[seen:])
     wait_for(driving_again, 60, what="the robot driving again under the new plant")
-    report(f"plant restarted ({restart}) -> driving again", time.monotonic() - restarted)
+    report("plant restarted -> driving again", time.monotonic() - restarted)
     for n in nodes:
         assert n.poll() is None
         log = procs.log(n)
-        assert "waiting for it to come back" in log or "waiting for a plant" in log
+        assert "waiting for it to come back (--wait), up to 32 s" in log, log
         assert "the plant is back" in log and "Traceback" not in log
     p2.send_signal(signal.SIGINT)
     assert p2.wait(10) == 0
-    for n in nodes:                      # still waiting; Ctrl-C ends them cleanly
-        time.sleep(0.5)
-        assert n.poll() is None
-        n.send_signal(signal.SIGINT)
-        assert n.wait(10) == 0
-    assert stats(nodes[1])["plant_lost"] >= 1 or restart == "sigint"
+    for n in nodes:                      # the run they took part in ended: so do they
+        assert n.wait(10) == 0, procs.log(n)
+        assert "the simulation ended (stopped); stopping" in procs.log(n)
+    assert stats(nodes[1])["plant_lost"] >= 1
+
+
+@pytest.mark.parametrize("end", ["sigint", "kill"])
+def test_nodes_with_wait_end_with_the_run_they_took_part_in(end, procs, endpoint, bus,
+                                                             tmp_path):
+    """--wait waits for a plant to start, not past the end of a run: a plant that ends
+    (sim/end) ends its --wait nodes (exit 0); one killed, with the default rejoin timeout
+    0, ends them 2 s later (exit 3, bus.plantwatch.GONE_GRACE_S)."""
+    p = start_plant(procs, endpoint, tmp_path, "realtime")
+    nodes = [odometry(procs, endpoint, tmp_path, "--wait"),
+             drive(procs, endpoint, tmp_path, "--wait")]
+    tap = Tap(bus())
+    wait_for(lambda: tap.speed_at(0) == tap.speed_at(0) and tap.last_t() > 1e9, 60,
+             what="driving")
+    p.send_signal(signal.SIGKILL if end == "kill" else signal.SIGINT)
+    p.wait(10)
+    for n in nodes:
+        code, took = exits_within(n, 10)
+        log = procs.log(n)
+        assert "Traceback" not in log
+        if end == "sigint":
+            assert code == 0 and "the simulation ended (stopped); stopping" in log
+        else:
+            assert code == 3 and "the plant has been gone for " in log, log
+            assert "longer than the run's rejoin timeout (0 s" in log, log
+    report(f"plant ended ({end}) -> --wait nodes ended", took)
 
 
 def test_node_with_wait_started_before_the_plant_waits_for_it(procs, endpoint, bus, tmp_path):
@@ -322,6 +348,9 @@ def test_frozen_lockstep_member_is_dropped_within_the_lease_and_handled_on_resum
     if not wait:                # --rejoin-timeout 0: the run ends, naming it
         code, took = exits_within(p, 10)
         assert code == 1 and "lost lockstep member wheel_schedule_robot1" in procs.log(p)
+        # and the plant said what happens, not that it holds time (issue 35)
+        assert "time is held" not in procs.log(p)
+        assert "the run ends at this tick: --rejoin-timeout is 0" in procs.log(p)
     else:                       # time is held for it
         time.sleep(1.0)
         assert tap.last_t() == t_stop and p.poll() is None

@@ -75,6 +75,7 @@ def test_a_waiting_node_exits_2_when_the_plant_comes_back_speaking_another_versi
     from bus.session import open_session
     s = open_session("plant", endpoint)
     info = {"protocol": PROTOCOL_VERSION, "mode": "lockstep", "control_tick_s": 0.02,
+            "rejoin_timeout_s": 30,          # how long a --wait node waits for it to come back
             "robots": {"robot1": {"topics": {"joint_states": 1}}}}
     served = {"info": info}
     q = s.declare_queryable(K.info, lambda query: query.reply(

@@ -1,6 +1,8 @@
 """Issue 20's fixed points, driven by the client written from docs/PROTOCOL.md alone
 (tests/conformance_client.py): the tick-0 command acts under pipelined coupling, a lost
---end-with member ends the run at once, a duplicate output never changes a run."""
+--end-with member ends the run at once, a duplicate output (its ACK included) never changes
+a run; and issue 35's: a reset in the first 26 ticks is told from a re-publish, a stamp for
+a tick not due is a protocol error that changes nothing."""
 from __future__ import annotations
 
 import json
@@ -32,15 +34,18 @@ def client(endpoint, *args, **kw):
 class Watch:
     """Ground truth x by stamp and sim/end's text, from a session of the test's own."""
 
-    def __init__(self, endpoint) -> None:
+    def __init__(self, endpoint, epoch: int = 0) -> None:
         from bus.session import open_session
-        self.truth: dict[int, bytes] = {}
+        self.truth: dict[int, bytes] = {}       # of the world of ``epoch`` (resets)
         self.end: list[str] = []
         s = self.session = open_session("test", endpoint)
+
+        def on_truth(smp) -> None:
+            a = codec.parse_attachment(smp.attachment.to_bytes())
+            if a.epoch == epoch:
+                self.truth.setdefault(a.t_ns, smp.payload.to_bytes())
         self.subs = [
-            s.declare_subscriber(K.topic("robot1", "ground_truth"), lambda smp: self.truth.
-                                 setdefault(codec.parse_attachment(smp.attachment.to_bytes())
-                                            .t_ns, smp.payload.to_bytes())),
+            s.declare_subscriber(K.topic("robot1", "ground_truth"), on_truth),
             s.declare_subscriber(K.end, lambda smp: self.end.append(
                 smp.payload.to_bytes().decode())),
             s.liveliness().declare_subscriber(K.end, lambda smp: self.end.append(TOKEN))]
@@ -55,12 +60,12 @@ class Watch:
                 for t in sorted(self.truth)]
 
 
-def drive(procs, endpoint, tmp_path, coupling, *client_args, world=()):
+def drive(procs, endpoint, tmp_path, coupling, *client_args, world=(), epoch=0):
     stats = tmp_path / f"plant-{len(procs.procs)}.json"
     plant = procs.diffbot("plant", "--world", "empty", *world, "--coupling", coupling,
                           "--expect", "conformance", "--end-with", "conformance",
                           "--endpoint", endpoint, "--stats", str(stats), name="plant")
-    w = Watch(endpoint)
+    w = Watch(endpoint, epoch)
     c = client(endpoint, *client_args)
     try:
         assert c.wait(120) == 0, c.stderr.read()
@@ -93,18 +98,52 @@ def test_driving_100_ticks_goes_as_far_under_both_couplings(procs, endpoint, tmp
     # the floor, slips a little in its first tick, when the sequential one already drives
     tol = 1e-9 if world else 2e-4
     assert dist["pipelined"] == pytest.approx(dist["sequential"], abs=tol), dist
+    print(f"\n{'kinematic' if world else 'dynamic'}: pipelined - sequential = "
+          f"{(dist['pipelined'] - dist['sequential']) * 1e3:+.4f} mm over 100 ticks "
+          "(docs/PROTOCOL.md, \"Couplings\")")
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("coupling", COUPLINGS)
 def test_duplicate_commands_never_change_the_run(procs, endpoint, tmp_path, coupling):
-    """20 second commands (reversing the robot), 0 to 40 ms after the first, are ignored."""
+    """20 second commands (reversing the robot), 0 to 40 ms after the first, each carrying
+    the ACK again, are ignored whole: one protocol error each, none for a second ACK."""
     w0, _ = drive(procs, endpoint, tmp_path, coupling, "--ticks", "110", "--speed", "0.2")
     w1, st = drive(procs, endpoint.replace("bus.sock", "bus2.sock"), tmp_path, coupling,
                    "--ticks", "110", "--speed", "0.2", "--duplicates", "20")
     assert st["protocol_errors"] == {"robot1/cmd_vel: a second message from conformance for "
                                      "one tick": 20}, st
     assert w0.truth == w1.truth
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("coupling", COUPLINGS)
+def test_a_reset_in_the_first_26_ticks_is_a_new_world_not_a_re_publish(procs, endpoint,
+                                                                        tmp_path, coupling):
+    """The client drives backwards for 10 ticks, resets the world instead of answering tick
+    10, then drives 60 ticks forward: the stamps 0..9 of the new world are ones it answered
+    and keeps (a re-published tick looks the same), but the epoch of the plant's attachment
+    says a new world, so it steps: the new world goes exactly as a fresh run. (Had it
+    re-sent its old answers, the new world would start backwards.)"""
+    w0, _ = drive(procs, endpoint, tmp_path, coupling, "--ticks", "60", "--speed", "0.2")
+    w1, st = drive(procs, endpoint.replace("bus.sock", "bus2.sock"), tmp_path, coupling,
+                   "--ticks", "60", "--speed", "0.2", "--reset-at", "10", epoch=1)
+    assert st["protocol_errors"] == {} and st["rejected"] == {}, st
+    assert len(w0.truth) > 55 and w1.truth == w0.truth
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("coupling", COUPLINGS)
+def test_a_future_stamp_is_a_protocol_error_and_never_acts(procs, endpoint, tmp_path,
+                                                           coupling):
+    """Five commands (reversing the robot) stamped 10 ticks ahead of their tick: counted in
+    protocol_errors, not rejected (docs/PROTOCOL.md section 7), and the run is unchanged."""
+    w0, _ = drive(procs, endpoint, tmp_path, coupling, "--ticks", "60", "--speed", "0.2")
+    w1, st = drive(procs, endpoint.replace("bus.sock", "bus2.sock"), tmp_path, coupling,
+                   "--ticks", "60", "--speed", "0.2", "--future", "5")
+    assert st["protocol_errors"] == {"robot1/cmd_vel: stamped for a tick not due": 5}, st
+    assert st["rejected"] == {}
+    assert w1.truth == w0.truth
 
 
 @pytest.mark.slow

@@ -356,7 +356,10 @@ MACHINE_NS = {"any": None, "router": "router", "plant": "plant", "robot": "ctrl"
 
 def doc_steps() -> list[tuple[str, dict, list[list[str]]]]:
     """The doc's ``# machine: NAME`` shell blocks, in order: (machine, exported variables,
-    commands as argv lists; a trailing ``&`` dropped)."""
+    commands as argv lists; a trailing ``&`` and a ``2> FILE`` dropped: Procs keeps each
+    process's log). The shell's own lines are left to the runner: ``until grep -q "INFO
+    recording" ...`` is its wait for the recorder (run_doc_steps waits for the same line),
+    ``wait`` its wait for the processes in the background (the test waits for each)."""
     import re
     import shlex
     text = open(DOC).read().split("## The square on three machines", 1)[1].split("\n## ", 1)[0]
@@ -370,7 +373,12 @@ def doc_steps() -> list[tuple[str, dict, list[list[str]]]]:
             argv = shlex.split(line, comments=True)
             if argv and argv[0] == "export":
                 env.update(a.split("=", 1) for a in argv[1:])
-            elif argv:
+            elif argv and argv[0] == "until":
+                assert "INFO recording" in line and cmds[-1][1] == "record", line
+            elif argv and argv != ["wait"]:
+                if "2>" in argv:
+                    i = argv.index("2>")
+                    argv = argv[:i] + argv[i + 2:]
                 cmds.append([a for a in argv if a != "&"])
         steps.append((m.group(1), env, cmds))
     return steps
@@ -396,7 +404,7 @@ def run_doc_steps(tmp: str, net: Net, r: Procs) -> dict:
             p = r.diffbot(*args, name=args[0], netns=net.ns[MACHINE_NS[machine]], env=env,
                           cwd=tmp)
             started[args[0]] = p
-            ready = {"router": "listening on", "record": "recording"}.get(args[0])
+            ready = {"router": "listening on", "record": "INFO recording"}.get(args[0])
             if ready:
                 wait_for(lambda: ready in r.log(p) or p.poll() is not None, 30,
                          what=f"`diffbot {args[0]}` on {machine}")

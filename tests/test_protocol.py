@@ -14,7 +14,7 @@ import textwrap
 import pytest
 
 from bus import codec
-from bus.keys import TOPICS, Keys
+from bus.keys import TOPICS, Keys, check_name
 from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION
 
 from .conftest import ROOT, wait_for
@@ -88,25 +88,35 @@ def test_attachment_layout_in_the_document_is_the_codec_s():
     assert layout == [(0, "u64", "seq"), (8, "u64", "stamp_ns"), (16, "u8", "flags"),
                       (17, "u16", "n_plant"), (19, "u8", "name_len"), (20, "bytes", "name")]
     assert codec.ATTACHMENT.format == "<QQ" and codec.TRAILER.format == "<BHB"
+    assert "| 16 | u32 | `epoch` |" in text and codec.EPOCH.format == "<I"
     assert "bit 0 `ACK`" in text and "bit 1 `FINAL`" in text
     assert (codec.ACK, codec.FINAL) == (1, 2)
     # the worked example is what the codec makes
     example = re.search(r"attachment \(31 bytes\):\n\n```\n(.*?)\n", text, re.S).group(1)
     want = codec.attachment(51, 1_020_000_000, codec.ACK, 1, "go_straight")
     assert bytes.fromhex(example.replace(" ", "")) == want
-    payload = re.search(r"payload \(76 bytes\):\n\n```\n(.*?)```", text, re.S).group(1)
+    payload = re.search(r"payload \(84 bytes\):\n\n```\n(.*?)```", text, re.S).group(1)
     assert bytes.fromhex("".join(payload.split())) == \
-        codec.encode(codec.twist_stamped(1_020_000_000, 0.25, 0.0))
+        codec.encode(codec.twist_stamped(1_020_000_000, 0.25, 0.0, "robot1/base_link"))
+    assert "frame_id `robot1/base_link`" in text
 
 
 def test_attachments_round_trip_and_malformed_ones_are_refused():
     a = codec.parse_attachment(codec.attachment(9, 40_000_000, codec.ACK | codec.FINAL, 3, "nöde"))
-    assert a == (9, 40_000_000, 3, 3, "nöde")
-    assert codec.parse_attachment(codec.attachment(9, 5)) == (9, 5, 0, 0, None)
+    assert a == (9, 40_000_000, 3, 3, "nöde", None)
+    assert codec.parse_attachment(codec.attachment(9, 5)) == (9, 5, 0, 0, None, None)
+    plant = codec.attachment(9, 5, epoch=2)                 # the plant's: 20 bytes
+    assert len(plant) == 20 and codec.parse_attachment(plant) == (9, 5, 0, 0, None, 2)
     good = codec.attachment(1, 2, codec.ACK, 1, "abc")
     for bad in (good[:-1], good + b"x", good[:17], good[:16] + b"\x04" + good[17:],
-                good[:19] + b"\x00", codec.attachment(1, 2)[:15], b""):
+                good[:19] + b"\x00a", codec.attachment(1, 2)[:15], b"",
+                codec.attachment(1, 2, codec.ACK, 1, "n" * 65)):
         assert codec.parse_attachment(bad) is None, bad
+    longest = "n" * 64                  # name_len 1..64: a node name's longest (section 3)
+    assert codec.parse_attachment(codec.attachment(1, 2, codec.ACK, 1, longest)).node == longest
+    assert check_name(longest) and "name_len` | length of the name in bytes, 1..64" in doc()
+    with pytest.raises(ValueError, match="at most 64 characters"):
+        check_name("n" * 65)
 
 
 # ---------------------------------------------------------------- a client from the document
@@ -186,7 +196,8 @@ def test_a_node_exits_2_on_a_plant_of_another_protocol_version(procs, endpoint, 
         node = procs.diffbot("controller", "square_path", "--endpoint", endpoint, name="node")
         assert node.wait(60) == 2
         log = procs.log(node)
-        assert "the plant speaks bus protocol 1; this node speaks bus protocol 3" in log
+        assert ("the plant speaks bus protocol 1; this node speaks bus protocol "
+                f"{PROTOCOL_VERSION}") in log
         assert "Traceback" not in log
     finally:
         q.undeclare()

@@ -328,7 +328,8 @@ def test_topics_and_echo_against_a_running_plant(procs, endpoint):
     blocks = [b for b in r.stdout.split("--- ") if b.strip()]
     assert len(blocks) == 2
     for b in blocks:
-        assert re.match(r"/robot1/gps  seq \d+  t \d+\.\d{6} s  \(geometry_msgs/msg/PointStamped\)",
+        assert re.match(r"/robot1/gps  seq \d+  t \d+\.\d{6} s  epoch 0  "
+                        r"\(geometry_msgs/msg/PointStamped\)",
                         b)
         assert "frame_id: world" in b and re.search(r"point: \{x: \S+, y: \S+, z: \S+\}", b)
 

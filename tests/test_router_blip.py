@@ -1,7 +1,12 @@
 """Lockstep survives a router blip (issue 27): on loopback, a `diffbot router` killed and
 restarted 2 s later during a lockstep square run with --rejoin-timeout 30 and --wait nodes
 leaves the recording identical, payloads and sim stamps, to an undisturbed run's, under
-both couplings (docs/PROTOCOL.md section 4, "Lost members")."""
+both couplings (docs/PROTOCOL.md section 4, "Lost members").
+
+And every process ends with its run by itself (issue 35), with the codes of
+docs/several-machines.md, none killed by the test: after a run with blips, plant, nodes
+and recorder all exit 0; when the router stays away longer than --rejoin-timeout, the plant
+exits 1 and the --wait nodes and the recorder, whom its sim/end cannot reach, exit 3."""
 from __future__ import annotations
 
 import json
@@ -15,7 +20,7 @@ import pytest
 
 from bus.protocol import COUPLINGS
 
-from .compare_recordings import compare
+from .compare_recordings import compare, topics_of
 from .conftest import ROOT, Procs, wait_for
 from .test_netns import net, start_router, tls_machines  # noqa: F401  (net: a fixture)
 
@@ -67,12 +72,13 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[float],
                         name="recorder", netns=ns.get("ctrl"), env=bus["ctrl_env"])
         wait_for(lambda: "recording" in r.log(rec) or rec.poll() is not None, 30,
                  what="the recorder")
-        r.diffbot("fmu-node", "fmus/build/odometry_fmi2.fmu", "--robot", "robot1", "--name",
-                  "odometry_robot1", "--wait", *bus["node_args"], name="odometry",
-                  netns=ns.get("ctrl"), env=bus["ctrl_env"])
-        r.diffbot("controller", "square_path", "--robot", "robot1", "--side", "1.5",
-                  "--name", "square_path_robot1", "--wait", *bus["node_args"], name="square",
-                  netns=ns.get("ctrl"), env=bus["ctrl_env"])
+        odometry = r.diffbot("fmu-node", "fmus/build/odometry_fmi2.fmu", "--robot", "robot1",
+                             "--name", "odometry_robot1", "--wait", *bus["node_args"],
+                             name="odometry", netns=ns.get("ctrl"), env=bus["ctrl_env"])
+        square_node = r.diffbot("controller", "square_path", "--robot", "robot1", "--side",
+                                "1.5", "--name", "square_path_robot1", "--wait",
+                                *bus["node_args"], name="square", netns=ns.get("ctrl"),
+                                env=bus["ctrl_env"])
         wait_for(lambda: "running living_room" in r.log(plant), 60, what="the run")
         for i, after in enumerate(blips):
             time.sleep(after)
@@ -84,7 +90,10 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[float],
             wait_for(lambda: r.log(plant).count("lockstep member rejoined") >= 2 * (i + 1),
                      30, what=f"both members back after blip {i + 1}")
         assert plant.wait(120) == 0, r.log(plant)
-        assert rec.wait(30) == 0, r.log(rec)
+        # every process ends by itself with the run (--wait included): none is killed here
+        for p in (rec, odometry, square_node):
+            assert p.wait(30) == 0, r.log(p)
+            assert "Traceback" not in r.log(p)
         log = r.log(plant)
     finally:
         r.cleanup()
@@ -108,6 +117,64 @@ def test_a_router_blip_leaves_the_recording_as_an_undisturbed_run_s(tmp_path, co
     assert "lockstep member rejoined" in got[2]
     same_run(ref, got)
     print(f"\n{coupling}: router blip at wall +{blip_at:.2f} s: recording identical")
+
+
+#: the plant's --rejoin-timeout in the outage test, and how long the router stays away
+OUTAGE_REJOIN_S = 2.0
+OUTAGE_S = 8.0
+#: bus.plantwatch.GONE_GRACE_S, and scheduling noise on a loaded 2-core machine
+GRACE_S, SLACK_S = 2.0, 3.0
+
+
+@pytest.mark.parametrize("coupling", COUPLINGS)
+def test_a_router_lost_past_the_rejoin_timeout_ends_every_process_by_itself(tmp_path,
+                                                                           coupling):
+    """The router killed and back only after the plant gave up: the plant exits 1 ("lost
+    lockstep member"), and its sim/end reaches nobody; the --wait nodes and the recorder,
+    without the plant for longer than the run's rejoin timeout (sim/info) + 2 s, exit 3 by
+    themselves, the router back or not, and the recording is closed properly."""
+    bus = loopback_router()
+    tmp = str(tmp_path)
+    r = Procs(tmp)
+    mcap = os.path.join(tmp, "run.mcap")
+    try:
+        router = start_router(r, bus, None)
+        plant = r.diffbot("plant", "--world", "living_room", "--disable", "camera",
+                          "--coupling", coupling, "--seed", "0", "--duration", "600",
+                          "--expect", "odometry_robot1,square_path_robot1",
+                          "--rejoin-timeout", str(OUTAGE_REJOIN_S), *bus["plant_args"],
+                          name="plant", env=bus["plant_env"])
+        rec = r.diffbot("record", mcap, "--compression", "none", *bus["rec_args"],
+                        name="recorder", env=bus["ctrl_env"])
+        wait_for(lambda: "INFO recording" in r.log(rec) or rec.poll() is not None, 30,
+                 what="the recorder")
+        nodes = [r.diffbot("fmu-node", "fmus/build/odometry_fmi2.fmu", "--robot", "robot1",
+                           "--name", "odometry_robot1", "--wait", *bus["node_args"],
+                           name="odometry", env=bus["ctrl_env"]),
+                 r.diffbot("controller", "square_path", "--robot", "robot1", "--side", "1.5",
+                           "--name", "square_path_robot1", "--wait", *bus["node_args"],
+                           name="square", env=bus["ctrl_env"])]
+        wait_for(lambda: "running living_room" in r.log(plant), 60, what="the run")
+        time.sleep(0.5)
+        router.send_signal(signal.SIGKILL)
+        router.wait(5)
+        lost = time.monotonic()
+        assert plant.wait(OUTAGE_REJOIN_S + SLACK_S + 1) == 1, r.log(plant)
+        assert "not back within --rejoin-timeout" in r.log(plant)
+        time.sleep(max(0.0, OUTAGE_S - (time.monotonic() - lost)))
+        start_router(r, bus, None)             # back, with no plant left to end the run
+        deadline = lost + OUTAGE_REJOIN_S + GRACE_S + SLACK_S + 1 + OUTAGE_S
+        for p in (*nodes, rec):
+            code = p.wait(max(1.0, deadline - time.monotonic()))
+            log = r.log(p)
+            assert code == 3, log
+            assert "the plant has been gone for" in log and "Traceback" not in log, log
+            assert f"rejoin timeout ({OUTAGE_REJOIN_S:g} s" in log, log
+    finally:
+        r.cleanup()
+    with open(mcap, "rb") as f:                  # closed properly: summary and footer
+        assert f.read()[-8:] == b"\x89MCAP0\r\n"
+    assert topics_of(mcap)["/sim/clock"], "recorded nothing"
 
 
 @pytest.mark.parametrize("coupling", COUPLINGS)

@@ -22,6 +22,7 @@ import itertools
 import json
 import logging
 import os
+import re
 import shutil
 import tempfile
 import threading
@@ -40,6 +41,44 @@ Observe = Callable[[int, dict], None]
 
 #: wall seconds the environment waits for the plant before it gives up
 PLANT_TIMEOUT_S = 60.0
+
+#: the names Zenoh's runtime gives its threads (it keeps them after its sessions close)
+_ZENOH_THREAD = re.compile(r"(app|net|acc|rx|tx)-\d+$")
+_fork = {"parent_ran_zenoh": False, "child": False}
+
+
+def _zenoh_runtime_here() -> bool:
+    """Whether this process runs Zenoh's runtime (its threads, by name, in /proc)."""
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return False
+    for t in tasks:
+        try:
+            with open(f"/proc/self/task/{t}/comm") as f:
+                if _ZENOH_THREAD.match(f.read().strip()):
+                    return True
+        except OSError:
+            continue
+    return False
+
+
+def _before_fork() -> None:
+    _fork["parent_ran_zenoh"] = _zenoh_runtime_here()
+
+
+def _in_forked_child() -> None:
+    _fork["child"] = _fork["parent_ran_zenoh"]
+
+
+# A process forked from one that ran Zenoh (a bus environment used before make_vec's
+# "async" workers, forked by default on Linux) inherits a runtime whose threads are gone:
+# its first session hangs for good. Such a worker refuses to start instead (Bus._start).
+os.register_at_fork(before=_before_fork, after_in_child=_in_forked_child)
+FORKED_WORKER = ("this process was forked from one that runs Zenoh (a bus environment was "
+                 "used in it before), and a forked Zenoh runtime hangs: start the workers "
+                 "with the spawn context, gymnasium.make_vec(..., vectorization_mode=\"async\", "
+                 "vector_kwargs={\"context\": \"spawn\"}) (docs/learning.md)")
 
 
 class TransportError(RuntimeError):
@@ -218,6 +257,8 @@ class Bus:
         parent process) starts nothing and a forked worker inherits no Zenoh runtime."""
         world, inputs, disabled, overrides, endpoint, namespace = self._args
         spec, res = self.spec, self._res
+        if _fork["child"]:                 # before anything is made: nothing to leave behind
+            raise TransportError(FORKED_WORKER)
         try:
             if endpoint is None:
                 res.tmpdir = tempfile.mkdtemp(prefix="diffbot-env-")
