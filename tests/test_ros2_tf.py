@@ -4,6 +4,7 @@ DDS domain id of its own (tests/ros2_peer.py)."""
 from __future__ import annotations
 
 import json
+import math
 import signal
 import time
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from bus import codec
+from bus.keys import Keys
 from tests.conftest import wait_for
 from tests.ros2_peer import domain_id, latched, peer_factory  # noqa: F401  (a fixture)
 
@@ -108,6 +110,91 @@ def test_tf_over_ros2_looks_up_base_link_in_odom_and_world_as_ground_truth_at_th
     assert run.wait(60) == 130, procs.log(run)
     bridge = json.load(open(out / "logs" / "ros2_bridge.json"))
     assert bridge["forwarded"]["/tf"] >= len(chain) and bridge["forwarded"]["/tf_static"] == 1
+
+
+class _FakeNode:
+    def create_publisher(self, msg, topic, qos):
+        return topic
+
+
+class _FakeSession:
+    def __init__(self):
+        self.subs = {}
+
+    def declare_subscriber(self, key, cb):
+        self.subs[key] = cb
+        return self
+
+    def undeclare(self):
+        pass
+
+
+class _Sample:
+    def __init__(self, data):
+        self.payload = data
+
+
+def test_tf_pairs_by_stamp_does_without_odometry_and_takes_it_back():
+    """bridges/ros2_tf.TfPublisher's rules, fed bus samples directly: one /tf per stamp,
+    stamps increasing, base_link in world always the ground truth."""
+    from bridges import ros2_tf
+    sent = []
+    ros = type("Ros", (), {"TFMessage": None, "qos_tf": None, "qos_latched": None})
+    info = {"robots": {"r1": {"pose": [1.0, 2.0, 0.5], "sensors": {}}}}
+    session = _FakeSession()
+    tfp = ros2_tf.TfPublisher(_FakeNode(), ros, session, Keys(), info, ["r1"],
+                              lambda pub, data: sent.append((pub, data)))
+    assert [p for p, _ in sent] == ["/tf_static"]
+    on_gt, on_odom = session.subs["r1/ground_truth"], session.subs["r1/odom"]
+
+    def truth(t):                     # the robot drives a circle; odometry drifts from it
+        return (1.0 + math.cos(t), 2.0 + math.sin(t), t + 0.5)
+
+    def feed(t_ns, odom=True, odom_first=False):
+        x, y, yaw = truth(t_ns * 1e-9)
+        gt = codec.encode(codec.odometry(t_ns, x, y, yaw, 0, 0, "world", "r1/base_link", z=0.1))
+        od = codec.encode(codec.odometry(t_ns, 0.9 * t_ns * 1e-9, 0.0, 1.1 * t_ns * 1e-9, 0, 0,
+                                         "r1/odom", "r1/base_link"))
+        order = ([od] if odom else []) + [gt] if odom_first else [gt] + ([od] if odom else [])
+        for data in order:
+            (on_odom if data is od else on_gt)(_Sample(data))
+
+    def tfs():
+        out = []
+        for pub, data in sent:
+            if pub == "/tf":
+                m = codec.decode(data, "tf2_msgs/msg/TFMessage")
+                wo, ob = m.transforms
+                assert (wo.header.frame_id, wo.child_frame_id, ob.child_frame_id) == (
+                    "world", "r1/odom", "r1/base_link")
+                t = codec.stamp_ns(wo.header.stamp)
+                assert codec.stamp_ns(ob.header.stamp) == t
+                world = _tf_matrix(wo) @ _tf_matrix(ob)
+                x, y, yaw = truth(t * 1e-9)
+                assert np.allclose(world[:3, 3], (x, y, 0.1)), t
+                assert math.isclose(math.atan2(world[1, 0], world[0, 0]),
+                                    math.atan2(math.sin(yaw), math.cos(yaw)), abs_tol=1e-9)
+                out.append(t)
+        return out
+    tick = 20_000_000
+    for k in range(10):
+        feed(k * tick, odom_first=k % 2 == 1)             # either order
+    assert tfs() == [k * tick for k in range(10)]
+    del sent[:]
+    for k in range(10, 10 + ros2_tf.WAIT_TICKS + 5):      # the odometry node is gone
+        feed(k * tick, odom=False)
+    quiet = tfs()
+    assert quiet and all(b > a for a, b in zip(quiet, quiet[1:]))
+    assert quiet[-1] == (10 + ros2_tf.WAIT_TICKS + 4) * tick
+    del sent[:]
+    for k in range(40, 45):                               # it is back
+        feed(k * tick)
+    assert tfs() == [k * tick for k in range(40, 45)]
+    del sent[:]
+    for k in range(3):                                    # /reset_simulation: time from 0
+        feed(k * tick)
+    assert tfs() == [0, tick, 2 * tick]
+    tfp.close()
 
 
 def test_a_twist_publisher_on_cmd_vel_is_named_in_one_warning(procs, endpoint, peer_factory,
