@@ -134,6 +134,22 @@ class _Sample:
         self.payload = data
 
 
+def test_tf_bytes_and_the_odometry_reader_are_rosbags_cdr():
+    from bridges import ros2_tf
+    from bus import scene
+    pose = ((1.5, -2.25, 0.125), (0.1, -0.2, 0.3, 0.9273618495495703))
+    for parent, child, t in (("world", "robot1/odom", 3_020_000_000), ("a", "bc", 7)):
+        want = codec.encode(scene.tf([scene.transform(parent, child, *pose, t),
+                                      scene.transform(child, "x/base_link", *pose, t + 1)]))
+        assert ros2_tf.tf_bytes([(parent, child, t, pose),
+                                 (child, "x/base_link", t + 1, pose)]) == want
+    for frame_id, child in (("world", "robot1/base_link"), ("o", "b12"), ("odom", "")):
+        m = codec.odometry(5_000_000_123, 1.0, 2.0, 0.0, 0, 0, frame_id, child, z=0.5,
+                           quaternion=pose[1])
+        assert ros2_tf.read_odometry(codec.encode(m)) == (5_000_000_123, ((1.0, 2.0, 0.5), pose[1]))
+    assert ros2_tf.read_odometry(b"\x00\x01\x00\x00garbage") is None
+
+
 def test_tf_pairs_by_stamp_does_without_odometry_and_takes_it_back():
     """bridges/ros2_tf.TfPublisher's rules, fed bus samples directly: one /tf per stamp,
     stamps increasing, base_link in world always the ground truth."""
