@@ -4,11 +4,12 @@ VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 FMUS    := fmus/build/.built
+TF2MSGS := $(VENV)/share/tf2_msgs/diffbot-build.txt
 FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
 
 .PHONY: setup demo test test-fast soak bench clean netns-tools
 
-setup: $(STAMP) $(FMUS)
+setup: $(STAMP) $(FMUS) $(TF2MSGS)
 
 $(STAMP): pyproject.toml tests/js/package-lock.json
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,6 +19,11 @@ $(STAMP): pyproject.toml tests/js/package-lock.json
 	@if command -v npm >/dev/null; then (cd tests/js && npm ci --silent --no-audit --no-fund) \
 	   || echo "npm ci failed: the Foxglove client tests will be skipped"; \
 	 else echo "npm not found: the Foxglove client tests will be skipped"; fi
+
+# tf2_msgs/msg/TFMessage for rclpy (/tf over ROS 2): generated with the PyPI rosidl
+# generators and compiled into the venv (docs/ros2.md). Without it the bridge runs, without /tf.
+$(TF2MSGS): $(STAMP) bridges/ros2_msgs.py
+	@$(BIN)/python -m bridges.ros2_msgs || echo "(make setup goes on without tf2_msgs)"
 
 $(FMUS): $(STAMP) $(FMU_SRC)
 	$(BIN)/diffbot fmu build

@@ -173,3 +173,28 @@ def test_a_stop_signal_that_comes_again_inside_the_handler_does_not_hang_the_pro
         pytest.fail("the process hung in its stop-signal handler")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "stopped"
+
+
+def test_a_stopped_process_whose_exit_outlasts_the_orphan_check_exits_cleanly():
+    """The stop handler arms a 0.5 s timer to look whether the parent is gone; the
+    interpreter's finalization puts SIGALRM back to its default action, so a process still
+    finalizing when that timer fired was killed by it (exit -14: the ROS 2 bridge, whose
+    rclpy teardown takes ~0.5 s, about one stop in two)."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    code = _py("""
+        import os, signal, sys, threading, time
+        sys.path.insert(0, %r)
+        from bus.session import install_stop_signals
+
+        class SlowTeardown:                 # native teardown after atexit, made long
+            def __del__(self):
+                time.sleep(1.0)
+        keep = SlowTeardown()
+        stop = threading.Event()
+        install_stop_signals(stop)
+        os.kill(os.getpid(), signal.SIGINT)
+        print("stopped" if stop.wait(5) else "not stopped", flush=True)
+    """ % root)
+    r = subprocess.run(code, capture_output=True, text=True, timeout=20)
+    assert r.stdout.strip() == "stopped"
+    assert r.returncode == 0, (r.returncode, r.stderr)

@@ -20,6 +20,9 @@ import pytest
 from bus import codec
 from bus.keys import Keys
 from tests.conftest import ROOT, wait_for
+# peer_factory is a fixture; Peer, domain_id, _latched are tests/test_one_naming_scheme.py's
+from tests.ros2_peer import Peer, domain_id, latched, peer_factory  # noqa: F401
+_latched = latched
 
 rclpy = pytest.importorskip(
     "rclpy", reason="rclpy is not importable: `pip install -e '.[ros2]'` (make setup does)")
@@ -27,51 +30,6 @@ rclpy = pytest.importorskip(
 pytestmark = pytest.mark.slow
 
 EXAMPLE = os.path.join(ROOT, "examples", "ros2", "square_path.py")
-
-
-def domain_id(k: int) -> int:
-    """A DDS domain of this test run (0-101 are safe with Fast DDS's ports)."""
-    return 1 + (os.getpid() * 4 + k) % 100
-
-
-class Peer:
-    """An rclpy node in its own context, spun by a thread."""
-
-    def __init__(self, domain: int) -> None:
-        import rclpy.context
-        import rclpy.executors
-        self.context = rclpy.context.Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = rclpy.create_node("test_peer", context=self.context)
-        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        try:
-            while self.context.ok():
-                self.executor.spin_once(timeout_sec=0.05)
-        except Exception:
-            pass
-
-    def close(self) -> None:
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.context.try_shutdown()
-        self.thread.join(2.0)
-
-
-@pytest.fixture
-def peer_factory():
-    peers = []
-
-    def make(domain: int) -> Peer:
-        peers.append(Peer(domain))
-        return peers[-1]
-    yield make
-    for p in peers:
-        p.close()
 
 
 def test_clock_and_scan_reach_ros2_as_on_the_bus(procs, endpoint, bus, peer_factory):
@@ -278,12 +236,6 @@ def test_a_killed_ros2_controller_ends_the_bridge_like_a_node(tmp_path):
 AVOIDER = os.path.join(ROOT, "examples", "ros2", "wall_avoider.py")
 
 
-def _latched():
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
 def test_sim_over_ros2_rep105_odom_robot_description_one_type_and_reset(
         procs, endpoint, peer_factory, tmp_path, monkeypatch):
     import xml.etree.ElementTree as ET
@@ -308,7 +260,7 @@ def test_sim_over_ros2_rep105_odom_robot_description_one_type_and_reset(
                                   qos_profile_sensor_data)
     peer.node.create_subscription(JointState, "/robot1/joint_states", joints.append,
                                   qos_profile_sensor_data)
-    peer.node.create_subscription(String, "/robot1/robot_description", desc.append, _latched())
+    peer.node.create_subscription(String, "/robot1/robot_description", desc.append, latched())
     wait_for(lambda: odom and desc and joints and gt, 60, what="odom, joints, robot_description")
     # REP 105: odometry in robot1/odom, starting at the origin (the robot starts at rest)
     first = odom[0]
@@ -369,6 +321,7 @@ def test_sim_over_ros2_rep105_odom_robot_description_one_type_and_reset(
     bridge_log = (out / "logs" / "ros2_bridge.log").read_text()
     assert "Traceback" not in bridge_log and "InvalidHandle" not in bridge_log, bridge_log
     assert "/reset_simulation: {\"ok\": true" in bridge_log
+    assert "DDS never delivers" not in bridge_log, bridge_log    # the right types: no warning
 
 
 def test_a_lockstep_ros2_node_started_late_that_waits_for_its_first_scan_runs_to_the_end(
@@ -394,3 +347,4 @@ def test_a_lockstep_ros2_node_started_late_that_waits_for_its_first_scan_runs_to
     assert summary["message_counts"]["robot1/cmd_vel"] >= 150, summary
     assert "waiting for a TwistStamped on /robot1/cmd_vel stamped t=0.000 s" in log, log
     assert "the ROS 2 controller answered (t=0.000 s)" in log, log
+
