@@ -50,8 +50,8 @@ def python_environment() -> dict[str, str]:
     if not sysconfig.get_config_var("Py_ENABLE_SHARED"):
         soname = ""                        # a static interpreter: only Python hosts can run it
     site = sysconfig.get_paths()["purelib"]
-    paths = [str(_ROOT), site]
-    bootstrap = f"import sys; [sys.path.insert(0, p) for p in {paths[::-1]!r} if p not in sys.path]"
+    bootstrap = (f"import sys; r, s = {str(_ROOT)!r}, {site!r}; "
+                 "r in sys.path or sys.path.insert(0, r); s in sys.path or sys.path.append(s)")
     return {"python_version": sysconfig.get_python_version(),
             "executable": str(Path(sys.executable).absolute()),
             "libpython": os.path.join(libdir, soname) if soname else "",

@@ -124,6 +124,10 @@ static int load_python(PlantInstance *pi, const Config *cfg) {
         p_PyConfig_InitPythonConfig(&config);
         config.install_signal_handlers = 0;   /* the host's signals stay the host's */
         config.parse_argv = 0;
+        /* no site import: a .pth file of the environment may do anything at startup (one
+         * here re-executes the interpreter, which would replace the host's process); the
+         * bootstrap line of plant.cfg puts site-packages and the package root on sys.path */
+        config.site_import = 0;
         status = p_PyConfig_SetBytesString(&config, &config.program_name, cfg->executable);
         if (!p_PyStatus_Exception(status)) status = p_Py_InitializeFromConfig(&config);
         p_PyConfig_Clear(&config);
