@@ -10,8 +10,9 @@ importer's process. Its variables (:func:`layout`) are fixed at export time; per
 - outputs at the end of each step (the values the plant publishes at that tick): the true
   pose ``x, y, yaw``; ``odom_x, odom_y, odom_yaw``, the pose dead-reckoned from the
   encoder *readings* (``joint_states`` positions, noise included) from the start pose;
-  ``wheel_angle_left/right`` (those readings, rad) and ``wheel_speed_left/right`` (rad/s,
-  exact, as published); ``contact`` (a robot solid touching anything but the floor at the
+  ``wheel_angle_left/right`` (those readings, rad), ``wheel_speed_left/right`` (rad/s,
+  exact, as published) and ``wheel_rate_left/right`` (a reading's increment over the last
+  tick / tick: the odometry FMU's inputs, as the bus feeds them); ``contact`` (a robot solid touching anything but the floor at the
   tick's last physics step); ``scan`` (the last lidar scan's ranges, m: one Float64 array
   in FMI 3, ``scan[1]`` ... ``scan[n]`` in FMI 2), held between scans;
 - parameters ``x0, y0, yaw0`` (start pose), and for the world ``world`` (file or shipped
@@ -67,19 +68,24 @@ OUTPUTS = (
     ("wheel_angle_right", "rad", "right encoder reading (joint_states position, noise included)"),
     ("wheel_speed_left", "rad/s", "left wheel speed (joint_states velocity)"),
     ("wheel_speed_right", "rad/s", "right wheel speed (joint_states velocity)"),
+    ("wheel_rate_left", "rad/s", "left encoder reading's increment over the last tick / tick "
+     "(what the odometry FMU takes as omega_left on the bus)"),
+    ("wheel_rate_right", "rad/s", "right encoder reading's increment over the last tick / tick"),
 )
 
 
 def layout(robots: list[tuple[str, int, tuple[float, float, float]]], fmi: int, world: str,
            seed: int = 0) -> list[Var]:
     """The FMU's variables: ``robots`` is [(name, lidar rays or 0, start pose)]."""
-    out = [Var("time", 0, "Float64", "independent", "continuous", "simulation time", "s"),
-           Var("world", 1, "String", "parameter", "fixed",
-               "world file or shipped world name (its robots and lidars must be the exported ones)",
-               start=world),
-           Var("seed", 2, "Int32", "parameter", "fixed", "seed of every noise stream", start=seed),
-           Var("noise", 3, "Boolean", "parameter", "fixed",
-               "false: every sensor and motion noise of the world is off", start=True)]
+    # FMI 3 needs its one independent variable; FMI 2 none (FMI Library then asks for a start)
+    out = [Var("time", 0, "Float64", "independent", "continuous", "simulation time", "s")
+           ] if fmi == 3 else []
+    out += [Var("world", 1, "String", "parameter", "fixed",
+                "world file or shipped world name (its robots and lidars must be the exported ones)",
+                start=world),
+            Var("seed", 2, "Int32", "parameter", "fixed", "seed of every noise stream", start=seed),
+            Var("noise", 3, "Boolean", "parameter", "fixed",
+                "false: every sensor and motion noise of the world is off", start=True)]
     for i, (name, rays, pose) in enumerate(robots):
         base = ROBOT_VR * (i + 1)
         r = dict(robot=name)
@@ -323,9 +329,12 @@ class PlantInstance:
         for robot in self.robots:
             st = self.tick.sim.state(robot)
             pos, vel = readings[robot]
+            prev = self.odom[robot]
+            rate = (pos - prev[1]) / self.cfg["tick_s"] if prev is not None else np.zeros(2)
             o = self._odometry(robot, pos)
             fields = (float(st.xyz[0]), float(st.xyz[1]), float(st.yaw), *o,
-                      float(pos[0]), float(pos[1]), float(vel[0]), float(vel[1]))
+                      float(pos[0]), float(pos[1]), float(vel[0]), float(vel[1]),
+                      float(rate[0]), float(rate[1]))
             for (field, _, _), value in zip(OUTPUTS, fields):
                 self.out[(robot, field)] = value
             self.out[(robot, "contact")] = robot in touching
