@@ -333,3 +333,57 @@ def test_libcosim_runs_the_fmi2_plant(fmus):
     moved = math.hypot(end[0] - start[0], end[1] - start[1])
     print(f"libcosim FMI 2: 100 ticks at 0.2 m/s: {moved:.4f} m")
     assert 0.40 * 0.98 - RAMP_M <= moved <= 0.40 * 1.02
+
+
+def _ecospy():
+    try:
+        import ecospy
+    except (ImportError, OSError) as e:      # its binary needs libtbb.so.12 (apt: libtbb12)
+        pytest.skip(f"ecospy cannot load here: {e}")
+    return ecospy
+
+
+@pytest.mark.parametrize("fmi", [3, 2])
+def test_ecos_runs_the_plant(fmus, fmi):
+    ecospy = _ecospy()
+    with ecospy.EcosSimulationStructure() as ss:
+        ss.add_model("plant", str(fmus[fmi]))
+        with ecospy.EcosSimulation(structure=ss, step_size=TICK_S) as sim:
+            sim.set_real(f"plant::{ROBOT}.v", 0.2)
+            sim.init()
+            start = [sim.get_real(f"plant::{ROBOT}.{k}") for k in "xy"]
+            sim.step(100)
+            end = [sim.get_real(f"plant::{ROBOT}.{k}") for k in "xy"]
+            assert sim.get_time() == pytest.approx(2.0)
+            sim.terminate()
+    moved = math.hypot(end[0] - start[0], end[1] - start[1])
+    print(f"Ecos FMI {fmi}: 2 s at 0.2 m/s: {moved:.4f} m")
+    assert 0.40 * 0.98 - RAMP_M <= moved <= 0.40 * 1.02
+
+
+@pytest.mark.timeout(900)
+def test_the_ssp_square_has_the_odometry_error_of_diffbot_run_square(fmus, tmp_path):
+    """The study's square as an SSP (plant FMU -> odometry FMU, the square path as the
+    master's logic) under libcosim, against the same square on the bus."""
+    import json
+    sys.path.insert(0, str(ROOT / "fmus" / "examples"))
+    try:
+        from plant_square import square
+    finally:
+        sys.path.remove(str(ROOT / "fmus" / "examples"))
+    odometry = ROOT / "fmus" / "build" / "odometry_fmi2.fmu"
+    if not odometry.exists():
+        from fmus.build import build_fmu
+        odometry = build_fmu(2, tmp_path)
+    ssp = square(str(fmus[2]), "libcosim", str(tmp_path / "square.ssp"), str(odometry))
+    bus = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square", "--out",
+                          str(tmp_path / "bus")], cwd=ROOT, capture_output=True, text=True,
+                         timeout=800)
+    assert bus.returncode == 0, bus.stderr[-2000:]
+    ref = json.loads((tmp_path / "bus" / "summary.json").read_text())["metrics"][ROBOT]
+    err, length = ref["final_odom_error_m"], ref["path_length_m"]
+    print(f"square: SSP under libcosim {ssp}; diffbot run square: error {err:.5f} m, "
+          f"path {length:.3f} m")
+    assert ssp["path_length_m"] == pytest.approx(length, rel=0.01)
+    assert ssp["final_odom_error_m"] < 0.01
+    assert abs(ssp["final_odom_error_m"] - err) < 0.001
