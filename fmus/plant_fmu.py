@@ -12,9 +12,10 @@ importer's process. Its variables (:func:`layout`) are fixed at export time; per
   encoder *readings* (``joint_states`` positions, noise included) from the start pose;
   ``wheel_angle_left/right`` (those readings, rad), ``wheel_speed_left/right`` (rad/s,
   exact, as published) and ``wheel_rate_left/right`` (a reading's increment over the last
-  tick / tick: the odometry FMU's inputs, as the bus feeds them); ``contact`` (a robot solid touching anything but the floor at the
-  tick's last physics step); ``scan`` (the last lidar scan's ranges, m: one Float64 array
-  in FMI 3, ``scan[1]`` ... ``scan[n]`` in FMI 2), held between scans;
+  tick / tick: the odometry FMU's inputs, as the bus feeds them); ``contact`` (a robot
+  solid touching anything but the floor at the tick's last physics step); ``scan`` (the
+  last lidar scan's ranges, m: one Float64 array in FMI 3, ``scan[1]`` ... ``scan[n]`` in
+  FMI 2), held between scans;
 - parameters ``x0, y0, yaw0`` (start pose), and for the world ``world`` (file or shipped
   name), ``seed`` and ``noise`` (false: every sensor and motion noise of the world off).
 
@@ -140,6 +141,7 @@ class PlantInstance:
         self.robots = [r for r, _, _ in robots]
         self.vars = layout(robots, fmi, self.cfg["world"], self.cfg["seed"])
         self.by_vr = {v.vr: v for v in self.vars}
+        self.by_name = {v.name: v.vr for v in self.vars}
         self.messages: list[str] = []
         self.tick = None
         self._start_values()
@@ -251,6 +253,10 @@ class PlantInstance:
             if self.state != "init":
                 raise ValueError(f"{v.name} has no value before initialization")
             self._build()                  # outputs asked for in initialization mode
+        if v.field == "contact":
+            if self.touching is None:
+                self.touching = contacts(self.tick.sim.world, self.robots)
+            return [v.robot in self.touching]
         if v.field == "scan":
             scan = self.scans[v.robot]
             return [float(r) for r in scan] if v.size else [float(scan[v.index])]
@@ -280,7 +286,7 @@ class PlantInstance:
 
     # -------------------------------------------------------------- the world
     def param(self, name: str):
-        return self.values[next(v.vr for v in self.vars if v.name == name)]
+        return self.values[self.by_name[name]]
 
     @property
     def time(self) -> float:
@@ -325,19 +331,18 @@ class PlantInstance:
                                    np.asarray(msg.velocity, dtype=float))
             elif topic == "scan":
                 self.scans[robot] = np.asarray(msg.ranges, dtype=np.float64)
-        touching = contacts(self.tick.sim.world, self.robots)
+        self.touching = None               # found when asked for (get of a contact flag)
         for robot in self.robots:
-            st = self.tick.sim.state(robot)
+            tf = self.tick.sim.robots[robot].transform()
             pos, vel = readings[robot]
             prev = self.odom[robot]
             rate = (pos - prev[1]) / self.cfg["tick_s"] if prev is not None else np.zeros(2)
             o = self._odometry(robot, pos)
-            fields = (float(st.xyz[0]), float(st.xyz[1]), float(st.yaw), *o,
-                      float(pos[0]), float(pos[1]), float(vel[0]), float(vel[1]),
+            yaw = float(np.arctan2(tf[1, 0], tf[0, 0]))     # as plant.sim.Simulation.state
+            fields = (float(tf[0, 3]), float(tf[1, 3]), yaw, *o, float(pos[0]), float(pos[1]), float(vel[0]), float(vel[1]),
                       float(rate[0]), float(rate[1]))
             for (field, _, _), value in zip(OUTPUTS, fields):
                 self.out[(robot, field)] = value
-            self.out[(robot, "contact")] = robot in touching
             if robot not in self.scans and self.tick.sensors[robot].lidar is not None:
                 self.scans[robot] = np.zeros(self.tick.sensors[robot].lidar.num_rays)
 

@@ -9,7 +9,7 @@
 
 #define PI ((PlantInstance *)c)
 
-static void log2(PlantInstance *pi, int status, const char *category, const char *message) {
+static void log_fmi2(PlantInstance *pi, int status, const char *category, const char *message) {
     const fmi2CallbackFunctions *f = (const fmi2CallbackFunctions *)pi->callbacks;
     /* the message goes as an argument: FMI 2 loggers read it as a format */
     if (f && f->logger)
@@ -37,7 +37,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     proto.name = (char *)instanceName;
     proto.fmi = 2;
     proto.logging = loggingOn ? 1 : 0;
-    proto.logger = log2;
+    proto.logger = log_fmi2;
     proto.callbacks = functions;
     if (fmuType != fmi2CoSimulation) {
         plant_log(&proto, PLANT_ERROR, "the plant FMU is co-simulation only");

@@ -10,7 +10,7 @@
 
 #define PI ((PlantInstance *)instance)
 
-static void log3(PlantInstance *pi, int status, const char *category, const char *message) {
+static void log_fmi3(PlantInstance *pi, int status, const char *category, const char *message) {
     fmi3LogMessageCallback log = (fmi3LogMessageCallback)(void (*)(void))pi->callbacks;
     if (log) log((fmi3InstanceEnvironment)pi->env, (fmi3Status)status, category, message);
 }
@@ -37,7 +37,7 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     proto.name = (char *)instanceName;
     proto.fmi = 3;
     proto.logging = loggingOn ? 1 : 0;
-    proto.logger = log3;
+    proto.logger = log_fmi3;
     proto.env = instanceEnvironment;
     proto.callbacks = (const void *)(void (*)(void))logMessage;
     if (eventModeUsed) {
