@@ -144,6 +144,7 @@ class PlantInstance:
         self.by_name = {v.name: v.vr for v in self.vars}
         self.messages: list[str] = []
         self.tick = None
+        self.touching = None
         self._start_values()
 
     # -------------------------------------------------------------- FMI calls
@@ -199,8 +200,14 @@ class PlantInstance:
         return self._guard(self._start_values) or OK
 
     def terminate(self) -> int:
+        return self._guard(self._terminate) or OK
+
+    def _terminate(self) -> None:
+        """Drop the world, keeping the last outputs (getters are allowed when terminated)."""
+        if self.tick is not None and self.touching is None:
+            self.touching = contacts(self.tick.sim.world, self.robots)
         self.state = "terminated"
-        return self._guard(self._close_tick) or OK
+        self._close_tick()
 
     def free(self) -> int:
         return self._guard(self._close_tick) or OK
@@ -249,10 +256,12 @@ class PlantInstance:
             return [self.values[v.vr]]
         if v.causality == "independent":
             return [self.time]
-        if self.tick is None:
+        if self.tick is None and self.state != "terminated":
             if self.state != "init":
                 raise ValueError(f"{v.name} has no value before initialization")
             self._build()                  # outputs asked for in initialization mode
+        if not self.out:
+            raise ValueError(f"{v.name} has no value: the FMU was never initialized")
         if v.field == "contact":
             if self.touching is None:
                 self.touching = contacts(self.tick.sim.world, self.robots)
@@ -282,6 +291,8 @@ class PlantInstance:
         self.values[v.vr] = bool(value) if v.type == "Boolean" else value
         if v.causality == "parameter":
             self._close_tick()             # built from older parameters in init mode
+            self.out.clear()
+            self.scans.clear()
         return OK
 
     # -------------------------------------------------------------- the world
@@ -339,7 +350,8 @@ class PlantInstance:
             rate = (pos - prev[1]) / self.cfg["tick_s"] if prev is not None else np.zeros(2)
             o = self._odometry(robot, pos)
             yaw = float(np.arctan2(tf[1, 0], tf[0, 0]))     # as plant.sim.Simulation.state
-            fields = (float(tf[0, 3]), float(tf[1, 3]), yaw, *o, float(pos[0]), float(pos[1]), float(vel[0]), float(vel[1]),
+            fields = (float(tf[0, 3]), float(tf[1, 3]), yaw, *o, float(pos[0]), float(pos[1]),
+                      float(vel[0]), float(vel[1]),
                       float(rate[0]), float(rate[1]))
             for (field, _, _), value in zip(OUTPUTS, fields):
                 self.out[(robot, field)] = value

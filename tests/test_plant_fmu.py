@@ -387,3 +387,23 @@ def test_the_ssp_square_has_the_odometry_error_of_diffbot_run_square(fmus, tmp_p
     assert ssp["path_length_m"] == pytest.approx(length, rel=0.01)
     assert ssp["final_odom_error_m"] < 0.01
     assert abs(ssp["final_odom_error_m"] - err) < 0.001
+
+
+def test_outputs_stay_readable_after_terminate_and_two_instances_do_not_mix(fmus):
+    a, b = Slave(fmus[3], 3).start(), Slave(fmus[3], 3).start()
+    try:
+        a.set(f"{ROBOT}.v", 0.2)
+        b.set(f"{ROBOT}.w", 0.5)          # b turns in place while a drives straight
+        for _ in range(10):
+            a.step(0.02)
+            b.step(0.02)
+        ax, ayaw = a.get(f"{ROBOT}.x", f"{ROBOT}.yaw")
+        bx, byaw = b.get(f"{ROBOT}.x", f"{ROBOT}.yaw")
+        assert ax > -0.97 and abs(ayaw) < 1e-3
+        assert abs(bx + 1.0) < 1e-3 and byaw > 0.05
+        a.fmu.terminate()
+        assert a.get(f"{ROBOT}.x", f"{ROBOT}.yaw") == [ax, ayaw]
+        assert list(a.fmu.getBoolean([a.vr[f"{ROBOT}.contact"]])) == [False]
+        a.fmu.freeInstance()
+    finally:
+        b.free()
