@@ -407,3 +407,44 @@ def test_outputs_stay_readable_after_terminate_and_two_instances_do_not_mix(fmus
         a.fmu.freeInstance()
     finally:
         b.free()
+
+
+def test_encoder_noise_is_the_plants_draw_for_draw(tmp_path):
+    """With the world's noise on, the readings are the plant's at the same seed; off, exact."""
+    from bus.controller import Twist
+    from plant.tick import Tick
+    from plant.world import load_world
+    noisy = "robots.robot1.encoders.noise={std = 0.01}"
+    path = tmp_path / "noisy.fmu"
+    result = subprocess.run([sys.executable, "-m", "diffbot.cli", "fmu", "export-plant",
+                             "--set", noisy, "--out", str(path)], cwd=ROOT,
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    names = (f"{ROBOT}.wheel_angle_left", f"{ROBOT}.wheel_angle_right")
+    got = {}
+    for noise in (True, False):
+        s = Slave(path, 3).start(seed=5, noise=noise)
+        try:
+            s.set(f"{ROBOT}.v", 0.2)
+            s.step(0.2)
+            got[noise] = s.get(*names)
+        finally:
+            s.free()
+    spec = load_world("living_room", [noisy])
+    spec.seed = 5
+    tick = Tick(spec, disabled=("camera",))
+    for _ in range(10):
+        list(tick.messages())
+        tick.drive(ROBOT, Twist(0.2, 0.0))
+        tick.step()
+    joints = [m for r, t, m in tick.messages() if r == ROBOT and t == "joint_states"][0]
+    assert got[True] == [float(p) for p in joints.position]
+    exact = tick.sim.state(ROBOT).enc_pos
+    assert got[False] == pytest.approx(list(exact), abs=1e-4)   # no noise: the true angles
+    assert got[True] != pytest.approx(got[False], abs=1e-4)
+
+
+def test_export_refuses_an_unknown_robot_with_a_message(capsys):
+    from fmus.plant_export import main
+    assert main(["--robots", "robot9", "--out", "/nonexistent/x.fmu"]) == 1
+    assert "has no robot 'robot9'" in capsys.readouterr().err
