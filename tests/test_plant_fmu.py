@@ -204,6 +204,7 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
+@pytest.mark.timeout(600)
 def test_instantiate_and_free_100_times_leaves_nothing_behind(fmus):
     from fmpy import extract
     unzipped = extract(str(fmus[3]))
