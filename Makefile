@@ -35,14 +35,17 @@ demo: setup
 test: setup netns-tools
 	$(BIN)/python -m pytest -q
 
-# tests/test_netns.py needs `ip` (iproute2) and `openssl`. Installed only when missing,
+# tests/test_netns.py needs `ip` (iproute2) and `openssl`, the Ecos runs of tests/test_plant_fmu.py
+# libtbb.so.12 (libtbb12). Installed only when missing,
 # only as root, only with apt-get (a fresh Debian CI machine); otherwise the test skips
 # and says why.
 netns-tools:
 	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
-	    { ! command -v ip >/dev/null || ! command -v openssl >/dev/null; }; then \
-	  echo "installing iproute2 and openssl for tests/test_netns.py"; \
-	  apt-get update -qq && apt-get install -y -qq iproute2 openssl >/dev/null; fi
+	    { ! command -v ip >/dev/null || ! command -v openssl >/dev/null || \
+	      ! ldconfig -p | grep -q libtbb.so.12; }; then \
+	  echo "installing iproute2 and openssl (tests/test_netns.py), libtbb12 (Ecos, tests/test_plant_fmu.py)"; \
+	  apt-get update -qq && apt-get install -y -qq iproute2 openssl libtbb12 >/dev/null \
+	  || echo "apt-get failed: those tests will be skipped and say why"; fi
 
 test-fast: setup
 	$(BIN)/python -m pytest -q -m "not slow"

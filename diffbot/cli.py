@@ -5,6 +5,7 @@
     diffbot controller NAME ...     one controller (square_path, teleop, odometry, wheel_schedule,
                                     wander, ball_follower, avoid, policy)
     diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
+    diffbot fmu export-plant --out robot.fmu   the DART plant as a co-simulation FMU (FMI 3 or 2)
     diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
     diffbot bench ...               benchmarks
     diffbot experiment NAME ...     the study's sensor experiments, --out DIR (-h lists them)
@@ -83,7 +84,12 @@ def _dispatch(argv: list[str] | None) -> int:
         if rest[:1] == ["build"]:
             from fmus.build import main as build_main
             return build_main(rest[1:], prog="diffbot fmu build")
-        print("usage: diffbot fmu build [--out DIR]", file=sys.stderr)
+        if rest[:1] == ["export-plant"]:
+            from fmus.plant_export import main as export_main
+            return export_main(rest[1:], prog="diffbot fmu export-plant")
+        print("usage: diffbot fmu build [--out DIR]\n"
+              "       diffbot fmu export-plant [--world W] [--robots R ...] [--fmi 3|2] "
+              "--out robot.fmu", file=sys.stderr)
         return 2
     if cmd == "fmu-node":
         from fmus.fmu_node_cli import main as fmu_node_main

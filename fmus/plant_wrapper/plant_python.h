@@ -1,0 +1,60 @@
+/* The plant FMU's C shim: an FMI 2/3 co-simulation interface over fmus/plant_fmu.py.
+ *
+ * A tool-coupling FMU: the binary embeds the Python interpreter of the environment it was
+ * exported from (resources/plant.cfg: its executable, libpython, the package root). In a
+ * host that already runs that Python (fmpy, libcosimpy, ecospy) the host's interpreter is
+ * used; elsewhere libpython is loaded and initialised once per process. Python is never
+ * linked at build time: every C-API function is looked up at run time, so a missing
+ * environment is an FMI error with a message, not a failure to load the binary. */
+#ifndef PLANT_PYTHON_H
+#define PLANT_PYTHON_H
+
+#include <stddef.h>
+
+enum { PLANT_OK = 0, PLANT_WARNING = 1, PLANT_DISCARD = 2, PLANT_ERROR = 3, PLANT_FATAL = 4 };
+
+typedef struct PlantInstance PlantInstance;
+
+/* how a message reaches the importer's logger (one per FMI version) */
+typedef void (*PlantLogger)(PlantInstance *pi, int status, const char *category,
+                            const char *message);
+
+struct PlantInstance {
+    void *py;                 /* the fmus.plant_fmu.PlantInstance object */
+    char *name;
+    int fmi;                  /* 2 or 3 */
+    int logging;              /* debug logging on (logEvents) */
+    double start_time;        /* FMI 2: from fmi2SetupExperiment */
+    PlantLogger logger;
+    void *env;                /* the importer's environment for the logger */
+    const void *callbacks;    /* FMI 2: the callback functions */
+    char **strings;           /* the values last returned by getString */
+    size_t nstrings;
+};
+
+/* "file:///a/b" or "/a/b/" -> "/a/b" (malloc'ed), NULL on a URI of another scheme */
+char *plant_resource_dir(const char *location);
+
+/* A new instance, NULL on failure (the reason went to the logger). The caller fills in
+ * logger, env, callbacks and fmi before, through *proto. */
+PlantInstance *plant_instantiate(const PlantInstance *proto, const char *resources,
+                                 const char *token);
+void plant_free(PlantInstance *pi);
+
+/* Call a method of the Python instance with Py_BuildValue arguments (fmt without the
+ * parentheses); returns its FMI status (an exception: PLANT_ERROR). A status other than
+ * OK is logged with the instance's message. */
+int plant_call(PlantInstance *pi, const char *method, const char *fmt, ...);
+
+/* get / set values of one FMI type ("Float64", "Int32", "Boolean") */
+int plant_get(PlantInstance *pi, const char *kind, const unsigned int *vr, size_t nvr,
+              void *values, size_t nvalues);
+int plant_set(PlantInstance *pi, const char *kind, const unsigned int *vr, size_t nvr,
+              const void *values, size_t nvalues);
+int plant_get_strings(PlantInstance *pi, const unsigned int *vr, size_t nvr, const char **values);
+int plant_set_strings(PlantInstance *pi, const unsigned int *vr, size_t nvr,
+                      const char *const *values);
+
+void plant_log(PlantInstance *pi, int status, const char *fmt, ...);
+
+#endif
