@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from bus import codec
 from bus.controller import Twist, WheelSpeeds
 from bus.keys import frame
+from bus.lockstep import AckLedger
 
 #: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
 ABSURD_FACTOR = 10.0
@@ -103,6 +105,7 @@ class CommandBook:
         self.lockstep = lockstep
         self.latest: dict[str, Command] = {}
         self.by_tick: dict[str, dict[int, Command]] = {}
+        self.refused: dict[str, int] = {}      # robot -> stamp of its last rejected command
 
     def file(self, robot: str, cmd: Command) -> str | None:
         """Keep ``cmd``. Lockstep: one command per robot per tick, the same whatever the
@@ -140,6 +143,11 @@ class CommandBook:
             del by_tick[t]
         return by_tick[best]
 
+    def refuse(self, robot: str, t_ns: int) -> None:
+        """A command for ``robot`` stamped ``t_ns`` was rejected (bad values): the robot has
+        none for that tick, which :func:`stale_commands` must not count."""
+        self.refused[robot] = t_ns
+
     def forget(self, robot: str) -> None:
         """The robot's command timed out: it holds none until a new one comes."""
         self.latest.pop(robot, None)
@@ -148,3 +156,31 @@ class CommandBook:
     def clear(self) -> None:
         self.latest.clear()
         self.by_tick.clear()
+        self.refused.clear()
+
+
+#: the protocol error kind of a robot driven by a command other than the coupling's rule's
+STALE = "stale command"
+
+
+def stale_commands(ledger: AckLedger, book: CommandBook, t_ns: int,
+                   picked: dict[str, Command | None],
+                   keys: Callable[[str], tuple[str, ...] | None],
+                   report: Callable[[str, str], None]) -> int:
+    """Lockstep, once per tick, before the plant steps with ``picked`` (robot -> the command
+    that acts, or None): how many robots are driven by anything but the command stamped
+    ``t_ns`` (the tick whose commands act: t_k sequential, t_(k-1) pipelined) or the
+    documented fallback (docs/PROTOCOL.md section 4, "Couplings";
+    :meth:`bus.lockstep.AckLedger.stale_command`); each is reported as ``STALE``, a
+    protocol error, never silent. ``keys(robot)``: its command keys."""
+    n = 0
+    for robot, cmd in picked.items():
+        cmd_t = None if cmd is None else cmd.t_ns
+        if cmd_t == t_ns:
+            continue
+        why = ledger.stale_command(t_ns, keys(robot) or (), cmd_t,
+                                   book.refused.get(robot) == t_ns)
+        if why:
+            report(STALE, f"{robot}: {why}")
+            n += 1
+    return n
