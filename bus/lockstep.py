@@ -196,7 +196,7 @@ class AckLedger:
         return not self.held_for() and (t_ns < 0 or not self.waiting_for(t_ns))
 
     def stale_command(self, t_ns: int, keys: tuple[str, ...], cmd_t: int | None,
-                      refused: bool = False) -> str | None:
+                      refused: bool = False, owing: list[str] | None = None) -> str | None:
         """Section 4, "Couplings": None if the command about to drive a robot (stamped
         ``cmd_t``; None: it has none) is the rule's for the tick whose commands act,
         ``t_ns``: the one stamped ``t_ns``, or, where no member sent one for ``t_ns``, the
@@ -204,11 +204,13 @@ class AckLedger:
         still owes ``t_ns`` (the plant steps without its answer), or a member's message
         for ``t_ns`` on one of the robot's command ``keys`` was taken but is not the one
         that acts (``refused``: the plant rejected a command of ``t_ns`` for bad values,
-        counted as such). Cheap when the command is the tick's: one comparison."""
+        counted as such). Cheap when the command is the tick's: one comparison (``owing``:
+        ``waiting_for(t_ns)`` if the caller has it already)."""
         if cmd_t == t_ns or t_ns < 0:
             return None
         had = "no command" if cmd_t is None else f"the command of t={cmd_t * 1e-9:.3f} s"
-        owing = self.waiting_for(t_ns)
+        if owing is None:
+            owing = self.waiting_for(t_ns)
         if owing:
             return (f"t={t_ns * 1e-9:.3f} s stepped with {had} while {', '.join(owing)} "
                     "had not answered it")

@@ -174,12 +174,15 @@ def stale_commands(ledger: AckLedger, book: CommandBook, t_ns: int,
     :meth:`bus.lockstep.AckLedger.stale_command`); each is reported as ``STALE``, a
     protocol error, never silent. ``keys(robot)``: its command keys."""
     n = 0
+    owing = None                          # who still owes t_ns: asked once, if at all
     for robot, cmd in picked.items():
         cmd_t = None if cmd is None else cmd.t_ns
-        if cmd_t == t_ns:
+        if cmd_t == t_ns or t_ns < 0:
             continue
+        if owing is None:
+            owing = ledger.waiting_for(t_ns)
         why = ledger.stale_command(t_ns, keys(robot) or (), cmd_t,
-                                   book.refused.get(robot) == t_ns)
+                                   book.refused.get(robot) == t_ns, owing)
         if why:
             report(STALE, f"{robot}: {why}")
             n += 1
