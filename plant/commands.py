@@ -4,7 +4,9 @@ A bad command (undecodable, NaN/inf, absurd speeds, wrong frame, unknown joints,
 in the future or older than ``cmd_timeout_s``) raises :class:`ValueError` here and never
 reaches the physics (docs/PROTOCOL.md section 7). Which command acts at a tick follows
 the mode: in lockstep the one computed for the latest tick at or before ``t_k -
-actuation delay`` (section 4, "Couplings"), otherwise the latest one received.
+actuation delay`` (section 4, "Couplings"), otherwise the latest one received; in
+lockstep :func:`stale_commands` checks every tick that the older one acts only where the
+rule allows it (issue 40).
 """
 from __future__ import annotations
 
