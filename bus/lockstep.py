@@ -182,6 +182,42 @@ class AckLedger:
         return [m for m in sorted(owed) if m in self.members and not self.done(m, t_ns)
                 and self.finished.get(m, t_ns) >= t_ns]
 
+    def may_step(self, t_ns: int) -> bool:
+        """Section 4, step 4 and "Lost members": whether the plant may step past the tick
+        whose answers are those of ``t_ns`` (none due if negative), asked with no event
+        handled since the answer: no member is lost and none owes ``t_ns``. A member that
+        rejoins while the plant waits for something else (an ``--end-with`` member's FINAL,
+        the hold) owes again the ticks it has not answered, and is waited for."""
+        return not self.held_for() and (t_ns < 0 or not self.waiting_for(t_ns))
+
+    def stale_command(self, t_ns: int, keys: tuple[str, ...], cmd_t: int | None,
+                      refused: bool = False, owing: list[str] | None = None) -> str | None:
+        """Section 4, "Couplings": None if the command about to drive a robot (stamped
+        ``cmd_t``; None: it has none) is the rule's for the tick whose commands act,
+        ``t_ns``: the one stamped ``t_ns``, or, where no member sent one for ``t_ns``, the
+        latest before it. Otherwise what is wrong (a protocol error, section 7): a member
+        still owes ``t_ns`` (the plant steps without its answer), or a member's message
+        for ``t_ns`` on one of the robot's command ``keys`` was taken but is not the one
+        that acts (``refused``: the plant rejected a command of ``t_ns`` for bad values,
+        counted as such). Cheap when the command is the tick's: one comparison (``owing``:
+        ``waiting_for(t_ns)`` if the caller has it already)."""
+        if cmd_t == t_ns or t_ns < 0:
+            return None
+        had = "no command" if cmd_t is None else f"the command of t={cmd_t * 1e-9:.3f} s"
+        if owing is None:
+            owing = self.waiting_for(t_ns)
+        if owing:
+            return (f"t={t_ns * 1e-9:.3f} s stepped with {had} while {', '.join(owing)} "
+                    "had not answered it")
+        if refused:
+            return None
+        for m in sorted(self.owed_by.get(t_ns, ())):
+            got = self.member_msgs.get((m, t_ns), ())
+            if any(k in got for k in keys):
+                return (f"{m}'s command for t={t_ns * 1e-9:.3f} s was taken, but {had} "
+                        "acts")
+        return None
+
     def missing_outputs(self, member: str, t_ns: int) -> tuple[int, int] | None:
         """Section 7: (n_plant the member's ACK of ``t_ns`` announced, messages that came),
         or None if it has not ACKed that tick."""

@@ -4,12 +4,15 @@ A bad command (undecodable, NaN/inf, absurd speeds, wrong frame, unknown joints,
 in the future or older than ``cmd_timeout_s``) raises :class:`ValueError` here and never
 reaches the physics (docs/PROTOCOL.md section 7). Which command acts at a tick follows
 the mode: in lockstep the one computed for the latest tick at or before ``t_k -
-actuation delay`` (section 4, "Couplings"), otherwise the latest one received.
+actuation delay`` (section 4, "Couplings"), otherwise the latest one received; in
+lockstep :func:`stale_commands` checks every tick that the older one acts only where the
+rule allows it (issue 40).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -17,6 +20,7 @@ from bus import codec
 from bus.lockstep import RECENT_TICKS      # commands per robot remembered by tick stamp
 from bus.controller import Twist, WheelSpeeds
 from bus.keys import frame
+from bus.lockstep import AckLedger
 
 #: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
 ABSURD_FACTOR = 10.0
@@ -102,6 +106,7 @@ class CommandBook:
         self.lockstep = lockstep
         self.latest: dict[str, Command] = {}
         self.by_tick: dict[str, dict[int, Command]] = {}
+        self.refused: dict[str, int] = {}      # robot -> stamp of its last rejected command
 
     def file(self, robot: str, cmd: Command) -> str | None:
         """Keep ``cmd``. Lockstep: one command per robot per tick, the same whatever the
@@ -139,6 +144,11 @@ class CommandBook:
             del by_tick[t]
         return by_tick[best]
 
+    def refuse(self, robot: str, t_ns: int) -> None:
+        """A command for ``robot`` stamped ``t_ns`` was rejected (bad values): the robot has
+        none for that tick, which :func:`stale_commands` must not count."""
+        self.refused[robot] = t_ns
+
     def forget(self, robot: str) -> None:
         """The robot's command timed out: it holds none until a new one comes."""
         self.latest.pop(robot, None)
@@ -147,3 +157,34 @@ class CommandBook:
     def clear(self) -> None:
         self.latest.clear()
         self.by_tick.clear()
+        self.refused.clear()
+
+
+#: the protocol error kind of a robot driven by a command other than the coupling's rule's
+STALE = "stale command"
+
+
+def stale_commands(ledger: AckLedger, book: CommandBook, t_ns: int,
+                   picked: dict[str, Command | None],
+                   keys: Callable[[str], tuple[str, ...] | None],
+                   report: Callable[[str, str], None]) -> int:
+    """Lockstep, once per tick, before the plant steps with ``picked`` (robot -> the command
+    that acts, or None): how many robots are driven by anything but the command stamped
+    ``t_ns`` (the tick whose commands act: t_k sequential, t_(k-1) pipelined) or the
+    documented fallback (docs/PROTOCOL.md section 4, "Couplings";
+    :meth:`bus.lockstep.AckLedger.stale_command`); each is reported as ``STALE``, a
+    protocol error, never silent. ``keys(robot)``: its command keys."""
+    n = 0
+    owing = None                          # who still owes t_ns: asked once, if at all
+    for robot, cmd in picked.items():
+        cmd_t = None if cmd is None else cmd.t_ns
+        if cmd_t == t_ns or t_ns < 0:
+            continue
+        if owing is None:
+            owing = ledger.waiting_for(t_ns)
+        why = ledger.stale_command(t_ns, keys(robot) or (), cmd_t,
+                                   book.refused.get(robot) == t_ns, owing)
+        if why:
+            report(STALE, f"{robot}: {why}")
+            n += 1
+    return n

@@ -175,8 +175,13 @@ class Lockstep(Mode):
             if p.reset_in_tick or p.stop_event.is_set():
                 return None
             self.await_final_of_leavers()
-            if not p.ledger.held_for():
+            # Stepped only if, as it looks now (events were handled since the ACKs came),
+            # nobody is lost and nobody owes the tick: a member back within the grace
+            # for an --end-with member's FINAL owes it again (issue 40).
+            if p.ledger.may_step(due):
                 break
+            if not p.ledger.held_for():
+                continue
             lost = self.hold(t_ns)
             if lost or p.reset_in_tick or p.stop_event.is_set():
                 return lost

@@ -44,7 +44,7 @@ from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION
 from bus.session import BusConfigError, add_process_args, install_stop_signals, open_session
 
 from . import modes
-from .commands import Command, CommandBook, decode_command
+from .commands import STALE, Command, CommandBook, decode_command, stale_commands
 from .memory import keep_freed_memory
 from .outbox import Outbox
 from .physics_process import PhysicsError
@@ -348,6 +348,8 @@ class Plant:
                                           robot=robot)
             except (codec.CodecError, ValueError) as exc:
                 self.rejects.reject(f"{robot}/{topic}", str(exc))
+                if att is not None:
+                    self.commands.refuse(robot, att.t_ns)      # (not a stale command)
                 return
             if lockstep and att is not None:
                 t_cmd = att.t_ns       # the tick it was computed for (0: tick 0, not "now")
@@ -360,9 +362,14 @@ class Plant:
 
     def apply_commands(self) -> None:
         """Hand each robot the command that acts at this tick (the mode's), or zero if it
-        has none or it timed out."""
+        has none or it timed out; in lockstep, any other than the rule's is a protocol error."""
+        picked = {name: self.strategy.command(name) for name in self.sim.robots}
+        if self.strategy.lockstep and not self.stop_event.is_set():     # (issue 40)
+            keys = lambda r: (self._key(r, "cmd_vel"), self._key(r, "wheel_cmd"))  # noqa: E731
+            stale_commands(self.ledger, self.commands, self.sim.time_ns - self.strategy.delay_ns,
+                           picked, keys, self.protocol_errors.reject)
         for name, robot in self.sim.robots.items():
-            cmd = self.strategy.command(name)
+            cmd = picked[name]
             if cmd is not None:
                 timeout = robot.spec.drive.cmd_timeout_s
                 age = self.strategy.age_s(cmd)
@@ -482,6 +489,7 @@ class Plant:
                 "physics_process": self.tick.physics is not None,
                 "composed": self.composed.names if self.composed is not None else [],
                 "protocol_errors": dict(self.protocol_errors.counts),
+                "stale_commands": self.protocol_errors.counts.get(STALE, 0),
                 "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
                                 for k, v in self.timing.items()}}
 

@@ -87,6 +87,7 @@ def test_one_process_drives_two_robots_in_lockstep(procs, endpoint, bus, tmp_pat
     st = json.loads(stats.read_text())
     assert st["members_seen"] == ["pair"] and st["coupling"] == coupling
     assert st["rejected"] == {} and st.get("protocol_errors", {}) == {}, st
+    assert st["stale_commands"] == 0, st          # each robot, every tick: the rule's command
     ns = json.loads(node_stats.read_text())
     assert ns["robots"] == ["leader", "follower"] and ns["ticks"] >= 50
     assert ns["published"] == {K.topic("leader", "wheel_cmd"): ns["ticks"],

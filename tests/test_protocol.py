@@ -163,6 +163,7 @@ def _drive(procs, endpoint, tmp_path, coupling, client_argv) -> dict[int, bytes]
     st = json.loads(stats.read_text())
     assert st["end_reason"] == "conformance finished" and st["coupling"] == coupling
     assert st["protocol_errors"] == {} and st["rejected"] == {}, st
+    assert st["stale_commands"] == 0, st          # every tick's command was the rule's
     return truth
 
 

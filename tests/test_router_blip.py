@@ -1,7 +1,11 @@
-"""Lockstep survives a router blip (issue 27): on loopback, a `diffbot router` killed and
-restarted 2 s later during a lockstep square run with --rejoin-timeout 30 and --wait nodes
-leaves the recording identical, payloads and sim stamps, to an undisturbed run's, under
-both couplings (docs/PROTOCOL.md section 4, "Lost members").
+"""Lockstep survives router blips (issues 27 and 40): a `diffbot router` SIGKILLed and
+restarted 0.1-0.5 s later, again and again during one lockstep square run (--rejoin-timeout
+30, --end-with the square as docs/several-machines.md runs it, --wait nodes), leaves the
+recording identical, payloads and sim stamps, to an undisturbed run's, under both
+couplings, with no protocol error and no stale command (docs/PROTOCOL.md section 4, "Lost
+members"). A blip shorter than the plant's grace for the --end-with member's FINAL once made
+it step the held tick with the previous tick's command (issue 40; tests/test_stale_command.py
+has that window scripted).
 
 And every process ends with its run by itself (issue 35), with the codes of
 docs/several-machines.md, none killed by the test: after a run with blips, plant, nodes
@@ -27,13 +31,17 @@ from .test_netns import net, start_router, tls_machines  # noqa: F401  (net: a f
 pytestmark = pytest.mark.slow
 
 CLIENT = os.path.join(ROOT, "diffbot", "configs", "client.json5")
-#: long enough in simulated time that the blip comes before the end on a quiet machine
-#: (lockstep runs at up to ~10x real time here)
-DURATION_S = "15"
-BLIP_S = 2.0
-#: long enough in simulated time for five blips 0.05-0.2 s of wall time apart, the plant
-#: running between them (time is held during a blip) at up to ~35x real time
-NETNS_DURATION_S = "60"
+#: long enough in simulated time for the blips below to come before the end on a quiet
+#: machine (lockstep runs at up to ~10x real time on loopback, ~35x across namespaces; time
+#: is held during a blip), short of the square's end (t = 45.9 s sequential, 48.7 s
+#: pipelined: --end-with would end the run there)
+DURATION_S = "30"
+NETNS_DURATION_S = "45"
+#: blips per coupling in one run, and (wall s) how long after the last rejoin each comes,
+#: how long the router stays down: down within the 0.5 s grace, the issue-40 window
+LOOPBACK_BLIPS, LOOPBACK_AFTER_S = 8, (0.05, 0.3)
+NETNS_BLIPS, NETNS_AFTER_S = 10, (0.02, 0.1)
+DOWN_S = (0.1, 0.5)
 
 
 def free_port() -> int:
@@ -53,11 +61,18 @@ def loopback_router() -> dict:
             "ctrl_env": env}
 
 
-def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[float],
+def blip_plan(seed: str, n: int, after_s: tuple[float, float]) -> list[tuple[float, float]]:
+    """``n`` (after, down) pairs, wall s, drawn with ``seed`` (the same every run)."""
+    rng = random.Random(seed)
+    return [(rng.uniform(*after_s), rng.uniform(*DOWN_S)) for _ in range(n)]
+
+
+def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float, float]],
            duration_s: str = DURATION_S) -> tuple[str, dict, str]:
     """A square run through a router: (MCAP path, plant stats, plant log). For each of
-    ``blips`` (wall s after the run started or the last rejoin) the router is SIGKILLed
-    and restarted BLIP_S later; the plant must notice and the members rejoin each time."""
+    ``blips``, (after, down): ``after`` wall s after the run started or the last rejoin,
+    the router is SIGKILLed and restarted ``down`` s later; the plant must notice and the
+    members rejoin each time."""
     os.makedirs(tmp, exist_ok=True)
     r = Procs(tmp)
     mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
@@ -66,6 +81,7 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[float],
         plant = r.diffbot("plant", "--world", "living_room", "--disable", "camera",
                           "--coupling", coupling, "--seed", "0", "--duration", duration_s,
                           "--expect", "odometry_robot1,square_path_robot1",
+                          "--end-with", "square_path_robot1",
                           "--rejoin-timeout", "30", "--stats", stats, *bus["plant_args"],
                           name="plant", netns=ns.get("plant"), env=bus["plant_env"])
         rec = r.diffbot("record", mcap, "--compression", "none", *bus["rec_args"],
@@ -80,12 +96,12 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[float],
                                 *bus["node_args"], name="square", netns=ns.get("ctrl"),
                                 env=bus["ctrl_env"])
         wait_for(lambda: "running living_room" in r.log(plant), 60, what="the run")
-        for i, after in enumerate(blips):
+        for i, (after, down) in enumerate(blips):
             time.sleep(after)
             assert plant.poll() is None, f"the run ended before blip {i + 1}: {r.log(plant)}"
             router.send_signal(signal.SIGKILL)
             router.wait(5)
-            time.sleep(BLIP_S)
+            time.sleep(down)
             router = start_router(r, bus, ns.get("router"))
             wait_for(lambda: r.log(plant).count("lockstep member rejoined") >= 2 * (i + 1),
                      30, what=f"both members back after blip {i + 1}")
@@ -107,16 +123,17 @@ def same_run(ref: tuple, got: tuple, duration_s: str = DURATION_S) -> None:
     assert lines and all(ln.startswith("same") for ln in lines), "\n".join(lines)
     assert ref[1]["sim_time_s"] == got[1]["sim_time_s"] == pytest.approx(float(duration_s))
     assert got[1]["protocol_errors"] == {}, got[1]
+    assert ref[1]["stale_commands"] == got[1]["stale_commands"] == 0
 
 
 @pytest.mark.parametrize("coupling", COUPLINGS)
-def test_a_router_blip_leaves_the_recording_as_an_undisturbed_run_s(tmp_path, coupling):
-    blip_at = random.Random(coupling).uniform(0.1, 0.4)
+def test_router_blips_leave_the_recording_as_an_undisturbed_run_s(tmp_path, coupling):
     ref = square(str(tmp_path / "undisturbed"), coupling, loopback_router(), {}, [])
-    got = square(str(tmp_path / "blip"), coupling, loopback_router(), {}, [blip_at])
-    assert "lockstep member rejoined" in got[2]
+    got = square(str(tmp_path / "blips"), coupling, loopback_router(), {},
+                 blip_plan(coupling, LOOPBACK_BLIPS, LOOPBACK_AFTER_S))
     same_run(ref, got)
-    print(f"\n{coupling}: router blip at wall +{blip_at:.2f} s: recording identical")
+    print(f"\n{coupling}: {LOOPBACK_BLIPS} of {LOOPBACK_BLIPS} router blips on loopback: "
+          "recording identical")
 
 
 #: the plant's --rejoin-timeout in the outage test, and how long the router stays away
@@ -180,12 +197,11 @@ def test_a_router_lost_past_the_rejoin_timeout_ends_every_process_by_itself(tmp_
 @pytest.mark.parametrize("coupling", COUPLINGS)
 def test_router_blips_across_namespaces_over_tls(tmp_path, net, coupling):
     """The issue's version: three namespaces, the shipped TLS configs and the docs' steps
-    (tests/test_netns.py); five 2 s blips per coupling, ten in all, in one short run each."""
-    rng = random.Random(f"netns-{coupling}")
+    (tests/test_netns.py); NETNS_BLIPS short blips per coupling in one run each."""
     remote = tls_machines(str(tmp_path))
     ref = square(str(tmp_path / "undisturbed"), coupling, remote, net.ns, [], NETNS_DURATION_S)
-    blips = [rng.uniform(0.05, 0.2) for _ in range(5)]
-    got = square(str(tmp_path / "blips"), coupling, remote, net.ns, blips, NETNS_DURATION_S)
+    got = square(str(tmp_path / "blips"), coupling, remote, net.ns,
+                 blip_plan(f"netns-{coupling}", NETNS_BLIPS, NETNS_AFTER_S), NETNS_DURATION_S)
     same_run(ref, got, NETNS_DURATION_S)
-    print(f"\n{coupling}: {len(blips)} of {len(blips)} router blips across namespaces: "
+    print(f"\n{coupling}: {NETNS_BLIPS} of {NETNS_BLIPS} router blips across namespaces: "
           "recording identical")
