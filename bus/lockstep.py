@@ -3,7 +3,7 @@
 :class:`AckLedger`: who must answer which tick, the ACKs and member messages that came for
 it, FINALs, members that left, missing outputs and second ACKs (PROTOCOL.md section 4,
 "Each tick k" step 4, "Finishing", "Reset"; section 7 for what it counts as a protocol
-error). The member's half is :class:`bus.member.MemberTick`. The plant (``plant/node.py``)
+error). The member's half is :class:`bus.member.MemberTick`. The plant (``plant/process.py``)
 is an adapter: it moves messages between Zenoh and the ledger. Each method names its
 section.
 """

@@ -25,7 +25,7 @@ from .protocol import PLANT_READS
 #: controller: its producer is gone (realtime and fast modes, where nobody waits for it)
 STALE_S = 0.5
 #: lockstep: ticks of this member's outputs kept to re-send when the plant re-publishes
-#: them after a rejoin (more than the plant re-publishes: plant.node.REPUBLISH_TICKS, 25)
+#: them after a rejoin (more than the plant re-publishes: plant.outbox.REPUBLISH_TICKS, 25)
 RESEND_TICKS = 30
 #: samples kept per input topic (by stamp) and clock ticks waiting for their inputs
 BUF_PER_TOPIC = 8

@@ -69,7 +69,7 @@ from .session import BusConfigError, add_bus_args, open_session
 from .topics import FmuTypes
 
 #: stamps per key remembered to drop a message re-sent after a lockstep rejoin (more than
-#: the plant re-publishes, plant.node.REPUBLISH_TICKS)
+#: the plant re-publishes, plant.outbox.REPUBLISH_TICKS)
 REPEAT_WINDOW = 64
 #: After ``sim/end``, keep listening until the bus has been quiet this long (the last
 #: outputs of other nodes) and no lockstep member is left, but no longer than END_MAX_S.

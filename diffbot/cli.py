@@ -57,7 +57,7 @@ def _dispatch(argv: list[str] | None) -> int:
     # lines say `diffbot controller square_path`, not `cli.py` or `diffbot`.
     sys.argv[0] = f"diffbot {cmd}"
     if cmd == "plant":
-        from plant.node import main as plant_main
+        from plant.process_cli import main as plant_main
         return plant_main(rest, compose=compose_member)
     if cmd == "controller":
         if not rest or rest[0] in ("-h", "--help"):

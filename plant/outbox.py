@@ -31,10 +31,23 @@ import zenoh
 from bus import codec
 
 
+#: lockstep: ticks of published messages kept to re-publish when a lost member rejoins:
+#: what the blip swallowed, for the members (at most the last three ticks) and for a
+#: recorder, whose share of the router's queue may lag further behind
+REPUBLISH_TICKS = 25
+
+
 class Outbox:
+    """``keep``: the messages of the last REPUBLISH_TICKS ticks are kept to re-publish
+    (lockstep, docs/PROTOCOL.md section 4, "Lost members")."""
+
     def __init__(self, session: zenoh.Session, congestion: zenoh.CongestionControl,
-                 skip_unread: bool = True) -> None:
+                 skip_unread: bool = True, keep: bool = False) -> None:
         self.session = session
+        self.keep = keep
+        #: the last ticks' messages as published: stamp -> [(key, payload, a composed
+        #: member's attachment or None)]
+        self.recent: dict[int, list[tuple[str, bytes, bytes | None]]] = {}
         self.skip_unread = skip_unread
         self.congestion = congestion
         self.seq = 0
@@ -83,11 +96,34 @@ class Outbox:
         self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns,
                                                                   epoch=self.epoch))
         self.published[key] = self.published.get(key, 0) + 1
+        self._kept(t_ns, key, data, None)
 
-    def relay(self, key: str, data: bytes, att: bytes) -> None:
-        """A composed member's message on the bus, with its own attachment (its counts are
-        the member's, not the plant's)."""
+    def relay(self, key: str, data: bytes, t_ns: int, att: bytes) -> None:
+        """A composed member's message stamped ``t_ns`` on the bus, with its own attachment
+        (its counts are the member's, not the plant's)."""
         self.publisher(key).put(data, attachment=att)
+        self._kept(t_ns, key, data, att)
+
+    def _kept(self, t_ns: int, key: str, data: bytes, att: bytes | None) -> None:
+        if self.keep:
+            self.recent.setdefault(t_ns, []).append((key, data, att))
+            while len(self.recent) > REPUBLISH_TICKS:
+                del self.recent[min(self.recent)]
+
+    def republish(self, upto_ns: int) -> list[int]:
+        """The kept messages of the ticks up to ``upto_ns`` again, as they were (new
+        sequence numbers; a composed member's with its attachment); the ticks."""
+        ticks = sorted(t for t in self.recent if t <= upto_ns)
+        for t in ticks:
+            for key, data, att in self.recent[t]:
+                if att is None:
+                    self.seq += 1
+                    self.publisher(key).put(data, attachment=codec.attachment(
+                        self.seq, t, epoch=self.epoch))
+                    self.published[key] = self.published.get(key, 0) + 1
+                else:
+                    self.publisher(key).put(data, attachment=att)
+        return ticks
 
     def skip(self, n: int = 1) -> None:
         """``n`` due messages nobody reads: their sequence numbers go unused."""

@@ -1,6 +1,6 @@
 """The physics world: builds DART from a :class:`~plant.world.WorldSpec` and steps it.
 
-No bus here: :mod:`plant.node` drives a :class:`Simulation` and publishes what it reads.
+No bus here: :mod:`plant.process` drives a :class:`Simulation` and publishes what it reads.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """A world's control tick, without a bus: :class:`Tick`, the one object that steps a world.
 
-The plant node (:mod:`plant.node`, with members over the bus or composed into its
+The plant node (:mod:`plant.process`, with members over the bus or composed into its
 process), the in-process Gymnasium environments (:mod:`diffbot.envs`) and the plant FMU
 all drive it, so they produce the same messages, bit for bit, from the same seed and
 commands. Tick k is::

@@ -14,7 +14,7 @@ from bus.jsonio import strict_json, write_json
 from diffbot import cli
 from diffbot.launcher import main as run_main
 from diffbot.scenario import load_scenario
-from plant.node import main as plant_main
+from plant.process_cli import main as plant_main
 from plant.world import WorldError, load_world
 
 from .conftest import ROOT

@@ -6,7 +6,7 @@ part in it over Zenoh. With the same seed and the same actions, every observatio
 termination flag and ground-truth pose must be equal, bit for bit, over a few hundred steps
 with resets in between.
 
-If this fails after a change to the plant's tick (speed work on plant/node.py, plant/sim.py,
+If this fails after a change to the plant's tick (speed work on plant/process.py, plant/sim.py,
 plant/sensors.py, plant/tick.py ...): the in-process transport (diffbot/envs/transport.py,
 InProc) must do per tick exactly what the lockstep plant does: the commands of tick t
 applied to every robot, one ``step_tick``, then the sensor messages due at the new tick,

@@ -109,7 +109,7 @@ def test_a_world_rebuilt_after_divergence_waits_for_the_new_world_s_acks(endpoin
     stamps must not let the new world step without its members."""
     from bus.session import open_session
     from plant import sim as plant_sim
-    from plant.node import Plant
+    from plant.process import Plant
     from plant.world import load_world
 
     diverge_at = 3 * TICK_NS

@@ -367,11 +367,11 @@ def test_the_ssp_square_has_the_odometry_error_of_diffbot_run_square(fmus, tmp_p
     """The study's square as an SSP (plant FMU -> odometry FMU, the square path as the
     master's logic) under libcosim, against the same square on the bus."""
     import json
-    sys.path.insert(0, str(ROOT / "fmus" / "examples"))
+    sys.path.insert(0, str(ROOT / "examples" / "fmi"))
     try:
         from plant_square import square
     finally:
-        sys.path.remove(str(ROOT / "fmus" / "examples"))
+        sys.path.remove(str(ROOT / "examples" / "fmi"))
     odometry = ROOT / "fmus" / "build" / "odometry_fmi2.fmu"
     if not odometry.exists():
         from fmus.build import build_fmu

@@ -86,7 +86,7 @@ def parse_raw(text: str) -> list[tuple[list[str], int]]:
 
 
 def _func(frame: str) -> str:
-    """``Plant._put (plant/node.py:276)`` -> ``Plant._put (plant/node.py)``: no line."""
+    """``Plant._put (plant/process.py:276)`` -> ``Plant._put (plant/process.py)``: no line."""
     name, _, where = frame.partition(" (")
     return f"{name} ({where.rsplit(':', 1)[0]})" if where else name
 

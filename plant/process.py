@@ -24,7 +24,6 @@ the main thread keeps.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import threading
 import time
@@ -33,30 +32,21 @@ from contextlib import contextmanager
 import zenoh
 
 from bus import codec, jsonio, packed
-from bus.cliargs import ArgumentParser, nonneg_float, nonneg_int, positive_float
 from bus.composed import Composed
 from bus.inbox import Event, Inbox
-from bus.jsonio import write_stats
 from bus.keys import Keys
 from bus.lockstep import AckLedger
-from bus.log import RejectCounter, setup_logging
-from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION
-from bus.session import BusConfigError, add_process_args, install_stop_signals, open_session
+from bus.log import RejectCounter
+from bus.protocol import PLANT_READS, PROTOCOL_VERSION
 
 from . import modes
 from .commands import STALE, Command, CommandBook, decode_command, stale_commands
-from .memory import keep_freed_memory
 from .outbox import Outbox
-from .physics_process import PhysicsError
 from .reset import parse_reset
 from .routerwatch import RouterWatch
 from .tick import Tick
-from .world import WorldError, WorldSpec, load_world
+from .world import WorldSpec
 
-#: lockstep: ticks of published messages kept to re-publish when a lost member rejoins:
-#: what the blip swallowed, for the members (at most the last three ticks) and for a
-#: recorder, whose share of the router's queue may lag further behind
-REPUBLISH_TICKS = 25
 #: how long the sim/end text goes before the sim/end token (wall s)
 END_TEXT_HEAD_START_S = 0.1
 
@@ -109,15 +99,12 @@ class Plant:
         self.wall_start = 0.0
         self.end_reason = "stopped"
         self.wall_end = 0.0
-        # lockstep: the last ticks' messages as published, to re-publish for a member that
-        # rejoins (docs/PROTOCOL.md section 4, "Lost members"): stamp -> [(key, payload,
-        # a composed member's attachment or None)]
-        self._recent: dict[int, list[tuple[str, bytes, bytes | None]]] = {}
         # In lockstep nothing may be lost: block rather than drop when a queue is full.
         self.congestion = (zenoh.CongestionControl.BLOCK if lockstep
                            else zenoh.CongestionControl.DROP)
-        # (only on the plant's own router session: see plant/outbox.py)
-        self.outbox = Outbox(session, self.congestion, skip_unread)
+        # (only on the plant's own router session: see plant/outbox.py); in lockstep the
+        # last ticks are kept to re-publish for a member that rejoins
+        self.outbox = Outbox(session, self.congestion, skip_unread, keep=lockstep)
         self.published = self.outbox.published
         self._keys: dict[tuple[str, str], str] = {}
         self.inbox = Inbox(session)
@@ -160,7 +147,7 @@ class Plant:
         if not rebuilt:
             self.tick.build()
         self.commands.clear()
-        self._recent.clear()           # the old world's ticks are never re-published
+        self.outbox.recent.clear()     # the old world's ticks are never re-published
         self.outbox.epoch += 1         # a new world: members tell it from a re-publish
         self.ledger.restart()
         self.strategy.restarted()
@@ -205,31 +192,13 @@ class Plant:
         query.reply(self.keys.reset, jsonio.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
 
     # ------------------------------------------------------------------ publishing
-    def _put(self, key: str, payload: bytes, t_ns: int, att: bytes | None = None) -> None:
-        """``payload`` (CDR bytes) out on ``key`` (``att``: a composed member's message), and
-        in lockstep kept for a re-publish."""
-        if att is None:
-            self.outbox.put(key, payload, t_ns)
-        else:
-            self.outbox.relay(key, payload, att)
-        if self.strategy.lockstep:
-            self._recent.setdefault(t_ns, []).append((key, payload, att))
-            while len(self._recent) > REPUBLISH_TICKS:
-                del self._recent[min(self._recent)]
-
     def republish(self) -> None:
         """A lost member is back: the messages of the last ticks again, as they were (the
         member answers the ones it has not, re-sends its answer to the others; section 4,
         "Lost members"); whatever of them the blip swallowed reaches everyone now. (A key
         once read is built from then on, :mod:`plant.outbox`: the member's keys are here.)"""
-        ticks = sorted(t for t in self._recent if t <= self.sim.time_ns)
+        ticks = self.outbox.republish(self.sim.time_ns)
         self.ledger.resent_upto = max(ticks, default=-1)
-        for t in ticks:
-            for key, payload, att in self._recent[t]:
-                if att is None:
-                    self.outbox.put(key, payload, t)
-                else:
-                    self.outbox.relay(key, payload, att)
         if ticks:
             self.log.info("re-published ticks t=%s s", ", ".join(f"{t * 1e-9:.3f}" for t in ticks))
 
@@ -246,15 +215,15 @@ class Plant:
                 continue
             key = self._key(name, topic)
             if composed is None:
-                self._put(key, data, t)
+                self.outbox.put(key, data, t)
                 continue
             if out.reads(key):                        # (else only a composed member reads it)
-                self._put(key, data, t)
+                self.outbox.put(key, data, t)
             else:
                 out.skip()
             composed.deliver(key, data, None)
         clock = packed.clock(t)
-        self._put(self.keys.clock, clock, t)
+        self.outbox.put(self.keys.clock, clock, t)
         if composed is not None:
             composed.clock(t, self._emit, self.outbox.epoch)
             composed.run(self._emit)
@@ -267,8 +236,7 @@ class Plant:
     def _emit(self, key: str, payload: bytes, att: bytes) -> None:
         """A composed member's message (bus/composed.py): on the bus for whoever listens,
         to the plant as if it came from Zenoh, and to the other composed members."""
-        t_ns = codec.parse_attachment(att).t_ns
-        self._put(key, payload, t_ns, att)
+        self.outbox.relay(key, payload, codec.parse_attachment(att).t_ns, att)
         if key in self._robot_of_key or key.startswith(self._ack_prefix):
             self._on_output(Event("out", key, payload, att))
         self.composed.deliver(key, payload, att)
@@ -527,112 +495,3 @@ def lost_note(how: str, rejoin_timeout_s: float) -> str:
     if rejoin_timeout_s > 0:
         return f"time is held for it, up to --rejoin-timeout {rejoin_timeout_s:g} s"
     return "the run ends at this tick: --rejoin-timeout is 0, so time is not held for it"
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = ArgumentParser(prog="diffbot plant", description="Run the DART plant on the bus.")
-    p.add_argument("--world", default="living_room",
-                   help="world file, or the name of a shipped world (living_room, empty)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a world-file value, e.g. world.mode=kinematic or "
-                        "'robots.robot1.encoders.noise={webots_noise = 0.2}' (repeatable)")
-    p.add_argument("--mode", choices=modes.MODES, default="lockstep")
-    p.add_argument("--coupling", choices=COUPLINGS, default="sequential",
-                   help="lockstep: sequential (commands of tick k from tick k's sensors act at "
-                        "once; exact) or pipelined (the plant steps while the nodes compute: "
-                        "commands act one tick later, node-to-node inputs are a tick old)")
-    p.add_argument("--rate", type=positive_float, default=1.0,
-                   help="realtime mode: simulated seconds per wall second (default 1)")
-    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
-                   help="stop after S simulated seconds (default: run until stopped)")
-    p.add_argument("--seed", type=nonneg_int, default=None, help="noise seed (default: the world's)")
-    p.add_argument("--expect", default="", metavar="NODES",
-                   help="lockstep: comma-separated members to wait for before the first tick")
-    p.add_argument("--wait-for", default="", metavar="NODES",
-                   help="comma-separated processes that are not lockstep members (a recorder) "
-                        "to wait for, by their sim/alive token, before the first tick")
-    p.add_argument("--join-timeout", type=positive_float, default=30.0, metavar="S",
-                   help="how long to wait for the --expect members before the first tick "
-                        "(then exit 1 naming the missing; default 30)")
-    p.add_argument("--rejoin-timeout", type=nonneg_float, default=0.0, metavar="S",
-                   help="lockstep: how long to hold simulated time for a member gone without "
-                        "its FINAL (killed, frozen past the lease, router or link lost) to "
-                        "come back; 0 (default): end the run at once, naming it, exit 1. "
-                        "Announced in sim/info (rejoin_timeout_s): a node or recorder that "
-                        "lost this plant waits as long (+ 2 s) for it, then exits 3")
-    p.add_argument("--end-with", default="", metavar="NODES",
-                   help="lockstep: stop, without stepping further, at the tick where one of "
-                        "these members finishes (so a run's length is reproducible)")
-    p.add_argument("--disable", default="", metavar="SENSORS",
-                   help="comma-separated sensors of the world file to leave off: lidar, camera")
-    p.add_argument("--physics-process", action="store_true",
-                   help="step DART in a process of its own; with pipelined lockstep or fast "
-                        "mode the plant then publishes tick k while the physics steps to k+1 "
-                        "(two cores; same bytes)")
-    p.add_argument("--compose", action="append", default=[], metavar="COMMAND",
-                   help="host a member in this process instead of its own (composed), given "
-                        "as its command line, e.g. \"controller square_path --robot robot1\" "
-                        "or \"fmu-node odometry --robot robot1\"; repeatable (docs/scenarios.md)")
-    add_process_args(p, "counters and timing")
-    return p
-
-
-def main(argv: list[str] | None = None, compose=None) -> int:
-    """``diffbot plant``; ``compose(command) -> bus.node.MemberSpec`` builds a member for
-    ``--compose`` (the command line's, diffbot.cli.compose_member)."""
-    args = build_parser().parse_args(argv)
-    log = setup_logging("plant", args.log_level)
-    keep_freed_memory()
-    try:
-        spec = load_world(args.world, args.set)
-        if args.seed is not None:
-            spec.seed = args.seed
-        keys = Keys(args.namespace)
-        disabled = tuple(x for x in args.disable.split(",") if x)
-        if set(disabled) - {"lidar", "camera"}:
-            raise WorldError(f"--disable takes lidar and/or camera, got {args.disable!r}")
-        if args.compose and compose is None:
-            raise ValueError("--compose needs the diffbot command (diffbot plant --compose)")
-        members = [compose(c) for c in args.compose]
-    except (WorldError, ValueError) as exc:
-        log.error("%s", exc)
-        return 2
-    try:
-        session = open_session("plant", args.endpoint, args.zenoh_config)
-    except BusConfigError as exc:
-        log.error("%s", exc)
-        return 2
-    plant = None
-    try:
-        composed = Composed(members, keys, session) if members else None
-        plant = Plant(spec, session, keys, args.mode, log, rate=args.rate,
-                      expect=tuple(n for n in args.expect.split(",") if n),
-                      watchers=tuple(n for n in args.wait_for.split(",") if n),
-                      duration_s=args.duration, join_timeout_s=args.join_timeout,
-                      disabled=disabled,
-                      end_with=tuple(n for n in args.end_with.split(",") if n),
-                      coupling=args.coupling, physics_process=args.physics_process,
-                      rejoin_timeout_s=args.rejoin_timeout,
-                      skip_unread=args.zenoh_config is None, composed=composed)
-        install_stop_signals(plant.stop_event)
-        code = plant.run() or plant.exit_code
-        st = plant.stats()
-        log.info("stopped at t=%.2f s after %d ticks (%.1fx real time)", st["sim_time_s"],
-                 st["ticks"], st["real_time_factor"] or 0.0)
-        return code
-    except ValueError as exc:               # a composed member that cannot join
-        log.error("%s", exc)
-        return 2
-    except PhysicsError as exc:
-        log.error("%s", exc)
-        if plant is not None:
-            plant.end_reason = "physics process failed"
-        return 1
-    finally:
-        stats = plant.stats() if plant is not None else None
-        try:
-            if plant is not None:
-                plant.close(plant.end_reason)
-        finally:                        # the session always closes (else the exit hangs)
-            session.close()
-        write_stats(args.stats, stats, log)

@@ -2,7 +2,7 @@
 system), the square-path controller is the master's own logic; prints its odometry error.
 
     diffbot fmu export-plant --fmi 2 --out out/robot.fmu
-    python fmus/examples/plant_square.py out/robot.fmu [--master libcosim|ecos] [--ssp FILE]
+    python examples/fmi/plant_square.py out/robot.fmu [--master libcosim|ecos] [--ssp FILE]
 
 Compare with ``diffbot run square --out out/square`` (its summary.json's
 ``final_odom_error_m``): the same world, controller and odometry, over Zenoh instead.
