@@ -35,7 +35,9 @@ import struct
 import threading
 import time
 
-from bus import codec, urdf
+from bus import codec
+
+from . import urdf
 from bus.cliargs import ArgumentParser
 from bus.jsonio import write_stats
 from bus.keys import Keys, check_name

@@ -18,7 +18,7 @@ sim time, once both samples of that stamp are in (either order). Without an odom
 ``odom -> base_link`` the true pose in it, so the tree stays whole; the first ``odom``
 switches back. ``/tf_static`` (transient local, one message, as tf2's static broadcaster):
 ``<robot>/base_link -> <robot>/laser``, ``-> <robot>/camera -> <robot>/camera_optical``
-from ``sim/info`` (the URDF's joints, :mod:`bus.scene`).
+from ``sim/info`` (the URDF's joints, :mod:`bridges.scene`).
 
 rclpy is not imported here: the bridge hands over its node and message classes.
 """
@@ -27,7 +27,9 @@ from __future__ import annotations
 import struct
 import threading
 
-from bus import codec, scene
+from bus import codec
+
+from . import scene
 from bus.keys import WORLD_FRAME, frame
 
 #: ground truths held waiting for the odometry of the same stamp before deciding that no

@@ -13,8 +13,8 @@ Foxglove needs nothing installed:
   and in recordings (docs/ros2.md). The plant's topics are advertised from ``sim/info``;
   the nodes' topics (``odom``, ``cmd_vel``, ``wheel_cmd``, ``follower/debug``) once a first
   sample shows the scenario has them;
-* ``/scene``, ``/tf_static`` (with ``world -> <robot>/odom``), ``/tf`` (:mod:`bus.scene`,
-  the same as in recordings) and ``/<robot>/robot_description`` (the URDF, :mod:`bus.urdf`;
+* ``/scene``, ``/tf_static`` (with ``world -> <robot>/odom``), ``/tf`` (:mod:`bridges.scene`,
+  the same as in recordings) and ``/<robot>/robot_description`` (the URDF, :mod:`bridges.urdf`;
   Foxglove's 3D panel: add a URDF layer with this topic);
 * ``/<robot>/path/{ground_truth,odom,gps}`` (``nav_msgs/Path``, 2 Hz wall);
 * ``/<robot>/metrics/odometry_error_m`` (odometry vs ground truth, m) and
@@ -44,7 +44,9 @@ from collections import deque
 
 import zenoh
 
-from bus import codec, scene, urdf
+from bus import codec
+
+from . import scene, urdf
 from bus.keys import TOPICS, Keys
 from bus.log import RejectCounter
 from bus.session import query_info

@@ -8,7 +8,9 @@ from collections import deque
 
 import numpy as np
 
-from bus import codec, scene
+from bus import codec
+
+from . import scene
 from bus.keys import TOPICS
 
 #: paths: a point is added once the robot moved this far from the last one; at most this many

@@ -1,6 +1,6 @@
 """How long a process waits for a plant it lost before it ends by itself.
 
-A member (:mod:`bus.runtime`) or a recorder (:mod:`bus.record`) that took part in a run and
+A member (:mod:`bus.runtime`) or a recorder (:mod:`bridges.record`) that took part in a run and
 loses its plant cannot tell a killed plant from a lost router or link: in both it sees
 ``sim/alive/plant`` vanish, and no ``sim/end`` may ever come. The plant itself holds time for
 lost members up to its ``--rejoin-timeout`` and then ends the run (exit 1), but its

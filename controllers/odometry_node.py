@@ -2,7 +2,7 @@
 
 The reference implementation of what the odometry FMU node does; the pose is in the
 robot's odometry frame ``<robot>/odom`` (REP 105: it starts at the origin, where the robot
-starts; ``world -> <robot>/odom`` is the start pose, :func:`bus.scene.to_world`).
+starts; ``world -> <robot>/odom`` is the start pose, :func:`bridges.scene.to_world`).
 """
 from __future__ import annotations
 

@@ -10,7 +10,8 @@ import os
 
 import numpy as np
 
-from bus import codec, scene
+from bridges import scene
+from bus import codec
 from bus.keys import TOPICS, Keys
 
 

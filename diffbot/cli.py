@@ -116,19 +116,19 @@ def _dispatch(argv: list[str] | None) -> int:
         from bridges.ros2 import main as ros2_main
         return ros2_main(rest)
     if cmd == "record":
-        from bus.record import main as record_main
+        from bridges.record import main as record_main
         return record_main(rest)
     if cmd == "replay":
-        from bus.replay import main as replay_main
+        from bridges.replay import main as replay_main
         return replay_main(rest)
     if cmd == "view":
         from bridges.view_cli import main as view_main
         return view_main(rest)
     if cmd == "topics":
-        from bus.topics import topics_main
+        from bridges.topics import topics_main
         return topics_main(rest)
     if cmd == "echo":
-        from bus.topics import echo_main
+        from bridges.topics import echo_main
         return echo_main(rest)
     print(f"diffbot: unknown command {cmd!r}{did_you_mean(cmd, COMMANDS)}\n\n{USAGE.strip()}",
           file=sys.stderr)

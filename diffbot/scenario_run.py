@@ -42,7 +42,7 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
 ROS2_BRIDGE = "ros2_bridge"  # the --ros2 process (bridges/ros2.py)
-RECORDER = "recorder"       # the --record process (bus/record.py); see ScenarioRun's recorder section
+RECORDER = "recorder"       # the --record process (bridges/record.py); see ScenarioRun's recorder section
 RECORDER_JOIN_S = 30.0
 VIEW = "view"               # the --view process (bridges/view.py): optional, never in lockstep
 RECORDER_GRACE_S = 10.0

@@ -13,7 +13,7 @@ import hashlib
 import sys
 from collections import defaultdict
 
-from bus.mcapfile import iter_recording, Recorded
+from bridges.mcapfile import iter_recording, Recorded
 
 #: topics the recorder derives itself, not bus traffic
 DERIVED = {"/tf", "/tf_static", "/scene"}

@@ -315,7 +315,7 @@ def test_two_fmu_nodes_chained_in_a_scenario_file_run_in_lockstep(procs, endpoin
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["sim_time_s"] == pytest.approx(2.0, abs=0.05)
     # the recording has the fmu/ keys with their types (asked from the nodes' info)
-    from bus.mcapfile import Recorded, iter_recording
+    from bridges.mcapfile import Recorded, iter_recording
     rec = Recorded(str(mcap))
     recorded = {}
     for m in iter_recording(str(mcap), rec):

@@ -30,7 +30,7 @@ def test_namespace_prefixes_every_key():
 
 
 def test_diffbot_topics_types_a_namespaced_run_s_keys_without_namespace():
-    from bus.topics import RateMeter
+    from bridges.topics import RateMeter
     meter = RateMeter()
     for key in ("lab2/robot1/odom", "lab2/sim/clock", "robot1/odom", "lab2/x/y", "a$b/robot1/odom"):
         meter.seen[key] = [1, 0.0, 0.0, None, None]

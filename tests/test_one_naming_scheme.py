@@ -12,7 +12,7 @@ import subprocess
 import pytest
 
 from bus import codec
-from bus.mcapfile import Recorded, iter_recording
+from bridges.mcapfile import Recorded, iter_recording
 from tests.conftest import ROOT, wait_for
 from tests.test_ros2_bridge import Peer, _latched, domain_id
 from tests.test_view import JS, _node_client

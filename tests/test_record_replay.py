@@ -14,7 +14,7 @@ import pytest
 
 from bus import codec
 from bus.keys import Keys
-from bus.mcapfile import (INFO_METADATA, McapRecording, Recorded, RecordError, iter_recording,
+from bridges.mcapfile import (INFO_METADATA, McapRecording, Recorded, RecordError, iter_recording,
                         layout, recover)
 
 from .conftest import ROOT, wait_for
@@ -62,7 +62,7 @@ def mcap_summary(file):
     return types, counts, meta
 
 
-#: what the recorder adds for 3-D viewers (bus/scene.py; tested in tests/test_view.py)
+#: what the recorder adds for 3-D viewers (bridges/scene.py; tested in tests/test_view.py)
 class _Derived(frozenset):
     """What the recorder adds from sim/info (no bus keys): the scene, the transforms and
     each robot's ``/<robot>/robot_description``."""
@@ -165,7 +165,7 @@ def test_unclosed_file_keeps_flushed_chunks_and_recovers(tmp_path):
 
 
 def test_replayer_serves_the_recorded_sim_info_or_makes_one_up(tmp_path):
-    from bus.replay import replay_info, scan
+    from bridges.replay import replay_info, scan
     rec = McapRecording(str(tmp_path / "a.mcap"))
     _fill(rec, 3)
     rec.close()
@@ -185,7 +185,7 @@ def test_replayer_serves_the_recorded_sim_info_or_makes_one_up(tmp_path):
 
 
 def test_echo_prints_readable_messages_with_large_arrays_summarised():
-    from bus.topics import format_message
+    from bridges.topics import format_message
     gps = codec.encode(codec.point_stamped(1_500_000_000, 1.25, -2.0, 0.0))
     text = format_message("robot1/gps", gps, codec.attachment(9, 1_500_000_000), K)
     assert text.splitlines()[0] == ("--- /robot1/gps  seq 9  t 1.500000 s  "

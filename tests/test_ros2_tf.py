@@ -136,7 +136,7 @@ class _Sample:
 
 def test_tf_bytes_and_the_odometry_reader_are_rosbags_cdr():
     from bridges import ros2_tf
-    from bus import scene
+    from bridges import scene
     pose = ((1.5, -2.25, 0.125), (0.1, -0.2, 0.3, 0.9273618495495703))
     for parent, child, t in (("world", "robot1/odom", 3_020_000_000), ("a", "bc", 7)):
         want = codec.encode(scene.tf([scene.transform(parent, child, *pose, t),

@@ -18,7 +18,8 @@ import types
 import numpy as np
 import pytest
 
-from bus import codec, scene
+from bridges import scene
+from bus import codec
 from bus.keys import Keys
 
 from .conftest import ROOT, wait_for
@@ -222,7 +223,7 @@ def test_foxglove_client_sees_scan_image_scene_drives_and_reconnects(procs, endp
 
 @pytest.mark.slow
 def test_recording_holds_the_scene_and_a_transform_per_ground_truth(procs, endpoint, tmp_path):
-    from bus.mcapfile import Recorded, iter_recording
+    from bridges.mcapfile import Recorded, iter_recording
     plant = procs.diffbot("plant", "--world", "living_room", "--mode", "fast", "--duration", "1",
                           "--expect", "recorder", "--endpoint", endpoint, name="plant")
     rec = procs.diffbot("record", str(tmp_path / "r.mcap"), "--endpoint", endpoint,

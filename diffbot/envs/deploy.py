@@ -74,7 +74,7 @@ ends_run = true
 
 def ground_truth(mcap: str, robot: str = ROBOT) -> dict[int, tuple[float, float, float]]:
     """The robot's true pose (x, y, yaw) by stamp (ns) in a recording."""
-    from bus.mcapfile import Recorded, iter_recording
+    from bridges.mcapfile import Recorded, iter_recording
     key = Keys().topic(robot, "ground_truth")
     rec = Recorded(mcap)
     out = {}

@@ -24,10 +24,10 @@
   and the recorder's own settings; ``diffbot replay`` serves it back. At a clean
   close a ``rosbag2`` metadata record (``serialized_metadata``, as rosbag2 writes).
 * **scene** — so the file opens in Foxglove's 3-D panel as a room, not only numbers, the
-  recorder adds what :mod:`bus.scene` derives (the live view sends the same): ``/scene``
+  recorder adds what :mod:`bridges.scene` derives (the live view sends the same): ``/scene``
   (``visualization_msgs/msg/MarkerArray``: every world object and robot part),
   ``/tf_static`` (``world -> <robot>/odom``, sensor mounts) and
-  ``/<robot>/robot_description`` (the URDF, :mod:`bus.urdf`) once, when ``sim/info``
+  ``/<robot>/robot_description`` (the URDF, :mod:`bridges.urdf`) once, when ``sim/info``
   arrives, and ``/tf`` (``tf2_msgs/msg/TFMessage``: ``world -> <robot>/base_link``) with
   every ground truth; ``--no-scene`` leaves them out. They are ordinary ROS 2 messages
   (``ros2 bag play`` publishes them; ``diffbot replay`` skips them, they are no bus keys).
@@ -59,13 +59,15 @@ import time
 
 import zenoh
 
-from . import codec, jsonio, scene, urdf
-from .cliargs import ArgumentParser, positive_float, positive_int
-from .keys import Keys
-from .log import RejectCounter, setup_logging
-from .mcapfile import INFO_METADATA, McapRecording, RecordError, layout, recover
-from .plantwatch import EXIT_PLANT_GONE, PlantWatch
-from .session import BusConfigError, add_bus_args, open_session
+from bus import codec, jsonio
+from bus.cliargs import ArgumentParser, positive_float, positive_int
+from bus.keys import Keys
+from bus.log import RejectCounter, setup_logging
+from bus.plantwatch import EXIT_PLANT_GONE, PlantWatch
+from bus.session import BusConfigError, add_process_args, open_session
+
+from . import scene, urdf
+from .mcapfile import INFO_METADATA, McapRecording, RecordError, recover
 from .topics import FmuTypes
 
 #: stamps per key remembered to drop a message re-sent after a lockstep rejoin (more than
@@ -147,7 +149,7 @@ class Recorder:
         """The plant's ``sim/info``, stored as MCAP metadata (once)."""
         if self.info is not None:
             return
-        from .session import query_info
+        from bus.session import query_info
         try:
             self.info = query_info(self.session, self.keys, timeout_s,
                                    self.log if timeout_s > 1.0 else None)
@@ -372,9 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "into a complete file")
     p.add_argument("--no-scene", dest="scene", action="store_false",
                    help="do not add /scene, /tf_static and /tf (the 3-D room for Foxglove)")
-    p.add_argument("--stats", metavar="FILE", help="write counters as JSON at exit")
-    p.add_argument("--log-level", default="INFO")
-    add_bus_args(p)
+    add_process_args(p)
     return p
 
 
@@ -413,8 +413,8 @@ def main(argv: list[str] | None = None) -> int:
         log.error("%s", exc)
         out.discard()
         return EXIT_BAD_INPUT
-    from .jsonio import write_json
-    from .session import install_stop_signals
+    from bus.jsonio import write_json
+    from bus.session import install_stop_signals
     rec = Recorder(session, keys, out, exprs, log, args.name)
     rec.with_scene = args.scene
     install_stop_signals(rec.stop_event)

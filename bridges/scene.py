@@ -1,6 +1,6 @@
 """The simulation as a 3-D scene for viewers: pure data from the plant's ``sim/info``.
 
-Shared by the live view (``bridges/view.py``) and the recorder (``bus/record.py``), so a
+Shared by the live view (``bridges/view.py``) and the recorder (``bridges/record.py``), so a
 recording opened in Foxglove shows the same room as the live view. Everything here is a
 standard ROS 2 message built with the ``rosbags`` type store (no foxglove import, no ROS
 install), so Foxglove, RViz and ``ros2 bag play`` all understand it:
@@ -27,9 +27,9 @@ import math
 
 import numpy as np
 
-from . import codec
-from .codec import T
-from .keys import WORLD_FRAME, frame  # noqa: F401  (scene.frame, scene.WORLD_FRAME)
+from bus import codec
+from bus.codec import T
+from bus.keys import WORLD_FRAME, frame  # noqa: F401  (scene.frame, scene.WORLD_FRAME)
 
 SCENE_TOPIC = "scene"
 TF_TOPIC = "tf"

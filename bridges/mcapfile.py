@@ -1,7 +1,7 @@
 """The MCAP file of a recording, without the bus: :class:`McapRecording` writes one (rosbag2
 layout, schemas, channels, crash-safe flushing), :func:`iter_recording` reads one, even a
 file never closed, and :func:`recover` completes such a file. The format and its choices
-are described in :mod:`bus.record`, the ``diffbot record`` command that uses them.
+are described in :mod:`bridges.record`, the ``diffbot record`` command that uses them.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from . import codec
+from bus import codec
 
 PROFILE = "ros2"
 MESSAGE_ENCODING = "cdr"

@@ -36,12 +36,13 @@ import time
 
 import zenoh
 
-from . import codec, jsonio
-from .cliargs import ArgumentParser, nonneg_float, positive_float
-from .keys import Keys
-from .log import setup_logging
+from bus import codec, jsonio
+from bus.cliargs import ArgumentParser, nonneg_float, positive_float
+from bus.keys import Keys
+from bus.log import setup_logging
+from bus.session import BusConfigError, add_process_args, open_session
+
 from .mcapfile import Recorded, RecordError, iter_recording, layout
-from .session import BusConfigError, add_process_args, open_session
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -320,8 +321,8 @@ def main(argv: list[str] | None = None) -> int:
     except BusConfigError as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT
-    from .jsonio import write_stats
-    from .session import install_stop_signals
+    from bus.jsonio import write_stats
+    from bus.session import install_stop_signals
     rp = None
     code = EXIT_OK
     try:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from xml.sax.saxutils import quoteattr
 
-from .keys import frame
+from bus.keys import frame
 
 DESCRIPTION_TYPE = "std_msgs/msg/String"
 #: the topic under ``/<robot>/`` (ROS 2's robot_state_publisher publishes ``robot_description``)
@@ -137,5 +137,5 @@ def robot_urdf(info: dict, robot: str) -> str:
 
 def description_message(info: dict, robot: str):
     """``std_msgs/msg/String`` holding :func:`robot_urdf`."""
-    from .codec import T
+    from bus.codec import T
     return T[DESCRIPTION_TYPE](data=robot_urdf(info, robot))

@@ -17,10 +17,10 @@ import time
 
 import zenoh
 
-from . import codec, jsonio
-from .cliargs import ArgumentParser, nonneg_float, positive_float, positive_int
-from .keys import Keys, is_fmu_topic
-from .session import BusConfigError, add_bus_args, open_session
+from bus import codec, jsonio
+from bus.cliargs import ArgumentParser, nonneg_float, positive_float, positive_int
+from bus.keys import Keys, is_fmu_topic
+from bus.session import BusConfigError, add_bus_args, open_session
 
 EXIT_OK = 0
 EXIT_NOTHING = 1
@@ -268,7 +268,7 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
 
 def _what_is_published(session: zenoh.Session, keys: Keys) -> str:
     """What the plant says it publishes (from ``sim/info``), for a "nothing came" message."""
-    from .session import query_info
+    from bus.session import query_info
     try:
         info = query_info(session, keys, timeout_s=1.0)
     except (TimeoutError, ValueError):
