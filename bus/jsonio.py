@@ -23,6 +23,16 @@ def write_json(path: str, data: dict) -> None:
     os.replace(tmp, path)
 
 
+def read_json(path: str) -> dict:
+    """A JSON file's object, or {} if it is missing or not JSON (a process that died
+    before it wrote its stats)."""
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return {}
+
+
 def write_stats(path: str | None, stats: dict | None, log) -> None:
     """A process's ``--stats`` file, written last (after its session closed, so a path it
     cannot write is one logged error, never a hang at exit)."""

@@ -14,7 +14,6 @@ command line.
 """
 from __future__ import annotations
 
-import json
 import os
 import queue
 import shlex
@@ -25,6 +24,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from bus.jsonio import read_json
 from bus.keys import Keys
 from bus.runtime import EXIT_PLANT_GONE
 from bus.session import open_session
@@ -222,7 +222,7 @@ class ScenarioRun:
                     self.failed = c
                     self.reason = f"{c.name} {c.describe_exit()}"
                     if c.name == "plant":     # e.g. a lockstep member lost: which, when
-                        why = _read_json(os.path.join(self.out, "logs", "plant.json"))
+                        why = read_json(os.path.join(self.out, "logs", "plant.json"))
                         if why.get("end_reason"):
                             self.reason += f": {why['end_reason']}"
                     if code == EXIT_PLANT_GONE and c.name != "plant":
@@ -312,7 +312,7 @@ def composable(p) -> bool:
 
 def summarize(run: ScenarioRun, wall: float, code: int) -> dict:
     names = [c.name for c in run.children] + run.composed
-    stats = {n: _read_json(os.path.join(run.out, "logs", f"{n}.json")) for n in names}
+    stats = {n: read_json(os.path.join(run.out, "logs", f"{n}.json")) for n in names}
     plant = stats["plant"]
     counts: dict[str, int] = {}
     for st in stats.values():            # every process counts what it published
@@ -341,11 +341,3 @@ def summarize(run: ScenarioRun, wall: float, code: int) -> dict:
         "message_counts": dict(sorted(counts.items())),
         "rejected": {name: st.get("rejected", {}) for name, st in stats.items()},
     }
-
-
-def _read_json(path: str) -> dict:
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return {}

@@ -15,9 +15,11 @@ stops running ones.
 """
 from __future__ import annotations
 
+from bus.jsonio import read_json
+
 from .core import Progress, Run, indent, run_all, run_until_done
 from .local import LocalEngine, default_parallel
-from .task import execute, read_json
+from .task import execute
 
 __all__ = ["Progress", "Run", "run_all", "run_until_done", "indent", "execute", "read_json", "make_engine",
            "LocalEngine", "default_parallel", "add_engine_args", "ENGINES"]

@@ -12,12 +12,13 @@ returns or raises, so a run never leaves a process behind, on any node.
 from __future__ import annotations
 
 import io
-import json
 import os
 import shutil
 import socket
 import tarfile
 import time
+
+from bus.jsonio import read_json
 
 from .. import procs
 
@@ -71,14 +72,6 @@ def execute(argv: list[str], out: str, log_path: str, timeout_s: float = 900.0,
     if ship:
         result["files"] = pack(out)
     return result
-
-
-def read_json(path: str) -> dict:
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return {}
 
 
 def pack(folder: str) -> bytes | None:
