@@ -122,19 +122,12 @@ class Composed:
         readers = self._readers.get(key)
         if not readers:
             return
-        msg = None
+        msg = None                       # decoded once for every member that reads it
         for h in readers:
-            if h.gone:
-                continue
-            _, topic = h.member.slot_of[key]
-            if msg is None:
-                try:
-                    msg = codec.decode(payload, h.topics[topic].msgtype)
-                except codec.CodecError as exc:
-                    h.rejects.reject(topic, str(exc))
-                    continue
-            if (problem := h.member.file_input(key, msg, att)) is not None:
-                h.rejects.reject(topic, problem)
+            if not h.gone:
+                topic, problem, msg = h.member.receive(key, payload, att, msg)
+                if problem is not None:
+                    h.rejects.reject(topic, problem)
 
     def clock(self, t_ns: int, emit: Emit, epoch: int | None = None) -> None:
         """The plant published tick ``t_ns``'s sensors and clock (of its world ``epoch``):

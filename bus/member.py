@@ -176,6 +176,19 @@ class MemberTick:
                 out.append((self.key(slot.robot, t), t, stamp))
         return out
 
+    def receive(self, key: str, payload: bytes, att: bytes | None,
+                msg=None) -> tuple[str, str | None, object]:
+        """Section 4, step 2: one sample on input ``key``, decoded (unless ``msg``, its
+        decoded form, is given) and filed (:meth:`file_input`): (topic, what is wrong with
+        it or None, the message or None if it did not decode)."""
+        _, topic = self.slot_of[key]
+        if msg is None:
+            try:
+                msg = codec.decode(payload, self.topics[topic].msgtype)
+            except codec.CodecError as exc:
+                return topic, str(exc), None
+        return topic, self.file_input(key, msg, att), msg
+
     def file_input(self, key: str, msg, att: bytes | None) -> str | None:
         """Section 4, step 2: file one decoded sample under its stamp; what is wrong with it,
         or None. Samples are kept by stamp (a few per key), so a late, early or forged one

@@ -133,14 +133,9 @@ class NodeRunner:
 
     # ----------------------------------------------------------------- input
     def _input(self, key: str, payload: bytes, att: bytes | None = None) -> None:
-        """Decode one input sample and file it (:meth:`bus.member.MemberTick.file_input`)."""
-        _, topic = self.member.slot_of[key]
-        try:
-            msg = codec.decode(payload, self.topics[topic].msgtype)
-        except codec.CodecError as exc:
-            self.rejects.reject(topic, str(exc))
-            return
-        if (problem := self.member.file_input(key, msg, att)) is not None:
+        """Decode one input sample and file it (:meth:`bus.member.MemberTick.receive`)."""
+        topic, problem, _ = self.member.receive(key, payload, att)
+        if problem is not None:
             self.rejects.reject(topic, problem)
 
     def _clock(self, payload: bytes) -> int | None:
