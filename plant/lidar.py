@@ -36,10 +36,12 @@ from typing import Sequence
 
 import numpy as np
 
+from plant import kernels
 from plant.raycast import Scene, cast_sectors
 from plant.shapes import Shape, pose_matrix
 
-__all__ = ["LidarConfig", "scan", "scan_many", "apply_noise", "measure", "ray_directions",
+__all__ = ["LidarConfig", "scan", "scan_many", "scan_many_reference", "apply_noise", "measure",
+           "ray_directions",
            "sensor_pose"]
 
 
@@ -148,12 +150,30 @@ def scan_many(config: LidarConfig, robot_poses, scene: Scene,
     """:func:`scan` for G robots carrying the same lidar: (G, num_rays), row g bit for bit
     what ``scan(config, robot_poses[g], scene, exclude_owners[g])`` gives.
 
-    Every robot's (shape, ray) pairs go through one :func:`~plant.raycast.cast_elements`,
-    each shape tested only on the rays of its bearing sector: a swarm's scans cost a few
-    array operations per tick, not a few per robot."""
+    One call of the C kernel (plant/kernels/lidar.c) for every robot: each shape is
+    tested on the rays of its bearing sector only, with the arithmetic of
+    :func:`scan_many_reference` (the numpy code the tests compare it with), the same bits."""
+    poses, dirs = _fans(config, robot_poses)
+    skip = np.array([scene.owner_id(o) if o else -1 for o in exclude_owners], dtype=np.int64)
+    return kernels.lidar_scan(scene.kernel_arrays(), len(scene), poses, dirs, skip,
+                              config.angle_min, config.angle_increment, config.min_range_m,
+                              config.max_range_m)
+
+
+def _fans(config: LidarConfig, robot_poses) -> tuple[np.ndarray, np.ndarray]:
+    """(sensor poses (G, 4, 4), world ray directions (G, n, 3)) of G robots, in numpy
+    (matmul, as the recordings were made: the kernel takes them as they are)."""
     poses = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4) @ _mount_pose(config)
     rot = poses[:, :3, :3]
     dirs = np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None], rot.transpose(0, 2, 1))
+    return poses, dirs
+
+
+def scan_many_reference(config: LidarConfig, robot_poses, scene: Scene,
+                        exclude_owners: Sequence[str | None]) -> np.ndarray:
+    """:func:`scan_many` in numpy (:func:`~plant.raycast.cast_sectors`): the reference the
+    kernel is tested against."""
+    poses, dirs = _fans(config, robot_poses)
     fan, shape, lo, hi = _cull(config, poses, scene, exclude_owners)
     dist = cast_sectors(np.ascontiguousarray(poses[:, :3, 3]), dirs, scene, fan, shape, lo, hi,
                         config.max_range_m)

@@ -1,0 +1,79 @@
+"""The plant's compiled kernels (C, built by ``make setup`` into plant/kernels/build/),
+loaded with ctypes: the lidar's sweep (:func:`lidar_scan`) and the camera's per-pixel work.
+
+The numpy code of :mod:`plant.raycast` stays as the reference the tests compare the
+kernels with, value for value. There is no silent fallback: without the library the
+sensors raise :class:`KernelsMissing`, which says how to build it.
+"""
+from __future__ import annotations
+
+import ctypes
+import sys
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+
+__all__ = ["KernelsMissing", "library", "lidar_scan", "ptr"]
+
+ABI = 3
+#: where ``python -m plant.kernels.build`` puts the library
+BUILD_DIR = Path(__file__).resolve().parent / "build"
+LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
+
+
+class KernelsMissing(RuntimeError):
+    pass
+
+
+_P = ctypes.c_void_p
+_I = ctypes.c_int64
+_D = ctypes.c_double
+
+
+@lru_cache(maxsize=1)
+def library() -> ctypes.CDLL:
+    """The loaded kernels (KernelsMissing if they are not built, or are out of date)."""
+    path = BUILD_DIR / LIBRARY
+    if not path.is_file():
+        raise KernelsMissing(f"the plant's C kernels are not built ({path} is missing): run "
+                             "`make setup` (or `python -m plant.kernels.build`)")
+    lib = ctypes.CDLL(str(path))
+    try:
+        abi = lib.plant_lidar_abi()
+    except AttributeError:
+        abi = None
+    if abi != ABI:
+        raise KernelsMissing(f"{path} is out of date (ABI {abi}, expected {ABI}): run "
+                             "`make setup` (or `python -m plant.kernels.build`)")
+    lib.plant_lidar_scan.restype = None
+    lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
+    return lib
+
+
+def ptr(a: np.ndarray) -> int:
+    """The address of a C-contiguous array's data (checked)."""
+    assert a.flags.c_contiguous, "kernel arrays must be C-contiguous"
+    return a.ctypes.data
+
+
+def lidar_scan(scene_arrays: tuple[int, ...], n_shapes: int, poses: np.ndarray,
+               dirs: np.ndarray, skip_owner: np.ndarray, a0: float, inc: float,
+               min_range: float, max_range: float, first_shape: np.ndarray | None = None,
+               last_shape: np.ndarray | None = None) -> np.ndarray:
+    """(G, n) ranges of G fans of n rays (plant/kernels/lidar.c). ``scene_arrays``: the
+    addresses of the scene's (centres, rotations, halves, quadrics, rr, radii, owner ids)
+    (:meth:`plant.raycast.Scene.kernel_arrays`); ``poses`` (G, 4, 4) the sensors' world
+    poses, ``dirs`` (G, n, 3) their rays, float64 and C-contiguous; ``skip_owner`` (G,)
+    int64 the owner id each fan ignores (-1: none); ``first_shape``/``last_shape`` (G,)
+    int64: the shapes [first, last) each fan sees (None: all)."""
+    g, n = dirs.shape[0], dirs.shape[1]
+    out = np.empty((g, n))
+    work = np.empty(3 * n)
+    library().plant_lidar_scan(
+        *scene_arrays, n_shapes, g, n, ptr(poses), ptr(dirs), ptr(skip_owner),
+        None if first_shape is None else ptr(first_shape),
+        None if last_shape is None else ptr(last_shape), a0, inc, min_range, max_range,
+        out.ctypes.data, work.ctypes.data)
+    return out
