@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 
 
-__all__ = ["KernelsMissing", "library", "lidar_scan", "ptr"]
+__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr"]
 
 ABI = 3
+CAMERA_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -47,6 +48,14 @@ def library() -> ctypes.CDLL:
     if abi != ABI:
         raise KernelsMissing(f"{path} is out of date (ABI {abi}, expected {ABI}): run "
                              "`make setup` (or `python -m plant.kernels.build`)")
+    if lib.plant_camera_abi() != CAMERA_ABI:
+        raise KernelsMissing(f"{path} is out of date (camera ABI): run `make setup` "
+                             "(or `python -m plant.kernels.build`)")
+    lib.plant_camera_render.restype = None
+    lib.plant_camera_render.argtypes = ([_P] * 4 + [_I, _P, _I, _P, _P, _I, _I, _D, _D, _D, _P, _P,
+                                         _D, _D] + [_P] * 5)
+    lib.plant_image_noise.restype = None
+    lib.plant_image_noise.argtypes = [_P, _P, ctypes.c_float, _I, _P]
     lib.plant_lidar_scan.restype = None
     lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
     return lib
@@ -77,3 +86,26 @@ def lidar_scan(scene_arrays: tuple[int, ...], n_shapes: int, poses: np.ndarray,
         None if last_shape is None else ptr(last_shape), a0, inc, min_range, max_range,
         out.ctypes.data, work.ctypes.data)
     return out
+
+
+def camera_render(scene, todo: np.ndarray, cam: np.ndarray, light: np.ndarray, w: int, h: int,
+                  f: float, cx: float, cy: float, xy: np.ndarray | None, bounds: np.ndarray,
+                  near: float, far: float, lut: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+                  sid: np.ndarray) -> None:
+    """Fill ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 and ``sid`` (H, W) int64 with
+    the picture of ``scene``'s shapes ``todo`` (int64) seen from ``cam`` (the optical
+    frame's rotation, row-major, then its origin: 12 doubles); plant/kernels/camera.c."""
+    lam = np.empty(w * h)
+    library().plant_camera_render(
+        scene.centers.ctypes.data, scene.rotations.ctypes.data, scene.halves.ctypes.data,
+        scene.quad.ctypes.data, len(scene), ptr(todo), todo.size, ptr(cam), ptr(light), w, h,
+        f, cx, cy, None if xy is None else ptr(xy), ptr(bounds), near, far, ptr(lut),
+        ptr(rgb), ptr(depth), ptr(sid), lam.ctypes.data)
+
+
+def image_noise(img: np.ndarray, noise: np.ndarray, offset: float, out: np.ndarray) -> None:
+    """``out`` = clip(rint((img + offset) + noise), 0, 255) as uint8, in float32 (the last
+    pass of :meth:`plant.noise.NoiseModel.apply` on an image): ``img`` uint8, ``noise``
+    float32 (the scaled draws), all C-contiguous and of one size."""
+    assert img.size == noise.size == out.size
+    library().plant_image_noise(ptr(img), ptr(noise), offset, img.size, ptr(out))
