@@ -95,7 +95,7 @@ def camera_render(scene, todo: np.ndarray, cam: np.ndarray, light: np.ndarray, w
     """Fill ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 and ``sid`` (H, W) int64 with
     the picture of ``scene``'s shapes ``todo`` (int64) seen from ``cam`` (the optical
     frame's rotation, row-major, then its origin: 12 doubles); plant/kernels/camera.c."""
-    lam = np.empty(w * h)
+    lam = np.empty(w * h + w + h)
     library().plant_camera_render(
         scene.centers.ctypes.data, scene.rotations.ctypes.data, scene.halves.ctypes.data,
         scene.quad.ctypes.data, len(scene), ptr(todo), todo.size, ptr(cam), ptr(light), w, h,
