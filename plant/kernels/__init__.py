@@ -36,21 +36,20 @@ _D = ctypes.c_double
 @lru_cache(maxsize=1)
 def library() -> ctypes.CDLL:
     """The loaded kernels (KernelsMissing if they are not built, or are out of date)."""
-    path = BUILD_DIR / LIBRARY
+    return load(BUILD_DIR / LIBRARY)
+
+
+def load(path: Path) -> ctypes.CDLL:
+    """Load the kernels' library at ``path`` and declare its functions."""
     if not path.is_file():
         raise KernelsMissing(f"the plant's C kernels are not built ({path} is missing): run "
                              "`make setup` (or `python -m plant.kernels.build`)")
     lib = ctypes.CDLL(str(path))
-    try:
-        abi = lib.plant_lidar_abi()
-    except AttributeError:
-        abi = None
-    if abi != ABI:
-        raise KernelsMissing(f"{path} is out of date (ABI {abi}, expected {ABI}): run "
-                             "`make setup` (or `python -m plant.kernels.build`)")
-    if lib.plant_camera_abi() != CAMERA_ABI:
-        raise KernelsMissing(f"{path} is out of date (camera ABI): run `make setup` "
-                             "(or `python -m plant.kernels.build`)")
+    for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI)):
+        abi = getattr(lib, name)() if hasattr(lib, name) else None
+        if abi != want:
+            raise KernelsMissing(f"{path} is out of date ({name} {abi}, expected {want}): "
+                                 "run `make setup` (or `python -m plant.kernels.build`)")
     lib.plant_camera_render.restype = None
     lib.plant_camera_render.argtypes = ([_P] * 4 + [_I, _P, _I, _P, _P, _I, _I, _D, _D, _D, _P, _P,
                                          _D, _D] + [_P] * 5)
