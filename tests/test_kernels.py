@@ -12,7 +12,7 @@ import pytest
 from plant import kernels
 from plant.camera import CameraConfig, render_full
 from plant.camera_reference import render_full_reference
-from plant.lidar import LidarConfig, scan, scan_many, scan_many_reference
+from plant.lidar import LidarConfig, scan, scan_many, scan_many_reference, scan_worlds
 from plant.noise import NoiseConfig, NoiseModel, make_rng
 from plant.raycast import Scene
 from plant.shapes import Shape, pose_matrix
@@ -51,6 +51,28 @@ def test_lidar_kernel_gives_the_numpy_reference_to_the_bit(world, robot):
     got = scan_many(cfg, poses, scene, [robot] * 8)
     assert got.tobytes() == scan_many_reference(cfg, poses, scene, [robot] * 8).tobytes()
     assert np.isinf(got).any() and np.isfinite(got).any()
+
+
+def test_lidar_sweeps_of_several_worlds_in_one_call_are_each_worlds_own():
+    """A batched environment's worlds: robots in different copies of a world (moved
+    differently) cast in one call, each row the bits of its own world's scan."""
+    spec = load_world("living_room_follow")
+    sims = [Simulation(spec) for _ in range(3)]
+    for k, sim in enumerate(sims):
+        for _ in range(5 * k):
+            sim.command_twist("leader", 0.4, 0.6 * k)
+            sim.step_tick()
+    scenes = [Scene(sim.shapes()) for sim in sims]
+    cfg = spec.robot("follower").sensors.lidar or LidarConfig()
+    rng = np.random.default_rng(3)
+    world_of = [0, 1, 2, 2, 1, 0, 2]
+    poses = _poses(rng, np.eye(4), len(world_of))
+    owners = ["follower", "leader", None, "follower", "", "leader", "leader"]
+    got = scan_worlds(cfg, scenes, poses, owners, world_of)
+    for g, k in enumerate(world_of):
+        want = scan_many(cfg, [poses[g]], scenes[k], [owners[g]])[0]
+        assert got[g].tobytes() == want.tobytes(), g
+    assert np.isfinite(got).all(axis=1).any()
 
 
 def test_lidar_kernel_every_ray_of_a_square_room():
