@@ -74,6 +74,23 @@ static void rays_vs_shape(const double *ol, const double *dx, const double *dy,
 
 EXPORT int plant_lidar_abi(void) { return 3; }
 
+/* atan2 to within 2e-5 rad (a minimax polynomial for atan on [0, 1]; the culls below
+ * widen every angle they take from it by SLACK, so they stay conservative) */
+#define SLACK 1e-3
+static inline double atan2_approx(double y, double x)
+{
+    double ax = fabs(x), ay = fabs(y);
+    double mx_ = ax > ay ? ax : ay, mn_ = ax > ay ? ay : ax;
+    if (mx_ == 0.0)
+        return 0.0;
+    double z = mn_ / mx_, z2 = z * z;
+    double a = z * (0.9998660 + z2 * (-0.3302995 + z2 * (0.1801410 + z2 * (-0.0851330
+                                                                      + z2 * 0.0208351))));
+    if (ay > ax) a = 0.5 * PI - a;
+    if (x < 0.0) a = PI - a;
+    return y < 0.0 ? -a : a;
+}
+
 /* The rays [*lo, *hi] of a fan that may meet shape s (0 if none may): its bounding box
  * must cross the scan plane, lie within range, and cover their bearings. Conservative (a
  * whole ray of slack on each side of a sector), so testing these rays finds what testing
@@ -95,7 +112,7 @@ static int sector(const double *rel, const double *A, const double *h, double ra
     *hi = n - 1;
     if (n < 2 || rho <= 1e-9)
         return 1;
-    double bearing = atan2(rel[1], rel[0]), dmin, dmax;
+    double bearing = atan2_approx(rel[1], rel[0]), dmin, dmax;
     double half = rho > rp ? asin(rp / rho) : PI;
     if (half * 2.0 > 8.0 * inc) {
         /* a wide sector (or the sensor inside the sphere): the bearings of the bounding
@@ -110,13 +127,13 @@ static int sector(const double *rel, const double *A, const double *h, double ra
                 x += e * A[3 * k];
                 y += e * A[3 * k + 1];
             }
-            double d = atan2(y, x) - bearing;
+            double d = atan2_approx(y, x) - bearing;
             if (d > PI) d -= 2.0 * PI;
             if (d < -PI) d += 2.0 * PI;
             if (d < dmin) dmin = d;
             if (d > dmax) dmax = d;
         }
-        if (dmax - dmin >= PI - 1e-6) {
+        if (dmax - dmin >= PI - 4.0 * SLACK) {
             if (half >= PI)
                 return 1;                         /* around the sensor: every ray */
             dmin = -half;
@@ -129,6 +146,8 @@ static int sector(const double *rel, const double *A, const double *h, double ra
         dmin = -half;
         dmax = half;
     }
+    dmin -= 2.0 * SLACK;                          /* the bearing's error and the corners' */
+    dmax += 2.0 * SLACK;
     if (fabs(bearing) + (dmax > -dmin ? dmax : -dmin) >= PI - 1e-6)
         return 1;                                 /* across the +-pi seam: every ray */
     double f = ceil((bearing + dmin - a0) / inc) - 1.0;
