@@ -152,11 +152,16 @@ def scan_many(config: LidarConfig, robot_poses, scene: Scene,
     One call of the C kernel (plant/kernels/lidar.c) for every robot: each shape is
     tested on the rays of its bearing sector only, with the arithmetic of
     :func:`scan_many_reference` (the numpy code the tests compare it with), the same bits."""
-    poses, dirs = _fans(config, robot_poses)
-    skip = np.array([scene.owner_id(o) if o else -1 for o in exclude_owners], dtype=np.int64)
-    return kernels.lidar_scan(scene.kernel_arrays(), len(scene), poses, dirs, skip,
-                              config.angle_min, config.angle_increment, config.min_range_m,
-                              config.max_range_m)
+    base = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4)
+    ws = kernels.lidar_work(base.shape[0], config.num_rays)
+    # _fans, into the reused buffers (the same matmuls, the same bits)
+    np.matmul(base, _mount_pose(config), out=ws.poses)
+    np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None],
+              ws.poses[:, :3, :3].transpose(0, 2, 1), out=ws.dirs)
+    ws.skip[:] = [scene.owner_id(o) if o else -1 for o in exclude_owners]
+    return kernels.lidar_scan_work(scene.kernel_arrays(), len(scene), ws, config.angle_min,
+                                   config.angle_increment, config.min_range_m,
+                                   config.max_range_m)
 
 
 def scan_worlds(config: LidarConfig, scenes: Sequence[Scene], robot_poses,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ctypes
 import sys
+import threading
 from functools import lru_cache
 from pathlib import Path
 
@@ -108,3 +109,45 @@ def image_noise(img: np.ndarray, noise: np.ndarray, offset: float, out: np.ndarr
     float32 (the scaled draws), all C-contiguous and of one size."""
     assert img.size == noise.size == out.size
     library().plant_image_noise(ptr(img), ptr(noise), offset, img.size, ptr(out))
+
+
+class LidarWork:
+    """Buffers of one call shape (G fans of n rays), reused call after call with their
+    addresses taken once (an address costs more than the kernel's work on a small fan):
+    ``poses`` (G, 4, 4), ``dirs`` (G, n, 3), ``skip`` (G,) int64, ``out`` (G, n), and the
+    kernel's scratch."""
+
+    def __init__(self, g: int, n: int) -> None:
+        self.poses = np.zeros((g, 4, 4))
+        self.dirs = np.zeros((g, n, 3))
+        self.skip = np.zeros(g, dtype=np.int64)
+        self.out = np.zeros((g, n))
+        self.work = np.zeros(3 * n)
+        self.g, self.n = g, n
+        self.ptrs = tuple(a.ctypes.data for a in (self.poses, self.dirs, self.skip))
+        self.out_ptrs = (self.out.ctypes.data, self.work.ctypes.data)
+
+
+_local = threading.local()
+
+
+def lidar_work(g: int, n: int) -> LidarWork:
+    """This thread's buffers for G fans of n rays."""
+    cache = getattr(_local, "lidar", None)
+    if cache is None:
+        cache = _local.lidar = {}
+    ws = cache.get((g, n))
+    if ws is None:
+        if len(cache) > 16:
+            cache.clear()
+        ws = cache[(g, n)] = LidarWork(g, n)
+    return ws
+
+
+def lidar_scan_work(scene_arrays: tuple[int, ...], n_shapes: int, ws: LidarWork, a0: float,
+                    inc: float, min_range: float, max_range: float) -> np.ndarray:
+    """:func:`lidar_scan` of the fans filled into ``ws`` (all shapes for every fan): a new
+    (G, n) array of ranges."""
+    library().plant_lidar_scan(*scene_arrays, n_shapes, ws.g, ws.n, *ws.ptrs, None, None,
+                               a0, inc, min_range, max_range, *ws.out_ptrs)
+    return ws.out.copy()
