@@ -320,29 +320,39 @@ def render_full(config: CameraConfig, camera_pose: np.ndarray,
     ``force_flat`` gives the kernel every pixel's ray, as with distortion, even without
     it (testing aid; the output is identical).
     """
-    scene = Scene.from_shapes(shapes)
-    grid = _grid_for(config) if not force_flat else _flat_grid_for(config)
     h, w = config.height, config.width
-    bg = tuple(float(v) for v in np.asarray(background, dtype=float).reshape(3))
-    todo = np.nonzero(scene.include_mask(exclude_owner))[0].astype(np.int64)
-    lut = _lut(tuple(tuple(s.color) for s in scene.shapes), bg)
-    t_world_opt = np.asarray(camera_pose, dtype=float) @ _T_BODY_OPTICAL
-    cam = np.concatenate([t_world_opt[:3, :3].ravel(), t_world_opt[:3, 3]])
-    rgb = np.empty((h, w, 3), dtype=np.uint8)
-    depth = np.empty((h, w), dtype=np.float32)
-    sid = np.empty((h, w), dtype=np.intp)
-    kernels.camera_render(scene, todo, cam, _LIGHT, w, h, grid.f, grid.cx, grid.cy,
-                          grid.kernel_xy() if grid.distorted else None, grid.kernel_bounds,
-                          float(config.near_m), float(config.far_m), lut, rgb, depth, sid)
-    return rgb, depth, sid
+    bufs = (np.empty((h, w, 3), dtype=np.uint8), np.empty((h, w), dtype=np.float32),
+            np.empty((h, w), dtype=np.intp), np.empty(w * h + w + h))
+    _render_into(config, camera_pose, shapes, exclude_owner, background, force_flat, bufs)
+    return bufs[:3]
 
 
 def render(config: CameraConfig, camera_pose: np.ndarray, shapes: "Sequence[Shape] | Scene",
            exclude_owner: str | None = None, background=DEFAULT_BACKGROUND) -> np.ndarray:
     """rgb8 image (uint8, (height, width, 3)) seen from ``camera_pose`` (4x4 world pose
     of the camera body: x forward, y left, z up). ``exclude_owner``: skip that robot's
-    parts (the robot carrying the camera). ``background``: RGB 0..1 where nothing is hit."""
-    return render_full(config, camera_pose, shapes, exclude_owner, background)[0]
+    parts (the robot carrying the camera). ``background``: RGB 0..1 where nothing is hit.
+    (:func:`render_full`'s picture, its depth and shape buffers reused frame after frame.)"""
+    h, w = config.height, config.width
+    rgb = np.empty((h, w, 3), dtype=np.uint8)
+    scratch = kernels.camera_work(w, h)
+    _render_into(config, camera_pose, shapes, exclude_owner, background, False,
+                 (rgb, *scratch))
+    return rgb
+
+
+def _render_into(config, camera_pose, shapes, exclude_owner, background, force_flat, bufs):
+    scene = Scene.from_shapes(shapes)
+    grid = _grid_for(config) if not force_flat else _flat_grid_for(config)
+    bg = tuple(float(v) for v in np.asarray(background, dtype=float).reshape(3))
+    todo = np.nonzero(scene.include_mask(exclude_owner))[0].astype(np.int64)
+    lut = _lut(scene.colors, bg)
+    t_world_opt = np.asarray(camera_pose, dtype=float) @ _T_BODY_OPTICAL
+    cam = np.concatenate([t_world_opt[:3, :3].ravel(), t_world_opt[:3, 3]])
+    kernels.camera_render(scene, todo, cam, _LIGHT, config.width, config.height, grid.f, grid.cx,
+                          grid.cy, grid.kernel_xy() if grid.distorted else None,
+                          grid.kernel_bounds, float(config.near_m), float(config.far_m), lut,
+                          *bufs)
 
 
 def third_person(eye_xyz, target_xyz, shapes: "Sequence[Shape] | Scene", width: int = 640,

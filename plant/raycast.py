@@ -137,12 +137,15 @@ class Scene:
         # box: 0 <= 1 always holds (the quadric never bounds it); else radius^2
         self.rr = np.where(self.quad[:, 0] > 0, self.halves[:, 0] ** 2, 1.0)
         self._const_ptrs = None
+        #: the shapes' colours, as a key (the camera's colour table is cached on it)
+        self.colors = tuple(tuple(float(c) for c in s.color) for s in self.shapes)
 
     def _moved(self, tpl: "Scene", first: int, poses: np.ndarray) -> None:
         """This scene is ``tpl`` with the shapes from ``first`` on at ``poses`` (D, 4, 4)."""
         self.owners, self._owner_ids, self.owner_ids = tpl.owners, tpl._owner_ids, tpl.owner_ids
         self.halves, self.radii, self.quad, self.rr = tpl.halves, tpl.radii, tpl.quad, tpl.rr
         self._const_ptrs = tpl.const_ptrs()
+        self.colors = tpl.colors
         self.centers = np.concatenate([tpl.centers[:first], poses[:, :3, 3]])
         self.rotations = np.concatenate([tpl.rotations[:first], poses[:, :3, :3]])
 

@@ -91,16 +91,30 @@ def lidar_scan(scene_arrays: tuple[int, ...], n_shapes: int, poses: np.ndarray,
 def camera_render(scene, todo: np.ndarray, cam: np.ndarray, light: np.ndarray, w: int, h: int,
                   f: float, cx: float, cy: float, xy: np.ndarray | None, bounds: np.ndarray,
                   near: float, far: float, lut: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
-                  sid: np.ndarray) -> None:
+                  sid: np.ndarray, lam: np.ndarray) -> None:
     """Fill ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 and ``sid`` (H, W) int64 with
     the picture of ``scene``'s shapes ``todo`` (int64) seen from ``cam`` (the optical
-    frame's rotation, row-major, then its origin: 12 doubles); plant/kernels/camera.c."""
-    lam = np.empty(w * h + w + h)
+    frame's rotation, row-major, then its origin: 12 doubles); ``lam``: scratch of
+    W H + W + H doubles. plant/kernels/camera.c."""
     library().plant_camera_render(
-        scene.centers.ctypes.data, scene.rotations.ctypes.data, scene.halves.ctypes.data,
-        scene.quad.ctypes.data, len(scene), ptr(todo), todo.size, ptr(cam), ptr(light), w, h,
-        f, cx, cy, None if xy is None else ptr(xy), ptr(bounds), near, far, ptr(lut),
-        ptr(rgb), ptr(depth), ptr(sid), lam.ctypes.data)
+        scene.centers.ctypes.data, scene.rotations.ctypes.data, *scene.const_ptrs()[:2],
+        len(scene), ptr(todo), todo.size, ptr(cam), ptr(light), w, h, f, cx, cy,
+        None if xy is None else ptr(xy), ptr(bounds), near, far, ptr(lut), ptr(rgb),
+        ptr(depth), ptr(sid), ptr(lam))
+
+
+def camera_work(w: int, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """This thread's depth, shape and scratch buffers for a W x H frame, reused."""
+    cache = getattr(_local, "camera", None)
+    if cache is None:
+        cache = _local.camera = {}
+    bufs = cache.get((w, h))
+    if bufs is None:
+        if len(cache) > 8:
+            cache.clear()
+        bufs = cache[(w, h)] = (np.empty((h, w), dtype=np.float32),
+                                np.empty((h, w), dtype=np.intp), np.empty(w * h + w + h))
+    return bufs
 
 
 def image_noise(img: np.ndarray, noise: np.ndarray, offset: float, out: np.ndarray) -> None:
