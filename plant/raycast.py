@@ -149,6 +149,12 @@ class Scene:
         self.centers = np.concatenate([tpl.centers[:first], poses[:, :3, 3]])
         self.rotations = np.concatenate([tpl.rotations[:first], poses[:, :3, :3]])
 
+    def __getstate__(self) -> dict:
+        """Pickled without the arrays' addresses (they mean nothing in another process)."""
+        state = self.__dict__.copy()
+        state["_const_ptrs"] = None
+        return state
+
     def const_ptrs(self) -> tuple[int, int, int, int, int]:
         """Addresses of halves, quad, rr, radii, owner_ids (for the C kernels)."""
         if self._const_ptrs is None:
