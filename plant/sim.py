@@ -237,7 +237,8 @@ class Simulation:
         the moving ones (the robots' parts, then the movable objects)."""
         if part_tfs is None:
             part_tfs = [sn.getWorldTransform().matrix() for sn, *_ in self._robot_parts]
-        moving = [Shape(kind, size, tf, color, name, owner)
+        moving = [Shape.placed(kind, size, np.asarray(tf, dtype=float).reshape(4, 4), color, name,
+                               owner)
                   for (sn, kind, size, color, name, owner), tf in zip(self._robot_parts, part_tfs)]
         moving += self._movable_shapes
         poses = np.array([s.pose for s in moving], dtype=float).reshape(-1, 4, 4)
