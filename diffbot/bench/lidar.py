@@ -32,4 +32,8 @@ def lidar_suite(ctx: Context):
     poses = [st.tf] * 64
     names = ["robot1"] * 64
     yield Case("64 sweeps in one call", lambda: lidar.scan_many(cfg, poses, scene, names),
-               notes="lidar.scan_many with 64 robots (a batched environment's tick)")
+               notes="lidar.scan_many: 64 robots in one world")
+    scenes, worlds = [scene] * 64, list(range(64))
+    yield Case("64 worlds' sweeps in one call",
+               lambda: lidar.scan_worlds(cfg, scenes, poses, names, worlds),
+               notes="lidar.scan_worlds: a robot in each of 64 worlds (a batched environment's tick)")
