@@ -6,10 +6,13 @@ STAMP   := $(VENV)/.installed
 FMUS    := fmus/build/.built
 TF2MSGS := $(VENV)/share/tf2_msgs/diffbot-build.txt
 FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
+# the plant's C kernels (lidar, camera): plant/kernels/build/, loaded with ctypes
+KERNELS := plant/kernels/build/.built
+KERNEL_SRC := $(wildcard plant/kernels/*.c) plant/kernels/build.py plant/kernels/__init__.py
 
 .PHONY: setup demo test test-fast soak bench clean netns-tools
 
-setup: $(STAMP) $(FMUS) $(TF2MSGS)
+setup: $(STAMP) $(FMUS) $(KERNELS) $(TF2MSGS)
 
 $(STAMP): pyproject.toml tests/js/package-lock.json
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -28,6 +31,10 @@ $(TF2MSGS): $(STAMP) bridges/ros2_msgs.py
 $(FMUS): $(STAMP) $(FMU_SRC)
 	$(BIN)/diffbot fmu build
 	@touch $(FMUS)
+
+$(KERNELS): $(STAMP) $(KERNEL_SRC)
+	$(BIN)/python -m plant.kernels.build
+	@touch $(KERNELS)
 
 demo: setup
 	$(BIN)/diffbot run follow --out out/demo
@@ -59,4 +66,4 @@ bench: setup
 	$(BIN)/diffbot bench
 
 clean:
-	rm -rf out fmus/build .pytest_cache
+	rm -rf out fmus/build plant/kernels/build .pytest_cache

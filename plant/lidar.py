@@ -36,11 +36,12 @@ from typing import Sequence
 
 import numpy as np
 
+from plant import kernels
 from plant.raycast import Scene, cast_sectors
 from plant.shapes import Shape, pose_matrix
 
-__all__ = ["LidarConfig", "scan", "scan_many", "apply_noise", "measure", "ray_directions",
-           "sensor_pose"]
+__all__ = ["LidarConfig", "scan", "scan_many", "scan_worlds", "scan_many_reference",
+           "apply_noise", "measure", "ray_directions", "sensor_pose"]
 
 
 @dataclass(frozen=True)
@@ -148,12 +149,61 @@ def scan_many(config: LidarConfig, robot_poses, scene: Scene,
     """:func:`scan` for G robots carrying the same lidar: (G, num_rays), row g bit for bit
     what ``scan(config, robot_poses[g], scene, exclude_owners[g])`` gives.
 
-    Every robot's (shape, ray) pairs go through one :func:`~plant.raycast.cast_elements`,
-    each shape tested only on the rays of its bearing sector: a swarm's scans cost a few
-    array operations per tick, not a few per robot."""
+    One call of the C kernel (plant/kernels/lidar.c) for every robot: each shape is
+    tested on the rays of its bearing sector only, with the arithmetic of
+    :func:`scan_many_reference` (the numpy code the tests compare it with), the same bits."""
+    base = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4)
+    ws = kernels.lidar_work(base.shape[0], config.num_rays)
+    # _fans, into the reused buffers (the same matmuls, the same bits)
+    np.matmul(base, _mount_pose(config), out=ws.poses)
+    np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None],
+              ws.poses[:, :3, :3].transpose(0, 2, 1), out=ws.dirs)
+    ws.skip[:] = [scene.owner_id(o) if o else -1 for o in exclude_owners]
+    return kernels.lidar_scan_work(scene.kernel_arrays(), len(scene), ws, config.angle_min,
+                                   config.angle_increment, config.min_range_m,
+                                   config.max_range_m)
+
+
+def scan_worlds(config: LidarConfig, scenes: Sequence[Scene], robot_poses,
+                exclude_owners: Sequence[str | None], world_of: Sequence[int]) -> np.ndarray:
+    """:func:`scan_many` for G robots in several worlds (a batched environment's N
+    copies of a world): robot g stands in ``scenes[world_of[g]]``. (G, num_rays), row g
+    bit for bit what ``scan_many`` of its world alone gives; one call of the kernel."""
+    poses, dirs = _fans(config, robot_poses)
+    world_of = np.asarray(world_of, dtype=np.int64).reshape(-1)
+    sizes = np.array([len(sc) for sc in scenes], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    # owner ids made distinct across worlds: world k's ids shifted past world k-1's
+    shift = np.concatenate([[0], np.cumsum([len(sc._owner_ids) for sc in scenes])])
+    cols = [np.concatenate([getattr(sc, key) for sc in scenes]) if len(scenes) else np.zeros(0)
+            for key in ("centers", "rotations", "halves", "quad", "rr", "radii")]
+    owners = np.concatenate([sc.owner_ids + shift[k] for k, sc in enumerate(scenes)]
+                            + [np.zeros(0, dtype=np.int64)])
+    skip = np.array([scenes[k].owner_id(o) + shift[k] if o and scenes[k].owner_id(o) >= 0 else -1
+                     for k, o in zip(world_of, exclude_owners)], dtype=np.int64)
+    keep = [np.ascontiguousarray(a, dtype=float) for a in cols]       # alive for the call
+    arrays = tuple(a.ctypes.data for a in keep) + (kernels.ptr(owners),)
+    first = np.ascontiguousarray(starts[world_of])
+    last = np.ascontiguousarray(starts[world_of + 1])
+    return kernels.lidar_scan(arrays, int(starts[-1]), poses, dirs, skip, config.angle_min,
+                              config.angle_increment, config.min_range_m, config.max_range_m,
+                              first, last)
+
+
+def _fans(config: LidarConfig, robot_poses) -> tuple[np.ndarray, np.ndarray]:
+    """(sensor poses (G, 4, 4), world ray directions (G, n, 3)) of G robots, in numpy
+    (matmul, as the recordings were made: the kernel takes them as they are)."""
     poses = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4) @ _mount_pose(config)
     rot = poses[:, :3, :3]
     dirs = np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None], rot.transpose(0, 2, 1))
+    return poses, dirs
+
+
+def scan_many_reference(config: LidarConfig, robot_poses, scene: Scene,
+                        exclude_owners: Sequence[str | None]) -> np.ndarray:
+    """:func:`scan_many` in numpy (:func:`~plant.raycast.cast_sectors`): the reference the
+    kernel is tested against."""
+    poses, dirs = _fans(config, robot_poses)
     fan, shape, lo, hi = _cull(config, poses, scene, exclude_owners)
     dist = cast_sectors(np.ascontiguousarray(poses[:, :3, 3]), dirs, scene, fan, shape, lo, hi,
                         config.max_range_m)

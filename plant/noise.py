@@ -27,6 +27,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from plant import kernels
+
 __all__ = [
     "NoiseConfig",
     "NoiseModel",
@@ -249,6 +251,14 @@ class NoiseModel:
                 return arr.copy()
             # Images: single precision is plenty for 0..255 and several times faster.
             offset = np.float32(c.bias + c.mean)
+            if c.std > 0 and c.resolution == 0:
+                # (x + offset) + noise, rounded and clipped in one pass of the C kernel (the
+                # float32 arithmetic of the numpy path below, the same bytes)
+                noise = self._take_image_noise(arr.shape)
+                img = np.empty(arr.shape, dtype=np.uint8)
+                kernels.image_noise(np.ascontiguousarray(arr), noise, float(offset), img)
+                self._spare = noise                  # the next draw goes into it
+                return img
             if c.std > 0:
                 # (x + offset) + noise, summed into the noise's own buffer (then reused)
                 noise = self._take_image_noise(arr.shape)

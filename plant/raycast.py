@@ -28,6 +28,7 @@ Conventions
 """
 from __future__ import annotations
 
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -36,6 +37,7 @@ from plant.shapes import Shape
 
 __all__ = [
     "Scene",
+    "ShapeList",
     "cast_rays",
     "cast_distances",
     "cast_elements",
@@ -90,6 +92,18 @@ def _half_tuple(shape: Shape) -> tuple[float, float, float]:
 _QUADRIC = {"box": (0.0, 0.0, 0.0), "cylinder": (1.0, 1.0, 0.0), "sphere": (1.0, 1.0, 1.0)}
 
 
+class ShapeList(list):
+    """A list of shapes that knows its world's :class:`Scene` as built once (``template``,
+    the same shapes in the same order) and where its moving shapes are now: the shapes
+    from ``first_moving`` on stand at ``moving_poses`` ((D, 4, 4), their poses)."""
+
+    def __init__(self, shapes, template: "Scene", first_moving: int, moving_poses: np.ndarray):
+        super().__init__(shapes)
+        self.template = template
+        self.first_moving = first_moving
+        self.moving_poses = moving_poses
+
+
 class Scene:
     """Shapes stacked into arrays for batched casting (build once per tick and share
     between sensors; ``cast_rays`` also accepts a plain list and builds one).
@@ -97,15 +111,23 @@ class Scene:
     Every primitive is centred on its pose origin. Arrays, (S, ...) each:
     ``centers``, ``rotations`` (shape->world), ``halves`` (local bounding-box half
     extents), ``radii`` (bounding spheres), ``quad`` / ``rr`` (the quadric), ``owners``.
+
+    A :class:`ShapeList` (what :meth:`plant.sim.Simulation.shapes` returns) carries the
+    world's scene as it was built once (its ``template``): then only the poses of its
+    moving shapes are stacked anew, the rest is shared, the same values.
     """
 
     def __init__(self, shapes: Sequence[Shape]):
         self.shapes = list(shapes)
+        tpl = getattr(shapes, "template", None)
+        if tpl is not None and len(tpl) == len(self.shapes):
+            self._moved(tpl, shapes.first_moving, shapes.moving_poses)
+            return
         n = len(self.shapes)
         self.owners = np.array([s.owner for s in self.shapes], dtype=object)
         self._owner_ids: dict[str, int] = {}
         self.owner_ids = np.array([self._owner_ids.setdefault(s.owner, len(self._owner_ids))
-                                   for s in self.shapes], dtype=np.intp).reshape(n)
+                                   for s in self.shapes], dtype=np.int64).reshape(n)
         poses = np.array([s.pose for s in self.shapes], dtype=float).reshape(n, 4, 4)
         self.centers = np.ascontiguousarray(poses[:, :3, 3])
         self.rotations = np.ascontiguousarray(poses[:, :3, :3])
@@ -114,11 +136,51 @@ class Scene:
         self.quad = np.array([_QUADRIC[s.kind] for s in self.shapes], dtype=float).reshape(n, 3)
         # box: 0 <= 1 always holds (the quadric never bounds it); else radius^2
         self.rr = np.where(self.quad[:, 0] > 0, self.halves[:, 0] ** 2, 1.0)
-        # the same as contiguous columns, for cast_elements' gathers: rot_cols[j][k] = R[j, k]
-        self.rot_cols = [[np.ascontiguousarray(self.rotations[:, j, k]) for k in range(3)]
-                         for j in range(3)]
-        self.center_cols = [np.ascontiguousarray(self.centers[:, j]) for j in range(3)]
-        self.half_cols = [np.ascontiguousarray(self.halves[:, k]) for k in range(3)]
+        self._const_ptrs = None
+        #: the shapes' colours, as a key (the camera's colour table is cached on it)
+        self.colors = tuple(tuple(float(c) for c in s.color) for s in self.shapes)
+
+    def _moved(self, tpl: "Scene", first: int, poses: np.ndarray) -> None:
+        """This scene is ``tpl`` with the shapes from ``first`` on at ``poses`` (D, 4, 4)."""
+        self.owners, self._owner_ids, self.owner_ids = tpl.owners, tpl._owner_ids, tpl.owner_ids
+        self.halves, self.radii, self.quad, self.rr = tpl.halves, tpl.radii, tpl.quad, tpl.rr
+        self._const_ptrs = tpl.const_ptrs()
+        self.colors = tpl.colors
+        self.centers = np.concatenate([tpl.centers[:first], poses[:, :3, 3]])
+        self.rotations = np.concatenate([tpl.rotations[:first], poses[:, :3, :3]])
+
+    def __getstate__(self) -> dict:
+        """Pickled without the arrays' addresses (they mean nothing in another process)."""
+        state = self.__dict__.copy()
+        state["_const_ptrs"] = None
+        return state
+
+    def const_ptrs(self) -> tuple[int, int, int, int, int]:
+        """Addresses of halves, quad, rr, radii, owner_ids (for the C kernels)."""
+        if self._const_ptrs is None:
+            self._const_ptrs = tuple(a.ctypes.data for a in (self.halves, self.quad, self.rr,
+                                                              self.radii, self.owner_ids))
+        return self._const_ptrs
+
+    def kernel_arrays(self) -> tuple[int, ...]:
+        """Addresses of (centers, rotations, halves, quad, rr, radii, owner_ids), the
+        scene as plant/kernels/lidar.c reads it (the arrays live as long as the scene)."""
+        h, q, rr, radii, owners = self.const_ptrs()
+        return (self.centers.ctypes.data, self.rotations.ctypes.data, h, q, rr, radii, owners)
+
+    # the same as contiguous columns, for cast_elements' gathers: rot_cols[j][k] = R[j, k]
+    @cached_property
+    def rot_cols(self):
+        return [[np.ascontiguousarray(self.rotations[:, j, k]) for k in range(3)]
+                for j in range(3)]
+
+    @cached_property
+    def center_cols(self):
+        return [np.ascontiguousarray(self.centers[:, j]) for j in range(3)]
+
+    @cached_property
+    def half_cols(self):
+        return [np.ascontiguousarray(self.halves[:, k]) for k in range(3)]
 
     @classmethod
     def from_shapes(cls, shapes: "Sequence[Shape] | Scene") -> "Scene":

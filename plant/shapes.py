@@ -39,6 +39,15 @@ class Shape:
             raise ValueError(f"{self.kind} needs {want} size values, got {len(self.size)}")
         self.pose = np.asarray(self.pose, dtype=float).reshape(4, 4)
 
+    @classmethod
+    def placed(cls, kind: str, size: tuple, pose: np.ndarray, color: tuple, name: str,
+               owner: str) -> "Shape":
+        """A shape whose fields are known good (``pose`` a float64 4x4 array): the plant's
+        per-tick robot parts, made without the checks (a fifth of the cost)."""
+        s = object.__new__(cls)
+        s.kind, s.size, s.pose, s.color, s.name, s.owner = kind, size, pose, color, name, owner
+        return s
+
 
 def pose_matrix(x: float = 0.0, y: float = 0.0, z: float = 0.0,
                 roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0) -> np.ndarray:

@@ -13,6 +13,7 @@ from . import drive as dd
 from .robot import Robot, movable_object, room_skeleton
 from .shapes import Shape, pose_matrix
 from .noise import make_rng
+from .raycast import Scene, ShapeList
 from .world import ObjectSpec, WorldSpec
 
 FLOOR_THICKNESS_M = 0.1
@@ -137,6 +138,9 @@ class Simulation:
         self._static_shapes = [self._shape_of(o) for o in self.objects if o.static]
         self._robot_parts = [part for name, r in self.robots.items()
                              for part in _visible_parts(r, name)]
+        self._movable_shapes = [self._shape_of(o) for o in self.objects if not o.static]
+        self._scene_template = None
+        self._scene_template = Scene(list(self.shapes()))     # built once per world
         self._set_contact_solver(spec.contact_solver)
         self.motion_rng = {r.name: make_rng(spec.seed, f"{r.name}/motion") for r in spec.robots}
 
@@ -224,18 +228,22 @@ class Simulation:
         return np.array([sn.getWorldTransform().matrix() for sn, *_ in self._robot_parts]
                         ).reshape(-1, 4, 4)
 
-    def shapes(self, part_tfs: np.ndarray | None = None) -> list[Shape]:
+    def shapes(self, part_tfs: np.ndarray | None = None) -> ShapeList:
         """Every solid of the world in world coordinates, robots included (their parts at
-        ``part_tfs``, from :meth:`part_transforms`, if given: a physics process's)."""
-        out = list(self._static_shapes)
+        ``part_tfs``, from :meth:`part_transforms`, if given: a physics process's).
+
+        A :class:`~plant.raycast.ShapeList`: a :class:`~plant.raycast.Scene` of it shares
+        the arrays of the world's still shapes, stacked once, and stacks only the poses of
+        the moving ones (the robots' parts, then the movable objects)."""
         if part_tfs is None:
             part_tfs = [sn.getWorldTransform().matrix() for sn, *_ in self._robot_parts]
-        for (sn, kind, size, color, name, owner), tf in zip(self._robot_parts, part_tfs):
-            out.append(Shape(kind, size, tf, color, name, owner))
-        for o in self.objects:
-            if not o.static:
-                out.append(self._shape_of(o))
-        return out
+        moving = [Shape.placed(kind, size, np.asarray(tf, dtype=float).reshape(4, 4), color, name,
+                               owner)
+                  for (sn, kind, size, color, name, owner), tf in zip(self._robot_parts, part_tfs)]
+        moving += self._movable_shapes
+        poses = np.array([s.pose for s in moving], dtype=float).reshape(-1, 4, 4)
+        return ShapeList(self._static_shapes + moving, self._scene_template,
+                         len(self._static_shapes), poses)
 
     def body_visuals(self, robot: str) -> list[dict]:
         """What a robot looks like, in its base_link frame: each visual shape (chassis,

@@ -1,0 +1,167 @@
+"""The plant's compiled kernels (C, built by ``make setup`` into plant/kernels/build/),
+loaded with ctypes: the lidar's sweep (:func:`lidar_scan`) and the camera's per-pixel work.
+
+The numpy code of :mod:`plant.raycast` stays as the reference the tests compare the
+kernels with, value for value. There is no silent fallback: without the library the
+sensors raise :class:`KernelsMissing`, which says how to build it.
+"""
+from __future__ import annotations
+
+import ctypes
+import sys
+import threading
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+
+__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr"]
+
+ABI = 3
+CAMERA_ABI = 1
+#: where ``python -m plant.kernels.build`` puts the library
+BUILD_DIR = Path(__file__).resolve().parent / "build"
+LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
+
+
+class KernelsMissing(RuntimeError):
+    pass
+
+
+_P = ctypes.c_void_p
+_I = ctypes.c_int64
+_D = ctypes.c_double
+
+
+@lru_cache(maxsize=1)
+def library() -> ctypes.CDLL:
+    """The loaded kernels (KernelsMissing if they are not built, or are out of date)."""
+    return load(BUILD_DIR / LIBRARY)
+
+
+def load(path: Path) -> ctypes.CDLL:
+    """Load the kernels' library at ``path`` and declare its functions."""
+    if not path.is_file():
+        raise KernelsMissing(f"the plant's C kernels are not built ({path} is missing): run "
+                             "`make setup` (or `python -m plant.kernels.build`)")
+    lib = ctypes.CDLL(str(path))
+    for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI)):
+        abi = getattr(lib, name)() if hasattr(lib, name) else None
+        if abi != want:
+            raise KernelsMissing(f"{path} is out of date ({name} {abi}, expected {want}): "
+                                 "run `make setup` (or `python -m plant.kernels.build`)")
+    lib.plant_camera_render.restype = None
+    lib.plant_camera_render.argtypes = ([_P] * 4 + [_I, _P, _I, _P, _P, _I, _I, _D, _D, _D, _P, _P,
+                                         _D, _D] + [_P] * 5)
+    lib.plant_image_noise.restype = None
+    lib.plant_image_noise.argtypes = [_P, _P, ctypes.c_float, _I, _P]
+    lib.plant_lidar_scan.restype = None
+    lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
+    return lib
+
+
+def ptr(a: np.ndarray) -> int:
+    """The address of a C-contiguous array's data (checked)."""
+    assert a.flags.c_contiguous, "kernel arrays must be C-contiguous"
+    return a.ctypes.data
+
+
+def lidar_scan(scene_arrays: tuple[int, ...], n_shapes: int, poses: np.ndarray,
+               dirs: np.ndarray, skip_owner: np.ndarray, a0: float, inc: float,
+               min_range: float, max_range: float, first_shape: np.ndarray | None = None,
+               last_shape: np.ndarray | None = None) -> np.ndarray:
+    """(G, n) ranges of G fans of n rays (plant/kernels/lidar.c). ``scene_arrays``: the
+    addresses of the scene's (centres, rotations, halves, quadrics, rr, radii, owner ids)
+    (:meth:`plant.raycast.Scene.kernel_arrays`); ``poses`` (G, 4, 4) the sensors' world
+    poses, ``dirs`` (G, n, 3) their rays, float64 and C-contiguous; ``skip_owner`` (G,)
+    int64 the owner id each fan ignores (-1: none); ``first_shape``/``last_shape`` (G,)
+    int64: the shapes [first, last) each fan sees (None: all)."""
+    g, n = dirs.shape[0], dirs.shape[1]
+    out = np.empty((g, n))
+    work = np.empty(3 * n)
+    library().plant_lidar_scan(
+        *scene_arrays, n_shapes, g, n, ptr(poses), ptr(dirs), ptr(skip_owner),
+        None if first_shape is None else ptr(first_shape),
+        None if last_shape is None else ptr(last_shape), a0, inc, min_range, max_range,
+        out.ctypes.data, work.ctypes.data)
+    return out
+
+
+def camera_render(scene, todo: np.ndarray, cam: np.ndarray, light: np.ndarray, w: int, h: int,
+                  f: float, cx: float, cy: float, xy: np.ndarray | None, bounds: np.ndarray,
+                  near: float, far: float, lut: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+                  sid: np.ndarray, lam: np.ndarray) -> None:
+    """Fill ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 and ``sid`` (H, W) int64 with
+    the picture of ``scene``'s shapes ``todo`` (int64) seen from ``cam`` (the optical
+    frame's rotation, row-major, then its origin: 12 doubles); ``lam``: scratch of
+    W H + W + H doubles. plant/kernels/camera.c."""
+    library().plant_camera_render(
+        scene.centers.ctypes.data, scene.rotations.ctypes.data, *scene.const_ptrs()[:2],
+        len(scene), ptr(todo), todo.size, ptr(cam), ptr(light), w, h, f, cx, cy,
+        None if xy is None else ptr(xy), ptr(bounds), near, far, ptr(lut), ptr(rgb),
+        ptr(depth), ptr(sid), ptr(lam))
+
+
+def camera_work(w: int, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """This thread's depth, shape and scratch buffers for a W x H frame, reused."""
+    cache = getattr(_local, "camera", None)
+    if cache is None:
+        cache = _local.camera = {}
+    bufs = cache.get((w, h))
+    if bufs is None:
+        if len(cache) > 8:
+            cache.clear()
+        bufs = cache[(w, h)] = (np.empty((h, w), dtype=np.float32),
+                                np.empty((h, w), dtype=np.intp), np.empty(w * h + w + h))
+    return bufs
+
+
+def image_noise(img: np.ndarray, noise: np.ndarray, offset: float, out: np.ndarray) -> None:
+    """``out`` = clip(rint((img + offset) + noise), 0, 255) as uint8, in float32 (the last
+    pass of :meth:`plant.noise.NoiseModel.apply` on an image): ``img`` uint8, ``noise``
+    float32 (the scaled draws), all C-contiguous and of one size."""
+    assert img.size == noise.size == out.size
+    library().plant_image_noise(ptr(img), ptr(noise), offset, img.size, ptr(out))
+
+
+class LidarWork:
+    """Buffers of one call shape (G fans of n rays), reused call after call with their
+    addresses taken once (an address costs more than the kernel's work on a small fan):
+    ``poses`` (G, 4, 4), ``dirs`` (G, n, 3), ``skip`` (G,) int64, ``out`` (G, n), and the
+    kernel's scratch."""
+
+    def __init__(self, g: int, n: int) -> None:
+        self.poses = np.zeros((g, 4, 4))
+        self.dirs = np.zeros((g, n, 3))
+        self.skip = np.zeros(g, dtype=np.int64)
+        self.out = np.zeros((g, n))
+        self.work = np.zeros(3 * n)
+        self.g, self.n = g, n
+        self.ptrs = tuple(a.ctypes.data for a in (self.poses, self.dirs, self.skip))
+        self.out_ptrs = (self.out.ctypes.data, self.work.ctypes.data)
+
+
+_local = threading.local()
+
+
+def lidar_work(g: int, n: int) -> LidarWork:
+    """This thread's buffers for G fans of n rays."""
+    cache = getattr(_local, "lidar", None)
+    if cache is None:
+        cache = _local.lidar = {}
+    ws = cache.get((g, n))
+    if ws is None:
+        if len(cache) > 16:
+            cache.clear()
+        ws = cache[(g, n)] = LidarWork(g, n)
+    return ws
+
+
+def lidar_scan_work(scene_arrays: tuple[int, ...], n_shapes: int, ws: LidarWork, a0: float,
+                    inc: float, min_range: float, max_range: float) -> np.ndarray:
+    """:func:`lidar_scan` of the fans filled into ``ws`` (all shapes for every fan): a new
+    (G, n) array of ranges."""
+    library().plant_lidar_scan(*scene_arrays, n_shapes, ws.g, ws.n, *ws.ptrs, None, None,
+                               a0, inc, min_range, max_range, *ws.out_ptrs)
+    return ws.out.copy()

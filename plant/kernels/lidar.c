@@ -1,0 +1,216 @@
+/* The lidar's sweep in C: every ray of G fans against the primitives of a scene, in one
+ * call (plant/kernels/__init__.py loads it, plant/lidar.py calls it).
+ *
+ * The arithmetic of each (ray, shape) element is plant/raycast.py's cast_sectors written
+ * out in double, operation for operation and in the same order, so a range is the same
+ * bits as the numpy reference's (built with -ffp-contract=off: no fused multiply-adds).
+ * The max / min of a NaN follow numpy's np.maximum / np.minimum (the NaN wins) and
+ * np.fmin / np.fmax (the number wins).
+ *
+ * Shapes (S of them, arrays row-major): centre c (S x 3), rotation R shape -> world
+ * (S x 9, R[j][k] at 3j + k), half extents h (S x 3), quadric q (S x 3: 0 for a box,
+ * (1, 1, 0) a cylinder, (1, 1, 1) a sphere), rr (S: radius^2, 1 for a box), bounding
+ * radius (S), owner id (S). A fan g: origin (3), rotation of the sensor (9, its z axis is
+ * the scan plane's normal), n ray directions (n x 3), the owner id it skips (-1: none),
+ * the range of shapes [first, last) it sees (several worlds may share one call).
+ */
+#include <math.h>
+#include <stdint.h>
+
+#define EXPORT __attribute__((visibility("default")))
+#define PI 3.14159265358979323846
+
+/* numpy's np.maximum / np.minimum: a NaN in either gives NaN */
+static inline double np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
+static inline double np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
+/* numpy's np.fmax / np.fmin: a NaN gives way to the other */
+static inline double np_fmax(double a, double b) { return (a >= b || isnan(b)) ? a : b; }
+static inline double np_fmin(double a, double b) { return (a <= b || isnan(b)) ? a : b; }
+
+/* The rays lo..hi of one fan against one shape (cast_sectors' elements): ray i from the
+ * origin at ol (in the shape's frame) along (dx[i], dy[i], dz[i]) (world frame), the
+ * nearest entering hit kept in row[i]. A branch-free loop over the rays, for the
+ * compiler to vectorise: the selects below are numpy's maxima and minima, in order. */
+static void rays_vs_shape(const double *ol, const double *dx, const double *dy,
+                          const double *dz, int64_t lo, int64_t hi, const double *R,
+                          const double *h, const double *q, double rr, int round_,
+                          double max_range, double *row)
+{
+    const double ax = -h[0] - ol[0], bx = h[0] - ol[0];
+    const double ay = -h[1] - ol[1], by = h[1] - ol[1];
+    const double az = -h[2] - ol[2], bz = h[2] - ol[2];
+    const double q0 = q[0], q1 = q[1], q2 = q[2];
+    const double c = q0 * ol[0] * ol[0] + q1 * ol[1] * ol[1] + q2 * ol[2] * ol[2] - rr;
+    const double flat0 = c < 0.0 ? -INFINITY : NAN, flat1 = c < 0.0 ? INFINITY : NAN;
+    for (int64_t i = lo; i <= hi; i++) {
+        const double d0 = dx[i], d1 = dy[i], d2 = dz[i];
+        const double l0 = d0 * R[0] + d1 * R[3] + d2 * R[6];
+        const double l1 = d0 * R[1] + d1 * R[4] + d2 * R[7];
+        const double l2 = d0 * R[2] + d1 * R[5] + d2 * R[8];
+        double inv = 1.0 / l0, t1 = ax * inv, t2 = bx * inv;
+        double tn = np_fmin(t1, t2), tf = np_fmax(t1, t2);
+        inv = 1.0 / l1; t1 = ay * inv; t2 = by * inv;
+        tn = np_max(tn, np_fmin(t1, t2));
+        tf = np_min(tf, np_fmax(t1, t2));
+        inv = 1.0 / l2; t1 = az * inv; t2 = bz * inv;
+        tn = np_max(tn, np_fmin(t1, t2));
+        tf = np_min(tf, np_fmax(t1, t2));
+        if (round_) {
+            const double a = q0 * l0 * l0 + q1 * l1 * l1 + q2 * l2 * l2;
+            const double b = q0 * l0 * ol[0] + q1 * l1 * ol[1] + q2 * l2 * ol[2];
+            /* raycast.quadratic_roots; a == 0: along a cylinder's axis */
+            const double sq = sqrt(b * b - a * c);
+            const double qq = -(b + copysign(sq, b));
+            const double x1 = qq / a, x2 = c / qq;
+            const double r0 = a == 0.0 ? flat0 : np_min(x1, x2);
+            const double r1 = a == 0.0 ? flat1 : np_max(x1, x2);
+            tn = np_max(tn, r0);
+            tf = np_min(tf, r1);
+        }
+        const int hit = (tn <= tf) & (tn >= 0.0) & (tn <= max_range) & (tn < row[i]);
+        row[i] = hit ? tn : row[i];
+    }
+}
+
+EXPORT int plant_lidar_abi(void) { return 3; }
+
+/* atan2 to within 2e-5 rad (a minimax polynomial for atan on [0, 1]; the culls below
+ * widen every angle they take from it by SLACK, so they stay conservative) */
+#define SLACK 1e-3
+static inline double atan2_approx(double y, double x)
+{
+    double ax = fabs(x), ay = fabs(y);
+    double mx_ = ax > ay ? ax : ay, mn_ = ax > ay ? ay : ax;
+    if (mx_ == 0.0)
+        return 0.0;
+    double z = mn_ / mx_, z2 = z * z;
+    double a = z * (0.9998660 + z2 * (-0.3302995 + z2 * (0.1801410 + z2 * (-0.0851330
+                                                                      + z2 * 0.0208351))));
+    if (ay > ax) a = 0.5 * PI - a;
+    if (x < 0.0) a = PI - a;
+    return y < 0.0 ? -a : a;
+}
+
+/* The rays [*lo, *hi] of a fan that may meet shape s (0 if none may): its bounding box
+ * must cross the scan plane, lie within range, and cover their bearings. Conservative (a
+ * whole ray of slack on each side of a sector), so testing these rays finds what testing
+ * every ray would. rel: the shape's centre in the sensor's frame; A: the shape's axes in
+ * the sensor's frame (A[3k + i]: component i of axis k). */
+static int sector(const double *rel, const double *A, const double *h, double radius,
+                  int64_t n, double a0, double inc, double max_range, int64_t *lo, int64_t *hi)
+{
+    double extent = fabs(A[2]) * h[0] + fabs(A[5]) * h[1] + fabs(A[8]) * h[2];
+    double hz = fabs(rel[2]);
+    if (hz > extent * (1.0 + 1e-9) + 1e-9)
+        return 0;                                 /* wholly above or below the plane */
+    double r = radius * (1.0 + 1e-9) + 1e-9;
+    double rp = hz < r ? sqrt(r * r - hz * hz) : 0.0;
+    double rho = hypot(rel[0], rel[1]);
+    if (rho - rp > max_range * (1.0 + 1e-9) + 1e-9)
+        return 0;                                 /* out of range */
+    *lo = 0;
+    *hi = n - 1;
+    if (n < 2 || rho <= 1e-9)
+        return 1;
+    double bearing = atan2_approx(rel[1], rel[0]), dmin, dmax;
+    double half = rho > rp ? asin(rp / rho) : PI;
+    if (half * 2.0 > 8.0 * inc) {
+        /* a wide sector (or the sensor inside the sphere): the bearings of the bounding
+         * box's corners projected on the plane, relative to the centre's; if they span
+         * less than pi the sensor is outside the box's shadow and they bound it */
+        dmin = 0.0;
+        dmax = 0.0;
+        for (int c = 0; c < 8; c++) {
+            double x = rel[0], y = rel[1];
+            for (int k = 0; k < 3; k++) {
+                double e = (c >> k & 1) ? h[k] : -h[k];
+                x += e * A[3 * k];
+                y += e * A[3 * k + 1];
+            }
+            double d = atan2_approx(y, x) - bearing;
+            if (d > PI) d -= 2.0 * PI;
+            if (d < -PI) d += 2.0 * PI;
+            if (d < dmin) dmin = d;
+            if (d > dmax) dmax = d;
+        }
+        if (dmax - dmin >= PI - 4.0 * SLACK) {
+            if (half >= PI)
+                return 1;                         /* around the sensor: every ray */
+            dmin = -half;
+            dmax = half;
+        } else if (half < PI) {
+            dmin = dmin > -half ? dmin : -half;
+            dmax = dmax < half ? dmax : half;
+        }
+    } else {
+        dmin = -half;
+        dmax = half;
+    }
+    dmin -= 2.0 * SLACK;                          /* the bearing's error and the corners' */
+    dmax += 2.0 * SLACK;
+    if (fabs(bearing) + (dmax > -dmin ? dmax : -dmin) >= PI - 1e-6)
+        return 1;                                 /* across the +-pi seam: every ray */
+    double f = ceil((bearing + dmin - a0) / inc) - 1.0;
+    double l = floor((bearing + dmax - a0) / inc) + 1.0;
+    if (l < 0.0 || f > (double)(n - 1))
+        return 0;                                 /* outside the field of view */
+    *lo = f < 0.0 ? 0 : (int64_t)f;
+    *hi = l > (double)(n - 1) ? n - 1 : (int64_t)l;
+    return 1;
+}
+
+/* Nearest entering hit of every ray of every fan: out (G x n), +inf where none,
+ * work: room for 3 n doubles, and a
+ * hit nearer than min_range reported as +inf (it still occludes what lies behind).
+ * poses: the sensors' world poses (G x 16, row-major 4x4); ray i of a fan points at
+ * a0 + i inc in its sensor's plane (used only to skip the rays outside a shape's bearing
+ * sector). first_shape / last_shape: the shapes [first, last) fan g sees (NULL: all). */
+EXPORT void plant_lidar_scan(
+    const double *centers, const double *rot, const double *halves, const double *quad,
+    const double *rr, const double *radii, const int64_t *owner, int64_t n_shapes,
+    int64_t n_fans, int64_t n, const double *poses, const double *dirs,
+    const int64_t *skip_owner, const int64_t *first_shape, const int64_t *last_shape,
+    double a0, double inc, double min_range, double max_range, double *out, double *work)
+{
+    double *dx = work, *dy = work + n, *dz = work + 2 * n;
+    for (int64_t g = 0; g < n_fans; g++) {
+        double *row = out + g * n;
+        for (int64_t i = 0; i < n; i++)
+            row[i] = INFINITY;
+        const double *P = poses + 16 * g;
+        const double org[3] = {P[3], P[7], P[11]};
+        const double *fd = dirs + 3 * n * g;
+        for (int64_t i = 0; i < n; i++) {          /* the rays as columns (SoA) */
+            dx[i] = fd[3 * i];
+            dy[i] = fd[3 * i + 1];
+            dz[i] = fd[3 * i + 2];
+        }
+        int64_t s0 = first_shape ? first_shape[g] : 0;
+        int64_t s1 = last_shape ? last_shape[g] : n_shapes;
+        for (int64_t s = s0; s < s1; s++) {
+            if (owner[s] == skip_owner[g])
+                continue;
+            const double *c = centers + 3 * s, *R = rot + 9 * s, *h = halves + 3 * s;
+            double o[3] = {org[0] - c[0], org[1] - c[1], org[2] - c[2]};
+            /* the cull, in the sensor's frame: the centre, the shape's axes */
+            double rel[3], A[9];
+            for (int i = 0; i < 3; i++) {
+                rel[i] = -(o[0] * P[i] + o[1] * P[4 + i] + o[2] * P[8 + i]);
+                for (int k = 0; k < 3; k++)
+                    A[3 * k + i] = R[k] * P[i] + R[3 + k] * P[4 + i] + R[6 + k] * P[8 + i];
+            }
+            int64_t lo, hi;
+            if (!sector(rel, A, h, radii[s], n, a0, inc, max_range, &lo, &hi))
+                continue;
+            /* the origin in the shape's frame, as cast_sectors computes it per pair */
+            double ol[3];
+            for (int k = 0; k < 3; k++)
+                ol[k] = o[0] * R[k] + o[1] * R[3 + k] + o[2] * R[6 + k];
+            const double *q = quad + 3 * s;
+            rays_vs_shape(ol, dx, dy, dz, lo, hi, R, h, q, rr[s], q[0] > 0.0, max_range, row);
+        }
+        for (int64_t i = 0; i < n; i++)
+            if (row[i] < min_range)
+                row[i] = INFINITY;
+    }
+}
