@@ -40,6 +40,8 @@ class FakePlant:
         self.ledger = AckLedger(T, self.errors.reject, end_with=(SQ,), expect=(SQ, ODO))
         self.commands = CommandBook(lockstep=True)
         self.sim = SimpleNamespace(time_ns=K)
+        self.time_ns = K
+        self.tick_ns = T
         self.events = list(events)
         self.last = time.monotonic()
         self.stop_event = threading.Event()
@@ -106,7 +108,7 @@ def test_a_member_back_during_the_grace_for_its_final_is_waited_for_at_the_held_
     p = FakePlant([blip, back, 4 * modes.LEFT_FINAL_GRACE_S, resent])
     up_to_the_blip(p)
     assert p.ledger.waiting_for(K) == [SQ]
-    assert modes.Lockstep(p, 0).barrier(K) is None
+    assert modes.Lockstep(p, "sequential").barrier(K) is None
     # stepped only once the square's answer to K was in: its command of K drives the robot
     assert p.events == [] and p.ledger.waiting_for(K) == []
     assert p.commands.for_tick("robot1", K).t_ns == K
