@@ -1,5 +1,5 @@
 """Lockstep survives router blips (issues 27 and 40): a `diffbot router` SIGKILLed and
-restarted 0.1-0.5 s later, again and again during one lockstep square run (--rejoin-timeout
+restarted 0-0.5 s later, again and again during one lockstep square run (--rejoin-timeout
 30, --end-with the square as docs/several-machines.md runs it, --wait nodes), leaves the
 recording identical, payloads and sim stamps, to an undisturbed run's, under both
 couplings, with no protocol error and no stale command (docs/PROTOCOL.md section 4, "Lost
@@ -37,11 +37,14 @@ CLIENT = os.path.join(ROOT, "diffbot", "configs", "client.json5")
 #: pipelined: --end-with would end the run there)
 DURATION_S = "30"
 NETNS_DURATION_S = "45"
-#: blips per coupling in one run, and (wall s) how long after the last rejoin each comes,
-#: how long the router stays down: down within the 0.5 s grace, the issue-40 window
+#: blips per coupling in one run, and (wall s) how long after the last rejoin each comes
 LOOPBACK_BLIPS, LOOPBACK_AFTER_S = 8, (0.05, 0.3)
 NETNS_BLIPS, NETNS_AFTER_S = 10, (0.02, 0.1)
-DOWN_S = (0.1, 0.5)
+#: how long the router stays down (wall s), in turn: so short that the members are often
+#: back within the plant's 0.5 s grace for the --end-with member's FINAL (the issue-40
+#: window: before the fix, 20 such blips made 2-3 stale commands across namespaces), and
+#: as long as the issue's (0.1-0.5 s, the members back after the grace: a hold)
+DOWN_S = ((0.0, 0.1), (0.1, 0.5))
 
 
 def free_port() -> int:
@@ -64,7 +67,7 @@ def loopback_router() -> dict:
 def blip_plan(seed: str, n: int, after_s: tuple[float, float]) -> list[tuple[float, float]]:
     """``n`` (after, down) pairs, wall s, drawn with ``seed`` (the same every run)."""
     rng = random.Random(seed)
-    return [(rng.uniform(*after_s), rng.uniform(*DOWN_S)) for _ in range(n)]
+    return [(rng.uniform(*after_s), rng.uniform(*DOWN_S[i % len(DOWN_S)])) for i in range(n)]
 
 
 def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float, float]],
@@ -113,7 +116,8 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float
         log = r.log(plant)
     finally:
         r.cleanup()
-    assert log.count("lost the router") == len(blips), log
+    # (each blip was seen: both members rejoined after it; a router back within the plant's
+    # 0.25 s check may go without a "lost the router" line)
     with open(stats) as f:
         return mcap, json.load(f), log
 
