@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from bus.cliargs import did_you_mean
 from bus.keys import check_name
 from bus.protocol import COUPLINGS
-from plant.world import WorldError, _Table, tomllib
+from plant.tomlfile import Table, WorldError, read_toml, tomllib
 
 SCENARIOS_DIR = os.path.join(os.path.dirname(__file__), "scenarios")
 ANALYSES = ("square", "drive-test", "follow", "swarm", "none")
@@ -90,14 +90,7 @@ def scenario_path(name_or_path: str) -> str:
 
 def load_scenario(name_or_path: str) -> ScenarioSpec:
     path = scenario_path(name_or_path)
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise WorldError(f"{path}: not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
-    top = _Table(path, "", data)
+    top = Table(path, "", read_toml(path))
     s = top.table("scenario")
     spec = ScenarioSpec(name=os.path.splitext(os.path.basename(path))[0], path=path)
     spec.description = s.string("description", "")

@@ -8,16 +8,10 @@ can print one line and exit 2.
 """
 from __future__ import annotations
 
-import difflib
 import math
 import os
-import re
 from dataclasses import dataclass, field
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib  # type: ignore[no-redef]
 
 from bus.cliargs import did_you_mean
 from bus.keys import BadName, check_name
@@ -25,13 +19,9 @@ from bus.keys import BadName, check_name
 from .camera import CameraConfig
 from .lidar import LidarConfig
 from .noise import NoiseConfig, parse_noise
+from .tomlfile import Table, WorldError, read_toml, tomllib
 
 WORLDS_DIR = os.path.join(os.path.dirname(__file__), "worlds")
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
-
-
-class WorldError(ValueError):
-    """A world file that cannot be used; the message is ``file:key: reason``."""
 
 
 # ---------------------------------------------------------------------------- spec
@@ -131,115 +121,8 @@ class WorldSpec:
         raise KeyError(name)
 
 
-# ---------------------------------------------------------------------------- reader
-class _Table:
-    """Typed access to one TOML table that remembers which keys were read."""
-
-    def __init__(self, path: str, where: str, data: dict) -> None:
-        self.path, self.where, self.data = path, where, data
-        if not isinstance(data, dict):
-            self.fail("", f"expected a table, got {type(data).__name__}")
-        self.used: set[str] = set()
-
-    def key(self, k: str) -> str:
-        if not _BARE_KEY.match(str(k)):        # quoted TOML keys: "a b", "x\ny" (one line)
-            k = repr(k)
-        return f"{self.where}.{k}" if self.where else k
-
-    def fail(self, k: str, reason: str):
-        raise WorldError(f"{self.path}:{self.key(k) if k else self.where}: {reason}")
-
-    def has(self, k: str) -> bool:
-        return k in self.data
-
-    def raw(self, k: str, default=None):
-        self.used.add(k)
-        return self.data.get(k, default)
-
-    def number(self, k: str, default=None, *, positive=False, nonneg=False, required=False) -> float:
-        self.used.add(k)
-        if k not in self.data:
-            if required or default is None:
-                self.fail(k, "missing (a number is required)")
-            return default
-        v = self.raw(k)
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            self.fail(k, f"expected a number, got {type(v).__name__} {v!r}")
-        v = float(v)
-        if not math.isfinite(v):
-            self.fail(k, f"must be finite, got {v}")
-        if positive and v <= 0:
-            self.fail(k, f"must be > 0, got {v:g}")
-        if nonneg and v < 0:
-            self.fail(k, f"must be >= 0, got {v:g}")
-        return v
-
-    def integer(self, k: str, default: int) -> int:
-        v = self.raw(k, default)
-        if isinstance(v, bool) or not isinstance(v, int):
-            self.fail(k, f"expected an integer, got {type(v).__name__} {v!r}")
-        return v
-
-    def string(self, k: str, default=None, choices=None) -> str:
-        self.used.add(k)
-        if k not in self.data and default is None:
-            self.fail(k, "missing (a string is required)")
-        v = self.raw(k, default)
-        if not isinstance(v, str):
-            self.fail(k, f"expected a string, got {type(v).__name__} {v!r}")
-        if choices and v not in choices:
-            self.fail(k, f"must be one of {', '.join(choices)}, got {v!r}"
-                         f"{did_you_mean(v, choices)}")
-        return v
-
-    def boolean(self, k: str, default: bool) -> bool:
-        v = self.raw(k, default)
-        if not isinstance(v, bool):
-            self.fail(k, f"expected true or false, got {v!r}")
-        return v
-
-    def vector(self, k: str, n: int | tuple[int, ...], default=None, *, positive=False,
-               unit_range=False) -> tuple[float, ...]:
-        self.used.add(k)
-        if k not in self.data:
-            if default is None:
-                self.fail(k, "missing")
-            return tuple(default)
-        v = self.raw(k)
-        ns = (n,) if isinstance(n, int) else n
-        if not isinstance(v, list) or len(v) not in ns or any(
-                isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):
-            want = " or ".join(str(i) for i in ns)
-            self.fail(k, f"expected a list of {want} numbers, got {v!r}")
-        v = tuple(float(x) for x in v)
-        if not all(math.isfinite(x) for x in v):
-            self.fail(k, f"values must be finite, got {v}")
-        if positive and any(x <= 0 for x in v):
-            self.fail(k, f"values must be > 0, got {list(v)}")
-        if unit_range and any(x < 0 or x > 1 for x in v):
-            self.fail(k, f"colour components must be in 0..1, got {list(v)}")
-        return v
-
-    def table(self, k: str) -> "_Table":
-        return _Table(self.path, self.key(k), self.raw(k, {}))
-
-    def tables(self, k: str) -> list["_Table"]:
-        v = self.raw(k, [])
-        if not isinstance(v, list):
-            self.fail(k, f"expected an array of tables ([[{k}]]), got {type(v).__name__}")
-        return [_Table(self.path, f"{self.key(k)}[{i}]", item) for i, item in enumerate(v)]
-
-    def done(self) -> None:
-        """Refuse keys nobody asked for (typos), suggesting the closest known one."""
-        for k in self.data:
-            if k not in self.used:
-                close = difflib.get_close_matches(k, sorted(self.used), n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                self.fail(k, f"unknown key{hint}")
-
-
 # ---------------------------------------------------------------------------- parse
-def _parse_object(t: _Table, materials: dict, default_material: str) -> ObjectSpec:
+def _parse_object(t: Table, materials: dict, default_material: str) -> ObjectSpec:
     name = t.string("name")
     shape = t.string("shape", choices=("box", "cylinder", "sphere"))
     if shape == "box":
@@ -270,7 +153,7 @@ def _parse_object(t: _Table, materials: dict, default_material: str) -> ObjectSp
     return ObjectSpec(name, shape, size, (x, y, z, yaw), color, material, static, mass)
 
 
-def _config_from_table(t: _Table, cls, skip=()) -> object:
+def _config_from_table(t: Table, cls, skip=()) -> object:
     """A frozen sensor config dataclass from the same-named keys of a table."""
     kw = {}
     t.used.update(cls.__dataclass_fields__)      # all known keys (for typo suggestions)
@@ -287,7 +170,7 @@ def _config_from_table(t: _Table, cls, skip=()) -> object:
         t.fail("", str(exc))
 
 
-def _noise(t: _Table, sensor: str, max_range: float | None = None) -> NoiseConfig:
+def _noise(t: Table, sensor: str, max_range: float | None = None) -> NoiseConfig:
     raw = t.raw("noise")
     if raw is None:
         return NoiseConfig()
@@ -297,7 +180,7 @@ def _noise(t: _Table, sensor: str, max_range: float | None = None) -> NoiseConfi
         raise WorldError(str(exc)) from None
 
 
-def _parse_sensors(robot: _Table) -> SensorsSpec:
+def _parse_sensors(robot: Table) -> SensorsSpec:
     s = SensorsSpec()
     if robot.has("lidar"):
         t = robot.table("lidar")
@@ -328,7 +211,7 @@ def _parse_sensors(robot: _Table) -> SensorsSpec:
     return s
 
 
-def _parse_drive(t: _Table) -> DriveSpec:
+def _parse_drive(t: Table) -> DriveSpec:
     d = DriveSpec()
     for f in DriveSpec.__dataclass_fields__:
         setattr(d, f, t.number(f, getattr(d, f), positive=True))
@@ -337,7 +220,7 @@ def _parse_drive(t: _Table) -> DriveSpec:
 
 
 def parse_world(data: dict, path: str) -> WorldSpec:
-    top = _Table(path, "", data)
+    top = Table(path, "", data)
     w = top.table("world")
     spec = WorldSpec(path=path, name=w.string("name", os.path.splitext(os.path.basename(path))[0]))
     spec.mode = w.string("mode", "dynamic", choices=("dynamic", "kinematic"))
@@ -418,7 +301,7 @@ def parse_world(data: dict, path: str) -> WorldSpec:
 ROBOT_RADIUS_M = 0.30  # conservative footprint radius of the default robot
 
 
-def _check_robot_overlap(spec: WorldSpec, top: _Table) -> None:
+def _check_robot_overlap(spec: WorldSpec, top: Table) -> None:
     for i, a in enumerate(spec.robots):
         for b in spec.robots[i + 1:]:
             d = math.hypot(a.pose[0] - b.pose[0], a.pose[1] - b.pose[1])
@@ -443,13 +326,7 @@ def load_world(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) -
     """Load and validate a world file, after applying ``KEY=VALUE`` overrides (see
     :func:`apply_override`)."""
     path = resolve_world_path(name_or_path)
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise WorldError(f"{path}: not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
+    data = read_toml(path)
     data = _extend(data, path, seen=(os.path.abspath(path),))
     touched = [(item, apply_override(data, item, path)) for item in overrides]
     try:
