@@ -224,16 +224,24 @@ class AckLedger:
         ack = self.acks.get(member, {}).get(t_ns)
         return None if ack is None else (ack[0], len(self.member_msgs.get((member, t_ns), ())))
 
+    def report_missing(self, t_ns: int, waiting: list[str]) -> None:
+        """Section 7: a member still owed ``t_ns`` whose ACK came but not all its messages
+        is a protocol error (counted and said each time the plant says whom it waits for)."""
+        for m in sorted(waiting):
+            missing = self.missing_outputs(m, t_ns)
+            if missing is not None:
+                self.report("missing outputs", f"{m} ACKed t={t_ns * 1e-9:.3f} s with "
+                            f"n_plant={missing[0]} but {missing[1]} of its messages for it "
+                            "arrived")
+
     def describe_wait(self, t_ns: int, waiting: list[str]) -> list[str]:
         """Section 7: for each member still owed ``t_ns``, whether its ACK came and how many
-        of its messages; an ACK whose messages did not all come is a protocol error."""
+        of its messages."""
         parts = []
         for m in sorted(waiting):
             missing = self.missing_outputs(m, t_ns)
             got = len(self.member_msgs.get((m, t_ns), ()))
             if missing is not None:
-                self.report("missing outputs", f"{m} ACKed t={t_ns * 1e-9:.3f} s with "
-                            f"n_plant={missing[0]} but {got} of its messages for it arrived")
                 parts.append(f"{m} (ACKed with n_plant={missing[0]}, {got} arrived)")
             else:
                 last = max(self.acks.get(m, {}), default=None)

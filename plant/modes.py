@@ -224,6 +224,7 @@ class Lockstep(Mode):
                 return
             now = time.monotonic()
             if now >= report_at:
+                p.ledger.report_missing(t_ns, waiting)
                 p.log.warning("lockstep: waited %.1f s for tick t=%.3f s: %s", now - since,
                               t_ns * 1e-9, "; ".join(p.ledger.describe_wait(t_ns, waiting)))
                 report_at = since + next(reports)
