@@ -1,17 +1,23 @@
 """``diffbot/Avoid-v0``: reach a goal in the living room without touching anything.
 
 One robot starts at a free pose and is given a free goal point 1-3 m away, both drawn
-from the episode's seed (which also seeds the plant's noise). Each step holds the action
-``[v m/s, w rad/s]`` (within the robot's drive limits from the world file) for
-``action_repeat`` control ticks: 5 x 20 ms, so ``dt`` = 0.1 s, the lidar's period, and
-every observation carries a fresh scan.
+from the episode's seed, which also draws the plant's noise seed. Each step holds the
+action ``[v m/s, w rad/s]`` (within the robot's drive limits from the world file; or in
+[-1, 1] scaled to them with ``normalize_actions=True``; out of range: clipped, not finite:
+ValueError, :mod:`diffbot.envs.actions`) for ``action_repeat`` control ticks: 5 x 20 ms,
+so ``dt`` = 0.1 s, the lidar's period, and every observation carries a fresh scan.
 
 Observation (:class:`controllers.learned.AvoidObserver`, the same code the deployed
 ``diffbot controller policy`` runs): ``scan`` (the lidar's 180 ranges, m), ``odom``
 (x, y, yaw, v, w dead-reckoned from the wheel encoders, in ``<robot>/odom``: from the
 origin, where the episode starts, as the bus's ``<robot>/odom`` topic, REP 105) and
 ``goal`` (the goal in the robot's own frame ``<robot>/base_link`` by that odometry).
-``info`` gives the true ``pose`` and the ``goal`` in ``world``.
+Every bound is finite (odometry and goal clipped at
+:data:`controllers.learned.ODOM_HIGH` / ``GOAL_LIMIT_M``, far outside any room).
+``info`` (the same keys on reset and step) gives the true ``pose`` and the ``goal`` in
+``world``, ``distance``, ``is_success``, ``contact``, sim time ``t`` and ``plant``: the
+:class:`diffbot.envs.deploy.Episode` that replays the episode on a plant (its noise seed,
+start poses, goals, world and overrides).
 
 Reward, judged on ground truth at the end of each step: ``PROGRESS_GAIN`` x the metres
 gained toward the goal, minus ``STEP_COST`` each step; ``GOAL_BONUS`` and terminated on
@@ -32,9 +38,11 @@ import numpy as np
 from gymnasium import spaces
 
 from bus import codec
-from controllers.learned import AvoidObserver, as_action
+from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, AvoidObserver
 from plant.world import load_world
 
+from .actions import Drive, check_repeat
+from .deploy import Episode
 from .geometry import Footprints
 from .transport import Bus, InProc
 
@@ -69,15 +77,16 @@ class AvoidTask:
     def __init__(self, world: str = "living_room", transport: str = "inproc",
                  endpoint: str | None = None, action_repeat: int = 5,
                  max_steps: int | None = None, goal_radius_m: float = 0.3,
-                 overrides: tuple[str, ...] = ()) -> None:
-        if int(action_repeat) < 1 or (max_steps is not None and int(max_steps) < 1):
-            raise ValueError("action_repeat and max_steps must be >= 1")
+                 overrides: tuple[str, ...] = (), normalize_actions: bool = False) -> None:
+        self.action_repeat = check_repeat(action_repeat)
+        if max_steps is not None and int(max_steps) < 1:
+            raise ValueError("max_steps must be >= 1")
+        self.world, self.overrides = world, tuple(overrides)
         self.spec = load_world(world, list(overrides))
         self.robots = [r.name for r in self.spec.robots]
         for r in self.spec.robots:
             if r.sensors.lidar is None:
                 raise ValueError(f"{world}: robot {r.name} has no lidar (Avoid needs one)")
-        self.action_repeat = int(action_repeat)
         self.max_steps = None if max_steps is None else int(max_steps)
         self.goal_radius = float(goal_radius_m)
         self.dt = self.action_repeat * self.spec.control_tick_s
@@ -86,8 +95,8 @@ class AvoidTask:
                                                 r.sensors.lidar.num_rays,
                                                 r.sensors.lidar.max_range_m)
                           for r in self.spec.robots}
-        self.limits = {r.name: (r.drive.max_linear_mps, r.drive.max_angular_radps)
-                       for r in self.spec.robots}
+        self.drives = {r.name: Drive(r.drive.max_linear_mps, r.drive.max_angular_radps,
+                                     normalize_actions) for r in self.spec.robots}
         self.transport = None
         self.transport = make_transport(self.spec, world, {r: INPUTS for r in self.robots},
                                         transport, endpoint, ("camera",), tuple(overrides))
@@ -95,16 +104,13 @@ class AvoidTask:
     # ---------------------------------------------------------------- spaces
     def observation_space(self, robot: str) -> spaces.Dict:
         lid = self.spec.robot(robot).sensors.lidar
-        inf = np.float32(np.inf)
         return spaces.Dict({
             "scan": spaces.Box(0.0, np.float32(lid.max_range_m), (lid.num_rays,), np.float32),
-            "odom": spaces.Box(-inf, inf, (5,), np.float32),
-            "goal": spaces.Box(-inf, inf, (2,), np.float32)})
+            "odom": spaces.Box(-ODOM_HIGH, ODOM_HIGH, (5,), np.float32),
+            "goal": spaces.Box(-GOAL_LIMIT_M, GOAL_LIMIT_M, (2,), np.float32)})
 
     def action_space(self, robot: str) -> spaces.Box:
-        v, w = self.limits[robot]
-        return spaces.Box(np.array([-v, -w], np.float32), np.array([v, w], np.float32),
-                          dtype=np.float32)
+        return self.drives[robot].space
 
     # ---------------------------------------------------------------- episode
     def reset(self, rng: np.random.Generator) -> tuple[dict, dict]:
@@ -124,6 +130,7 @@ class AvoidTask:
         for name in self.robots:
             self.observers[name].reset(poses[name], goals[name])
         self._ticks_left = 1
+        self.episode = Episode(seed, poses, goals, self.world, self.overrides, ("camera",))
         self.transport.reset(seed, poses, self._observe)
         return self._obs(), {r: self._info(r, False) for r in self.robots}
 
@@ -150,19 +157,15 @@ class AvoidTask:
     def _info(self, robot: str, success: bool) -> dict:
         return {"pose": np.array(self.truth[robot]), "goal": np.array(self.goals[robot]),
                 "distance": self._distance(robot), "is_success": success,
-                "contact": robot in self.touched, "t": self.t_ns * 1e-9}
+                "contact": robot in self.touched, "t": self.t_ns * 1e-9,
+                "plant": self.episode}
 
     def step(self, actions: dict) -> tuple[dict, dict, dict, dict, dict]:
         cmds = {}
         for name in self.robots:
             if name not in self.active:
                 continue
-            a = as_action(actions[name])
-            if a.shape != (2,) or not np.all(np.isfinite(a)):
-                raise ValueError(f"action for {name} must be 2 finite numbers [v, w], got "
-                                 f"{actions[name]!r}")
-            v, w = self.limits[name]
-            cmds[name] = (float(np.clip(a[0], -v, v)), float(np.clip(a[1], -w, w)))
+            cmds[name] = self.drives[name].command(actions[name], name)
         before = {r: self._distance(r) for r in self.active}
         self._ticks_left = self.action_repeat
         self.transport.advance(self.action_repeat, lambda t, m: cmds, self._observe)
@@ -202,12 +205,12 @@ class AvoidEnv(gym.Env):
     def __init__(self, transport: str = "inproc", endpoint: str | None = None,
                  world: str = "living_room", action_repeat: int = 5,
                  goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
-                 render_mode: str | None = None) -> None:
+                 normalize_actions: bool = False, render_mode: str | None = None) -> None:
         if render_mode is not None:
             raise ValueError("diffbot/Avoid-v0 renders nothing itself: watch it over the bus "
                              "(transport='bus', diffbot view)")
         self.task = AvoidTask(world, transport, endpoint, action_repeat, None, goal_radius_m,
-                              overrides)
+                              overrides, normalize_actions)
         if len(self.task.robots) != 1:
             self.task.close()
             raise ValueError(f"{world} has {len(self.task.robots)} robots; Avoid-v0 drives one "
@@ -221,6 +224,7 @@ class AvoidEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         obs, info = self.task.reset(self.np_random)
+        self.task.episode.seed = seed
         return obs[self.robot], info[self.robot]
 
     def step(self, action):
