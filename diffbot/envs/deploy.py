@@ -153,3 +153,60 @@ def play(policy: MLPPolicy, seed: int, max_steps: int = 300, world: str = "livin
         return path, info
     finally:
         env.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m diffbot.envs.deploy --seed S --policy FILE.npz``: the Avoid episode of
+    reset seed S played over the bus by ``diffbot run`` (a lockstep plant in the episode's
+    state, the policy a process of its own), or ``--print`` the commands that start the
+    same by hand."""
+    import argparse
+    import os
+    import shlex
+    import sys
+    p = argparse.ArgumentParser(prog="python -m diffbot.envs.deploy",
+                                description="Play a diffbot/Avoid-v0 episode on a plant over "
+                                            "the bus with a trained policy.")
+    p.add_argument("--seed", type=int, required=True, help="the episode's reset seed")
+    p.add_argument("--policy", metavar="FILE.npz", help="an MLPPolicy file "
+                   "(diffbot controller policy)")
+    p.add_argument("--controller", metavar="ARGS", help="instead of --policy: the controller's "
+                   "arguments, e.g. 'python:my_pkg.agent:Agent --arg model=m.zip' (the "
+                   "episode's goal is appended as --goal=X,Y when the controller takes one)")
+    p.add_argument("--world", default="living_room")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="the env's overrides (its overrides= argument); repeatable")
+    p.add_argument("--duration", type=float, default=30.0, metavar="S")
+    p.add_argument("--out", default=None, help="output directory (default out/episode_SEED)")
+    p.add_argument("--record", action="store_true", help="record the run (OUT/episode.mcap)")
+    p.add_argument("--print", action="store_true", dest="print_only",
+                   help="print the plant's and the controller's command lines, run nothing")
+    args = p.parse_args(argv)
+    if (args.policy is None) == (args.controller is None):
+        p.error("give one of --policy and --controller")
+    ep = episode(args.seed, args.world, overrides=tuple(args.set))
+    if args.policy is not None:
+        ctl = ["controller", "policy", "--file", os.path.abspath(args.policy), ep.goal_arg()]
+    else:
+        ctl = ["controller", *shlex.split(args.controller), ep.goal_arg()]
+    if args.print_only:
+        q = shlex.join
+        print(f"diffbot plant {q(ep.plant_args())} --expect policy_{ep.robot} "
+              f"--end-with policy_{ep.robot}")
+        print(f"diffbot {q(ctl)} --robot {ep.robot}")
+        return 0
+    out = os.path.abspath(args.out or os.path.join("out", f"episode_{args.seed}"))
+    os.makedirs(out, exist_ok=True)
+    path = os.path.join(out, "episode.toml")
+    with open(path, "w") as f:
+        f.write(scenario(ep, None, args.duration, controller=ctl))
+    from diffbot.launcher import main as run_main
+    run = [path, "--seed", str(ep.plant_seed), "--out", out]
+    if args.record:
+        run += ["--record", os.path.join(out, "episode.mcap")]
+    print("diffbot run " + shlex.join(run), flush=True)
+    return run_main(run)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
