@@ -3,7 +3,8 @@
     diffbot run SCENARIO ...        start a scenario's processes together and supervise them
     diffbot plant ...               the DART plant alone
     diffbot controller NAME ...     one controller (square_path, teleop, odometry, wheel_schedule,
-                                    wander, ball_follower, avoid, policy)
+                                    wander, ball_follower, avoid, policy), or any controller
+                                    class: python:MODULE:CLASS or PATH.py[:CLASS] (--arg K=V)
     diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
     diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
     diffbot bench ...               benchmarks
@@ -55,6 +56,10 @@ NOT_COMPOSABLE = {"teleop": "it reads the keyboard on a thread of its own"}
 def member_main(argv: list[str]):
     """(main, its argv) of a member's command line (``controller NAME ...`` or
     ``fmu-node ...``); ValueError if the command cannot be a composed member."""
+    if argv[:1] == ["controller"] and len(argv) > 1 and _hosted(argv[1]):
+        from controllers.hosted import main as hosted_main
+        target = argv[1]
+        return (lambda rest: hosted_main(target, rest)), argv[2:]
     if argv[:1] == ["controller"] and len(argv) > 1 and argv[1] in CONTROLLERS:
         if argv[1] in NOT_COMPOSABLE:
             raise ValueError(f"controller {argv[1]} cannot be composed: "
@@ -65,6 +70,12 @@ def member_main(argv: list[str]):
         return fmu_node_main, argv[1:]
     raise ValueError(f"{' '.join(argv)!r} cannot be composed into the plant: only "
                      "`controller NAME ...` and `fmu-node FMU ...` members can")
+
+
+def _hosted(name: str) -> bool:
+    """A controller class to host (controllers/hosted.py): python:MODULE:CLASS or a .py path."""
+    from controllers.hosted import is_target
+    return is_target(name)
 
 
 def compose_member(command: str | list[str]):
@@ -100,9 +111,15 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "controller":
         if not rest or rest[0] in ("-h", "--help"):
             print(f"usage: diffbot controller {{{','.join(CONTROLLERS)}}} [options]\n"
+                  "       diffbot controller python:MODULE:CLASS|PATH.py[:CLASS] [--arg K=V] "
+                  "[options]\n"
                   "  (diffbot controller NAME --help for a controller's options)",
                   file=sys.stderr if not rest else sys.stdout)
             return 2 if not rest else 0
+        if _hosted(rest[0]):
+            from controllers.hosted import main as hosted_main
+            sys.argv[0] = f"diffbot controller {rest[0]}"
+            return hosted_main(rest[0], rest[1:])
         if rest[0] not in CONTROLLERS:
             print(f"diffbot controller: unknown controller {rest[0]!r}"
                   f"{did_you_mean(rest[0], CONTROLLERS)} (choose from "

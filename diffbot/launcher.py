@@ -37,7 +37,7 @@ from plant.world import WorldError, load_world
 from . import procs
 from .observer import OBSERVER
 from .procs import diffbot_argv
-from .scenario import ProcessSpec, ScenarioSpec, load_scenario
+from .scenario import ProcessSpec, ScenarioSpec, expand, load_scenario
 
 STOP_GRACE_S = 1.5
 #: a child whose bus token is gone but whose process still runs is taken as hung after this
@@ -155,7 +155,11 @@ class Run:
         for p in self.spec.processes:
             if p.name in self.composed:
                 continue
-            self.children.append(Child(p.name, diffbot_argv(*own(p), *self.bus_args()), p.required,
+            argv = diffbot_argv(*own(p), *self.bus_args()) if p.exec is None else expand(
+                p.exec, {"name": p.name, "bus": self.bus_args(), "endpoint": self.endpoint,
+                         "namespace": self.namespace, "python": sys.executable,
+                         "out": self.out})
+            self.children.append(Child(p.name, argv, p.required,
                                        p.ends_run, p.interactive,
                                        log_path=os.path.join(logs, f"{p.name}.log")))
 
@@ -499,7 +503,7 @@ def composable(p) -> bool:
     command makes a Python member (diffbot.cli.member_main), not interactive, and not kept
     a process (``compose = false``)."""
     from .cli import member_main
-    if not (p.sync and p.compose and not p.interactive):
+    if not (p.sync and p.compose and not p.interactive) or p.exec is not None:
         return False
     try:
         member_main(p.command)

@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
                    "(diffbot controller policy)")
     p.add_argument("--controller", metavar="ARGS", help="instead of --policy: the controller's "
                    "arguments, e.g. 'python:my_pkg.agent:Agent --arg model=m.zip' (the "
-                   "episode's goal is appended as --goal=X,Y when the controller takes one)")
+                   "episode's goal is appended: --goal=X,Y, or --arg goal=(X, Y) to a class)")
     p.add_argument("--world", default="living_room")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="the env's overrides (its overrides= argument); repeatable")
@@ -188,12 +188,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.policy is not None:
         ctl = ["controller", "policy", "--file", os.path.abspath(args.policy), ep.goal_arg()]
     else:
-        ctl = ["controller", *shlex.split(args.controller), ep.goal_arg()]
+        words = shlex.split(args.controller)
+        gx, gy = ep.goal
+        from controllers.hosted import is_target
+        goal = (["--arg", f"goal=({gx!r}, {gy!r})"] if words and is_target(words[0])
+                else [ep.goal_arg()])
+        ctl = ["controller", *words, *goal]
     if args.print_only:
         q = shlex.join
         print(f"diffbot plant {q(ep.plant_args())} --expect policy_{ep.robot} "
               f"--end-with policy_{ep.robot}")
-        print(f"diffbot {q(ctl)} --robot {ep.robot}")
+        print(f"diffbot {q(ctl)} --robot {ep.robot} --name policy_{ep.robot}")
         return 0
     out = os.path.abspath(args.out or os.path.join("out", f"episode_{args.seed}"))
     os.makedirs(out, exist_ok=True)
