@@ -97,6 +97,8 @@ class AvoidTask:
                           for r in self.spec.robots}
         self.drives = {r.name: Drive(r.drive.max_linear_mps, r.drive.max_angular_radps,
                                      normalize_actions) for r in self.spec.robots}
+        self.scans: dict = {}
+        self._view = None
         self.transport = None
         self.transport = make_transport(self.spec, world, {r: INPUTS for r in self.robots},
                                         transport, endpoint, ("camera",), tuple(overrides))
@@ -140,6 +142,7 @@ class AvoidTask:
         self.t_ns = t_ns
         for name in self.robots:
             self.observers[name].feed(t_ns, msgs[name])
+            self.scans[name] = msgs[name].get("scan")
         self._ticks_left -= 1
         if self._ticks_left <= 0:
             self.truth = {name: true_pose(msgs[name]["ground_truth"]) for name in self.robots}
@@ -189,6 +192,13 @@ class AvoidTask:
                 self.active.discard(name)
         return obs, rew, term, trunc, info
 
+    def render(self) -> np.ndarray:
+        """The top-down view (:mod:`diffbot.envs.render`): room, robots, goals, rays."""
+        if self._view is None:
+            from .render import TopDown
+            self._view = TopDown(self.spec)
+        return self._view.frame(self.truth, self.goals, self.scans, self.goal_radius)
+
     def close(self) -> None:
         if self.transport is not None:
             self.transport.close()
@@ -200,15 +210,16 @@ class AvoidEnv(gym.Env):
     plant's code in this process; ``"bus"`` starts a lockstep plant and joins it over
     Zenoh (or joins the one at ``endpoint``): same seed and actions, same numbers."""
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, transport: str = "inproc", endpoint: str | None = None,
                  world: str = "living_room", action_repeat: int = 5,
                  goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
                  normalize_actions: bool = False, render_mode: str | None = None) -> None:
-        if render_mode is not None:
-            raise ValueError("diffbot/Avoid-v0 renders nothing itself: watch it over the bus "
-                             "(transport='bus', diffbot view)")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array' (a top-down view; "
+                             f"diffbot view watches a bus env live), got {render_mode!r}")
+        self.render_mode = render_mode
         self.task = AvoidTask(world, transport, endpoint, action_repeat, None, goal_radius_m,
                               overrides, normalize_actions)
         if len(self.task.robots) != 1:
@@ -220,6 +231,7 @@ class AvoidEnv(gym.Env):
         self.observation_space = self.task.observation_space(self.robot)
         self.action_space = self.task.action_space(self.robot)
         self.dt = self.task.dt
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -233,6 +245,13 @@ class AvoidEnv(gym.Env):
         obs, rew, term, trunc, info = self.task.step({self.robot: action})
         r = self.robot
         return obs[r], float(rew[r]), bool(term[r]), bool(trunc[r]), info[r]
+
+    def render(self):
+        """``rgb_array``: the top-down view of the room (H x W x 3 uint8), robot, goal and
+        lidar rays where the ground truth has them (:mod:`diffbot.envs.render`)."""
+        if self.render_mode == "rgb_array":
+            return self.task.render()
+        return None
 
     def close(self) -> None:
         self.task.close()

@@ -49,7 +49,7 @@ INPUTS = {LEADER: ["ground_truth"], FOLLOWER: ["joint_states", "ground_truth", "
 
 
 class FollowEnv(gym.Env):
-    metadata = {"render_modes": ["rgb_array"]}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
     def __init__(self, transport: str = "inproc", endpoint: str | None = None,
                  world: str = "living_room_follow", action_repeat: int = 2,
@@ -69,6 +69,8 @@ class FollowEnv(gym.Env):
         self.action_repeat = check_repeat(action_repeat)
         self.fixed_start = bool(fixed_start)
         self.dt = self.action_repeat * spec.control_tick_s
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
+        self._view = None
         self.detection = bool(detection)
         cam = spec.robot(FOLLOWER).sensors.camera
         self.cam_size = (cam.height, cam.width)
@@ -165,9 +167,16 @@ class FollowEnv(gym.Env):
         return self._obs(), float(reward), terminated, False, info
 
     def render(self):
-        if self.render_mode == "rgb_array":
-            return getattr(self, "image", None)
-        return None
+        """``rgb_array``: the top-down view of the room with both robots (leader first, in
+        blue; the follower in orange), and beside it the follower's camera image, scaled by
+        a whole factor to the view's height (:mod:`diffbot.envs.render`)."""
+        if self.render_mode != "rgb_array":
+            return None
+        from .render import TopDown, beside
+        if self._view is None:
+            self._view = TopDown(self.spec_)
+        poses = {n: true_pose(self.msgs[n]["ground_truth"]) for n in (LEADER, FOLLOWER)}
+        return beside(self._view.frame(poses), self.image)
 
     def close(self) -> None:
         if self.transport is not None:

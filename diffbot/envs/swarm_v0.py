@@ -34,16 +34,16 @@ from .avoid import AvoidTask
 
 
 class SwarmEnv(ParallelEnv):
-    metadata = {"name": "diffbot_swarm_v0", "render_modes": [], "is_parallelizable": True}
+    metadata = {"name": "diffbot_swarm_v0", "render_modes": ["rgb_array"], "render_fps": 10,
+                "is_parallelizable": True}
 
     def __init__(self, n_robots: int = 4, transport: str = "inproc", endpoint: str | None = None,
                  layout_seed: int = 0, action_repeat: int = 5, max_steps: int = 300,
                  goal_radius_m: float = 0.3, normalize_actions: bool = False,
                  render_mode: str | None = None) -> None:
-        if render_mode is not None:
-            raise ValueError("swarm_v0 renders nothing itself: use transport='bus' and "
-                             "diffbot view")
-        self.render_mode = None
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
         self._tmp = tempfile.mkdtemp(prefix="diffbot-swarm-")
         self._cleanup = weakref.finalize(self, shutil.rmtree, self._tmp, True)
         world = write_swarm_world(os.path.join(self._tmp, "swarm.toml"), int(n_robots),
@@ -55,6 +55,7 @@ class SwarmEnv(ParallelEnv):
         self._obs_spaces = {a: self.task.observation_space(a) for a in self.possible_agents}
         self._act_spaces = {a: self.task.action_space(a) for a in self.possible_agents}
         self.dt = self.task.dt
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
         hx, hy = (float(v) / 2 for v in self.task.spec.floor_size_m)
         high = np.tile(np.array([hx, hy, math.pi, hx, hy], np.float32),
                        len(self.possible_agents))
@@ -89,6 +90,10 @@ class SwarmEnv(ParallelEnv):
         return np.clip(s, self.state_space.low, self.state_space.high)
 
     def render(self):
+        """``rgb_array``: the top-down view, every robot (its own colour), its goal (a ring
+        of that colour) and its lidar rays (:mod:`diffbot.envs.render`)."""
+        if self.render_mode == "rgb_array":
+            return self.task.render()
         return None
 
     def close(self) -> None:
