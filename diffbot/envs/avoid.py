@@ -164,14 +164,26 @@ class AvoidTask:
                 "plant": self.episode}
 
     def step(self, actions: dict) -> tuple[dict, dict, dict, dict, dict]:
+        cmds = self.begin_step(actions)
+        self.transport.advance(self.action_repeat, lambda t, m: cmds, self._observe)
+        return self.end_step()
+
+    def begin_step(self, actions: dict) -> dict:
+        """A step's first half: the robots' commands ({robot: (v, w)}) for its ticks. The
+        ticks (``transport.advance(action_repeat, ..., self._observe)``, or a batch's,
+        :mod:`diffbot.envs.vector`) come between this and :meth:`end_step`."""
         cmds = {}
         for name in self.robots:
             if name not in self.active:
                 continue
             cmds[name] = self.drives[name].command(actions[name], name)
-        before = {r: self._distance(r) for r in self.active}
+        self._before = {r: self._distance(r) for r in self.active}
         self._ticks_left = self.action_repeat
-        self.transport.advance(self.action_repeat, lambda t, m: cmds, self._observe)
+        return cmds
+
+    def end_step(self) -> tuple[dict, dict, dict, dict, dict]:
+        """A step's second half, after its ticks: observations, rewards, flags, infos."""
+        before = self._before
         self.steps += 1
         obs = self._obs()
         rew, term, trunc, info = {}, {}, {}, {}

@@ -68,9 +68,14 @@ class InProc:
         observe(0, self.latest)
 
     def _publish(self) -> None:
+        self.take(self.tick.messages())
+
+    def take(self, messages) -> None:
+        """File the tick's (robot, topic, message) as the latest of each topic (a new
+        world at t = 0 starts empty)."""
         if self.tick.t_ns == 0:
             self.latest: dict[str, dict] = {name: {} for name in self.tick.sensors}
-        for name, topic, msg in self.tick.messages():
+        for name, topic, msg in messages:
             self.latest[name][topic] = msg
 
     def advance(self, n: int, command: Command, observe: Observe) -> None:
