@@ -60,7 +60,7 @@ def make_transport(spec, world: str, inputs: dict, transport: str, endpoint, dis
     if transport == "inproc":
         if endpoint is not None:
             raise ValueError("endpoint= is for transport='bus'")
-        return InProc(spec, disabled)
+        return InProc(spec, disabled, inputs)
     if transport == "bus":
         return Bus(spec, world, inputs, disabled, overrides, endpoint)
     raise ValueError(f"transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")

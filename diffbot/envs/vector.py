@@ -29,12 +29,12 @@ from bus.controller import Twist
 from .avoid import AvoidTask
 
 
-def messages_all(ticks) -> list[list]:
-    """Every world's sensor messages due now (robot, topic, message), world by world: the
-    batch's one call into the sensors per tick. Today each world casts its own robots'
+def messages_all(ticks, wanted) -> list[list]:
+    """Every world's sensor messages due now (robot, topic, message; ``wanted``: each
+    world's topics read), world by world: the batch's one call into the sensors per tick. Today each world casts its own robots'
     lidars (:func:`plant.sensors.scan_all` inside :meth:`plant.tick.Tick.messages`: one
     scene per world); a kernel taking several scenes would take them all here."""
-    return [list(t.messages()) for t in ticks]
+    return [list(t.messages(w)) for t, w in zip(ticks, wanted)]
 
 
 class AvoidVectorEnv(VectorEnv):
@@ -150,7 +150,8 @@ class AvoidVectorEnv(VectorEnv):
                 for name in tick.sim.robots:
                     tick.drive(name, Twist(*c.get(name, (0.0, 0.0))))
                 tick.step()
-            for i, tr, msgs in zip(live, transports, messages_all(ticks)):
+            wanted = [tr.wanted for tr in transports]
+            for i, tr, msgs in zip(live, transports, messages_all(ticks, wanted)):
                 tr.take(msgs)
                 self.tasks[i]._observe(tr.tick.t_ns, tr.latest)
 
