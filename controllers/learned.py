@@ -36,6 +36,10 @@ SCAN_BINS = 12
 #: ranges beyond this (m) look the same to the policy
 SCAN_CLIP_M = 2.5
 GOAL_CLIP_M = 5.0
+#: the observation's finite bounds (far outside any room or drive limit; values beyond
+#: are clipped to them): odom x, y (m), yaw (rad), v (m/s), w (rad/s); goal x, y (m)
+ODOM_HIGH = np.array([100.0, 100.0, math.pi, 10.0, 20.0], np.float32)
+GOAL_LIMIT_M = np.float32(100.0)
 
 
 def wrap(a: float) -> float:
@@ -94,9 +98,11 @@ class AvoidObserver:
 
     def observation(self) -> dict:
         o = self.odom
+        odom = np.array([o.x, o.y, wrap(o.theta), o.v, o.w], dtype=np.float32)
+        goal = np.array(self.goal_in_robot_frame(), dtype=np.float32)
         return {"scan": self.scan.copy(),
-                "odom": np.array([o.x, o.y, wrap(o.theta), o.v, o.w], dtype=np.float32),
-                "goal": np.array(self.goal_in_robot_frame(), dtype=np.float32)}
+                "odom": np.clip(odom, -ODOM_HIGH, ODOM_HIGH),
+                "goal": np.clip(goal, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
 
 
 def features(obs: dict, fov_rad: float = math.pi) -> np.ndarray:

@@ -3,7 +3,8 @@
     diffbot run SCENARIO ...        start a scenario's processes together and supervise them
     diffbot plant ...               the DART plant alone
     diffbot controller NAME ...     one controller (square_path, teleop, odometry, wheel_schedule,
-                                    wander, ball_follower, avoid, policy)
+                                    wander, ball_follower, avoid, policy), or any controller
+                                    class: python:MODULE:CLASS or PATH.py[:CLASS] (--arg K=V)
     diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
     diffbot fmu export-plant --out robot.fmu   the DART plant as a co-simulation FMU (FMI 3 or 2)
     diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
@@ -29,7 +30,7 @@ import sys
 
 from bus.cliargs import did_you_mean
 
-from .members import CONTROLLERS, compose_member
+from .members import CONTROLLERS, compose_member, hosted
 
 USAGE = __doc__
 #: the sub-commands (for "did you mean")
@@ -62,9 +63,15 @@ def _dispatch(argv: list[str] | None) -> int:
     if cmd == "controller":
         if not rest or rest[0] in ("-h", "--help"):
             print(f"usage: diffbot controller {{{','.join(CONTROLLERS)}}} [options]\n"
+                  "       diffbot controller python:MODULE:CLASS|PATH.py[:CLASS] [--arg K=V] "
+                  "[options]\n"
                   "  (diffbot controller NAME --help for a controller's options)",
                   file=sys.stderr if not rest else sys.stdout)
             return 2 if not rest else 0
+        if hosted(rest[0]):
+            from controllers.hosted import main as hosted_main
+            sys.argv[0] = f"diffbot controller {rest[0]}"
+            return hosted_main(rest[0], rest[1:])
         if rest[0] not in CONTROLLERS:
             print(f"diffbot controller: unknown controller {rest[0]!r}"
                   f"{did_you_mean(rest[0], CONTROLLERS)} (choose from "

@@ -25,6 +25,10 @@ NOT_COMPOSABLE = {"teleop": "it reads the keyboard on a thread of its own"}
 def member_main(argv: list[str]):
     """(main, its argv) of a member's command line (``controller NAME ...`` or
     ``fmu-node ...``); ValueError if the command cannot be a composed member."""
+    if argv[:1] == ["controller"] and len(argv) > 1 and hosted(argv[1]):
+        from controllers.hosted import main as hosted_main
+        target = argv[1]
+        return (lambda rest: hosted_main(target, rest)), argv[2:]
     if argv[:1] == ["controller"] and len(argv) > 1 and argv[1] in CONTROLLERS:
         if argv[1] in NOT_COMPOSABLE:
             raise ValueError(f"controller {argv[1]} cannot be composed: "
@@ -35,6 +39,12 @@ def member_main(argv: list[str]):
         return fmu_node_main, argv[1:]
     raise ValueError(f"{' '.join(argv)!r} cannot be composed into the plant: only "
                      "`controller NAME ...` and `fmu-node FMU ...` members can")
+
+
+def hosted(name: str) -> bool:
+    """A controller class to host (controllers/hosted.py): python:MODULE:CLASS or a .py path."""
+    from controllers.hosted import is_target
+    return is_target(name)
 
 
 def compose_member(command: str | list[str]):

@@ -22,6 +22,15 @@ A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
     sync = true                # a lockstep member the plant waits for (default true)
     interactive = false        # keeps the terminal (teleop)
 
+    [[process]]                # any program, not only diffbot's (instead of command)
+    name = "my_agent"
+    exec = ["python3", "my_agent.py", "--name", "{name}", "{bus}"]
+    # placeholders: {name} (the process name: its node name), {bus} (the bus options,
+    # --endpoint E [--namespace N] [--zenoh-config F], as separate words), {endpoint},
+    # {namespace}, {python} (this interpreter), {out} (the run's output directory);
+    # {{ and }} for literal braces. As written, no --name/--stats/bus options are added;
+    # it is never composed. A lockstep member (sync = true) must join as {name}.
+
 Errors are ``file:key: reason`` (:class:`plant.world.WorldError`), exit 2.
 """
 from __future__ import annotations
@@ -48,6 +57,8 @@ class ProcessSpec:
     interactive: bool = False
     #: ``compose = false``: stays a process when the run composes its members
     compose: bool = True
+    #: ``exec = [...]``: any program, run as written (placeholders expanded); command is []
+    exec: list[str] | None = None
 
 
 @dataclass
@@ -131,19 +142,47 @@ def load_scenario(name_or_path: str) -> ScenarioSpec:
         except ValueError as exc:
             t.fail("name", str(exc))
         names.add(name)
-        cmd = t.raw("command")
-        if not isinstance(cmd, list) or not cmd or not all(isinstance(c, str) for c in cmd):
-            t.fail("command", "expected a non-empty list of strings (diffbot arguments)")
+        cmd, exe = t.raw("command", None), t.raw("exec", None)
+        if (cmd is None) == (exe is None):
+            t.fail("command", "give one of command (diffbot arguments) and exec (any program)")
+        key, val = ("command", cmd) if exe is None else ("exec", exe)
+        if not isinstance(val, list) or not val or not all(isinstance(c, str) for c in val):
+            t.fail(key, "expected a non-empty list of strings ("
+                   + ("diffbot arguments)" if exe is None else "a program and its arguments)"))
+        if exe is not None:
+            try:
+                expand(exe, {k: "" for k in PLACEHOLDERS})
+            except (KeyError, ValueError, IndexError) as exc:
+                t.fail("exec", f"bad placeholder {exc} (known: "
+                               f"{', '.join('{' + k + '}' for k in PLACEHOLDERS)})")
         spec.processes.append(ProcessSpec(
-            name=name, command=list(cmd), required=t.boolean("required", True),
+            name=name, command=list(cmd or []), required=t.boolean("required", True),
             ends_run=t.boolean("ends_run", False), sync=t.boolean("sync", True),
-            interactive=t.boolean("interactive", False), compose=t.boolean("compose", True)))
+            interactive=t.boolean("interactive", False), compose=t.boolean("compose", True),
+            exec=None if exe is None else list(exe)))
         t.done()
     if spec.generate and spec.processes:
         top.fail("process", f"a generated-world scenario (generate = {spec.generate!r}) makes "
                             "its own processes (controller, controller_processes)")
     top.done()
     return spec
+
+
+#: what an ``exec`` process's words may name (``{bus}`` alone as a word: several words)
+PLACEHOLDERS = ("name", "bus", "endpoint", "namespace", "python", "out")
+
+
+def expand(words: list[str], values: dict) -> list[str]:
+    """An ``exec`` command with its placeholders filled (``values``: name -> str, and
+    ``bus`` -> list of words, spliced where ``{bus}`` stands alone)."""
+    out = []
+    for w in words:
+        if w == "{bus}":
+            out += list(values["bus"])
+        else:
+            out.append(w.format_map({k: (" ".join(v) if isinstance(v, list) else v)
+                                     for k, v in values.items()}))
+    return out
 
 
 def list_scenarios() -> list[tuple[str, str]]:

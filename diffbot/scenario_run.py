@@ -32,7 +32,7 @@ from bus.session import open_session
 from . import procs
 from .observer import OBSERVER
 from .procs import diffbot_argv
-from .scenario import ScenarioSpec
+from .scenario import ScenarioSpec, expand
 
 STOP_GRACE_S = 1.5
 #: a child whose bus token is gone but whose process still runs is taken as hung after this
@@ -150,8 +150,11 @@ class ScenarioRun:
         for p in self.spec.processes:
             if p.name in self.composed:
                 continue
-            self.children.append(Child(p.name, diffbot_argv(*own(p), *self.bus_args()), p.required,
-                                       p.ends_run, p.interactive,
+            argv = diffbot_argv(*own(p), *self.bus_args()) if p.exec is None else expand(
+                p.exec, {"name": p.name, "bus": self.bus_args(), "endpoint": self.endpoint,
+                         "namespace": self.namespace, "python": sys.executable,
+                         "out": self.out})
+            self.children.append(Child(p.name, argv, p.required, p.ends_run, p.interactive,
                                        log_path=os.path.join(logs, f"{p.name}.log")))
 
     def open_observer(self):
@@ -301,7 +304,7 @@ def composable(p) -> bool:
     command makes a Python member (diffbot.cli.member_main), not interactive, and not kept
     a process (``compose = false``)."""
     from .members import member_main
-    if not (p.sync and p.compose and not p.interactive):
+    if not (p.sync and p.compose and not p.interactive) or p.exec is not None:
         return False
     try:
         member_main(p.command)

@@ -1,7 +1,9 @@
 """Suite ``gym``: the Gymnasium environment diffbot/Avoid-v0 with random actions, on both
 transports, one env and ``make_vec`` (async, spawned workers) with 2 and 4 envs: environment
 steps per second and simulated seconds per wall second (each step is ``dt`` = 0.1 s, five
-20 ms control ticks). The plant's physics alone is measured beside them, as the bound."""
+20 ms control ticks). The plant's physics alone is measured beside them, as the bound. Then
+the batched env (``vectorization_mode="vector_entry_point"``: N worlds in one process) with
+N = 1, 16, 64 in the kinematic and the dynamic world."""
 from __future__ import annotations
 
 import time
@@ -46,8 +48,30 @@ def _env_rate(transport: str, num_envs: int, steps: int) -> dict:
     return {"steps_per_s": n / wall, "real_time_factor": n * dt / wall}
 
 
+def _vec_rate(mode: str, num_envs: int, env_steps: int) -> dict:
+    import gymnasium as gym
+    import numpy as np
+    import diffbot.envs  # noqa: F401
+    env = gym.make_vec("diffbot/Avoid-v0", num_envs=num_envs,
+                       vectorization_mode="vector_entry_point",
+                       overrides=(f"world.mode={mode}",))
+    try:
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        steps = max(2, env_steps // num_envs)
+        actions = [env.action_space.sample() for _ in range(steps)]
+        t0 = time.perf_counter()
+        for a in actions:
+            env.step(np.asarray(a))
+        wall = time.perf_counter() - t0
+    finally:
+        env.close()
+    n = steps * num_envs
+    return {"steps_per_s": n / wall, "real_time_factor": n * 0.1 / wall}
+
+
 @suite("gym", "diffbot/Avoid-v0 steps per second, in-process and over the bus, one env "
-              "and make_vec with 2 and 4")
+              "and make_vec with 2 and 4, batched (vector_entry_point) with 1, 16, 64")
 def gym_suite(ctx):
     try:
         import gymnasium  # noqa: F401
@@ -59,6 +83,16 @@ def gym_suite(ctx):
         Metric("real_time_factor", "living room physics alone: real-time factor", "x",
                notes="Simulation.step_tick, one robot: the bound for inproc")],
         repeats=repeats, warmup=0)
+    env_steps = 128 if ctx.quick else 640
+    for mode in ("kinematic", "dynamic"):
+        for n in (1, 16, 64):
+            what = f"Avoid-v0 batched {mode}, {n} env" + ("s" if n > 1 else "")
+            yield Probe(what, lambda m=mode, n=n: _vec_rate(m, n, env_steps), [
+                Metric("steps_per_s", f"{what}: env steps per second", "1/s",
+                       notes="vector_entry_point, one process; random actions"),
+                Metric("real_time_factor", f"{what}: simulated s per wall s", "x",
+                       notes="all envs together, dt = 0.1 s per step")],
+                repeats=repeats, warmup=0)
     for transport in ("inproc", "bus"):
         for n in (1, 2, 4):
             what = f"Avoid-v0 {transport}, " + ("1 env" if n == 1 else f"make_vec {n} async")

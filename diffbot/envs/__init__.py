@@ -6,6 +6,8 @@ Importing this package registers them::
     env = gymnasium.make("diffbot/Avoid-v0")                  # in-process (fast)
     env = gymnasium.make("diffbot/Avoid-v0", transport="bus")  # a lockstep plant over Zenoh
     env = gymnasium.make("diffbot.envs:diffbot/Follow-v0")    # imports this package itself
+    envs = gymnasium.make_vec("diffbot/Avoid-v0", num_envs=16,  # N worlds in one process
+                              vectorization_mode="vector_entry_point")
 
     from diffbot.envs import swarm_v0
     penv = swarm_v0.parallel_env(n_robots=4)                   # PettingZoo ParallelEnv
@@ -16,6 +18,6 @@ outside this package imports them.
 from gymnasium import register
 
 register(id="diffbot/Avoid-v0", entry_point="diffbot.envs.avoid:AvoidEnv",
-         max_episode_steps=300)
+         vector_entry_point="diffbot.envs.vector:AvoidVectorEnv", max_episode_steps=300)
 register(id="diffbot/Follow-v0", entry_point="diffbot.envs.follow:FollowEnv",
          max_episode_steps=750)

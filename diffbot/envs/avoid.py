@@ -1,17 +1,23 @@
 """``diffbot/Avoid-v0``: reach a goal in the living room without touching anything.
 
 One robot starts at a free pose and is given a free goal point 1-3 m away, both drawn
-from the episode's seed (which also seeds the plant's noise). Each step holds the action
-``[v m/s, w rad/s]`` (within the robot's drive limits from the world file) for
-``action_repeat`` control ticks: 5 x 20 ms, so ``dt`` = 0.1 s, the lidar's period, and
-every observation carries a fresh scan.
+from the episode's seed, which also draws the plant's noise seed. Each step holds the
+action ``[v m/s, w rad/s]`` (within the robot's drive limits from the world file; or in
+[-1, 1] scaled to them with ``normalize_actions=True``; out of range: clipped, not finite:
+ValueError, :mod:`diffbot.envs.actions`) for ``action_repeat`` control ticks: 5 x 20 ms,
+so ``dt`` = 0.1 s, the lidar's period, and every observation carries a fresh scan.
 
 Observation (:class:`controllers.learned.AvoidObserver`, the same code the deployed
 ``diffbot controller policy`` runs): ``scan`` (the lidar's 180 ranges, m), ``odom``
 (x, y, yaw, v, w dead-reckoned from the wheel encoders, in ``<robot>/odom``: from the
 origin, where the episode starts, as the bus's ``<robot>/odom`` topic, REP 105) and
 ``goal`` (the goal in the robot's own frame ``<robot>/base_link`` by that odometry).
-``info`` gives the true ``pose`` and the ``goal`` in ``world``.
+Every bound is finite (odometry and goal clipped at
+:data:`controllers.learned.ODOM_HIGH` / ``GOAL_LIMIT_M``, far outside any room).
+``info`` (the same keys on reset and step) gives the true ``pose`` and the ``goal`` in
+``world``, ``distance``, ``is_success``, ``contact``, sim time ``t`` and ``plant``: the
+:class:`diffbot.envs.deploy.Episode` that replays the episode on a plant (its noise seed,
+start poses, goals, world and overrides).
 
 Reward, judged on ground truth at the end of each step: ``PROGRESS_GAIN`` x the metres
 gained toward the goal, minus ``STEP_COST`` each step; ``GOAL_BONUS`` and terminated on
@@ -32,9 +38,11 @@ import numpy as np
 from gymnasium import spaces
 
 from bus import codec
-from controllers.learned import AvoidObserver, as_action
+from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, AvoidObserver
 from plant.world import load_world
 
+from .actions import Drive, check_repeat
+from .deploy import Episode
 from .geometry import Footprints
 from .transport import Bus, InProc
 
@@ -52,7 +60,7 @@ def make_transport(spec, world: str, inputs: dict, transport: str, endpoint, dis
     if transport == "inproc":
         if endpoint is not None:
             raise ValueError("endpoint= is for transport='bus'")
-        return InProc(spec, disabled)
+        return InProc(spec, disabled, inputs)
     if transport == "bus":
         return Bus(spec, world, inputs, disabled, overrides, endpoint)
     raise ValueError(f"transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
@@ -69,15 +77,16 @@ class AvoidTask:
     def __init__(self, world: str = "living_room", transport: str = "inproc",
                  endpoint: str | None = None, action_repeat: int = 5,
                  max_steps: int | None = None, goal_radius_m: float = 0.3,
-                 overrides: tuple[str, ...] = ()) -> None:
-        if int(action_repeat) < 1 or (max_steps is not None and int(max_steps) < 1):
-            raise ValueError("action_repeat and max_steps must be >= 1")
+                 overrides: tuple[str, ...] = (), normalize_actions: bool = False) -> None:
+        self.action_repeat = check_repeat(action_repeat)
+        if max_steps is not None and int(max_steps) < 1:
+            raise ValueError("max_steps must be >= 1")
+        self.world, self.overrides = world, tuple(overrides)
         self.spec = load_world(world, list(overrides))
         self.robots = [r.name for r in self.spec.robots]
         for r in self.spec.robots:
             if r.sensors.lidar is None:
                 raise ValueError(f"{world}: robot {r.name} has no lidar (Avoid needs one)")
-        self.action_repeat = int(action_repeat)
         self.max_steps = None if max_steps is None else int(max_steps)
         self.goal_radius = float(goal_radius_m)
         self.dt = self.action_repeat * self.spec.control_tick_s
@@ -86,8 +95,10 @@ class AvoidTask:
                                                 r.sensors.lidar.num_rays,
                                                 r.sensors.lidar.max_range_m)
                           for r in self.spec.robots}
-        self.limits = {r.name: (r.drive.max_linear_mps, r.drive.max_angular_radps)
-                       for r in self.spec.robots}
+        self.drives = {r.name: Drive(r.drive.max_linear_mps, r.drive.max_angular_radps,
+                                     normalize_actions) for r in self.spec.robots}
+        self.scans: dict = {}
+        self._view = None
         self.transport = None
         self.transport = make_transport(self.spec, world, {r: INPUTS for r in self.robots},
                                         transport, endpoint, ("camera",), tuple(overrides))
@@ -95,16 +106,13 @@ class AvoidTask:
     # ---------------------------------------------------------------- spaces
     def observation_space(self, robot: str) -> spaces.Dict:
         lid = self.spec.robot(robot).sensors.lidar
-        inf = np.float32(np.inf)
         return spaces.Dict({
             "scan": spaces.Box(0.0, np.float32(lid.max_range_m), (lid.num_rays,), np.float32),
-            "odom": spaces.Box(-inf, inf, (5,), np.float32),
-            "goal": spaces.Box(-inf, inf, (2,), np.float32)})
+            "odom": spaces.Box(-ODOM_HIGH, ODOM_HIGH, (5,), np.float32),
+            "goal": spaces.Box(-GOAL_LIMIT_M, GOAL_LIMIT_M, (2,), np.float32)})
 
     def action_space(self, robot: str) -> spaces.Box:
-        v, w = self.limits[robot]
-        return spaces.Box(np.array([-v, -w], np.float32), np.array([v, w], np.float32),
-                          dtype=np.float32)
+        return self.drives[robot].space
 
     # ---------------------------------------------------------------- episode
     def reset(self, rng: np.random.Generator) -> tuple[dict, dict]:
@@ -124,6 +132,7 @@ class AvoidTask:
         for name in self.robots:
             self.observers[name].reset(poses[name], goals[name])
         self._ticks_left = 1
+        self.episode = Episode(seed, poses, goals, self.world, self.overrides, ("camera",))
         self.transport.reset(seed, poses, self._observe)
         return self._obs(), {r: self._info(r, False) for r in self.robots}
 
@@ -133,6 +142,7 @@ class AvoidTask:
         self.t_ns = t_ns
         for name in self.robots:
             self.observers[name].feed(t_ns, msgs[name])
+            self.scans[name] = msgs[name].get("scan")
         self._ticks_left -= 1
         if self._ticks_left <= 0:
             self.truth = {name: true_pose(msgs[name]["ground_truth"]) for name in self.robots}
@@ -150,22 +160,30 @@ class AvoidTask:
     def _info(self, robot: str, success: bool) -> dict:
         return {"pose": np.array(self.truth[robot]), "goal": np.array(self.goals[robot]),
                 "distance": self._distance(robot), "is_success": success,
-                "contact": robot in self.touched, "t": self.t_ns * 1e-9}
+                "contact": robot in self.touched, "t": self.t_ns * 1e-9,
+                "plant": self.episode}
 
     def step(self, actions: dict) -> tuple[dict, dict, dict, dict, dict]:
+        cmds = self.begin_step(actions)
+        self.transport.advance(self.action_repeat, lambda t, m: cmds, self._observe)
+        return self.end_step()
+
+    def begin_step(self, actions: dict) -> dict:
+        """A step's first half: the robots' commands ({robot: (v, w)}) for its ticks. The
+        ticks (``transport.advance(action_repeat, ..., self._observe)``, or a batch's,
+        :mod:`diffbot.envs.vector`) come between this and :meth:`end_step`."""
         cmds = {}
         for name in self.robots:
             if name not in self.active:
                 continue
-            a = as_action(actions[name])
-            if a.shape != (2,) or not np.all(np.isfinite(a)):
-                raise ValueError(f"action for {name} must be 2 finite numbers [v, w], got "
-                                 f"{actions[name]!r}")
-            v, w = self.limits[name]
-            cmds[name] = (float(np.clip(a[0], -v, v)), float(np.clip(a[1], -w, w)))
-        before = {r: self._distance(r) for r in self.active}
+            cmds[name] = self.drives[name].command(actions[name], name)
+        self._before = {r: self._distance(r) for r in self.active}
         self._ticks_left = self.action_repeat
-        self.transport.advance(self.action_repeat, lambda t, m: cmds, self._observe)
+        return cmds
+
+    def end_step(self) -> tuple[dict, dict, dict, dict, dict]:
+        """A step's second half, after its ticks: observations, rewards, flags, infos."""
+        before = self._before
         self.steps += 1
         obs = self._obs()
         rew, term, trunc, info = {}, {}, {}, {}
@@ -186,6 +204,13 @@ class AvoidTask:
                 self.active.discard(name)
         return obs, rew, term, trunc, info
 
+    def render(self) -> np.ndarray:
+        """The top-down view (:mod:`diffbot.envs.render`): room, robots, goals, rays."""
+        if self._view is None:
+            from .render import TopDown
+            self._view = TopDown(self.spec)
+        return self._view.frame(self.truth, self.goals, self.scans, self.goal_radius)
+
     def close(self) -> None:
         if self.transport is not None:
             self.transport.close()
@@ -197,17 +222,18 @@ class AvoidEnv(gym.Env):
     plant's code in this process; ``"bus"`` starts a lockstep plant and joins it over
     Zenoh (or joins the one at ``endpoint``): same seed and actions, same numbers."""
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, transport: str = "inproc", endpoint: str | None = None,
                  world: str = "living_room", action_repeat: int = 5,
                  goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
-                 render_mode: str | None = None) -> None:
-        if render_mode is not None:
-            raise ValueError("diffbot/Avoid-v0 renders nothing itself: watch it over the bus "
-                             "(transport='bus', diffbot view)")
+                 normalize_actions: bool = False, render_mode: str | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array' (a top-down view; "
+                             f"diffbot view watches a bus env live), got {render_mode!r}")
+        self.render_mode = render_mode
         self.task = AvoidTask(world, transport, endpoint, action_repeat, None, goal_radius_m,
-                              overrides)
+                              overrides, normalize_actions)
         if len(self.task.robots) != 1:
             self.task.close()
             raise ValueError(f"{world} has {len(self.task.robots)} robots; Avoid-v0 drives one "
@@ -217,10 +243,12 @@ class AvoidEnv(gym.Env):
         self.observation_space = self.task.observation_space(self.robot)
         self.action_space = self.task.action_space(self.robot)
         self.dt = self.task.dt
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         obs, info = self.task.reset(self.np_random)
+        self.task.episode.seed = seed
         return obs[self.robot], info[self.robot]
 
     def step(self, action):
@@ -229,6 +257,13 @@ class AvoidEnv(gym.Env):
         obs, rew, term, trunc, info = self.task.step({self.robot: action})
         r = self.robot
         return obs[r], float(rew[r]), bool(term[r]), bool(trunc[r]), info[r]
+
+    def render(self):
+        """``rgb_array``: the top-down view of the room (H x W x 3 uint8), robot, goal and
+        lidar rays where the ground truth has them (:mod:`diffbot.envs.render`)."""
+        if self.render_mode == "rgb_array":
+            return self.task.render()
+        return None
 
     def close(self) -> None:
         self.task.close()

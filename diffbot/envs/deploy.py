@@ -24,50 +24,99 @@ from controllers.learned import MLPPolicy
 ROBOT = "robot1"
 
 
-@dataclass
+@dataclass(eq=True)
 class Episode:
-    seed: int                           # the reset seed
-    plant_seed: int                     # the plant's noise seed it gives
-    start: tuple[float, float, float]   # x, y, yaw in world (m, rad)
-    goal: tuple[float, float]           # x, y in world (m)
+    """What a plant needs to play an episode: ``info["plant"]`` of every reset and step.
+    Values are kept as the environment used them (Python floats); every text form here
+    writes them with ``repr``, which reads back to the same bits (a pose written with 16
+    significant digits can be one unit in the last place off, and a path that starts one
+    ulp apart drifts apart, 1e-16 m at once growing to 1e-14 m and beyond)."""
+    plant_seed: int                                   # the plant's noise seed (--seed)
+    poses: dict[str, tuple[float, float, float]]      # start x, y, yaw in world (m, rad)
+    goals: dict[str, tuple[float, float]]             # x, y in world (m)
     world: str = "living_room"
+    overrides: tuple[str, ...] = ()                   # the env's world overrides (--set)
+    disabled: tuple[str, ...] = ("camera",)           # sensors the env leaves off (--disable)
+    seed: int | None = None                           # the reset seed, when one was given
+
+    @property
+    def robot(self) -> str:
+        if len(self.poses) != 1:
+            raise ValueError(f"an episode of {len(self.poses)} robots: name one")
+        return next(iter(self.poses))
+
+    @property
+    def start(self) -> tuple[float, float, float]:
+        return self.poses[self.robot]
+
+    @property
+    def goal(self) -> tuple[float, float]:
+        return self.goals[self.robot]
+
+    def world_args(self) -> list[str]:
+        """``--set`` arguments: the start poses, then the env's overrides."""
+        out = []
+        for name, (x, y, yaw) in self.poses.items():
+            out += ["--set", f"robots.{name}.pose=[{x!r}, {y!r}, {yaw!r}]"]
+        for o in self.overrides:
+            out += ["--set", o]
+        return out
+
+    def plant_args(self) -> list[str]:
+        """``diffbot plant`` arguments that build this episode's world, lockstep with
+        sequential coupling (the environment's coupling: a command acts at once)."""
+        out = ["--world", self.world, "--mode", "lockstep", "--coupling", "sequential",
+               "--seed", str(self.plant_seed), *self.world_args()]
+        if self.disabled:
+            out += ["--disable", ",".join(self.disabled)]
+        return out
+
+    def goal_arg(self, robot: str | None = None) -> str:
+        gx, gy = self.goals[robot or self.robot]
+        return f"--goal={gx!r},{gy!r}"
 
 
-def episode(seed: int, world: str = "living_room") -> Episode:
-    """The start, goal and plant seed ``diffbot/Avoid-v0`` draws for ``reset(seed=seed)``."""
+def episode(seed: int, world: str = "living_room", **env_kw) -> Episode:
+    """The episode ``diffbot/Avoid-v0`` plays after ``reset(seed=seed)``: ``info["plant"]``."""
     from .avoid import AvoidEnv
-    env = AvoidEnv(world=world)
+    env = AvoidEnv(world=world, **env_kw)
     try:
         _, info = env.reset(seed=seed)
-        return Episode(seed, int(env.task.transport.spec.seed),
-                       tuple(float(v) for v in info["pose"]),
-                       tuple(float(v) for v in info["goal"]), world)
+        return info["plant"]
     finally:
         env.close()
 
 
-def scenario(ep: Episode, policy_file: str, duration_s: float, goal_radius_m: float = 0.3
-             ) -> str:
-    """A scenario file's text: the episode's plant (``diffbot run --seed ep.plant_seed``)
-    and the policy as a controller process whose exit ends the run."""
-    x, y, yaw = ep.start
-    gx, gy = ep.goal
+def scenario(ep: Episode, policy_file: str | None, duration_s: float,
+             goal_radius_m: float = 0.3, controller: list[str] | None = None) -> str:
+    """A scenario file's text: the episode's plant (its world, start pose, overrides;
+    ``diffbot run --seed ep.plant_seed``) and a controller process whose exit ends the run:
+    ``diffbot controller policy`` with ``policy_file``, or the ``controller`` argv given
+    (e.g. ``["controller", "python:my.module:MyPolicy", "--arg", "goal=1,2"]``)."""
     # JSON strings are valid TOML basic strings; repr() of a float reads back exactly
     q = json.dumps
+    robot = ep.robot
+    if controller is None:
+        controller = ["controller", "policy", "--file", policy_file, ep.goal_arg(),
+                      f"--goal-radius={float(goal_radius_m)!r}"]
+    controller = [*controller, "--robot", robot]
+    plant_args = [*ep.world_args()]
+    if ep.disabled:
+        plant_args += ["--disable", ",".join(ep.disabled)]
+    desc = f"a trained policy drives {robot} through an Avoid episode (plant seed {ep.plant_seed})"
     return f'''[scenario]
-description = "a policy trained on diffbot/Avoid-v0 drives {ROBOT} to its goal (episode seed {ep.seed})"
+description = {q(desc)}
 world = {q(ep.world)}
 mode = "lockstep"
 coupling = "sequential"
 duration_s = {float(duration_s)!r}
-robot = "{ROBOT}"
+robot = {q(robot)}
 analysis = "none"
-plant_args = ["--disable", "camera", "--set", "robots.{ROBOT}.pose=[{x!r}, {y!r}, {yaw!r}]"]
+plant_args = [{", ".join(q(a) for a in plant_args)}]
 
 [[process]]
-name = "policy_{ROBOT}"
-command = ["controller", "policy", "--robot", "{ROBOT}", "--file", {q(policy_file)},
-           "--goal={gx!r},{gy!r}", "--goal-radius={float(goal_radius_m)!r}"]
+name = {q("policy_" + robot)}
+command = [{", ".join(q(a) for a in controller)}]
 ends_run = true
 '''
 
@@ -104,3 +153,64 @@ def play(policy: MLPPolicy, seed: int, max_steps: int = 300, world: str = "livin
         return path, info
     finally:
         env.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m diffbot.envs.deploy --seed S --policy FILE.npz``: the Avoid episode of
+    reset seed S played over the bus by ``diffbot run`` (a lockstep plant in the episode's
+    state, the policy a process of its own), or ``--print`` the commands that start the
+    same by hand."""
+    import argparse
+    import os
+    import shlex
+    p = argparse.ArgumentParser(prog="python -m diffbot.envs.deploy",
+                                description="Play a diffbot/Avoid-v0 episode on a plant over "
+                                            "the bus with a trained policy.")
+    p.add_argument("--seed", type=int, required=True, help="the episode's reset seed")
+    p.add_argument("--policy", metavar="FILE.npz", help="an MLPPolicy file "
+                   "(diffbot controller policy)")
+    p.add_argument("--controller", metavar="ARGS", help="instead of --policy: the controller's "
+                   "arguments, e.g. 'python:my_pkg.agent:Agent --arg model=m.zip' (the "
+                   "episode's goal is appended: --goal=X,Y, or --arg goal=(X, Y) to a class)")
+    p.add_argument("--world", default="living_room")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="the env's overrides (its overrides= argument); repeatable")
+    p.add_argument("--duration", type=float, default=30.0, metavar="S")
+    p.add_argument("--out", default=None, help="output directory (default out/episode_SEED)")
+    p.add_argument("--record", action="store_true", help="record the run (OUT/episode.mcap)")
+    p.add_argument("--print", action="store_true", dest="print_only",
+                   help="print the plant's and the controller's command lines, run nothing")
+    args = p.parse_args(argv)
+    if (args.policy is None) == (args.controller is None):
+        p.error("give one of --policy and --controller")
+    ep = episode(args.seed, args.world, overrides=tuple(args.set))
+    if args.policy is not None:
+        ctl = ["controller", "policy", "--file", os.path.abspath(args.policy), ep.goal_arg()]
+    else:
+        words = shlex.split(args.controller)
+        gx, gy = ep.goal
+        from controllers.hosted import is_target
+        goal = (["--arg", f"goal=({gx!r}, {gy!r})"] if words and is_target(words[0])
+                else [ep.goal_arg()])
+        ctl = ["controller", *words, *goal]
+    if args.print_only:
+        q = shlex.join
+        print(f"diffbot plant {q(ep.plant_args())} --expect policy_{ep.robot} "
+              f"--end-with policy_{ep.robot}")
+        print(f"diffbot {q(ctl)} --robot {ep.robot} --name policy_{ep.robot}")
+        return 0
+    out = os.path.abspath(args.out or os.path.join("out", f"episode_{args.seed}"))
+    os.makedirs(out, exist_ok=True)
+    path = os.path.join(out, "episode.toml")
+    with open(path, "w") as f:
+        f.write(scenario(ep, None, args.duration, controller=ctl))
+    from diffbot.launcher import main as run_main
+    run = [path, "--seed", str(ep.plant_seed), "--out", out]
+    if args.record:
+        run += ["--record", os.path.join(out, "episode.mcap")]
+    print("diffbot run " + shlex.join(run), flush=True)
+    return run_main(run)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

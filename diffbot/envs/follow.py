@@ -7,16 +7,26 @@ with ``detection=True`` also ``ball`` = [seen, u / width, v / height, radius / w
 the ball follower's own detector (:func:`controllers.ball_follower.detect_ball`).
 
 The camera runs at 25 Hz, every 2nd 20 ms tick, so a step holds the action ``[v, w]``
-for ``action_repeat`` = 2 ticks: ``dt`` = 0.04 s, a fresh image every step.
+for ``action_repeat`` = 2 ticks: ``dt`` = 0.04 s, a fresh image every step (the action as
+Avoid's: in the drive's units or ``normalize_actions=True``, :mod:`diffbot.envs.actions`).
 
 Reward, on ground truth (the follow analysis's distance, camera to ball): 1 while it is
 inside the 0.60-0.70 m band, else minus the distance outside it (at most 1); the episode
 is terminated when the follower's footprint touches anything (the leader too) and
-truncated after 750 steps (30 s; the registration's ``max_episode_steps``). The start
-poses are the world's; the seed sets the plant's noise (``overrides`` can turn it on, e.g.
-``("robots.follower.camera.noise={std = 10.0}",)`` as in the scenario).
+truncated after 750 steps (30 s; the registration's ``max_episode_steps``).
+
+The seed draws the start: the leader somewhere on its wander loop, heading along it, the
+follower 1.0-1.25 m behind it (0.1 m either side, heading within 0.2 rad of the leader's),
+both clear of everything (``fixed_start=True``: the world file's poses, the study's), and
+the plant's noise seed (``overrides`` can turn noise on, e.g.
+``("robots.follower.camera.noise={std = 10.0}",)`` as in the scenario). ``info`` (the same
+keys on reset and step): ``distance``, ``t``, the true ``pose`` and ``leader_pose``,
+``contact``, and ``plant`` (:class:`diffbot.envs.deploy.Episode`: what replays the episode
+on a plant).
 """
 from __future__ import annotations
+
+import math
 
 import gymnasium as gym
 import numpy as np
@@ -25,24 +35,27 @@ from gymnasium import spaces
 from bus import codec
 from bus.node import Observation
 from controllers.ball_follower import detect_ball
-from controllers.learned import as_action
 from controllers.wander import Wander
 from diffbot.analysis_follow import BAND_M, FOLLOWER, LEADER, ball_offset, pose_matrix_of
+from diffbot.analysis_swarm import CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M
 from plant.world import load_world
 
+from .actions import Drive, check_repeat
 from .avoid import make_transport, true_pose
+from .deploy import Episode
 from .geometry import Footprints
 
 INPUTS = {LEADER: ["ground_truth"], FOLLOWER: ["joint_states", "ground_truth", "camera/image_raw"]}
 
 
 class FollowEnv(gym.Env):
-    metadata = {"render_modes": ["rgb_array"]}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
     def __init__(self, transport: str = "inproc", endpoint: str | None = None,
                  world: str = "living_room_follow", action_repeat: int = 2,
-                 detection: bool = False,
-                 overrides: tuple[str, ...] = (), render_mode: str | None = None) -> None:
+                 detection: bool = False, overrides: tuple[str, ...] = (),
+                 normalize_actions: bool = False, fixed_start: bool = False,
+                 render_mode: str | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
@@ -52,10 +65,12 @@ class FollowEnv(gym.Env):
         if names != {LEADER, FOLLOWER} or spec.robot(FOLLOWER).sensors.camera is None:
             raise ValueError(f"{world}: Follow-v0 needs robots {LEADER!r} and {FOLLOWER!r}, "
                              "the follower with a camera")
-        self.action_repeat = int(action_repeat)
-        if self.action_repeat < 1:
-            raise ValueError("action_repeat must be >= 1")
+        self.world, self.overrides = world, tuple(overrides)
+        self.action_repeat = check_repeat(action_repeat)
+        self.fixed_start = bool(fixed_start)
         self.dt = self.action_repeat * spec.control_tick_s
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
+        self._view = None
         self.detection = bool(detection)
         cam = spec.robot(FOLLOWER).sensors.camera
         self.cam_size = (cam.height, cam.width)
@@ -64,14 +79,12 @@ class FollowEnv(gym.Env):
         self.geo = Footprints(spec)
         self.start = {r.name: tuple(r.pose) for r in spec.robots}
         drive = spec.robot(FOLLOWER).drive
-        self.v_max, self.w_max = drive.max_linear_mps, drive.max_angular_radps
+        self.drive = Drive(drive.max_linear_mps, drive.max_angular_radps, normalize_actions)
         obs = {"image": spaces.Box(0, 255, (cam.height, cam.width, 3), np.uint8)}
         if self.detection:
-            obs["ball"] = spaces.Box(0.0, np.float32(np.inf), (4,), np.float32)
+            obs["ball"] = spaces.Box(0.0, 1.0, (4,), np.float32)
         self.observation_space = spaces.Dict(obs)
-        self.action_space = spaces.Box(np.array([-self.v_max, -self.w_max], np.float32),
-                                       np.array([self.v_max, self.w_max], np.float32),
-                                       dtype=np.float32)
+        self.action_space = self.drive.space
         self.transport = make_transport(spec, world, INPUTS, transport, endpoint, ("lidar",),
                                         tuple(overrides))
 
@@ -92,8 +105,8 @@ class FollowEnv(gym.Env):
         if self.detection:
             det = detect_ball(img)
             h, w = self.cam_size
-            out["ball"] = (np.zeros(4, np.float32) if det is None else
-                           np.array([1.0, det.u / w, det.v / h, det.radius / w], np.float32))
+            out["ball"] = (np.zeros(4, np.float32) if det is None else np.clip(
+                np.array([1.0, det.u / w, det.v / h, det.radius / w], np.float32), 0.0, 1.0))
         return out
 
     def _distance(self) -> float:
@@ -102,9 +115,31 @@ class FollowEnv(gym.Env):
         return float(np.linalg.norm((lt @ self.ball)[:3] - (ft @ self.cam_mount)[:3, 3]))
 
     def _info(self) -> dict:
+        centres = {n: Footprints.centre(*true_pose(self.msgs[n]["ground_truth"]))
+                   for n in (LEADER, FOLLOWER)}
         return {"distance": self._distance(), "t": self.t_ns * 1e-9,
                 "pose": np.array(true_pose(self.msgs[FOLLOWER]["ground_truth"])),
-                "leader_pose": np.array(true_pose(self.msgs[LEADER]["ground_truth"]))}
+                "leader_pose": np.array(true_pose(self.msgs[LEADER]["ground_truth"])),
+                "contact": FOLLOWER in self.geo.contacts(centres),
+                "plant": self.episode}
+
+    def _draw_start(self, rng: np.random.Generator) -> dict:
+        """The leader on its loop, heading along it; the follower behind (module doc)."""
+        loop = Wander()
+        need = FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M + 0.05
+        for _ in range(1000):
+            th = rng.uniform(0.0, 2 * math.pi)
+            lx, ly = loop.cx + loop.a * math.cos(th), loop.cy + loop.b * math.sin(th)
+            heading = math.atan2(loop.b * math.cos(th), -loop.a * math.sin(th))
+            gap, side = rng.uniform(1.0, 1.25), rng.uniform(-0.1, 0.1)
+            c, s = math.cos(heading), math.sin(heading)
+            fx, fy = lx - gap * c - side * s, ly - gap * s + side * c
+            fyaw = heading + rng.uniform(-0.2, 0.2)
+            poses = {LEADER: (float(lx), float(ly), float(heading)),
+                     FOLLOWER: (float(fx), float(fy), float(fyaw))}
+            if all(self.geo.clearance(Footprints.centre(*p)) >= need for p in poses.values()):
+                return poses
+        raise RuntimeError("no free start for the follower behind the leader")
 
     # ---------------------------------------------------------------- gymnasium
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -112,33 +147,36 @@ class FollowEnv(gym.Env):
         self.leader = Wander()
         self.action = (0.0, 0.0)
         self.over = False
-        self.transport.reset(int(self.np_random.integers(0, 2**31)), self.start, self._observe)
+        plant_seed = int(self.np_random.integers(0, 2**31))
+        poses = self.start if self.fixed_start else self._draw_start(self.np_random)
+        self.episode = Episode(plant_seed, poses, {}, self.world, self.overrides, ("lidar",),
+                               seed)
+        self.transport.reset(plant_seed, poses, self._observe)
         return self._obs(), self._info()
 
     def step(self, action):
         if self.over:
             raise RuntimeError("the episode is over: call reset()")
-        a = as_action(action)
-        if a.shape != (2,) or not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be 2 finite numbers [v, w], got {action!r}")
-        self.action = (float(np.clip(a[0], -self.v_max, self.v_max)),
-                       float(np.clip(a[1], -self.w_max, self.w_max)))
+        self.action = self.drive.command(action, FOLLOWER)
         self.transport.advance(self.action_repeat, self._command, self._observe)
         info = self._info()
         d = info["distance"]
         lo, hi = BAND_M
         reward = 1.0 if lo <= d <= hi else -min(lo - d if d < lo else d - hi, 1.0)
-        centres = {n: Footprints.centre(*true_pose(self.msgs[n]["ground_truth"]))
-                   for n in (LEADER, FOLLOWER)}
-        terminated = FOLLOWER in self.geo.contacts(centres)
-        info["contact"] = terminated
-        self.over = terminated
+        terminated = self.over = bool(info["contact"])
         return self._obs(), float(reward), terminated, False, info
 
     def render(self):
-        if self.render_mode == "rgb_array":
-            return getattr(self, "image", None)
-        return None
+        """``rgb_array``: the top-down view of the room with both robots (leader first, in
+        blue; the follower in orange), and beside it the follower's camera image, scaled by
+        a whole factor to the view's height (:mod:`diffbot.envs.render`)."""
+        if self.render_mode != "rgb_array":
+            return None
+        from .render import TopDown, beside
+        if self._view is None:
+            self._view = TopDown(self.spec_)
+        poses = {n: true_pose(self.msgs[n]["ground_truth"]) for n in (LEADER, FOLLOWER)}
+        return beside(self._view.frame(poses), self.image)
 
     def close(self) -> None:
         if self.transport is not None:

@@ -4,7 +4,9 @@ One agent per robot of the swarm world (:mod:`plant.swarm_world`, laid out from
 ``n_robots`` and ``layout_seed``), each with the Avoid observation, action and reward
 (:class:`diffbot.envs.avoid.AvoidTask`): every robot gets its own goal, and touching a
 wall, an obstacle or another robot ends that robot's episode (it then stands still while
-the others go on). Same two transports as the Gymnasium environments::
+the others go on). ``state()`` is the global state (``state_space``): every robot's true
+x, y, yaw and its goal's x, y in ``world``, robot after robot in ``possible_agents``
+order. Same two transports as the Gymnasium environments::
 
     from diffbot.envs import swarm_v0
     env = swarm_v0.parallel_env(n_robots=4)               # or transport="bus"
@@ -20,7 +22,10 @@ import shutil
 import tempfile
 import weakref
 
+import math
+
 import numpy as np
+from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from plant.swarm_world import write_swarm_world
@@ -29,26 +34,32 @@ from .avoid import AvoidTask
 
 
 class SwarmEnv(ParallelEnv):
-    metadata = {"name": "diffbot_swarm_v0", "render_modes": [], "is_parallelizable": True}
+    metadata = {"name": "diffbot_swarm_v0", "render_modes": ["rgb_array"], "render_fps": 10,
+                "is_parallelizable": True}
 
     def __init__(self, n_robots: int = 4, transport: str = "inproc", endpoint: str | None = None,
                  layout_seed: int = 0, action_repeat: int = 5, max_steps: int = 300,
-                 goal_radius_m: float = 0.3, render_mode: str | None = None) -> None:
-        if render_mode is not None:
-            raise ValueError("swarm_v0 renders nothing itself: use transport='bus' and "
-                             "diffbot view")
-        self.render_mode = None
+                 goal_radius_m: float = 0.3, normalize_actions: bool = False,
+                 render_mode: str | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
         self._tmp = tempfile.mkdtemp(prefix="diffbot-swarm-")
         self._cleanup = weakref.finalize(self, shutil.rmtree, self._tmp, True)
         world = write_swarm_world(os.path.join(self._tmp, "swarm.toml"), int(n_robots),
                                   int(layout_seed))
         self.task = AvoidTask(world, transport, endpoint, action_repeat, max_steps,
-                              goal_radius_m)
+                              goal_radius_m, (), normalize_actions)
         self.possible_agents = list(self.task.robots)
         self.agents: list[str] = []
         self._obs_spaces = {a: self.task.observation_space(a) for a in self.possible_agents}
         self._act_spaces = {a: self.task.action_space(a) for a in self.possible_agents}
         self.dt = self.task.dt
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
+        hx, hy = (float(v) / 2 for v in self.task.spec.floor_size_m)
+        high = np.tile(np.array([hx, hy, math.pi, hx, hy], np.float32),
+                       len(self.possible_agents))
+        self.state_space = spaces.Box(-high, high, dtype=np.float32)
         self._rng = np.random.default_rng()
 
     def observation_space(self, agent: str):
@@ -70,7 +81,19 @@ class SwarmEnv(ParallelEnv):
         self.agents = [a for a in live if not (term[a] or trunc[a])]
         return ({a: obs[a] for a in live}, rew, term, trunc, infos)
 
+    def state(self) -> np.ndarray:
+        """Every robot's true x, y, yaw and goal x, y (world), in ``possible_agents`` order."""
+        if not hasattr(self.task, "goals"):
+            raise RuntimeError("call reset() before state()")
+        rows = [(*self.task.truth[a], *self.task.goals[a]) for a in self.possible_agents]
+        s = np.array(rows, np.float32).reshape(-1)
+        return np.clip(s, self.state_space.low, self.state_space.high)
+
     def render(self):
+        """``rgb_array``: the top-down view, every robot (its own colour), its goal (a ring
+        of that colour) and its lidar rays (:mod:`diffbot.envs.render`)."""
+        if self.render_mode == "rgb_array":
+            return self.task.render()
         return None
 
     def close(self) -> None:

@@ -88,11 +88,16 @@ class TransportError(RuntimeError):
 class InProc:
     """The plant's tick (:class:`plant.tick.Tick`) in this process (no Zenoh)."""
 
-    def __init__(self, spec: WorldSpec, disabled: tuple[str, ...] = ()) -> None:
+    def __init__(self, spec: WorldSpec, disabled: tuple[str, ...] = (),
+                 inputs: dict[str, list[str]] | None = None) -> None:
         self.spec = spec
         self.disabled = tuple(disabled)
         self.tick_ns = spec.tick_ns
         self.tick: Tick | None = None
+        # only what the env reads is built (a plant builds only what someone subscribes
+        # to); the others' noise is still drawn, so every value is the same (plant/tick.py)
+        self.wanted = None if inputs is None else {
+            r.name: frozenset(inputs.get(r.name, ())).__contains__ for r in spec.robots}
 
     @property
     def sim(self):
@@ -107,10 +112,16 @@ class InProc:
         observe(0, self.latest)
 
     def _publish(self) -> None:
+        self.take(self.tick.messages(self.wanted))
+
+    def take(self, messages) -> None:
+        """File the tick's (robot, topic, message) as the latest of each topic (a new
+        world at t = 0 starts empty)."""
         if self.tick.t_ns == 0:
             self.latest: dict[str, dict] = {name: {} for name in self.tick.sensors}
-        for name, topic, msg in self.tick.messages():
-            self.latest[name][topic] = msg
+        for name, topic, msg in messages:
+            if msg is not None:                  # (None: a topic the env does not read)
+                self.latest[name][topic] = msg
 
     def advance(self, n: int, command: Command, observe: Observe) -> None:
         tick = self.tick

@@ -1,0 +1,149 @@
+"""Any controller class runs as a node (`diffbot controller python:MODULE:CLASS`, or a .py
+file), as a process or composed into the plant, and a scenario may start any program
+(`exec = [...]`): a trained policy needs no code of ours to deploy."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from controllers import hosted
+from diffbot.scenario import load_scenario
+from plant.world import WorldError
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+AGENT = '''
+from bus.node import Twist
+
+class Forward:
+    """Drives ahead at `speed` for `ticks` control ticks, then is done."""
+    inputs = ["ground_truth"]
+
+    def __init__(self, ticks=10, speed=0.2, robot=None):
+        self.ticks, self.speed, self.robot = int(ticks), float(speed), robot
+        self.done = False
+
+    def step(self, obs):
+        self.ticks -= 1
+        if self.ticks <= 0:
+            self.done = True
+        return Twist(self.speed, 0.0)
+'''
+
+EXEC_AGENT = AGENT + '''
+if __name__ == "__main__":
+    import sys
+    from bus.node import run_node
+    sys.exit(run_node(Forward(ticks=15), argv=sys.argv[1:]))
+'''
+
+
+@pytest.fixture
+def agent_dir(tmp_path):
+    (tmp_path / "my_agent.py").write_text(AGENT)
+    (tmp_path / "exec_agent.py").write_text(EXEC_AGENT)
+    return tmp_path
+
+
+def test_load_by_module_and_by_file(agent_dir, monkeypatch):
+    monkeypatch.syspath_prepend(str(agent_dir))
+    cls = hosted.load("python:my_agent:Forward")
+    assert cls.__name__ == "Forward"
+    assert hosted.load(str(agent_dir / "my_agent.py")).__name__ == "Forward"
+    assert hosted.load(f"{agent_dir / 'my_agent.py'}:Forward").__name__ == "Forward"
+    make = hosted.factory(cls, hosted.parse_kwargs(["ticks=3", "speed=0.5"]))
+    c = make("robot7")
+    assert (c.ticks, c.speed, c.robot) == (3, 0.5, "robot7")
+
+
+@pytest.mark.parametrize("target,why", [
+    ("python:no_such_module_xyz:A", "cannot import"),
+    ("python:my_agent:Nope", "not a class with a step method"),
+    ("python:my_agent", "python:MODULE:CLASS"),
+    ("missing_file.py", "no file"),
+])
+def test_bad_targets_say_why(agent_dir, monkeypatch, target, why):
+    monkeypatch.syspath_prepend(str(agent_dir))
+    with pytest.raises(ValueError, match=why):
+        hosted.load(target)
+
+
+def test_arg_values_are_literals_or_text():
+    assert hosted.parse_kwargs(["a=1", "b=(1, 2.5)", "c=hello", "d='x y'", "e=True"]) == \
+        {"a": 1, "b": (1, 2.5), "c": "hello", "d": "x y", "e": True}
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        hosted.parse_kwargs(["no-equals"])
+
+
+def test_a_bad_class_or_argument_exits_2_with_the_reason(agent_dir):
+    env = dict(os.environ, PYTHONPATH=f"{agent_dir}{os.pathsep}{ROOT}")
+    out = subprocess.run([sys.executable, "-m", "diffbot.cli", "controller",
+                          "python:my_agent:Forward", "--arg", "wheels=4"], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "unexpected keyword argument 'wheels'" in out.stderr
+
+
+def _scenario(tmp_path, process: str) -> str:
+    path = tmp_path / "s.toml"
+    path.write_text(textwrap.dedent('''
+        [scenario]
+        world = "living_room"
+        mode = "lockstep"
+        coupling = "sequential"
+        duration_s = 10.0
+        plant_args = ["--disable", "camera,lidar"]
+        ''') + process)
+    return str(path)
+
+
+def test_exec_and_command_are_exclusive_and_placeholders_checked(tmp_path):
+    both = _scenario(tmp_path, '[[process]]\nname = "a"\ncommand = ["controller", "wander"]\n'
+                               'exec = ["true"]\n')
+    with pytest.raises(WorldError, match="one of command"):
+        load_scenario(both)
+    bad = _scenario(tmp_path, '[[process]]\nname = "a"\nexec = ["x", "{port}"]\n')
+    with pytest.raises(WorldError, match="bad placeholder"):
+        load_scenario(bad)
+    ok = load_scenario(_scenario(tmp_path, '[[process]]\nname = "a"\n'
+                                           'exec = ["{python}", "a.py", "{bus}"]\n'))
+    assert ok.processes[0].exec == ["{python}", "a.py", "{bus}"]
+
+
+def _run(tmp_path, scenario: str, *extra: str, env=None) -> dict:
+    out = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", scenario, "--out",
+                          str(tmp_path / "run"), *extra], cwd=ROOT, capture_output=True,
+                         text=True, timeout=150, env=env)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads((tmp_path / "run" / "summary.json").read_text())
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(200)
+@pytest.mark.parametrize("compose", [False, True])
+def test_a_class_by_module_runs_as_a_node_and_composed(agent_dir, compose):
+    scen = _scenario(agent_dir, '[[process]]\nname = "agent"\n'
+                                'command = ["controller", "python:my_agent:Forward", '
+                                '"--arg", "ticks=20"]\nends_run = true\n')
+    env = dict(os.environ, PYTHONPATH=f"{agent_dir}{os.pathsep}{ROOT}")
+    summary = _run(agent_dir, scen, "--compose" if compose else "--no-compose", env=env)
+    assert "agent finished" in summary["end_reason"]
+    assert summary["composed"] == (["agent"] if compose else [])
+    assert summary["sim_time_s"] == pytest.approx(20 * 0.02, abs=0.05)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(200)
+def test_a_scenario_process_may_run_any_program(agent_dir):
+    script = agent_dir / "exec_agent.py"
+    scen = _scenario(agent_dir, '[[process]]\nname = "outsider"\n'
+                                f'exec = ["{{python}}", "{script}", "--name", "{{name}}", '
+                                '"{bus}"]\nends_run = true\n')
+    env = dict(os.environ, PYTHONPATH=ROOT)
+    summary = _run(agent_dir, scen, env=env)
+    assert "outsider finished" in summary["end_reason"]
+    assert summary["sim_time_s"] == pytest.approx(15 * 0.02, abs=0.05)

@@ -1,0 +1,77 @@
+"""gym.make_vec("diffbot/Avoid-v0", vectorization_mode="vector_entry_point") steps N worlds in
+one process, and env i is the single env with seed + i, to the bit, through Gymnasium's
+next-step autoresets, in both world modes, noise on."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+import diffbot.envs  # noqa: E402,F401
+from gymnasium.vector import AutoresetMode  # noqa: E402
+
+NOISE = ("robots.robot1.encoders.noise={std = 0.002}", "robots.robot1.lidar.noise={std = 0.01}",
+         "robots.robot1.motion.command_noise_std_radps=0.05")
+
+
+def _same_obs(batch: dict, k: int, one: dict) -> bool:
+    return all(batch[key][k].tobytes() == one[key].tobytes() for key in one)
+
+
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize("mode", ["kinematic", "dynamic"])
+def test_each_batched_env_is_the_single_env_with_its_seed(mode):
+    n, seed, horizon = 3, 20, 12
+    kw = dict(max_episode_steps=horizon, overrides=(f"world.mode={mode}", *NOISE))
+    vec = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                       **kw)
+    singles = [gym.make("diffbot/Avoid-v0", **kw) for _ in range(n)]
+    try:
+        assert vec.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+        obs, infos = vec.reset(seed=seed)
+        for k, env in enumerate(singles):
+            one, info = env.reset(seed=seed + k)
+            assert _same_obs(obs, k, one), f"env {k} differs after reset"
+            assert infos["plant"][k] == info["plant"]
+        rng = np.random.default_rng(1)
+        over = [False] * n
+        resets = 0
+        for step in range(30):
+            a = (rng.uniform(-1, 1, (n, 2)) * vec.single_action_space.high).astype(np.float32)
+            obs, rew, term, trunc, infos = vec.step(a)
+            for k, env in enumerate(singles):
+                if over[k]:          # next-step autoreset: the action is ignored
+                    one, info = env.reset()
+                    r, te, tr = 0.0, False, False
+                    resets += 1
+                else:
+                    one, r, te, tr, info = env.step(a[k])
+                over[k] = te or tr
+                where = f"env {k} at step {step}"
+                assert _same_obs(obs, k, one), f"observation of {where}"
+                assert (rew[k], term[k], trunc[k]) == (r, te, tr), f"reward/flags of {where}"
+                assert infos["pose"][k].tobytes() == np.asarray(info["pose"]).tobytes(), where
+        assert resets >= n, "no autoreset was crossed"
+    finally:
+        vec.close()
+        for env in singles:
+            env.close()
+
+
+def test_batched_spaces_a_list_of_seeds_rendering_and_refusals():
+    vec = gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                       render_mode="rgb_array", normalize_actions=True)
+    try:
+        assert vec.action_space.shape == (2, 2) and vec.single_action_space.high[0] == 1.0
+        assert vec.observation_space["scan"].shape == (2, 180)
+        obs, _ = vec.reset(seed=[5, 5])
+        assert np.array_equal(obs["goal"][0], obs["goal"][1]), "the same seed, other episodes"
+        frames = vec.render()
+        assert len(frames) == 2 and frames[0].shape == frames[1].shape
+        with pytest.raises(ValueError, match="shape"):
+            vec.step(np.zeros((3, 2), np.float32))
+    finally:
+        vec.close()
+    with pytest.raises(ValueError, match="async"):
+        gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                     transport="bus")
