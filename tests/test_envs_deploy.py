@@ -17,6 +17,7 @@ import pytest
 pytest.importorskip("gymnasium")
 from controllers.learned import N_FEATURES, MLPPolicy  # noqa: E402
 from diffbot.envs import deploy  # noqa: E402
+from diffbot.envs.episode import Episode  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -98,7 +99,7 @@ def test_a_plant_and_policy_started_by_hand_from_the_reset_info_match_to_the_bit
 
 
 def test_an_episode_writes_its_values_exactly():
-    ep = deploy.Episode(7, {"robot1": (0.1 + 0.2, -1 / 3, 2 ** 0.5)}, {"robot1": (1e-17, 3.0)},
+    ep = Episode(7, {"robot1": (0.1 + 0.2, -1 / 3, 2 ** 0.5)}, {"robot1": (1e-17, 3.0)},
                         overrides=("robots.robot1.lidar.noise={std = 0.01}",))
     args = ep.plant_args()
     pose = args[args.index("--set") + 1]

@@ -16,7 +16,7 @@ Every bound is finite (odometry and goal clipped at
 :data:`controllers.learned.ODOM_HIGH` / ``GOAL_LIMIT_M``, far outside any room).
 ``info`` (the same keys on reset and step) gives the true ``pose`` and the ``goal`` in
 ``world``, ``distance``, ``is_success``, ``contact``, sim time ``t`` and ``plant``: the
-:class:`diffbot.envs.deploy.Episode` that replays the episode on a plant (its noise seed,
+:class:`diffbot.envs.episode.Episode` that replays the episode on a plant (its noise seed,
 start poses, goals, world and overrides).
 
 Reward, judged on ground truth at the end of each step: ``PROGRESS_GAIN`` x the metres
@@ -42,7 +42,7 @@ from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, AvoidObserver
 from plant.world import load_world
 
 from .actions import Drive, check_repeat
-from .deploy import Episode
+from .episode import Episode
 from .geometry import Footprints
 from .transport import Bus, InProc
 

@@ -13,7 +13,6 @@ environment's step does (docs/learning.md).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,59 +20,9 @@ from bus import codec
 from bus.keys import Keys
 from controllers.learned import MLPPolicy
 
+from .episode import Episode
+
 ROBOT = "robot1"
-
-
-@dataclass(eq=True)
-class Episode:
-    """What a plant needs to play an episode: ``info["plant"]`` of every reset and step.
-    Values are kept as the environment used them (Python floats); every text form here
-    writes them with ``repr``, which reads back to the same bits (a pose written with 16
-    significant digits can be one unit in the last place off, and a path that starts one
-    ulp apart drifts apart, 1e-16 m at once growing to 1e-14 m and beyond)."""
-    plant_seed: int                                   # the plant's noise seed (--seed)
-    poses: dict[str, tuple[float, float, float]]      # start x, y, yaw in world (m, rad)
-    goals: dict[str, tuple[float, float]]             # x, y in world (m)
-    world: str = "living_room"
-    overrides: tuple[str, ...] = ()                   # the env's world overrides (--set)
-    disabled: tuple[str, ...] = ("camera",)           # sensors the env leaves off (--disable)
-    seed: int | None = None                           # the reset seed, when one was given
-
-    @property
-    def robot(self) -> str:
-        if len(self.poses) != 1:
-            raise ValueError(f"an episode of {len(self.poses)} robots: name one")
-        return next(iter(self.poses))
-
-    @property
-    def start(self) -> tuple[float, float, float]:
-        return self.poses[self.robot]
-
-    @property
-    def goal(self) -> tuple[float, float]:
-        return self.goals[self.robot]
-
-    def world_args(self) -> list[str]:
-        """``--set`` arguments: the start poses, then the env's overrides."""
-        out = []
-        for name, (x, y, yaw) in self.poses.items():
-            out += ["--set", f"robots.{name}.pose=[{x!r}, {y!r}, {yaw!r}]"]
-        for o in self.overrides:
-            out += ["--set", o]
-        return out
-
-    def plant_args(self) -> list[str]:
-        """``diffbot plant`` arguments that build this episode's world, lockstep with
-        sequential coupling (the environment's coupling: a command acts at once)."""
-        out = ["--world", self.world, "--mode", "lockstep", "--coupling", "sequential",
-               "--seed", str(self.plant_seed), *self.world_args()]
-        if self.disabled:
-            out += ["--disable", ",".join(self.disabled)]
-        return out
-
-    def goal_arg(self, robot: str | None = None) -> str:
-        gx, gy = self.goals[robot or self.robot]
-        return f"--goal={gx!r},{gy!r}"
 
 
 def episode(seed: int, world: str = "living_room", **env_kw) -> Episode:

@@ -21,7 +21,7 @@ both clear of everything (``fixed_start=True``: the world file's poses, the stud
 the plant's noise seed (``overrides`` can turn noise on, e.g.
 ``("robots.follower.camera.noise={std = 10.0}",)`` as in the scenario). ``info`` (the same
 keys on reset and step): ``distance``, ``t``, the true ``pose`` and ``leader_pose``,
-``contact``, and ``plant`` (:class:`diffbot.envs.deploy.Episode`: what replays the episode
+``contact``, and ``plant`` (:class:`diffbot.envs.episode.Episode`: what replays the episode
 on a plant).
 """
 from __future__ import annotations
@@ -42,7 +42,7 @@ from plant.world import load_world
 
 from .actions import Drive, check_repeat
 from .avoid import make_transport, true_pose
-from .deploy import Episode
+from .episode import Episode
 from .geometry import Footprints
 
 INPUTS = {LEADER: ["ground_truth"], FOLLOWER: ["joint_states", "ground_truth", "camera/image_raw"]}
