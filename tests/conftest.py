@@ -107,3 +107,19 @@ def wait_for(pred, timeout: float, step: float = 0.02, what: str = "condition"):
             return v
         time.sleep(step)
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def check_real_time_factor(s: dict) -> None:
+    """A run's ``real_time_factor`` (summary.json, a sweep row, a study report) is its
+    simulated time over the plant's wall time (plant/node.py), which is a part of the run's
+    wall time: so it is at least ``sim_time_s / wall_time_s``, and exactly
+    ``sim_time_s / plant_wall_time_s`` where that is given. Not a speed check (speed is
+    ``diffbot bench``'s): a factor computed the wrong way round, from the wrong clock or
+    left out fails it."""
+    rtf, sim, wall = (float(s[k]) for k in ("real_time_factor", "sim_time_s", "wall_time_s"))
+    assert sim > 0 and wall > 0, s
+    assert rtf >= sim / wall * (1 - 1e-9), (rtf, sim, wall)
+    if s.get("plant_wall_time_s") is not None:
+        plant_wall = float(s["plant_wall_time_s"])
+        assert plant_wall <= wall, (plant_wall, wall)
+        assert rtf == pytest.approx(sim / plant_wall, rel=1e-9), (rtf, sim, plant_wall)
