@@ -39,6 +39,7 @@ def test_every_figure_names_existing_jobs():
         assert f.jobs and all(j in figures.JOBS for j in f.jobs)
 
 
+@pytest.mark.slow
 def test_bad_only_exits_2_and_runs_nothing(tmp_path):
     r = run_figures("--out", str(tmp_path / "figs"), "--only", "13", timeout=30)
     assert r.returncode == 2, r.stderr

@@ -315,6 +315,7 @@ def test_fmu_paths_resolve_from_any_directory(monkeypatch, tmp_path):
         fmu_node.resolve_fmu(str(tmp_path / "elsewhere.fmu"))
 
 
+@pytest.mark.slow
 def test_cli_errors_are_one_line_exit_2_no_traceback(fmus, tmp_path):
     not_fmu = write(tmp_path / "notes.fmu", "not a zip")
     no_cs = without_cosimulation(fmus[2], tmp_path / "me_only.fmu")
@@ -499,6 +500,7 @@ def test_fmpy_example_replays_a_recorded_trajectory(fmus, tmp_path, capsys):
     assert (tmp_path / "fmu_vs_gps.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_bench_functions_return_seconds():
     from fmus import bench
     items = bench.benchmarks()

@@ -244,6 +244,7 @@ def test_exports_every_fmi_function_and_nothing_else(unzipped, version):
 # ---------------------------------------------------------------- validation
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("version", VERSIONS)
 def test_fmpy_validate_finds_no_problem(fmus, version):
     assert validate_fmu(str(fmus[version])) == []
@@ -272,6 +273,7 @@ def test_model_description(fmus, version):
     assert md.numberOfContinuousStates == 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("version", VERSIONS)
 def test_fmutool_check_reports_compliant(fmus, version):
     pytest.importorskip("fmu_manipulation_toolbox", reason="pip install fmu-manipulation-toolbox")

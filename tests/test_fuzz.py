@@ -39,7 +39,7 @@ from bus.keys import Keys
 from diffbot.scenario import load_scenario
 from plant.world import WORLDS_DIR, WorldError, load_world, parse_world, tomllib
 
-from .conftest import ROOT, wait_for
+from .conftest import ROOT, examples, wait_for
 
 K = Keys()
 TICK_NS = 20_000_000
@@ -139,7 +139,7 @@ def _builds_and_steps(spec) -> None:
     assert sim.is_finite()
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(100), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(documents)
 def test_world_parser_raises_only_world_errors_on_random_documents(doc):
     spec = _only_world_errors(parse_world, doc, "fuzz.toml")
@@ -147,7 +147,7 @@ def test_world_parser_raises_only_world_errors_on_random_documents(doc):
         _builds_and_steps(spec)
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(150), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(mutated_worlds())
 def test_world_parser_raises_only_world_errors_on_mutated_worlds(doc):
     spec = _only_world_errors(parse_world, doc, "fuzz.toml")
@@ -206,7 +206,7 @@ extending = st.builds(
     st.dictionaries(st.sampled_from(WORLD_KEYS), toml_values, max_size=2))
 
 
-@settings(max_examples=150, deadline=None,
+@settings(max_examples=examples(150), deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(doc=st.one_of(mutated_worlds(), documents, extending),
        overrides=st.lists(st.text(max_size=30) | st.sampled_from([
@@ -233,7 +233,7 @@ scenario_values = st.recursive(
     max_leaves=20)
 
 
-@settings(max_examples=150, deadline=None,
+@settings(max_examples=examples(150), deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(doc=st.dictionaries(st.sampled_from(SCENARIO_KEYS), scenario_values, max_size=4)
        | st.builds(lambda s, ps: {"scenario": s, "process": ps},
@@ -606,7 +606,7 @@ def messages(draw, kind: str):
     return build
 
 
-FUZZ = settings(max_examples=100, deadline=None, derandomize=False,
+FUZZ = settings(max_examples=examples(100), deadline=None,
                 suppress_health_check=[HealthCheck.too_slow,
                                        HealthCheck.function_scoped_fixture])
 
@@ -663,7 +663,7 @@ json_values = st.recursive(
 
 
 @pytest.mark.slow
-@settings(max_examples=60, deadline=None,
+@settings(max_examples=examples(60), deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(req=st.one_of(
     st.binary(max_size=80),

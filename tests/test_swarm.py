@@ -99,6 +99,7 @@ def test_short_swarm_run_writes_summary_and_paths(tmp_path):
     assert (tmp_path / "world.toml").read_text() == swarm_world_text(4, 0)
 
 
+@pytest.mark.slow
 def test_robots_option_is_refused_by_a_fixed_world_scenario():
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square", "--robots", "3"],
                        cwd=ROOT, capture_output=True, text=True, timeout=60)

@@ -60,6 +60,7 @@ def test_every_scalar_metric_is_a_column_and_an_unmeasured_one_an_empty_cell():
     assert flatten(m) == {"a": 1.5, "r.b": 2, "r.ok": 1, "none": None}
 
 
+@pytest.mark.slow
 def test_a_wrong_world_key_exits_2_before_any_run(procs, tmp_path):
     p = procs.diffbot("sweep", "drive-test", "--grid", "robots.robot1.motoin.x=1,2",
                       "--out", str(tmp_path / "s"))
