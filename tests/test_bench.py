@@ -103,6 +103,7 @@ def test_unknown_suite_exits_2_with_the_known_names(capsys):
     assert "unknown suite 'nosuch'" in err and "codec" in err
 
 
+@pytest.mark.slow
 def test_codec_quick_writes_json_and_prints_a_table(tmp_path):
     out = tmp_path / "bench.json"
     p = subprocess.run([sys.executable, "-m", "diffbot.cli", "bench", "--suite", "codec",
@@ -135,6 +136,7 @@ def test_codec_quick_writes_json_and_prints_a_table(tmp_path):
     assert "[codec]" not in p.stdout
 
 
+@pytest.mark.slow
 def test_a_failing_case_is_reported_and_the_suite_releases_its_resources(tmp_path, monkeypatch,
                                                                          capsys):
     released = []
@@ -191,6 +193,7 @@ def test_bus_suite_measures_a_round_trip_and_kills_its_echo_process(tmp_path, ca
     assert _children_with(b"--echo") == []
 
 
+@pytest.mark.slow
 def test_sensor_suites_time_the_lidar_sweep_and_camera_frames(tmp_path):
     out = tmp_path / "sensors.json"
     assert bench.main(["--suite", "lidar,camera", "--quick", "--repeats", "1",

@@ -16,7 +16,7 @@ import zenoh
 from bus import codec
 from bus.keys import Keys
 
-from .conftest import wait_for
+from .conftest import SLACK_S, wait_for
 
 pytestmark = pytest.mark.slow
 K = Keys()
@@ -74,6 +74,9 @@ def test_lockstep_member_killed_leaves_sync_set_at_once(procs, endpoint, bus, tm
     ctrl = procs.diffbot("controller", "wheel_schedule", "--schedule", "1000:2,2",
                          "--endpoint", endpoint, name="ctrl")
     wait_for(lambda: tap.last_t() > 2e9, 60, what="lockstep run to reach t=2 s")
+    # the run does not wait for it (not --expect'ed): on a loaded machine it may join late
+    wait_for(lambda: "lockstep member joined: wheel_schedule_robot1" in procs.log(p), 60,
+             what="the controller to join")
     ctrl.send_signal(signal.SIGKILL)
     killed = time.monotonic()
     ctrl.wait(5)
@@ -82,7 +85,10 @@ def test_lockstep_member_killed_leaves_sync_set_at_once(procs, endpoint, bus, tm
     wait_for(lambda: tap.last_t() > t_at_kill + 200_000_000, 10, what="ticks after the kill")
     with tap.lock:
         gaps = [w for w, t in tap.clock if w > killed]
-    assert gaps[0] - killed < 0.1, f"plant resumed {gaps[0] - killed:.3f} s after the kill"
+    # a killed member's socket closes at once: the plant does not wait for its 1 s lease
+    # (one tick, 20 ms, plus the documented scheduling slack; still below the lease)
+    assert gaps[0] - killed < 0.02 + SLACK_S < 1.0, \
+        f"plant resumed {gaps[0] - killed:.3f} s after the kill"
     assert p.poll() is None
     assert "lockstep member lost: wheel_schedule_robot1" in procs.log(p)
     assert "the others go on without it" in procs.log(p)

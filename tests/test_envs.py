@@ -134,6 +134,7 @@ def test_bad_arguments_and_actions_are_clear_errors():
         env.close()
 
 
+@pytest.mark.slow
 def test_the_module_id_form_imports_the_package_itself():
     code = ("import gymnasium; e = gymnasium.make('diffbot.envs:diffbot/Avoid-v0'); "
             "o, _ = e.reset(seed=1); print(o['scan'].shape); e.close()")
@@ -275,6 +276,7 @@ def test_a_bus_env_left_open_at_interpreter_exit_stops_its_plant():
     assert not alive(int(out.stdout.split()[-1]))
 
 
+@pytest.mark.slow
 def test_policy_controller_refuses_a_bad_file(tmp_path):
     bad = tmp_path / "p.npz"
     bad.write_bytes(b"not a policy")

@@ -171,11 +171,13 @@ def one_line_error(*args: str) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_parameter_outside_its_bounds_exits_2_naming_variable_and_bounds(models):
     line = one_line_error(str(models["bouncing_fmi3"]), "--param", "e=2.0")
     assert "--param e=2.0: 2 is outside the bounds of 'e' [0, 1] declared by the FMU" in line
 
 
+@pytest.mark.slow
 def test_missing_binary_names_the_platforms_shipped_and_how_to_compile(models, tmp_path):
     src = models["stairs_fmi2"]
     other = tmp_path / "stairs_other.fmu"
@@ -198,6 +200,7 @@ def test_zenoh_errors_carry_no_rust_source_paths():
     assert zenoh_error(exc) == "nothing answered there (timed out)"
 
 
+@pytest.mark.slow
 def test_extraction_folders_of_killed_nodes_are_swept(tmp_path):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
@@ -410,6 +413,7 @@ def test_protocol_page_and_fmu_page_give_the_keys_of_the_code():
     assert "](docs/fmu.md)" in (Path(ROOT) / "README.md").read_text()    # linked from the front door
 
 
+@pytest.mark.slow
 def test_a_sigkilled_node_s_extraction_folder_is_removed_by_the_next_start(models, tmp_path):
     sock = tmp_path / "nobody.sock"
     p = subprocess.Popen([sys.executable, "-m", "diffbot.cli", "fmu-node",

@@ -3,7 +3,7 @@
 The odometry FMU on the node must give the Python reference (controllers.odometry) to
 1e-9, fed synthetic samples and over the real bus; configuration errors are one line and
 exit code 2; bad samples at run time are counted and the node keeps publishing.
-The FMUs are built once per session into a temporary directory.
+The FMUs are built once per session into a temporary directory (tests/conftest.py).
 """
 from __future__ import annotations
 
@@ -26,10 +26,9 @@ from bus.keys import Keys
 from bus.controller import Observation
 from bus.protocol import PROTOCOL_VERSION
 from controllers.odometry import integrate
-from fmus import build as fmu_build
 from fmus import fmu_node
 
-from .conftest import ROOT, wait_for
+from .conftest import ROOT, require_built_fmus, wait_for
 
 K = Keys()
 TOL = 1e-9
@@ -45,9 +44,8 @@ MAPPING = Path(ROOT) / "fmus" / "odometry" / "mapping.toml"
 
 
 @pytest.fixture(scope="session")
-def fmus(tmp_path_factory) -> dict[int, Path]:
-    paths = fmu_build.build_fmus(tmp_path_factory.mktemp("fmus"))
-    return {2: paths["fmi2"], 3: paths["fmi3"]}
+def fmus(built_fmus) -> dict[int, Path]:
+    return built_fmus
 
 
 # ---------------------------------------------------------------- helpers
@@ -306,10 +304,10 @@ def test_shipped_mapping_is_found_from_the_model_identifier(fmus):
 
 def test_fmu_paths_resolve_from_any_directory(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
+    require_built_fmus()
     built = Path(ROOT) / "fmus" / "build" / "odometry_fmi2.fmu"
-    if built.is_file():
-        assert fmu_node.resolve_fmu("fmus/build/odometry_fmi2.fmu") == built.resolve()
-        assert fmu_node.resolve_fmu("odometry") == built.resolve()
+    assert fmu_node.resolve_fmu("fmus/build/odometry_fmi2.fmu") == built.resolve()
+    assert fmu_node.resolve_fmu("odometry") == built.resolve()
     monkeypatch.setattr(fmu_node, "BUILD_DIR", tmp_path / "nobuild")
     with pytest.raises(fmu_node.FmuNodeError, match="diffbot fmu build.*make setup"):
         fmu_node.resolve_fmu("odometry")
@@ -317,6 +315,7 @@ def test_fmu_paths_resolve_from_any_directory(monkeypatch, tmp_path):
         fmu_node.resolve_fmu(str(tmp_path / "elsewhere.fmu"))
 
 
+@pytest.mark.slow
 def test_cli_errors_are_one_line_exit_2_no_traceback(fmus, tmp_path):
     not_fmu = write(tmp_path / "notes.fmu", "not a zip")
     no_cs = without_cosimulation(fmus[2], tmp_path / "me_only.fmu")
@@ -501,6 +500,7 @@ def test_fmpy_example_replays_a_recorded_trajectory(fmus, tmp_path, capsys):
     assert (tmp_path / "fmu_vs_gps.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_bench_functions_return_seconds():
     from fmus import bench
     items = bench.benchmarks()

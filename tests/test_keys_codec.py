@@ -84,6 +84,8 @@ def test_summarize_shortens_large_arrays():
 
 from hypothesis import given, settings, strategies as st  # noqa: E402
 
+from .conftest import examples  # noqa: E402
+
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 names = st.text(st.characters(
     blacklist_categories=("Cs",), blacklist_characters="\x00"), max_size=12)
@@ -94,7 +96,7 @@ def _rosbags(msg) -> bytes:
     return bytes(codec.TYPESTORE.serialize_cdr(msg, msg.__msgtype__))
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=examples(150), deadline=None)
 @given(t=stamps, v=finite, w=finite, frame=names)
 def test_fast_twist_and_clock_bytes_equal_rosbags(t, v, w, frame):
     m = codec.twist_stamped(t, v, w, frame_id=frame)
@@ -103,7 +105,7 @@ def test_fast_twist_and_clock_bytes_equal_rosbags(t, v, w, frame):
     assert codec.encode(c) == _rosbags(c)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=examples(150), deadline=None)
 @given(t=stamps, xyz=st.tuples(finite, finite, finite), frame=names, child=names,
        yaw=st.floats(-10, 10))
 def test_fast_point_and_odometry_bytes_equal_rosbags(t, xyz, frame, child, yaw):
@@ -114,7 +116,7 @@ def test_fast_point_and_odometry_bytes_equal_rosbags(t, xyz, frame, child, yaw):
     assert codec.encode(o) == _rosbags(o)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=examples(150), deadline=None)
 @given(t=stamps, frame=names, joints=st.lists(names, max_size=4),
        data=st.lists(finite, max_size=5), n_vel=st.integers(0, 3))
 def test_fast_joint_state_bytes_equal_rosbags(t, frame, joints, data, n_vel):
@@ -123,7 +125,7 @@ def test_fast_joint_state_bytes_equal_rosbags(t, frame, joints, data, n_vel):
     assert codec.encode(m) == _rosbags(m)
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(t=stamps, frame=names, h=st.integers(0, 5), w=st.integers(0, 5), enc=names,
        seed=st.integers(0, 2**32 - 1))
 def test_fast_image_bytes_equal_rosbags(t, frame, h, w, enc, seed):
@@ -136,7 +138,7 @@ def test_fast_image_bytes_equal_rosbags(t, frame, h, w, enc, seed):
 f32 = st.floats(allow_nan=False, allow_infinity=False, width=32)
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(t=stamps, frame=names, head=st.lists(f32, min_size=6, max_size=6),
        ranges=st.lists(st.floats(width=32), max_size=8))
 def test_fast_laser_scan_bytes_equal_rosbags(t, frame, head, ranges):
@@ -145,7 +147,7 @@ def test_fast_laser_scan_bytes_equal_rosbags(t, frame, head, ranges):
     assert codec.encode(m) == _rosbags(m)
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(t=stamps, frame=names, model=names, d=st.lists(finite, max_size=8),
        k=st.lists(finite, min_size=9, max_size=9), size=st.tuples(st.integers(0, 4096),
                                                                    st.integers(0, 4096)))
@@ -158,7 +160,7 @@ def test_fast_camera_info_bytes_equal_rosbags(t, frame, model, d, k, size):
 from bus import packed  # noqa: E402
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=examples(150), deadline=None)
 @given(t=stamps, xyz=st.tuples(finite, finite, finite), q=st.tuples(finite, finite, finite, finite),
        v=finite, w=finite, frame=names, child=names)
 def test_packed_point_and_odometry_are_the_bytes_of_their_messages(t, xyz, q, v, w, frame, child):
@@ -170,7 +172,7 @@ def test_packed_point_and_odometry_are_the_bytes_of_their_messages(t, xyz, q, v,
     assert packed.clock(t) == _rosbags(codec.clock(t))
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=examples(150), deadline=None)
 @given(t=stamps, joints=st.lists(names, max_size=4), data=st.lists(finite, max_size=5),
        n_vel=st.integers(0, 3))
 def test_packed_joint_state_is_the_bytes_of_its_message(t, joints, data, n_vel):

@@ -113,6 +113,7 @@ def test_streams_are_independent():
     assert abs(np.corrcoef(a, b)[0, 1]) < 0.05
 
 
+@pytest.mark.slow
 def test_rng_stable_across_processes():
     # sha256-based: a fixed value pins the derivation (Python's hash() would vary)
     v = make_rng(1, "robot1/scan").random()

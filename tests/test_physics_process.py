@@ -28,6 +28,7 @@ def _gone(pid: int) -> bool:
         return True
 
 
+@pytest.mark.slow
 def test_the_process_steps_and_reports_what_the_plant_would_itself(tmp_path):
     spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, seed=3))
     local, mirror = Simulation(spec), Simulation(spec)
@@ -64,6 +65,7 @@ def test_the_process_steps_and_reports_what_the_plant_would_itself(tmp_path):
     assert physics.proc.poll() == 0
 
 
+@pytest.mark.slow
 def test_a_dead_physics_process_is_an_error_naming_it(tmp_path):
     physics = PhysicsProcess(load_world("empty"))
     try:

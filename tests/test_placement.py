@@ -72,6 +72,7 @@ def test_with_tls_every_process_gets_the_shipped_config_of_its_role(tmp_path):
     assert all(c.argv.count("--zenoh-config") == 1 for c in run.children)
 
 
+@pytest.mark.slow
 def test_a_bad_placement_exits_2_before_anything_starts(procs, tmp_path):
     p = procs.diffbot("run", "square", "--place", "lidar=here", "--out", str(tmp_path / "o"))
     assert p.wait(60) == 2

@@ -20,6 +20,7 @@ def _py(code: str) -> list[str]:
     return [sys.executable, "-c", textwrap.dedent(code)]
 
 
+@pytest.mark.slow
 def test_a_child_that_exits_reports_its_code_and_log_tail(tmp_path):
     c = procs.Child("talker", _py("""
         import sys
@@ -34,6 +35,7 @@ def test_a_child_that_exits_reports_its_code_and_log_tail(tmp_path):
     assert c.wall_s > 0
 
 
+@pytest.mark.slow
 def test_a_child_that_ignores_sigint_is_killed_after_the_grace(tmp_path):
     c = procs.Child("stubborn", _py("""
         import signal, time
@@ -51,6 +53,7 @@ def test_a_child_that_ignores_sigint_is_killed_after_the_grace(tmp_path):
     assert not procs.alive(c.pid)
 
 
+@pytest.mark.slow
 def test_a_child_that_obeys_sigint_ends_cleanly_within_the_grace(tmp_path):
     c = procs.Child("polite", _py("""
         import sys, time
@@ -67,6 +70,7 @@ def test_a_child_that_obeys_sigint_ends_cleanly_within_the_grace(tmp_path):
     assert c.tail(1) == "bye"
 
 
+@pytest.mark.slow
 def test_no_grandchild_is_orphaned(tmp_path):
     """The child ignores SIGINT and so does the grandchild it started; stop() kills both by
     PID, including a grandchild whose parent died first."""
@@ -88,6 +92,7 @@ def test_no_grandchild_is_orphaned(tmp_path):
     wait_for(lambda: not procs.alive(grandchild), 5, what="the grandchild to die")
 
 
+@pytest.mark.slow
 def test_stopped_child_is_seen_and_still_stopped_by_pid(tmp_path):
     c = procs.Child("frozen", _py("import time; time.sleep(60)"),
                     str(tmp_path / "frozen.log")).start()
@@ -97,6 +102,7 @@ def test_stopped_child_is_seen_and_still_stopped_by_pid(tmp_path):
     assert c.exit_code == -signal.SIGKILL and not c.stopped()
 
 
+@pytest.mark.slow
 def test_stop_leaves_finished_children_alone(tmp_path):
     done = procs.Child("done", _py("pass"), str(tmp_path / "done.log")).start()
     assert done.wait(20) == 0
@@ -104,6 +110,7 @@ def test_stop_leaves_finished_children_alone(tmp_path):
     assert done.exit_code == 0
 
 
+@pytest.mark.slow
 def test_a_daemonised_grandchild_left_in_the_group_is_killed_too(tmp_path):
     """A grandchild whose parent exited at once is no longer below the child in /proc, but
     it is still in the child's process group: stop() kills the group as well."""
@@ -117,6 +124,7 @@ def test_a_daemonised_grandchild_left_in_the_group_is_killed_too(tmp_path):
     wait_for(lambda: not procs.alive(orphan), 5, what="the orphan to die")
 
 
+@pytest.mark.slow
 def test_an_orphan_whose_clean_stop_hangs_ends_itself(tmp_path, monkeypatch):
     """A launcher SIGKILLed: the kernel sends its children SIGTERM (die_with_parent); one
     whose clean stop hangs (here: it never looks at its stop event) exits by itself
@@ -144,6 +152,7 @@ def test_an_orphan_whose_clean_stop_hangs_ends_itself(tmp_path, monkeypatch):
     wait_for(lambda: not procs.alive(grandchild), 8, what="the orphan to end itself")
 
 
+@pytest.mark.slow
 def test_a_stop_signal_that_comes_again_inside_the_handler_does_not_hang_the_process():
     """The parent-death signal comes once per thread of the child (a node's Zenoh session
     runs a dozen): a burst of SIGTERMs, the next one often while the handler of the first

@@ -321,7 +321,10 @@ def test_topics_and_echo_against_a_running_plant(procs, endpoint):
     line = next(ln for ln in r.stdout.splitlines() if ln.startswith("robot1/joint_states "))
     key, msgtype, hz, sim_hz, count = line.split()
     assert msgtype == "sensor_msgs/msg/JointState"
-    assert 40 < float(hz) < 60 and float(sim_hz) == pytest.approx(50, abs=0.5)
+    # 50 Hz of simulated time; per wall second the same, a realtime plant being paced to
+    # the wall clock: 10 % for the 2 s window's edges, and 20 % below for a loaded machine
+    assert float(sim_hz) == pytest.approx(50, abs=0.5)
+    assert 50 * 0.8 < float(hz) < 50 * 1.1, hz
     assert "nodes alive: plant" in r.stdout
     r = diffbot("echo", "robot1/gps", "--count", "2", "--timeout", "30", "--endpoint", endpoint)
     assert r.returncode == 0, r.stderr

@@ -71,7 +71,7 @@ def shm_of(pid: int) -> set[str]:
 
 def scenario_text(sim_s: float) -> str:
     fmu = os.path.join(ROOT, "fmus", "build", "odometry_fmi2.fmu")
-    if os.path.exists(os.path.join(ROOT, "fmus", "node.py")) and os.path.exists(fmu):
+    if os.path.exists(os.path.join(ROOT, "fmus", "fmu_node.py")) and os.path.exists(fmu):
         odometry = f'["fmu-node", "{fmu}", "--robot", "robot1"]'
     else:
         odometry = '["controller", "odometry", "--robot", "robot1"]'

@@ -12,7 +12,7 @@ from diffbot import procs as dprocs
 from diffbot.sweep.grid import parse_axis, parse_seeds, points, split_values
 from diffbot.sweep.table import flatten
 
-from .conftest import wait_for
+from .conftest import check_real_time_factor, wait_for
 from .test_exposure import cmdline as _cmdline
 
 NOISE = "robots.robot1.motion.command_noise_std_radps"
@@ -60,6 +60,7 @@ def test_every_scalar_metric_is_a_column_and_an_unmeasured_one_an_empty_cell():
     assert flatten(m) == {"a": 1.5, "r.b": 2, "r.ok": 1, "none": None}
 
 
+@pytest.mark.slow
 def test_a_wrong_world_key_exits_2_before_any_run(procs, tmp_path):
     p = procs.diffbot("sweep", "drive-test", "--grid", "robots.robot1.motoin.x=1,2",
                       "--out", str(tmp_path / "s"))
@@ -80,7 +81,9 @@ def test_sweep_table_plots_and_resume(procs, tmp_path):
     assert [(r[NOISE], r["seed"]) for r in rows] == [("0", "0"), ("0", "1"), ("0.3", "0"),
                                                       ("0.3", "1")]
     assert all(r["status"] == "ok" and r["exit_code"] == "0" for r in rows)
-    assert all(float(r["real_time_factor"]) > 0 and r["node"] for r in rows)
+    assert all(r["node"] for r in rows)
+    for r in rows:
+        check_real_time_factor(r)
     v = [float(r["steady_angular_velocity_radps"]) for r in rows]
     assert v[0] == v[1]                      # no noise: the seed changes nothing
     assert v[2] != v[3] and v[0] != v[2]     # motion noise: it does

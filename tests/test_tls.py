@@ -20,11 +20,15 @@ from bus.session import BusConfigError, open_session
 from diffbot.certs import ROLES, _leaf, make_certs
 from diffbot.router import router_config
 
-from .conftest import ROOT, Procs, wait_for
+from .conftest import CI, ROOT, Procs, wait_for
 from .test_exposure import free_port
 from .test_netns import loopback, messages, run_drive, tls_machines
 
-pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl")
+#: every test here runs openssl or TLS sessions (several handshakes each): slow; without
+#: openssl skipped, except under CI, where it fails (make test installs it)
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(shutil.which("openssl") is None and not CI,
+                                 reason="needs openssl")]
 CONFIGS = os.path.join(ROOT, "diffbot", "configs")
 CLIENTS = [f"{role}_tls.json5" for role in ROLES]
 
@@ -153,7 +157,6 @@ def tls_router(certs):
         s.close()
 
 
-@pytest.mark.slow
 def test_a_failed_connection_names_the_endpoint_and_the_cause(tmp_path, certs, other_ca,
                                                                tls_router):
     port = tls_router
@@ -317,7 +320,6 @@ def test_the_access_control_lets_each_role_publish_its_keys_and_hear_everything(
         listener.close()
 
 
-@pytest.mark.slow
 def test_a_run_through_the_shipped_router_records_every_topic(tmp_path):
     """Plant, controller and recorder with their shipped configs through the shipped
     router (mutual TLS, access control) on loopback: the recording is byte for byte the

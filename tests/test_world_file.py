@@ -78,6 +78,7 @@ def test_missing_file_and_bad_toml(tmp_path):
         load_world(write(tmp_path, "[world\n"))
 
 
+@pytest.mark.slow
 def test_plant_exits_2_with_one_line_and_no_traceback(tmp_path):
     path = write(tmp_path, GOOD.replace("control_tick_s = 0.02", "control_tick_s = 'x'"))
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "plant", "--world", path],
@@ -89,6 +90,7 @@ def test_plant_exits_2_with_one_line_and_no_traceback(tmp_path):
     assert "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_run_with_unknown_scenario_exits_2(tmp_path):
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "no-such-scenario",
                         "--out", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=60)

@@ -1,0 +1,83 @@
+"""The stamp rules for commands (docs/PROTOCOL.md section 7), on ``plant.commands.check_stamp``
+itself and through ``decode_command``: a stamp in the future or older than the robot's
+``cmd_timeout_s`` is rejected, a zero stamp means "now" (an unstamped command), and an
+invalid time is rejected whatever the clock says."""
+from __future__ import annotations
+
+import pytest
+
+from bus import codec
+from plant.commands import check_stamp, decode_command
+from plant.world import DriveSpec
+
+TICK = 20_000_000
+NOW = 50 * 10**9                         # t = 50 s
+TIMEOUT_S = 0.5                          # the default cmd_timeout_s
+
+
+def stamp(t_ns: int):
+    return codec.time_msg(t_ns)
+
+
+@pytest.mark.parametrize("t_ns", [NOW, NOW - TICK, NOW - 3 * TICK])
+def test_a_stamp_of_now_or_a_few_ticks_ago_is_accepted(t_ns):
+    check_stamp(stamp(t_ns), NOW, TICK, TIMEOUT_S)
+
+
+def test_a_stamp_for_the_tick_being_stepped_is_accepted_one_further_is_the_future():
+    # a command computed for tick k may reach the plant while it is still at t_(k-1)
+    check_stamp(stamp(NOW + TICK), NOW, TICK, TIMEOUT_S)
+    for ahead in (TICK + 1, 2 * TICK, 10**12):
+        with pytest.raises(ValueError, match="in the future"):
+            check_stamp(stamp(NOW + ahead), NOW, TICK, TIMEOUT_S)
+
+
+def test_older_than_cmd_timeout_is_rejected_and_not_before():
+    timeout_ns = int(TIMEOUT_S * 1e9)
+    check_stamp(stamp(NOW - timeout_ns), NOW, TICK, TIMEOUT_S)        # exactly at the limit
+    for older in (timeout_ns + 1, timeout_ns + TICK, NOW - 1):
+        with pytest.raises(ValueError, match="older than cmd_timeout 0.5 s"):
+            check_stamp(stamp(NOW - older), NOW, TICK, TIMEOUT_S)
+    # the limit is the robot's, not a constant
+    check_stamp(stamp(NOW - 2 * 10**9), NOW, TICK, 2.5)
+    with pytest.raises(ValueError, match="older than cmd_timeout 1.5 s"):
+        check_stamp(stamp(NOW - 2 * 10**9), NOW, TICK, 1.5)
+
+
+def test_without_a_timeout_age_is_not_checked_the_future_still_is():
+    check_stamp(stamp(TICK), NOW, TICK, None)
+    with pytest.raises(ValueError, match="in the future"):
+        check_stamp(stamp(NOW + 2 * TICK), NOW, TICK, None)
+
+
+@pytest.mark.parametrize("now", [0, TICK, NOW, 10**15])
+def test_a_zero_stamp_means_now_at_any_time(now):
+    check_stamp(stamp(0), now, TICK, TIMEOUT_S)
+
+
+@pytest.mark.parametrize("sec,nanosec", [(-1, 0), (-5, 999), (3, 1_000_000_000),
+                                         (3, 2**32 - 1)])
+def test_an_invalid_time_is_rejected(sec, nanosec):
+    T = codec.T["builtin_interfaces/msg/Time"]
+    with pytest.raises(ValueError, match="invalid stamp"):
+        check_stamp(T(sec=sec, nanosec=nanosec), NOW, TICK, TIMEOUT_S)
+
+
+def test_decode_command_applies_the_rules_to_both_command_keys():
+    drive = DriveSpec()
+    assert drive.cmd_timeout_s == TIMEOUT_S
+    old = NOW - int(TIMEOUT_S * 1e9) - TICK
+    msgs = {"cmd_vel": lambda t: codec.twist_stamped(t, 0.1, 0.0),
+            "wheel_cmd": lambda t: codec.joint_state(
+                t, ["left_wheel_joint", "right_wheel_joint"], [], [1.0, 1.0])}
+    for topic, make in msgs.items():
+        def decode(t, check_age=True):
+            return decode_command(codec.encode(make(t)), topic, drive, NOW, TICK, check_age,
+                                  "robot1")
+        assert decode(NOW)[1] == NOW
+        assert decode(0)[1] == 0                                   # unstamped: "now"
+        with pytest.raises(ValueError, match="in the future"):
+            decode(NOW + 2 * TICK)
+        with pytest.raises(ValueError, match="older than cmd_timeout"):
+            decode(old)
+        assert decode(old, check_age=False)[1] == old              # lockstep: no age check

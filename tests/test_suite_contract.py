@@ -1,0 +1,58 @@
+"""The test suite's own rules, read from its files: no speed threshold outside the
+benchmarks (``diffbot bench``). A bound on a run's ``real_time_factor`` (how fast the
+machine was) or on a wall-clock ``per_step`` cost passes or fails with the machine's load,
+not with the code; a real-time factor is checked against the run's own times instead
+(tests/conftest.check_real_time_factor), a step's cost is measured by the benchmarks."""
+from __future__ import annotations
+
+import ast
+import os
+
+import pytest
+
+TESTS = os.path.dirname(os.path.abspath(__file__))
+ORDER = (ast.Lt, ast.LtE, ast.Gt, ast.GtE)
+
+
+def speed_bounds(source: str, filename: str = "<test>") -> list[str]:
+    """``file:line: text`` of each ordering comparison on a real-time factor (a subscript
+    or attribute called ``real_time_factor``) or on a name ``per_step``."""
+    found = []
+    for node in ast.walk(ast.parse(source, filename)):
+        if not isinstance(node, ast.Compare) or not any(isinstance(op, ORDER)
+                                                        for op in node.ops):
+            continue
+        for side in [node.left, *node.comparators]:
+            text = ast.unparse(side)
+            if "'real_time_factor'" in text or ".real_time_factor" in text \
+                    or any(isinstance(n, ast.Name) and n.id == "per_step"
+                           for n in ast.walk(side)):
+                found.append(f"{filename}:{node.lineno}: {ast.unparse(node)}")
+                break
+    return found
+
+
+def test_no_test_bounds_the_real_time_factor_or_a_per_step_wall_time():
+    found = []
+    for name in sorted(os.listdir(TESTS)):
+        if name.endswith(".py") and name != os.path.basename(__file__):
+            with open(os.path.join(TESTS, name), encoding="utf-8") as f:
+                found += speed_bounds(f.read(), name)
+    assert not found, "speed thresholds belong in diffbot bench:\n" + "\n".join(found)
+
+
+@pytest.mark.parametrize("line, bad", [
+    ('assert s["real_time_factor"] > 0', True),
+    ('assert float(r["real_time_factor"]) > 0 and r["node"]', True),
+    ('assert 1 < summary["run"]["real_time_factor"]', True),
+    ("assert stats.real_time_factor >= 0.9", True),
+    ("assert per_step < 1e-3", True),
+    ("assert 0 < per_step * 1e6 < 100", True),
+    ('assert s["real_time_factor"] == pytest.approx(sim / wall)', False),
+    ("check_real_time_factor(s)", False),
+    ("assert rtf >= sim / wall", False),
+    ('print(f"{per_step * 1e6:.1f} us")', False),
+    ('assert s["sim_time_s"] > 0', False),
+])
+def test_the_rule_finds_what_it_is_for(line, bad):
+    assert bool(speed_bounds(line)) is bad
