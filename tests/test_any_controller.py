@@ -80,6 +80,7 @@ def test_arg_values_are_literals_or_text():
         hosted.parse_kwargs(["no-equals"])
 
 
+@pytest.mark.slow
 def test_a_bad_class_or_argument_exits_2_with_the_reason(agent_dir):
     env = dict(os.environ, PYTHONPATH=f"{agent_dir}{os.pathsep}{ROOT}")
     out = subprocess.run([sys.executable, "-m", "diffbot.cli", "controller",

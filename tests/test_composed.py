@@ -70,6 +70,7 @@ def test_a_process_member_and_a_composed_one_in_one_run_give_the_same_bytes(tmp_
 ROOT_SCENARIO = __import__("pathlib").Path(ROOT) / "diffbot" / "scenarios" / "square.toml"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command, why", [
     ("controller teleop --robot robot1", "reads the keyboard"),
     ("record out.mcap", "cannot be composed"),

@@ -37,6 +37,7 @@ def test_the_page_has_the_snippets():
         assert what in joined, f"no runnable snippet shows {what}"
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("line,code", BLOCKS, ids=[f"line{line}" for line, _ in BLOCKS])
 def test_snippet_runs(line, code):

@@ -184,6 +184,7 @@ def test_a_stop_signal_that_comes_again_inside_the_handler_does_not_hang_the_pro
     assert r.stdout.strip() == "stopped"
 
 
+@pytest.mark.slow
 def test_a_stopped_process_whose_exit_outlasts_the_orphan_check_exits_cleanly():
     """The stop handler arms a 0.5 s timer to look whether the parent is gone; the
     interpreter's finalization puts SIGALRM back to its default action, so a process still
