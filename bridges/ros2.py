@@ -45,7 +45,7 @@ from bus.log import RejectCounter, setup_logging
 from bus.inputs import ABSURD_INPUT
 from bus.runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
 from bus.session import close_session, install_stop_signals, query_info
-from bus.session import BusConfigError, add_bus_args, open_node
+from bus.session import BusConfigError, add_process_args, open_node
 
 from .ros2_graph import GraphWatch
 from .ros2_lockstep import RosController, relay_stop
@@ -81,10 +81,7 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--domain-id", type=domain_id_arg, default=None,
                    help="ROS_DOMAIN_ID (default: the environment's, else 0)")
     p.add_argument("--name", default="ros2_bridge", help="node name on the bus and in ROS 2")
-    p.add_argument("--stats", default=None, metavar="FILE.json",
-                   help="write forwarded/rejected counts here on exit")
-    p.add_argument("--log-level", default="INFO")
-    add_bus_args(p)
+    add_process_args(p, "forwarded/rejected counts")
     return p
 
 
