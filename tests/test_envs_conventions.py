@@ -114,3 +114,16 @@ def test_swarm_state_is_every_robots_true_pose_and_goal():
         assert all(set(infos[a]) == set(infos2[a]) for a in infos2)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("env_id", ["diffbot/Avoid-v0", "diffbot/Follow-v0"])
+def test_check_env_passes_without_a_warning_with_normalized_actions_and_rendering(env_id):
+    import warnings
+    from gymnasium.utils.env_checker import check_env
+    env = gym.make(env_id, normalize_actions=True, render_mode="rgb_array")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            check_env(env.unwrapped)
+    finally:
+        env.close()
