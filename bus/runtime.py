@@ -41,6 +41,9 @@ EXIT_INPUT_GONE = 4
 LEASE_S = 1.0
 #: how long a lockstep node waits for another node's output once a member has left
 PRODUCER_GRACE_S = 0.5
+#: after the sim/end token, how long the end's text is waited for (docs/PROTOCOL.md section 4,
+#: "End": data and liveliness take different paths)
+END_TEXT_WAIT_S = 1.0
 
 
 class NodeRunner:
@@ -172,6 +175,9 @@ class NodeRunner:
         if self.sync:
             tokens["sync"] = liveliness.declare_token(self.keys.sync(self.name))
         plant_seen = plant_here = False
+        # the sim/end token came (wall time): it may overtake the run's last data (liveliness
+        # travels apart), so the end's text, which comes after that data, is waited for
+        end_token_at: float | None = None
         left: dict[str, float] = {}          # lockstep members that left -> wall time
         last_loop, stalled, stall_s = time.monotonic(), -math.inf, 0.0
         self.log.info("%s on robot%s %s: mode %s, inputs %s%s", self.name,
@@ -184,6 +190,9 @@ class NodeRunner:
                 if now - last_loop > LEASE_S:      # this process was stopped (SIGSTOP) or starved
                     stall_s, stalled = now - last_loop, now
                 last_loop = now
+                if end_token_at is not None and now - end_token_at >= END_TEXT_WAIT_S:
+                    self.log.info("the simulation ended (the plant ended it); stopping")
+                    break
                 if self.wait and self.watch.expired(now):      # --wait, not past a run's end
                     self.log.error("%s; stopping", self.watch.why(now))
                     self.exit_code = EXIT_PLANT_GONE
@@ -195,6 +204,9 @@ class NodeRunner:
                 if ev.tag == "end":
                     if not ev.alive or (not plant_here and not ev.payload):
                         continue             # the end token withdrawn, or a repeat of the end
+                    if not ev.payload and not (self.wait and not plant_seen):
+                        end_token_at = end_token_at or now     # the token: the text follows
+                        continue
                     reason = ev.payload.decode("utf-8", "replace") or "the plant ended it"
                     if self.wait and not plant_seen:     # --wait: for a plant to start
                         self.log.warning("the simulation ended (%s); waiting for a plant "
@@ -213,6 +225,8 @@ class NodeRunner:
                         self.watch.here()
                     elif plant_here:
                         plant_here = False
+                        if end_token_at is not None:     # gone after its end: the text may
+                            continue                     # still come, END_TEXT_WAIT_S at most
                         if self.wait:       # inputs kept: the plant may be the same, back
                             self.plant_lost += 1
                             self.watch.gone(now)
