@@ -432,6 +432,7 @@ class LiveRun:
                      self.session.declare_subscriber(K.topic("robot1", "ground_truth"),
                                                      self._on_gt)]
         self.seq = 1 << 40
+        self.stopped = False
         wait_for(lambda: self.ticks > 20, 90, what="the lockstep run to start")
 
     def _start(self, name, *argv) -> None:
@@ -491,6 +492,7 @@ class LiveRun:
             assert not self.bad_truth, f"robot state not finite / absurd: {self.bad_truth[:3]}"
 
     def stop(self) -> dict[str, dict]:
+        self.stopped = True
         # the plant first: its members see the end (a member stopped before it is lost to
         # a lockstep plant, which then ends the run with exit 1, docs/PROTOCOL.md)
         for name in ["plant"] + list(self.NODES):
@@ -524,12 +526,20 @@ class LiveRun:
 
 
 @pytest.fixture(scope="module")
-def live():
-    run = LiveRun()
-    try:
-        yield run
-    finally:
+def _live_runs():
+    runs: list[LiveRun] = []
+    yield runs
+    for run in runs:
         run.cleanup(keep=bool(os.environ.get("DIFFBOT_KEEP_FUZZ_LOGS")))
+
+
+@pytest.fixture
+def live(_live_runs):
+    """The module's lockstep run, started again if a test has stopped it (the final
+    count does): so the tests pass in any order."""
+    if not _live_runs or _live_runs[-1].stopped:
+        _live_runs.append(LiveRun())
+    return _live_runs[-1]
 
 
 # -- what goes on the wire
