@@ -97,21 +97,16 @@ class FmuBuildError(RuntimeError):
 
 
 def find_c_compiler() -> list[str]:
-    """Return the C compiler command: ``$CC`` if set, else the first of cc, gcc, clang on PATH.
+    """Return the C compiler command: ``$CC`` if set, else the first of cc, gcc, clang on PATH
+    (the plant's kernels are built with the same one: :func:`plant.kernels.build.find_c_compiler`).
 
     Raises FmuBuildError("no C compiler found: install gcc or set CC") if there is none.
     """
-    cc = os.environ.get("CC", "").strip()
-    if cc:
-        command = shlex.split(cc)
-        if shutil.which(command[0]):
-            return command
-        raise FmuBuildError(f"no C compiler found: install gcc or set CC (CC={cc!r} is not on PATH)")
-    for name in ("cc", "gcc", "clang"):
-        path = shutil.which(name)
-        if path:
-            return [path]
-    raise FmuBuildError("no C compiler found: install gcc or set CC")
+    from plant.kernels.build import find_c_compiler as find
+    try:
+        return find()
+    except RuntimeError as exc:
+        raise FmuBuildError(str(exc)) from None
 
 
 def fmi_headers_dir() -> Path:
