@@ -16,10 +16,7 @@ import numpy as np
 
 from bus import codec
 from bus.keys import TOPICS, Keys
-
-FOOTPRINT_RADIUS_M = 0.24
-CHASSIS_CENTRE_X_M = -0.05
-CONTACT_MARGIN_M = 0.01
+from plant.footprint import CHASSIS_CENTRE_X_M, CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M
 
 
 def footprint_centres(x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> np.ndarray:

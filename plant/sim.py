@@ -10,6 +10,7 @@ import dartpy as dart
 import numpy as np
 
 from . import drive as dd
+from .kinematic import Kinematics
 from .robot import Robot, movable_object, room_skeleton
 from .shapes import Shape, pose_matrix
 from .noise import make_rng
@@ -139,6 +140,14 @@ class Simulation:
         self._robot_parts = [part for name, r in self.robots.items()
                              for part in _visible_parts(r, name)]
         self._movable_shapes = [self._shape_of(o) for o in self.objects if not o.static]
+        #: the kinematic world's robots (plant.kinematic), None in a dynamic world
+        self.kin = Kinematics(spec) if spec.mode == "kinematic" else None
+        if self.kin is not None:     # the parts ride on base_link: their poses relative to it
+            index = {name: i for i, name in enumerate(self.robots)}
+            self._part_owner = np.array([index[p[5]] for p in self._robot_parts], np.int64)
+            self._part_rel = np.array(
+                [np.linalg.inv(self.robots[p[5]].transform()) @ p[0].getWorldTransform().matrix()
+                 for p in self._robot_parts]).reshape(-1, 4, 4)
         self._scene_template = None
         self._scene_template = Scene(list(self.shapes()))     # built once per world
         self._set_contact_solver(spec.contact_solver)
@@ -169,6 +178,10 @@ class Simulation:
         values, the same motion bit for bit, a tenth of the dartpy calls. A kinematic
         robot's root command follows its yaw, so it is set every step."""
         robots = list(self.robots.values())
+        if self.kin is not None:
+            self.kin.step(np.array([r.targets for r in robots], float))
+            self.steps += self.spec.substeps
+            return
         every_step = [r for r in robots if r.kinematic]
         for r in robots:
             r.apply()
@@ -199,6 +212,8 @@ class Simulation:
 
     # ------------------------------------------------------------------ state
     def state(self, robot: str) -> RobotState:
+        if self.kin is not None:
+            return self.kin_state(self.kin, self.kin.names.index(robot))
         r = self.robots[robot]
         tf = r.transform()
         v, w = r.body_velocity(tf)
@@ -206,9 +221,19 @@ class Simulation:
         yaw = float(np.arctan2(tf[1, 0], tf[0, 0]))
         return RobotState(tf, yaw, v, w, pos, vel)
 
+    @staticmethod
+    def kin_state(kin: Kinematics, i: int) -> RobotState:
+        """Robot ``i`` of a kinematic world, as :meth:`state` gives it."""
+        tf = kin.transforms()[i]
+        v, w = kin.vel[i]
+        return RobotState(tf, float(np.arctan2(tf[1, 0], tf[0, 0])), np.array([v, 0.0, 0.0]),
+                          np.array([0.0, 0.0, w]), kin.wheels[i].copy(), kin.speeds[i].copy())
+
     def is_finite(self) -> bool:
         """Whether every robot's positions and velocities are finite (checked every tick:
         the array method, not the np.all wrapper, costs a third)."""
+        if self.kin is not None:
+            return self.kin.finite()
         for r in self.robots.values():
             sk = r.skeleton
             if not (np.isfinite(sk.getPositions()).all() and np.isfinite(sk.getVelocities()).all()):
@@ -225,6 +250,8 @@ class Simulation:
 
     def part_transforms(self) -> np.ndarray:
         """(P, 4, 4) world poses of the robots' visible parts, in :meth:`shapes` order."""
+        if self.kin is not None:
+            return np.matmul(self.kin.transforms()[self._part_owner], self._part_rel)
         return np.array([sn.getWorldTransform().matrix() for sn, *_ in self._robot_parts]
                         ).reshape(-1, 4, 4)
 
@@ -236,7 +263,7 @@ class Simulation:
         the arrays of the world's still shapes, stacked once, and stacks only the poses of
         the moving ones (the robots' parts, then the movable objects)."""
         if part_tfs is None:
-            part_tfs = [sn.getWorldTransform().matrix() for sn, *_ in self._robot_parts]
+            part_tfs = self.part_transforms()
         moving = [Shape.placed(kind, size, np.asarray(tf, dtype=float).reshape(4, 4), color, name,
                                owner)
                   for (sn, kind, size, color, name, owner), tf in zip(self._robot_parts, part_tfs)]

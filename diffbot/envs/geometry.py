@@ -8,59 +8,15 @@ margin from all of them.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from diffbot.analysis_swarm import CHASSIS_CENTRE_X_M, CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M
-from plant.world import WorldSpec
-
-#: objects whose underside is above this (m) pass over the robot (table tops, the TV)
-ROBOT_TOP_M = 0.32
+from plant.footprint import (CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M, ROBOT_TOP_M,  # noqa: F401
+                             Footprints as _Static)
 
 
-def _bottom(o) -> float:
-    z = o.pose[2]
-    if o.shape == "box":
-        return z - o.size[2] / 2
-    if o.shape == "cylinder":
-        return z - o.size[1] / 2
-    return z - o.size[0]
-
-
-class Footprints:
-    """The static world as the footprint test sees it: boxes, circles and the walls."""
-
-    def __init__(self, spec: WorldSpec) -> None:
-        low = [o for o in spec.objects if o.static and _bottom(o) < ROBOT_TOP_M]
-        boxes = [o for o in low if o.shape == "box"]
-        circles = [o for o in low if o.shape != "box"]
-        self.box_c = np.array([o.pose[:2] for o in boxes], float).reshape(-1, 2)
-        yaw = np.array([o.pose[3] for o in boxes], float)
-        self.box_cos, self.box_sin = np.cos(yaw), np.sin(yaw)
-        self.box_half = np.array([o.size[:2] for o in boxes], float).reshape(-1, 2) / 2
-        self.circ_c = np.array([o.pose[:2] for o in circles], float).reshape(-1, 2)
-        self.circ_r = np.array([o.size[0] for o in circles], float)
-        self.half = np.asarray(spec.floor_size_m, float) / 2
-
-    @staticmethod
-    def centre(x: float, y: float, yaw: float) -> np.ndarray:
-        return np.array([x + CHASSIS_CENTRE_X_M * math.cos(yaw),
-                         y + CHASSIS_CENTRE_X_M * math.sin(yaw)])
-
-    def clearance(self, c: np.ndarray) -> float:
-        """Distance (m) from point ``c`` to the nearest wall or low object."""
-        out = float(np.min(self.half - np.abs(c)))
-        if len(self.box_c):
-            d = c - self.box_c
-            lx = d[:, 0] * self.box_cos + d[:, 1] * self.box_sin
-            ly = -d[:, 0] * self.box_sin + d[:, 1] * self.box_cos
-            q = np.maximum(np.abs(np.stack([lx, ly], 1)) - self.box_half, 0.0)
-            out = min(out, float(np.min(np.hypot(q[:, 0], q[:, 1]))))
-        if len(self.circ_c):
-            d = np.hypot(*(c - self.circ_c).T) - self.circ_r
-            out = min(out, float(np.min(np.maximum(d, 0.0))))
-        return out
+class Footprints(_Static):
+    """The static world's footprint test (:class:`plant.footprint.Footprints`), with the
+    environments' contacts between robots and their free points."""
 
     def contacts(self, centres: dict[str, np.ndarray]) -> set[str]:
         """The robots (name -> footprint centre) touching a wall, an object or each other."""

@@ -14,9 +14,9 @@ import math
 import cv2
 import numpy as np
 
-from diffbot.analysis_swarm import FOOTPRINT_RADIUS_M
+from plant.footprint import FOOTPRINT_RADIUS_M, ROBOT_TOP_M, bottom
 
-from .geometry import ROBOT_TOP_M, Footprints, _bottom
+from .geometry import Footprints
 
 MAX_SIDE_PX = 480
 FLOOR = (235, 235, 228)
@@ -44,7 +44,7 @@ class TopDown:
             if not o.static:
                 continue
             colour = np.array(o.color[:3], float) * 255
-            if _bottom(o) >= ROBOT_TOP_M:                    # passed under: pale
+            if bottom(o) >= ROBOT_TOP_M:                    # passed under: pale
                 colour = 0.35 * colour + 0.65 * np.array(FLOOR)
             colour = tuple(int(c) for c in colour)
             x, y, yaw = o.pose[0], o.pose[1], o.pose[3] if len(o.pose) > 3 else 0.0
