@@ -54,15 +54,17 @@ class Kinematics:
         """One control tick with the wheel-speed targets (n, 2) (rad/s, left, right)."""
         step_arrays(self, np.asarray(targets, float).reshape(-1, 2))
 
-    def transforms(self) -> np.ndarray:
-        """base_link -> world of every robot, (n, 4, 4) (base_link at the axle's height)."""
-        n = len(self)
-        yaw = self.pose[:, 2]
+    def transforms(self, rows=slice(None)) -> np.ndarray:
+        """base_link -> world of every robot (or of ``rows``), (n, 4, 4) (base_link at the
+        axle's height)."""
+        pose, radius = self.pose[rows].reshape(-1, 3), self.radius[rows].reshape(-1)
+        n = len(pose)
+        yaw = pose[:, 2]
         c, s = np.cos(yaw), np.sin(yaw)
         tf = np.zeros((n, 4, 4))
-        tf[:, 0, 0], tf[:, 0, 1], tf[:, 0, 3] = c, -s, self.pose[:, 0]
-        tf[:, 1, 0], tf[:, 1, 1], tf[:, 1, 3] = s, c, self.pose[:, 1]
-        tf[:, 2, 2], tf[:, 2, 3], tf[:, 3, 3] = 1.0, self.radius, 1.0
+        tf[:, 0, 0], tf[:, 0, 1], tf[:, 0, 3] = c, -s, pose[:, 0]
+        tf[:, 1, 0], tf[:, 1, 1], tf[:, 1, 3] = s, c, pose[:, 1]
+        tf[:, 2, 2], tf[:, 2, 3], tf[:, 3, 3] = 1.0, radius, 1.0
         return tf
 
     def finite(self) -> bool:
@@ -139,6 +141,9 @@ class _Batch:
 
     def step(self, targets: np.ndarray) -> None:
         step_arrays(self, targets)
+
+    def finite(self) -> bool:
+        return Kinematics.finite(self)
 
 
 def join(members: Sequence[Kinematics]) -> _Batch:

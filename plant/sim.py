@@ -4,6 +4,7 @@ No bus here: :mod:`plant.process` drives a :class:`Simulation` and publishes wha
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import dartpy as dart
@@ -224,10 +225,13 @@ class Simulation:
     @staticmethod
     def kin_state(kin: Kinematics, i: int) -> RobotState:
         """Robot ``i`` of a kinematic world, as :meth:`state` gives it."""
-        tf = kin.transforms()[i]
-        v, w = kin.vel[i]
-        return RobotState(tf, float(np.arctan2(tf[1, 0], tf[0, 0])), np.array([v, 0.0, 0.0]),
-                          np.array([0.0, 0.0, w]), kin.wheels[i].copy(), kin.speeds[i].copy())
+        x, y, yaw = kin.pose[i].tolist()
+        c, s = math.cos(yaw), math.sin(yaw)
+        tf = np.array([[c, -s, 0.0, x], [s, c, 0.0, y], [0.0, 0.0, 1.0, float(kin.radius[i])],
+                       [0.0, 0.0, 0.0, 1.0]])
+        v, w = kin.vel[i].tolist()
+        return RobotState(tf, math.atan2(s, c), np.array([v, 0.0, 0.0]), np.array([0.0, 0.0, w]),
+                          kin.wheels[i].copy(), kin.speeds[i].copy())
 
     def is_finite(self) -> bool:
         """Whether every robot's positions and velocities are finite (checked every tick:

@@ -16,10 +16,14 @@ checks that the in-process and bus transports still agree to the bit.
 """
 from __future__ import annotations
 
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
 
 from bus.controller import Twist, WheelSpeeds
 
+from . import kinematic
+from . import lidar as lid
 from .physics_process import PhysicsProcess
 from .raycast import Scene
 from .sensors import RobotSensors, Wanted, scan_all
@@ -120,6 +124,55 @@ def _nothing() -> None:
     pass
 
 
+def step_ticks(ticks: Sequence[Tick]) -> None:
+    """``tick.step()`` of several worlds (a batched environment's), each to the bit as
+    alone: kinematic worlds (:mod:`plant.kinematic`, no physics process) all in one call."""
+    kin = [t for t in ticks if t.sim.kin is not None and t.physics is None]
+    if len(kin) > 1:
+        batch = kinematic.join([t.sim.kin for t in kin])
+        batch.step(np.array([r.targets for t in kin for r in t.sim.robots.values()], float))
+        finite = batch.finite()
+        for t in kin:
+            t.sim.steps += t.spec.substeps
+            if not (finite or t.stepper.finite()):
+                t.build()
+    else:
+        kin = []
+    for t in ticks:
+        if not kin or t.sim.kin is None or t.physics is not None:
+            t.step()
+
+
+def messages_of(ticks: Sequence[Tick], wanted: Sequence[dict[str, Wanted] | None]
+                ) -> list[list[tuple[str, str, object]]]:
+    """``list(tick.messages(wanted))`` of several worlds, the same messages, with every
+    world's lidars due now cast in one call (:func:`plant.lidar.scan_worlds`, robots
+    carrying the same lidar together)."""
+    scenes, groups = [], {}
+    for k, (t, want) in enumerate(zip(ticks, wanted)):
+        tick, w = t.t_ns // t.tick_ns, want or {}
+        scene = None
+        if any(s.needs_scene(tick, w.get(name)) for name, s in t.sensors.items()):
+            scene = Scene(t.stepper.shapes())
+        scenes.append(scene)
+        if scene is None:
+            continue
+        for name, s in t.sensors.items():
+            if s.lidar_due(tick) and (want is None or want[name]("scan")):
+                groups.setdefault(s.lidar, []).append((k, name, t.stepper.state(name).tf))
+    scans: list[dict] = [{} for _ in ticks]
+    for cfg, rows in groups.items():
+        idx = sorted({k for k, _, _ in rows})
+        at = {k: i for i, k in enumerate(idx)}
+        ranges = lid.scan_worlds(cfg, [scenes[k] for k in idx], [tf for _, _, tf in rows],
+                                 [name for _, name, _ in rows], [at[k] for k, _, _ in rows])
+        for (k, name, _), r in zip(rows, ranges):
+            scans[k][name] = r
+    return [list(tick_messages(t.t_ns, t.tick_ns, t.sensors, t.stepper.state, t.stepper.shapes,
+                               want, False, (scene, sc)))
+            for t, want, scene, sc in zip(ticks, wanted, scenes, scans)]
+
+
 def build_world(spec: WorldSpec, seed: int, disabled=()) -> tuple[Simulation, dict[str, RobotSensors]]:
     """A fresh world and its robots' sensors (noise streams seeded from ``seed``), with the
     sensors named in ``disabled`` ("lidar", "camera") taken off every robot."""
@@ -135,8 +188,8 @@ def build_world(spec: WorldSpec, seed: int, disabled=()) -> tuple[Simulation, di
 
 def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
                   state: Callable[[str], RobotState], shapes: Callable[[], list],
-                  wanted: dict[str, Wanted] | None = None, encoded: bool = False
-                  ) -> Iterator[tuple[str, str, object]]:
+                  wanted: dict[str, Wanted] | None = None, encoded: bool = False,
+                  cast: tuple | None = None) -> Iterator[tuple[str, str, object]]:
     """(robot, topic, message) of every sensor due at time ``t_ns``, robot by robot in a
     fixed order (the order the plant publishes them in). ``state(robot)`` gives a robot's
     true state, ``shapes()`` the world's solids (called only when a lidar or camera is due).
@@ -145,14 +198,18 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
     nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
     rendered) but its noise drawn, so every other value is what it would have been (None:
     every topic is built). ``encoded``: the messages' CDR bytes instead of the messages
-    (:meth:`RobotSensors.messages`)."""
+    (:meth:`RobotSensors.messages`). ``cast``: (scene, {robot: noise-free ranges}) of this
+    tick, made already (:func:`messages_of`)."""
     tick = t_ns // tick_ns
     want = wanted or {}
-    scene = None
-    if any(s.needs_scene(tick, want.get(name)) for name, s in sensors.items()):
-        scene = Scene(shapes())
     states = {name: state(name) for name in sensors}
-    scans = scan_all(sensors, states, tick, scene, wanted) if scene is not None else {}
+    if cast is not None:
+        scene, scans = cast
+    else:
+        scene = None
+        if any(s.needs_scene(tick, want.get(name)) for name, s in sensors.items()):
+            scene = Scene(shapes())
+        scans = scan_all(sensors, states, tick, scene, wanted) if scene is not None else {}
     for name, s in sensors.items():
         built = iter(s.messages(tick, t_ns, states[name], scene, scans.get(name),
                                 want.get(name), encoded))

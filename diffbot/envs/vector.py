@@ -7,9 +7,10 @@ Each of the N envs is an :class:`diffbot.envs.avoid.AvoidTask` on its own world
 single env after ``reset(seed=s + i)`` (a list of seeds: one each), step for step, to the
 bit, whatever the world mode (``overrides=("world.mode=kinematic",)`` or the world's
 dynamic one). Each control tick goes through every world in three passes: the commands
-and the physics step of each, then every world's sensor messages (:func:`messages_all`,
-the one place the batch reads its sensors: where a lidar kernel that casts N worlds'
-robots in one call plugs in), then each env's observation.
+of each and the step of all (:func:`plant.tick.step_ticks`: a kinematic world's robots,
+:mod:`plant.kinematic`, all worlds' in one call), then every world's sensor messages
+(:func:`plant.tick.messages_of`: every world's lidars cast in one call of the kernel),
+then each env's observation.
 
 Autoreset is Gymnasium 1.x's next-step mode (``metadata["autoreset_mode"]``): the step that
 ends env i's episode (terminated, or truncated at ``max_episode_steps``, 300 as registered)
@@ -25,16 +26,9 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from bus.controller import Twist
+from plant.tick import messages_of, step_ticks
 
 from .avoid import AvoidTask
-
-
-def messages_all(ticks, wanted) -> list[list]:
-    """Every world's sensor messages due now (robot, topic, message; ``wanted``: each
-    world's topics read), world by world: the batch's one call into the sensors per tick. Today each world casts its own robots'
-    lidars (:func:`plant.sensors.scan_all` inside :meth:`plant.tick.Tick.messages`: one
-    scene per world); a kernel taking several scenes would take them all here."""
-    return [list(t.messages(w)) for t, w in zip(ticks, wanted)]
 
 
 class AvoidVectorEnv(VectorEnv):
@@ -149,9 +143,9 @@ class AvoidVectorEnv(VectorEnv):
                 c = cmds[i]
                 for name in tick.sim.robots:
                     tick.drive(name, Twist(*c.get(name, (0.0, 0.0))))
-                tick.step()
+            step_ticks(ticks)
             wanted = [tr.wanted for tr in transports]
-            for i, tr, msgs in zip(live, transports, messages_all(ticks, wanted)):
+            for i, tr, msgs in zip(live, transports, messages_of(ticks, wanted)):
                 tr.take(msgs)
                 self.tasks[i]._observe(tr.tick.t_ns, tr.latest)
 
