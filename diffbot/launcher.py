@@ -61,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "processes (0: one process per robot; default: the scenario's)")
     p.add_argument("--physics", choices=("dynamic", "kinematic"), default=None,
                    help="generated-world scenario: DART contact physics (default) or the "
-                        "cheap kinematic mode (ideal unicycle, walls still stop robots)")
+                        "cheap kinematic mode (ideal unicycle arcs; footprints stop robots at "
+                        "walls, obstacles and each other)")
     p.add_argument("--compose", action=argparse.BooleanOptionalAction, default=None,
                    help="host the lockstep members (controllers, FMU nodes) inside the plant's "
                         "process instead of one process each: the same bytes, no process hop "

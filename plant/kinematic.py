@@ -50,6 +50,13 @@ class Kinematics:
     def __len__(self) -> int:
         return len(self.names)
 
+    def restart(self, spec: WorldSpec) -> None:
+        """Back at rest at ``spec``'s start poses, as ``Kinematics(spec)`` would be (in place:
+        a batch holding these arrays keeps them)."""
+        self.pose[:] = np.array([r.pose for r in spec.robots], float).reshape(-1, 3)
+        for a in (self.wheels, self.speeds, self.vel):
+            a[:] = 0.0
+
     def step(self, targets: np.ndarray) -> None:
         """One control tick with the wheel-speed targets (n, 2) (rad/s, left, right)."""
         step_arrays(self, np.asarray(targets, float).reshape(-1, 2))

@@ -143,16 +143,38 @@ class Simulation:
         self._movable_shapes = [self._shape_of(o) for o in self.objects if not o.static]
         #: the kinematic world's robots (plant.kinematic), None in a dynamic world
         self.kin = Kinematics(spec) if spec.mode == "kinematic" else None
-        if self.kin is not None:     # the parts ride on base_link: their poses relative to it
-            index = {name: i for i, name in enumerate(self.robots)}
-            self._part_owner = np.array([index[p[5]] for p in self._robot_parts], np.int64)
-            self._part_rel = np.array(
-                [np.linalg.inv(self.robots[p[5]].transform()) @ p[0].getWorldTransform().matrix()
-                 for p in self._robot_parts]).reshape(-1, 4, 4)
+        if self.kin is not None:
+            self._part_owner, self._part_rel = self._parts_on_base()
         self._scene_template = None
         self._scene_template = Scene(list(self.shapes()))     # built once per world
         self._set_contact_solver(spec.contact_solver)
         self.motion_rng = {r.name: make_rng(spec.seed, f"{r.name}/motion") for r in spec.robots}
+
+    def _parts_on_base(self) -> tuple[np.ndarray, np.ndarray]:
+        """A kinematic world's visible parts: each one's robot (index) and pose on its
+        base_link, read with every robot at the origin (so they do not depend on the
+        start poses: a restarted world has the same as a new one)."""
+        index = {name: i for i, name in enumerate(self.robots)}
+        for r in self.robots.values():
+            r.root.setPositions(np.zeros(3))
+        rel = np.array([np.linalg.inv(self.robots[p[5]].transform()) @ p[0].getWorldTransform().matrix()
+                        for p in self._robot_parts]).reshape(-1, 4, 4)
+        for r in self.robots.values():
+            r.root.setPositions(np.array(r.spec.pose, float))
+        return np.array([index[p[5]] for p in self._robot_parts], np.int64), rel
+
+    def restart(self) -> None:
+        """A kinematic world back at t = 0 with the spec's seed and start poses, as a new
+        ``Simulation(spec)`` would be, without building its DART world again (what a batched
+        environment's resets cost most)."""
+        assert self.kin is not None, "only a kinematic world restarts in place"
+        self.kin.restart(self.spec)
+        for name, r in self.robots.items():
+            r.targets = (0.0, 0.0)
+            self.limiters[name].reset()
+        self.steps = 0
+        self.motion_rng = {r.name: make_rng(self.spec.seed, f"{r.name}/motion")
+                           for r in self.spec.robots}
 
     def _set_contact_solver(self, name: str) -> None:
         """PGS honours the Coulomb friction limit; DART's default Dantzig solver over-grips

@@ -51,8 +51,11 @@ class Tick:
         self.build()
 
     def build(self) -> None:
-        """(Re)build the world at t = 0 with the spec's seed and start poses."""
-        self.sim, self.sensors = build_world(self.spec, self.spec.seed, self.disabled)
+        """(Re)build the world at t = 0 with the spec's seed and start poses (a kinematic
+        world in this process restarts in place: :meth:`plant.sim.Simulation.restart`)."""
+        old = getattr(self, "sim", None)
+        reuse = old if old is not None and old.kin is not None and not self.physics_process else None
+        self.sim, self.sensors = build_world(self.spec, self.spec.seed, self.disabled, reuse)
         if self.physics_process:
             if self.physics is None:
                 self.physics = PhysicsProcess(self.spec)
@@ -173,15 +176,21 @@ def messages_of(ticks: Sequence[Tick], wanted: Sequence[dict[str, Wanted] | None
             for t, want, scene, sc in zip(ticks, wanted, scenes, scans)]
 
 
-def build_world(spec: WorldSpec, seed: int, disabled=()) -> tuple[Simulation, dict[str, RobotSensors]]:
+def build_world(spec: WorldSpec, seed: int, disabled=(), restart: Simulation | None = None
+                ) -> tuple[Simulation, dict[str, RobotSensors]]:
     """A fresh world and its robots' sensors (noise streams seeded from ``seed``), with the
-    sensors named in ``disabled`` ("lidar", "camera") taken off every robot."""
+    sensors named in ``disabled`` ("lidar", "camera") taken off every robot; ``restart``: a
+    kinematic world of this spec, restarted instead of built anew."""
     for r in spec.robots:
         if "lidar" in disabled:
             r.sensors.lidar = None
         if "camera" in disabled:
             r.sensors.camera = None
-    sim = Simulation(spec)
+    if restart is not None:
+        restart.restart()
+        sim = restart
+    else:
+        sim = Simulation(spec)
     sensors = {r.name: RobotSensors(r, spec.control_tick_s, seed) for r in spec.robots}
     return sim, sensors
 
