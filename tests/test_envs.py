@@ -154,11 +154,32 @@ def test_swarm_parallel_api():
         env.close()
 
 
+def test_a_swarm_of_avoid_robots_has_avoids_spaces_and_steps_in_the_kinematic_world():
+    from pettingzoo.test import parallel_api_test
+    from diffbot.envs import swarm_v0
+    avoid = gym.make("diffbot/Avoid-v0")
+    swarm = swarm_v0.parallel_env(n_robots=3, robot="avoid", mode="kinematic")
+    plain = swarm_v0.parallel_env(n_robots=3)
+    try:
+        for a in swarm.possible_agents:       # an Avoid policy's input and output as they are
+            assert swarm.observation_space(a) == avoid.observation_space
+            assert swarm.action_space(a) == avoid.action_space
+            assert plain.observation_space(a) != avoid.observation_space    # 36 rays
+        assert swarm.task.spec.mode == "kinematic"
+        parallel_api_test(swarm, num_cycles=30)
+        swarm.reset(seed=2)
+        assert len(swarm.task.transport.tick.sim.kin) == 3      # every robot in one array
+    finally:
+        for e in (avoid, swarm, plain):
+            e.close()
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(240)
-def test_swarm_on_the_bus_matches_inproc():
+@pytest.mark.parametrize("mode", ["dynamic", "kinematic"])
+def test_swarm_on_the_bus_matches_inproc(mode):
     from diffbot.envs import swarm_v0
-    envs = [swarm_v0.parallel_env(n_robots=2, transport=t) for t in ("inproc", "bus")]
+    envs = [swarm_v0.parallel_env(n_robots=2, transport=t, mode=mode) for t in ("inproc", "bus")]
     try:
         outs = [e.reset(seed=4) for e in envs]
         rng = np.random.default_rng(1)

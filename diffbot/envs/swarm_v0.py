@@ -6,7 +6,11 @@ One agent per robot of the swarm world (:mod:`plant.swarm_world`, laid out from
 wall, an obstacle or another robot ends that robot's episode (it then stands still while
 the others go on). ``state()`` is the global state (``state_space``): every robot's true
 x, y, yaw and its goal's x, y in ``world``, robot after robot in ``possible_agents``
-order. Same two transports as the Gymnasium environments::
+order. ``robot="avoid"`` gives the robots ``diffbot/Avoid-v0``'s action and observation
+spaces (its drive limits and lidar rays, :func:`plant.swarm_world.swarm_world_text`), so a
+policy trained on Avoid drives each of them; ``mode="kinematic"`` steps every robot in one
+numpy call (:mod:`plant.kinematic`), as the batched Avoid does. Same two transports as the
+Gymnasium environments::
 
     from diffbot.envs import swarm_v0
     env = swarm_v0.parallel_env(n_robots=4)               # or transport="bus"
@@ -40,14 +44,15 @@ class SwarmEnv(ParallelEnv):
     def __init__(self, n_robots: int = 4, transport: str = "inproc", endpoint: str | None = None,
                  layout_seed: int = 0, action_repeat: int = 5, max_steps: int = 300,
                  goal_radius_m: float = 0.3, normalize_actions: bool = False,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, robot: str = "swarm",
+                 mode: str = "dynamic") -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         self._tmp = tempfile.mkdtemp(prefix="diffbot-swarm-")
         self._cleanup = weakref.finalize(self, shutil.rmtree, self._tmp, True)
         world = write_swarm_world(os.path.join(self._tmp, "swarm.toml"), int(n_robots),
-                                  int(layout_seed))
+                                  int(layout_seed), mode, robot)
         self.task = AvoidTask(world, transport, endpoint, action_repeat, max_steps,
                               goal_radius_m, (), normalize_actions)
         self.possible_agents = list(self.task.robots)
