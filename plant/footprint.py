@@ -58,20 +58,10 @@ class Footprints:
 
     def clearance(self, c: np.ndarray) -> float:
         """Distance (m) from point ``c`` to the nearest wall or low object."""
-        out = float(np.min(self.half - np.abs(c)))
-        if len(self.box_c):
-            d = c - self.box_c
-            lx = d[:, 0] * self.box_cos + d[:, 1] * self.box_sin
-            ly = -d[:, 0] * self.box_sin + d[:, 1] * self.box_cos
-            q = np.maximum(np.abs(np.stack([lx, ly], 1)) - self.box_half, 0.0)
-            out = min(out, float(np.min(np.hypot(q[:, 0], q[:, 1]))))
-        if len(self.circ_c):
-            d = np.hypot(*(c - self.circ_c).T) - self.circ_r
-            out = min(out, float(np.min(np.maximum(d, 0.0))))
-        return out
+        return float(self.clearances(np.asarray(c, float).reshape(1, 2))[0])
 
     def clearances(self, cs: np.ndarray) -> np.ndarray:
-        """:meth:`clearance` of M points ``cs`` (M, 2) at once, (M,), the same values."""
+        """:meth:`clearance` of M points ``cs`` (M, 2) at once, (M,)."""
         out = np.min(self.half - np.abs(cs), axis=1)
         if len(self.box_c):
             dx = cs[:, 0, None] - self.box_c[:, 0]
