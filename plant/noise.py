@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any, Mapping
 
 import numpy as np
@@ -39,6 +40,9 @@ __all__ = [
     "webots_position",
     "webots_gps",
     "WEBOTS_SCALES",
+    "alias_table",
+    "image_noise_law",
+    "image_noise_reference",
 ]
 
 
@@ -192,7 +196,13 @@ class NoiseModel:
         stay as they are (noise is still drawn for them, so the stream advances by
         exactly ``x.size`` normals per call whatever the values).
       * uint8 input (camera images): the same per element (per channel), rounded and
-        clipped to 0..255, returned as uint8.
+        clipped to 0..255, returned as uint8. Without quantisation (``resolution`` 0, the
+        usual case) the image is drawn by the C kernel plant/kernels/noise.c: one number
+        from the stream per image seeds the image's own generator, and each channel gets
+        ``clip(x + D, 0, 255)`` with D an integer drawn from the law of
+        ``rint(bias + mean + N(0, std))`` (:func:`alias_table`), which is the law of
+        ``clip(rint(x + bias + N(mean, std)))`` for a whole level x. With quantisation the
+        normals are drawn with numpy (float32, one per channel) and summed as stated.
       * other integer input: treated as float (returns float64).
     With ``std == 0`` no random numbers are drawn.
     """
@@ -202,13 +212,15 @@ class NoiseModel:
         self.rng = rng
         self._next_image_noise: np.ndarray | None = None   # drawn ahead of its apply
         self._spare: np.ndarray | None = None     # a buffer of the last image's shape
+        self._by_law = config.std > 0 and config.resolution == 0
 
     def prefetch_image(self, shape: tuple[int, ...]) -> None:
-        """Draw the next image's noise now (e.g. while the plant waits for its nodes).
+        """Draw the next image's noise now (e.g. while the plant waits for its nodes); an
+        image drawn by the C kernel (no quantisation) has nothing to draw ahead.
 
         The stream is the same with or without prefetching: the next ``apply`` of an
         image of this shape uses exactly these draws."""
-        if self.config.std > 0 and self._next_image_noise is None:
+        if self.config.std > 0 and not self._by_law and self._next_image_noise is None:
             self._next_image_noise = self._image_noise(shape)
 
     def _image_noise(self, shape) -> np.ndarray:
@@ -225,6 +237,10 @@ class NoiseModel:
             noise = self._image_noise(shape)
         return noise
 
+    def _image_seed(self) -> int:
+        """The one number an image drawn by the kernel takes from the stream."""
+        return int(self.rng.integers(0, 2 ** 64, dtype=np.uint64))
+
     def skip(self, shape: tuple[int, ...]) -> None:
         """Draw what ``apply`` of a float array (a 1-D ``shape``) or of an image (a 3-D
         ``shape``, uint8) would, and drop it: the stream stays where it would be had the
@@ -232,7 +248,10 @@ class NoiseModel:
         if self.config.std <= 0:
             return
         if len(shape) == 3:
-            self._spare = self._take_image_noise(tuple(shape))
+            if self._by_law:
+                self._image_seed()
+            else:
+                self._spare = self._take_image_noise(tuple(shape))
         else:
             self.rng.normal(0.0, self.config.std, size=shape)
 
@@ -251,13 +270,11 @@ class NoiseModel:
                 return arr.copy()
             # Images: single precision is plenty for 0..255 and several times faster.
             offset = np.float32(c.bias + c.mean)
-            if c.std > 0 and c.resolution == 0:
-                # (x + offset) + noise, rounded and clipped in one pass of the C kernel (the
-                # float32 arithmetic of the numpy path below, the same bytes)
-                noise = self._take_image_noise(arr.shape)
+            if self._by_law:
+                # x + D, D ~ rint(offset + N(0, std)), clipped: one pass of the C kernel
                 img = np.empty(arr.shape, dtype=np.uint8)
-                kernels.image_noise(np.ascontiguousarray(arr), noise, float(offset), img)
-                self._spare = noise                  # the next draw goes into it
+                kernels.image_noise(np.ascontiguousarray(arr), self._image_seed(),
+                                    alias_table(float(c.std), float(c.bias + c.mean)), img)
                 return img
             if c.std > 0:
                 # (x + offset) + noise, summed into the noise's own buffer (then reused)
@@ -283,3 +300,75 @@ class NoiseModel:
         return out
 
     __call__ = apply
+
+
+# ----------------------------------------------------------------------------------
+# The image noise's integer law (plant/kernels/noise.c draws from it)
+# ----------------------------------------------------------------------------------
+
+#: beyond this many std from the offset the law's tails (< 1e-32) are lumped into its ends
+_TAIL_SIGMAS = 12.0
+_GOLDEN = 0x9E3779B97F4A7C15
+
+
+def _phi(z: float) -> float:
+    return 0.5 * math.erfc(-z / math.sqrt(2.0))
+
+
+def image_noise_law(std: float, offset: float) -> tuple[int, np.ndarray]:
+    """``(lo, p)``: P(D = lo + i) = p[i] for D = rint(offset + N(0, std)) clamped to
+    [-255, 255] (past which every level clips alike), its tails beyond 12 std lumped
+    into its first and last values."""
+    lo = int(min(255, max(-255, math.floor(offset - _TAIL_SIGMAS * std))))
+    hi = int(min(255, max(-255, math.ceil(offset + _TAIL_SIGMAS * std))))
+    edges = [_phi((k + 0.5 - offset) / std) for k in range(lo, hi)]
+    p = np.diff(np.array([0.0, *edges, 1.0]))
+    return lo, np.clip(p, 0.0, None) / np.clip(p, 0.0, None).sum()
+
+
+@lru_cache(maxsize=32)
+def alias_table(std: float, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """Walker's alias table of :func:`image_noise_law` (Vose's construction): ``(thresholds
+    uint32 (K,), values uint16 (K, 2))``, values holding (alias, own) + 255. A 32-bit
+    uniform u with u K = j 2**32 + f gives values[j, 1] - 255 if f < thresholds[j], else
+    values[j, 0] - 255."""
+    lo, p = image_noise_law(std, offset)
+    k = p.size
+    q = list(p * k)
+    prob, alias = [1.0] * k, list(range(lo, lo + k))
+    small = [j for j in range(k) if q[j] < 1.0]
+    large = [j for j in range(k) if q[j] >= 1.0]
+    while small and large:
+        a, b = small.pop(), large.pop()
+        prob[a], alias[a] = q[a], lo + b
+        q[b] = (q[b] + q[a]) - 1.0
+        (small if q[b] < 1.0 else large).append(b)
+    thr = np.empty(k, dtype=np.uint32)
+    for j in range(k):
+        if prob[j] >= 1.0:                  # the whole column (the last 2**-32 included)
+            thr[j], alias[j] = 0xFFFFFFFF, lo + j
+        else:
+            thr[j] = min(0xFFFFFFFF, max(0, round(prob[j] * 2.0 ** 32)))
+    vals = np.stack([np.array(alias), np.arange(lo, lo + k)], axis=1) + 255
+    vals = np.ascontiguousarray(vals, dtype=np.uint16)
+    thr.flags.writeable = vals.flags.writeable = False
+    return thr, vals
+
+
+def image_noise_reference(img: np.ndarray, seed: int, std: float, offset: float) -> np.ndarray:
+    """plant/kernels/noise.c in numpy (the tests compare the bytes): the noisy image of
+    ``img`` (uint8) for the frame seed ``seed``."""
+    thr, vals = alias_table(float(std), float(offset))
+    x = np.ascontiguousarray(img).ravel()
+    i = np.arange(1, (x.size + 1) // 2 + 1, dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        z = np.uint64(seed) + i * np.uint64(_GOLDEN)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        z = z ^ (z >> np.uint64(31))
+    u = np.ascontiguousarray(z).view(np.uint32)[:x.size].astype(np.uint64)  # low, high halves
+    uk = u * np.uint64(thr.size)
+    j = (uk >> np.uint64(32)).astype(np.intp)
+    own = (uk & np.uint64(0xFFFFFFFF)).astype(np.uint32) < thr[j]
+    d = vals[j, own.astype(np.intp)].astype(np.intp) - 255
+    return np.clip(x.astype(np.intp) + d, 0, 255).astype(np.uint8).reshape(img.shape)

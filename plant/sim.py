@@ -51,10 +51,13 @@ class RobotState:
 
 
 def rotation_to_quaternion(m: np.ndarray) -> tuple[float, float, float, float]:
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    # Python floats: the same IEEE double arithmetic (and correctly rounded sqrt) as numpy's
+    # scalars, several times cheaper a call (the swarm's plant makes 24 a tick)
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(m)[:3, :3].tolist()
+    tr = m00 + m11 + m22
     if tr > 0:
-        s = np.sqrt(tr + 1.0) * 2
-        return ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s)
+        s = math.sqrt(tr + 1.0) * 2
+        return ((m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s)
     i = int(np.argmax([m[0, 0], m[1, 1], m[2, 2]]))
     j, k = (i + 1) % 3, (i + 2) % 3
     s = np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2

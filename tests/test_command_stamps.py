@@ -81,3 +81,43 @@ def test_decode_command_applies_the_rules_to_both_command_keys():
         with pytest.raises(ValueError, match="older than cmd_timeout"):
             decode(old)
         assert decode(old, check_age=False)[1] == old              # lockstep: no age check
+
+
+def test_the_twist_fast_path_reads_what_the_generic_decoder_reads():
+    """plant.commands reads a TwistStamped's canonical CDR layout itself (the generic
+    decoder costs ~10x): the same stamp, frame and six numbers for frames of every length
+    modulo 8, and anything else (a byte more or less, big-endian, no NUL, bad UTF-8) goes
+    to the generic decoder."""
+    import numpy as np
+    from rosbags.typesys.stores.ros2_humble import (builtin_interfaces__msg__Time as Time,
+                                                    geometry_msgs__msg__Twist as Twist,
+                                                    geometry_msgs__msg__TwistStamped as TS,
+                                                    geometry_msgs__msg__Vector3 as V3,
+                                                    std_msgs__msg__Header as Header)
+
+    from plant.commands import _twist_stamped
+    rng = np.random.default_rng(0)
+    for fid in ("", "a", "base_link", "r0/base_link", "robot12/base_link", "é/x", "b" * 37):
+        for _ in range(8):
+            v = rng.normal(size=6)
+            m = TS(header=Header(stamp=Time(sec=int(rng.integers(0, 2**31)),
+                                            nanosec=int(rng.integers(0, 10**9))), frame_id=fid),
+                   twist=Twist(linear=V3(*v[:3]), angular=V3(*v[3:])))
+            b = bytes(codec.TYPESTORE.serialize_cdr(m, "geometry_msgs/msg/TwistStamped"))
+            got, want = _twist_stamped(b), codec.decode(b, "geometry_msgs/msg/TwistStamped")
+            assert got is not None
+            assert (got[0].sec, got[0].nanosec) == (want.header.stamp.sec, want.header.stamp.nanosec)
+            assert got[1] == want.header.frame_id
+            tw = want.twist
+            assert got[2] == (tw.linear.x, tw.linear.y, tw.linear.z, tw.angular.x, tw.angular.y,
+                              tw.angular.z)
+            for other in (b + b"\0", b[:-1], b"\0\0" + b[2:]):
+                assert _twist_stamped(other) is None
+    bad = bytearray(b)
+    bad[16 + len(fid.encode())] = 1                     # no terminating NUL
+    assert _twist_stamped(bytes(bad)) is None
+    bad = bytearray(codec.TYPESTORE.serialize_cdr(
+        TS(header=Header(stamp=Time(sec=1, nanosec=0), frame_id="ab"),
+           twist=Twist(linear=V3(0, 0, 0), angular=V3(0, 0, 0))), "geometry_msgs/msg/TwistStamped"))
+    bad[16] = 0xFF                                      # not UTF-8
+    assert _twist_stamped(bytes(bad)) is None

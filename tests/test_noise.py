@@ -195,18 +195,23 @@ def test_prefetched_image_noise_is_the_same_stream():
 @pytest.mark.parametrize("bias", [0.0, 3.5])
 @pytest.mark.parametrize("resolution", [0.0, 4.0])
 def test_image_noise_is_the_stated_sum_drawn_ahead_or_not(bias, resolution):
-    """quantise(rint(clip((x + bias) + std * N(0, 1) float32))): the reference formula, drawn
-    image after image from the stream's own generator, whichever way the draws are fetched."""
-    from plant.noise import NoiseConfig, NoiseModel, make_rng
+    """With quantisation: quantise(rint(clip((x + bias) + std * N(0, 1) float32))), the
+    normals drawn image after image from the stream's own generator. Without: the C
+    kernel's image (its numpy reference) for one seed a frame taken from that generator.
+    Either way whether the draws are fetched ahead or not."""
+    from plant.noise import NoiseConfig, NoiseModel, image_noise_reference, make_rng
     img = np.random.default_rng(1).integers(0, 256, (12, 16, 3), dtype=np.uint8)
     cfg = NoiseConfig(std=20.0, bias=bias, resolution=resolution)
     ref_rng = make_rng(4, "robot1/camera")
     want = []
     for _ in range(4):
+        if not resolution:
+            seed = int(ref_rng.integers(0, 2 ** 64, dtype=np.uint64))
+            want.append(image_noise_reference(img, seed, 20.0, bias))
+            continue
         x = img.astype(np.float32) + np.float32(bias)
         x = x + ref_rng.standard_normal(img.shape, dtype=np.float32) * np.float32(20.0)
-        if resolution:
-            x = np.round(x / np.float32(resolution)) * np.float32(resolution)
+        x = np.round(x / np.float32(resolution)) * np.float32(resolution)
         want.append(np.clip(np.rint(x), 0, 255).astype(np.uint8))
     for how in ("none", "ahead"):
         m = NoiseModel(cfg, make_rng(4, "robot1/camera"))
@@ -218,3 +223,113 @@ def test_image_noise_is_the_stated_sum_drawn_ahead_or_not(bias, resolution):
         assert all(np.array_equal(a, b) for a, b in zip(want, got)), how
         assert len({id(g) for g in got}) == 4 and not any(np.shares_memory(a, b) for a in got
                                                           for b in got if a is not b)
+
+
+# ------------------------------------ the image noise's generator (plant/kernels/noise.c)
+
+def _levels(std, offset=0.0, x=128, shape=(240, 320, 3), seed=9, frames=1):
+    """Frames of a flat grey image through the kernel, as level differences (int)."""
+    m = NoiseModel(NoiseConfig(std=std, bias=offset), make_rng(seed, "robot1/camera"))
+    img = np.full(shape, x, np.uint8)
+    return np.stack([m.apply(img).astype(int) - x for _ in range(frames)])
+
+
+@pytest.mark.parametrize("std,offset", [(10.0, 0.0), (51.0, 0.0), (7.3, 2.25), (0.3, 0.4),
+                                        (300.0, -1.5)])
+def test_alias_table_holds_the_law_of_the_rounded_gaussian(std, offset):
+    """Every value's probability in the table is the law's to 2**-32 (a whole number of
+    the 32-bit uniform's values), and the law is rint(offset + N(0, std)) clamped to
+    [-255, 255]: P(D = k) = Phi((k + 1/2 - offset) / std) - Phi((k - 1/2 - offset) / std)."""
+    from math import erf, sqrt
+
+    from plant.noise import alias_table, image_noise_law
+    lo, p = image_noise_law(std, offset)
+    assert abs(p.sum() - 1.0) < 1e-12 and lo >= -255 and lo + p.size - 1 <= 255
+    phi = lambda z: 0.5 * (1.0 + erf(z / sqrt(2.0)))          # noqa: E731
+    for k in range(max(lo + 1, int(offset) - 3), min(lo + p.size - 1, int(offset) + 4)):
+        assert p[k - lo] == pytest.approx(phi((k + 0.5 - offset) / std)
+                                          - phi((k - 0.5 - offset) / std), abs=1e-12)
+    thr, vals = alias_table(std, offset)
+    held = np.zeros(p.size)
+    for j in range(thr.size):
+        own = (int(thr[j]) + (thr[j] == 0xFFFFFFFF)) / 2.0 ** 32
+        held[int(vals[j, 1]) - 255 - lo] += own / thr.size
+        held[int(vals[j, 0]) - 255 - lo] += (1.0 - own) / thr.size
+    assert np.abs(held - p).max() < 2 * 2.0 ** -32 * thr.size
+
+
+@pytest.mark.parametrize("std,offset", [(10.0, 0.0), (4.0, 1.7), (0.6, -0.3)])
+def test_image_noise_mean_and_std_are_the_models_within_the_standard_error(std, offset):
+    """230 400 channels of a flat grey frame: mean and std of the level difference within
+    5 standard errors of those of rint(offset + N(0, std)) (no clipping at level 128)."""
+    from plant.noise import image_noise_law
+    d = _levels(std, offset).ravel()
+    lo, p = image_noise_law(std, offset)
+    k = np.arange(lo, lo + p.size)
+    mean = float((p * k).sum())
+    sd = float(np.sqrt((p * (k - mean) ** 2).sum()))
+    n = d.size
+    assert abs(d.mean() - mean) < 5 * sd / np.sqrt(n)
+    kurt = float((p * (k - mean) ** 4).sum()) / sd ** 4
+    assert abs(d.std() - sd) < 5 * sd * np.sqrt((kurt - 1) / (4 * n))
+    if std >= 4:                        # the rounding adds 1/12 level^2 to the variance
+        assert sd == pytest.approx(np.sqrt(std ** 2 + 1 / 12), rel=1e-3)
+
+
+def test_image_noise_histogram_is_the_law():
+    """Pearson's chi-square of 230 400 draws against the law (std 2.5, offset 0.4), far
+    below what one in a million samples of the law would exceed."""
+    from plant.noise import image_noise_law
+    d = _levels(2.5, 0.4).ravel()
+    lo, p = image_noise_law(2.5, 0.4)
+    counts = np.bincount(d - lo, minlength=p.size)
+    expect = p * d.size
+    keep = expect > 20
+    stat = float((((counts[keep] - expect[keep]) ** 2) / expect[keep]).sum())
+    df = int(keep.sum()) - 1
+    assert stat < df + 7 * np.sqrt(2 * df)
+
+
+def test_image_noise_has_no_correlation_between_neighbours_frames_or_seeds():
+    """Correlations of the level differences within 5 / sqrt(n) of 0: channel to channel,
+    pixel to its right and lower neighbours, the two halves of one 64-bit number (elements
+    2m and 2m + 1), one frame to the next, and two seeds' frames."""
+    f = _levels(10.0, frames=2)                 # (2, 240, 320, 3)
+    g = _levels(10.0, seed=10)[0]
+    a = f[0]
+
+    def r(x, y):
+        return abs(np.corrcoef(x.ravel().astype(float), y.ravel().astype(float))[0, 1])
+    flat = a.ravel()
+    pairs = {
+        "next channel": (a[..., :-1], a[..., 1:]),
+        "right pixel": (a[:, :-1], a[:, 1:]),
+        "lower pixel": (a[:-1], a[1:]),
+        "one number's halves": (flat[0::2], flat[1::2]),
+        "next number": (flat[0:-2:2], flat[2::2]),
+        "next frame": (a, f[1]),
+        "another seed": (a, g),
+    }
+    for name, (x, y) in pairs.items():
+        assert r(x, y) < 5 / np.sqrt(x.size), name
+    assert not np.array_equal(a, f[1]) and not np.array_equal(a, g)
+
+
+def test_image_noise_is_reproducible_by_seed_and_draws_one_number_a_frame():
+    assert np.array_equal(_levels(10.0, frames=3), _levels(10.0, frames=3))
+    rng = make_rng(9, "robot1/camera")
+    m = NoiseModel(NoiseConfig(std=10.0), make_rng(9, "robot1/camera"))
+    m.apply(np.zeros((4, 4, 3), np.uint8))
+    m.skip((4, 4, 3))
+    rng.integers(0, 2 ** 64, dtype=np.uint64, size=2)
+    assert m.rng.random() == rng.random()
+
+
+def test_image_noise_clips_like_the_model_at_both_ends():
+    """Levels 0 and 255 under std 10: half the channels stay at the end they start at (the
+    law's mass on the far side of 0), the rest spread by the rounded Gaussian."""
+    for x, end in ((0, 0), (255, 255)):
+        m = NoiseModel(NoiseConfig(std=10.0), make_rng(2, "c"))
+        out = m.apply(np.full((200, 300, 3), x, np.uint8))
+        frac = np.mean(out == end)
+        assert abs(frac - (0.5 + 0.5 * 0.0398)) < 0.01     # P(rint(N) <= 0) = Phi(0.05)

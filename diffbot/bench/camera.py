@@ -4,6 +4,10 @@ from __future__ import annotations
 from .common import sensor_scene
 from .harness import Case, Context, suite
 
+#: issue 36's peer figures for a frame (quiet machine; neither peer is installable here)
+PEERS = {(160, 120): ("6.5 ms", "2.08 ms"), (320, 240): ("20.8 ms", "3.70 ms")}
+
+
 @suite("camera", "pinhole camera frames in the living room (follow world)")
 def camera_suite(ctx: Context):
     from dataclasses import replace
@@ -21,8 +25,10 @@ def camera_suite(ctx: Context):
         cfg = replace(base, width=w, height=h)
         cam.render(cfg, pose, scene, exclude_owner="follower")    # rays cached per size
         yield Case(f"render {w}x{h} + noise", lambda cfg=cfg: noise.apply(
-            cam.render(cfg, pose, scene, "follower")),
-            notes=f"target <= {target * 1e3:g} ms; noise std 10 (follow's), drawn in the call")
+            cam.render(cfg, pose, scene, "follower")), target=f"<= {target * 1e3:g} ms",
+            notes=f"noise std 10 (follow's), drawn in the call (plant/kernels/noise.c); "
+                  f"peers (issue 36, frame alone): PyBullet {PEERS[(w, h)][0]}, "
+                  f"MuJoCo {PEERS[(w, h)][1]}")
         yield Case(f"render {w}x{h}", lambda cfg=cfg: cam.render(cfg, pose, scene, "follower"),
                    notes=f"{where}; plant/kernels/camera.c")
     cfg = replace(base, width=160, height=120)

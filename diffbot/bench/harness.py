@@ -60,7 +60,8 @@ class Case:
 
     ``fn`` is ``fn(number) -> total seconds for number operations`` when ``timer`` is
     true, otherwise a plain callable (one call = one operation) timed with perf_counter.
-    ``number`` fixes the operations per repeat (default: auto-picked).
+    ``number`` fixes the operations per repeat (default: auto-picked). ``target``: the
+    figure an issue asks for (e.g. ``"<= 0.7 ms"``), printed beside the median.
     """
     name: str
     fn: Callable
@@ -68,6 +69,7 @@ class Case:
     unit: str = "s"
     notes: str = ""
     number: int | None = None
+    target: str = ""
     repeats: int | None = None
     warmup: int = 1
 
@@ -79,6 +81,7 @@ class Metric:
     name: str
     unit: str = "s"
     notes: str = ""
+    target: str = ""          # as Case.target
 
 
 @dataclass
@@ -189,11 +192,13 @@ class Result:
     number: int = 1
     notes: str = ""
     error: str | None = None
+    target: str = ""
 
     def as_dict(self) -> dict:
         return {"suite": self.suite, "name": self.name, "unit": self.unit, **stats(self.samples),
                 "repeats": len(self.samples), "number": self.number, "samples": self.samples,
-                "notes": self.notes, **({"error": self.error} if self.error else {})}
+                "notes": self.notes, **({"target": self.target} if self.target else {}),
+                **({"error": self.error} if self.error else {})}
 
 
 def _repeats(ctx: Context, own: int | None) -> int:
@@ -210,7 +215,8 @@ def run_case(ctx: Context, suite_name: str, case: Case) -> Result:
         (MIN_TIME_S, TARGET_TIME_S)
     number, samples = measure(timer, _repeats(ctx, case.repeats), case.number, case.warmup,
                               min_time, target)
-    return Result(suite_name, case.name, case.unit, samples, number, case.notes)
+    return Result(suite_name, case.name, case.unit, samples, number, case.notes,
+                  target=case.target)
 
 
 def run_probe(ctx: Context, suite_name: str, probe: Probe) -> list[Result]:
@@ -227,7 +233,7 @@ def run_probe(ctx: Context, suite_name: str, probe: Probe) -> list[Result]:
         vals = [float(r[m.key]) for r in runs if r.get(m.key) is not None]
         notes = "; ".join(x for x in (m.notes, probe.notes if i == 0 else "") if x)
         out.append(Result(suite_name, m.name, m.unit, vals, 1, notes,
-                          None if vals else f"no {m.key!r} in any run"))
+                          None if vals else f"no {m.key!r} in any run", m.target))
     return out
 
 
@@ -350,25 +356,25 @@ def table(results: list[Result], statuses: list[dict], info: dict) -> str:
            else "n/a"),
         "",
     ]
-    head = ["suite", "case", "median", "min", "p90", "max", "n", "notes"]
+    head = ["suite", "case", "median", "target", "min", "p90", "max", "n", "notes"]
     rows = []
     for r in results:
         if r.error:
-            rows.append([r.suite, r.name, "FAILED", "", "", "", "", r.error])
+            rows.append([r.suite, r.name, "FAILED", r.target, "", "", "", "", r.error])
             continue
         s = stats(r.samples)
         sc = time_scale(s["median"]) if r.unit == "s" else None
-        rows.append([r.suite, r.name, *(fmt_value(s[k], r.unit, sc)
-                                         for k in ("median", "min", "p90", "max")),
+        rows.append([r.suite, r.name, fmt_value(s["median"], r.unit, sc), r.target,
+                     *(fmt_value(s[k], r.unit, sc) for k in ("min", "p90", "max")),
                      f"{len(r.samples)}x{r.number}" if r.number > 1 else str(len(r.samples)),
                      r.notes])
     for st in statuses:
         if st["status"] == "skipped":
-            rows.append([st["name"], "(suite)", "skipped", "", "", "", "", st["reason"]])
+            rows.append([st["name"], "(suite)", "skipped", "", "", "", "", "", st["reason"]])
         elif st["status"] == "error" and "reason" in st:
-            rows.append([st["name"], "(suite)", "FAILED", "", "", "", "", st["reason"]])
+            rows.append([st["name"], "(suite)", "FAILED", "", "", "", "", "", st["reason"]])
     widths = [max([len(head[i])] + [len(row[i]) for row in rows]) for i in range(len(head) - 1)]
-    right = {2, 3, 4, 5, 6}
+    right = {2, 3, 4, 5, 6, 7}
 
     def line(cells):
         out = [c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))]

@@ -29,6 +29,7 @@ from .harness import Context, Metric, Probe, Skip, suite
 #: plant/raycast.py is the camera's, the lidar's noise is noise, not lidar
 PHASES: list[tuple[str, tuple[str, ...]]] = [
     ("image noise", ("NoiseModel.prefetch_image", "NoiseModel._image_noise",
+                     "image_noise (plant/kernels/__init__.py", "NoiseModel._image_seed",
                      "prefetch (plant/sensors.py")),
     ("noise (other)", ("(plant/noise.py",)),
     ("camera render", ("(plant/camera.py", "(plant/lens.py")),

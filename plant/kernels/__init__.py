@@ -19,7 +19,8 @@ import numpy as np
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr"]
 
 ABI = 3
-CAMERA_ABI = 1
+CAMERA_ABI = 2
+NOISE_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -46,7 +47,8 @@ def load(path: Path) -> ctypes.CDLL:
         raise KernelsMissing(f"the plant's C kernels are not built ({path} is missing): run "
                              "`make setup` (or `python -m plant.kernels.build`)")
     lib = ctypes.CDLL(str(path))
-    for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI)):
+    for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI),
+                       ("plant_noise_abi", NOISE_ABI)):
         abi = getattr(lib, name)() if hasattr(lib, name) else None
         if abi != want:
             raise KernelsMissing(f"{path} is out of date ({name} {abi}, expected {want}): "
@@ -55,7 +57,7 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_camera_render.argtypes = ([_P] * 4 + [_I, _P, _I, _P, _P, _I, _I, _D, _D, _D, _P, _P,
                                          _D, _D] + [_P] * 5)
     lib.plant_image_noise.restype = None
-    lib.plant_image_noise.argtypes = [_P, _P, ctypes.c_float, _I, _P]
+    lib.plant_image_noise.argtypes = [_P, _I, ctypes.c_uint64, _I, _P, _P, _P]
     lib.plant_lidar_scan.restype = None
     lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
     return lib
@@ -117,12 +119,16 @@ def camera_work(w: int, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return bufs
 
 
-def image_noise(img: np.ndarray, noise: np.ndarray, offset: float, out: np.ndarray) -> None:
-    """``out`` = clip(rint((img + offset) + noise), 0, 255) as uint8, in float32 (the last
-    pass of :meth:`plant.noise.NoiseModel.apply` on an image): ``img`` uint8, ``noise``
-    float32 (the scaled draws), all C-contiguous and of one size."""
-    assert img.size == noise.size == out.size
-    library().plant_image_noise(ptr(img), ptr(noise), offset, img.size, ptr(out))
+def image_noise(img: np.ndarray, seed: int, table: tuple[np.ndarray, np.ndarray],
+                out: np.ndarray) -> None:
+    """``out`` = clip(``img`` + D, 0, 255) per element, D drawn from the alias ``table``
+    ``(thresholds uint32 (K,), values + 255 uint16 (K, 2))`` (:func:`plant.noise.alias_table`)
+    with the frame's numbers from ``seed`` (plant/kernels/noise.c): ``img`` and ``out``
+    uint8, C-contiguous, of one size."""
+    assert img.size == out.size and img.dtype == out.dtype == np.uint8
+    thr, vals = table
+    library().plant_image_noise(ptr(img), img.size, seed, thr.size, ptr(thr), ptr(vals),
+                                ptr(out))
 
 
 class LidarWork:

@@ -1,6 +1,6 @@
 /* The camera's per-pixel work in C (plant/camera.py calls it): every pixel's ray against
  * the shapes whose projected bounding box covers it, a z-buffer on the optical depth,
- * Lambert shading through the colour table, and the image noise's final pass.
+ * Lambert shading through the colour table (the image noise is plant/kernels/noise.c).
  *
  * Conventions are plant/camera.py's: the ray of pixel (u, v) is (xn, yn, 1) in the optical
  * frame (z forward, x right, y down), xn = (u - cx) / f, yn = (v - cy) / f without
@@ -16,7 +16,7 @@
 #define EXPORT __attribute__((visibility("default")))
 #define LEVELS 256
 
-EXPORT int plant_camera_abi(void) { return 1; }
+EXPORT int plant_camera_abi(void) { return 2; }
 
 /* fmin / fmax for numbers (no NaN reaches them here but 0 * inf's, which they drop) */
 static inline double mn(double a, double b) { return (a <= b || b != b) ? a : b; }
@@ -284,18 +284,5 @@ EXPORT void plant_camera_render(
         memcpy(rgb + 3 * q, &c, 3);              /* RGBA words, little-endian bytes */
         if (sid[q] < 0)
             depth[q] = INFINITY;
-    }
-}
-
-/* The last pass of an image's noise (noise.NoiseModel.apply on uint8, no resolution):
- * out = clip(rint((img + offset) + noise), 0, 255), in float32 as numpy does it; noise
- * holds the draws already scaled by the std. */
-EXPORT void plant_image_noise(const uint8_t *img, const float *noise, float offset,
-                              int64_t n, uint8_t *out)
-{
-    for (int64_t i = 0; i < n; i++) {
-        float x = offset != 0.0f ? (float)img[i] + offset : (float)img[i];
-        float y = rintf(noise[i] + x);
-        out[i] = (uint8_t)(y < 0.0f ? 0.0f : (y > 255.0f ? 255.0f : y));
     }
 }
