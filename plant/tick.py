@@ -131,7 +131,9 @@ def step_ticks(ticks: Sequence[Tick]) -> None:
     """``tick.step()`` of several worlds (a batched environment's), each to the bit as
     alone: kinematic worlds (:mod:`plant.kinematic`, no physics process) all in one call."""
     kin = [t for t in ticks if t.sim.kin is not None and t.physics is None]
-    if len(kin) > 1:
+    if len(kin) < 2:
+        kin = []
+    else:
         batch = kinematic.join([t.sim.kin for t in kin])
         batch.step(np.array([r.targets for t in kin for r in t.sim.robots.values()], float))
         finite = batch.finite()
@@ -139,10 +141,9 @@ def step_ticks(ticks: Sequence[Tick]) -> None:
             t.sim.steps += t.spec.substeps
             if not (finite or t.stepper.finite()):
                 t.build()
-    else:
-        kin = []
+    stepped = {id(t) for t in kin}
     for t in ticks:
-        if not kin or t.sim.kin is None or t.physics is not None:
+        if id(t) not in stepped:
             t.step()
 
 
