@@ -64,6 +64,7 @@ def plant(procs, endpoint, tmp_path, *extra, world="empty"):
     return p
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 def test_lockstep_member_killed_leaves_sync_set_at_once(procs, endpoint, bus, tmp_path):
     # the controller is not --expect'ed: dropped when it goes, not lost (an expected one
     # ends the run: tests/test_faults.py)
