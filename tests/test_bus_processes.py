@@ -95,6 +95,7 @@ def test_lockstep_member_killed_leaves_sync_set_at_once(procs, endpoint, bus, tm
     assert "the others go on without it" in procs.log(p)
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 def test_realtime_watchdog_stops_robot_after_cmd_timeout(procs, endpoint, bus, tmp_path):
     plant(procs, endpoint, tmp_path, "--mode", "realtime")
     s = bus()

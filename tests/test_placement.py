@@ -113,6 +113,7 @@ def placed(procs, cluster, out: str, *args: str):
                          "--place", "plant=head,*=worker", env=ray_env(cluster))
 
 
+@pytest.mark.serial      # the plant exits within the stop grace (exit_codes): alone under xdist
 @pytest.mark.slow
 @pytest.mark.timeout(420)
 def test_placed_square_gives_the_local_runs_summary(cluster, procs, tmp_path):
