@@ -41,8 +41,12 @@ demo: setup
 
 # As CI runs it: CI set (a missing FMU or tool fails instead of skipping; Hypothesis
 # derandomised, fewer examples: tests/conftest.py) unless the environment says otherwise.
+# On TEST_WORKERS pytest-xdist workers: a file's tests on one worker, the tests marked
+# `serial` (wall-clock promises, machine-wide state) alone (tests/conftest.py).
+# TEST_WORKERS=0: one process, as plain `pytest`.
+TEST_WORKERS ?= 2
 test: setup netns-tools
-	CI=$${CI:-true} $(BIN)/python -m pytest -q
+	CI=$${CI:-true} $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 
 # tests/test_netns.py needs `ip` (iproute2) and `openssl`, the Ecos runs of tests/test_plant_fmu.py
 # libtbb.so.12 (libtbb12). Installed only when missing,

@@ -1,6 +1,8 @@
 """Shared fixtures: a private bus endpoint per test and processes that are always cleaned up."""
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import shutil
 import signal
@@ -33,6 +35,71 @@ settings.load_profile(HYPOTHESIS_PROFILE)
 def examples(n: int) -> int:
     """``max_examples`` for a property that asks for ``n`` on a developer's machine."""
     return max(20, n // 3) if HYPOTHESIS_PROFILE == "ci" else n
+
+
+# ---------------------------------------------------------------- parallel runs (xdist)
+# `make test` runs the suite on two pytest-xdist workers (`-n 2 --dist loadgroup`). Three
+# rules keep that as reliable as one worker:
+# - the tests of a file stay on one worker (their module and session fixtures run once), a
+#   file's ``xdist_group`` mark putting it with the other files of the same group (the
+#   Ray cluster's tests; the ROS 2 tests, whose DDS domains are numbered per worker; the
+#   files that share a session run);
+# - a test marked ``serial`` runs alone: the other worker waits between two of its tests
+#   until it is done. For what a second worker would disturb: wall-clock promises (a
+#   realtime plant's pace, detection within a lease, exits within a grace), system-wide
+#   state (multicast memberships, the default port, network namespaces);
+# - every other test holds a shared lock while it runs, so a serial one waits for it.
+# Without xdist (plain `pytest`, `make test-fast`) none of this does anything.
+_LOCK_DIR = "DIFFBOT_TEST_LOCK_DIR"
+
+
+def pytest_configure(config):
+    if not hasattr(config, "workerinput") and getattr(config.option, "numprocesses", None):
+        os.environ[_LOCK_DIR] = tempfile.mkdtemp(prefix="dbt-lock-")   # the workers inherit it
+
+
+def pytest_unconfigure(config):
+    d = os.environ.get(_LOCK_DIR)
+    if d and not hasattr(config, "workerinput"):
+        shutil.rmtree(d, ignore_errors=True)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """A test with no ``xdist_group`` is grouped with its file (before xdist reads the
+    groups: tryfirst)."""
+    for item in items:
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+
+
+@contextlib.contextmanager
+def _turn(exclusive: bool):
+    """The suite lock: exclusive for a ``serial`` test, shared otherwise. A gate taken
+    first keeps a waiting exclusive turn from being passed by one shared turn after
+    another."""
+    d = os.environ.get(_LOCK_DIR)
+    if not d or not os.environ.get("PYTEST_XDIST_WORKER"):
+        yield
+        return
+    with open(os.path.join(d, "gate"), "a") as gate, open(os.path.join(d, "lock"), "a") as lock:
+        fcntl.flock(gate, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        finally:
+            fcntl.flock(gate, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Setup (module and session fixtures included), call and teardown in one turn; the
+    outermost wrapper, so waiting for the turn does not count in pytest-timeout's time."""
+    with _turn(item.get_closest_marker("serial") is not None):
+        yield
 
 
 #: programs libraries run for a quick answer (platform.processor(), the docs' file list):
@@ -209,3 +276,21 @@ def check_realtime_pace(stats: dict, rate: float = 1.0, tick_s: float = 0.02) ->
         behind = wall - sim / rate
         assert behind <= max(STALL_S, 5 * tick_s / rate) + SLACK_S, \
             f"{behind:.3f} s behind the wall clock at --rate {rate:g}, and no stall reported"
+
+
+@pytest.fixture(scope="session")
+def square_seed0(tmp_path_factory):
+    """``diffbot run square --seed 0 --record`` (the scenario's whole square, lockstep),
+    run once for the files that compare against it (tests/test_netns.py: the recording;
+    tests/test_plant_fmu.py: the odometry error), and by whichever runs first: a test run
+    alone runs it too. Those files are one xdist group, so one worker runs it.
+    {"out": results folder, "mcap": recording, "summary": summary.json}."""
+    d = tmp_path_factory.mktemp("square_seed0")
+    out, mcap = d / "out", d / "square.mcap"
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square", "--seed", "0",
+                        "--out", str(out), "--record", str(mcap)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    import json
+    return {"out": str(out), "mcap": str(mcap),
+            "summary": json.loads((out / "summary.json").read_text())}

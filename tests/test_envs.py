@@ -18,6 +18,9 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 import diffbot.envs  # noqa: E402,F401
 from diffbot.procs import alive, descendants  # noqa: E402
 
+#: xdist_group: the bus envs' tests on one worker (tests/test_envs.py looks for the socket
+#: folders they leave in /tmp, which another worker's envs would make meanwhile)
+pytestmark = pytest.mark.xdist_group("envs")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 

@@ -22,7 +22,8 @@ import zenoh
 from .conftest import ROOT, wait_for
 from .test_scenarios import processes_mentioning
 
-pytestmark = pytest.mark.slow
+#: serial: multicast memberships and the default port are the whole machine's (a second xdist worker would disturb it: tests/conftest.py)
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 CONFIGS = os.path.join(ROOT, "diffbot", "configs")
 LOOPBACK = {"127.0.0.1", "::1"}
 

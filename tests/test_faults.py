@@ -40,7 +40,8 @@ from plant.modes import STALL_S
 from .conftest import ROOT, SLACK_S, require_built_fmus, wait_for
 from .test_scenarios import processes_mentioning
 
-pytestmark = pytest.mark.slow
+#: serial: kills and freezes processes and times their answers against the wall clock (a second xdist worker would disturb it: tests/conftest.py)
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 K = Keys()
 LEASE_S = 1.0
 

@@ -30,6 +30,8 @@ from fmus import fmu_node
 
 from .conftest import ROOT, require_built_fmus, wait_for
 
+#: xdist_group: with test_fmu_odometry, one worker builds the session's FMUs (conftest.built_fmus)
+pytestmark = pytest.mark.xdist_group("fmus")
 K = Keys()
 TOL = 1e-9
 R, D = 0.12, 0.36

@@ -46,6 +46,7 @@ def test_same_seed_gives_a_byte_identical_tracking_csv(tmp_path):
     assert ta == tb
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 def test_realtime_follower_keeps_up(tmp_path):
     s = run_follow(tmp_path, "--mode", "realtime", "--duration", "15")
     m = s["metrics"]

@@ -146,6 +146,7 @@ def test_a_future_stamp_is_a_protocol_error_and_never_acts(procs, endpoint, tmp_
     assert w1.truth == w0.truth
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 @pytest.mark.slow
 @pytest.mark.parametrize("how", ["SIGKILL", "never acks"])
 def test_a_lost_end_with_member_ends_the_run_at_once(procs, endpoint, tmp_path, how):

@@ -40,7 +40,8 @@ import pytest
 
 from .conftest import ROOT, Procs, wait_for
 
-pytestmark = pytest.mark.slow
+#: xdist_group: with tests/test_plant_fmu.py, on the worker that runs conftest.square_seed0
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("square_seed0")]
 
 DURATION_S = "4"
 SCHEDULE = "2:1,1;2:1,-1"
@@ -412,18 +413,14 @@ def run_doc_steps(tmp: str, net: Net, r: Procs) -> dict:
     return started
 
 
-def test_documented_square_on_three_machines_records_what_one_machine_does(tmp_path, net):
+def test_documented_square_on_three_machines_records_what_one_machine_does(tmp_path, net,
+                                                                           square_seed0):
     """docs/several-machines.md's commands, as printed, in three namespaces through the
     shipped mutual-TLS, access-controlled router: the square ends where `diffbot run
     square` ends, and the recorder (certificate "recorder") gets every topic, every
     message, byte for byte the one-machine recording."""
     tmp = str(tmp_path)
-    local = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square", "--seed", "0",
-                            "--out", os.path.join(tmp, "local"), "--record",
-                            os.path.join(tmp, "local.mcap")],
-                           cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert local.returncode == 0, local.stderr
-    summary = json.load(open(os.path.join(tmp, "local", "summary.json")))
+    summary = square_seed0["summary"]            # `diffbot run square --seed 0 --record`
     r = Procs(tmp)
     try:
         p = run_doc_steps(tmp, net, r)
@@ -435,7 +432,7 @@ def test_documented_square_on_three_machines_records_what_one_machine_does(tmp_p
         r.cleanup()
     stats = json.load(open(os.path.join(tmp, "plant.json")))
     assert stats["sim_time_s"] == pytest.approx(summary["sim_time_s"])
-    a, b = messages(os.path.join(tmp, "local.mcap")), messages(os.path.join(tmp, "square.mcap"))
+    a, b = messages(square_seed0["mcap"]), messages(os.path.join(tmp, "square.mcap"))
     topics = sorted({t for t, _, _ in a})
     assert sorted({t for t, _, _ in b}) == topics
     assert b == a

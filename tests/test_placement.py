@@ -19,6 +19,8 @@ from diffbot.scenario import load_scenario
 from .conftest import wait_for
 from .test_exposure import cmdline
 
+#: xdist_group: one worker starts the session's Ray cluster (conftest.ray_cluster)
+pytestmark = pytest.mark.xdist_group("ray")
 SQUARE = ("run", "square", "--seed", "0", "--duration", "12")
 #: what differs between two runs of the same lockstep scenario, wherever they run
 NOT_COMPARED = {"wall_time_s", "plant_wall_time_s", "real_time_factor", "plant_per_tick_ms",
@@ -111,6 +113,7 @@ def placed(procs, cluster, out: str, *args: str):
                          "--place", "plant=head,*=worker", env=ray_env(cluster))
 
 
+@pytest.mark.serial      # the plant exits within the stop grace (exit_codes): alone under xdist
 @pytest.mark.slow
 @pytest.mark.timeout(420)
 def test_placed_square_gives_the_local_runs_summary(cluster, procs, tmp_path):

@@ -35,6 +35,7 @@ def test_a_child_that_exits_reports_its_code_and_log_tail(tmp_path):
     assert c.wall_s > 0
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 @pytest.mark.slow
 def test_a_child_that_ignores_sigint_is_killed_after_the_grace(tmp_path):
     c = procs.Child("stubborn", _py("""

@@ -17,7 +17,8 @@ from bridges.mcapfile import McapRecording
 
 from .conftest import SLACK_S, check_realtime_pace, wait_for
 
-pytestmark = pytest.mark.slow
+#: serial: pacing against the wall clock (a second xdist worker would disturb it: tests/conftest.py)
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 K = Keys()
 TICK_NS = 20_000_000
 

@@ -289,6 +289,7 @@ def test_ctrl_c_to_the_launcher_leaves_a_complete_recording(tmp_path):
     assert rosbags_storage(file) == {t: (types[t], n) for t, n in counts.items()}
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 @pytest.mark.slow
 def test_sigkill_loses_at_most_the_last_flush_period(procs, endpoint, tmp_path):
     plant = procs.diffbot("plant", "--world", "empty", "--mode", "realtime", "--endpoint",
@@ -311,6 +312,7 @@ def test_sigkill_loses_at_most_the_last_flush_period(procs, endpoint, tmp_path):
     assert plant.poll() is None
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 @pytest.mark.slow
 def test_topics_and_echo_against_a_running_plant(procs, endpoint):
     plant = procs.diffbot("plant", "--world", "empty", "--mode", "realtime", "--endpoint",

@@ -27,7 +27,8 @@ _latched = latched
 rclpy = pytest.importorskip(
     "rclpy", reason="rclpy is not importable: `pip install -e '.[ros2]'` (make setup does)")
 
-pytestmark = pytest.mark.slow
+#: one xdist worker for the ROS 2 tests: their DDS domains are numbered per process (ros2_peer)
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ros2")]
 
 EXAMPLE = os.path.join(ROOT, "examples", "ros2", "square_path.py")
 

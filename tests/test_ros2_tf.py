@@ -19,7 +19,8 @@ from tests.ros2_peer import domain_id, latched, peer_factory  # noqa: F401  (a f
 rclpy = pytest.importorskip(
     "rclpy", reason="rclpy is not importable: `pip install -e '.[ros2]'` (make setup does)")
 
-pytestmark = pytest.mark.slow
+#: one xdist worker for the ROS 2 tests: their DDS domains are numbered per process (ros2_peer)
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ros2")]
 
 
 def _matrix(translation, q) -> np.ndarray:

@@ -28,7 +28,8 @@ from .compare_recordings import compare, topics_of
 from .conftest import ROOT, Procs, wait_for
 from .test_netns import net, start_router, tls_machines  # noqa: F401  (net: a fixture)
 
-pytestmark = pytest.mark.slow
+#: serial: outages and graces timed against the wall clock (a second xdist worker would disturb it: tests/conftest.py)
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 
 CLIENT = os.path.join(ROOT, "diffbot", "configs", "client.json5")
 #: long enough in simulated time for the blips below to come before the end on a quiet

@@ -39,6 +39,7 @@ def finish(p: subprocess.Popen, timeout: float = 120) -> tuple[int, str]:
 
 # ---------------------------------------------------------------------- SIGTERM
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_sigterm_to_diffbot_run_does_what_ctrl_c_does(tmp_path, sig):
     out = tmp_path / "run"
@@ -110,6 +111,7 @@ def test_a_process_not_required_may_die_without_ending_the_run(tmp_path, require
 
 # ---------------------------------------------------------------------- --join-timeout
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 def test_join_timeout_ends_a_plant_whose_expected_member_never_joins(procs, endpoint, tmp_path):
     stats = tmp_path / "plant.json"
     p = procs.diffbot("plant", "--world", "empty", "--mode", "lockstep", "--expect",
@@ -127,6 +129,7 @@ def test_join_timeout_ends_a_plant_whose_expected_member_never_joins(procs, endp
     assert s["ticks"] == 0 and s["sim_time_s"] == 0
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 def test_join_timeout_is_waited_out_in_full(procs, endpoint):
     p = procs.diffbot("plant", "--world", "empty", "--mode", "lockstep", "--expect", "ghost",
                       "--join-timeout", "3", "--endpoint", endpoint, name="plant")

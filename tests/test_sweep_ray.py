@@ -14,7 +14,8 @@ from .test_sweep import NOISE, _cmdline, read_rows
 
 ray = pytest.importorskip("ray", reason="the [cluster] extra (make setup installs it)")
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(420)]
+#: xdist_group: one worker starts the session's Ray cluster (conftest.ray_cluster)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(420), pytest.mark.xdist_group("ray")]
 SWEEP = ("sweep", "drive-test", "--grid", f"{NOISE}=0.05,0.2", "--seeds", "0-2",
          "--duration", "10.5")
 #: what must be identical between engines: the parameters and every metric

@@ -206,6 +206,7 @@ def test_a_failed_connection_names_the_endpoint_and_the_cause(tmp_path, certs, o
 REFUSED_WITHIN_S = 5.0
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 @pytest.mark.slow
 def test_a_foreign_ca_or_no_tls_is_refused_within_5_s_on_both_sides(tmp_path, certs,
                                                                     other_ca):
