@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
 from contextvars import ContextVar
 from dataclasses import dataclass
 
@@ -60,7 +59,7 @@ from .member import with_own_stats
 from .protocol import ProtocolError
 from .runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
 from .session import (BusConfigError, add_process_args, close_session, install_stop_signals,
-                      make_config, open_session)
+                      open_session, open_when_listening)
 
 #: the API a controller script uses (``from bus.node import Twist, run_node``)
 __all__ = ["Controller", "Observation", "Twist", "WheelSpeeds", "node_arg_parser",
@@ -223,16 +222,10 @@ def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Sessi
     a plant listens (a Zenoh client cannot open without its router)."""
     if not wait or args.zenoh_config:
         return open_session("node", args.endpoint, args.zenoh_config)
-    conf = make_config("node", args.endpoint)
-    conf.insert_json5("connect/timeout_ms", "1000")
-    said = False
-    while True:
-        try:
-            return zenoh.open(conf)
-        except Exception as exc:
-            if "connect" not in str(exc).lower():
-                raise BusConfigError(f"bad endpoint {args.endpoint!r}: {exc}") from None
+    said = []
+
+    def missed(exc: Exception) -> None:
         if not said:
             log.info("no plant at %s yet; waiting for one (--wait)", args.endpoint)
-            said = True
-        time.sleep(0.2)
+            said.append(exc)
+    return open_when_listening(args.endpoint, missed, pause_s=0.2)

@@ -148,6 +148,25 @@ def _open_in_attempts(conf: zenoh.Config) -> zenoh.Session:
         conf.insert_json5("connect/timeout_ms", json.dumps(total))   # (diagnose reads it)
 
 
+def open_when_listening(endpoint: str, missed, pause_s: float = 0.2) -> zenoh.Session:
+    """A client session to ``endpoint`` (the default config), tried again until a router
+    listens there: a Zenoh client cannot open without its router, and one not up yet is
+    waited for (``diffbot node --wait``, an environment starting its plant). Each attempt
+    gives up after ATTEMPT_MS; then ``missed(exc)`` is called, which may raise to stop
+    (a deadline, a plant that exited), and the next attempt follows ``pause_s`` later. An
+    error that is not about connecting (a bad endpoint) is a BusConfigError at once."""
+    conf = make_config("node", endpoint)
+    conf.insert_json5("connect/timeout_ms", str(ATTEMPT_MS))
+    while True:
+        try:
+            return zenoh.open(conf)
+        except Exception as exc:
+            if "connect" not in str(exc).lower():
+                raise BusConfigError(f"bad endpoint {endpoint!r}: {exc}") from None
+            missed(exc)
+        time.sleep(pause_s)
+
+
 def add_bus_args(parser: argparse.ArgumentParser) -> None:
     """The bus options every diffbot process takes."""
     g = parser.add_argument_group("bus")
