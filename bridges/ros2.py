@@ -40,7 +40,7 @@ from bus import codec
 from . import urdf
 from bus.cliargs import ArgumentParser
 from bus.jsonio import write_stats
-from bus.keys import Keys, check_name
+from bus.keys import Keys, split_names
 from bus.log import RejectCounter, setup_logging
 from bus.inputs import ABSURD_INPUT
 from bus.runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
@@ -107,9 +107,8 @@ class Bridge:
         self.lockstep = bool(args.lockstep)
         self.trigger = args.trigger
         known = list(info.get("robots", {}))
-        self.robots = args.robots.split(",") if args.robots else known
+        self.robots = split_names(args.robots) if args.robots else known
         for r in self.robots:
-            check_name(r, "robot name")
             if r not in known:
                 raise ValueError(f"robot {r!r} is not in the plant's world "
                                  f"(robots: {', '.join(known) or 'none'})")

@@ -50,10 +50,10 @@ from dataclasses import dataclass
 import zenoh
 
 from . import controller as hooks
-from .cliargs import ArgumentParser
+from .cliargs import ArgumentParser, name_arg, names_arg
 from .controller import Controller, Observation, Twist, WheelSpeeds, default_name
 from .jsonio import write_stats
-from .keys import Keys, check_name
+from .keys import Keys, check_name, check_names
 from .log import setup_logging
 from .member import with_own_stats
 from .protocol import ProtocolError
@@ -68,13 +68,13 @@ __all__ = ["Controller", "Observation", "Twist", "WheelSpeeds", "node_arg_parser
 
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:
     p = _NodeParser(description=description)
-    p.add_argument("--robot", default="robot1", type=_name_arg("robot name"),
+    p.add_argument("--robot", default="robot1", type=name_arg("robot name"),
                    help="robot to control (default robot1)")
-    p.add_argument("--robots", default=None, type=_names_arg, metavar="R1,R2,...",
+    p.add_argument("--robots", default=None, type=names_arg, metavar="R1,R2,...",
                    help="drive several robots from this one process: one controller object "
                         "per robot, one lockstep member (the default node name uses the "
                         "first robot)")
-    p.add_argument("--name", default=default_name, type=_name_arg("node name"),
+    p.add_argument("--name", default=default_name, type=name_arg("node name"),
                    help="node name on the bus (default <controller>_<robot>)")
     p.add_argument("--wait", action="store_true",
                    help="wait for a plant to start, and when it goes away (killed, frozen, "
@@ -85,17 +85,6 @@ def node_arg_parser(description: str, default_name: str | None = None) -> argpar
     return p
 
 
-def _name_arg(what: str):
-    """argparse type: a name that is one safe key segment (no '*', '$', '/', not empty)."""
-    def check(value: str) -> str:
-        try:
-            return check_name(value, what)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-    check.__name__ = what
-    return check
-
-
 class _NodeParser(ArgumentParser):
     """With ``--robots``, ``args.robot`` is the first of them (default node names use it)."""
 
@@ -104,17 +93,6 @@ class _NodeParser(ArgumentParser):
         if getattr(ns, "robots", None):
             ns.robot = ns.robots[0]
         return ns, rest
-
-
-def _names_arg(value: str) -> list[str]:
-    """argparse type: comma-separated robot names, each one safe key segment, no repeats."""
-    names = [v.strip() for v in value.split(",") if v.strip()]
-    if not names:
-        raise argparse.ArgumentTypeError("expected robot names, e.g. r0,r1")
-    if len(set(names)) != len(names):
-        raise argparse.ArgumentTypeError(f"a robot is named twice in {value!r}")
-    check = _name_arg("robot name")
-    return [check(n) for n in names]
 
 
 def run_node(controller, robot: str | None = None, argv: list[str] | None = None,
@@ -179,8 +157,7 @@ def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
     log = setup_logging(name, args.log_level)
     try:
         keys = Keys(args.namespace)
-        for r in robots:
-            check_name(r, "robot name")
+        check_names(robots)
         check_name(name, "node name")
         session = _open_node_session(args, wait, log)
     except (BusConfigError, ValueError) as exc:

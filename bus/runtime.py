@@ -26,7 +26,7 @@ from . import codec
 from . import controller as hooks
 from .inbox import Inbox
 from .inputs import stamp_of
-from .keys import TOPICS, Keys, check_name
+from .keys import TOPICS, Keys, check_name, check_names
 from .log import RejectCounter
 from .member import MemberTick, Sent, make_slots
 from .plantwatch import EXIT_PLANT_GONE, PlantWatch
@@ -52,11 +52,7 @@ class NodeRunner:
     def __init__(self, controller, robot: str | None, name: str, session: zenoh.Session,
                  keys: Keys, log: logging.Logger, wait_for_plant_s: float = 15.0,
                  wait: bool = False, robots: list[str] | None = None) -> None:
-        robots = list(robots) if robots else [robot or "robot1"]
-        for r in robots:
-            check_name(r, "robot name")
-        if len(set(robots)) != len(robots):
-            raise ValueError(f"a robot is named twice in {','.join(robots)}")
+        robots = check_names(robots if robots else [robot or "robot1"])
         self.robots = robots
         self.robot = robots[0]
         self.name = check_name(name, "node name")

@@ -8,8 +8,9 @@ import math
 import sys
 from pathlib import Path
 
+from bus.cliargs import name_arg
 from bus.log import setup_logging
-from bus.node import _name_arg, node_arg_parser, run_node_args
+from bus.node import node_arg_parser, run_node_args
 from bus.runtime import EXIT_BAD_CONFIG
 
 from .fmu import Fmu
@@ -58,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mapping", metavar="FILE",
                    help="TOML mapping of robot messages to FMU variables (default "
                         "fmus/<modelIdentifier>/mapping.toml if there is one, else none)")
-    p.add_argument("--instance", type=_name_arg("FMU instance name"),
+    p.add_argument("--instance", type=name_arg("FMU instance name"),
                    help="the <instance> of its fmu/<instance>/... keys (default: the model "
                         "identifier)")
     p.add_argument("--connect", action="append", type=_pairs("VAR=fmu/INSTANCE/VARIABLE"),
