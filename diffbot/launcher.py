@@ -143,10 +143,12 @@ def main(argv: list[str] | None = None) -> int:
         run.view_port, run.view_host = args.view_port, args.view_host
     if placed:                         # processes on Ray nodes (diffbot/placement.py)
         try:
-            run = placement.place(run, args)
+            run.placement = placement.place(args, run.process_names(), run.endpoint,
+                                            run.zenoh_config)
         except (placement.PlacementError, BusConfigError) as exc:
             print(f"diffbot run: {exc}", file=sys.stderr)
             return EXIT_BAD_INPUT
+        run.endpoint, run.zenoh_config = run.placement.endpoint, run.placement.zenoh_config
     run.build()
     analysis = ANALYSES[spec.analysis]
     stop_flag: list[str] = []
