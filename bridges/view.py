@@ -49,13 +49,12 @@ from bus import codec
 from . import scene, urdf
 from bus.keys import TOPICS, Keys
 from bus.log import RejectCounter
+from bus.process import EXIT_OK
 from bus.session import query_info
 
 from .view_clients import ClientInput
 from .view_derived import Derived, Path, tracking_pairs
 
-EXIT_OK = 0
-EXIT_BAD_CONFIG = 2
 PATH_PERIOD_S = 0.5
 TIME_PERIOD_S = 1 / 30
 #: the loop's period: samples wait at most this long (s)

@@ -52,14 +52,12 @@ import zenoh
 from . import controller as hooks
 from .cliargs import ArgumentParser, name_arg, names_arg
 from .controller import Controller, Observation, Twist, WheelSpeeds, default_name
-from .jsonio import write_stats
-from .keys import Keys, check_name, check_names
-from .log import setup_logging
+from .keys import check_name, check_names
 from .member import with_own_stats
 from .protocol import ProtocolError
-from .runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
-from .session import (BusConfigError, add_process_args, close_session, install_stop_signals,
-                      open_session, open_when_listening)
+from .process import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, Exit, Process, run_process
+from .runtime import NodeRunner
+from .session import BusConfigError, add_process_args, open_session, open_when_listening
 
 #: the API a controller script uses (``from bus.node import Twist, run_node``)
 __all__ = ["Controller", "Observation", "Twist", "WheelSpeeds", "node_arg_parser",
@@ -148,50 +146,51 @@ def capture_member(main, argv: list[str]) -> MemberSpec:
 
 
 def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
-    wait = bool(getattr(args, "wait", False))
     robots = getattr(args, "robots", None) or [args.robot]
     if (box := _capture.get()) is not None:      # composed: the plant runs it (above)
         box.append(MemberSpec(controller, list(robots), name, getattr(args, "stats", None),
                               args.log_level))
         return 0
-    log = setup_logging(name, args.log_level)
+    return run_process(lambda proc: _run(proc, controller, robots), args, name)
+
+
+def _run(proc: Process, controller, robots: list[str]) -> int:
+    args, log, name = proc.args, proc.log, proc.name
+    wait = bool(getattr(args, "wait", False))
     try:
-        keys = Keys(args.namespace)
+        keys = proc.keys
         check_names(robots)
         check_name(name, "node name")
-        session = _open_node_session(args, wait, log)
+        proc.session = session = _open_node_session(args, wait, log)
     except (BusConfigError, ValueError) as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_CONFIG
+        raise Exit(EXIT_BAD_CONFIG, exc) from None
     except KeyboardInterrupt:              # Ctrl-C while waiting for the plant
         return 0
     runner = None
-    try:
-        try:
-            if wait:
-                log.info("waiting for the plant (--wait)")
-            runner = NodeRunner(controller, robots[0], name, session, keys, log,
-                                wait_for_plant_s=math.inf if wait else 15.0, wait=wait,
-                                robots=robots)
-        except TimeoutError as exc:
-            log.error("%s", exc)
-            return EXIT_PLANT_GONE
-        except (ProtocolError, ValueError) as exc:    # must not join, or a bad name
-            log.error("%s", exc)
-            return EXIT_BAD_CONFIG
-        except KeyboardInterrupt:          # Ctrl-C while waiting for the plant
-            return 0
-        install_stop_signals(runner.stop_event)
-        return runner.run()
-    finally:
-        close_session(session, log)          # first: a --stats it cannot write is one error
+
+    def closed_stats() -> dict | None:
+        """After the session closed: the controllers closed, the stats with their own."""
         made = ([s.controller for s in runner.slots] if runner is not None
                 else [controller] if hasattr(controller, "step")
                 and not isinstance(controller, type) else [])
         for ctrl in made:
             hooks.close(ctrl)
-        write_stats(getattr(args, "stats", None),
-                    with_own_stats(runner.stats(), made) if runner is not None else None, log)
+        return with_own_stats(runner.stats(), made) if runner is not None else None
+    proc.stats = closed_stats
+    try:
+        if wait:
+            log.info("waiting for the plant (--wait)")
+        runner = NodeRunner(controller, robots[0], name, session, keys, log,
+                            wait_for_plant_s=math.inf if wait else 15.0, wait=wait,
+                            robots=robots)
+    except TimeoutError as exc:
+        raise Exit(EXIT_PLANT_GONE, exc) from None
+    except (ProtocolError, ValueError) as exc:    # must not join, or a bad name
+        raise Exit(EXIT_BAD_CONFIG, exc) from None
+    except KeyboardInterrupt:          # Ctrl-C while waiting for the plant
+        return 0
+    proc.stop_on_signals(runner.stop_event)
+    return runner.run()
 
 
 def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Session:

@@ -30,12 +30,12 @@ from .keys import TOPICS, Keys, check_name, check_names
 from .log import RejectCounter
 from .member import MemberTick, Sent, make_slots
 from .plantwatch import EXIT_PLANT_GONE, PlantWatch
+from .process import EXIT_BAD_CONFIG, EXIT_INPUT_GONE
 from .protocol import ProtocolError, check_version
 from .session import query_info
 
-EXIT_BAD_CONFIG = 2
-#: a lockstep node whose awaited input comes from a node that left (it would wait forever)
-EXIT_INPUT_GONE = 4
+# (the exit codes are bus.process's: 2 bad configuration; 4 a lockstep node whose awaited
+# input comes from a node that left, as it would wait forever)
 
 #: the Zenoh lease (bus.session.DEFAULT_LEASE_MS): a peer silent for longer is dropped
 LEASE_S = 1.0

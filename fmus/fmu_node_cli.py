@@ -11,7 +11,7 @@ from pathlib import Path
 from bus.cliargs import name_arg
 from bus.log import setup_logging
 from bus.node import node_arg_parser, run_node_args
-from bus.runtime import EXIT_BAD_CONFIG
+from bus.process import EXIT_BAD_CONFIG
 
 from .fmu import Fmu
 from .mapping import FieldPath, FmuNodeError, Mapping, load_mapping

@@ -31,8 +31,8 @@ import weakref
 from typing import Callable
 
 from bus.keys import Keys
-from bus.node import NodeRunner, Twist, close_session
-from bus.session import open_when_listening, zenoh_error
+from bus.node import NodeRunner, Twist
+from bus.session import close_session, open_when_listening, zenoh_error
 from plant.tick import Tick
 from plant.world import WorldSpec
 
