@@ -65,7 +65,7 @@ from bus.keys import Keys
 from bus.log import RejectCounter
 from bus.plantwatch import EXIT_PLANT_GONE, PlantWatch
 from bus.process import EXIT_BAD_CONFIG as EXIT_BAD_INPUT, EXIT_FAILED as EXIT_WRITE_FAILED
-from bus.process import EXIT_OK, Exit, Process, run_process
+from bus.process import EXIT_OK, Exit, Process, process_main
 from bus.session import add_process_args
 
 from . import scene, urdf
@@ -377,8 +377,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return run_process(_run, args, args.name if not args.recover else "recover")
+    return process_main(_run, build_parser(), argv,
+                        lambda args: args.name if not args.recover else "recover")
 
 
 def _run(proc: Process) -> int:

@@ -40,7 +40,7 @@ from bus import codec, jsonio
 from bus.cliargs import ArgumentParser, nonneg_float, positive_float
 from bus.keys import Keys
 from bus.process import EXIT_BAD_CONFIG as EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, Exit, Process
-from bus.process import run_process
+from bus.process import process_main
 from bus.session import add_process_args
 
 from .mcapfile import Recorded, RecordError, iter_recording, layout
@@ -292,7 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_process(_run, build_parser().parse_args(argv), "replay")
+    return process_main(_run, build_parser(), argv, "replay")
 
 
 def _run(proc: Process) -> int:

@@ -42,7 +42,7 @@ from bus.cliargs import ArgumentParser
 from bus.keys import Keys, split_names
 from bus.log import RejectCounter
 from bus.inputs import ABSURD_INPUT
-from bus.process import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, Exit, Process, run_process
+from bus.process import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, Exit, Process, process_main
 from bus.runtime import NodeRunner
 from bus.session import add_process_args, query_info
 
@@ -381,8 +381,7 @@ class Bridge:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return run_process(_run, args, args.name)
+    return process_main(_run, build_parser(), argv)
 
 
 def _run(proc: Process) -> int:

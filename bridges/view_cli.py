@@ -6,7 +6,7 @@ import sys
 
 
 from bus.cliargs import ArgumentParser, nonneg_float, port, positive_float, positive_int
-from bus.process import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, Exit, Process, run_process
+from bus.process import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, Exit, Process, process_main
 from bus.session import add_process_args, query_info
 
 from .view import SUBPROTOCOL, View
@@ -37,8 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return run_process(_run, args, args.name)
+    return process_main(_run, build_parser(), argv)
 
 
 def _run(proc: Process) -> int:

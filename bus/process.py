@@ -2,9 +2,8 @@
 bridge, the router): its exit codes, its log, its bus session, its stop signals and its
 ``--stats`` file, written once here.
 
-    def main(argv=None) -> int:
-        args = build_parser().parse_args(argv)     # bus.session.add_process_args(parser)
-        return run_process(body, args, "replay")
+    def main(argv=None) -> int:                    # bus.session.add_process_args(parser)
+        return process_main(body, build_parser(), argv, "replay")
 
     def body(proc: Process) -> int:
         session = proc.open("plant")               # a bad endpoint: logged, exit 2
@@ -45,7 +44,7 @@ EXIT_FAILED = 1
 EXIT_BAD_CONFIG = 2
 EXIT_INPUT_GONE = 4
 __all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_BAD_CONFIG", "EXIT_PLANT_GONE", "EXIT_INPUT_GONE",
-           "Exit", "Process", "run_process"]
+           "Exit", "Process", "process_main", "run_process"]
 
 
 class Exit(Exception):
@@ -116,3 +115,12 @@ def run_process(body: Callable[[Process], int | None], args: argparse.Namespace,
             close_session(proc.session, proc.log)
         write_stats(getattr(args, "stats", None), proc._stats(), proc.log)
     return EXIT_OK if code is None else code
+
+
+def process_main(body: Callable[[Process], int | None], parser: argparse.ArgumentParser,
+                 argv: list[str] | None, name: str | Callable[[argparse.Namespace], str]
+                 = lambda args: args.name) -> int:
+    """A whole entry point: ``argv`` parsed by ``parser``, then :func:`run_process` with the
+    process's ``name`` (a string, or a function of the parsed options; default ``--name``)."""
+    args = parser.parse_args(argv)
+    return run_process(body, args, name if isinstance(name, str) else name(args))

@@ -31,7 +31,7 @@ import zenoh
 from bus.cliargs import ArgumentParser
 from bus.linkcheck import ConfigFileError, diagnose, load_config
 from bus.log import RejectCounter
-from bus.process import EXIT_BAD_CONFIG, Exit, Process, run_process
+from bus.process import EXIT_BAD_CONFIG, Exit, Process, process_main
 from bus.session import DEFAULT_LEASE_MS, BusConfigError
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="a Zenoh JSON5 router config used as it is (TLS, access control)")
     p.add_argument("--log-level", default="INFO")
-    return run_process(_run, p.parse_args(argv), "router")
+    return process_main(_run, p, argv, "router")
 
 
 def _run(proc: Process) -> int:

@@ -7,7 +7,7 @@ import argparse
 
 from bus.cliargs import ArgumentParser, nonneg_float, nonneg_int, positive_float
 from bus.composed import Composed
-from bus.process import EXIT_BAD_CONFIG, EXIT_FAILED, Exit, Process, run_process
+from bus.process import EXIT_BAD_CONFIG, EXIT_FAILED, Exit, Process, process_main
 from bus.protocol import COUPLINGS
 from bus.session import add_process_args
 
@@ -72,8 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None, compose=None) -> int:
     """``diffbot plant``; ``compose(command) -> bus.node.MemberSpec`` builds a member for
     ``--compose`` (the command line's, diffbot.cli.compose_member)."""
-    args = build_parser().parse_args(argv)
-    return run_process(lambda proc: _run(proc, compose), args, "plant")
+    return process_main(lambda proc: _run(proc, compose), build_parser(), argv, "plant")
 
 
 def _run(proc: Process, compose) -> int:

@@ -5,6 +5,7 @@ command line can print it as one line and exit 2."""
 from __future__ import annotations
 
 import math
+import os
 import re
 
 try:
@@ -31,6 +32,19 @@ def read_toml(path: str, error: type[ValueError] = WorldError) -> dict:
         raise error(f"{path}: not valid TOML: {exc}") from None
     except OSError as exc:
         raise error(f"{path}: cannot read: {exc.strerror}") from None
+
+
+def shipped_or_path(name_or_path: str, folder: str, what: str, listed: str = "shipped") -> str:
+    """``name_or_path`` if it is a file, else the shipped ``folder/<name>.toml``, else
+    WorldError ``NAME: no such <what> (did you mean ...?) (<listed>: a, b, ...)``."""
+    if os.path.isfile(name_or_path):
+        return name_or_path
+    shipped = os.path.join(folder, f"{name_or_path}.toml")
+    if os.path.isfile(shipped):
+        return shipped
+    names = sorted(f[:-5] for f in os.listdir(folder) if f.endswith(".toml"))
+    raise WorldError(f"{name_or_path}: no such {what}{did_you_mean(name_or_path, names)} "
+                     f"({listed}: {', '.join(names)})")
 
 
 class Table:
