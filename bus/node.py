@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from contextvars import ContextVar
 from dataclasses import dataclass
 
@@ -61,7 +62,7 @@ from .session import BusConfigError, add_process_args, open_session, open_when_l
 
 #: the API a controller script uses (``from bus.node import Twist, run_node``)
 __all__ = ["Controller", "Observation", "Twist", "WheelSpeeds", "node_arg_parser",
-           "run_node", "run_node_args"]
+           "run_controller", "run_node", "run_node_args"]
 
 
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:
@@ -143,6 +144,18 @@ def capture_member(main, argv: list[str]) -> MemberSpec:
     if not box:
         raise ValueError(f"{' '.join(argv)!r} made no member (exit code {code})")
     return box[0]
+
+
+def run_controller(make, args: argparse.Namespace, base: str) -> int:
+    """A controller command's last step: ``make()`` builds the controller from the parsed
+    options (a ValueError is the one-line error ``<base>: reason``, exit 2), then
+    :func:`run_node_args` runs it, named ``--name`` or ``<base>_<robot>``."""
+    try:
+        controller = make()
+    except ValueError as exc:
+        print(f"{base}: {exc}", file=sys.stderr)
+        return EXIT_BAD_CONFIG
+    return run_node_args(controller, args, args.name or f"{base}_{args.robot}")
 
 
 def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
