@@ -183,9 +183,14 @@ def add_process_args(parser: argparse.ArgumentParser, stats: str = "counters") -
     """The options every diffbot process takes: ``--stats FILE`` (its ``stats`` as JSON at
     exit), ``--log-level`` and the bus options (:func:`add_bus_args`)."""
     parser.add_argument("--stats", metavar="FILE", help=f"write {stats} as JSON at exit")
+    add_log_arg(parser)
+    add_bus_args(parser)
+
+
+def add_log_arg(parser: argparse.ArgumentParser) -> None:
+    """``--log-level`` (every process; a process without the bus options too: the router)."""
     parser.add_argument("--log-level", default="INFO",
                         help="DEBUG, INFO (default), WARNING or ERROR")
-    add_bus_args(parser)
 
 
 def open_node(args: argparse.Namespace, name: str) -> tuple[Keys, zenoh.Session]:

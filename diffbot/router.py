@@ -32,7 +32,7 @@ from bus.cliargs import ArgumentParser
 from bus.linkcheck import ConfigFileError, diagnose, load_config
 from bus.log import RejectCounter
 from bus.process import EXIT_BAD_CONFIG, Exit, Process, process_main
-from bus.session import DEFAULT_LEASE_MS, BusConfigError
+from bus.session import DEFAULT_LEASE_MS, BusConfigError, add_log_arg
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
                         "e.g. tcp/192.168.1.10:7447, tls/host:7447)")
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="a Zenoh JSON5 router config used as it is (TLS, access control)")
-    p.add_argument("--log-level", default="INFO")
+    add_log_arg(p)
     return process_main(_run, p, argv, "router")
 
 
