@@ -66,7 +66,7 @@ from bus.log import RejectCounter
 from bus.plantwatch import EXIT_PLANT_GONE, PlantWatch
 from bus.process import EXIT_BAD_CONFIG as EXIT_BAD_INPUT, EXIT_FAILED as EXIT_WRITE_FAILED
 from bus.process import EXIT_OK, Exit, Process, process_main
-from bus.session import add_process_args
+from bus.session import add_process_args, undeclare_all
 
 from . import scene, urdf
 from .mcapfile import INFO_METADATA, McapRecording, RecordError, recover
@@ -286,11 +286,7 @@ class Recorder:
 
     def close(self) -> None:
         """Stop listening, write what is still queued, close the file."""
-        for s in self._subs:
-            try:
-                s.undeclare()
-            except Exception:
-                pass
+        undeclare_all(self._subs)
         self._subs.clear()
         try:
             while True:

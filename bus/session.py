@@ -240,6 +240,16 @@ def close_session(session: zenoh.Session, log) -> None:
         log.warning("closing the Zenoh session: %s", exc)
 
 
+def undeclare_all(handles) -> None:
+    """Undeclare each subscriber, queryable or token of ``handles``, whatever the others do
+    (one whose session is gone raises)."""
+    for h in handles:
+        try:
+            h.undeclare()
+        except Exception:
+            pass
+
+
 #: A process whose parent (``diffbot run``) was killed gets SIGTERM from the kernel
 #: (diffbot/procs.py) and stops cleanly; nobody is left to SIGKILL it if that hangs (a
 #: session closing towards a router that went at the same moment), so it ends itself this
