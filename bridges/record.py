@@ -62,9 +62,11 @@ import zenoh
 from bus import codec, jsonio
 from bus.cliargs import ArgumentParser, positive_float, positive_int
 from bus.keys import Keys
-from bus.log import RejectCounter, setup_logging
+from bus.log import RejectCounter
 from bus.plantwatch import EXIT_PLANT_GONE, PlantWatch
-from bus.session import BusConfigError, add_process_args, open_session
+from bus.process import EXIT_BAD_CONFIG as EXIT_BAD_INPUT, EXIT_FAILED as EXIT_WRITE_FAILED
+from bus.process import EXIT_OK, Exit, Process, process_main
+from bus.session import add_process_args, undeclare_all
 
 from . import scene, urdf
 from .mcapfile import INFO_METADATA, McapRecording, RecordError, recover
@@ -77,10 +79,6 @@ REPEAT_WINDOW = 64
 #: outputs of other nodes) and no lockstep member is left, but no longer than END_MAX_S.
 END_GRACE_S = 0.3
 END_MAX_S = 5.0
-
-EXIT_OK = 0
-EXIT_WRITE_FAILED = 1
-EXIT_BAD_INPUT = 2
 
 
 class Recorder:
@@ -288,11 +286,7 @@ class Recorder:
 
     def close(self) -> None:
         """Stop listening, write what is still queued, close the file."""
-        for s in self._subs:
-            try:
-                s.undeclare()
-            except Exception:
-                pass
+        undeclare_all(self._subs)
         self._subs.clear()
         try:
             while True:
@@ -379,45 +373,43 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    log = setup_logging(args.name if not args.recover else "recover", args.log_level)
+    return process_main(_run, build_parser(), argv,
+                        lambda args: args.name if not args.recover else "recover")
+
+
+def _run(proc: Process) -> int:
+    args, log = proc.args, proc.log
     if args.recover:
         try:
             counts = recover(args.path, log)
         except (RecordError, OSError) as exc:
-            log.error("%s", exc)
-            return EXIT_BAD_INPUT
+            raise Exit(EXIT_BAD_INPUT, exc) from None
         report(counts)
         return EXIT_OK
     if args.flush <= 0 or args.chunk_size <= 0:
-        log.error("--flush and --chunk-size must be > 0")
-        return EXIT_BAD_INPUT
+        raise Exit(EXIT_BAD_INPUT, "--flush and --chunk-size must be > 0")
     try:
-        keys = Keys(args.namespace)
+        keys = proc.keys
         prefix = f"{keys.namespace}/" if keys.namespace else ""
         exprs = [prefix + k.strip("/") for k in args.keys] or [keys.all]
         for e in exprs:
             zenoh.KeyExpr(e)
     except Exception as exc:
-        log.error("bad key: %s", exc)
-        return EXIT_BAD_INPUT
+        raise Exit(EXIT_BAD_INPUT, f"bad key: {exc}") from None
     try:
         out = McapRecording(args.path, chunk_size=args.chunk_size, compression=args.compression,
                             flush_s=args.flush)
     except RecordError as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_INPUT
+        raise Exit(EXIT_BAD_INPUT, exc) from None
     try:
-        session = open_session("node", args.endpoint, args.zenoh_config)
-    except BusConfigError as exc:
-        log.error("%s", exc)
+        session = proc.open("node")
+    except Exit:
         out.discard()
-        return EXIT_BAD_INPUT
-    from bus.jsonio import write_json
-    from bus.session import install_stop_signals
+        raise
     rec = Recorder(session, keys, out, exprs, log, args.name)
     rec.with_scene = args.scene
-    install_stop_signals(rec.stop_event)
+    proc.stats = rec.stats
+    proc.stop_on_signals(rec.stop_event)
     code = EXIT_OK
     try:
         rec.subscribe()
@@ -435,10 +427,7 @@ def main(argv: list[str] | None = None) -> int:
             log.error("closing %s failed: %s (`diffbot record --recover` keeps what was "
                       "flushed)", out.file, exc)
             code = EXIT_WRITE_FAILED
-        session.close()
         st = rec.stats()
-        if args.stats:
-            write_json(args.stats, st)
         log.info("wrote %s: %d messages, %.1f MB, %d skipped, %d rejected", out.file,
                  st["messages"], st["bytes"] / 1e6, sum(rec.skipped.values()),
                  rec.rejects.total)

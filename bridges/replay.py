@@ -39,14 +39,11 @@ import zenoh
 from bus import codec, jsonio
 from bus.cliargs import ArgumentParser, nonneg_float, positive_float
 from bus.keys import Keys
-from bus.log import setup_logging
-from bus.session import BusConfigError, add_process_args, open_session
+from bus.process import EXIT_BAD_CONFIG as EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, Exit, Process
+from bus.process import process_main
+from bus.session import add_process_args
 
 from .mcapfile import Recorded, RecordError, iter_recording, layout
-
-EXIT_OK = 0
-EXIT_FAILED = 1
-EXIT_BAD_INPUT = 2
 
 PROGRESS_EVERY_S = 5.0
 
@@ -295,41 +292,36 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    log = setup_logging("replay", args.log_level)
+    return process_main(_run, build_parser(), argv, "replay")
+
+
+def _run(proc: Process) -> int:
+    args, log = proc.args, proc.log
     if not args.fast and not (args.rate > 0 and math.isfinite(args.rate)):
-        log.error("--rate must be > 0, got %s", args.rate)
-        return EXIT_BAD_INPUT
+        raise Exit(EXIT_BAD_INPUT, f"--rate must be > 0, got {args.rate}")
     try:
-        keys = Keys(args.namespace)
+        keys = proc.keys
         expect = {n for n in args.expect.split(",") if n}
         for e in [*args.keys, *args.exclude]:
             zenoh.KeyExpr(e.strip("/"))
     except Exception as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_INPUT
+        raise Exit(EXIT_BAD_INPUT, exc) from None
     try:
         scanned = scan(args.path)
     except (RecordError, OSError) as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_INPUT
+        raise Exit(EXIT_BAD_INPUT, exc) from None
     rec0 = scanned[0]
     old_ns = (rec0.sim_info() or {}).get("namespace", "") or ""
     remap = (f"{old_ns}/" if old_ns else "", f"{keys.namespace}/" if keys.namespace else "")
-    try:
-        session = open_session("plant", args.endpoint, args.zenoh_config)
-    except BusConfigError as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_INPUT
-    from bus.jsonio import write_stats
-    from bus.session import install_stop_signals
+    session = proc.open("plant")
     rp = None
     code = EXIT_OK
     try:
         rp = Replayer(session, keys, args.path, log, None if args.fast else args.rate,
                       [k.strip("/") for k in args.keys], [k.strip("/") for k in args.exclude],
                       remap, scanned)
-        install_stop_signals(rp.stop_event)
+        proc.stats = rp.stats
+        proc.stop_on_signals(rp.stop_event)
         if expect:
             log.info("waiting for nodes: %s", ", ".join(sorted(expect)))
             if not rp.wait_for(expect, present=True, timeout_s=args.join_timeout):
@@ -349,8 +341,6 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if rp is not None:
             rp.close(expect, args.linger)
-        session.close()                      # first: a --stats it cannot write is one error
-        write_stats(args.stats, rp.stats() if rp is not None else None, log)
     return code
 
 

@@ -39,13 +39,12 @@ from bus import codec
 
 from . import urdf
 from bus.cliargs import ArgumentParser
-from bus.jsonio import write_stats
-from bus.keys import Keys, check_name
-from bus.log import RejectCounter, setup_logging
+from bus.keys import Keys, split_names
+from bus.log import RejectCounter
 from bus.inputs import ABSURD_INPUT
-from bus.runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
-from bus.session import close_session, install_stop_signals, query_info
-from bus.session import BusConfigError, add_process_args, open_node
+from bus.process import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, Exit, Process, process_main
+from bus.runtime import NodeRunner
+from bus.session import add_process_args, query_info
 
 from .ros2_graph import GraphWatch
 from .ros2_lockstep import RosController, relay_stop
@@ -107,9 +106,8 @@ class Bridge:
         self.lockstep = bool(args.lockstep)
         self.trigger = args.trigger
         known = list(info.get("robots", {}))
-        self.robots = args.robots.split(",") if args.robots else known
+        self.robots = split_names(args.robots) if args.robots else known
         for r in self.robots:
-            check_name(r, "robot name")
             if r not in known:
                 raise ValueError(f"robot {r!r} is not in the plant's world "
                                  f"(robots: {', '.join(known) or 'none'})")
@@ -383,19 +381,17 @@ class Bridge:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    log = setup_logging(args.name, args.log_level)
+    return process_main(_run, build_parser(), argv)
+
+
+def _run(proc: Process) -> int:
+    args, log = proc.args, proc.log
     try:
         ros_modules()
     except ImportError as exc:
-        log.error("rclpy is not importable (%s): `pip install -e '.[ros2]'` or source a "
-                  "ROS 2 setup (Humble, Jazzy)", exc)
-        return EXIT_BAD_CONFIG
-    try:
-        keys, session = open_node(args, args.name)
-    except (BusConfigError, ValueError) as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_CONFIG
+        raise Exit(EXIT_BAD_CONFIG, f"rclpy is not importable ({exc}): `pip install -e "
+                                    "'.[ros2]'` or source a ROS 2 setup (Humble, Jazzy)") from None
+    keys, session = proc.open_node(args.name)
     bridge = None
     stop = threading.Event()
     try:
@@ -403,11 +399,9 @@ def main(argv: list[str] | None = None) -> int:
             info = query_info(session, keys)
             bridge = Bridge(args, session, keys, info, log)
         except TimeoutError as exc:
-            log.error("%s", exc)
-            return EXIT_PLANT_GONE
+            raise Exit(EXIT_PLANT_GONE, exc) from None
         except ValueError as exc:
-            log.error("%s", exc)
-            return EXIT_BAD_CONFIG
+            raise Exit(EXIT_BAD_CONFIG, exc) from None
         log.info("bridging %s to ROS 2 (domain %s, %s)", ",".join(bridge.robots),
                  args.domain_id if args.domain_id is not None
                  else os.environ.get("ROS_DOMAIN_ID", "0"),
@@ -416,25 +410,21 @@ def main(argv: list[str] | None = None) -> int:
             ctrls = {r: bridge.controller_for(r) for r in bridge.robots}
             runner = NodeRunner(lambda r: ctrls[r], None, args.name, session, keys, log,
                                 robots=bridge.robots)
-            install_stop_signals(runner.stop_event)
+            proc.stop_on_signals(runner.stop_event)
             threading.Thread(target=relay_stop, args=(runner.stop_event, ctrls), daemon=True).start()
             try:
                 return runner.run()
             finally:       # the commands went on the bus through the runner: count them
                 for key, n in runner.published.items():
                     bridge.published[key] = bridge.published.get(key, 0) + n
-        install_stop_signals(stop)
+        proc.stop_on_signals(stop)
         return _free_run(session, keys, args.name, stop, log)
     except KeyboardInterrupt:
         return 0
     finally:
-        stats = bridge.stats() if bridge is not None else None
-        try:
-            if bridge is not None:
-                bridge.close()
-        finally:                        # the session always closes (else the exit hangs)
-            close_session(session, log)
-        write_stats(args.stats, stats, log)
+        if bridge is not None:
+            proc.stats = bridge.stats()    # (before it closes)
+            bridge.close()
 
 
 def _free_run(session, keys: Keys, name: str, stop: threading.Event, log) -> int:

@@ -172,38 +172,33 @@ class TfPublisher:
         self.robots = {r: _Robot(start_pose(info, r)) for r in robots}
         self._subs = []
         for r in robots:
-            for topic, on in (("ground_truth", self._on_truth), ("odom", self._on_odom)):
+            for topic in ("ground_truth", "odom"):
                 self._subs.append(session.declare_subscriber(
-                    keys.topic(r, topic), lambda s, r=r, on=on: on(r, bytes(s.payload))))
+                    keys.topic(r, topic),
+                    lambda s, r=r, truth=topic == "ground_truth": self._on(r, bytes(s.payload),
+                                                                         truth)))
 
-    def _on_truth(self, robot: str, data: bytes) -> None:
+    def _on(self, robot: str, data: bytes, truth: bool) -> None:
+        """A ground truth (``truth``) or an odometry sample of ``robot``: filed, and the
+        chain published once both of a tick are in."""
         got = read_odometry(data)                  # garbage: None (counted elsewhere)
         if got is None:
             return
         t, pose = got
         with self._lock:
             st = self.robots[robot]
-            if t <= st.last:                       # a reset: time starts again
-                st.clear()
-            st.gt[t] = pose
-            out = self._pair(robot, st, t)
-            if out is None and st.odometry is not True:
-                out = self._without_odometry(robot, st)
-        if out is not None:
-            self._publish(self.pub, out)
-
-    def _on_odom(self, robot: str, data: bytes) -> None:
-        got = read_odometry(data)                  # garbage: None (counted elsewhere)
-        if got is None:
-            return
-        t, pose = got
-        with self._lock:
-            st = self.robots[robot]
-            if t <= st.last:       # sent already (or, after a reset, before its first truth)
+            if truth:
+                if t <= st.last:                   # a reset: time starts again
+                    st.clear()
+                st.gt[t] = pose
+            elif t <= st.last:     # sent already (or, after a reset, before its first truth)
                 return
-            st.odometry = True
-            st.odom[t] = pose
+            else:
+                st.odometry = True
+                st.odom[t] = pose
             out = self._pair(robot, st, t)
+            if out is None and truth and st.odometry is not True:
+                out = self._without_odometry(robot, st)
         if out is not None:
             self._publish(self.pub, out)
 

@@ -49,13 +49,12 @@ from bus import codec
 from . import scene, urdf
 from bus.keys import TOPICS, Keys
 from bus.log import RejectCounter
-from bus.session import query_info
+from bus.process import EXIT_OK
+from bus.session import query_info, undeclare_all
 
 from .view_clients import ClientInput
 from .view_derived import Derived, Path, tracking_pairs
 
-EXIT_OK = 0
-EXIT_BAD_CONFIG = 2
 PATH_PERIOD_S = 0.5
 TIME_PERIOD_S = 1 / 30
 #: the loop's period: samples wait at most this long (s)
@@ -455,11 +454,7 @@ class View(Derived, ClientInput):
         return EXIT_OK
 
     def close(self) -> None:
-        for s in [*self._subs, *self._key_subs.values(), *self._probes.values()]:
-            try:
-                s.undeclare()
-            except Exception:
-                pass
+        undeclare_all([*self._subs, *self._key_subs.values(), *self._probes.values()])
         self._subs.clear()
         self._key_subs.clear()
         self._probes.clear()

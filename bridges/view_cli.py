@@ -6,13 +6,10 @@ import sys
 
 
 from bus.cliargs import ArgumentParser, nonneg_float, port, positive_float, positive_int
-from bus.log import setup_logging
-from bus.jsonio import write_json
-from bus.runtime import EXIT_PLANT_GONE
-from bus.session import close_session, install_stop_signals, query_info
-from bus.session import BusConfigError, add_process_args, open_node
+from bus.process import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, Exit, Process, process_main
+from bus.session import add_process_args, query_info
 
-from .view import EXIT_BAD_CONFIG, EXIT_OK, SUBPROTOCOL, View
+from .view import SUBPROTOCOL, View
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,44 +37,38 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    log = setup_logging(args.name, args.log_level)
+    return process_main(_run, build_parser(), argv)
+
+
+def _run(proc: Process) -> int:
+    args, log = proc.args, proc.log
     try:
         import foxglove  # noqa: F401
     except ImportError:
-        log.error("diffbot view needs foxglove-sdk: pip install 'diffbot-cosim[view]'")
-        return EXIT_BAD_CONFIG
-    try:
-        keys, session = open_node(args, args.name)
-    except (BusConfigError, ValueError) as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_CONFIG
+        raise Exit(EXIT_BAD_CONFIG, "diffbot view needs foxglove-sdk: "
+                                    "pip install 'diffbot-cosim[view]'") from None
+    keys, session = proc.open_node(args.name)
     view = View(session, keys, log, args.name, args.image_rate, args.rate)
-    install_stop_signals(view.stop_event)
-    code = EXIT_OK
+    proc.stats = view.stats
+    proc.stop_on_signals(view.stop_event)
     try:
         try:
             view.load_info(query_info(session, keys, args.info_timeout))
         except (TimeoutError, ValueError) as exc:
-            log.error("%s", exc)
-            return EXIT_PLANT_GONE
+            raise Exit(EXIT_PLANT_GONE, exc) from None
         try:
             server = view.start_server(args.host, args.port, args.backlog)
         except Exception as exc:             # port in use, bad address
-            log.error("cannot serve on %s:%d: %s", args.host, args.port, exc)
-            return EXIT_BAD_CONFIG
+            raise Exit(EXIT_BAD_CONFIG, f"cannot serve on {args.host}:{args.port}: "
+                                        f"{exc}") from None
         view.subscribe()
         log.info("serving ws://%s:%d, WebSocket subprotocol %s (Foxglove: Open connection -> "
                  "Foxglove WebSocket; layout bridges/foxglove_layout.json; docs/live-view.md); "
                  "world %s, robots %s", args.host, server.port, SUBPROTOCOL,
                  view.info.get("world"), ", ".join(view.info.get("robots", {})))
-        code = view.run()
+        return view.run()
     finally:
         view.close()
-        close_session(session, log)
-        if args.stats:
-            write_json(args.stats, view.stats())
-    return code
 
 
 if __name__ == "__main__":

@@ -1,8 +1,10 @@
-"""argparse types for numeric options: a bad value is one clear error line and exit 2.
+"""argparse types for numeric and name options: a bad value is one clear error line and
+exit 2.
 
 ``--duration -5`` or ``--rate nan`` used to be taken as given and end in a run of zero
 ticks (exit 0) or a NaN in ``summary.json``. Every numeric option of the project uses
-one of these instead of a bare ``float``/``int``.
+one of these instead of a bare ``float``/``int``; every robot or node name option one of
+:func:`name_arg`, :func:`names_arg` (the checks of :mod:`bus.keys`).
 """
 from __future__ import annotations
 
@@ -10,6 +12,8 @@ import argparse
 import difflib
 import math
 from typing import Callable, Iterable
+
+from .keys import check_name, split_names
 
 
 def _number(kind: type, what: str, ok: Callable[[float], bool]) -> Callable[[str], float]:
@@ -38,6 +42,26 @@ positive_int = _number(int, "an integer >= 1", lambda v: v >= 1)
 nonneg_int = _number(int, "an integer >= 0", lambda v: v >= 0)
 #: a TCP port, 0 for "any free one"
 port = _number(int, "a port in 0..65535", lambda v: 0 <= v <= 65535)
+
+
+def name_arg(what: str) -> Callable[[str], str]:
+    """argparse type: a name that is one safe key segment (:func:`bus.keys.check_name`)."""
+    def check(value: str) -> str:
+        try:
+            return check_name(value, what)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    check.__name__ = what
+    return check
+
+
+def names_arg(value: str) -> list[str]:
+    """argparse type: comma-separated robot names, each one safe key segment, no repeats
+    (:func:`bus.keys.split_names`)."""
+    try:
+        return split_names(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def did_you_mean(word: str, choices: Iterable[str]) -> str:

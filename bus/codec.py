@@ -217,6 +217,12 @@ def quaternion_to_yaw(q) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
+def pose_2d(odometry) -> tuple[float, float, float]:
+    """(x, y, yaw) of a nav_msgs/Odometry's pose (``odom``, ``ground_truth``)."""
+    p = odometry.pose.pose
+    return p.position.x, p.position.y, quaternion_to_yaw(p.orientation)
+
+
 # ---------------------------------------------------------------- message builders
 def clock(t_ns: int):
     return T["rosgraph_msgs/msg/Clock"](clock=time_msg(t_ns))

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import zenoh
 
+from .session import undeclare_all
+
 
 @dataclass(slots=True)
 class Event:
@@ -84,9 +86,5 @@ class Inbox:
             return None
 
     def close(self) -> None:
-        for h in self._handles:
-            try:
-                h.undeclare()
-            except Exception:
-                pass
+        undeclare_all(self._handles)
         self._handles.clear()

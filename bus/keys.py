@@ -37,6 +37,26 @@ def check_name(name: str, what: str = "name") -> str:
     return name
 
 
+def check_names(names, what: str = "robot name") -> list[str]:
+    """``names`` as a list if each is a safe key segment (:func:`check_name`) and none comes
+    twice, else ``BadName``: a node's robots (``--robots``, a bridge's), checked here only."""
+    names = list(names)
+    for n in names:
+        check_name(n, what)
+    if len(set(names)) != len(names):
+        raise BadName(f"a robot is named twice in {','.join(names)!r}")
+    return names
+
+
+def split_names(text: str, what: str = "robot name") -> list[str]:
+    """Comma-separated names (``r0,r1``; spaces around each dropped), checked as
+    :func:`check_names` does; ``BadName`` if there are none."""
+    names = [v.strip() for v in text.split(",") if v.strip()]
+    if not names:
+        raise BadName(f"expected {what}s, e.g. r0,r1")
+    return check_names(names, what)
+
+
 @dataclass(frozen=True)
 class Topic:
     """One robot topic: key suffix, ROS 2 message type, who publishes it."""

@@ -44,38 +44,36 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
+import sys
 from contextvars import ContextVar
 from dataclasses import dataclass
 
 import zenoh
 
 from . import controller as hooks
-from .cliargs import ArgumentParser
+from .cliargs import ArgumentParser, name_arg, names_arg
 from .controller import Controller, Observation, Twist, WheelSpeeds, default_name
-from .jsonio import write_stats
-from .keys import Keys, check_name
-from .log import setup_logging
+from .keys import check_name, check_names
 from .member import with_own_stats
 from .protocol import ProtocolError
-from .runtime import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, NodeRunner
-from .session import (BusConfigError, add_process_args, close_session, install_stop_signals,
-                      make_config, open_session)
+from .process import EXIT_BAD_CONFIG, EXIT_PLANT_GONE, Exit, Process, run_process
+from .runtime import NodeRunner
+from .session import BusConfigError, add_process_args, open_session, open_when_listening
 
 #: the API a controller script uses (``from bus.node import Twist, run_node``)
 __all__ = ["Controller", "Observation", "Twist", "WheelSpeeds", "node_arg_parser",
-           "run_node", "run_node_args"]
+           "run_controller", "run_node", "run_node_args"]
 
 
 def node_arg_parser(description: str, default_name: str | None = None) -> argparse.ArgumentParser:
     p = _NodeParser(description=description)
-    p.add_argument("--robot", default="robot1", type=_name_arg("robot name"),
+    p.add_argument("--robot", default="robot1", type=name_arg("robot name"),
                    help="robot to control (default robot1)")
-    p.add_argument("--robots", default=None, type=_names_arg, metavar="R1,R2,...",
+    p.add_argument("--robots", default=None, type=names_arg, metavar="R1,R2,...",
                    help="drive several robots from this one process: one controller object "
                         "per robot, one lockstep member (the default node name uses the "
                         "first robot)")
-    p.add_argument("--name", default=default_name, type=_name_arg("node name"),
+    p.add_argument("--name", default=default_name, type=name_arg("node name"),
                    help="node name on the bus (default <controller>_<robot>)")
     p.add_argument("--wait", action="store_true",
                    help="wait for a plant to start, and when it goes away (killed, frozen, "
@@ -86,17 +84,6 @@ def node_arg_parser(description: str, default_name: str | None = None) -> argpar
     return p
 
 
-def _name_arg(what: str):
-    """argparse type: a name that is one safe key segment (no '*', '$', '/', not empty)."""
-    def check(value: str) -> str:
-        try:
-            return check_name(value, what)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-    check.__name__ = what
-    return check
-
-
 class _NodeParser(ArgumentParser):
     """With ``--robots``, ``args.robot`` is the first of them (default node names use it)."""
 
@@ -105,17 +92,6 @@ class _NodeParser(ArgumentParser):
         if getattr(ns, "robots", None):
             ns.robot = ns.robots[0]
         return ns, rest
-
-
-def _names_arg(value: str) -> list[str]:
-    """argparse type: comma-separated robot names, each one safe key segment, no repeats."""
-    names = [v.strip() for v in value.split(",") if v.strip()]
-    if not names:
-        raise argparse.ArgumentTypeError("expected robot names, e.g. r0,r1")
-    if len(set(names)) != len(names):
-        raise argparse.ArgumentTypeError(f"a robot is named twice in {value!r}")
-    check = _name_arg("robot name")
-    return [check(n) for n in names]
 
 
 def run_node(controller, robot: str | None = None, argv: list[str] | None = None,
@@ -170,52 +146,64 @@ def capture_member(main, argv: list[str]) -> MemberSpec:
     return box[0]
 
 
+def run_controller(make, args: argparse.Namespace, base: str) -> int:
+    """A controller command's last step: ``make()`` builds the controller from the parsed
+    options (a ValueError is the one-line error ``<base>: reason``, exit 2), then
+    :func:`run_node_args` runs it, named ``--name`` or ``<base>_<robot>``."""
+    try:
+        controller = make()
+    except ValueError as exc:
+        print(f"{base}: {exc}", file=sys.stderr)
+        return EXIT_BAD_CONFIG
+    return run_node_args(controller, args, args.name or f"{base}_{args.robot}")
+
+
 def run_node_args(controller, args: argparse.Namespace, name: str) -> int:
-    wait = bool(getattr(args, "wait", False))
     robots = getattr(args, "robots", None) or [args.robot]
     if (box := _capture.get()) is not None:      # composed: the plant runs it (above)
         box.append(MemberSpec(controller, list(robots), name, getattr(args, "stats", None),
                               args.log_level))
         return 0
-    log = setup_logging(name, args.log_level)
+    return run_process(lambda proc: _run(proc, controller, robots), args, name)
+
+
+def _run(proc: Process, controller, robots: list[str]) -> int:
+    args, log, name = proc.args, proc.log, proc.name
+    wait = bool(getattr(args, "wait", False))
     try:
-        keys = Keys(args.namespace)
-        for r in robots:
-            check_name(r, "robot name")
+        keys = proc.keys
+        check_names(robots)
         check_name(name, "node name")
-        session = _open_node_session(args, wait, log)
+        proc.session = session = _open_node_session(args, wait, log)
     except (BusConfigError, ValueError) as exc:
-        log.error("%s", exc)
-        return EXIT_BAD_CONFIG
+        raise Exit(EXIT_BAD_CONFIG, exc) from None
     except KeyboardInterrupt:              # Ctrl-C while waiting for the plant
         return 0
     runner = None
-    try:
-        try:
-            if wait:
-                log.info("waiting for the plant (--wait)")
-            runner = NodeRunner(controller, robots[0], name, session, keys, log,
-                                wait_for_plant_s=math.inf if wait else 15.0, wait=wait,
-                                robots=robots)
-        except TimeoutError as exc:
-            log.error("%s", exc)
-            return EXIT_PLANT_GONE
-        except (ProtocolError, ValueError) as exc:    # must not join, or a bad name
-            log.error("%s", exc)
-            return EXIT_BAD_CONFIG
-        except KeyboardInterrupt:          # Ctrl-C while waiting for the plant
-            return 0
-        install_stop_signals(runner.stop_event)
-        return runner.run()
-    finally:
-        close_session(session, log)          # first: a --stats it cannot write is one error
+
+    def closed_stats() -> dict | None:
+        """After the session closed: the controllers closed, the stats with their own."""
         made = ([s.controller for s in runner.slots] if runner is not None
                 else [controller] if hasattr(controller, "step")
                 and not isinstance(controller, type) else [])
         for ctrl in made:
             hooks.close(ctrl)
-        write_stats(getattr(args, "stats", None),
-                    with_own_stats(runner.stats(), made) if runner is not None else None, log)
+        return with_own_stats(runner.stats(), made) if runner is not None else None
+    proc.stats = closed_stats
+    try:
+        if wait:
+            log.info("waiting for the plant (--wait)")
+        runner = NodeRunner(controller, robots[0], name, session, keys, log,
+                            wait_for_plant_s=math.inf if wait else 15.0, wait=wait,
+                            robots=robots)
+    except TimeoutError as exc:
+        raise Exit(EXIT_PLANT_GONE, exc) from None
+    except (ProtocolError, ValueError) as exc:    # must not join, or a bad name
+        raise Exit(EXIT_BAD_CONFIG, exc) from None
+    except KeyboardInterrupt:          # Ctrl-C while waiting for the plant
+        return 0
+    proc.stop_on_signals(runner.stop_event)
+    return runner.run()
 
 
 def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Session:
@@ -223,16 +211,10 @@ def _open_node_session(args: argparse.Namespace, wait: bool, log) -> zenoh.Sessi
     a plant listens (a Zenoh client cannot open without its router)."""
     if not wait or args.zenoh_config:
         return open_session("node", args.endpoint, args.zenoh_config)
-    conf = make_config("node", args.endpoint)
-    conf.insert_json5("connect/timeout_ms", "1000")
-    said = False
-    while True:
-        try:
-            return zenoh.open(conf)
-        except Exception as exc:
-            if "connect" not in str(exc).lower():
-                raise BusConfigError(f"bad endpoint {args.endpoint!r}: {exc}") from None
+    said = []
+
+    def missed(exc: Exception) -> None:
         if not said:
             log.info("no plant at %s yet; waiting for one (--wait)", args.endpoint)
-            said = True
-        time.sleep(0.2)
+            said.append(exc)
+    return open_when_listening(args.endpoint, missed, pause_s=0.2)

@@ -26,16 +26,16 @@ from . import codec
 from . import controller as hooks
 from .inbox import Inbox
 from .inputs import stamp_of
-from .keys import TOPICS, Keys, check_name
+from .keys import TOPICS, Keys, check_name, check_names
 from .log import RejectCounter
 from .member import MemberTick, Sent, make_slots
 from .plantwatch import EXIT_PLANT_GONE, PlantWatch
+from .process import EXIT_BAD_CONFIG, EXIT_INPUT_GONE
 from .protocol import ProtocolError, check_version
 from .session import query_info
 
-EXIT_BAD_CONFIG = 2
-#: a lockstep node whose awaited input comes from a node that left (it would wait forever)
-EXIT_INPUT_GONE = 4
+# (the exit codes are bus.process's: 2 bad configuration; 4 a lockstep node whose awaited
+# input comes from a node that left, as it would wait forever)
 
 #: the Zenoh lease (bus.session.DEFAULT_LEASE_MS): a peer silent for longer is dropped
 LEASE_S = 1.0
@@ -52,11 +52,7 @@ class NodeRunner:
     def __init__(self, controller, robot: str | None, name: str, session: zenoh.Session,
                  keys: Keys, log: logging.Logger, wait_for_plant_s: float = 15.0,
                  wait: bool = False, robots: list[str] | None = None) -> None:
-        robots = list(robots) if robots else [robot or "robot1"]
-        for r in robots:
-            check_name(r, "robot name")
-        if len(set(robots)) != len(robots):
-            raise ValueError(f"a robot is named twice in {','.join(robots)}")
+        robots = check_names(robots if robots else [robot or "robot1"])
         self.robots = robots
         self.robot = robots[0]
         self.name = check_name(name, "node name")

@@ -148,6 +148,25 @@ def _open_in_attempts(conf: zenoh.Config) -> zenoh.Session:
         conf.insert_json5("connect/timeout_ms", json.dumps(total))   # (diagnose reads it)
 
 
+def open_when_listening(endpoint: str, missed, pause_s: float = 0.2) -> zenoh.Session:
+    """A client session to ``endpoint`` (the default config), tried again until a router
+    listens there: a Zenoh client cannot open without its router, and one not up yet is
+    waited for (``diffbot node --wait``, an environment starting its plant). Each attempt
+    gives up after ATTEMPT_MS; then ``missed(exc)`` is called, which may raise to stop
+    (a deadline, a plant that exited), and the next attempt follows ``pause_s`` later. An
+    error that is not about connecting (a bad endpoint) is a BusConfigError at once."""
+    conf = make_config("node", endpoint)
+    conf.insert_json5("connect/timeout_ms", str(ATTEMPT_MS))
+    while True:
+        try:
+            return zenoh.open(conf)
+        except Exception as exc:
+            if "connect" not in str(exc).lower():
+                raise BusConfigError(f"bad endpoint {endpoint!r}: {exc}") from None
+            missed(exc)
+        time.sleep(pause_s)
+
+
 def add_bus_args(parser: argparse.ArgumentParser) -> None:
     """The bus options every diffbot process takes."""
     g = parser.add_argument_group("bus")
@@ -164,9 +183,14 @@ def add_process_args(parser: argparse.ArgumentParser, stats: str = "counters") -
     """The options every diffbot process takes: ``--stats FILE`` (its ``stats`` as JSON at
     exit), ``--log-level`` and the bus options (:func:`add_bus_args`)."""
     parser.add_argument("--stats", metavar="FILE", help=f"write {stats} as JSON at exit")
+    add_log_arg(parser)
+    add_bus_args(parser)
+
+
+def add_log_arg(parser: argparse.ArgumentParser) -> None:
+    """``--log-level`` (every process; a process without the bus options too: the router)."""
     parser.add_argument("--log-level", default="INFO",
                         help="DEBUG, INFO (default), WARNING or ERROR")
-    add_bus_args(parser)
 
 
 def open_node(args: argparse.Namespace, name: str) -> tuple[Keys, zenoh.Session]:
@@ -214,6 +238,16 @@ def close_session(session: zenoh.Session, log) -> None:
         session.close()
     except Exception as exc:       # zenoh.ZError: "close operation timed out"
         log.warning("closing the Zenoh session: %s", exc)
+
+
+def undeclare_all(handles) -> None:
+    """Undeclare each subscriber, queryable or token of ``handles``, whatever the others do
+    (one whose session is gone raises)."""
+    for h in handles:
+        try:
+            h.undeclare()
+        except Exception:
+            pass
 
 
 #: A process whose parent (``diffbot run``) was killed gets SIGTERM from the kernel

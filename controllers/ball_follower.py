@@ -20,7 +20,7 @@ import numpy as np
 from bus import codec
 from bus.cliargs import nonneg_float, positive_float
 from bus.controller import Twist
-from bus.node import node_arg_parser, run_node_args
+from bus.node import node_arg_parser, run_controller
 
 #: The ball's edge beyond minEnclosingCircle's radius of the pixel contour, px.
 EDGE_OFFSET_PX = 0.2
@@ -176,13 +176,9 @@ def main(argv=None) -> int:
     p.add_argument("--max-speed", type=positive_float, default=0.4, help="m/s")
     p.add_argument("--max-turn", type=positive_float, default=1.5, help="rad/s")
     args = p.parse_args(argv)
-    try:
-        ctrl = BallFollower(args.target, args.ball_radius, args.k_distance, args.ki_distance,
-                            args.k_turn, args.max_speed, args.max_turn)
-    except ValueError as exc:
-        print(f"ball_follower: {exc}", file=sys.stderr)
-        return 2
-    return run_node_args(ctrl, args, args.name or f"ball_follower_{args.robot}")
+    return run_controller(lambda: BallFollower(args.target, args.ball_radius, args.k_distance,
+                                               args.ki_distance, args.k_turn, args.max_speed,
+                                               args.max_turn), args, "ball_follower")
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 
 from bus.controller import WheelSpeeds
-from bus.node import node_arg_parser, run_node_args
+from bus.node import node_arg_parser, run_controller
 
 DRIVE_TEST = "5:1,1;5:1,-1"
 
@@ -60,12 +60,8 @@ def main(argv=None) -> int:
     p.add_argument("--schedule", default=DRIVE_TEST,
                    help=f"SECONDS:LEFT,RIGHT items separated by ';' (default {DRIVE_TEST!r})")
     args = p.parse_args(argv)
-    try:
-        ctrl = WheelSchedule(parse_schedule(args.schedule))
-    except ValueError as exc:
-        print(f"wheel_schedule: {exc}", file=sys.stderr)
-        return 2
-    return run_node_args(ctrl, args, args.name or f"wheel_schedule_{args.robot}")
+    return run_controller(lambda: WheelSchedule(parse_schedule(args.schedule)), args,
+                          "wheel_schedule")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import sys
 from bus import codec
 from bus.cliargs import positive_float, positive_int
 from bus.controller import Twist
-from bus.node import node_arg_parser, run_node_args
+from bus.node import node_arg_parser, run_controller
 
 
 def wrap(a: float) -> float:
@@ -48,9 +48,7 @@ class SquarePath:
         odom = obs["odom"]
         if odom is None:
             return Twist()
-        p = odom.pose.pose
-        x, y = p.position.x, p.position.y
-        th = codec.quaternion_to_yaw(p.orientation)
+        x, y, th = codec.pose_2d(odom)
         if self.heading0 is None:
             self.heading0 = th
             self.start = (x, y)
@@ -83,12 +81,8 @@ def main(argv=None) -> int:
     p.add_argument("--direction", choices=("ccw", "cw"), default="ccw")
     p.add_argument("--laps", type=positive_int, default=1)
     args = p.parse_args(argv)
-    try:
-        ctrl = SquarePath(args.side, args.speed, args.turn_rate, args.direction, args.laps)
-    except ValueError as exc:
-        print(f"square_path: {exc}", file=sys.stderr)
-        return 2
-    return run_node_args(ctrl, args, args.name or f"square_path_{args.robot}")
+    return run_controller(lambda: SquarePath(args.side, args.speed, args.turn_rate,
+                                             args.direction, args.laps), args, "square_path")
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ import numpy as np
 from bus import codec
 from bus.cliargs import positive_float
 from bus.controller import Twist
-from bus.node import node_arg_parser, run_node_args
+from bus.node import node_arg_parser, run_controller
 
 
 class Wander:
@@ -45,9 +45,7 @@ class Wander:
         gt = obs["ground_truth"]
         if gt is None:
             return Twist()
-        p = gt.pose.pose
-        x, y = p.position.x, p.position.y
-        yaw = codec.quaternion_to_yaw(p.orientation)
+        x, y, yaw = codec.pose_2d(gt)
         i = self.point(x, y)
         j = (i + int(self.sign * self.lookahead / self.step_len)) % len(self.points)
         tx, ty = self.points[j]
@@ -71,12 +69,8 @@ def main(argv=None) -> int:
     p.add_argument("--min-speed", type=positive_float, default=0.1, help="m/s (default 0.1)")
     p.add_argument("--max-speed", type=positive_float, default=0.2, help="m/s (default 0.2)")
     args = p.parse_args(argv)
-    try:
-        ctrl = Wander(speed_range=(args.min_speed, args.max_speed), clockwise=args.clockwise)
-    except ValueError as exc:
-        print(f"wander: {exc}", file=sys.stderr)
-        return 2
-    return run_node_args(ctrl, args, args.name or f"wander_{args.robot}")
+    return run_controller(lambda: Wander(speed_range=(args.min_speed, args.max_speed),
+                                         clockwise=args.clockwise), args, "wander")
 
 
 if __name__ == "__main__":

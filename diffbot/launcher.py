@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import signal
 import sys
 import tempfile
 import time
@@ -19,7 +18,7 @@ from bus.protocol import COUPLINGS
 from bus.session import BusConfigError
 from plant.world import WorldError, load_world
 
-from . import placement
+from . import placement, procs
 from .scenario import ProcessSpec, load_scenario
 from .scenario_run import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, VIEW, ScenarioRun,
                            summarize)
@@ -144,50 +143,48 @@ def main(argv: list[str] | None = None) -> int:
         run.view_port, run.view_host = args.view_port, args.view_host
     if placed:                         # processes on Ray nodes (diffbot/placement.py)
         try:
-            run = placement.place(run, args)
+            run.placement = placement.place(args, run.process_names(), run.endpoint,
+                                            run.zenoh_config)
         except (placement.PlacementError, BusConfigError) as exc:
             print(f"diffbot run: {exc}", file=sys.stderr)
             return EXIT_BAD_INPUT
+        run.endpoint, run.zenoh_config = run.placement.endpoint, run.placement.zenoh_config
     run.build()
     analysis = ANALYSES[spec.analysis]
-    stop_flag: list[str] = []
-
-    def on_signal(signum, frame):
-        stop_flag.append(signal.Signals(signum).name)
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
     observer = session = watch = None
     wall0 = time.monotonic()
     code = EXIT_FAILED
     try:
-        run.children[0].start(env)
-        try:
-            session = run.open_observer()
-        except BusConfigError as exc:
-            run.reason = f"cannot connect to the plant: {exc}"
-            run.failed = run.children[0]
-        if session is not None:
-            from .observer import Observer
-            observer = Observer(session, keys, analysis.keys(keys, spec, world))
-            watch = session.liveliness().declare_subscriber(keys.alive(), run.on_alive,
-                                                            history=True)
-            if run.start_recorder(env, session, stop_flag):
-                for c in run.children[1:]:
-                    if c is not run.recorder and c.name != VIEW:
-                        c.start(env)
-                print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
-                      f"{len(run.children)} processes, output in {out}", file=sys.stderr)
-                if placed:
-                    print(f"diffbot run: {placement.describe(run)}", file=sys.stderr)
-                code = run.supervise(stop_flag)
-            elif stop_flag:
-                run.reason = f"interrupted ({stop_flag[0]})"
-                code = EXIT_INTERRUPTED
+        with procs.stop_requests() as stop_flag:   # Ctrl-C, SIGTERM: stop the run in order
+            try:
+                run.children[0].start(env)
+                try:
+                    session = run.open_observer()
+                except BusConfigError as exc:
+                    run.reason = f"cannot connect to the plant: {exc}"
+                    run.failed = run.children[0]
+                if session is not None:
+                    from .observer import Observer
+                    observer = Observer(session, keys, analysis.keys(keys, spec, world))
+                    watch = session.liveliness().declare_subscriber(keys.alive(), run.on_alive,
+                                                                    history=True)
+                    if run.start_recorder(env, session, stop_flag):
+                        for c in run.children[1:]:
+                            if c is not run.recorder and c.name != VIEW:
+                                c.start(env)
+                        print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
+                              f"{len(run.children)} processes, output in {out}", file=sys.stderr)
+                        if placed:
+                            print(f"diffbot run: {placement.describe(run)}", file=sys.stderr)
+                        code = run.supervise(stop_flag)
+                    elif stop_flag:
+                        run.reason = f"interrupted ({stop_flag[0]})"
+                        code = EXIT_INTERRUPTED
+            finally:
+                run.stop_all()
     finally:
-        run.stop_all()
-        for s, h in old.items():
-            signal.signal(s, h)
         wall = time.monotonic() - wall0
         if watch is not None:
             watch.undeclare()

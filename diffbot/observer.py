@@ -12,6 +12,7 @@ import zenoh
 
 from bus import codec
 from bus.keys import Keys
+from bus.session import undeclare_all
 
 
 #: samples Zenoh may hold per key between two drains; a full channel makes the sender
@@ -86,8 +87,4 @@ class Observer:
         self._thread.join()
         self.drain()                      # what arrived before the close is kept
         subs, self._subs = self._subs, {}
-        for sub in subs.values():
-            try:
-                sub.undeclare()
-            except Exception:
-                pass
+        undeclare_all(subs.values())

@@ -1,5 +1,11 @@
 """``diffbot run SCENARIO --place NAME=HOST,...``: a scenario's processes on a Ray cluster.
 
+A :class:`Placement` is data: which process runs on which Ray node, the bus they share, and
+the engine that starts each placed process's command there. :func:`place` makes one from the
+command line; :class:`diffbot.scenario_run.ScenarioRun` takes it (``placement=``) and starts,
+watches and stops every process the same way, local or placed (this module imports nothing
+of the run's).
+
 Each placed process is a task of the runner's Ray engine (:mod:`diffbot.runner.ray_engine`)
 pinned to its node: :func:`diffbot.runner.task.execute` starts the command there and stops
 it by PID whatever happens. Processes not placed (and the launcher's own observer, which
@@ -33,13 +39,12 @@ import shutil
 import signal
 import socket
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 
-from bus.session import BusConfigError, make_config
+from bus.session import make_config
 
 from . import procs
 from . import runner
-from .scenario_run import RECORDER, ROS2_BRIDGE, VIEW, Child, ScenarioRun
 
 CONFIGS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
 #: how long the observer keeps trying to reach a plant that a Ray worker is still starting
@@ -131,32 +136,32 @@ def free_port(address: str) -> int:
         return s.getsockname()[1]
 
 
-def role(child: Child) -> str:
-    """The shipped TLS config a process uses (diffbot/configs/<role>_tls.json5)."""
-    if child.name in ("plant", RECORDER, VIEW):
-        return child.name
-    if child.name == ROS2_BRIDGE or "ros2" in child.argv[3:4]:
-        return "bridge"
-    return "node"
+def tls_config(role: str) -> str:
+    """The shipped TLS config of a process of this role (plant, recorder, view, bridge,
+    node): diffbot/configs/<role>_tls.json5."""
+    return os.path.join(CONFIGS, f"{role}_tls.json5")
 
 
-def _set_option(argv: list[str], option: str, value: str) -> None:
+def set_option(argv: list[str], option: str, value: str) -> None:
+    """Replace the value of ``option`` in a command line."""
     argv[argv.index(option) + 1] = value
 
 
-class RemoteChild(Child):
-    """A scenario process run as a Ray task on a chosen node; the launcher sees it as a
-    :class:`procs.Child` (poll, signal, exit code, log tail). It has no process on this
-    machine (``running()`` is False), so a local SIGKILL never concerns it: the run's
-    :meth:`PlacedRun.stop_all` waits for its task."""
+class RemoteChild(procs.Child):
+    """A scenario process run as a Ray task on a chosen node; the launcher sees it as the
+    local process it replaces (poll, signal, exit code, log tail, ``required``,
+    ``ends_run``). It has no process on this machine (``running()`` is False), so a local
+    SIGKILL never concerns it: :meth:`Placement.wait_tasks` waits for its task."""
 
-    def __init__(self, child: Child, engine, node: dict, out: str, timeout_s: float) -> None:
+    def __init__(self, child: procs.Child, engine, node: dict, out: str,
+                 timeout_s: float) -> None:
         folder = os.path.join(out, "placed", child.name)
-        super().__init__(child.name, list(child.argv), child.required, child.ends_run,
-                         False, log_path=os.path.join(folder, f"{child.name}.log"))
+        super().__init__(child.name, list(child.argv),
+                         log_path=os.path.join(folder, f"{child.name}.log"))
+        self.required, self.ends_run = child.required, child.ends_run
         self.final_log = child.log_path
         self.engine, self.node, self.folder = engine, node, folder
-        _set_option(self.argv, "--stats", os.path.join(folder, f"{child.name}.json"))
+        set_option(self.argv, "--stats", os.path.join(folder, f"{child.name}.json"))
         self.task = runner.Run(child.name, self.argv, folder, self.log_path, cpus=0.0,
                          timeout_s=timeout_s)
         self.ref = None
@@ -232,76 +237,68 @@ class RemoteChild(Child):
 
 
 @dataclass
-class PlacedRun(ScenarioRun):
-    """A :class:`ScenarioRun` whose processes named by ``where`` (name -> node) are Ray tasks."""
+class Placement:
+    """Where a run's processes go: the data :class:`diffbot.scenario_run.ScenarioRun` takes.
+
+    ``where`` maps a process name to the Ray node it runs on (the others run here);
+    ``engine`` starts, watches and stops the placed commands (the runner's Ray engine);
+    ``endpoint``/``zenoh_config`` are the bus every process uses and the launcher's own
+    config; with ``tls`` every process gets the shipped TLS config of its role."""
+    where: dict
     engine: object = None
-    where: dict = field(default_factory=dict)
+    endpoint: str = ""
+    zenoh_config: str | None = None
     tls: bool = False
+    #: how long the launcher keeps trying to reach a plant a Ray worker is still starting
+    observer_join_s: float = OBSERVER_JOIN_S
 
-    def build(self) -> None:
-        super().build()
-        if self.tls:
-            for c in self.children:
-                _set_option(c.argv, "--zenoh-config",
-                            os.path.join(CONFIGS, f"{role(c)}_tls.json5"))
-        self.children = [RemoteChild(c, self.engine, self.where[c.name], self.out,
-                                     self.timeout_s + 60.0) if c.name in self.where else c
-                         for c in self.children]
-        if self.recorder is not None:
-            self.recorder = next(c for c in self.children if c.name == RECORDER)
+    def child(self, c: procs.Child, out: str, timeout_s: float) -> procs.Child:
+        """``c`` as it runs: a :class:`RemoteChild` on its node if placed, else itself."""
+        if c.name not in self.where:
+            return c
+        return RemoteChild(c, self.engine, self.where[c.name], out, timeout_s)
 
-    def open_observer(self):
-        """The launcher's session, retried while the plant's task is still starting (a
-        Ray worker may take seconds) and the plant has not failed."""
-        deadline = time.monotonic() + OBSERVER_JOIN_S
-        while True:
-            try:
-                return super().open_observer()
-            except BusConfigError:
-                if time.monotonic() > deadline or self.children[0].poll() is not None:
-                    raise
-
-    def stop_all(self) -> None:
-        """Stop as a local run does (a remote process is asked first, like a local one is
-        sent SIGINT), then wait for every task to report; a task that does not is killed."""
-        try:
-            super().stop_all()
-            remote = [c for c in self.children if isinstance(c, RemoteChild) and c.started]
-            if not procs.wait_all(remote, TASKS_STOP_S):
-                for c in remote:
-                    c.signal(signal.SIGKILL)
-                procs.wait_all(remote, 10.0)
+    def wait_tasks(self, children: list, out: str) -> None:
+        """After the local stop (a remote process is asked first, as a local one is sent
+        SIGINT): wait for every task to report; a task that does not is killed."""
+        remote = [c for c in children if isinstance(c, RemoteChild) and c.started]
+        if not procs.wait_all(remote, TASKS_STOP_S):
             for c in remote:
-                if c.poll() is None:
-                    c.error = "its task did not stop"
-                    c._collect()
-                    c._ended(-signal.SIGKILL)
-            try:
-                os.rmdir(os.path.join(self.out, "placed"))   # empty once all came back
-            except OSError:
-                pass
-        finally:
+                c.signal(signal.SIGKILL)
+            procs.wait_all(remote, 10.0)
+        for c in remote:
+            if c.poll() is None:
+                c.error = "its task did not stop"
+                c._collect()
+                c._ended(-signal.SIGKILL)
+        try:
+            os.rmdir(os.path.join(out, "placed"))   # empty once all came back
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        if self.engine is not None:
             self.engine.close()
 
 
-def place(run: ScenarioRun, args) -> PlacedRun:
-    """``run`` as a :class:`PlacedRun`: Ray joined, hosts resolved, the bus chosen.
-    Raises :class:`PlacementError` (or BusConfigError) for bad input."""
+def place(args, names: list[str], endpoint: str, zenoh_config: str | None) -> Placement:
+    """The :class:`Placement` the command line asks for, over a run's processes ``names``
+    and its bus (``endpoint``, ``zenoh_config``: the user's, if any): Ray joined, hosts
+    resolved, the bus chosen. Raises :class:`PlacementError` (or BusConfigError) for bad
+    input."""
     if args.tls and args.zenoh_config:
         raise PlacementError("--tls and --zenoh-config: choose one (--tls uses the shipped "
                              "configs, --zenoh-config one file for every process)")
     if args.tls and args.endpoint:
         raise PlacementError("--tls: the processes connect to your router "
                              "(DIFFBOT_ROUTER), not to --endpoint")
-    place = parse_place(args.place)
-    if not place:
+    asked = parse_place(args.place)
+    if not asked:
         raise PlacementError("--address/--tls are for a placed run: add --place NAME=HOST")
-    names = ["plant", *([RECORDER] if run.record else []), *([ROS2_BRIDGE] if run.ros2 else []),
-             *([VIEW] if run.view_port is not None else []), *(p.name for p in run.spec.processes)]
-    hosts = assign(place, names)
-    observer_config = run.zenoh_config
+    hosts = assign(asked, names)
+    observer_config = zenoh_config
     if args.tls:
-        observer_config = os.path.join(CONFIGS, "recorder_tls.json5")
+        observer_config = tls_config("recorder")
         make_config("observer", "", observer_config)   # unset DIFFBOT_* -> an error now
     from .runner.ray_engine import RayEngine
     address = args.address or "auto"
@@ -312,29 +309,25 @@ def place(run: ScenarioRun, args) -> PlacedRun:
     try:
         nodes = engine.nodes()
         where = {name: resolve(host, nodes) for name, host in hosts.items()}
-        endpoint = run.endpoint
-        if not (args.tls or run.zenoh_config or endpoint):
+        if not (args.tls or zenoh_config or endpoint):
             plant = where.get("plant") or next(n for n in nodes
                                                if n["id"] == engine.local_node_id())
             port = engine.call_on(plant["id"], free_port, plant["address"])
             endpoint = f"tcp/{plant['address']}:{port}"
-        values = {f.name: getattr(run, f.name) for f in fields(run)}
-        values.update(endpoint=endpoint, zenoh_config=observer_config)
-        placed = PlacedRun(**values, engine=engine, where=where, tls=args.tls)
+        return Placement(where, engine, endpoint, observer_config, args.tls)
     except BaseException:
         engine.close()
         raise
-    return placed
 
 
-def where_ran(run: PlacedRun) -> dict[str, dict]:
+def where_ran(run) -> dict[str, dict]:
     """Each process's Ray node (id, address, host name) for ``summary.json``; ``{}`` for
     the ones that ran on this machine."""
     return {c.name: ({k: c.node[k] for k in ("id", "address", "hostname")}
                      if isinstance(c, RemoteChild) else {}) for c in run.children}
 
 
-def describe(run: PlacedRun) -> str:
+def describe(run) -> str:
     """Where each process runs, for the launcher's first line."""
     here = [c.name for c in run.children if not isinstance(c, RemoteChild)]
     parts = [f"{c.name} on {c.node['address']} ({c.node['id'][:8]})"

@@ -21,6 +21,8 @@ import subprocess
 import sys
 import time
 from collections import deque
+from contextlib import contextmanager
+from typing import Iterator
 
 #: lines of a log shown when a child failed
 TAIL_LINES = 12
@@ -293,3 +295,20 @@ def _killpg(pgid: int, sig: int) -> None:
         os.killpg(pgid, sig)
     except (ProcessLookupError, PermissionError):
         pass
+
+
+@contextmanager
+def stop_requests() -> Iterator[list[str]]:
+    """A supervisor's stop signals: inside, SIGINT and SIGTERM do not end this process but
+    append their names to the list it yields (the supervisor stops its children in order,
+    then reports); on the way out the old handlers are back."""
+    flag: list[str] = []
+
+    def on_signal(signum, frame):
+        flag.append(signal.Signals(signum).name)
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield flag
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)

@@ -30,8 +30,9 @@ import zenoh
 
 from bus.cliargs import ArgumentParser
 from bus.linkcheck import ConfigFileError, diagnose, load_config
-from bus.log import RejectCounter, setup_logging
-from bus.session import DEFAULT_LEASE_MS, BusConfigError, install_stop_signals
+from bus.log import RejectCounter
+from bus.process import EXIT_BAD_CONFIG, Exit, Process, process_main
+from bus.session import DEFAULT_LEASE_MS, BusConfigError, add_log_arg
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
@@ -132,22 +133,24 @@ def main(argv: list[str] | None = None) -> int:
                         "e.g. tcp/192.168.1.10:7447, tls/host:7447)")
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="a Zenoh JSON5 router config used as it is (TLS, access control)")
-    p.add_argument("--log-level", default="INFO")
-    args = p.parse_args(argv)
-    log = setup_logging("router", args.log_level)
+    add_log_arg(p)
+    return process_main(_run, p, argv, "router")
+
+
+def _run(proc: Process) -> int:
+    args, log = proc.args, proc.log
     relay_zenoh_log(log)
     try:
         conf = router_config(args.listen, args.zenoh_config)
     except BusConfigError as exc:
-        log.error("%s", exc)
-        return 2
+        raise Exit(EXIT_BAD_CONFIG, exc) from None
     try:
-        session = zenoh.open(conf)
+        session = proc.session = zenoh.open(conf)
     except Exception as exc:  # zenoh.ZError: cannot listen there
-        log.error("cannot start the router: %s (%s)", "; ".join(diagnose(conf)), exc)
-        return 2
+        raise Exit(EXIT_BAD_CONFIG, f"cannot start the router: {'; '.join(diagnose(conf))} "
+                                    f"({exc})") from None
     stop = threading.Event()
-    install_stop_signals(stop)
+    proc.stop_on_signals(stop)
     sessions = log_sessions(session, log)
     try:
         where = json.loads(conf.get_json("listen/endpoints"))
@@ -160,7 +163,6 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         try:
             sessions.undeclare()
-            session.close()
         except Exception as exc:
             log.warning("closing the session: %s", exc)
 

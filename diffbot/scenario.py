@@ -38,10 +38,9 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
-from bus.cliargs import did_you_mean
 from bus.keys import check_name
 from bus.protocol import COUPLINGS
-from plant.tomlfile import Table, WorldError, read_toml, tomllib
+from plant.tomlfile import Table, WorldError, read_toml, shipped_or_path, tomllib
 
 SCENARIOS_DIR = os.path.join(os.path.dirname(__file__), "scenarios")
 ANALYSES = ("square", "drive-test", "follow", "swarm", "none")
@@ -89,14 +88,8 @@ class ScenarioSpec:
 
 
 def scenario_path(name_or_path: str) -> str:
-    if os.path.isfile(name_or_path):
-        return name_or_path
-    p = os.path.join(SCENARIOS_DIR, f"{name_or_path}.toml")
-    if os.path.isfile(p):
-        return p
-    known = [n for n, _ in list_scenarios()]
-    raise WorldError(f"{name_or_path}: no such scenario{did_you_mean(name_or_path, known)} "
-                     f"(shipped: {', '.join(known)})")
+    """A scenario file as given, or the name of a shipped one (``square``, ``follow``)."""
+    return shipped_or_path(name_or_path, SCENARIOS_DIR, "scenario")
 
 
 def load_scenario(name_or_path: str) -> ScenarioSpec:

@@ -8,9 +8,9 @@ alone. A process marked ``ends_run`` that exits 0 ends the run normally. A proce
 still there but has lost its bus lease (stopped with SIGSTOP, or wedged) counts as dead: the
 run watches ``sim/alive/*`` and /proc. When nodes exit 3 because the plant went away, the
 report names the plant. Lockstep members may instead be composed into the plant's process
-(``compose``). Where the processes run is the placement's business (diffbot/placement.py),
-which hands back a run of the same kind; ``diffbot run`` (diffbot/launcher.py) is the
-command line.
+(``compose``). Where the processes run is data the run takes: a
+:class:`diffbot.placement.Placement` (``placement=``) names the processes that run as Ray
+tasks on other nodes; ``diffbot run`` (diffbot/launcher.py) is the command line.
 """
 from __future__ import annotations
 
@@ -27,10 +27,11 @@ import zenoh
 from bus.jsonio import read_json
 from bus.keys import Keys
 from bus.runtime import EXIT_PLANT_GONE
-from bus.session import open_session
+from bus.session import BusConfigError, open_session
 
 from . import procs
 from .observer import OBSERVER
+from .placement import Placement, set_option, tls_config
 from .procs import diffbot_argv
 from .scenario import ScenarioSpec, expand
 
@@ -80,6 +81,7 @@ class ScenarioRun:
     ros2: bool = False              # --ros2: the ROS 2 bridge (bridges/ros2.py), free running
     view_port: int | None = None    # --view [--view-port P]: serve the run to Foxglove
     view_host: str = "127.0.0.1"
+    placement: Placement | None = None   # --place: processes on Ray nodes (diffbot/placement.py)
     children: list[Child] = field(default_factory=list)
     reason: str = ""
     failed: Child | None = None
@@ -156,23 +158,60 @@ class ScenarioRun:
                          "out": self.out})
             self.children.append(Child(p.name, argv, p.required, p.ends_run, p.interactive,
                                        log_path=os.path.join(logs, f"{p.name}.log")))
+        if self.placement is not None:
+            self._place(self.placement)
+
+    def process_names(self) -> list[str]:
+        """The run's processes (composed ones too), as ``--place`` names them."""
+        return ["plant", *([RECORDER] if self.record else []),
+                *([ROS2_BRIDGE] if self.ros2 else []),
+                *([VIEW] if self.view_port is not None else []),
+                *(p.name for p in self.spec.processes)]
+
+    def _place(self, placement: Placement) -> None:
+        """The processes the placement names run as Ray tasks on their nodes; with its
+        ``tls``, every process gets the shipped TLS config of its role."""
+        if placement.tls:
+            for c in self.children:
+                set_option(c.argv, "--zenoh-config", tls_config(role(c)))
+        self.children = [placement.child(c, self.out, self.timeout_s + 60.0)
+                         for c in self.children]
+        if self.recorder is not None:
+            self.recorder = next(c for c in self.children if c.name == RECORDER)
 
     def open_observer(self):
-        """The launcher's own session: the observer that the analysis reads."""
-        return open_session("observer", self.endpoint, self.zenoh_config)
+        """The launcher's own session: the observer that the analysis reads. A placed run
+        tries again while the plant's task is still starting (a Ray worker may take
+        seconds) and the plant has not failed."""
+        deadline = time.monotonic() + (self.placement.observer_join_s
+                                       if self.placement is not None else 0.0)
+        while True:
+            try:
+                return open_session("observer", self.endpoint, self.zenoh_config)
+            except BusConfigError:
+                if (self.placement is None or time.monotonic() > deadline
+                        or self.children[0].poll() is not None):
+                    raise
 
     def stop_all(self) -> None:
         """SIGINT the nodes, then the plant (so nodes do not see it vanish), then SIGKILL
-        by PID whatever is left after the grace period, the recorder last."""
-        plant = self.children[0]
-        nodes = [c for c in self.children[1:] if c is not self.recorder]
-        for c in nodes:
-            c.signal(signal.SIGINT)
-        procs.wait_all(nodes, STOP_GRACE_S / 2)
-        plant.signal(signal.SIGINT)
-        procs.wait_all([plant, *nodes], STOP_GRACE_S / 2)
-        self._stop_recorder()
-        procs.stop(self.children, 0.0, signal.SIGKILL)
+        by PID whatever is left after the grace period, the recorder last. A placed run
+        then waits for its tasks to report (:meth:`Placement.wait_tasks`)."""
+        try:
+            plant = self.children[0]
+            nodes = [c for c in self.children[1:] if c is not self.recorder]
+            for c in nodes:
+                c.signal(signal.SIGINT)
+            procs.wait_all(nodes, STOP_GRACE_S / 2)
+            plant.signal(signal.SIGINT)
+            procs.wait_all([plant, *nodes], STOP_GRACE_S / 2)
+            self._stop_recorder()
+            procs.stop(self.children, 0.0, signal.SIGKILL)
+            if self.placement is not None:
+                self.placement.wait_tasks(self.children, self.out)
+        finally:
+            if self.placement is not None:
+                self.placement.close()
 
     def on_alive(self, sample) -> None:
         """Liveliness callback (Zenoh's thread): a process's ``sim/alive/<name>`` token came or
@@ -297,6 +336,15 @@ class ScenarioRun:
         if self.recorder is not None:
             self.recorder.signal(signal.SIGINT)
             procs.wait_all([self.recorder], RECORDER_GRACE_S)
+
+
+def role(child: Child) -> str:
+    """The role a process's shipped TLS config is named for (diffbot/configs/<role>_tls.json5)."""
+    if child.name in ("plant", RECORDER, VIEW):
+        return child.name
+    if child.name == ROS2_BRIDGE or "ros2" in child.argv[3:4]:
+        return "bridge"
+    return "node"
 
 
 def composable(p) -> bool:

@@ -2,27 +2,17 @@
 line (:class:`fmus.fmu_node.FmuNode`; docs/fmu.md)."""
 from __future__ import annotations
 
-
 import argparse
 import math
 import sys
-from pathlib import Path
 
+from bus.cliargs import name_arg
 from bus.log import setup_logging
-from bus.node import _name_arg, node_arg_parser, run_node_args
-from bus.runtime import EXIT_BAD_CONFIG
+from bus.node import node_arg_parser, run_node_args
+from bus.process import EXIT_BAD_CONFIG
 
-from .fmu import Fmu
-from .mapping import FieldPath, FmuNodeError, Mapping, load_mapping
-
-__all__ = ["FmuNodeError", "FieldPath", "Mapping", "load_mapping", "resolve_fmu", "Fmu",
-           "FmuNode", "open_node", "main"]
-
-FMUS_DIR = Path(__file__).resolve().parent
-REPO_DIR = FMUS_DIR.parent
-BUILD_DIR = FMUS_DIR / "build"
-BUILD_HINT = "build it with `diffbot fmu build` (or `make setup`)"
 from .fmu_node import open_node
+from .mapping import FmuNodeError
 
 
 def _pairs(what: str):
@@ -58,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mapping", metavar="FILE",
                    help="TOML mapping of robot messages to FMU variables (default "
                         "fmus/<modelIdentifier>/mapping.toml if there is one, else none)")
-    p.add_argument("--instance", type=_name_arg("FMU instance name"),
+    p.add_argument("--instance", type=name_arg("FMU instance name"),
                    help="the <instance> of its fmu/<instance>/... keys (default: the model "
                         "identifier)")
     p.add_argument("--connect", action="append", type=_pairs("VAR=fmu/INSTANCE/VARIABLE"),

@@ -14,14 +14,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
-
 from bus import codec
 from bus.keys import TOPICS, BadName, check_fmu_topic, is_fmu_topic
 from bus.controller import WHEEL_JOINTS
+from plant.tomlfile import Table, read_toml
 
 FMUS_DIR = Path(__file__).resolve().parent
 
@@ -176,111 +172,63 @@ class Mapping:
 TRANSFORMS = ("value", "rate")
 
 
-class _Table:
-    """One table of the mapping file; remembers which keys were read to report the rest."""
-
-    def __init__(self, path: str, where: str, data) -> None:
-        self.path, self.where = path, where
-        if not isinstance(data, dict):
-            self.fail("", f"expected a table, got {type(data).__name__}")
-        self.data, self.used = data, set()
-
-    def fail(self, key: str, reason: str):
-        k = f"{self.where}.{key}" if key and self.where else key or self.where
-        raise FmuNodeError(f"{self.path}:{k}: {reason}")
-
-    def string(self, key: str, default: str | None = None) -> str:
-        self.used.add(key)
-        if key not in self.data:
-            if default is None:
-                self.fail(key, "missing (a string is required)")
-            return default
-        v = self.data[key]
-        if not isinstance(v, str) or not v:
-            self.fail(key, f"expected a non-empty string, got {v!r}")
-        return v
-
-    def number(self, key: str, default: float) -> float:
-        self.used.add(key)
-        v = self.data.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            self.fail(key, f"expected a finite number, got {v!r}")
-        return float(v)
-
-    def done(self, known: tuple[str, ...] | None = None) -> None:
-        for k in self.data:
-            if k not in self.used:
-                hint = f" (known: {', '.join(known)})" if known else ""
-                self.fail(k, f"unknown key{hint}")
-
-
 def load_mapping(path: str | Path) -> Mapping:
     """Read and check a mapping file (syntax, keys, topics, message fields); the FMU's
     variables are checked by :meth:`Fmu.check_mapping`. Raises FmuNodeError."""
     path = str(path)
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except FileNotFoundError:
-        raise FmuNodeError(f"{path}: no such mapping file") from None
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise FmuNodeError(f"{path}: not a valid TOML file: {exc}") from None
+    if not Path(path).exists():
+        raise FmuNodeError(f"{path}: no such mapping file")
+    data = read_toml(path, FmuNodeError)
     m = Mapping(path)
-    top = _Table(path, "", data)
-    raw_inputs = data.get("input", [])
-    top.used.add("input")
+    top = Table(path, "", data, FmuNodeError)
+    raw_inputs = top.raw("input", [])
     if isinstance(raw_inputs, dict):
         raw_inputs = [raw_inputs]
     if not isinstance(raw_inputs, list):
         top.fail("input", "expected [[input]] tables")
     seen: set[str] = set()
     for n, raw in enumerate(raw_inputs):
-        t = _Table(path, f"input[{n}]", raw)
-        var = t.string("variable")
+        t = Table(path, f"input[{n}]", raw, FmuNodeError)
+        var = t.string("variable", nonempty=True)
         if var in seen:
             t.fail("variable", f"{var!r} is fed twice")
         seen.add(var)
-        topic = t.string("topic")
+        topic = t.string("topic", nonempty=True)
         fp, msgtype = _input_source(t, topic)
-        transform = t.string("transform", "value")
-        if transform not in TRANSFORMS:
-            t.fail("transform", f"must be one of {', '.join(TRANSFORMS)}, got {transform!r}")
+        transform = t.string("transform", "value", TRANSFORMS)
         scale = t.number("scale", 1.0)
         t.done(("variable", "topic", "field", "type", "transform", "scale"))
         m.inputs.append(InputMap(var, topic, fp, transform, scale, f"{path}:input[{n}]",
                                  msgtype))
 
-    raw_outputs = data.get("output", [])
-    top.used.add("output")
+    raw_outputs = top.raw("output", [])
     single = isinstance(raw_outputs, dict)
     if single:
         raw_outputs = [raw_outputs]
     if not isinstance(raw_outputs, list):
         top.fail("output", "expected [output] tables")   # none: every output on fmu/ keys
     for n, raw in enumerate(raw_outputs):
-        t = _Table(path, "output" if single else f"output[{n}]", raw)
-        topic = t.string("topic")
+        t = Table(path, "output" if single else f"output[{n}]", raw, FmuNodeError)
+        topic = t.string("topic", nonempty=True)
         if topic not in TOPICS:
             t.fail("topic", f"unknown topic {topic!r} (topics: {', '.join(TOPICS)})")
-        message = t.string("message")
+        message = t.string("message", nonempty=True)
         if message not in MESSAGES:
             t.fail("message", f"unknown message {message!r} (messages: {', '.join(MESSAGES)})")
         kind = MESSAGES[message]
         if kind.msgtype != TOPICS[topic].msgtype:
             t.fail("message", f"{message} builds {kind.msgtype} but {topic} carries "
                               f"{TOPICS[topic].msgtype}")
-        options = {o: t.string(o, d) for o, d in kind.options.items()}
+        options = {o: t.string(o, d, nonempty=True) for o, d in kind.options.items()}
         fields = {}
         for f in kind.required + kind.optional:
             if f in t.data or f in kind.required:
-                fields[f] = t.string(f)
+                fields[f] = t.string(f, nonempty=True)
         t.done(("topic", "message", *kind.options, *kind.required, *kind.optional))
         m.outputs.append(OutputMap(topic, kind, message, fields, options, f"{path}:{t.where}"))
 
-    raw_params = data.get("parameters", {})
-    top.used.add("parameters")
-    t = _Table(path, "parameters", raw_params)
-    for name, v in raw_params.items():
+    t = top.table("parameters")
+    for name, v in t.data.items():
         t.used.add(name)
         if isinstance(v, str):
             try:
@@ -292,8 +240,7 @@ def load_mapping(path: str | Path) -> Mapping:
                          f"\"robots.{{robot}}.wheel_radius_m\", got {v!r}")
         m.parameters[name] = v
     m.where_parameters = f"{path}:parameters"
-    top.used.add("step_size")
-    step = data.get("step_size", "fmu")
+    step = top.raw("step_size", "fmu")
     if step not in ("fmu", "tick") and (isinstance(step, bool) or not isinstance(
             step, (int, float)) or not 0 < step < math.inf):
         top.fail("step_size", f"expected \"fmu\", \"tick\" or a step in s > 0, got {step!r}")
@@ -302,7 +249,7 @@ def load_mapping(path: str | Path) -> Mapping:
     return m
 
 
-def _input_source(t: _Table, topic: str) -> tuple[FieldPath | None, str | None]:
+def _input_source(t: Table, topic: str) -> tuple[FieldPath | None, str | None]:
     """(field path, producer's type) of an input: a robot topic needs a numeric field; an
     ``fmu/<instance>/<variable>`` key carries one variable whole (``type`` optional)."""
     if is_fmu_topic(topic):
@@ -312,15 +259,16 @@ def _input_source(t: _Table, topic: str) -> tuple[FieldPath | None, str | None]:
             t.fail("topic", str(exc))
         if "field" in t.data:
             t.fail("field", f"{topic} carries one FMU variable: no field (docs/fmu.md)")
-        kind = t.string("type", "")
+        kind = t.string("type", "", nonempty=True)
         if kind and f"std_msgs/msg/{kind}" not in codec.TYPESTORE.fielddefs:
             t.fail("type", f"unknown std_msgs type {kind!r} (e.g. Float64, Int32, Bool)")
         return None, f"std_msgs/msg/{kind}" if kind else None
     if topic not in TOPICS:
         t.fail("topic", f"unknown topic {topic!r} (topics: {', '.join(TOPICS)}, or an FMU "
                         "node's fmu/<instance>/<variable>)")
+    text = t.string("field", nonempty=True)
     try:
-        fp = FieldPath(t.string("field"))
+        fp = FieldPath(text)
         fp.check_msgtype(TOPICS[topic].msgtype)
     except ValueError as exc:
         t.fail("field", str(exc))

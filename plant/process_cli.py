@@ -7,11 +7,9 @@ import argparse
 
 from bus.cliargs import ArgumentParser, nonneg_float, nonneg_int, positive_float
 from bus.composed import Composed
-from bus.jsonio import write_stats
-from bus.keys import Keys
-from bus.log import setup_logging
+from bus.process import EXIT_BAD_CONFIG, EXIT_FAILED, Exit, Process, process_main
 from bus.protocol import COUPLINGS
-from bus.session import BusConfigError, add_process_args, install_stop_signals, open_session
+from bus.session import add_process_args
 
 from . import modes
 from .memory import keep_freed_memory
@@ -74,14 +72,17 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None, compose=None) -> int:
     """``diffbot plant``; ``compose(command) -> bus.node.MemberSpec`` builds a member for
     ``--compose`` (the command line's, diffbot.cli.compose_member)."""
-    args = build_parser().parse_args(argv)
-    log = setup_logging("plant", args.log_level)
+    return process_main(lambda proc: _run(proc, compose), build_parser(), argv, "plant")
+
+
+def _run(proc: Process, compose) -> int:
+    args, log = proc.args, proc.log
     keep_freed_memory()
     try:
         spec = load_world(args.world, args.set)
         if args.seed is not None:
             spec.seed = args.seed
-        keys = Keys(args.namespace)
+        keys = proc.keys
         disabled = tuple(x for x in args.disable.split(",") if x)
         if set(disabled) - {"lidar", "camera"}:
             raise WorldError(f"--disable takes lidar and/or camera, got {args.disable!r}")
@@ -89,13 +90,8 @@ def main(argv: list[str] | None = None, compose=None) -> int:
             raise ValueError("--compose needs the diffbot command (diffbot plant --compose)")
         members = [compose(c) for c in args.compose]
     except (WorldError, ValueError) as exc:
-        log.error("%s", exc)
-        return 2
-    try:
-        session = open_session("plant", args.endpoint, args.zenoh_config)
-    except BusConfigError as exc:
-        log.error("%s", exc)
-        return 2
+        raise Exit(EXIT_BAD_CONFIG, exc) from None
+    session = proc.open("plant")
     plant = None
     try:
         composed = Composed(members, keys, session) if members else None
@@ -108,25 +104,19 @@ def main(argv: list[str] | None = None, compose=None) -> int:
                       coupling=args.coupling, physics_process=args.physics_process,
                       rejoin_timeout_s=args.rejoin_timeout,
                       skip_unread=args.zenoh_config is None, composed=composed)
-        install_stop_signals(plant.stop_event)
+        proc.stop_on_signals(plant.stop_event)
         code = plant.run() or plant.exit_code
         st = plant.stats()
         log.info("stopped at t=%.2f s after %d ticks (%.1fx real time)", st["sim_time_s"],
                  st["ticks"], st["real_time_factor"] or 0.0)
         return code
     except ValueError as exc:               # a composed member that cannot join
-        log.error("%s", exc)
-        return 2
+        raise Exit(EXIT_BAD_CONFIG, exc) from None
     except PhysicsError as exc:
-        log.error("%s", exc)
         if plant is not None:
             plant.end_reason = "physics process failed"
-        return 1
+        raise Exit(EXIT_FAILED, exc) from None
     finally:
-        stats = plant.stats() if plant is not None else None
-        try:
-            if plant is not None:
-                plant.close(plant.end_reason)
-        finally:                        # the session always closes (else the exit hangs)
-            session.close()
-        write_stats(args.stats, stats, log)
+        if plant is not None:
+            proc.stats = plant.stats()     # (as it ran, before it closes)
+            plant.close(plant.end_reason)

@@ -1,10 +1,11 @@
-"""TOML files read with a line per mistake: world files (:mod:`plant.world`) and scenario
-files (diffbot/scenario.py) alike. Every error is ``file:key: reason`` (:class:`WorldError`),
-so the command line can print it as one line and exit 2."""
+"""TOML files read with a line per mistake: world files (:mod:`plant.world`), scenario
+files (diffbot/scenario.py) and FMU mapping files (fmus/mapping.py) alike. Every error is
+``file:key: reason`` (:class:`WorldError`, or the error type the reader names), so the
+command line can print it as one line and exit 2."""
 from __future__ import annotations
 
-import difflib
 import math
+import os
 import re
 
 try:
@@ -22,22 +23,37 @@ class WorldError(ValueError):
     """A world or scenario file that cannot be used; the message is ``file:key: reason``."""
 
 
-def read_toml(path: str) -> dict:
-    """The TOML file at ``path``, or WorldError naming the file and what is wrong."""
+def read_toml(path: str, error: type[ValueError] = WorldError) -> dict:
+    """The TOML file at ``path``, or ``error`` naming the file and what is wrong."""
     try:
         with open(path, "rb") as f:
             return tomllib.load(f)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise WorldError(f"{path}: not valid TOML: {exc}") from None
+        raise error(f"{path}: not valid TOML: {exc}") from None
     except OSError as exc:
-        raise WorldError(f"{path}: cannot read: {exc.strerror}") from None
+        raise error(f"{path}: cannot read: {exc.strerror}") from None
+
+
+def shipped_or_path(name_or_path: str, folder: str, what: str, listed: str = "shipped") -> str:
+    """``name_or_path`` if it is a file, else the shipped ``folder/<name>.toml``, else
+    WorldError ``NAME: no such <what> (did you mean ...?) (<listed>: a, b, ...)``."""
+    if os.path.isfile(name_or_path):
+        return name_or_path
+    shipped = os.path.join(folder, f"{name_or_path}.toml")
+    if os.path.isfile(shipped):
+        return shipped
+    names = sorted(f[:-5] for f in os.listdir(folder) if f.endswith(".toml"))
+    raise WorldError(f"{name_or_path}: no such {what}{did_you_mean(name_or_path, names)} "
+                     f"({listed}: {', '.join(names)})")
 
 
 class Table:
-    """Typed access to one TOML table that remembers which keys were read."""
+    """Typed access to one TOML table that remembers which keys were read; its mistakes
+    (and its sub-tables') are ``error`` (WorldError unless the reader names another)."""
 
-    def __init__(self, path: str, where: str, data: dict) -> None:
-        self.path, self.where, self.data = path, where, data
+    def __init__(self, path: str, where: str, data: dict,
+                 error: type[ValueError] = WorldError) -> None:
+        self.path, self.where, self.data, self.error = path, where, data, error
         if not isinstance(data, dict):
             self.fail("", f"expected a table, got {type(data).__name__}")
         self.used: set[str] = set()
@@ -48,7 +64,7 @@ class Table:
         return f"{self.where}.{k}" if self.where else k
 
     def fail(self, k: str, reason: str):
-        raise WorldError(f"{self.path}:{self.key(k) if k else self.where}: {reason}")
+        raise self.error(f"{self.path}:{self.key(k) if k else self.where}: {reason}")
 
     def has(self, k: str) -> bool:
         return k in self.data
@@ -81,13 +97,15 @@ class Table:
             self.fail(k, f"expected an integer, got {type(v).__name__} {v!r}")
         return v
 
-    def string(self, k: str, default=None, choices=None) -> str:
+    def string(self, k: str, default=None, choices=None, *, nonempty=False) -> str:
         self.used.add(k)
         if k not in self.data and default is None:
             self.fail(k, "missing (a string is required)")
         v = self.raw(k, default)
         if not isinstance(v, str):
             self.fail(k, f"expected a string, got {type(v).__name__} {v!r}")
+        if nonempty and not v and k in self.data:
+            self.fail(k, "expected a non-empty string, got ''")
         if choices and v not in choices:
             self.fail(k, f"must be one of {', '.join(choices)}, got {v!r}"
                          f"{did_you_mean(v, choices)}")
@@ -122,18 +140,21 @@ class Table:
         return v
 
     def table(self, k: str) -> "Table":
-        return Table(self.path, self.key(k), self.raw(k, {}))
+        return Table(self.path, self.key(k), self.raw(k, {}), self.error)
 
     def tables(self, k: str) -> list["Table"]:
         v = self.raw(k, [])
         if not isinstance(v, list):
             self.fail(k, f"expected an array of tables ([[{k}]]), got {type(v).__name__}")
-        return [Table(self.path, f"{self.key(k)}[{i}]", item) for i, item in enumerate(v)]
+        return [Table(self.path, f"{self.key(k)}[{i}]", item, self.error)
+                for i, item in enumerate(v)]
 
-    def done(self) -> None:
-        """Refuse keys nobody asked for (typos), suggesting the closest known one."""
+    def done(self, known: tuple[str, ...] = ()) -> None:
+        """Refuse keys nobody asked for (typos), suggesting the closest one read or
+        ``known`` (else listing ``known``: the keys the table may hold)."""
         for k in self.data:
             if k not in self.used:
-                close = difflib.get_close_matches(k, sorted(self.used), n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                hint = did_you_mean(k, sorted(self.used | set(known)))
+                if not hint and known:
+                    hint = f" (known: {', '.join(known)})"
                 self.fail(k, f"unknown key{hint}")

@@ -19,7 +19,7 @@ from bus.keys import BadName, check_name
 from .camera import CameraConfig
 from .lidar import LidarConfig
 from .noise import NoiseConfig, parse_noise
-from .tomlfile import Table, WorldError, read_toml, tomllib
+from .tomlfile import Table, WorldError, read_toml, shipped_or_path, tomllib
 
 WORLDS_DIR = os.path.join(os.path.dirname(__file__), "worlds")
 
@@ -312,14 +312,7 @@ def _check_robot_overlap(spec: WorldSpec, top: Table) -> None:
 
 def resolve_world_path(name_or_path: str) -> str:
     """A path as given, or the name of a shipped world (``living_room``, ``empty``)."""
-    if os.path.exists(name_or_path):
-        return name_or_path
-    shipped = os.path.join(WORLDS_DIR, f"{name_or_path}.toml")
-    if os.path.exists(shipped):
-        return shipped
-    shipped = sorted(f[:-5] for f in os.listdir(WORLDS_DIR) if f.endswith(".toml"))
-    raise WorldError(f"{name_or_path}: no such world file{did_you_mean(name_or_path, shipped)} "
-                     f"(shipped worlds: {', '.join(shipped)})")
+    return shipped_or_path(name_or_path, WORLDS_DIR, "world file", "shipped worlds")
 
 
 def load_world(name_or_path: str, overrides: list[str] | tuple[str, ...] = ()) -> WorldSpec:

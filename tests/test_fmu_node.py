@@ -282,7 +282,7 @@ def bad_mappings(tmp: Path) -> dict[str, tuple[Path, str]]:
                               r"has no variable 'wheel_radus' \(did you mean|has no variable"),
         "wrong message for topic": (m("wrong_msg", GOOD_INPUT + GOOD_OUTPUT.replace(
             '"odometry"', '"twist"')), r"wrong_msg.toml:output.message: twist builds "),
-        "not toml": (m("not_toml", "[[input]\nvariable ="), r"not_toml.toml: not a valid TOML"),
+        "not toml": (m("not_toml", "[[input]\nvariable ="), r"not_toml.toml: not valid TOML"),
     }
 
 

@@ -12,8 +12,8 @@ import time
 import pytest
 
 from diffbot import procs as dprocs
-from diffbot.scenario_run import RECORDER, VIEW
-from diffbot.placement import CONFIGS, PlacedRun, PlacementError, assign, parse_place, resolve
+from diffbot.scenario_run import RECORDER, VIEW, ScenarioRun
+from diffbot.placement import CONFIGS, Placement, PlacementError, assign, parse_place, resolve
 from diffbot.scenario import load_scenario
 
 from .conftest import wait_for
@@ -62,9 +62,10 @@ def test_a_host_is_a_node_id_prefix_ip_host_name_or_resource_and_one_node_only()
 
 
 def test_with_tls_every_process_gets_the_shipped_config_of_its_role(tmp_path):
-    run = PlacedRun(load_scenario("square"), str(tmp_path), "lockstep", 0, "",
-                    zenoh_config=os.path.join(CONFIGS, "recorder_tls.json5"),
-                    record=str(tmp_path / "r.mcap"), view_port=0, tls=True)
+    run = ScenarioRun(load_scenario("square"), str(tmp_path), "lockstep", 0, "",
+                      zenoh_config=os.path.join(CONFIGS, "recorder_tls.json5"),
+                      record=str(tmp_path / "r.mcap"), view_port=0,
+                      placement=Placement(where={}, tls=True))
     run.build()
     config = {c.name: os.path.basename(c.argv[c.argv.index("--zenoh-config") + 1])
               for c in run.children}

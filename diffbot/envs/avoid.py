@@ -68,8 +68,7 @@ def make_transport(spec, world: str, inputs: dict, transport: str, endpoint, dis
 
 
 def true_pose(msg) -> tuple[float, float, float]:
-    p = msg.pose.pose
-    return p.position.x, p.position.y, codec.quaternion_to_yaw(p.orientation)
+    return codec.pose_2d(msg)
 
 
 class AvoidTask:

@@ -31,8 +31,8 @@ import weakref
 from typing import Callable
 
 from bus.keys import Keys
-from bus.node import NodeRunner, Twist, close_session
-from bus.session import open_session
+from bus.node import NodeRunner, Twist
+from bus.session import close_session, open_when_listening, zenoh_error
 from plant.tick import Tick
 from plant.world import WorldSpec
 
@@ -408,13 +408,11 @@ def _start_plant(world: str, overrides, disabled, endpoint: str, seed: int, name
 def _open(endpoint: str, plant):
     """A client session to the plant's endpoint, once it listens."""
     deadline = time.monotonic() + PLANT_TIMEOUT_S
-    while True:
-        try:
-            return open_session("node", endpoint)
-        except Exception as exc:
-            if plant is not None and plant.poll() is not None:
-                raise TransportError(f"the plant exited with code {plant.poll()}:\n"
-                                     f"{plant.tail()}") from None
-            if time.monotonic() > deadline:
-                raise TransportError(f"no plant at {endpoint}: {exc}") from None
-            time.sleep(0.05)
+
+    def missed(exc: Exception) -> None:
+        if plant is not None and plant.poll() is not None:
+            raise TransportError(f"the plant exited with code {plant.poll()}:\n"
+                                 f"{plant.tail()}") from None
+        if time.monotonic() > deadline:
+            raise TransportError(f"no plant at {endpoint}: {zenoh_error(exc)}") from None
+    return open_when_listening(endpoint, missed, pause_s=0.05)

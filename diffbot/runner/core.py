@@ -9,7 +9,6 @@ goes; the run itself is :func:`.task.execute` wherever it lands.
 """
 from __future__ import annotations
 
-import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -174,19 +173,11 @@ def run_until_done(runs: list[Run], engine, say: Progress,
     """:func:`run_all` with Ctrl-C and SIGTERM turned into a stop request, the engine closed
     afterwards whatever happens (nothing outlives us), the handlers restored. Returns the
     names of the signals that stopped it (empty: it ran to the end)."""
-    stop_flag: list[str] = []
-
-    def on_signal(signum, frame):
-        stop_flag.append(signal.Signals(signum).name)
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        run_all(runs, engine, stop_flag, say, on_done, retries)
-    finally:
+    with procs.stop_requests() as stop_flag:
         try:
-            engine.close()
+            run_all(runs, engine, stop_flag, say, on_done, retries)
         finally:
-            for s, h in old.items():
-                signal.signal(s, h)
+            engine.close()
     return stop_flag
 
 

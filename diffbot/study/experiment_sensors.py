@@ -31,13 +31,30 @@ def _robot_pose(gt) -> tuple[float, float, float, float]:
     return p.position.x, p.position.y, p.position.z, codec.quaternion_to_yaw(p.orientation)
 
 
+def _sensor(args, sets: list[str], kind: str):
+    """The config of the robot's ``kind`` sensor (lidar, camera) in the world with ``sets``;
+    WorldError if it has none."""
+    cfg = getattr(load_world(args.world, sets).robot(args.robot).sensors, kind)
+    if cfg is None:
+        raise WorldError(f"{args.world}: {args.robot} has no {kind}")
+    return cfg
+
+
+def _without_and_with_noise(args, base: list[str], kind: str, noise: str, topic: str):
+    """Two captures of ``topic`` from the same pose and seed (plant_noiseless, plant_noisy):
+    the ``kind`` sensor (lidar, camera) without noise, then with the ``noise`` table; the
+    other sensor off."""
+    other = "camera" if kind == "lidar" else "lidar"
+    return [capture(args.out, f"plant_{name}", [topic], args.world,
+                    [*base, f"robots.{args.robot}.{kind}.noise={table}"], args.seed,
+                    disable=(other,), robot=args.robot)
+            for name, table in (("noiseless", "{std = 0.0}"), ("noisy", noise))]
+
+
 def lidar(args) -> dict:
     robot = args.robot
     sets = [f"robots.{robot}.lidar.noise={{std = 0.0}}", *_pose_set(robot, args.pose)]
-    spec = load_world(args.world, sets)
-    cfg = spec.robot(robot).sensors.lidar
-    if cfg is None:
-        raise WorldError(f"{args.world}: {robot} has no lidar")
+    cfg = _sensor(args, sets, "lidar")
     print(f"lidar: one scan of {robot} in {args.world} from the bus", file=sys.stderr)
     cap = capture(args.out, "plant", ["scan", "ground_truth"], args.world, sets, args.seed,
                   disable=("camera",), robot=robot)
@@ -74,10 +91,7 @@ def lidar(args) -> dict:
 def noisy_lidar(args) -> dict:
     robot = args.robot
     base = _pose_set(robot, args.pose)
-    spec = load_world(args.world, base)
-    cfg = spec.robot(robot).sensors.lidar
-    if cfg is None:
-        raise WorldError(f"{args.world}: {robot} has no lidar")
+    cfg = _sensor(args, base, "lidar")
     if args.lidar_noise_std is not None:
         noise_tbl, std = f"{{std = {args.lidar_noise_std!r}}}", args.lidar_noise_std
         form = f"std {std:g} m (given in metres)"
@@ -87,12 +101,7 @@ def noisy_lidar(args) -> dict:
         form = f"Webots noise {args.lidar_noise:g} x maxRange {cfg.max_range_m:g} m = std {std:g} m"
     print(f"noisy-lidar: {form}; two plants (noiseless, noisy), same pose and seed",
           file=sys.stderr)
-    clean_cap = capture(args.out, "plant_noiseless", ["scan"], args.world,
-                        [*base, f"robots.{robot}.lidar.noise={{std = 0.0}}"], args.seed,
-                        disable=("camera",), robot=robot)
-    noisy_cap = capture(args.out, "plant_noisy", ["scan"], args.world,
-                        [*base, f"robots.{robot}.lidar.noise={noise_tbl}"], args.seed,
-                        disable=("camera",), robot=robot)
+    clean_cap, noisy_cap = _without_and_with_noise(args, base, "lidar", noise_tbl, "scan")
     angles, clean = _scan_arrays(clean_cap.obs["scan"])
     _, noisy = _scan_arrays(noisy_cap.obs["scan"])
     _write_csv(os.path.join(args.out, "scan_noisy.csv"),
@@ -140,10 +149,7 @@ def camera(args) -> dict:
     robot = args.robot
     pose = args.pose if args.pose is not None else (0.0, 0.0, -0.6)
     base = _pose_set(robot, pose)
-    spec = load_world(args.world, base)
-    cfg = spec.robot(robot).sensors.camera
-    if cfg is None:
-        raise WorldError(f"{args.world}: {robot} has no camera")
+    cfg = _sensor(args, base, "camera")
     if args.camera_noise_std is not None:
         tbl, std = f"{{std = {args.camera_noise_std!r}}}", args.camera_noise_std
         form = f"std {std:g} levels (of 0-255)"
@@ -152,12 +158,8 @@ def camera(args) -> dict:
         form = f"Webots noise {args.camera_noise:g} x 255 = std {std:g} levels"
     print(f"camera: {cfg.width}x{cfg.height} from ({pose[0]:g}, {pose[1]:g}, yaw {pose[2]:g}); "
           f"{form}", file=sys.stderr)
-    clean_cap = capture(args.out, "plant_noiseless", ["camera/image_raw"], args.world,
-                        [*base, f"robots.{robot}.camera.noise={{std = 0.0}}"], args.seed,
-                        disable=("lidar",), robot=robot)
-    noisy_cap = capture(args.out, "plant_noisy", ["camera/image_raw"], args.world,
-                        [*base, f"robots.{robot}.camera.noise={tbl}"], args.seed,
-                        disable=("lidar",), robot=robot)
+    clean_cap, noisy_cap = _without_and_with_noise(args, base, "camera", tbl,
+                                                   "camera/image_raw")
     clean = codec.image_to_array(clean_cap.obs["camera/image_raw"])
     noisy = codec.image_to_array(noisy_cap.obs["camera/image_raw"])
     _save_rgb_png(os.path.join(args.out, "camera.png"), clean)

@@ -119,6 +119,13 @@ class Context:
         shutil.copyfile(self.file(job, name), dest)
         return dest
 
+    def plotted(self, job: str, name: str, dest: str) -> tuple[dict, dict]:
+        """A figure made by one job: its plot ``name`` copied to ``dest``; the job's
+        summary and the parameters in it."""
+        s = self.summary(job)
+        self.copy(job, name, dest)
+        return s, s.get("parameters", {})
+
 
 def _scenario_params(s: dict) -> dict:
     return {k: s.get(k) for k in ("scenario", "world", "mode", "seed") if k in s}
@@ -253,9 +260,7 @@ def fig_angular(ctx: Context, dest: str) -> Made:
 
 
 def fig_motion_noise(ctx: Context, dest: str) -> Made:
-    s = ctx.summary("motion-noise")
-    ctx.copy("motion-noise", "motion_noise.png", dest)
-    p = s.get("parameters", {})
+    s, p = ctx.plotted("motion-noise", "motion_noise.png", dest)
     std = s.get("endpoint_std_m", [math.nan, math.nan])
     return Made(
         f"{p.get('runs')} open-loop straight runs of {p.get('distance_m')} m at "
@@ -276,9 +281,7 @@ def fig_motion_noise(ctx: Context, dest: str) -> Made:
 
 
 def fig_lidar(ctx: Context, dest: str) -> Made:
-    s = ctx.summary("lidar")
-    ctx.copy("lidar", "lidar.png", dest)
-    p = s.get("parameters", {})
+    s, p = ctx.plotted("lidar", "lidar.png", dest)
     return Made(
         f"(a) The living room from above with the {p.get('num_rays')} rays of one scan and "
         f"where they hit; (b) the same scan as a polar plot (bearing 0 = ahead, + = left). "
@@ -351,9 +354,7 @@ def fig_camera(ctx: Context, dest: str) -> Made:
 
 
 def fig_noisy_lidar(ctx: Context, dest: str) -> Made:
-    s = ctx.summary("noisy-lidar")
-    ctx.copy("noisy-lidar", "noisy_lidar.png", dest)
-    p = s.get("parameters", {})
+    s, p = ctx.plotted("noisy-lidar", "noisy_lidar.png", dest)
     return Made(
         f"The scan of Figure 5 without (blue) and with (orange) Webots lidar noise "
         f"{p.get('lidar_noise_webots')}: a standard deviation relative to the max range, "
@@ -368,9 +369,7 @@ def fig_noisy_lidar(ctx: Context, dest: str) -> Made:
 
 
 def fig_noisy_odometry(ctx: Context, dest: str) -> Made:
-    s = ctx.summary("noisy-odometry")
-    ctx.copy("noisy-odometry", "odometry_vs_gps.png", dest)
-    p = s.get("parameters", {})
+    s, p = ctx.plotted("noisy-odometry", "odometry_vs_gps.png", dest)
     run = s.get("run", {})
     return Made(
         f"The square of Figure 7 with Webots PositionSensor noise {p.get('encoder_noise_webots')} "
