@@ -61,10 +61,9 @@ class Kinematics:
         """One control tick with the wheel-speed targets (n, 2) (rad/s, left, right)."""
         step_arrays(self, np.asarray(targets, float).reshape(-1, 2))
 
-    def transforms(self, rows=slice(None)) -> np.ndarray:
-        """base_link -> world of every robot (or of ``rows``), (n, 4, 4) (base_link at the
-        axle's height)."""
-        pose, radius = self.pose[rows].reshape(-1, 3), self.radius[rows].reshape(-1)
+    def transforms(self) -> np.ndarray:
+        """base_link -> world of every robot, (n, 4, 4) (base_link at the axle's height)."""
+        pose, radius = self.pose, self.radius
         n = len(pose)
         yaw = pose[:, 2]
         c, s = np.cos(yaw), np.sin(yaw)
