@@ -84,15 +84,13 @@ class Robot:
         sk = D.Skeleton(spec.name)
         x, y, yaw = spec.pose
         if self.kinematic:
+            # never stepped (plant/kinematic.py moves a kinematic robot): its shapes only,
+            # on a planar joint at the axle's height
             props = D.PlanarJointProperties()
             props.mName = "base_planar"
             props.mT_ParentBodyToJoint = isometry(pose_matrix(0, 0, r))
             self.root, chassis = sk.createPlanarJointAndBodyNodePair(None, props)
             self.root.setXYPlane()
-            self.root.setActuatorType(D.ActuatorType.SERVO)
-            for i in range(3):
-                self.root.setForceLowerLimit(i, -500.0)
-                self.root.setForceUpperLimit(i, 500.0)
             self.root.setPositions(np.array([x, y, yaw]))
         else:
             self.root, chassis = sk.createFreeJointAndBodyNodePair()
@@ -144,12 +142,6 @@ class Robot:
         wl, wr = self.targets
         self.wheels[0].setCommand(0, wl)
         self.wheels[1].setCommand(0, wr)
-        if self.kinematic:
-            drive = self.spec.drive
-            r, d = drive.wheel_radius_m, drive.wheel_separation_m
-            v, w = r * (wr + wl) / 2.0, r * (wr - wl) / d
-            yaw = self.root.getPosition(2)
-            self.root.setCommands(np.array([v * np.cos(yaw), v * np.sin(yaw), w]))
 
     def encoders(self) -> tuple[np.ndarray, np.ndarray]:
         """Wheel angles (rad) and speeds (rad/s), left then right."""

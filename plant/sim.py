@@ -202,20 +202,15 @@ class Simulation:
         ``world.step(False)`` keeps the motor commands (``step()`` zeroes them), so a
         dynamic robot's wheel commands are set once a tick, not once a step: the same
         values, the same motion bit for bit, a tenth of the dartpy calls. A kinematic
-        robot's root command follows its yaw, so it is set every step."""
+        world is not DART's to step: its robots move by :mod:`plant.kinematic`."""
         robots = list(self.robots.values())
         if self.kin is not None:
             self.kin.step(np.array([r.targets for r in robots], float))
-            self.steps += self.spec.substeps
-            return
-        every_step = [r for r in robots if r.kinematic]
-        for r in robots:
-            r.apply()
-        for i in range(self.spec.substeps):
-            if i:
-                for r in every_step:
-                    r.apply()
-            self.world.step(False)
+        else:
+            for r in robots:
+                r.apply()
+            for _ in range(self.spec.substeps):
+                self.world.step(False)
         self.steps += self.spec.substeps
 
     # ------------------------------------------------------------------ commands
