@@ -60,8 +60,14 @@ def test_same_names_and_frames_over_ros2_in_foxglove_and_in_the_recording(
         peer.node.create_subscription(String, "/robot1/robot_description",
                                       lambda m: urdf_ros.append(m.data), _latched())
         wait_for(lambda: len(ros) == 5 and urdf_ros, 60, what="robot1's topics over ROS 2")
-        ros_topics = {n[len("/robot1/"):] for n, _ in peer.node.get_topic_names_and_types()
-                      if n.startswith("/robot1/")}
+
+        def graph() -> set[str]:
+            return {n[len("/robot1/"):] for n, _ in peer.node.get_topic_names_and_types()
+                    if n.startswith("/robot1/")}
+        # the bridge's command subscriptions reach a peer's graph by DDS discovery, which
+        # may come after the first samples of its publishers (seen under load)
+        ros_topics = wait_for(lambda: (g := graph()) >= OUTPUTS | {"cmd_vel", "cmd_vel_unstamped"}
+                              and g, 30, what="robot1's topics and commands in the ROS 2 graph")
     finally:
         peer.close()
     # in Foxglove (the official client, asking for the subprotocol the docs name)
