@@ -47,6 +47,9 @@ RECORDER = "recorder"       # the --record process (bridges/record.py); see Scen
 RECORDER_JOIN_S = 30.0
 VIEW = "view"               # the --view process (bridges/view.py): optional, never in lockstep
 RECORDER_GRACE_S = 10.0
+#: how long a recorder may take to end by itself after the plant's sim/end (its own bound,
+#: bridges.record.END_MAX_S, 5 s, and a second)
+RECORDER_END_S = 6.0
 
 
 class Child(procs.Child):
@@ -333,7 +336,13 @@ class ScenarioRun:
         return False
 
     def _stop_recorder(self) -> None:
+        """After a plant that ended in order (exit 0: it published sim/end) the recorder is
+        given the time to end by itself (bridges/record.py: at sim/end, once the bus is quiet
+        and no member is left), so one behind on a loaded machine still writes the run's
+        last ticks; then SIGINT (it closes the file with what it has)."""
         if self.recorder is not None:
+            if self.children[0].poll() == 0:
+                procs.wait_all([self.recorder], RECORDER_END_S)
             self.recorder.signal(signal.SIGINT)
             procs.wait_all([self.recorder], RECORDER_GRACE_S)
 

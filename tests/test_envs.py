@@ -203,6 +203,7 @@ def test_swarm_on_the_bus_matches_inproc(mode):
 
 
 @pytest.mark.slow
+@pytest.mark.serial      # it counts the /tmp folders of bus envs: none from another worker
 @pytest.mark.timeout(240)
 def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
     before, mine = _children(), _shm_mapped([os.getpid()])
