@@ -227,7 +227,8 @@ def test_instantiate_and_free_100_times_leaves_nothing_behind(fmus):
     print(f"100 instantiate/initialize/step/free cycles: RSS {rss:.1f} MB -> +{grown:.2f} MB")
     assert grown < 8.0
     assert len(os.listdir("/proc/self/fd")) == len(fds)
-    assert len(os.listdir("/proc/self/task")) == len(threads)
+    # no thread of the FMU left (another test's thread in this worker may end meanwhile)
+    assert set(os.listdir("/proc/self/task")) <= set(threads)
     assert _children() == children
     shutil.rmtree(unzipped, ignore_errors=True)
 
