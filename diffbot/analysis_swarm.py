@@ -16,12 +16,7 @@ import numpy as np
 
 from bus import codec
 from bus.keys import TOPICS, Keys
-from plant.footprint import CHASSIS_CENTRE_X_M, CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M
-
-
-def footprint_centres(x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    return np.stack([x + CHASSIS_CENTRE_X_M * np.cos(yaw), y + CHASSIS_CENTRE_X_M * np.sin(yaw)],
-                    axis=-1)
+from plant.footprint import CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M, footprint_centres
 
 
 def clearance_to_object(p: np.ndarray, obj) -> np.ndarray:

@@ -33,6 +33,12 @@ def bottom(o) -> float:
     return z - o.size[0]
 
 
+def footprint_centres(x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """The footprint centres (..., 2) of robots at base_link poses x, y, yaw (arrays)."""
+    return np.stack([x + CHASSIS_CENTRE_X_M * np.cos(yaw), y + CHASSIS_CENTRE_X_M * np.sin(yaw)],
+                    axis=-1)
+
+
 class Footprints:
     """The static world as the footprint test sees it: boxes, circles and the walls."""
 

@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .footprint import CHASSIS_CENTRE_X_M, FOOTPRINT_RADIUS_M, Footprints
+from .footprint import FOOTPRINT_RADIUS_M, Footprints, footprint_centres
 from .world import WorldSpec
 
 _FIELDS = ("pose", "wheels", "speeds", "vel", "radius", "separation", "world")
@@ -103,13 +103,8 @@ def step_arrays(k, targets: np.ndarray) -> None:
     k.speeds[:] = targets
 
 
-def _centres(x, y, yaw) -> np.ndarray:
-    return np.stack([x + CHASSIS_CENTRE_X_M * np.cos(yaw), y + CHASSIS_CENTRE_X_M * np.sin(yaw)],
-                    axis=1)
-
-
 def _blocked(k, x, y, yaw, nx, ny, nyaw) -> np.ndarray:
-    old, new = _centres(x, y, yaw), _centres(nx, ny, nyaw)
+    old, new = footprint_centres(x, y, yaw), footprint_centres(nx, ny, nyaw)
     c_old, c_new = k.foot.clearances(old), k.foot.clearances(new)
     blocked = (c_new < FOOTPRINT_RADIUS_M) & (c_new < c_old)
     n = len(x)

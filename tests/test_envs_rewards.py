@@ -13,8 +13,8 @@ import pytest
 
 gym = pytest.importorskip("gymnasium")
 import diffbot.envs  # noqa: E402,F401
-from diffbot.analysis_swarm import (CHASSIS_CENTRE_X_M, CONTACT_MARGIN_M,  # noqa: E402
-                                    FOOTPRINT_RADIUS_M)
+from plant.footprint import (CHASSIS_CENTRE_X_M, CONTACT_MARGIN_M,  # noqa: E402
+                             FOOTPRINT_RADIUS_M)
 from diffbot.envs.geometry import Footprints  # noqa: E402
 from plant.world import load_world  # noqa: E402
 

@@ -8,7 +8,7 @@ import pytest
 from bus import codec
 from bus.controller import Twist
 from plant import kinematic
-from plant.footprint import CHASSIS_CENTRE_X_M, FOOTPRINT_RADIUS_M, Footprints
+from plant.footprint import CHASSIS_CENTRE_X_M, FOOTPRINT_RADIUS_M, Footprints, footprint_centres
 from plant.sim import Simulation
 from plant.tick import Tick, messages_of, step_ticks
 from plant.world import load_world
@@ -69,10 +69,10 @@ def test_two_robots_head_on_stop_footprint_to_footprint():
     k.names, k.radius = ["a", "b"], np.repeat(k.radius, 2)
     k.separation, k.world = np.repeat(k.separation, 2), np.zeros(2, np.int64)
     k.wheels, k.speeds, k.vel = np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2))
-    assert foot.clearances(kinematic._centres(*k.pose.T)).min() > FOOTPRINT_RADIUS_M
+    assert foot.clearances(footprint_centres(*k.pose.T)).min() > FOOTPRINT_RADIUS_M
     for _ in range(200):
         k.step(np.array([[3.0, 3.0], [3.0, 3.0]]))
-    c = kinematic._centres(*k.pose.T)
+    c = footprint_centres(*k.pose.T)
     gap = math.dist(c[0], c[1])
     assert 2 * FOOTPRINT_RADIUS_M <= gap < 2 * FOOTPRINT_RADIUS_M + 2 * 0.36 * spec.control_tick_s
     assert (k.vel == 0).all()
