@@ -275,8 +275,10 @@ class Plant:
                 self._vanished.add(node)
                 return
             self.alive.add(node)
-            if node in self._vanished and self.strategy.lockstep and self.ticks:
-                # back after a blip (a recorder, say): what it missed of the last ticks
+            if node in self._vanished and self.strategy.lockstep:
+                # back after a blip (a recorder, say): what it missed of the last ticks,
+                # tick 0 included (a blip before the first step: nothing stepped yet, but the
+                # members' answers to t=0 went out while it was away)
                 self._vanished.discard(node)
                 self.log.info("%s is back", node)
                 self.republish()

@@ -127,3 +127,40 @@ def test_a_lost_member_holds_time_and_is_waited_for_where_it_left(procs, endpoin
     plant.wait(20)
     st = json.loads(stats.read_text())
     assert st["members_seen"] == ["first"] and st["protocol_errors"] == {}, st
+
+
+@pytest.mark.slow
+def test_a_watcher_back_before_the_first_step_gets_tick_0_again(procs, endpoint, bus, tmp_path):
+    """A router blip right after the run starts (tests/test_router_blip.py met it: its
+    recording lacked the t=0 cmd_vel): the recorder comes back after the members answered
+    t=0, so the plant re-publishes t=0 for it, as for any tick, and the members re-send
+    their answers. Here a hand-driven member withholds t=0 while a watcher's sim/alive
+    token goes and comes back; the watcher must see t=0 published again."""
+    plant = procs.diffbot("plant", "--world", "empty", "--expect", "first", "--coupling",
+                          "sequential", "--rejoin-timeout", "30", "--endpoint", endpoint,
+                          name="plant")
+    s, w = bus(), bus()
+    clocks, sub, pub = member_ends(s)
+    seen: queue.SimpleQueue = queue.SimpleQueue()
+    wsub = w.declare_subscriber(K.clock, lambda smp: seen.put(codec.msg_stamp_ns(
+        codec.decode(smp.payload.to_bytes(), "rosgraph_msgs/msg/Clock"))))
+    watcher = w.liveliness().declare_token(K.alive("recorder"))
+    tok = s.liveliness().declare_token(K.sync("first"))
+    try:
+        assert clocks.get(timeout=20) == 0 and seen.get(timeout=5) == 0
+        watcher.undeclare()                     # the recorder is away ...
+        time.sleep(0.5)                         # (the plant has seen it go)
+        watcher = w.liveliness().declare_token(K.alive("recorder"))   # ... and back
+        assert seen.get(timeout=10) == 0, "t=0 not re-published for the watcher back"
+        assert "recorder is back" in procs.log(plant)
+        pub.put(codec.encode(codec.twist_stamped(0, 0.1, 0.0)),
+                attachment=codec.attachment(1, 0, codec.ACK, 1, "first"))
+        later = seen.get(timeout=10)
+        while later == 0:                       # (more re-publishes of t=0 may follow)
+            later = seen.get(timeout=10)
+        assert later == TICK_NS
+    finally:
+        for d in (tok, watcher, pub, sub, wsub):
+            d.undeclare()
+    plant.terminate()
+    assert plant.wait(20) == 0, procs.log(plant)
