@@ -180,3 +180,37 @@ def test_packed_joint_state_is_the_bytes_of_its_message(t, joints, data, n_vel):
     assert packed.joint_state(t, tuple(joints), data, data[:n_vel], data[:1]) == want
     assert packed.joint_state(t, tuple(joints), np.array(data), np.array(data[:n_vel]),
                               np.array(data[:1])) == want
+
+
+@pytest.mark.slow
+def test_the_bus_s_own_types_are_rosbags_jazzy_types_and_the_rest_load_on_first_use():
+    """bus/msgtypes.py is rosbags' Jazzy definitions of the bus's types (regenerate with
+    ``python -m bus.msgtypes_build`` after a rosbags upgrade); a process that meets no other
+    type never imports the full store, one that does gets it as if it had been there."""
+    import dataclasses
+    import subprocess
+    import sys
+
+    from rosbags.typesys import Stores, get_typestore
+
+    from bus import msgtypes, msgtypes_build
+    full = get_typestore(Stores.ROS2_JAZZY)
+    assert open(msgtypes.__file__).read() == msgtypes_build.source(), \
+        "bus/msgtypes.py differs from the installed rosbags: python -m bus.msgtypes_build"
+    for name, defs in msgtypes.FIELDDEFS.items():
+        assert defs == full.fielddefs[name]
+        ours, theirs = codec.T[name], full.types[name]
+        assert [(f.name, f.default) for f in dataclasses.fields(ours)] == \
+            [(f.name, f.default) for f in dataclasses.fields(theirs)]
+    for name in msgtypes_build.ROOTS:                      # the bus's types come from ours
+        assert codec.T[name].__module__ == "bus.msgtypes"
+    probe = ("import sys; from bus import codec; "
+             "s = 'rosbags.typesys.stores.ros2_jazzy'; print(s in sys.modules); "
+             "codec.encode(codec.twist_stamped(5, 0.1, 0.2)); print(s in sys.modules); "
+             "m = codec.T['std_msgs/msg/Int32'](data=7); "
+             "print(codec.decode(codec.encode(m), 'std_msgs/msg/Int32').data, s in sys.modules); "
+             "print('diagnostic_msgs/msg/KeyValue' in codec.TYPESTORE.fielddefs, "
+             "len(codec.TYPESTORE.types) == %d)" % len(full.types))
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True, timeout=60).stdout.split("\n")
+    assert out[:4] == ["False", "False", "7 True", "True True"], out
