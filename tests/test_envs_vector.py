@@ -61,6 +61,39 @@ def test_each_batched_env_is_the_single_env_with_its_seed(mode):
             env.close()
 
 
+def test_batched_contacts_end_the_same_episodes_as_the_single_env():
+    """Full speed ahead until something is hit: the batch judges every world's contacts in
+    one call (diffbot.envs.geometry.Footprints.contacts_of), each as the single env does."""
+    n, seed = 3, 7
+    kw = dict(max_episode_steps=200, overrides=("world.mode=kinematic",))
+    vec = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                       **kw)
+    singles = [gym.make("diffbot/Avoid-v0", **kw) for _ in range(n)]
+    try:
+        vec.reset(seed=seed)
+        for k, env in enumerate(singles):
+            env.reset(seed=seed + k)
+        ahead = np.tile(vec.single_action_space.high * [1.0, 0.0], (n, 1)).astype(np.float32)
+        live, hits = [True] * n, 0
+        for step in range(200):
+            _, rew, term, trunc, infos = vec.step(ahead)
+            for k, env in enumerate(singles):
+                if not live[k]:
+                    continue
+                _, r, te, tr, info = env.step(ahead[k])
+                assert (bool(infos["contact"][k]), rew[k], term[k], trunc[k]) == \
+                    (info["contact"], r, te, tr), f"env {k} at step {step}"
+                hits += info["contact"]
+                live[k] = not (te or tr)
+            if not any(live):
+                break
+        assert hits >= 2, f"only {hits} of {n} episodes ended on a contact"
+    finally:
+        vec.close()
+        for env in singles:
+            env.close()
+
+
 def test_batched_spaces_a_list_of_seeds_rendering_and_refusals():
     vec = gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="vector_entry_point",
                        render_mode="rgb_array", normalize_actions=True)

@@ -144,18 +144,25 @@ class AvoidTask:
         self.transport.reset(seed, poses, self._observe)
         return self._obs(), {r: self._info(r, False) for r in self.robots}
 
-    def _observe(self, t_ns: int, msgs: dict) -> None:
+    def _observe(self, t_ns: int, msgs: dict, judge: bool = True) -> bool:
         """Every tick: the odometry integrates the encoders. At the step's last tick (and
-        at reset): the ground truth and the contacts."""
+        at reset): the ground truth and (``judge``; else the caller, :meth:`centres`, as a
+        batch does for all its worlds at once) the contacts. Whether it was the last."""
         self.t_ns = t_ns
         for name in self.robots:
             self.observers[name].feed(t_ns, msgs[name])
             self.scans[name] = msgs[name].get("scan")
         self._ticks_left -= 1
-        if self._ticks_left <= 0:
-            self.truth = {name: true_pose(msgs[name]["ground_truth"]) for name in self.robots}
-            self.touched = self.geo.contacts({n: Footprints.centre(*p)
-                                              for n, p in self.truth.items()})
+        if self._ticks_left > 0:
+            return False
+        self.truth = {name: true_pose(msgs[name]["ground_truth"]) for name in self.robots}
+        if judge:
+            self.touched = self.geo.contacts(self.centres())
+        return True
+
+    def centres(self) -> dict[str, np.ndarray]:
+        """The robots' footprint centres by the ground truth of the step's end."""
+        return {n: Footprints.centre(*p) for n, p in self.truth.items()}
 
     def _distance(self, robot: str) -> float:
         x, y, _ = self.truth[robot]

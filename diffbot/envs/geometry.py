@@ -20,14 +20,26 @@ class Footprints(_Static):
 
     def contacts(self, centres: dict[str, np.ndarray]) -> set[str]:
         """The robots (name -> footprint centre) touching a wall, an object or each other."""
-        touch = {n for n, c in centres.items()
-                 if self.clearance(c) < FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M}
-        names = list(centres)
-        for i, a in enumerate(names):
-            for b in names[i + 1:]:
-                if np.hypot(*(centres[a] - centres[b])) < 2 * FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M:
-                    touch |= {a, b}
-        return touch
+        return self.contacts_of([centres])[0]
+
+    def contacts_of(self, worlds: list[dict[str, np.ndarray]]) -> list[set[str]]:
+        """:meth:`contacts` of several worlds' robots (a batch's), the static test of all
+        in one call (element by element: each world's answer is its own)."""
+        rows = [(k, n) for k, w in enumerate(worlds) for n in w]
+        out: list[set[str]] = [set() for _ in worlds]
+        if rows:
+            pts = np.array([worlds[k][n] for k, n in rows], float).reshape(-1, 2)
+            for (k, n), hit in zip(rows, self.clearances(pts)
+                                   < FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M):
+                if hit:
+                    out[k].add(n)
+        for w, touch in zip(worlds, out):
+            names = list(w)
+            for i, a in enumerate(names):
+                for b in names[i + 1:]:
+                    if np.hypot(*(w[a] - w[b])) < 2 * FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M:
+                        touch |= {a, b}
+        return out
 
     def free_point(self, rng: np.random.Generator, margin_m: float, avoid=(),
                    away_m: float = 0.0, within=None, tries: int = 2000) -> np.ndarray:

@@ -145,9 +145,15 @@ class AvoidVectorEnv(VectorEnv):
                     tick.drive(name, Twist(*c.get(name, (0.0, 0.0))))
             step_ticks(ticks)
             wanted = [tr.wanted for tr in transports]
+            ended = []
             for i, tr, msgs in zip(live, transports, messages_of(ticks, wanted)):
                 tr.take(msgs)
-                self.tasks[i]._observe(tr.tick.t_ns, tr.latest)
+                if self.tasks[i]._observe(tr.tick.t_ns, tr.latest, judge=False):
+                    ended.append(self.tasks[i])
+            if ended:                    # every world's contacts in one call
+                geo = ended[0].geo
+                for task, touched in zip(ended, geo.contacts_of([t.centres() for t in ended])):
+                    task.touched = touched
 
     def _stack(self, obs: list[dict]) -> dict:
         return {k: np.stack([o[k] for o in obs]) for k in self.single_observation_space}
