@@ -94,6 +94,50 @@ def test_batched_contacts_end_the_same_episodes_as_the_single_env():
             env.close()
 
 
+@pytest.mark.slow
+def test_workers_step_the_same_envs_to_the_bit_and_end_with_the_batch():
+    """workers=2: the second chunk of worlds in a worker process (both cores), each env the
+    same, to the bit, as in one process, through autoresets (short episodes), rendering
+    included; an action error in a worker's env reaches the caller; close() ends it."""
+    import os
+
+    from diffbot import procs as dprocs
+    before = set(dprocs.descendants(os.getpid()))
+    n, seed = 5, 3
+    kw = dict(max_episode_steps=6, render_mode="rgb_array",
+              overrides=("world.mode=kinematic", *NOISE))
+    one = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                       **kw)
+    two = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                       workers=2, **kw)
+    worker = two.unwrapped.chunks[1].proc.pid     # one worker: the first chunk is ours
+    try:
+        assert len(two.unwrapped.chunks) == 2
+        assert worker in set(dprocs.descendants(os.getpid())) - before
+        a, ia = one.reset(seed=seed)
+        b, ib = two.reset(seed=seed)
+        assert all(a[k].tobytes() == b[k].tobytes() for k in a)
+        assert list(ia["plant"]) == list(ib["plant"])
+        rng = np.random.default_rng(2)
+        for step in range(14):                  # two autoresets per env
+            act = (rng.uniform(-1, 1, (n, 2)) * one.single_action_space.high).astype(np.float32)
+            ra, rb = one.step(act), two.step(act)
+            assert all(ra[0][k].tobytes() == rb[0][k].tobytes() for k in ra[0]), step
+            for x, y in zip(ra[1:4], rb[1:4]):
+                assert x.tobytes() == y.tobytes(), step
+            assert ra[4]["pose"].tobytes() == rb[4]["pose"].tobytes(), step
+        fa, fb = one.render(), two.render()
+        assert len(fb) == n and all(np.array_equal(x, y) for x, y in zip(fa, fb))
+        bad = np.zeros((n, 2), np.float32)
+        bad[-1, 0] = np.nan                       # the last env: in the worker
+        with pytest.raises(ValueError):
+            two.step(bad)
+    finally:
+        one.close()
+        two.close()
+    assert not dprocs.alive(worker), "the worker outlived close()"
+
+
 def test_batched_spaces_a_list_of_seeds_rendering_and_refusals():
     vec = gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="vector_entry_point",
                        render_mode="rgb_array", normalize_actions=True)
@@ -108,6 +152,41 @@ def test_batched_spaces_a_list_of_seeds_rendering_and_refusals():
             vec.step(np.zeros((3, 2), np.float32))
     finally:
         vec.close()
+    with pytest.raises(ValueError, match="workers"):
+        gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                     workers=3)
     with pytest.raises(ValueError, match="async"):
         gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="vector_entry_point",
                      transport="bus")
+
+
+@pytest.mark.slow
+def test_a_worker_ends_with_a_killed_parent():
+    """A script holding a workers=2 batch is SIGKILLed: its worker does not outlive it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from diffbot import procs as dprocs
+
+    from .conftest import ROOT, wait_for
+    script = ("import gymnasium as gym, diffbot.envs, sys, time\n"
+              "v = gym.make_vec('diffbot/Avoid-v0', num_envs=2, workers=2,\n"
+              "                 vectorization_mode='vector_entry_point',\n"
+              "                 overrides=('world.mode=kinematic',))\n"
+              "v.reset(seed=0)\n"
+              "print(v.unwrapped.chunks[1].proc.pid, flush=True)\n"
+              "time.sleep(60)\n")
+    parent = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        worker = int(parent.stdout.readline())
+        assert dprocs.alive(worker)
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait(10)
+        wait_for(lambda: not dprocs.alive(worker), 10, what="the worker to end")
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait(10)

@@ -48,13 +48,13 @@ def _env_rate(transport: str, num_envs: int, steps: int) -> dict:
     return {"steps_per_s": n / wall, "real_time_factor": n * dt / wall}
 
 
-def _vec_rate(mode: str, num_envs: int, env_steps: int) -> dict:
+def _vec_rate(mode: str, num_envs: int, env_steps: int, workers: int = 1) -> dict:
     import gymnasium as gym
     import numpy as np
     import diffbot.envs  # noqa: F401
     env = gym.make_vec("diffbot/Avoid-v0", num_envs=num_envs,
                        vectorization_mode="vector_entry_point",
-                       overrides=(f"world.mode={mode}",))
+                       overrides=(f"world.mode={mode}",), workers=workers)
     try:
         env.reset(seed=0)
         env.action_space.seed(0)
@@ -75,7 +75,8 @@ VEC_TARGETS = {"kinematic": "target >= 20,000/s at N = 64", "dynamic": "target >
 
 
 @suite("gym", "diffbot/Avoid-v0 steps per second, in-process and over the bus, one env "
-              "and make_vec with 2 and 4, batched (vector_entry_point) with 1, 16, 64")
+              "and make_vec with 2 and 4, batched (vector_entry_point) with 1, 16, 64 "
+              "and 64 on 2 workers")
 def gym_suite(ctx):
     try:
         import gymnasium  # noqa: F401
@@ -89,14 +90,17 @@ def gym_suite(ctx):
         repeats=repeats, warmup=0)
     env_steps = 128 if ctx.quick else 640
     for mode in ("kinematic", "dynamic"):
-        for n in (1, 16, 64):
-            what = f"Avoid-v0 batched {mode}, {n} env" + ("s" if n > 1 else "")
-            yield Probe(what, lambda m=mode, n=n: _vec_rate(m, n, env_steps), [
+        for n, k in ((1, 1), (16, 1), (64, 1), (64, 2)):
+            what = f"Avoid-v0 batched {mode}, {n} env" + ("s" if n > 1 else "") + \
+                (f", {k} workers" if k > 1 else "")
+            yield Probe(what, lambda m=mode, n=n, k=k: _vec_rate(m, n, env_steps, k), [
                 Metric("steps_per_s", f"{what}: env steps per second", "1/s",
-                       notes="vector_entry_point, one process; random actions"
+                       notes=("vector_entry_point, one process" if k == 1 else
+                              f"vector_entry_point, workers={k}: {k} processes")
+                             + "; random actions"
                              + (f"; {VEC_TARGETS[mode]}" if n == 64 else "")),
                 Metric("cpu_steps_per_s", f"{what}: env steps per CPU second", "1/s",
-                       notes="process CPU time: less sensitive to a loaded machine"),
+                       notes="this process's CPU time (workers=1: all of it)"),
                 Metric("real_time_factor", f"{what}: simulated s per wall s", "x",
                        notes="all envs together, dt = 0.1 s per step")],
                 repeats=repeats, warmup=0)

@@ -17,8 +17,21 @@ ends env i's episode (terminated, or truncated at ``max_episode_steps``, 300 as 
 returns its last observation; the next ``step`` ignores env i's action, resets it (its own
 seed stream, as the single env's ``reset()`` without a seed) and returns the new
 episode's first observation with reward 0 and both flags False.
+
+``workers=K`` (default 1) splits the N worlds into K contiguous chunks: the first steps in
+this process, each other in a worker process of its own (a fresh interpreter), all at once, so a
+batch uses K cores; env i is the same env, to the bit, whatever K. A worker ends with
+:meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
 """
 from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import traceback
+from multiprocessing.connection import Connection
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -31,51 +44,33 @@ from plant.tick import messages_of, step_ticks
 from .avoid import AvoidTask
 
 
-class AvoidVectorEnv(VectorEnv):
-    """N ``diffbot/Avoid-v0`` worlds in one process (module docstring)."""
+class Worlds:
+    """Envs ``[lo, lo + n)`` of a batch: their tasks, episodes and stepping (the module
+    docstring), in this process or in a worker's (:func:`_serve`). Each call returns one
+    result per env, in order."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10,
-                "autoreset_mode": AutoresetMode.NEXT_STEP}
-
-    def __init__(self, num_envs: int = 1, max_episode_steps: int | None = 300,
-                 world: str = "living_room", action_repeat: int = 5,
-                 goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
-                 normalize_actions: bool = False, render_mode: str | None = None,
-                 transport: str = "inproc") -> None:
-        if transport != "inproc":
-            raise ValueError("vector_entry_point batches in-process worlds; for plants over "
-                             "the bus use vectorization_mode='async' (one plant per worker)")
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        self.num_envs = int(num_envs)
-        self.render_mode = render_mode
-        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+    def __init__(self, n: int, max_episode_steps: int | None, world: str, action_repeat: int,
+                 goal_radius_m: float, overrides: tuple[str, ...],
+                 normalize_actions: bool) -> None:
+        self.n = int(n)
+        self.max_episode_steps = max_episode_steps
         self.tasks: list[AvoidTask] = []
         try:
-            for _ in range(self.num_envs):
+            for _ in range(self.n):
                 self.tasks.append(AvoidTask(world, "inproc", None, action_repeat, None,
                                             goal_radius_m, tuple(overrides), normalize_actions))
         except BaseException:
             self.close()
             raise
-        first = self.tasks[0]
-        if len(first.robots) != 1:
-            self.close()
-            raise ValueError(f"{world} has {len(first.robots)} robots; Avoid-v0 drives one")
-        self.robot = first.robots[0]
-        self.dt = first.dt
-        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
-        self.single_observation_space = first.observation_space(self.robot)
-        self.single_action_space = first.action_space(self.robot)
-        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
-        self._steps = np.zeros(self.num_envs, np.int64)
-        self._needs_reset = np.zeros(self.num_envs, bool)
+        self.robot = self.tasks[0].robots[0]
+        self._rngs: list[np.random.Generator | None] = [None] * self.n
+        self._steps = np.zeros(self.n, np.int64)
+        self._needs_reset = np.zeros(self.n, bool)
 
-    # ---------------------------------------------------------------- episodes
+    def spaces(self):
+        t = self.tasks[0]
+        return (len(t.robots), t.dt, t.observation_space(self.robot), t.action_space(self.robot))
+
     def _reset_one(self, i: int, seed: int | None) -> tuple[dict, dict]:
         """As :meth:`AvoidEnv.reset` (Env.reset's seeding rules, then the task's)."""
         if seed is not None or self._rngs[i] is None:
@@ -87,49 +82,31 @@ class AvoidVectorEnv(VectorEnv):
         self._needs_reset[i] = False
         return obs[self.robot], info[self.robot]
 
-    def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
-        super().reset(seed=seed if isinstance(seed, int) else None)
-        if seed is None:
-            seeds = [None] * self.num_envs
-        elif isinstance(seed, int):
-            seeds = [seed + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
-        obs, infos = [], {}
-        for i, s in enumerate(seeds):
-            o, info = self._reset_one(i, s)
-            obs.append(o)
-            infos = self._add_info(infos, info, i)
-        return self._stack(obs), infos
+    def reset(self, seeds: list[int | None]) -> list[tuple[dict, dict]]:
+        return [self._reset_one(i, s) for i, s in enumerate(seeds)]
 
-    def step(self, actions):
-        actions = np.asarray(actions)
-        if actions.shape[:1] != (self.num_envs,):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
-        n = self.num_envs
-        obs: list = [None] * n
-        rew = np.zeros(n, np.float64)
-        term = np.zeros(n, bool)
-        trunc = np.zeros(n, bool)
-        infos: dict = {}
+    def step(self, actions: np.ndarray) -> list[tuple]:
+        """(obs, reward, terminated, truncated, info) of each env."""
+        n = self.n
+        out: list = [None] * n
         resets = np.flatnonzero(self._needs_reset)
         live = [i for i in range(n) if not self._needs_reset[i]]
         cmds = {i: self.tasks[i].begin_step({self.robot: actions[i]}) for i in live}
         self._advance(live, cmds)
+        term = np.zeros(n, bool)
+        trunc = np.zeros(n, bool)
         for i in live:
             o, r, te, tr, info = self.tasks[i].end_step()
             self._steps[i] += 1
-            obs[i], rew[i], term[i] = o[self.robot], r[self.robot], te[self.robot]
+            term[i] = te[self.robot]
             trunc[i] = (self.max_episode_steps is not None
                         and self._steps[i] >= self.max_episode_steps)   # as TimeLimit
-            infos = self._add_info(infos, info[self.robot], i)
+            out[i] = (o[self.robot], r[self.robot], term[i], trunc[i], info[self.robot])
         for i in resets:
-            obs[i], info = self._reset_one(int(i), None)
-            infos = self._add_info(infos, info, int(i))
+            o, info = self._reset_one(int(i), None)
+            out[i] = (o, 0.0, False, False, info)
         self._needs_reset = term | trunc
-        return self._stack(obs), rew, term, trunc, infos
+        return out
 
     def _advance(self, live: list[int], cmds: dict) -> None:
         """Every live env's ``action_repeat`` ticks, tick by tick across the worlds; per
@@ -155,16 +132,212 @@ class AvoidVectorEnv(VectorEnv):
                 for task, touched in zip(ended, geo.contacts_of([t.centres() for t in ended])):
                     task.touched = touched
 
+    def render(self) -> list:
+        return [t.render() for t in self.tasks]
+
+    def close(self) -> None:
+        for t in self.tasks:
+            t.close()
+        self.tasks = []
+
+
+def _serve(conn) -> None:
+    """A worker process: envs of a batch (:class:`Worlds`, built from the first message,
+    (n, kwargs)) answering its parent's calls ((method, args) -> ("ok", result) or
+    ("error", exception, traceback)) until ``close``, or until the parent is gone (its end
+    of the connection closed; the kernel's SIGTERM too, :func:`diffbot.procs._preexec`).
+    Ctrl-C is the parent's to handle: it closes the batch."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    worlds = None
+    try:
+        try:
+            n, kw = conn.recv()
+            worlds = Worlds(n, **kw)
+            conn.send(("ok", worlds.spaces()))
+        except (EOFError, OSError):
+            return
+        except Exception as exc:
+            conn.send(("error", exc, traceback.format_exc()))
+            return
+        while True:
+            try:
+                method, args = conn.recv()
+            except (EOFError, OSError):
+                return
+            if method == "close":
+                return
+            try:
+                conn.send(("ok", getattr(worlds, method)(*args)))
+            except Exception as exc:
+                conn.send(("error", exc, traceback.format_exc()))
+    finally:
+        if worlds is not None:
+            worlds.close()
+        conn.close()
+
+
+class _Worker:
+    """A chunk of the batch in a worker process (``python -m diffbot.envs.vector FD``,
+    :func:`_serve`, over a socket pair; a fresh interpreter, so a user's script needs no
+    ``if __name__ == "__main__"`` guard): the same calls as :class:`Worlds`, sent
+    (:meth:`send`) and answered (:meth:`result`) apart, so that the chunks step at once."""
+
+    def __init__(self, n: int, kw: dict) -> None:
+        import diffbot
+        from diffbot import procs
+        ours, theirs = socket.socketpair()
+        root = os.path.dirname(os.path.dirname(os.path.abspath(diffbot.__file__)))
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+            [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "diffbot.envs.vector", str(theirs.fileno())],
+                pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
+                preexec_fn=procs._preexec(die_with_parent=True))
+        finally:
+            theirs.close()
+        self.conn = Connection(ours.detach())
+        self.n = n
+        self.conn.send((n, kw))
+
+    def send(self, method: str, *args) -> None:
+        self.conn.send((method, args))
+
+    def result(self):
+        try:
+            status, value, *tb = self.conn.recv()
+        except (EOFError, OSError):
+            raise RuntimeError(f"a batch worker process (pid {self.proc.pid}) died, "
+                               f"exit code {self.proc.poll()}") from None
+        if status == "error":
+            raise value from RuntimeError(f"in the batch worker (pid {self.proc.pid}):\n{tb[0]}")
+        return value
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                self.conn.send(("close", ()))
+            except (BrokenPipeError, OSError):
+                pass
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self.conn.close()
+
+
+class AvoidVectorEnv(VectorEnv):
+    """N ``diffbot/Avoid-v0`` worlds in one process, or in ``workers`` (module docstring)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10,
+                "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, max_episode_steps: int | None = 300,
+                 world: str = "living_room", action_repeat: int = 5,
+                 goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
+                 normalize_actions: bool = False, render_mode: str | None = None,
+                 transport: str = "inproc", workers: int = 1) -> None:
+        if transport != "inproc":
+            raise ValueError("vector_entry_point batches in-process worlds; for plants over "
+                             "the bus use vectorization_mode='async' (one plant per worker)")
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
+        if not 1 <= int(workers) <= int(num_envs):
+            raise ValueError(f"workers must be between 1 and num_envs ({num_envs}), "
+                             f"got {workers!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.num_envs = int(num_envs)
+        self.render_mode = render_mode
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        kw = dict(max_episode_steps=self.max_episode_steps, world=world,
+                  action_repeat=action_repeat, goal_radius_m=goal_radius_m,
+                  overrides=tuple(overrides), normalize_actions=normalize_actions)
+        k = int(workers)
+        sizes = [self.num_envs // k + (1 if j < self.num_envs % k else 0) for j in range(k)]
+        self.chunks: list = []
+        try:
+            for size in sizes[1:]:                 # the workers start while ours is built
+                self.chunks.append(_Worker(size, kw))
+            self.chunks.insert(0, Worlds(sizes[0], **kw))
+            spaces = [self.chunks[0].spaces()] + [w.result() for w in self.chunks[1:]]
+        except BaseException:
+            self.close_extras()
+            raise
+        robots, self.dt, obs_space, act_space = spaces[0]
+        if robots != 1:
+            self.close_extras()
+            raise ValueError(f"{world} has {robots} robots; Avoid-v0 drives one")
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
+        self.single_observation_space = obs_space
+        self.single_action_space = act_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._bounds = np.concatenate([[0], np.cumsum(sizes)])
+
+    @property
+    def tasks(self) -> list[AvoidTask]:
+        """The tasks of the worlds in this process (all of them with ``workers=1``)."""
+        return self.chunks[0].tasks if self.chunks and isinstance(self.chunks[0], Worlds) else []
+
+    def _all(self, method: str, per_chunk: list) -> list:
+        """``method`` of every chunk with its argument, the workers' sent first, so they
+        run while this process does its own; the results in env order."""
+        for c, arg in zip(self.chunks[1:], per_chunk[1:]):
+            c.send(method, *arg)
+        out = list(getattr(self.chunks[0], method)(*per_chunk[0]))
+        for c in self.chunks[1:]:
+            out.extend(c.result())
+        return out
+
+    def _split(self, values) -> list:
+        return [(values[lo:hi],) for lo, hi in zip(self._bounds[:-1], self._bounds[1:])]
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        super().reset(seed=seed if isinstance(seed, int) else None)
+        if seed is None:
+            seeds = [None] * self.num_envs
+        elif isinstance(seed, int):
+            seeds = [seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
+        obs, infos = [], {}
+        for i, (o, info) in enumerate(self._all("reset", self._split(seeds))):
+            obs.append(o)
+            infos = self._add_info(infos, info, i)
+        return self._stack(obs), infos
+
+    def step(self, actions):
+        actions = np.asarray(actions)
+        if actions.shape[:1] != (self.num_envs,):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
+        n = self.num_envs
+        obs: list = [None] * n
+        rew = np.zeros(n, np.float64)
+        term = np.zeros(n, bool)
+        trunc = np.zeros(n, bool)
+        infos: dict = {}
+        for i, (o, r, te, tr, info) in enumerate(self._all("step", self._split(actions))):
+            obs[i], rew[i], term[i], trunc[i] = o, r, te, tr
+            infos = self._add_info(infos, info, i)
+        return self._stack(obs), rew, term, trunc, infos
+
     def _stack(self, obs: list[dict]) -> dict:
         return {k: np.stack([o[k] for o in obs]) for k in self.single_observation_space}
 
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        return tuple(t.render() for t in self.tasks)
+        return tuple(self._all("render", [()] * len(self.chunks)))
 
     def close_extras(self, **kwargs) -> None:
-        for t in self.tasks:
-            t.close()
-        self.tasks = []
+        for c in getattr(self, "chunks", []):
+            c.close()
+        self.chunks = []
 
+
+if __name__ == "__main__":            # a batch's worker process (_Worker)
+    _serve(Connection(int(sys.argv[1])))
