@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import struct
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -28,13 +29,16 @@ class _Table(dict):
         self._store = store
 
     def __missing__(self, name: str):
-        if not self._store.load_all():
-            raise KeyError(name)
-        return dict.__getitem__(self, name)
+        self._store.load_all()
+        if dict.__contains__(self, name):
+            return dict.__getitem__(self, name)
+        raise KeyError(name)
 
     def __contains__(self, name) -> bool:
-        return dict.__contains__(self, name) or (self._store.load_all()
-                                                 and dict.__contains__(self, name))
+        if dict.__contains__(self, name):
+            return True
+        self._store.load_all()
+        return dict.__contains__(self, name)
 
     def get(self, name, default=None):
         return self[name] if name in self else default
@@ -69,21 +73,24 @@ class _Store(Typestore):
     def __init__(self) -> None:
         super().__init__(msgtypes)
         self._all = False
+        self._lock = threading.Lock()      # (Zenoh's callback threads decode too)
         self.types = _Table(self, self.types)
         self.fielddefs = _Table(self, self.fielddefs)
 
-    def load_all(self) -> bool:
-        """Add every Jazzy type not here yet (once); False if they were all here already."""
+    def load_all(self) -> None:
+        """Add every Jazzy type not here yet (once; a caller meanwhile waits for it)."""
         if self._all:
-            return False
-        self._all = True
-        from rosbags.typesys import Stores, get_typestore
-        full = get_typestore(Stores.ROS2_JAZZY)
-        for name, defs in full.fielddefs.items():
-            if not dict.__contains__(self.fielddefs, name):
-                dict.__setitem__(self.fielddefs, name, defs)
-                dict.__setitem__(self.types, name, full.types[name])
-        return True
+            return
+        with self._lock:
+            if self._all:
+                return
+            from rosbags.typesys import Stores, get_typestore
+            full = get_typestore(Stores.ROS2_JAZZY)
+            for name, defs in full.fielddefs.items():
+                if not dict.__contains__(self.fielddefs, name):
+                    dict.__setitem__(self.types, name, full.types[name])
+                    dict.__setitem__(self.fielddefs, name, defs)
+            self._all = True
 
 
 TYPESTORE = _Store()
