@@ -98,7 +98,8 @@ def test_batched_contacts_end_the_same_episodes_as_the_single_env():
 def test_workers_step_the_same_envs_to_the_bit_and_end_with_the_batch():
     """workers=2: the second chunk of worlds in a worker process (both cores), each env the
     same, to the bit, as in one process, through autoresets (short episodes), rendering
-    included; an action error in a worker's env reaches the caller; close() ends it."""
+    included; a bad action for a worker's env is refused before any world moves (the batch
+    stays in step); close() ends the worker."""
     import os
 
     from diffbot import procs as dprocs
@@ -130,8 +131,11 @@ def test_workers_step_the_same_envs_to_the_bit_and_end_with_the_batch():
         assert len(fb) == n and all(np.array_equal(x, y) for x, y in zip(fa, fb))
         bad = np.zeros((n, 2), np.float32)
         bad[-1, 0] = np.nan                       # the last env: in the worker
-        with pytest.raises(ValueError):
+        with pytest.raises(ValueError, match="env 4"):
             two.step(bad)
+        act = np.full((n, 2), 0.1, np.float32)    # refused before any world moved: in step
+        ra, rb = one.step(act), two.step(act)
+        assert all(ra[0][k].tobytes() == rb[0][k].tobytes() for k in ra[0])
     finally:
         one.close()
         two.close()

@@ -1,4 +1,4 @@
-"""``diffbot/Avoid-v0`` batched: N independent worlds stepped together in one process.
+"""``diffbot/Avoid-v0`` batched: N independent worlds stepped together, in one process or K.
 
     envs = gym.make_vec("diffbot/Avoid-v0", num_envs=64, vectorization_mode="vector_entry_point")
 
@@ -19,9 +19,9 @@ seed stream, as the single env's ``reset()`` without a seed) and returns the new
 episode's first observation with reward 0 and both flags False.
 
 ``workers=K`` (default 1) splits the N worlds into K contiguous chunks: the first steps in
-this process, each other in a worker process of its own (a fresh interpreter), all at once, so a
-batch uses K cores; env i is the same env, to the bit, whatever K. A worker ends with
-:meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
+this process, each other in a worker process of its own (a fresh interpreter), all at
+once, so a batch uses K cores; env i is the same env, to the bit, whatever K. A worker
+ends with :meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
 """
 from __future__ import annotations
 
@@ -41,13 +41,14 @@ from gymnasium.vector.utils import batch_space
 from bus.controller import Twist
 from plant.tick import messages_of, step_ticks
 
+from .actions import Drive
 from .avoid import AvoidTask
 
 
 class Worlds:
-    """Envs ``[lo, lo + n)`` of a batch: their tasks, episodes and stepping (the module
-    docstring), in this process or in a worker's (:func:`_serve`). Each call returns one
-    result per env, in order."""
+    """``n`` envs of a batch (a contiguous chunk of it): their tasks, episodes and stepping
+    (the module docstring), in this process or in a worker's (:func:`_serve`). Each call
+    returns one result per env, in order."""
 
     def __init__(self, n: int, max_episode_steps: int | None, world: str, action_repeat: int,
                  goal_radius_m: float, overrides: tuple[str, ...],
@@ -275,6 +276,8 @@ class AvoidVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._bounds = np.concatenate([[0], np.cumsum(sizes)])
+        self._needs_reset = np.zeros(self.num_envs, bool)   # as each chunk's (autoreset)
+        self._drive = Drive(1.0, 1.0)                        # the actions' check, up front
 
     @property
     def tasks(self) -> list[AvoidTask]:
@@ -283,12 +286,24 @@ class AvoidVectorEnv(VectorEnv):
 
     def _all(self, method: str, per_chunk: list) -> list:
         """``method`` of every chunk with its argument, the workers' sent first, so they
-        run while this process does its own; the results in env order."""
+        run while this process does its own; the results in env order. Every worker's
+        answer is read even when a chunk fails (the first error is raised after), so the
+        next call reads its own answers."""
         for c, arg in zip(self.chunks[1:], per_chunk[1:]):
             c.send(method, *arg)
-        out = list(getattr(self.chunks[0], method)(*per_chunk[0]))
+        out: list = []
+        error = None
+        try:
+            out.extend(getattr(self.chunks[0], method)(*per_chunk[0]))
+        except Exception as exc:
+            error = exc
         for c in self.chunks[1:]:
-            out.extend(c.result())
+            try:
+                out.extend(c.result())
+            except Exception as exc:
+                error = error or exc
+        if error is not None:
+            raise error
         return out
 
     def _split(self, values) -> list:
@@ -305,6 +320,7 @@ class AvoidVectorEnv(VectorEnv):
             if len(seeds) != self.num_envs:
                 raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
         obs, infos = [], {}
+        self._needs_reset[:] = False
         for i, (o, info) in enumerate(self._all("reset", self._split(seeds))):
             obs.append(o)
             infos = self._add_info(infos, info, i)
@@ -320,9 +336,12 @@ class AvoidVectorEnv(VectorEnv):
         term = np.zeros(n, bool)
         trunc = np.zeros(n, bool)
         infos: dict = {}
+        for i in np.flatnonzero(~self._needs_reset):     # checked before any world steps
+            self._drive.command(actions[i], f"env {i}")   # (a reset's action is ignored)
         for i, (o, r, te, tr, info) in enumerate(self._all("step", self._split(actions))):
             obs[i], rew[i], term[i], trunc[i] = o, r, te, tr
             infos = self._add_info(infos, info, i)
+        self._needs_reset = term | trunc
         return self._stack(obs), rew, term, trunc, infos
 
     def _stack(self, obs: list[dict]) -> dict:
