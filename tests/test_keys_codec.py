@@ -195,7 +195,9 @@ def test_the_bus_s_own_types_are_rosbags_jazzy_types_and_the_rest_load_on_first_
 
     from bus import msgtypes, msgtypes_build
     full = get_typestore(Stores.ROS2_JAZZY)
-    assert open(msgtypes.__file__).read() == msgtypes_build.source(), \
+    import re
+    same = re.compile(r"from rosbags [^:]*: do not edit")   # (any release with these types)
+    assert same.sub("", open(msgtypes.__file__).read()) == same.sub("", msgtypes_build.source()), \
         "bus/msgtypes.py differs from the installed rosbags: python -m bus.msgtypes_build"
     for name, defs in msgtypes.FIELDDEFS.items():
         assert defs == full.fielddefs[name]
