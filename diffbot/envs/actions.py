@@ -27,6 +27,15 @@ def check_repeat(action_repeat: int) -> int:
     return int(action_repeat)
 
 
+def check_action(action, who: str = "the robot") -> np.ndarray:
+    """The action as float32 ``[v, w]``; a ValueError naming ``who`` if it is not two finite
+    numbers (module docstring)."""
+    a = as_action(action)
+    if a.shape != (2,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"action for {who} must be 2 finite numbers [v, w], got {action!r}")
+    return a
+
+
 class Drive:
     """One robot's action: space, check and clip, in the robot's units or normalised."""
 
@@ -39,11 +48,7 @@ class Drive:
 
     def command(self, action, who: str = "the robot") -> tuple[float, float]:
         """The twist ``(v m/s, w rad/s)`` an action gives (module docstring)."""
-        a = as_action(action)
-        if a.shape != (2,) or not np.all(np.isfinite(a)):
-            raise ValueError(f"action for {who} must be 2 finite numbers [v, w], got "
-                             f"{action!r}")
-        v, w = np.clip(a, -self._hi, self._hi)
+        v, w = np.clip(check_action(action, who), -self._hi, self._hi)
         if self.normalize:
             return float(v) * self.v_max, float(w) * self.w_max
         return float(v), float(w)

@@ -41,7 +41,7 @@ from gymnasium.vector.utils import batch_space
 from bus.controller import Twist
 from plant.tick import messages_of, step_ticks
 
-from .actions import Drive
+from .actions import check_action
 from .avoid import AvoidTask
 
 
@@ -198,7 +198,6 @@ class _Worker:
         finally:
             theirs.close()
         self.conn = Connection(ours.detach())
-        self.n = n
         self.conn.send((n, kw))
 
     def send(self, method: str, *args) -> None:
@@ -277,7 +276,6 @@ class AvoidVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._bounds = np.concatenate([[0], np.cumsum(sizes)])
         self._needs_reset = np.zeros(self.num_envs, bool)   # as each chunk's (autoreset)
-        self._drive = Drive(1.0, 1.0)                        # the actions' check, up front
 
     @property
     def tasks(self) -> list[AvoidTask]:
@@ -337,7 +335,7 @@ class AvoidVectorEnv(VectorEnv):
         trunc = np.zeros(n, bool)
         infos: dict = {}
         for i in np.flatnonzero(~self._needs_reset):     # checked before any world steps
-            self._drive.command(actions[i], f"env {i}")   # (a reset's action is ignored)
+            check_action(actions[i], f"env {i}")          # (a reset's action is ignored)
         for i, (o, r, te, tr, info) in enumerate(self._all("step", self._split(actions))):
             obs[i], rew[i], term[i], trunc[i] = o, r, te, tr
             infos = self._add_info(infos, info, i)
