@@ -146,6 +146,9 @@ class _Batch:
     def finite(self) -> bool:
         return Kinematics.finite(self)
 
+    def transforms(self) -> np.ndarray:
+        return Kinematics.transforms(self)
+
 
 def join(members: Sequence[Kinematics]) -> _Batch:
     """One batch of ``members`` (copies of one world), reused while they all stay in it."""

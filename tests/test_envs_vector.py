@@ -94,6 +94,54 @@ def test_batched_contacts_end_the_same_episodes_as_the_single_env():
             env.close()
 
 
+#: every kind of noise the batch's arrays make, quantised where a world file may quantise
+ALL_NOISE = ("robots.robot1.encoders.noise={std = 0.002, resolution = 0.001}",
+             "robots.robot1.lidar.noise={std = 0.01, bias = 0.003}",
+             "robots.robot1.lidar.resolution_m=0.005", "robots.robot1.gps.noise={std = 0.5}",
+             "robots.robot1.motion.command_noise_std_radps=0.05")
+
+
+@pytest.mark.parametrize("repeat", [5, 3])
+def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat):
+    """A batch of kinematic worlds ticks as arrays (diffbot.envs.kinbatch); the same batch
+    through the plant's messages (arrays=None) is the oracle: observations, rewards, flags,
+    poses, contacts and the rendered view to the bit, every noise on, through autoresets
+    (an action_repeat of 3 puts the worlds' lidars out of phase after their resets)."""
+    from diffbot.envs.kinbatch import ArrayTicks
+    n = 6
+    kw = dict(max_episode_steps=60, action_repeat=repeat, render_mode="rgb_array",
+              overrides=("world.mode=kinematic", *ALL_NOISE))
+    fast = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                        **kw)
+    slow = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                        **kw)
+    slow.unwrapped.chunks[0].arrays = None
+    try:
+        a, _ = fast.reset(seed=11)
+        b, _ = slow.reset(seed=11)
+        assert ArrayTicks.eligible(fast.unwrapped.tasks)
+        rng = np.random.default_rng(5)
+        contacts = 0
+        for step in range(150):          # mostly ahead: walls and furniture get hit
+            act = (rng.uniform([0.3, -0.6], [1.0, 0.6], (n, 2))
+                   * fast.single_action_space.high).astype(np.float32)
+            ra, rb = fast.step(act), slow.step(act)
+            for key in ra[0]:
+                assert ra[0][key].tobytes() == rb[0][key].tobytes(), f"{key} at step {step}"
+            for x, y in zip(ra[1:4], rb[1:4]):
+                assert x.tobytes() == y.tobytes(), f"reward/flags at step {step}"
+            for key in ("pose", "distance", "contact", "t"):
+                assert np.asarray(ra[4][key]).tobytes() == np.asarray(rb[4][key]).tobytes(), \
+                    f"info {key} at step {step}"
+            contacts += int(np.sum(ra[4]["contact"]))
+            if step % 25 == 24:
+                assert all(np.array_equal(x, y) for x, y in zip(fast.render(), slow.render()))
+        assert contacts >= 2, "no episode ended on a contact"
+    finally:
+        fast.close()
+        slow.close()
+
+
 @pytest.mark.slow
 def test_workers_step_the_same_envs_to_the_bit_and_end_with_the_batch():
     """workers=2: the second chunk of worlds in a worker process (both cores), each env the

@@ -43,6 +43,7 @@ from plant.tick import messages_of, step_ticks
 
 from .actions import check_action
 from .avoid import AvoidTask
+from .kinbatch import ArrayTicks
 
 
 class Worlds:
@@ -67,6 +68,9 @@ class Worlds:
         self._rngs: list[np.random.Generator | None] = [None] * self.n
         self._steps = np.zeros(self.n, np.int64)
         self._needs_reset = np.zeros(self.n, bool)
+        #: kinematic worlds ticked as arrays (:mod:`diffbot.envs.kinbatch`; None: every
+        #: world through its messages, the path the arrays are tested against)
+        self.arrays: ArrayTicks | None = ArrayTicks()
 
     def spaces(self):
         t = self.tasks[0]
@@ -114,6 +118,11 @@ class Worlds:
         world exactly :meth:`diffbot.envs.transport.InProc.advance`."""
         if not live:
             return
+        tasks = [self.tasks[i] for i in live]
+        if self.arrays is not None and self.arrays.eligible(tasks):
+            self.arrays.advance(tasks, [cmds[i] for i in live])
+            self._judge(tasks)
+            return
         transports = [self.tasks[i].transport for i in live]
         ticks = [tr.tick for tr in transports]
         for _ in range(self.tasks[0].action_repeat):
@@ -128,10 +137,15 @@ class Worlds:
                 tr.take(msgs)
                 if self.tasks[i]._observe(tr.tick.t_ns, tr.latest, judge=False):
                     ended.append(self.tasks[i])
-            if ended:                    # every world's contacts in one call
-                geo = ended[0].geo
-                for task, touched in zip(ended, geo.contacts_of([t.centres() for t in ended])):
-                    task.touched = touched
+            self._judge(ended)
+
+    @staticmethod
+    def _judge(ended: list[AvoidTask]) -> None:
+        """The contacts of the worlds whose step ended, all in one call."""
+        if ended:
+            geo = ended[0].geo
+            for task, touched in zip(ended, geo.contacts_of([t.centres() for t in ended])):
+                task.touched = touched
 
     def render(self) -> list:
         return [t.render() for t in self.tasks]

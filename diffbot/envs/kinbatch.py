@@ -1,0 +1,257 @@
+"""A batch of kinematic one-robot Avoid worlds ticked as arrays (the batch's fast path).
+
+:class:`diffbot.envs.vector.Worlds` ticks its worlds through the plant's messages
+(:func:`plant.tick.messages_of`, then each env's :meth:`AvoidTask._observe` reads them):
+a hundred microseconds of Python per world and tick, most of it building and reading
+message objects. When every world of the batch is a kinematic world in this process
+(``world.mode = "kinematic"``) with one robot and no camera, :class:`ArrayTicks` makes
+the same numbers for all of them at once from the kinematic batch's arrays
+(:mod:`plant.kinematic`), each to the bit what the message path gives
+(``tests/test_envs_vector.py`` runs both side by side, noise on):
+
+- encoders: the wheel angles plus the encoder noise of :class:`plant.noise.NoiseModel`,
+  each world's own stream drawn in blocks of ticks ahead (a generator's block of draws is
+  its draws one by one, in order);
+- lidar: every robot due cast in one kernel call against the room's static shapes (a
+  one-robot world's lidar skips its own parts, so those are the shapes it sees), then
+  noise, clip and quantisation as :func:`plant.lidar.apply_noise`, all rows at once;
+- the observer: :func:`controllers.odometry.arc_step` and the velocities of
+  :meth:`controllers.odometry.Odometry.update` on arrays (``+ - * /``, ``sin``, ``cos``:
+  numpy gives libm's bits), the scan as :meth:`controllers.learned.AvoidObserver.feed`
+  keeps it;
+- the ground truth at the step's end, as the ``ground_truth`` message and
+  :func:`bus.codec.pose_2d` give it.
+
+The commands go through each world's own :class:`plant.drive.DriveLimiter` and motion
+noise (:meth:`plant.sim.Simulation.command_twist`). What the env never reads is not made
+(the GPS; the ground truth before a step's end); the GPS noise stream is not drawn either,
+as nobody reads it before the world is rebuilt at its next reset. Each env's observer and
+task hold their state between steps, so everything else (rewards, ``info``, rendering,
+resets through the message path) is the task's own code.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from bus.controller import Twist
+from plant import kinematic
+from plant import lidar as lid
+from plant.noise import NoiseModel
+from plant.raycast import Scene
+from plant.sim import rotation_to_quaternion
+
+from .avoid import AvoidTask
+from .transport import InProc
+
+#: ticks of noise drawn at once per stream
+_BLOCK = 64
+
+
+class _Scan:
+    """What a task keeps of its last scan for :meth:`AvoidTask.render`: the fields of the
+    ``LaserScan`` message (:func:`bus.codec.laser_scan`) the view reads, with its values."""
+
+    __slots__ = ("ranges", "range_max", "angle_min", "angle_increment")
+
+    def __init__(self, ranges: np.ndarray, cfg) -> None:
+        self.ranges = ranges
+        self.range_max = float(cfg.max_range_m)
+        self.angle_min = float(cfg.angle_min)
+        self.angle_increment = float(cfg.angle_increment)
+
+
+class _Draws:
+    """A noise model's normals drawn ``_BLOCK`` readings ahead, handed out reading by
+    reading in the order the message path draws them."""
+
+    __slots__ = ("model", "shape", "buf", "next")
+
+    def __init__(self, model: NoiseModel, shape: tuple[int, ...]) -> None:
+        self.model, self.shape = model, shape
+        self.buf = np.empty((0,) + shape)
+        self.next = 0
+
+    def take(self) -> np.ndarray:
+        if self.next == len(self.buf):
+            self.buf = self.model.rng.normal(0.0, self.model.config.std,
+                                             size=(_BLOCK,) + self.shape)
+            self.next = 0
+        self.next += 1
+        return self.buf[self.next - 1]
+
+
+def _noisy(values: np.ndarray, models: Sequence[NoiseModel | None], draws: list,
+           shape: tuple[int, ...]) -> np.ndarray:
+    """``models[j].apply(values[j])`` of every row j (:meth:`NoiseModel.apply` of a float
+    array): offset, the stream's normals, quantisation; rows whose model is None as they are."""
+    out = values.astype(np.float64)
+    m0 = next((m for m in models if m is not None), None)
+    if m0 is None:
+        return out
+    c = m0.config
+    have = np.array([m is not None for m in models])
+    noisy = out + (c.bias + c.mean)
+    if c.std > 0:
+        noisy = noisy + np.array([d.take() if d is not None else np.zeros(shape)
+                                  for d in draws]).reshape(noisy.shape)
+    if c.resolution > 0:
+        with np.errstate(invalid="ignore"):
+            noisy = np.where(np.isfinite(noisy),
+                             np.round(noisy / c.resolution) * c.resolution, noisy)
+    return np.where(have.reshape((-1,) + (1,) * (out.ndim - 1)), noisy, out)
+
+
+class ArrayTicks:
+    """The fast path for a batch's tasks (module docstring); :meth:`eligible` says when."""
+
+    def __init__(self) -> None:
+        self._draws: dict[int, _Draws] = {}     # id(NoiseModel) -> its block of draws
+        self._scene: Scene | None = None
+        self._scene_of = None
+
+    @staticmethod
+    def eligible(tasks: Sequence[AvoidTask]) -> bool:
+        """Kinematic one-robot worlds in this process, no camera, every world the same spec
+        (a batch's are: one world file, one set of overrides)."""
+        for t in tasks:
+            tr = t.transport
+            if not isinstance(tr, InProc) or tr.tick is None or len(t.robots) != 1:
+                return False
+            tick = tr.tick
+            if tick.sim.kin is None or tick.physics is not None:
+                return False
+            s = tick.sensors[t.robots[0]]
+            if s.camera is not None or s.lidar is None:
+                return False
+        return True
+
+    def _draws_of(self, model: NoiseModel | None, shape: tuple[int, ...]) -> _Draws | None:
+        if model is None or model.config.std <= 0:
+            return None
+        d = self._draws.get(id(model))
+        if d is None or d.model is not model:
+            d = self._draws[id(model)] = _Draws(model, shape)
+        return d
+
+    def _static_scene(self, sim) -> Scene:
+        """The room without its robot (every world of the batch has the same room)."""
+        if self._scene is None or self._scene_of is not sim.spec.name:
+            self._scene = Scene(list(sim._static_shapes))
+            self._scene_of = sim.spec.name
+        return self._scene
+
+    def advance(self, tasks: Sequence[AvoidTask], cmds: Sequence[dict]) -> None:
+        """``action_repeat`` ticks of every task in ``tasks`` with its commands (``cmds``,
+        {robot: (v, w)} each), and each task left as its own ``_observe`` at the step's
+        last tick leaves it (its contacts not judged: the caller's, all at once)."""
+        w = len(tasks)
+        ticks = [t.transport.tick for t in tasks]
+        names = [t.robots[0] for t in tasks]
+        sensors = [tick.sensors[n] for tick, n in zip(ticks, names)]
+        sims = [tick.sim for tick in ticks]
+        kins = [s.kin for s in sims]
+        batch = kinematic.join(kins) if w > 1 else kins[0]
+        obs = [t.observers[n] for t, n in zip(tasks, names)]
+        odo = [o.odom for o in obs]
+        # the observers' state in
+        x = np.array([o.x for o in odo])
+        y = np.array([o.y for o in odo])
+        th = np.array([o.theta for o in odo])
+        v = np.array([o.v for o in odo])
+        om = np.array([o.w for o in odo])
+        last = np.array([o._last for o in odo], float).reshape(w, 2)
+        last_t = np.array([o._last_t for o in odo], float)
+        r = np.array([o.r for o in odo])
+        d = np.array([o.d for o in odo])
+        scans = np.array([o.scan for o in obs])
+        new_scan = np.zeros(w, bool)
+        enc_models = [s.enc_noise for s in sensors]
+        enc_draws = [self._draws_of(m, (2,)) for m in enc_models]
+        cfg = sensors[0].lidar
+        lid_models = [s.lidar_noise for s in sensors]
+        lid_draws = [self._draws_of(m, (cfg.num_rays,)) for m in lid_models]
+        period = sensors[0].periods["scan"]
+        tick_ns = ticks[0].tick_ns
+        repeat = tasks[0].action_repeat
+        twists = [Twist(*c.get(n, (0.0, 0.0))) for c, n in zip(cmds, names)]
+        for _ in range(repeat):
+            for tick, n, c in zip(ticks, names, twists):
+                tick.drive(n, c)
+            if w > 1:
+                batch.step(np.array([s.robots[n].targets for s, n in zip(sims, names)], float))
+            else:
+                kins[0].step(np.array([sims[0].robots[names[0]].targets], float))
+            for s in sims:
+                s.steps += s.spec.substeps
+            if not batch.finite():
+                raise FloatingPointError("a kinematic world of the batch is no longer finite")
+            t_ns = np.array([s.time_ns for s in sims], np.int64)
+            # encoders -> odometry (Odometry.update, arc_step)
+            pos = _noisy(batch.wheels, enc_models, enc_draws, (2,))
+            t = t_ns * 1e-9
+            dl, dr = pos[:, 0] - last[:, 0], pos[:, 1] - last[:, 1]
+            ds = r * (dr + dl) / 2.0
+            dth = r * (dr - dl) / d
+            half = dth / 2.0
+            small = np.abs(half) < 1e-9
+            safe = np.where(small, 1.0, half)
+            chord = ds * np.where(small, 1.0 - half * half / 6.0, np.sin(safe) / safe)
+            x = x + chord * np.cos(th + half)
+            y = y + chord * np.sin(th + half)
+            th = th + dth
+            h = t - last_t
+            v = r * (dr + dl) / 2.0 / h
+            om = r * (dr - dl) / d / h
+            last, last_t = pos, t
+            # lidar, where due
+            due = np.flatnonzero((t_ns // tick_ns) % period == 0)
+            if due.size:
+                scene = self._static_scene(sims[0])
+                exact = lid.scan_many(cfg, batch.transforms()[due], scene, [None] * due.size)
+                ranges = _lidar_noise(cfg, exact, [lid_models[j] for j in due],
+                                      [lid_draws[j] for j in due])
+                r32 = ranges.astype(np.float32)
+                hi = np.float32(obs[0].max_range)
+                scans[due] = np.where(np.isfinite(r32), np.clip(r32, 0.0, obs[0].max_range),
+                                      hi).astype(np.float32)
+                new_scan[due] = True
+                for j, row in zip(due, r32):
+                    tasks[j].scans[names[j]] = _Scan(row, cfg)
+        # the observers' and tasks' state out, the truth at the step's end
+        for j, (task, o, od) in enumerate(zip(tasks, obs, odo)):
+            od.x, od.y, od.theta = float(x[j]), float(y[j]), float(th[j])
+            od.v, od.w = float(v[j]), float(om[j])
+            od._last = (float(last[j, 0]), float(last[j, 1]))
+            od._last_t = float(last_t[j])
+            if new_scan[j]:
+                o.scan = scans[j].copy()
+                o._scan_msg = None
+            task.t_ns = int(t_ns[j])
+            task._ticks_left = 0
+            task.truth = {names[j]: _truth(batch.pose[j])}
+
+
+def _lidar_noise(cfg, exact: np.ndarray, models: list, draws: list) -> np.ndarray:
+    """:func:`plant.lidar.apply_noise` of every row: noise, finite ranges clipped to
+    [min, max], quantised."""
+    r = _noisy(exact, models, draws, (cfg.num_rays,))
+    finite = np.isfinite(r)
+    lo, hi = cfg.min_range_m, cfg.max_range_m
+    r = np.where(finite, np.clip(r, lo, hi), r)
+    if cfg.resolution_m > 0.0:
+        q = cfg.resolution_m
+        r = np.where(finite, np.clip(np.round(r / q) * q, lo, hi), r)
+    return r
+
+
+def _truth(pose: np.ndarray) -> tuple[float, float, float]:
+    """(x, y, yaw) of a kinematic robot as its ``ground_truth`` message gives them
+    (:meth:`plant.sim.Simulation.kin_state`'s rotation, its quaternion, back to a yaw)."""
+    px, py, yaw = pose.tolist()
+    c, s = math.cos(yaw), math.sin(yaw)
+    qx, qy, qz, qw = rotation_to_quaternion(
+        np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]))
+    return px, py, math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
