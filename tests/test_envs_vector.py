@@ -101,16 +101,19 @@ ALL_NOISE = ("robots.robot1.encoders.noise={std = 0.002, resolution = 0.001}",
              "robots.robot1.motion.command_noise_std_radps=0.05")
 
 
-@pytest.mark.parametrize("repeat", [5, 3])
-def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat):
+@pytest.mark.parametrize("repeat,normalize", [(5, False), (3, True)])
+def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat, normalize):
     """A batch of kinematic worlds ticks as arrays (diffbot.envs.kinbatch); the same batch
     through the plant's messages (arrays=None) is the oracle: observations, rewards, flags,
     poses, contacts and the rendered view to the bit, every noise on, through autoresets
-    (an action_repeat of 3 puts the worlds' lidars out of phase after their resets)."""
+    (an action_repeat of 3 puts the worlds' lidars out of phase after their resets), the
+    drive limiter's ramps and clamps, actions in the robot's units and normalised."""
     from diffbot.envs.kinbatch import ArrayTicks
     n = 6
     kw = dict(max_episode_steps=60, action_repeat=repeat, render_mode="rgb_array",
-              overrides=("world.mode=kinematic", *ALL_NOISE))
+              normalize_actions=normalize,
+              overrides=("world.mode=kinematic", *ALL_NOISE,
+                         "robots.robot1.drive.max_wheel_speed_radps=5.0"))   # the cap bites
     fast = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
                         **kw)
     slow = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
@@ -122,8 +125,8 @@ def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat):
         assert ArrayTicks.eligible(fast.unwrapped.tasks)
         rng = np.random.default_rng(5)
         contacts = 0
-        for step in range(150):          # mostly ahead: walls and furniture get hit
-            act = (rng.uniform([0.3, -0.6], [1.0, 0.6], (n, 2))
+        for step in range(150):   # mostly ahead (walls and furniture get hit), over the box
+            act = (rng.uniform([0.3, -0.7], [1.2, 0.7], (n, 2))
                    * fast.single_action_space.high).astype(np.float32)
             ra, rb = fast.step(act), slow.step(act)
             for key in ra[0]:

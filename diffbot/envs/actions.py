@@ -52,3 +52,10 @@ class Drive:
         if self.normalize:
             return float(v) * self.v_max, float(w) * self.w_max
         return float(v), float(w)
+
+    def commands(self, actions) -> np.ndarray:
+        """:meth:`command` of each row of ``actions`` (K, 2), checked already (a batch's,
+        :func:`check_action` each): (K, 2) float64, the same numbers."""
+        a = np.clip(np.asarray(actions, dtype=np.float32).astype(np.float64).reshape(-1, 2),
+                    -self._hi, self._hi)
+        return a * [self.v_max, self.w_max] if self.normalize else a

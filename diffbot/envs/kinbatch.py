@@ -36,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from bus.controller import Twist
+from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH
 from plant import kinematic
 from plant import lidar as lid
 from plant.noise import NoiseModel
@@ -64,20 +64,19 @@ class _Scan:
 
 
 class _Draws:
-    """A noise model's normals drawn ``_BLOCK`` readings ahead, handed out reading by
-    reading in the order the message path draws them."""
+    """A stream's normals (``rng.normal(0, std, shape)`` a reading) drawn ``_BLOCK``
+    readings ahead, handed out reading by reading in the order the message path draws them."""
 
-    __slots__ = ("model", "shape", "buf", "next")
+    __slots__ = ("rng", "std", "shape", "buf", "next")
 
-    def __init__(self, model: NoiseModel, shape: tuple[int, ...]) -> None:
-        self.model, self.shape = model, shape
+    def __init__(self, rng: np.random.Generator, std: float, shape: tuple[int, ...]) -> None:
+        self.rng, self.std, self.shape = rng, std, shape
         self.buf = np.empty((0,) + shape)
         self.next = 0
 
     def take(self) -> np.ndarray:
         if self.next == len(self.buf):
-            self.buf = self.model.rng.normal(0.0, self.model.config.std,
-                                             size=(_BLOCK,) + self.shape)
+            self.buf = self.rng.normal(0.0, self.std, size=(_BLOCK,) + self.shape)
             self.next = 0
         self.next += 1
         return self.buf[self.next - 1]
@@ -108,7 +107,7 @@ class ArrayTicks:
     """The fast path for a batch's tasks (module docstring); :meth:`eligible` says when."""
 
     def __init__(self) -> None:
-        self._draws: dict[int, _Draws] = {}     # id(NoiseModel) -> its block of draws
+        self._draws: dict[int, _Draws] = {}     # id(generator) -> its block of draws
         self._scene: Scene | None = None
         self._scene_of = None
 
@@ -131,9 +130,13 @@ class ArrayTicks:
     def _draws_of(self, model: NoiseModel | None, shape: tuple[int, ...]) -> _Draws | None:
         if model is None or model.config.std <= 0:
             return None
-        d = self._draws.get(id(model))
-        if d is None or d.model is not model:
-            d = self._draws[id(model)] = _Draws(model, shape)
+        return self._stream(model.rng, model.config.std, shape)
+
+    def _stream(self, rng: np.random.Generator, std: float, shape: tuple[int, ...]) -> _Draws:
+        """The blocks of ``rng`` (a world rebuilt at reset has new generators)."""
+        d = self._draws.get(id(rng))
+        if d is None or d.rng is not rng:
+            d = self._draws[id(rng)] = _Draws(rng, std, shape)
         return d
 
     def _static_scene(self, sim) -> Scene:
@@ -143,10 +146,11 @@ class ArrayTicks:
             self._scene_of = sim.spec.name
         return self._scene
 
-    def advance(self, tasks: Sequence[AvoidTask], cmds: Sequence[dict]) -> None:
-        """``action_repeat`` ticks of every task in ``tasks`` with its commands (``cmds``,
-        {robot: (v, w)} each), and each task left as its own ``_observe`` at the step's
-        last tick leaves it (its contacts not judged: the caller's, all at once)."""
+    def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray) -> list[dict]:
+        """``action_repeat`` ticks of every task in ``tasks`` with its command (``cmds``,
+        (W, 2): v m/s, w rad/s each), each task left as its own ``_observe`` at the step's
+        last tick leaves it (its contacts not judged: the caller's, all at once). Each
+        task's observation ({robot: observation}, :meth:`AvoidObserver.observation`'s)."""
         w = len(tasks)
         ticks = [t.transport.tick for t in tasks]
         names = [t.robots[0] for t in tasks]
@@ -176,14 +180,13 @@ class ArrayTicks:
         period = sensors[0].periods["scan"]
         tick_ns = ticks[0].tick_ns
         repeat = tasks[0].action_repeat
-        twists = [Twist(*c.get(n, (0.0, 0.0))) for c, n in zip(cmds, names)]
+        drive = _Limiters(sims, names, cmds, self)
         for _ in range(repeat):
-            for tick, n, c in zip(ticks, names, twists):
-                tick.drive(n, c)
+            targets = drive.targets()
             if w > 1:
-                batch.step(np.array([s.robots[n].targets for s, n in zip(sims, names)], float))
+                batch.step(targets)
             else:
-                kins[0].step(np.array([sims[0].robots[names[0]].targets], float))
+                kins[0].step(targets)
             for s in sims:
                 s.steps += s.spec.substeps
             if not batch.finite():
@@ -220,6 +223,7 @@ class ArrayTicks:
                 new_scan[due] = True
                 for j, row in zip(due, r32):
                     tasks[j].scans[names[j]] = _Scan(row, cfg)
+        drive.done()
         # the observers' and tasks' state out, the truth at the step's end
         for j, (task, o, od) in enumerate(zip(tasks, obs, odo)):
             od.x, od.y, od.theta = float(x[j]), float(y[j]), float(th[j])
@@ -232,6 +236,75 @@ class ArrayTicks:
             task.t_ns = int(t_ns[j])
             task._ticks_left = 0
             task.truth = {names[j]: _truth(batch.pose[j])}
+        # AvoidObserver.observation, every world's at once
+        goal = np.array([o.goal for o in obs], float).reshape(w, 2)
+        c, s = np.cos(th), np.sin(th)
+        dx, dy = goal[:, 0] - x, goal[:, 1] - y
+        in_robot = np.stack([dx * c + dy * s, -dx * s + dy * c], 1).astype(np.float32)
+        odom = np.stack([x, y, (th + math.pi) % (2 * math.pi) - math.pi, v, om], 1
+                        ).astype(np.float32)
+        odom = np.clip(odom, -ODOM_HIGH, ODOM_HIGH)
+        in_robot = np.clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)
+        return [{n: {"scan": o.scan.copy(), "odom": odom[j], "goal": in_robot[j]}}
+                for j, (n, o) in enumerate(zip(names, obs))]
+
+
+class _Limiters:
+    """The batch's :class:`plant.drive.DriveLimiter` s and motion noise on arrays: each
+    tick's wheel-speed targets of every world, as ``Simulation.command_twist`` sets them
+    (:meth:`DriveLimiter.from_twist`, then the command noise), every operation element by
+    element; the limiters' state is read at the step's start and left at its end."""
+
+    def __init__(self, sims: list, names: list[str], cmds: np.ndarray, ticks: ArrayTicks
+                 ) -> None:
+        self.lims = [s.limiters[n] for s, n in zip(sims, names)]
+        self.robots = [s.robots[n] for s, n in zip(sims, names)]
+        spec = self.lims[0].spec
+        self.spec, self.dt = spec, sims[0].spec.control_tick_s
+        self.v = np.array([lim.v for lim in self.lims], float)
+        self.w = np.array([lim.w for lim in self.lims], float)
+        self.wheels = np.array([lim.wheels for lim in self.lims], float).reshape(-1, 2)
+        self.v_target = _clamp(cmds[:, 0], spec.max_linear_mps)
+        self.w_target = _clamp(cmds[:, 1], spec.max_angular_radps)
+        std = self.robots[0].spec.sensors.command_noise_std_radps
+        self.noise = None if std <= 0.0 else [ticks._stream(s.motion_rng[n], std, (2,))
+                                              for s, n in zip(sims, names)]
+        self.out = self.wheels
+
+    def targets(self) -> np.ndarray:
+        s, dt = self.spec, self.dt
+        self.v = self.v + _clamp(self.v_target - self.v, s.max_linear_accel_mps2 * dt)
+        self.w = self.w + _clamp(self.w_target - self.w, s.max_angular_accel_radps2 * dt)
+        r, d = s.wheel_radius_m, s.wheel_separation_m
+        wl = (self.v - self.w * d / 2.0) / r
+        wr = (self.v + self.w * d / 2.0) / r
+        m = s.max_wheel_speed_radps
+        peak = np.maximum(np.abs(wl), np.abs(wr))
+        over = peak > m
+        wl = np.where(over, wl * m / np.where(over, peak, 1.0), wl)
+        wr = np.where(over, wr * m / np.where(over, peak, 1.0), wr)
+        a = s.max_wheel_accel_radps2 * dt
+        self.wheels = np.stack([self.wheels[:, 0] + _clamp(wl - self.wheels[:, 0], a),
+                                self.wheels[:, 1] + _clamp(wr - self.wheels[:, 1], a)], 1)
+        out = self.wheels
+        if self.noise is not None:
+            moving = np.flatnonzero((out[:, 0] != 0.0) | (out[:, 1] != 0.0))
+            if moving.size:
+                out = out.copy()
+                out[moving] += np.array([self.noise[j].take() for j in moving])
+        self.out = out
+        return out
+
+    def done(self) -> None:
+        for j, (lim, robot) in enumerate(zip(self.lims, self.robots)):
+            lim.v, lim.w = float(self.v[j]), float(self.w[j])
+            lim.wheels = (float(self.wheels[j, 0]), float(self.wheels[j, 1]))
+            robot.targets = (float(self.out[j, 0]), float(self.out[j, 1]))
+
+
+def _clamp(x: np.ndarray, lim: float) -> np.ndarray:
+    """:func:`plant.drive._clamp` (``max(-lim, min(lim, x))``) element by element."""
+    return np.maximum(-lim, np.minimum(lim, x))
 
 
 def _lidar_noise(cfg, exact: np.ndarray, models: list, draws: list) -> np.ndarray:

@@ -96,12 +96,22 @@ class Worlds:
         out: list = [None] * n
         resets = np.flatnonzero(self._needs_reset)
         live = [i for i in range(n) if not self._needs_reset[i]]
-        cmds = {i: self.tasks[i].begin_step({self.robot: actions[i]}) for i in live}
-        self._advance(live, cmds)
+        tasks = [self.tasks[i] for i in live]
+        if live and self.arrays is not None and self.arrays.eligible(tasks):
+            # every live world's command, ticks and observation as arrays
+            twists = tasks[0].drives[self.robot].commands(np.asarray(actions)[live])
+            for task, c in zip(tasks, twists.tolist()):
+                task.start_step({self.robot: c})
+            made = dict(zip(live, self.arrays.advance(tasks, twists)))
+            self._judge(tasks)
+        else:
+            cmds = {i: self.tasks[i].begin_step({self.robot: actions[i]}) for i in live}
+            self._advance(live, cmds)
+            made = {}
         term = np.zeros(n, bool)
         trunc = np.zeros(n, bool)
         for i in live:
-            o, r, te, tr, info = self.tasks[i].end_step()
+            o, r, te, tr, info = self.tasks[i].end_step(made.get(i))
             self._steps[i] += 1
             term[i] = te[self.robot]
             trunc[i] = (self.max_episode_steps is not None
@@ -117,11 +127,6 @@ class Worlds:
         """Every live env's ``action_repeat`` ticks, tick by tick across the worlds; per
         world exactly :meth:`diffbot.envs.transport.InProc.advance`."""
         if not live:
-            return
-        tasks = [self.tasks[i] for i in live]
-        if self.arrays is not None and self.arrays.eligible(tasks):
-            self.arrays.advance(tasks, [cmds[i] for i in live])
-            self._judge(tasks)
             return
         transports = [self.tasks[i].transport for i in live]
         ticks = [tr.tick for tr in transports]
@@ -348,8 +353,17 @@ class AvoidVectorEnv(VectorEnv):
         term = np.zeros(n, bool)
         trunc = np.zeros(n, bool)
         infos: dict = {}
-        for i in np.flatnonzero(~self._needs_reset):     # checked before any world steps
-            check_action(actions[i], f"env {i}")          # (a reset's action is ignored)
+        # checked before any world steps (a reset's action is ignored): check_action's
+        # error for the first bad one
+        live = ~self._needs_reset
+        try:
+            a = np.asarray(actions, dtype=np.float32)
+            ok = a.ndim == 2 and a.shape[1] == 2 and bool(np.isfinite(a[live]).all())
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            for i in np.flatnonzero(live):
+                check_action(actions[i], f"env {i}")
         for i, (o, r, te, tr, info) in enumerate(self._all("step", self._split(actions))):
             obs[i], rew[i], term[i], trunc[i] = o, r, te, tr
             infos = self._add_info(infos, info, i)
