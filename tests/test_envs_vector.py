@@ -21,6 +21,23 @@ def _same_obs(batch: dict, k: int, one: dict) -> bool:
     return all(batch[key][k].tobytes() == one[key].tobytes() for key in one)
 
 
+def _same_infos(a: dict, b: dict) -> bool:
+    """Batched infos alike: the same keys in the same order, dtypes, shapes and values (the
+    objects equal, the rest to the bit)."""
+    if list(a) != list(b):
+        return False
+    for key in a:
+        x, y = a[key], b[key]
+        if x.dtype != y.dtype or x.shape != y.shape:
+            return False
+        if x.dtype == object:
+            if not all(u == v for u, v in zip(x, y)):
+                return False
+        elif x.tobytes() != y.tobytes():
+            return False
+    return True
+
+
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("mode", ["kinematic", "dynamic"])
 def test_each_batched_env_is_the_single_env_with_its_seed(mode):
@@ -42,6 +59,7 @@ def test_each_batched_env_is_the_single_env_with_its_seed(mode):
         for step in range(30):
             a = (rng.uniform(-1, 1, (n, 2)) * vec.single_action_space.high).astype(np.float32)
             obs, rew, term, trunc, infos = vec.step(a)
+            expected: dict = {}          # the singles' infos as Gymnasium batches them
             for k, env in enumerate(singles):
                 if over[k]:          # next-step autoreset: the action is ignored
                     one, info = env.reset()
@@ -54,6 +72,8 @@ def test_each_batched_env_is_the_single_env_with_its_seed(mode):
                 assert _same_obs(obs, k, one), f"observation of {where}"
                 assert (rew[k], term[k], trunc[k]) == (r, te, tr), f"reward/flags of {where}"
                 assert infos["pose"][k].tobytes() == np.asarray(info["pose"]).tobytes(), where
+                expected = vec.unwrapped._add_info(expected, info, k)
+            assert _same_infos(infos, expected), f"infos at step {step}"
         assert resets >= n, "no autoreset was crossed"
     finally:
         vec.close()
@@ -133,9 +153,7 @@ def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat, nor
                 assert ra[0][key].tobytes() == rb[0][key].tobytes(), f"{key} at step {step}"
             for x, y in zip(ra[1:4], rb[1:4]):
                 assert x.tobytes() == y.tobytes(), f"reward/flags at step {step}"
-            for key in ("pose", "distance", "contact", "t"):
-                assert np.asarray(ra[4][key]).tobytes() == np.asarray(rb[4][key]).tobytes(), \
-                    f"info {key} at step {step}"
+            assert _same_infos(ra[4], rb[4]), f"infos at step {step}"
             contacts += int(np.sum(ra[4]["contact"]))
             if step % 25 == 24:
                 assert all(np.array_equal(x, y) for x, y in zip(fast.render(), slow.render()))
@@ -245,3 +263,30 @@ def test_a_worker_ends_with_a_killed_parent():
         if parent.poll() is None:
             parent.kill()
             parent.wait(10)
+
+
+def test_batch_truths_are_the_ground_truth_messages_poses():
+    """kinbatch.truths (all robots at once) gives each robot's (x, y, yaw) as its
+    ground_truth message read back does (plant.sim.Simulation.kin_state, the quaternion,
+    bus.codec.pose_2d), to the bit, both branches of the quaternion and the signed zeros."""
+    import math
+    from types import SimpleNamespace
+
+    from bus import codec
+    from diffbot.envs.kinbatch import truths
+    from plant.sim import Simulation
+    rng = np.random.default_rng(3)
+    edge = [0.0, -0.0, math.pi, -math.pi, 2 * math.pi / 3, -2 * math.pi / 3,
+            np.nextafter(2 * math.pi / 3, 0), np.nextafter(2 * math.pi / 3, 4), 1e-300, -1e-300,
+            math.pi / 2, 100.0, -57.3]
+    yaw = np.concatenate([edge, rng.uniform(-7, 7, 2000)])
+    w = yaw.size
+    pose = np.stack([rng.uniform(-3, 3, w), rng.uniform(-3, 3, w), yaw], 1)
+    kin = SimpleNamespace(pose=pose, radius=np.full(w, 0.12), vel=np.zeros((w, 2)),
+                          wheels=np.zeros((w, 2)), speeds=np.zeros((w, 2)))
+    got = truths(pose)
+    for i in range(w):
+        st = Simulation.kin_state(kin, i)
+        x, y, z = st.xyz
+        msg = codec.odometry(0, x, y, st.yaw, 0.0, 0.0, z=z, quaternion=st.quaternion)
+        assert got[i].tobytes() == np.array(codec.pose_2d(msg)).tobytes(), f"yaw {yaw[i]!r}"

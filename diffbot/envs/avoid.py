@@ -56,6 +56,15 @@ _READ = frozenset(INPUTS)
 TRANSPORTS = ("inproc", "bus")
 
 
+def step_rewards(before: np.ndarray, d: np.ndarray, success: np.ndarray,
+                 contact: np.ndarray) -> np.ndarray:
+    """:meth:`AvoidTask.end_step`'s rewards of many robots at once (a batch's), from their
+    distances to the goal before and after the step: the same numbers."""
+    r = PROGRESS_GAIN * (before - d) - STEP_COST
+    r = np.where(success, r + GOAL_BONUS, r)
+    return np.where(contact, r - CONTACT_PENALTY, r)
+
+
 def make_transport(spec, world: str, inputs: dict, transport: str, endpoint, disabled,
                    overrides):
     if transport == "inproc":
@@ -206,7 +215,7 @@ class AvoidTask:
         rew, term, trunc, info = {}, {}, {}, {}
         for name in list(self.active):
             d = self._distance(name)
-            r = PROGRESS_GAIN * (before[name] - d) - STEP_COST
+            r = PROGRESS_GAIN * (before[name] - d) - STEP_COST     # (a batch: step_rewards)
             success = d < self.goal_radius
             contact = name in self.touched
             if success:

@@ -32,7 +32,7 @@ resets through the message path) is the task's own code.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -41,13 +41,20 @@ from plant import kinematic
 from plant import lidar as lid
 from plant.noise import NoiseModel
 from plant.raycast import Scene
-from plant.sim import rotation_to_quaternion
 
 from .avoid import AvoidTask
 from .transport import InProc
 
 #: ticks of noise drawn at once per stream
 _BLOCK = 64
+
+
+class Made(NamedTuple):
+    """A batch step's observations ({key: (W, ...)}, :meth:`AvoidObserver.observation`'s),
+    the robots' true (x, y, yaw) (W, 3) and the worlds' times (W,) ns at its end."""
+    obs: dict
+    truth: np.ndarray
+    t_ns: np.ndarray
 
 
 class _Scan:
@@ -146,11 +153,10 @@ class ArrayTicks:
             self._scene_of = sim.spec.name
         return self._scene
 
-    def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray) -> list[dict]:
+    def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray) -> Made:
         """``action_repeat`` ticks of every task in ``tasks`` with its command (``cmds``,
         (W, 2): v m/s, w rad/s each), each task left as its own ``_observe`` at the step's
-        last tick leaves it (its contacts not judged: the caller's, all at once). Each
-        task's observation ({robot: observation}, :meth:`AvoidObserver.observation`'s)."""
+        last tick leaves it (its contacts not judged: the caller's, all at once)."""
         w = len(tasks)
         ticks = [t.transport.tick for t in tasks]
         names = [t.robots[0] for t in tasks]
@@ -224,6 +230,7 @@ class ArrayTicks:
                 for j, row in zip(due, r32):
                     tasks[j].scans[names[j]] = _Scan(row, cfg)
         drive.done()
+        truth = truths(batch.pose)
         # the observers' and tasks' state out, the truth at the step's end
         for j, (task, o, od) in enumerate(zip(tasks, obs, odo)):
             od.x, od.y, od.theta = float(x[j]), float(y[j]), float(th[j])
@@ -235,7 +242,7 @@ class ArrayTicks:
                 o._scan_msg = None
             task.t_ns = int(t_ns[j])
             task._ticks_left = 0
-            task.truth = {names[j]: _truth(batch.pose[j])}
+            task.truth = {names[j]: tuple(truth[j].tolist())}
         # AvoidObserver.observation, every world's at once
         goal = np.array([o.goal for o in obs], float).reshape(w, 2)
         c, s = np.cos(th), np.sin(th)
@@ -243,10 +250,8 @@ class ArrayTicks:
         in_robot = np.stack([dx * c + dy * s, -dx * s + dy * c], 1).astype(np.float32)
         odom = np.stack([x, y, (th + math.pi) % (2 * math.pi) - math.pi, v, om], 1
                         ).astype(np.float32)
-        odom = np.clip(odom, -ODOM_HIGH, ODOM_HIGH)
-        in_robot = np.clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)
-        return [{n: {"scan": o.scan.copy(), "odom": odom[j], "goal": in_robot[j]}}
-                for j, (n, o) in enumerate(zip(names, obs))]
+        return Made({"scan": scans, "odom": np.clip(odom, -ODOM_HIGH, ODOM_HIGH),
+                     "goal": np.clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}, truth, t_ns)
 
 
 class _Limiters:
@@ -320,11 +325,25 @@ def _lidar_noise(cfg, exact: np.ndarray, models: list, draws: list) -> np.ndarra
     return r
 
 
-def _truth(pose: np.ndarray) -> tuple[float, float, float]:
-    """(x, y, yaw) of a kinematic robot as its ``ground_truth`` message gives them
-    (:meth:`plant.sim.Simulation.kin_state`'s rotation, its quaternion, back to a yaw)."""
-    px, py, yaw = pose.tolist()
-    c, s = math.cos(yaw), math.sin(yaw)
-    qx, qy, qz, qw = rotation_to_quaternion(
-        np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]))
-    return px, py, math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+def truths(pose: np.ndarray) -> np.ndarray:
+    """(x, y, yaw) (W, 3) of kinematic robots at ``pose`` (W, 3) as their ``ground_truth``
+    messages give them: :meth:`plant.sim.Simulation.kin_state`'s rotation, its quaternion
+    (:func:`plant.sim.rotation_to_quaternion`, both of its branches), back to a yaw
+    (:func:`bus.codec.quaternion_to_yaw`, ``math.atan2``: numpy's differs in the last bit)."""
+    yaw = pose[:, 2]
+    c, s = np.cos(yaw), np.sin(yaw)
+    # the rotation [[c, -s, 0], [s, c, 0], [0, 0, 1]]: trace (m00 + m11) + m22
+    tr = c + c + 1.0
+    pos = tr > 0
+    s1 = np.sqrt(np.where(pos, tr, 0.0) + 1.0) * 2              # tr > 0
+    s2 = np.sqrt(np.where(pos, 1.0, 1.0 + 1.0 - c - c)) * 2     # else: the largest is m22
+    zero = 0.0 / np.where(pos, s1, s2)                          # (m21 - m12) / s, ...
+    qx = qy = zero
+    qz = np.where(pos, (s - -s) / s1, 0.25 * s2)
+    qw = np.where(pos, 0.25 * s1, (s - -s) / s2)
+    num = 2.0 * (qw * qz + qx * qy)
+    den = 1.0 - 2.0 * (qy * qy + qz * qz)
+    out = np.empty_like(pose, dtype=float)
+    out[:, :2] = pose[:, :2]
+    out[:, 2] = [math.atan2(a, b) for a, b in zip(num.tolist(), den.tolist())]
+    return out

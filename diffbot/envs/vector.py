@@ -28,6 +28,7 @@ ends with :meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
 """
 from __future__ import annotations
 
+import math
 import os
 import signal
 import socket
@@ -42,10 +43,11 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from bus.controller import Twist
+from plant.footprint import CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M, footprint_centres
 from plant.tick import messages_of, step_ticks
 
 from .actions import check_action
-from .avoid import AvoidTask
+from .avoid import AvoidTask, step_rewards
 from .kinbatch import ArrayTicks
 
 
@@ -93,38 +95,61 @@ class Worlds:
     def reset(self, seeds: list[int | None]) -> list[tuple[dict, dict]]:
         return [self._reset_one(i, s) for i, s in enumerate(seeds)]
 
-    def step(self, actions: np.ndarray) -> list[tuple]:
-        """(obs, reward, terminated, truncated, info) of each env."""
-        n = self.n
-        out: list = [None] * n
+    def step(self, actions: np.ndarray) -> tuple:
+        """(obs {key: (n, ...)}, reward (n,), terminated (n,), truncated (n,), infos) of
+        the chunk's envs, ``infos`` batched as Gymnasium's vector envs batch them (each key
+        with its ``_key`` mask)."""
+        out = _Out(self.n, self.tasks[0].observation_space(self.robot))
         resets = np.flatnonzero(self._needs_reset)
-        live = [i for i in range(n) if not self._needs_reset[i]]
+        live = np.flatnonzero(~self._needs_reset)
         tasks = [self.tasks[i] for i in live]
-        if live and self.arrays is not None and self.arrays.eligible(tasks):
-            # every live world's command, ticks and observation as arrays
-            twists = tasks[0].drives[self.robot].commands(np.asarray(actions)[live])
-            for task, c in zip(tasks, twists.tolist()):
-                task.start_step({self.robot: c})
-            made = dict(zip(live, self.arrays.advance(tasks, twists)))
-            self._judge(tasks)
-        else:
+        if live.size and self.arrays is not None and self.arrays.eligible(tasks):
+            self._step_arrays(live, tasks, np.asarray(actions)[live], out)
+        elif live.size:
             cmds = {i: self.tasks[i].begin_step({self.robot: actions[i]}) for i in live}
-            self._advance(live, cmds)
-            made = {}
-        term = np.zeros(n, bool)
-        trunc = np.zeros(n, bool)
-        for i in live:
-            o, r, te, tr, info = self.tasks[i].end_step(made.get(i))
-            self._steps[i] += 1
-            term[i] = te[self.robot]
-            trunc[i] = (self.max_episode_steps is not None
-                        and self._steps[i] >= self.max_episode_steps)   # as TimeLimit
-            out[i] = (o[self.robot], r[self.robot], term[i], trunc[i], info[self.robot])
+            self._advance(live.tolist(), cmds)
+            for i in live:
+                o, r, te, tr, info = self.tasks[i].end_step()
+                self._steps[i] += 1
+                te = te[self.robot]
+                tr = (self.max_episode_steps is not None
+                      and self._steps[i] >= self.max_episode_steps)     # as TimeLimit
+                out.put(i, o[self.robot], r[self.robot], te, tr, info[self.robot])
         for i in resets:
             o, info = self._reset_one(int(i), None)
-            out[i] = (o, 0.0, False, False, info)
-        self._needs_reset = term | trunc
-        return out
+            out.put(i, o, 0.0, False, False, info)
+        self._needs_reset = out.term | out.trunc
+        return out.obs, out.rew, out.term, out.trunc, out.infos
+
+    def _step_arrays(self, live: np.ndarray, tasks: list[AvoidTask], actions: np.ndarray,
+                     out: "_Out") -> None:
+        """The live envs' step as arrays (:mod:`diffbot.envs.kinbatch`): each task's
+        ``begin_step``, ticks and ``end_step`` for all at once, the same numbers."""
+        robot, first = self.robot, tasks[0]
+        twists = first.drives[robot].commands(actions)
+        before = np.array([t._distance(robot) for t in tasks])
+        made = self.arrays.advance(tasks, twists)
+        x, y = made.truth[:, 0], made.truth[:, 1]
+        contact = first.geo.clearances(footprint_centres(x, y, made.truth[:, 2])) \
+            < FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M
+        goals = np.array([t.goals[robot] for t in tasks], float).reshape(-1, 2)
+        d = np.array([math.hypot(g[0] - a, g[1] - b)            # as AvoidTask._distance
+                      for (a, b), g in zip(made.truth[:, :2].tolist(), goals.tolist())])
+        success = d < first.goal_radius
+        rew = step_rewards(before, d, success, contact)
+        term = success | contact
+        self._steps[live] += 1
+        trunc = (np.zeros(live.size, bool) if self.max_episode_steps is None
+                 else self._steps[live] >= self.max_episode_steps)        # as TimeLimit
+        for t, hit, ended in zip(tasks, contact.tolist(), term.tolist()):
+            t.steps += 1
+            t.touched = {robot} if hit else set()
+            if ended:
+                t.active.discard(robot)
+        out.put_rows(live, made.obs, rew, term, trunc, {
+            "pose": made.truth, "goal": goals, "distance": d,
+            "is_success": success & ~contact, "contact": contact, "t": made.t_ns * 1e-9,
+            "plant": [t.episode for t in tasks]})
 
     def _advance(self, live: list[int], cmds: dict) -> None:
         """Every live env's ``action_repeat`` ticks, tick by tick across the worlds; per
@@ -162,6 +187,80 @@ class Worlds:
         for t in self.tasks:
             t.close()
         self.tasks = []
+
+
+class _Out:
+    """A chunk's step results, env by env (:meth:`put`) or rows at once (:meth:`put_rows`),
+    batched as :meth:`gymnasium.vector.VectorEnv._add_info` batches ``info``: each key an
+    array typed by its value's type (bool, int, float: that dtype; an ndarray: its shape
+    and dtype; else objects) with a ``_key`` mask of the envs that gave it."""
+
+    def __init__(self, n: int, space) -> None:
+        self.n = n
+        self.obs = {k: np.zeros((n, *sp.shape), sp.dtype) for k, sp in space.spaces.items()}
+        self.rew = np.zeros(n, np.float64)
+        self.term = np.zeros(n, bool)
+        self.trunc = np.zeros(n, bool)
+        self.infos: dict = {}
+
+    def _array(self, key: str, sample) -> np.ndarray:
+        a = self.infos.get(key)
+        if a is None:
+            if type(sample) in (int, float, bool) or issubclass(type(sample), np.number):
+                a = np.zeros(self.n, dtype=type(sample))
+            elif isinstance(sample, np.ndarray):
+                a = np.zeros((self.n, *sample.shape), dtype=sample.dtype)
+            else:
+                a = np.full(self.n, None, dtype=object)
+            self.infos[key] = a
+            self.infos[f"_{key}"] = np.zeros(self.n, dtype=np.bool_)
+        return a
+
+    def put(self, i: int, obs: dict, rew: float, term: bool, trunc: bool, info: dict) -> None:
+        for k, a in self.obs.items():
+            a[i] = obs[k]
+        self.rew[i], self.term[i], self.trunc[i] = rew, term, trunc
+        for key, value in info.items():
+            self._array(key, value)[i] = value
+            self.infos[f"_{key}"][i] = True
+
+    def put_rows(self, rows: np.ndarray, obs: dict, rew, term, trunc, info: dict) -> None:
+        """Rows ``rows`` at once; ``info``: key -> one value per row (an array's rows, or a
+        list), typed as the single env's values are (float64, bool, ndarray rows)."""
+        for k, a in self.obs.items():
+            a[rows] = obs[k]
+        self.rew[rows], self.term[rows], self.trunc[rows] = rew, term, trunc
+        for key, col in info.items():
+            first = col[0]
+            sample = first.item() if isinstance(first, np.generic) else first
+            a = self._array(key, sample)
+            if a.dtype == object:
+                for r, v in zip(rows.tolist(), col):
+                    a[r] = v
+            else:
+                a[rows] = col
+            self.infos[f"_{key}"][rows] = True
+
+
+def merge(parts: list[tuple]) -> tuple:
+    """Chunks' :meth:`Worlds.step` results, in env order, as one batch's."""
+    if len(parts) == 1:
+        return parts[0]
+    obs = {k: np.concatenate([p[0][k] for p in parts]) for k in parts[0][0]}
+    rew, term, trunc = (np.concatenate([p[j] for p in parts]) for j in (1, 2, 3))
+    sizes = [len(p[1]) for p in parts]
+    infos: dict = {}
+    for key in dict.fromkeys(k for p in parts for k in p[4]):
+        cols = []
+        for p, n in zip(parts, sizes):
+            if key in p[4]:
+                cols.append(p[4][key])
+            else:        # a key no env of this chunk gave: empty, masked out
+                like = next(q[4][key] for q in parts if key in q[4])
+                cols.append(np.zeros((n, *like.shape[1:]), like.dtype) if like.dtype != object
+                            else np.full(n, None, dtype=object))
+        infos[key] = np.concatenate(cols)
+    return obs, rew, term, trunc, infos
 
 
 def _serve(conn) -> None:
@@ -306,7 +405,7 @@ class AvoidVectorEnv(VectorEnv):
 
     def _all(self, method: str, per_chunk: list) -> list:
         """``method`` of every chunk with its argument, the workers' sent first, so they
-        run while this process does its own; the results in env order. Every worker's
+        run while this process does its own; each chunk's result, in env order. Every worker's
         answer is read even when a chunk fails (the first error is raised after), so the
         next call reads its own answers."""
         for c, arg in zip(self.chunks[1:], per_chunk[1:]):
@@ -314,12 +413,12 @@ class AvoidVectorEnv(VectorEnv):
         out: list = []
         error = None
         try:
-            out.extend(getattr(self.chunks[0], method)(*per_chunk[0]))
+            out.append(getattr(self.chunks[0], method)(*per_chunk[0]))
         except Exception as exc:
             error = exc
         for c in self.chunks[1:]:
             try:
-                out.extend(c.result())
+                out.append(c.result())
             except Exception as exc:
                 error = error or exc
         if error is not None:
@@ -341,7 +440,8 @@ class AvoidVectorEnv(VectorEnv):
                 raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
         obs, infos = [], {}
         self._needs_reset[:] = False
-        for i, (o, info) in enumerate(self._all("reset", self._split(seeds))):
+        for i, (o, info) in enumerate(r for part in self._all("reset", self._split(seeds))
+                                      for r in part):
             obs.append(o)
             infos = self._add_info(infos, info, i)
         return self._stack(obs), infos
@@ -350,12 +450,6 @@ class AvoidVectorEnv(VectorEnv):
         actions = np.asarray(actions)
         if actions.shape[:1] != (self.num_envs,):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
-        n = self.num_envs
-        obs: list = [None] * n
-        rew = np.zeros(n, np.float64)
-        term = np.zeros(n, bool)
-        trunc = np.zeros(n, bool)
-        infos: dict = {}
         # checked before any world steps (a reset's action is ignored): check_action's
         # error for the first bad one
         live = ~self._needs_reset
@@ -367,11 +461,9 @@ class AvoidVectorEnv(VectorEnv):
         if not ok:
             for i in np.flatnonzero(live):
                 check_action(actions[i], f"env {i}")
-        for i, (o, r, te, tr, info) in enumerate(self._all("step", self._split(actions))):
-            obs[i], rew[i], term[i], trunc[i] = o, r, te, tr
-            infos = self._add_info(infos, info, i)
+        obs, rew, term, trunc, infos = merge(self._all("step", self._split(actions)))
         self._needs_reset = term | trunc
-        return self._stack(obs), rew, term, trunc, infos
+        return obs, rew, term, trunc, infos
 
     def _stack(self, obs: list[dict]) -> dict:
         return {k: np.stack([o[k] for o in obs]) for k in self.single_observation_space}
@@ -379,7 +471,7 @@ class AvoidVectorEnv(VectorEnv):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        return tuple(self._all("render", [()] * len(self.chunks)))
+        return tuple(f for part in self._all("render", [()] * len(self.chunks)) for f in part)
 
     def close_extras(self, **kwargs) -> None:
         for c in getattr(self, "chunks", []):
