@@ -89,25 +89,44 @@ class _Draws:
         return self.buf[self.next - 1]
 
 
-def _noisy(values: np.ndarray, models: Sequence[NoiseModel | None], draws: list,
-           shape: tuple[int, ...]) -> np.ndarray:
-    """``models[j].apply(values[j])`` of every row j (:meth:`NoiseModel.apply` of a float
-    array): offset, the stream's normals, quantisation; rows whose model is None as they are."""
-    out = values.astype(np.float64)
-    m0 = next((m for m in models if m is not None), None)
-    if m0 is None:
-        return out
-    c = m0.config
-    have = np.array([m is not None for m in models])
-    noisy = out + (c.bias + c.mean)
-    if c.std > 0:
-        noisy = noisy + np.array([d.take() if d is not None else np.zeros(shape)
-                                  for d in draws]).reshape(noisy.shape)
-    if c.resolution > 0:
-        with np.errstate(invalid="ignore"):
-            noisy = np.where(np.isfinite(noisy),
-                             np.round(noisy / c.resolution) * c.resolution, noisy)
-    return np.where(have.reshape((-1,) + (1,) * (out.ndim - 1)), noisy, out)
+class _RowNoise:
+    """One sensor's noise (:class:`plant.noise.NoiseModel`) of every world of a batch, row j
+    world j's, as :meth:`NoiseModel.apply` of a float array gives it: offset, the stream's
+    normals, quantisation; a world without a model reads its values as they are. None
+    (:meth:`of`) when no world has one."""
+
+    def __init__(self, models: list, draws: list, shape: tuple[int, ...]) -> None:
+        self.config = next(m for m in models if m is not None).config
+        self.have = np.array([m is not None for m in models])
+        self.draws, self.shape = draws, shape
+
+    @classmethod
+    def of(cls, models: list, draws: list, shape: tuple[int, ...]) -> "_RowNoise | None":
+        return cls(models, draws, shape) if any(m is not None for m in models) else None
+
+    def rows(self, idx: np.ndarray) -> "_RowNoise":
+        """The noise of worlds ``idx`` only (their own streams)."""
+        sub = object.__new__(_RowNoise)
+        sub.config, sub.have, sub.shape = self.config, self.have[idx], self.shape
+        sub.draws = [self.draws[j] for j in idx]
+        return sub
+
+    def apply(self, values: np.ndarray) -> np.ndarray:
+        c = self.config
+        out = values.astype(np.float64)
+        noisy = out + (c.bias + c.mean)
+        if c.std > 0:
+            noisy = noisy + np.array([d.take() if d is not None else np.zeros(self.shape)
+                                      for d in self.draws]).reshape(noisy.shape)
+        if c.resolution > 0:
+            with np.errstate(invalid="ignore"):
+                noisy = np.where(np.isfinite(noisy),
+                                 np.round(noisy / c.resolution) * c.resolution, noisy)
+        return np.where(self.have.reshape((-1,) + (1,) * (out.ndim - 1)), noisy, out)
+
+
+def _noisy(values: np.ndarray, noise: _RowNoise | None) -> np.ndarray:
+    return values.astype(np.float64) if noise is None else noise.apply(values)
 
 
 class ArrayTicks:
@@ -178,14 +197,19 @@ class ArrayTicks:
         d = np.array([o.d for o in odo])
         scans = np.array([o.scan for o in obs])
         new_scan = np.zeros(w, bool)
-        enc_models = [s.enc_noise for s in sensors]
-        enc_draws = [self._draws_of(m, (2,)) for m in enc_models]
+        models = [s.enc_noise for s in sensors]
+        enc_noise = _RowNoise.of(models, [self._draws_of(m, (2,)) for m in models], (2,))
         cfg = sensors[0].lidar
-        lid_models = [s.lidar_noise for s in sensors]
-        lid_draws = [self._draws_of(m, (cfg.num_rays,)) for m in lid_models]
+        models = [s.lidar_noise for s in sensors]
+        lid_noise = _RowNoise.of(models, [self._draws_of(m, (cfg.num_rays,)) for m in models],
+                                 (cfg.num_rays,))
         period = sensors[0].periods["scan"]
         tick_ns = ticks[0].tick_ns
         repeat = tasks[0].action_repeat
+        # Simulation.time_ns: steps counted, times their length in whole ns
+        spec = sims[0].spec
+        steps = np.array([s.steps for s in sims], np.int64)
+        sub, step_ns = spec.substeps, int(round(spec.physics_step_s * 1e9))
         drive = _Limiters(sims, names, cmds, self)
         for _ in range(repeat):
             targets = drive.targets()
@@ -193,13 +217,12 @@ class ArrayTicks:
                 batch.step(targets)
             else:
                 kins[0].step(targets)
-            for s in sims:
-                s.steps += s.spec.substeps
+            steps += sub
             if not batch.finite():
                 raise FloatingPointError("a kinematic world of the batch is no longer finite")
-            t_ns = np.array([s.time_ns for s in sims], np.int64)
+            t_ns = steps * step_ns
             # encoders -> odometry (Odometry.update, arc_step)
-            pos = _noisy(batch.wheels, enc_models, enc_draws, (2,))
+            pos = _noisy(batch.wheels, enc_noise)
             t = t_ns * 1e-9
             dl, dr = pos[:, 0] - last[:, 0], pos[:, 1] - last[:, 1]
             ds = r * (dr + dl) / 2.0
@@ -220,8 +243,8 @@ class ArrayTicks:
             if due.size:
                 scene = self._static_scene(sims[0])
                 exact = lid.scan_many(cfg, batch.transforms()[due], scene, [None] * due.size)
-                ranges = _lidar_noise(cfg, exact, [lid_models[j] for j in due],
-                                      [lid_draws[j] for j in due])
+                ranges = _lidar_noise(cfg, exact, None if lid_noise is None
+                                      else lid_noise.rows(due))
                 r32 = ranges.astype(np.float32)
                 hi = np.float32(obs[0].max_range)
                 scans[due] = np.where(np.isfinite(r32), np.clip(r32, 0.0, obs[0].max_range),
@@ -230,6 +253,8 @@ class ArrayTicks:
                 for j, row in zip(due, r32):
                     tasks[j].scans[names[j]] = _Scan(row, cfg)
         drive.done()
+        for sim, k in zip(sims, steps.tolist()):
+            sim.steps = k
         truth = truths(batch.pose)
         # the observers' and tasks' state out, the truth at the step's end
         for j, (task, o, od) in enumerate(zip(tasks, obs, odo)):
@@ -312,10 +337,10 @@ def _clamp(x: np.ndarray, lim: float) -> np.ndarray:
     return np.maximum(-lim, np.minimum(lim, x))
 
 
-def _lidar_noise(cfg, exact: np.ndarray, models: list, draws: list) -> np.ndarray:
+def _lidar_noise(cfg, exact: np.ndarray, noise: _RowNoise | None) -> np.ndarray:
     """:func:`plant.lidar.apply_noise` of every row: noise, finite ranges clipped to
     [min, max], quantised."""
-    r = _noisy(exact, models, draws, (cfg.num_rays,))
+    r = _noisy(exact, noise)
     finite = np.isfinite(r)
     lo, hi = cfg.min_range_m, cfg.max_range_m
     r = np.where(finite, np.clip(r, lo, hi), r)
