@@ -93,10 +93,7 @@ def step_arrays(k, targets: np.ndarray) -> None:
     ny = y + chord * np.sin(mid)
     nyaw = yaw + 2.0 * h
     blocked, c_old, c_new = _blocked(k, x, y, yaw, nx, ny, nyaw)
-    keep = ~blocked
-    k.pose[keep, 0] = nx[keep]
-    k.pose[keep, 1] = ny[keep]
-    k.pose[keep, 2] = nyaw[keep]
+    k.pose[:] = np.where(blocked[:, None], k.pose, np.stack([nx, ny, nyaw], 1))
     k._clear = (k.pose.copy(), np.where(blocked, c_old, c_new))
     k.vel[:, 0] = np.where(blocked, 0.0, v)
     k.vel[:, 1] = np.where(blocked, 0.0, w)
@@ -106,18 +103,19 @@ def step_arrays(k, targets: np.ndarray) -> None:
 
 def _blocked(k, x, y, yaw, nx, ny, nyaw) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which robots may not make their move, and the clearances before and after it."""
-    old, new = footprint_centres(x, y, yaw), footprint_centres(nx, ny, nyaw)
+    new = footprint_centres(nx, ny, nyaw)
     # the clearances where the robots stand: the last tick's, kept while the poses are
     # the very ones they were computed for (a function of the pose: the same numbers)
     kept = getattr(k, "_clear", None)
     if kept is not None and kept[0].shape == k.pose.shape and np.array_equal(kept[0], k.pose):
         c_old = kept[1]
     else:
-        c_old = k.foot.clearances(old)
+        c_old = k.foot.clearances(footprint_centres(x, y, yaw))
     c_new = k.foot.clearances(new)
     blocked = (c_new < FOOTPRINT_RADIUS_M) & (c_new < c_old)
     n = len(x)
     if n > 1 and (k.world.size == 0 or np.any(k.world[1:] == k.world[:-1])):
+        old = footprint_centres(x, y, yaw)
         same = (k.world[:, None] == k.world[None, :]) & ~np.eye(n, dtype=bool)
         d_old = np.hypot(old[:, None, 0] - old[None, :, 0], old[:, None, 1] - old[None, :, 1])
         d_new = np.hypot(new[:, None, 0] - new[None, :, 0], new[:, None, 1] - new[None, :, 1])

@@ -218,8 +218,6 @@ class ArrayTicks:
             else:
                 kins[0].step(targets)
             steps += sub
-            if not batch.finite():
-                raise FloatingPointError("a kinematic world of the batch is no longer finite")
             t_ns = steps * step_ns
             # encoders -> odometry (Odometry.update, arc_step)
             pos = _noisy(batch.wheels, enc_noise)
@@ -252,6 +250,8 @@ class ArrayTicks:
                 new_scan[due] = True
                 for j, row in zip(due, r32):
                     tasks[j].scans[names[j]] = _Scan(row, cfg)
+        if not batch.finite():     # (not a number stays one: checked once a step)
+            raise FloatingPointError("a kinematic world of the batch is no longer finite")
         drive.done()
         for sim, k in zip(sims, steps.tolist()):
             sim.steps = k

@@ -70,6 +70,7 @@ class Worlds:
             self.close()
             raise
         self.robot = self.tasks[0].robots[0]
+        self._obs_space = self.tasks[0].observation_space(self.robot)
         self._rngs: list[np.random.Generator | None] = [None] * self.n
         self._steps = np.zeros(self.n, np.int64)
         self._needs_reset = np.zeros(self.n, bool)
@@ -99,7 +100,7 @@ class Worlds:
         """(obs {key: (n, ...)}, reward (n,), terminated (n,), truncated (n,), infos) of
         the chunk's envs, ``infos`` batched as Gymnasium's vector envs batch them (each key
         with its ``_key`` mask)."""
-        out = _Out(self.n, self.tasks[0].observation_space(self.robot))
+        out = _Out(self.n, self._obs_space)
         resets = np.flatnonzero(self._needs_reset)
         live = np.flatnonzero(~self._needs_reset)
         tasks = [self.tasks[i] for i in live]
