@@ -35,8 +35,10 @@ def bottom(o) -> float:
 
 def footprint_centres(x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """The footprint centres (..., 2) of robots at base_link poses x, y, yaw (arrays)."""
-    return np.stack([x + CHASSIS_CENTRE_X_M * np.cos(yaw), y + CHASSIS_CENTRE_X_M * np.sin(yaw)],
-                    axis=-1)
+    out = np.empty(np.shape(x) + (2,))
+    out[..., 0] = x + CHASSIS_CENTRE_X_M * np.cos(yaw)
+    out[..., 1] = y + CHASSIS_CENTRE_X_M * np.sin(yaw)
+    return out
 
 
 class Footprints:

@@ -314,8 +314,9 @@ class _Limiters:
         wl = np.where(over, wl * m / np.where(over, peak, 1.0), wl)
         wr = np.where(over, wr * m / np.where(over, peak, 1.0), wr)
         a = s.max_wheel_accel_radps2 * dt
-        self.wheels = np.stack([self.wheels[:, 0] + _clamp(wl - self.wheels[:, 0], a),
-                                self.wheels[:, 1] + _clamp(wr - self.wheels[:, 1], a)], 1)
+        was, self.wheels = self.wheels, np.empty_like(self.wheels)
+        self.wheels[:, 0] = was[:, 0] + _clamp(wl - was[:, 0], a)
+        self.wheels[:, 1] = was[:, 1] + _clamp(wr - was[:, 1], a)
         out = self.wheels
         if self.noise is not None:
             moving = np.flatnonzero((out[:, 0] != 0.0) | (out[:, 1] != 0.0))
