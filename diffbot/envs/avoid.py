@@ -196,22 +196,19 @@ class AvoidTask:
         """A step's first half: the robots' commands ({robot: (v, w)}) for its ticks. The
         ticks (``transport.advance(action_repeat, ..., self._observe)``, or a batch's,
         :mod:`diffbot.envs.vector`) come between this and :meth:`end_step`."""
-        return self.start_step({name: self.drives[name].command(actions[name], name)
-                                for name in self.robots if name in self.active})
-
-    def start_step(self, cmds: dict) -> dict:
-        """:meth:`begin_step` with the actions made commands already (a batch makes all
-        its worlds' at once, :meth:`Drive.commands`)."""
+        cmds = {name: self.drives[name].command(actions[name], name)
+                for name in self.robots if name in self.active}
         self._before = {r: self._distance(r) for r in self.active}
         self._ticks_left = self.action_repeat
         return cmds
 
-    def end_step(self, obs: dict | None = None) -> tuple[dict, dict, dict, dict, dict]:
-        """A step's second half, after its ticks: observations (``obs``: made already, as
-        :meth:`_obs` would, by a batch's arrays), rewards, flags, infos."""
+    def end_step(self) -> tuple[dict, dict, dict, dict, dict]:
+        """A step's second half, after its ticks: observations, rewards, flags, infos (a
+        batch of kinematic worlds makes them for all its worlds at once:
+        :meth:`diffbot.envs.vector.Worlds._step_arrays`)."""
         before = self._before
         self.steps += 1
-        obs = self._obs() if obs is None else obs
+        obs = self._obs()
         rew, term, trunc, info = {}, {}, {}, {}
         for name in list(self.active):
             d = self._distance(name)

@@ -15,19 +15,22 @@ the same numbers for all of them at once from the kinematic batch's arrays
 - lidar: every robot due cast in one kernel call against the room's static shapes (a
   one-robot world's lidar skips its own parts, so those are the shapes it sees), then
   noise, clip and quantisation as :func:`plant.lidar.apply_noise`, all rows at once;
+- the commands: each world's :class:`plant.drive.DriveLimiter` and motion noise
+  (:meth:`plant.sim.Simulation.command_twist`) on arrays (:class:`_Limiters`);
 - the observer: :func:`controllers.odometry.arc_step` and the velocities of
-  :meth:`controllers.odometry.Odometry.update` on arrays (``+ - * /``, ``sin``, ``cos``:
-  numpy gives libm's bits), the scan as :meth:`controllers.learned.AvoidObserver.feed`
-  keeps it;
+  :meth:`controllers.odometry.Odometry.update` on arrays (``+ - * /``, ``sqrt``, ``sin``,
+  ``cos``: numpy 2.4 on x86-64 gives libm's bits, which the oracle test would catch
+  otherwise; ``atan2`` and ``hypot`` it does not, so those are ``math``'s, robot by robot),
+  the scan as :meth:`controllers.learned.AvoidObserver.feed` keeps it, the observation
+  as :meth:`AvoidObserver.observation` makes it;
 - the ground truth at the step's end, as the ``ground_truth`` message and
-  :func:`bus.codec.pose_2d` give it.
+  :func:`bus.codec.pose_2d` give it (:func:`truths`).
 
-The commands go through each world's own :class:`plant.drive.DriveLimiter` and motion
-noise (:meth:`plant.sim.Simulation.command_twist`). What the env never reads is not made
-(the GPS; the ground truth before a step's end); the GPS noise stream is not drawn either,
-as nobody reads it before the world is rebuilt at its next reset. Each env's observer and
-task hold their state between steps, so everything else (rewards, ``info``, rendering,
-resets through the message path) is the task's own code.
+What the env never reads is not made (the GPS; the ground truth before a step's end); the
+GPS noise stream is not drawn either, as nobody reads it before the world is rebuilt at
+its next reset. Each env's observer, limiter and task keep their state between steps, so
+rendering and resets (through the message path) are the task's own code; the rewards,
+flags and ``info`` of all worlds are :meth:`diffbot.envs.vector.Worlds._step_arrays`'.
 """
 from __future__ import annotations
 
@@ -134,6 +137,7 @@ class ArrayTicks:
 
     def __init__(self) -> None:
         self._draws: dict[int, _Draws] = {}     # id(generator) -> its block of draws
+        self._last: dict[int, _Draws] = {}      # the last step's
         self._scene: Scene | None = None
         self._scene_of = None
 
@@ -159,15 +163,17 @@ class ArrayTicks:
         return self._stream(model.rng, model.config.std, shape)
 
     def _stream(self, rng: np.random.Generator, std: float, shape: tuple[int, ...]) -> _Draws:
-        """The blocks of ``rng`` (a world rebuilt at reset has new generators)."""
-        d = self._draws.get(id(rng))
+        """The blocks of ``rng``, kept from the last step (:meth:`advance` keeps only the
+        streams of its worlds: one not stepped is being reset, with new generators)."""
+        d = self._draws.get(id(rng)) or self._last.get(id(rng))
         if d is None or d.rng is not rng:
-            d = self._draws[id(rng)] = _Draws(rng, std, shape)
+            d = _Draws(rng, std, shape)
+        self._draws[id(rng)] = d
         return d
 
     def _static_scene(self, sim) -> Scene:
         """The room without its robot (every world of the batch has the same room)."""
-        if self._scene is None or self._scene_of is not sim.spec.name:
+        if self._scene is None or self._scene_of != sim.spec.name:
             self._scene = Scene(list(sim._static_shapes))
             self._scene_of = sim.spec.name
         return self._scene
@@ -177,6 +183,7 @@ class ArrayTicks:
         (W, 2): v m/s, w rad/s each), each task left as its own ``_observe`` at the step's
         last tick leaves it (its contacts not judged: the caller's, all at once)."""
         w = len(tasks)
+        self._last, self._draws = self._draws, {}
         ticks = [t.transport.tick for t in tasks]
         names = [t.robots[0] for t in tasks]
         sensors = [tick.sensors[n] for tick, n in zip(ticks, names)]
