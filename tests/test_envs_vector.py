@@ -121,8 +121,25 @@ ALL_NOISE = ("robots.robot1.encoders.noise={std = 0.002, resolution = 0.001}",
              "robots.robot1.motion.command_noise_std_radps=0.05")
 
 
-@pytest.mark.parametrize("repeat,normalize", [(5, False), (3, True)])
-def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat, normalize):
+#: the living room with a movable box in the middle (the lidars must see it)
+MOVABLE = """[world]
+extends = "living_room"
+
+[[objects]]
+name = "crate"
+shape = "box"
+size_m = [0.4, 0.4, 1.0]
+pose = [0.3, -0.4, 0.0, 0.5]
+color = [0.6, 0.5, 0.3]
+static = false
+mass_kg = 3.0
+"""
+
+
+@pytest.mark.parametrize("repeat,normalize,world", [(5, False, "living_room"),
+                                                    (3, True, "movable")])
+def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat, normalize, world,
+                                                                      tmp_path):
     """A batch of kinematic worlds ticks as arrays (diffbot.envs.kinbatch); the same batch
     through the plant's messages (arrays=None) is the oracle: observations, rewards, flags,
     poses, contacts and the rendered view to the bit, every noise on, through autoresets
@@ -130,7 +147,10 @@ def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat, nor
     drive limiter's ramps and clamps, actions in the robot's units and normalised."""
     from diffbot.envs.kinbatch import ArrayTicks
     n = 6
-    kw = dict(max_episode_steps=60, action_repeat=repeat, render_mode="rgb_array",
+    if world == "movable":
+        (tmp_path / "movable.toml").write_text(MOVABLE)
+        world = str(tmp_path / "movable.toml")
+    kw = dict(max_episode_steps=60, action_repeat=repeat, render_mode="rgb_array", world=world,
               normalize_actions=normalize,
               overrides=("world.mode=kinematic", *ALL_NOISE,
                          "robots.robot1.drive.max_wheel_speed_radps=5.0"))   # the cap bites

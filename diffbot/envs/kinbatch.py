@@ -12,8 +12,8 @@ the same numbers for all of them at once from the kinematic batch's arrays
 - encoders: the wheel angles plus the encoder noise of :class:`plant.noise.NoiseModel`,
   each world's own stream drawn in blocks of ticks ahead (a generator's block of draws is
   its draws one by one, in order);
-- lidar: every robot due cast in one kernel call against the room's static shapes (a
-  one-robot world's lidar skips its own parts, so those are the shapes it sees), then
+- lidar: every robot due cast in one kernel call against the room without the robot (a
+  one-robot world's lidar skips its own parts, so that is what it sees), then
   noise, clip and quantisation as :func:`plant.lidar.apply_noise`, all rows at once;
 - the commands: each world's :class:`plant.drive.DriveLimiter` and motion noise
   (:meth:`plant.sim.Simulation.command_twist`) on arrays (:class:`_Limiters`);
@@ -172,9 +172,11 @@ class ArrayTicks:
         return d
 
     def _static_scene(self, sim) -> Scene:
-        """The room without its robot (every world of the batch has the same room)."""
+        """The room without its robot: the still shapes and the movable objects where the
+        world file puts them (:meth:`plant.sim.Simulation.shapes` never moves them either);
+        every world of the batch has the same room."""
         if self._scene is None or self._scene_of != sim.spec.name:
-            self._scene = Scene(list(sim._static_shapes))
+            self._scene = Scene(list(sim._static_shapes) + list(sim._movable_shapes))
             self._scene_of = sim.spec.name
         return self._scene
 
