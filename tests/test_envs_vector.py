@@ -136,13 +136,15 @@ mass_kg = 3.0
 """
 
 
-@pytest.mark.parametrize("repeat,normalize,world", [(5, False, "living_room"),
-                                                    (3, True, "movable")])
-def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat, normalize, world,
-                                                                      tmp_path):
-    """A batch of kinematic worlds ticks as arrays (diffbot.envs.kinbatch); the same batch
-    through the plant's messages (arrays=None) is the oracle: observations, rewards, flags,
-    poses, contacts and the rendered view to the bit, every noise on, through autoresets
+@pytest.mark.parametrize("mode,repeat,normalize,world", [
+    ("kinematic", 5, False, "living_room"), ("kinematic", 3, True, "movable"),
+    ("dynamic", 5, False, "living_room")])
+def test_worlds_ticked_as_arrays_give_the_messages_numbers(mode, repeat, normalize, world,
+                                                           tmp_path):
+    """A batch of one-robot worlds ticks as arrays (diffbot.envs.kinbatch), kinematic or
+    DART; the same batch through the plant's messages (arrays=None) is the oracle:
+    observations, rewards, flags, poses, contacts and the rendered view to the bit, every
+    noise on, through autoresets
     (an action_repeat of 3 puts the worlds' lidars out of phase after their resets), the
     drive limiter's ramps and clamps, actions in the robot's units and normalised."""
     from diffbot.envs.kinbatch import ArrayTicks
@@ -152,7 +154,7 @@ def test_kinematic_worlds_ticked_as_arrays_give_the_messages_numbers(repeat, nor
         world = str(tmp_path / "movable.toml")
     kw = dict(max_episode_steps=60, action_repeat=repeat, render_mode="rgb_array", world=world,
               normalize_actions=normalize,
-              overrides=("world.mode=kinematic", *ALL_NOISE,
+              overrides=(f"world.mode={mode}", *ALL_NOISE,
                          "robots.robot1.drive.max_wheel_speed_radps=5.0"))   # the cap bites
     fast = gym.make_vec("diffbot/Avoid-v0", num_envs=n, vectorization_mode="vector_entry_point",
                         **kw)

@@ -1,13 +1,15 @@
-"""A batch of kinematic one-robot Avoid worlds ticked as arrays (the batch's fast path).
+"""A batch of one-robot Avoid worlds ticked as arrays (the batch's fast path).
 
 :class:`diffbot.envs.vector.Worlds` ticks its worlds through the plant's messages
 (:func:`plant.tick.messages_of`, then each env's :meth:`AvoidTask._observe` reads them):
 a hundred microseconds of Python per world and tick, most of it building and reading
-message objects. When every world of the batch is a kinematic world in this process
-(``world.mode = "kinematic"``) with one robot and no camera, :class:`ArrayTicks` makes
-the same numbers for all of them at once from the kinematic batch's arrays
-(:mod:`plant.kinematic`), each to the bit what the message path gives
-(``tests/test_envs_vector.py`` runs both side by side, noise on):
+message objects. When every world of the batch is in this process (no physics process)
+with one robot and no camera, :class:`ArrayTicks` makes the same numbers for all of them
+at once, each to the bit what the message path gives (``tests/test_envs_vector.py`` runs
+both side by side, noise on, in both world modes). A kinematic world's robots are the
+kinematic batch's arrays (:mod:`plant.kinematic`, one call steps all); a dynamic world's
+DART world steps world by world as before (:meth:`plant.tick.Tick.step`), its wheel angles
+and poses read back into arrays. Everything else is arrays:
 
 - encoders: the wheel angles plus the encoder noise of :class:`plant.noise.NoiseModel`,
   each world's own stream drawn in blocks of ticks ahead (a generator's block of draws is
@@ -26,7 +28,9 @@ the same numbers for all of them at once from the kinematic batch's arrays
 - the ground truth at the step's end, as the ``ground_truth`` message and
   :func:`bus.codec.pose_2d` give it (:func:`truths`).
 
-What the env never reads is not made (the GPS; the ground truth before a step's end); the
+A DART world that diverges (not finite) is an error here (FloatingPointError), where the
+message path rebuilds it at t = 0 and goes on. What the env never reads is not made (the
+GPS; the ground truth before a step's end); the
 GPS noise stream is not drawn either, as nobody reads it before the world is rebuilt at
 its next reset. Each env's observer, limiter and task keep their state between steps, so
 rendering and resets (through the message path) are the task's own code; the rewards,
@@ -44,6 +48,7 @@ from plant import kinematic
 from plant import lidar as lid
 from plant.noise import NoiseModel
 from plant.raycast import Scene
+from plant.sim import rotation_to_quaternion
 
 from .avoid import AvoidTask
 from .transport import InProc
@@ -143,14 +148,15 @@ class ArrayTicks:
 
     @staticmethod
     def eligible(tasks: Sequence[AvoidTask]) -> bool:
-        """Kinematic one-robot worlds in this process, no camera, every world the same spec
-        (a batch's are: one world file, one set of overrides)."""
+        """One-robot worlds in this process (kinematic, or DART without a physics process),
+        no camera, every world the same spec (a batch's are: one world file, one set of
+        overrides)."""
         for t in tasks:
             tr = t.transport
             if not isinstance(tr, InProc) or tr.tick is None or len(t.robots) != 1:
                 return False
             tick = tr.tick
-            if tick.sim.kin is None or tick.physics is not None:
+            if tick.physics is not None:
                 return False
             s = tick.sensors[t.robots[0]]
             if s.camera is not None or s.lidar is None:
@@ -190,8 +196,7 @@ class ArrayTicks:
         names = [t.robots[0] for t in tasks]
         sensors = [tick.sensors[n] for tick, n in zip(ticks, names)]
         sims = [tick.sim for tick in ticks]
-        kins = [s.kin for s in sims]
-        batch = kinematic.join(kins) if w > 1 else kins[0]
+        worlds = (_Kinematic if sims[0].kin is not None else _Dart)(ticks, sims, names)
         obs = [t.observers[n] for t, n in zip(tasks, names)]
         odo = [o.odom for o in obs]
         # the observers' state in
@@ -221,15 +226,11 @@ class ArrayTicks:
         sub, step_ns = spec.substeps, int(round(spec.physics_step_s * 1e9))
         drive = _Limiters(sims, names, cmds, self)
         for _ in range(repeat):
-            targets = drive.targets()
-            if w > 1:
-                batch.step(targets)
-            else:
-                kins[0].step(targets)
+            worlds.step(drive.targets())
             steps += sub
             t_ns = steps * step_ns
             # encoders -> odometry (Odometry.update, arc_step)
-            pos = _noisy(batch.wheels, enc_noise)
+            pos = _noisy(worlds.wheels(), enc_noise)
             t = t_ns * 1e-9
             dl, dr = pos[:, 0] - last[:, 0], pos[:, 1] - last[:, 1]
             ds = r * (dr + dl) / 2.0
@@ -249,7 +250,7 @@ class ArrayTicks:
             due = np.flatnonzero((t_ns // tick_ns) % period == 0)
             if due.size:
                 scene = self._static_scene(sims[0])
-                exact = lid.scan_many(cfg, batch.transforms()[due], scene, [None] * due.size)
+                exact = lid.scan_many(cfg, worlds.transforms(due), scene, [None] * due.size)
                 ranges = _lidar_noise(cfg, exact, None if lid_noise is None
                                       else lid_noise.rows(due))
                 r32 = ranges.astype(np.float32)
@@ -259,12 +260,9 @@ class ArrayTicks:
                 new_scan[due] = True
                 for j, row in zip(due, r32):
                     tasks[j].scans[names[j]] = _Scan(row, cfg)
-        if not batch.finite():     # (not a number stays one: checked once a step)
-            raise FloatingPointError("a kinematic world of the batch is no longer finite")
+        worlds.finish(steps)
         drive.done()
-        for sim, k in zip(sims, steps.tolist()):
-            sim.steps = k
-        truth = truths(batch.pose)
+        truth = worlds.truth()
         # the observers' and tasks' state out, the truth at the step's end
         for j, (task, o, od) in enumerate(zip(tasks, obs, odo)):
             od.x, od.y, od.theta = float(x[j]), float(y[j]), float(th[j])
@@ -286,6 +284,71 @@ class ArrayTicks:
                         ).astype(np.float32)
         return Made({"scan": scans, "odom": np.clip(odom, -ODOM_HIGH, ODOM_HIGH),
                      "goal": np.clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}, truth, t_ns)
+
+
+class _Kinematic:
+    """The worlds' robots as the kinematic batch's arrays (:mod:`plant.kinematic`): one
+    call steps them all."""
+
+    def __init__(self, ticks: list, sims: list, names: list[str]) -> None:
+        self.sims = sims
+        kins = [s.kin for s in sims]
+        self.batch = kinematic.join(kins) if len(kins) > 1 else kins[0]
+
+    def step(self, targets: np.ndarray) -> None:
+        self.batch.step(targets)
+
+    def wheels(self) -> np.ndarray:
+        return self.batch.wheels
+
+    def transforms(self, idx: np.ndarray) -> np.ndarray:
+        return self.batch.transforms()[idx]
+
+    def finish(self, steps: np.ndarray) -> None:
+        """The step's end: the worlds' clocks (Simulation.steps) where the ticks left them."""
+        if not self.batch.finite():     # (not a number stays one: checked once a step)
+            raise FloatingPointError("a kinematic world of the batch is no longer finite")
+        for sim, k in zip(self.sims, steps.tolist()):
+            sim.steps = k
+
+    def truth(self) -> np.ndarray:
+        return truths(self.batch.pose)
+
+
+class _Dart:
+    """The worlds' robots in their DART worlds, stepped world by world
+    (:meth:`plant.tick.Tick.step`, as the message path steps them), read back as arrays:
+    wheel angles each tick, poses where a lidar is due and at the step's end."""
+
+    def __init__(self, ticks: list, sims: list, names: list[str]) -> None:
+        self.ticks = ticks
+        self.robots = [s.robots[n] for s, n in zip(sims, names)]
+
+    def step(self, targets: np.ndarray) -> None:
+        for tick, robot, (wl, wr) in zip(self.ticks, self.robots, targets.tolist()):
+            robot.targets = (wl, wr)                 # as Simulation.command_twist sets them
+            if not tick.step()[2]:
+                raise FloatingPointError(f"a DART world of the batch diverged (rebuilt at t = 0)")
+
+    def wheels(self) -> np.ndarray:
+        return np.array([(r.wheels[0].getPosition(0), r.wheels[1].getPosition(0))
+                         for r in self.robots])
+
+    def transforms(self, idx: np.ndarray) -> np.ndarray:
+        return np.array([self.robots[j].transform() for j in idx.tolist()])
+
+    def finish(self, steps: np.ndarray) -> None:
+        pass                                         # (Tick.step counted the steps)
+
+    def truth(self) -> np.ndarray:
+        """As the ``ground_truth`` message read back gives it (codec.pose_2d)."""
+        out = np.empty((len(self.robots), 3))
+        for j, r in enumerate(self.robots):
+            tf = r.transform()
+            qx, qy, qz, qw = rotation_to_quaternion(tf[:3, :3])
+            out[j] = (float(tf[0, 3]), float(tf[1, 3]),
+                      math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)))
+        return out
 
 
 class _Limiters:

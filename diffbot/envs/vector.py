@@ -10,10 +10,10 @@ dynamic one). Each control tick goes through every world in three passes: the co
 of each and the step of all (:func:`plant.tick.step_ticks`: a kinematic world's robots,
 :mod:`plant.kinematic`, all worlds' in one call), then every world's sensor messages
 (:func:`plant.tick.messages_of`: every world's lidars cast in one call of the kernel),
-then each env's observation. Kinematic one-robot worlds (no camera) skip the messages:
-:mod:`diffbot.envs.kinbatch` makes their commands, ticks and observations as arrays,
-the same numbers to the bit (``Worlds.arrays = None`` takes the message path, the oracle
-``tests/test_envs_vector.py`` compares them with).
+then each env's observation. One-robot worlds (no camera: Avoid's) skip the messages:
+:mod:`diffbot.envs.kinbatch` makes their commands, ticks, observations, rewards and
+``info`` as arrays, the same numbers to the bit (``Worlds.arrays = None`` takes the
+message path, the oracle ``tests/test_envs_vector.py`` compares them with).
 
 Autoreset is Gymnasium 1.x's next-step mode (``metadata["autoreset_mode"]``): the step that
 ends env i's episode (terminated, or truncated at ``max_episode_steps``, 300 as registered)
