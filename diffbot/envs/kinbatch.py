@@ -18,13 +18,15 @@ and poses read back into arrays. Everything else is arrays:
   one-robot world's lidar skips its own parts, so that is what it sees), then
   noise, clip and quantisation as :func:`plant.lidar.apply_noise`, all rows at once;
 - the commands: each world's :class:`plant.drive.DriveLimiter` and motion noise
-  (:meth:`plant.sim.Simulation.command_twist`) on arrays (:class:`_Limiters`);
-- the observer: :func:`controllers.odometry.arc_step` and the velocities of
-  :meth:`controllers.odometry.Odometry.update` on arrays (``+ - * /``, ``sqrt``, ``sin``,
-  ``cos``: numpy 2.4 on x86-64 gives libm's bits, which the oracle test would catch
-  otherwise; ``atan2`` and ``hypot`` it does not, so those are ``math``'s, robot by robot),
-  the scan as :meth:`controllers.learned.AvoidObserver.feed` keeps it, the observation
-  as :meth:`AvoidObserver.observation` makes it;
+  (:meth:`plant.sim.Simulation.command_twist`; :class:`_Limiters`), the limiters' and the
+  dead reckoning's arithmetic (:meth:`controllers.odometry.Odometry.update`) for all
+  worlds in one call each of plant/kernels/drive.c, the Python code's operations in its
+  order with libm's ``sin`` and ``cos``, which are what ``math`` calls;
+- the observer: the scan as :meth:`controllers.learned.AvoidObserver.feed` keeps it, the
+  observation as :meth:`AvoidObserver.observation` makes it, in numpy (``+ - * /``,
+  ``sqrt``, ``sin``, ``cos``, ``%``: numpy 2.4 gives Python's bits, which the oracle test
+  would catch otherwise; ``atan2`` and ``hypot`` it does not, so those are ``math``'s,
+  robot by robot);
 - the ground truth at the step's end, as the ``ground_truth`` message and
   :func:`bus.codec.pose_2d` give it (:func:`truths`).
 
@@ -44,7 +46,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH
-from plant import kinematic
+from plant import kernels, kinematic
 from plant import lidar as lid
 from plant.noise import NoiseModel
 from plant.raycast import Scene
@@ -200,11 +202,8 @@ class ArrayTicks:
         obs = [t.observers[n] for t, n in zip(tasks, names)]
         odo = [o.odom for o in obs]
         # the observers' state in
-        x = np.array([o.x for o in odo])
-        y = np.array([o.y for o in odo])
-        th = np.array([o.theta for o in odo])
-        v = np.array([o.v for o in odo])
-        om = np.array([o.w for o in odo])
+        pose = np.array([(o.x, o.y, o.theta) for o in odo], float).reshape(w, 3)
+        vel = np.array([(o.v, o.w) for o in odo], float).reshape(w, 2)
         last = np.array([o._last for o in odo], float).reshape(w, 2)
         last_t = np.array([o._last_t for o in odo], float)
         r = np.array([o.r for o in odo])
@@ -229,23 +228,9 @@ class ArrayTicks:
             worlds.step(drive.targets())
             steps += sub
             t_ns = steps * step_ns
-            # encoders -> odometry (Odometry.update, arc_step)
-            pos = _noisy(worlds.wheels(), enc_noise)
-            t = t_ns * 1e-9
-            dl, dr = pos[:, 0] - last[:, 0], pos[:, 1] - last[:, 1]
-            ds = r * (dr + dl) / 2.0
-            dth = r * (dr - dl) / d
-            half = dth / 2.0
-            small = np.abs(half) < 1e-9
-            safe = np.where(small, 1.0, half)
-            chord = ds * np.where(small, 1.0 - half * half / 6.0, np.sin(safe) / safe)
-            x = x + chord * np.cos(th + half)
-            y = y + chord * np.sin(th + half)
-            th = th + dth
-            h = t - last_t
-            v = r * (dr + dl) / 2.0 / h
-            om = r * (dr - dl) / d / h
-            last, last_t = pos, t
+            # encoders -> odometry (Odometry.update, arc_step: plant/kernels/drive.c)
+            pos = np.ascontiguousarray(_noisy(worlds.wheels(), enc_noise))
+            kernels.odometry(pos, t_ns * 1e-9, pose, vel, last, last_t, r, d)
             # lidar, where due
             due = np.flatnonzero((t_ns // tick_ns) % period == 0)
             if due.size:
@@ -264,11 +249,12 @@ class ArrayTicks:
         drive.done()
         truth = worlds.truth()
         # the observers' and tasks' state out, the truth at the step's end
-        for j, (task, o, od) in enumerate(zip(tasks, obs, odo)):
-            od.x, od.y, od.theta = float(x[j]), float(y[j]), float(th[j])
-            od.v, od.w = float(v[j]), float(om[j])
-            od._last = (float(last[j, 0]), float(last[j, 1]))
-            od._last_t = float(last_t[j])
+        for j, (task, o, od, p, u, e, te) in enumerate(zip(
+                tasks, obs, odo, pose.tolist(), vel.tolist(), last.tolist(), last_t.tolist())):
+            od.x, od.y, od.theta = p
+            od.v, od.w = u
+            od._last = (e[0], e[1])
+            od._last_t = te
             if new_scan[j]:
                 o.scan = scans[j].copy()
                 o._scan_msg = None
@@ -276,6 +262,8 @@ class ArrayTicks:
             task._ticks_left = 0
             task.truth = {names[j]: tuple(truth[j].tolist())}
         # AvoidObserver.observation, every world's at once
+        x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
+        v, om = vel[:, 0], vel[:, 1]
         goal = np.array([o.goal for o in obs], float).reshape(w, 2)
         c, s = np.cos(th), np.sin(th)
         dx, dy = goal[:, 0] - x, goal[:, 1] - y
@@ -352,10 +340,10 @@ class _Dart:
 
 
 class _Limiters:
-    """The batch's :class:`plant.drive.DriveLimiter` s and motion noise on arrays: each
-    tick's wheel-speed targets of every world, as ``Simulation.command_twist`` sets them
-    (:meth:`DriveLimiter.from_twist`, then the command noise), every operation element by
-    element; the limiters' state is read at the step's start and left at its end."""
+    """The batch's :class:`plant.drive.DriveLimiter` s and motion noise: each tick's
+    wheel-speed targets of every world, as ``Simulation.command_twist`` sets them
+    (:meth:`DriveLimiter.from_twist` in plant/kernels/drive.c, then the command noise);
+    the limiters' state is read at the step's start and left at its end."""
 
     def __init__(self, sims: list, names: list[str], cmds: np.ndarray, ticks: ArrayTicks
                  ) -> None:
@@ -368,32 +356,22 @@ class _Limiters:
         self.wheels = np.array([lim.wheels for lim in self.lims], float).reshape(-1, 2)
         self.v_target = _clamp(cmds[:, 0], spec.max_linear_mps)
         self.w_target = _clamp(cmds[:, 1], spec.max_angular_radps)
+        dt = self.dt
+        self._limits = (spec.max_linear_accel_mps2 * dt, spec.max_angular_accel_radps2 * dt,
+                        spec.wheel_radius_m, spec.wheel_separation_m, spec.max_wheel_speed_radps,
+                        spec.max_wheel_accel_radps2 * dt)
         std = self.robots[0].spec.sensors.command_noise_std_radps
         self.noise = None if std <= 0.0 else [ticks._stream(s.motion_rng[n], std, (2,))
                                               for s, n in zip(sims, names)]
         self.out = self.wheels
 
     def targets(self) -> np.ndarray:
-        s, dt = self.spec, self.dt
-        self.v = self.v + _clamp(self.v_target - self.v, s.max_linear_accel_mps2 * dt)
-        self.w = self.w + _clamp(self.w_target - self.w, s.max_angular_accel_radps2 * dt)
-        r, d = s.wheel_radius_m, s.wheel_separation_m
-        wl = (self.v - self.w * d / 2.0) / r
-        wr = (self.v + self.w * d / 2.0) / r
-        m = s.max_wheel_speed_radps
-        peak = np.maximum(np.abs(wl), np.abs(wr))
-        over = peak > m
-        wl = np.where(over, wl * m / np.where(over, peak, 1.0), wl)
-        wr = np.where(over, wr * m / np.where(over, peak, 1.0), wr)
-        a = s.max_wheel_accel_radps2 * dt
-        was, self.wheels = self.wheels, np.empty_like(self.wheels)
-        self.wheels[:, 0] = was[:, 0] + _clamp(wl - was[:, 0], a)
-        self.wheels[:, 1] = was[:, 1] + _clamp(wr - was[:, 1], a)
-        out = self.wheels
-        if self.noise is not None:
+        out = np.empty_like(self.wheels)
+        kernels.drive_limit(self.v, self.w, self.wheels, self.v_target, self.w_target,
+                            *self._limits, out)
+        if self.noise is not None:          # Simulation._set_targets: only when it moves
             moving = np.flatnonzero((out[:, 0] != 0.0) | (out[:, 1] != 0.0))
             if moving.size:
-                out = out.copy()
                 out[moving] += np.array([self.noise[j].take() for j in moving])
         self.out = out
         return out

@@ -1,5 +1,6 @@
 """The plant's compiled kernels (C, built by ``make setup`` into plant/kernels/build/),
-loaded with ctypes: the lidar's sweep (:func:`lidar_scan`) and the camera's per-pixel work.
+loaded with ctypes: the lidar's sweep (:func:`lidar_scan`), the camera's per-pixel work, and
+a batch's drive limiters and dead reckoning (:func:`drive_limit`, :func:`odometry`).
 
 The numpy code of :mod:`plant.raycast` stays as the reference the tests compare the
 kernels with, value for value. There is no silent fallback: without the library the
@@ -16,11 +17,13 @@ from pathlib import Path
 import numpy as np
 
 
-__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr"]
+__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr",
+           "drive_limit", "odometry"]
 
 ABI = 3
 CAMERA_ABI = 2
 NOISE_ABI = 1
+DRIVE_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -48,7 +51,7 @@ def load(path: Path) -> ctypes.CDLL:
                              "`make setup` (or `python -m plant.kernels.build`)")
     lib = ctypes.CDLL(str(path))
     for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI),
-                       ("plant_noise_abi", NOISE_ABI)):
+                       ("plant_noise_abi", NOISE_ABI), ("plant_drive_abi", DRIVE_ABI)):
         abi = getattr(lib, name)() if hasattr(lib, name) else None
         if abi != want:
             raise KernelsMissing(f"{path} is out of date ({name} {abi}, expected {want}): "
@@ -58,6 +61,10 @@ def load(path: Path) -> ctypes.CDLL:
                                          _D, _D] + [_P] * 5)
     lib.plant_image_noise.restype = None
     lib.plant_image_noise.argtypes = [_P, _I, ctypes.c_uint64, _I, _P, _P, _P]
+    lib.plant_drive_limit.restype = None
+    lib.plant_drive_limit.argtypes = [_I] + [_P] * 5 + [_D] * 6 + [_P]
+    lib.plant_odometry.restype = None
+    lib.plant_odometry.argtypes = [_I] + [_P] * 8
     lib.plant_lidar_scan.restype = None
     lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
     return lib
@@ -129,6 +136,25 @@ def image_noise(img: np.ndarray, seed: int, table: tuple[np.ndarray, np.ndarray]
     thr, vals = table
     library().plant_image_noise(ptr(img), img.size, seed, thr.size, ptr(thr), ptr(vals),
                                 ptr(out))
+
+
+def drive_limit(v: np.ndarray, w: np.ndarray, wheels: np.ndarray, v_target: np.ndarray,
+                w_target: np.ndarray, dv: float, dw: float, r: float, d: float, m: float,
+                a: float, out: np.ndarray) -> None:
+    """:meth:`plant.drive.DriveLimiter.from_twist` of n robots of one drive, one tick
+    (plant/kernels/drive.c): ``v``, ``w`` (n) and ``wheels`` (n, 2) the limiters' state,
+    updated; ``out`` (n, 2) the wheel-speed targets. float64, C-contiguous."""
+    library().plant_drive_limit(v.size, ptr(v), ptr(w), ptr(wheels), ptr(v_target),
+                                ptr(w_target), dv, dw, r, d, m, a, ptr(out))
+
+
+def odometry(pos: np.ndarray, t: np.ndarray, pose: np.ndarray, vel: np.ndarray,
+             last: np.ndarray, last_t: np.ndarray, r: np.ndarray, d: np.ndarray) -> None:
+    """:meth:`controllers.odometry.Odometry.update` of n robots (plant/kernels/drive.c):
+    encoder angles ``pos`` (n, 2) at times ``t`` (n); ``pose`` (n, 3), ``vel`` (n, 2),
+    ``last`` (n, 2), ``last_t`` (n) updated. float64, C-contiguous."""
+    library().plant_odometry(t.size, ptr(pos), ptr(t), ptr(pose), ptr(vel), ptr(last),
+                             ptr(last_t), ptr(r), ptr(d))
 
 
 class LidarWork:
