@@ -32,9 +32,9 @@ and poses read back into arrays. Everything else is arrays:
 
 A DART world that diverges (not finite) is an error here (FloatingPointError), where the
 message path rebuilds it at t = 0 and goes on. What the env never reads is not made (the
-GPS; the ground truth before a step's end); the
-GPS noise stream is not drawn either, as nobody reads it before the world is rebuilt at
-its next reset. Each env's observer, limiter and task keep their state between steps, so
+GPS; the ground truth before a step's end); the GPS noise stream is not drawn either, as
+nobody reads it before the world is rebuilt at its next reset. Each env's observer,
+limiter and task keep their state between steps, so
 rendering and resets (through the message path) are the task's own code; the rewards,
 flags and ``info`` of all worlds are :meth:`diffbot.envs.vector.Worlds._step_arrays`'.
 """
@@ -316,7 +316,7 @@ class _Dart:
         for tick, robot, (wl, wr) in zip(self.ticks, self.robots, targets.tolist()):
             robot.targets = (wl, wr)                 # as Simulation.command_twist sets them
             if not tick.step()[2]:
-                raise FloatingPointError(f"a DART world of the batch diverged (rebuilt at t = 0)")
+                raise FloatingPointError("a DART world of the batch diverged (not finite)")
 
     def wheels(self) -> np.ndarray:
         return np.array([(r.wheels[0].getPosition(0), r.wheels[1].getPosition(0))
