@@ -138,15 +138,15 @@ mass_kg = 3.0
 
 @pytest.mark.parametrize("mode,repeat,normalize,world", [
     ("kinematic", 5, False, "living_room"), ("kinematic", 3, True, "movable"),
-    ("dynamic", 5, False, "living_room")])
+    pytest.param("dynamic", 5, False, "living_room", marks=pytest.mark.slow)])
 def test_worlds_ticked_as_arrays_give_the_messages_numbers(mode, repeat, normalize, world,
                                                            tmp_path):
     """A batch of one-robot worlds ticks as arrays (diffbot.envs.kinbatch), kinematic or
     DART; the same batch through the plant's messages (arrays=None) is the oracle:
     observations, rewards, flags, poses, contacts and the rendered view to the bit, every
-    noise on, through autoresets
-    (an action_repeat of 3 puts the worlds' lidars out of phase after their resets), the
-    drive limiter's ramps and clamps, actions in the robot's units and normalised."""
+    noise on, through autoresets (an action_repeat of 3 puts the worlds' lidars out of
+    phase after their resets), the drive limiter's ramps and clamps, actions in the
+    robot's units and normalised, a movable object in the lidars' sight."""
     from diffbot.envs.kinbatch import ArrayTicks
     n = 6
     if world == "movable":
