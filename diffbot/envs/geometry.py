@@ -22,6 +22,10 @@ class Footprints(_Static):
         """The robots (name -> footprint centre) touching a wall, an object or each other."""
         return self.contacts_of([centres])[0]
 
+    def touching(self, centres: np.ndarray) -> np.ndarray:
+        """Whether each footprint centre (M, 2) touches a wall or a low object (M,)."""
+        return self.clearances(centres) < FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M
+
     def contacts_of(self, worlds: list[dict[str, np.ndarray]]) -> list[set[str]]:
         """:meth:`contacts` of several worlds' robots (a batch's), the static test of all
         in one call (element by element: each world's answer is its own)."""
@@ -29,8 +33,7 @@ class Footprints(_Static):
         out: list[set[str]] = [set() for _ in worlds]
         if rows:
             pts = np.array([worlds[k][n] for k, n in rows], float).reshape(-1, 2)
-            for (k, n), hit in zip(rows, self.clearances(pts)
-                                   < FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M):
+            for (k, n), hit in zip(rows, self.touching(pts)):
                 if hit:
                     out[k].add(n)
         for w, touch in zip(worlds, out):

@@ -350,13 +350,12 @@ class _Limiters:
         self.lims = [s.limiters[n] for s, n in zip(sims, names)]
         self.robots = [s.robots[n] for s, n in zip(sims, names)]
         spec = self.lims[0].spec
-        self.spec, self.dt = spec, sims[0].spec.control_tick_s
         self.v = np.array([lim.v for lim in self.lims], float)
         self.w = np.array([lim.w for lim in self.lims], float)
         self.wheels = np.array([lim.wheels for lim in self.lims], float).reshape(-1, 2)
         self.v_target = _clamp(cmds[:, 0], spec.max_linear_mps)
         self.w_target = _clamp(cmds[:, 1], spec.max_angular_radps)
-        dt = self.dt
+        dt = sims[0].spec.control_tick_s
         self._limits = (spec.max_linear_accel_mps2 * dt, spec.max_angular_accel_radps2 * dt,
                         spec.wheel_radius_m, spec.wheel_separation_m, spec.max_wheel_speed_radps,
                         spec.max_wheel_accel_radps2 * dt)

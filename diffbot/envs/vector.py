@@ -28,7 +28,6 @@ ends with :meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
 """
 from __future__ import annotations
 
-import math
 import os
 import signal
 import socket
@@ -43,7 +42,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from bus.controller import Twist
-from plant.footprint import CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M, footprint_centres
+from plant.footprint import footprint_centres
 from plant.tick import messages_of, step_ticks
 
 from .actions import check_action
@@ -130,12 +129,9 @@ class Worlds:
         twists = first.drives[robot].commands(actions)
         before = np.array([t._distance(robot) for t in tasks])
         made = self.arrays.advance(tasks, twists)
-        x, y = made.truth[:, 0], made.truth[:, 1]
-        contact = first.geo.clearances(footprint_centres(x, y, made.truth[:, 2])) \
-            < FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M
+        contact = first.geo.touching(footprint_centres(*made.truth.T))
         goals = np.array([t.goals[robot] for t in tasks], float).reshape(-1, 2)
-        d = np.array([math.hypot(g[0] - a, g[1] - b)            # as AvoidTask._distance
-                      for (a, b), g in zip(made.truth[:, :2].tolist(), goals.tolist())])
+        d = np.array([t._distance(robot) for t in tasks])        # by the truth advance left
         success = d < first.goal_radius
         rew = step_rewards(before, d, success, contact)
         term = success | contact
