@@ -73,7 +73,7 @@ from .mcapfile import INFO_METADATA, McapRecording, RecordError, recover
 from .topics import FmuTypes
 
 #: stamps per key remembered to drop a message re-sent after a lockstep rejoin (more than
-#: the plant re-publishes, plant.outbox.REPUBLISH_TICKS)
+#: the plant re-publishes, bus.protocol.REPUBLISH_TICKS)
 REPEAT_WINDOW = 64
 #: After ``sim/end``, keep listening until the bus has been quiet this long (the last
 #: outputs of other nodes) and no lockstep member is left, but no longer than END_MAX_S.

@@ -19,13 +19,13 @@ from . import codec
 from . import controller as hooks
 from .controller import WHEEL_JOINTS, Observation, Twist, WheelSpeeds
 from .inputs import check_input, stamp_of
-from .protocol import PLANT_READS
+from .protocol import PLANT_READS, REPUBLISH_TICKS
 
 #: an input older than this (simulated s, or three of its periods) is not shown to the
 #: controller: its producer is gone (realtime and fast modes, where nobody waits for it)
 STALE_S = 0.5
 #: lockstep: ticks of this member's outputs kept to re-send when the plant re-publishes
-#: them after a rejoin (more than the plant re-publishes: plant.outbox.REPUBLISH_TICKS, 25)
+#: them after a rejoin (more than the plant re-publishes: bus.protocol.REPUBLISH_TICKS, 25)
 RESEND_TICKS = 30
 #: samples kept per input topic (by stamp) and clock ticks waiting for their inputs
 BUF_PER_TOPIC = 8
@@ -250,13 +250,19 @@ class MemberTick:
         """Section 4, step 2: the next tick to act on now, or None. A member answers every
         tick in order: while the next tick's inputs are not all in, no later tick is acted
         on (after a blip the plant re-publishes what was lost, and a later tick answered
-        first would make the next one look like a world gone back)."""
+        first would make the next one look like a world gone back). The same holds when the
+        next tick's clock itself was lost and a later tick is complete: the plant re-publishes
+        its last ``REPUBLISH_TICKS`` ticks when the member is back, so the later one waits
+        for the next one's clock unless that tick lies beyond what the plant keeps."""
+        nxt = None if self._last_acted is None else self._last_acted + self.tick_ns
         for t_ns in sorted(self.pending):
             if not self._complete(t_ns):
-                if (self._last_acted is not None
-                        and self._last_acted < t_ns <= self._last_acted + self.tick_ns):
+                if nxt is not None and self._last_acted < t_ns <= nxt:
                     return None      # the next tick: a later one waits
                 continue             # (a stray or the old world's: never holds a tick)
+            if (nxt is not None and self.tick_ns and t_ns > nxt
+                    and max(self.pending) - nxt < REPUBLISH_TICKS * self.tick_ns):
+                return None          # the next tick's clock is still to come (re-published)
             del self.pending[t_ns]
             self._last_acted = t_ns
             return t_ns

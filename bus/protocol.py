@@ -17,6 +17,12 @@ COUPLINGS = ("sequential", "pipelined")
 #: these needs no ``sim/ack/<node>`` message)
 PLANT_READS = ("cmd_vel", "wheel_cmd", "odom")
 
+#: lockstep: the plant keeps its last this many ticks' messages and re-publishes them when a
+#: lost member or a watcher comes back (section 4, "Lost members"): what a blip swallowed,
+#: for the members (at most the last three ticks) and for a recorder, whose share of the
+#: router's queue may lag further behind
+REPUBLISH_TICKS = 25
+
 
 class ProtocolError(Exception):
     """The other side speaks another protocol version: a node must not join (this project's

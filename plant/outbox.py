@@ -29,12 +29,7 @@ from __future__ import annotations
 import zenoh
 
 from bus import codec
-
-
-#: lockstep: ticks of published messages kept to re-publish when a lost member rejoins:
-#: what the blip swallowed, for the members (at most the last three ticks) and for a
-#: recorder, whose share of the router's queue may lag further behind
-REPUBLISH_TICKS = 25
+from bus.protocol import REPUBLISH_TICKS
 
 
 class Outbox:

@@ -15,7 +15,7 @@ import pytest
 
 from bus import codec
 from bus.keys import Keys
-from bus.protocol import PROTOCOL_VERSION
+from bus.protocol import PROTOCOL_VERSION, REPUBLISH_TICKS
 
 from .conftest import wait_for
 from .test_pipelined_end import TICK_NS, member_ends
@@ -167,7 +167,10 @@ def test_a_member_answers_its_ticks_in_order_when_the_next_one_s_input_is_late(e
     """After a router blip a member may hold tick k without its sensors and tick k+1 in
     full; the plant re-publishes what was lost. Acting on k+1 first made the re-published
     k look like a world gone back: the FMU node re-initialised its FMU and the run left the
-    undisturbed one's bytes (a fresh-clone CI run). A member answers every tick in order."""
+    undisturbed one's bytes (a fresh-clone CI run). A member answers every tick in order,
+    also when the blip swallowed tick k's clock and k+1 came whole (another fresh-clone CI
+    run: the FMU node stepped k+1, then took the re-published k for a reset), unless k lies
+    beyond the ticks the plant keeps to re-publish."""
     from bus.controller import Twist
     from bus.runtime import NodeRunner
     from bus.session import open_session
@@ -225,7 +228,20 @@ def test_a_member_answers_its_ticks_in_order_when_the_next_one_s_input_is_late(e
         js(3 * TICK_NS)
         clock(3 * TICK_NS)
         assert acks.get(timeout=10) == 3 * TICK_NS
-        assert ctrl.stepped == [0, TICK_NS, 2 * TICK_NS, 3 * TICK_NS]
+        js(4 * TICK_NS)                    # t4's clock lost in a blip, its sensors not ...
+        js(5 * TICK_NS)                    # ... and t5 arrives whole
+        clock(5 * TICK_NS)
+        with pytest.raises(queue.Empty):
+            pytest.fail(f"answered t={acks.get(timeout=1.0)} before t4's clock came")
+        clock(4 * TICK_NS)                 # re-published after the rejoin
+        assert [acks.get(timeout=10), acks.get(timeout=10)] == [4 * TICK_NS, 5 * TICK_NS]
+        far = 5 * TICK_NS + REPUBLISH_TICKS * TICK_NS   # t6 lost past what the plant keeps:
+        for t in (far, far + TICK_NS):                  # it never comes, the member goes on
+            js(t)
+            clock(t)
+        assert [acks.get(timeout=10), acks.get(timeout=10)] == [far, far + TICK_NS]
+        assert ctrl.stepped == [0, TICK_NS, 2 * TICK_NS, 3 * TICK_NS, 4 * TICK_NS,
+                                5 * TICK_NS, far, far + TICK_NS]
         assert runner.rejects.counts == {}
     finally:
         runner.stop_event.set()

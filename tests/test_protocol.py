@@ -15,7 +15,7 @@ import pytest
 
 from bus import codec
 from bus.keys import TOPICS, Keys, check_name
-from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION
+from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION, REPUBLISH_TICKS
 
 from .conftest import ROOT, wait_for
 
@@ -34,6 +34,8 @@ def test_version_in_the_document_is_the_code_s():
     assert re.search(r"^# .*protocol, version (\d+)$", text, re.M).group(1) == \
         str(PROTOCOL_VERSION)
     assert f'"protocol": {PROTOCOL_VERSION}' in text
+    # the ticks the plant keeps to re-publish, as sections 4 and 8 give them
+    assert text.count(f"last {REPUBLISH_TICKS} ticks") == 2 and f"its last {REPUBLISH_TICKS}," in text
 
 
 def test_every_key_is_in_the_document():
