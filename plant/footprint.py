@@ -58,6 +58,18 @@ class Footprints:
         #: what makes two worlds' footprint tests the same
         self.key = tuple(a.tobytes() for a in (self.box_c, yaw, self.box_half, self.circ_c,
                                                 self.circ_r, self.half))
+        self._kernel_args: tuple | None = None
+
+    def kernel_args(self) -> tuple:
+        """The test's arrays as plant/kernels/kinematic.c takes them (counts and addresses;
+        this object keeps the arrays)."""
+        if self._kernel_args is None:
+            from .kernels import ptr
+            self._kernel_args = (len(self.box_c), *map(ptr, (self.box_c, self.box_cos,
+                                                               self.box_sin, self.box_half)),
+                                 len(self.circ_c), *map(ptr, (self.circ_c, self.circ_r,
+                                                                self.half)))
+        return self._kernel_args
 
     @staticmethod
     def centre(x: float, y: float, yaw: float) -> np.ndarray:

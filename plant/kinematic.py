@@ -23,7 +23,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .footprint import FOOTPRINT_RADIUS_M, Footprints, footprint_centres
+from . import kernels
+from .footprint import CHASSIS_CENTRE_X_M, FOOTPRINT_RADIUS_M, Footprints, footprint_centres
 from .world import WorldSpec
 
 _FIELDS = ("pose", "wheels", "speeds", "vel", "radius", "separation", "world")
@@ -46,6 +47,7 @@ class Kinematics:
         self.tick_s = spec.control_tick_s
         self.foot = Footprints(spec)
         self.batch: _Batch | None = None
+        self._kernel_args: tuple | None = None     # step_arrays': the arrays' addresses
 
     def __len__(self) -> int:
         return len(self.names)
@@ -78,7 +80,22 @@ class Kinematics:
 
 
 def step_arrays(k, targets: np.ndarray) -> None:
-    """Every robot of ``k`` (a :class:`Kinematics` or a batch of them) one tick on."""
+    """Every robot of ``k`` (a :class:`Kinematics` or a batch of them) one tick on, in one
+    call of plant/kernels/kinematic.c (:func:`reference_step` is the same in numpy)."""
+    targets = np.ascontiguousarray(targets, np.float64)
+    arrays = (k.radius, k.separation, k.world, k.pose, k.wheels, k.speeds, k.vel)
+    kept = k._kernel_args
+    if kept is None or any(a is not b for a, b in zip(kept[0], arrays)):
+        w = k.world
+        pairs = len(w) > 1 and (w.size == 0 or bool(np.any(w[1:] == w[:-1])))
+        kept = k._kernel_args = (arrays, tuple(map(kernels.ptr, arrays)), pairs)
+    kernels.kinematic_step(len(k.pose), k.tick_s, targets, kept[1], k.foot.kernel_args(),
+                           FOOTPRINT_RADIUS_M, CHASSIS_CENTRE_X_M, kept[2])
+
+
+def reference_step(k, targets: np.ndarray) -> None:
+    """:func:`step_arrays` in numpy, operation by operation (the kernel's reference:
+    tests/test_kernels.py compares them to the bit)."""
     T = k.tick_s
     wl, wr = targets[:, 0], targets[:, 1]
     r = k.radius
@@ -92,36 +109,27 @@ def step_arrays(k, targets: np.ndarray) -> None:
     nx = x + chord * np.cos(mid)
     ny = y + chord * np.sin(mid)
     nyaw = yaw + 2.0 * h
-    blocked, c_old, c_new = _blocked(k, x, y, yaw, nx, ny, nyaw)
+    blocked = _blocked(k, x, y, yaw, nx, ny, nyaw)
     k.pose[:] = np.where(blocked[:, None], k.pose, np.stack([nx, ny, nyaw], 1))
-    k._clear = (k.pose.copy(), np.where(blocked, c_old, c_new))
     k.vel[:, 0] = np.where(blocked, 0.0, v)
     k.vel[:, 1] = np.where(blocked, 0.0, w)
     k.wheels += targets * T
     k.speeds[:] = targets
 
 
-def _blocked(k, x, y, yaw, nx, ny, nyaw) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Which robots may not make their move, and the clearances before and after it."""
-    new = footprint_centres(nx, ny, nyaw)
-    # the clearances where the robots stand: the last tick's, kept while the poses are
-    # the very ones they were computed for (a function of the pose: the same numbers)
-    kept = getattr(k, "_clear", None)
-    if kept is not None and kept[0].shape == k.pose.shape and np.array_equal(kept[0], k.pose):
-        c_old = kept[1]
-    else:
-        c_old = k.foot.clearances(footprint_centres(x, y, yaw))
-    c_new = k.foot.clearances(new)
+def _blocked(k, x, y, yaw, nx, ny, nyaw) -> np.ndarray:
+    """Which robots may not make their move."""
+    old, new = footprint_centres(x, y, yaw), footprint_centres(nx, ny, nyaw)
+    c_old, c_new = k.foot.clearances(old), k.foot.clearances(new)
     blocked = (c_new < FOOTPRINT_RADIUS_M) & (c_new < c_old)
     n = len(x)
     if n > 1 and (k.world.size == 0 or np.any(k.world[1:] == k.world[:-1])):
-        old = footprint_centres(x, y, yaw)
         same = (k.world[:, None] == k.world[None, :]) & ~np.eye(n, dtype=bool)
         d_old = np.hypot(old[:, None, 0] - old[None, :, 0], old[:, None, 1] - old[None, :, 1])
         d_new = np.hypot(new[:, None, 0] - new[None, :, 0], new[:, None, 1] - new[None, :, 1])
         near = same & (d_new < 2 * FOOTPRINT_RADIUS_M) & (d_new < d_old)
         blocked |= near.any(axis=1)
-    return blocked, c_old, c_new
+    return blocked
 
 
 class _Batch:
@@ -138,6 +146,7 @@ class _Batch:
         for f in _FIELDS[:-1]:
             setattr(self, f, np.concatenate([getattr(m, f) for m in members]))
         self.world = np.concatenate([np.full(len(m), i, np.int64) for i, m in enumerate(members)])
+        self._kernel_args: tuple | None = None
         start = 0
         for m in members:               # each world's arrays become views of the batch's
             stop = start + len(m)

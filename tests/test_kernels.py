@@ -174,3 +174,43 @@ def test_image_noise_kernel_gives_the_numpy_reference_bytes(cfg, shape):
 def test_a_missing_library_says_how_to_build_it(tmp_path):
     with pytest.raises(kernels.KernelsMissing, match="make setup"):
         kernels.load(tmp_path / "libplant_kernels.so")
+
+
+def test_kinematic_kernel_gives_the_numpy_reference_to_the_bit():
+    """plant/kernels/kinematic.c against plant.kinematic.reference_step: four copies of a
+    two-robot room in one batch, robots dropped anywhere (against furniture, walls and
+    each other), random wheel speeds; both paths of the footprint test (blocked by the room,
+    by the other robot) and free moves all taken, every array equal to the bit."""
+    from types import SimpleNamespace
+
+    from plant import kinematic
+    spec = load_world("living_room_follow", ["world.mode=kinematic"])
+    batch = kinematic.join([kinematic.Kinematics(spec) for _ in range(4)])
+    n = len(batch.pose)
+    rng = np.random.default_rng(11)
+    fields = ("pose", "wheels", "speeds", "vel", "radius", "separation", "world")
+    seen = {"free": 0, "room": 0, "robot": 0}
+    for trial in range(300):
+        batch.pose[:] = np.column_stack([rng.uniform(-3.2, 3.2, n), rng.uniform(-2.7, 2.7, n),
+                                         rng.uniform(-math.pi, math.pi, n)])
+        if trial % 3 == 0:                      # each world's pair footprint to footprint
+            batch.pose[1::2, :2] = batch.pose[0::2, :2] + rng.uniform(-0.5, 0.5, (n // 2, 2))
+        targets = rng.uniform(-12.0, 12.0, (n, 2)) * (rng.random((n, 1)) < 0.9)
+        ref = SimpleNamespace(**{f: getattr(batch, f).copy() for f in fields},
+                              tick_s=batch.tick_s, foot=batch.foot)
+        kinematic.reference_step(ref, targets)
+        before = batch.pose.copy()
+        batch.step(targets)
+        for f in fields:
+            assert getattr(batch, f).tobytes() == getattr(ref, f).tobytes(), (trial, f)
+        alone = SimpleNamespace(**{f: getattr(ref, f).copy() for f in fields},
+                                tick_s=ref.tick_s, foot=ref.foot)   # each robot on its own
+        alone.pose, alone.world = before.copy(), np.arange(n)
+        kinematic.reference_step(alone, targets)
+        moving = (targets != 0).any(axis=1)
+        stopped = moving & (batch.pose == before).all(axis=1)
+        by_room = moving & (alone.pose == before).all(axis=1)
+        seen["free"] += int((moving & ~stopped).sum())
+        seen["room"] += int(by_room.sum())
+        seen["robot"] += int((stopped & ~by_room).sum())
+    assert min(seen.values()) > 20, seen

@@ -38,7 +38,6 @@ CLIENT = os.path.join(ROOT, "diffbot", "configs", "client.json5")
 #: of the square's end (t = 45.9 s sequential, 48.7 s pipelined: --end-with would end the
 #: run there)
 DURATION_S = "45"
-NETNS_DURATION_S = "45"
 #: blips per coupling in one run, and (wall s) how long after the last rejoin each comes
 LOOPBACK_BLIPS, LOOPBACK_AFTER_S = 8, (0.02, 0.15)
 NETNS_BLIPS, NETNS_AFTER_S = 10, (0.02, 0.1)
@@ -72,8 +71,8 @@ def blip_plan(seed: str, n: int, after_s: tuple[float, float]) -> list[tuple[flo
     return [(rng.uniform(*after_s), rng.uniform(*DOWN_S[i % len(DOWN_S)])) for i in range(n)]
 
 
-def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float, float]],
-           duration_s: str = DURATION_S) -> tuple[str, dict, str]:
+def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float, float]]
+           ) -> tuple[str, dict, str]:
     """A square run through a router: (MCAP path, plant stats, plant log). For each of
     ``blips``, (after, down): ``after`` wall s after the run started or the last rejoin,
     the router is SIGKILLed and restarted ``down`` s later; the plant must notice and the
@@ -84,7 +83,7 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float
     try:
         router = start_router(r, bus, ns.get("router"))
         plant = r.diffbot("plant", "--world", "living_room", "--disable", "camera",
-                          "--coupling", coupling, "--seed", "0", "--duration", duration_s,
+                          "--coupling", coupling, "--seed", "0", "--duration", DURATION_S,
                           "--expect", "odometry_robot1,square_path_robot1",
                           "--end-with", "square_path_robot1",
                           "--rejoin-timeout", "30", "--stats", stats, *bus["plant_args"],
@@ -125,17 +124,33 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float
         return mcap, json.load(f), log
 
 
-def same_run(ref: tuple, got: tuple, duration_s: str = DURATION_S) -> None:
+def same_run(ref: tuple, got: tuple) -> None:
     lines = compare(ref[0], got[0])
     assert lines and all(ln.startswith("same") for ln in lines), "\n".join(lines)
-    assert ref[1]["sim_time_s"] == got[1]["sim_time_s"] == pytest.approx(float(duration_s))
+    assert ref[1]["sim_time_s"] == got[1]["sim_time_s"] == pytest.approx(float(DURATION_S))
     assert got[1]["protocol_errors"] == {}, got[1]
     assert ref[1]["stale_commands"] == got[1]["stale_commands"] == 0
 
 
+@pytest.fixture(scope="module")
+def undisturbed(tmp_path_factory):
+    """The undisturbed square of a coupling through a loopback router, run once for both
+    blip tests of the coupling: the run across namespaces over TLS records the same bytes
+    as this one (tests/test_netns.py), so both blipped runs must too."""
+    runs: dict[str, tuple] = {}
+
+    def of(coupling: str) -> tuple:
+        if coupling not in runs:
+            runs[coupling] = square(str(tmp_path_factory.mktemp(f"undisturbed-{coupling}")),
+                                    coupling, loopback_router(), {}, [])
+        return runs[coupling]
+    return of
+
+
 @pytest.mark.parametrize("coupling", COUPLINGS)
-def test_router_blips_leave_the_recording_as_an_undisturbed_run_s(tmp_path, coupling):
-    ref = square(str(tmp_path / "undisturbed"), coupling, loopback_router(), {}, [])
+def test_router_blips_leave_the_recording_as_an_undisturbed_run_s(tmp_path, coupling,
+                                                                 undisturbed):
+    ref = undisturbed(coupling)
     got = square(str(tmp_path / "blips"), coupling, loopback_router(), {},
                  blip_plan(coupling, LOOPBACK_BLIPS, LOOPBACK_AFTER_S))
     same_run(ref, got)
@@ -202,13 +217,14 @@ def test_a_router_lost_past_the_rejoin_timeout_ends_every_process_by_itself(tmp_
 
 
 @pytest.mark.parametrize("coupling", COUPLINGS)
-def test_router_blips_across_namespaces_over_tls(tmp_path, net, coupling):
+def test_router_blips_across_namespaces_over_tls(tmp_path, net, coupling, undisturbed):
     """The issue's version: three namespaces, the shipped TLS configs and the docs' steps
-    (tests/test_netns.py); NETNS_BLIPS short blips per coupling in one run each."""
+    (tests/test_netns.py); NETNS_BLIPS short blips per coupling in one run each, compared
+    with the undisturbed run on loopback."""
     remote = tls_machines(str(tmp_path))
-    ref = square(str(tmp_path / "undisturbed"), coupling, remote, net.ns, [], NETNS_DURATION_S)
+    ref = undisturbed(coupling)
     got = square(str(tmp_path / "blips"), coupling, remote, net.ns,
-                 blip_plan(f"netns-{coupling}", NETNS_BLIPS, NETNS_AFTER_S), NETNS_DURATION_S)
-    same_run(ref, got, NETNS_DURATION_S)
+                 blip_plan(f"netns-{coupling}", NETNS_BLIPS, NETNS_AFTER_S))
+    same_run(ref, got)
     print(f"\n{coupling}: {NETNS_BLIPS} of {NETNS_BLIPS} router blips across namespaces: "
           "recording identical")

@@ -16,7 +16,7 @@ ray = pytest.importorskip("ray", reason="the [cluster] extra (make setup install
 
 #: xdist_group: one worker starts the session's Ray cluster (conftest.ray_cluster)
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(420), pytest.mark.xdist_group("ray")]
-SWEEP = ("sweep", "drive-test", "--grid", f"{NOISE}=0.05,0.2", "--seeds", "0-2",
+SWEEP = ("sweep", "drive-test", "--grid", f"{NOISE}=0.05,0.2", "--seeds", "0-1",
          "--duration", "10.5")
 #: what must be identical between engines: the parameters and every metric
 NOT_COMPARED = {"run", "wall_time_s", "real_time_factor", "node", "host", "out", "log_tail"}
@@ -87,7 +87,7 @@ def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster
     t_kill = time.monotonic()
     assert p.wait(240) == 0, procs.log(p)
     rows = read_rows(killed)
-    assert len(rows) == 6 and all(r["status"] == "ok" for r in rows), rows
+    assert len(rows) == 4 and all(r["status"] == "ok" for r in rows), rows
     for a, b in zip(rows, ref):
         assert {k: v for k, v in a.items() if k not in NOT_COMPARED} == \
             {k: v for k, v in b.items() if k not in NOT_COMPARED}

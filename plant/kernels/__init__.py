@@ -1,6 +1,7 @@
 """The plant's compiled kernels (C, built by ``make setup`` into plant/kernels/build/),
-loaded with ctypes: the lidar's sweep (:func:`lidar_scan`), the camera's per-pixel work, and
-a batch's drive limiters and dead reckoning (:func:`drive_limit`, :func:`odometry`).
+loaded with ctypes: the lidar's sweep (:func:`lidar_scan`), the camera's per-pixel work, the
+kinematic world's tick (:func:`kinematic_step`), and a batch's drive limiters and dead
+reckoning (:func:`drive_limit`, :func:`odometry`).
 
 The numpy code of :mod:`plant.raycast` stays as the reference the tests compare the
 kernels with, value for value. There is no silent fallback: without the library the
@@ -18,12 +19,13 @@ import numpy as np
 
 
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr",
-           "drive_limit", "odometry"]
+           "drive_limit", "odometry", "kinematic_step"]
 
 ABI = 3
 CAMERA_ABI = 2
 NOISE_ABI = 1
 DRIVE_ABI = 1
+KINEMATIC_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -51,7 +53,8 @@ def load(path: Path) -> ctypes.CDLL:
                              "`make setup` (or `python -m plant.kernels.build`)")
     lib = ctypes.CDLL(str(path))
     for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI),
-                       ("plant_noise_abi", NOISE_ABI), ("plant_drive_abi", DRIVE_ABI)):
+                       ("plant_noise_abi", NOISE_ABI), ("plant_drive_abi", DRIVE_ABI),
+                       ("plant_kinematic_abi", KINEMATIC_ABI)):
         abi = getattr(lib, name)() if hasattr(lib, name) else None
         if abi != want:
             raise KernelsMissing(f"{path} is out of date ({name} {abi}, expected {want}): "
@@ -64,6 +67,9 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_drive_limit.restype = None
     lib.plant_drive_limit.argtypes = [_I] + [_P] * 5 + [_D] * 6 + [_P]
     lib.plant_odometry.restype = None
+    lib.plant_kinematic_step.restype = ctypes.c_int
+    lib.plant_kinematic_step.argtypes = ([_I, _D] + [_P] * 8 + [_I] + [_P] * 4 + [_I]
+                                         + [_P] * 3 + [_D, _D, _I])
     lib.plant_odometry.argtypes = [_I] + [_P] * 8
     lib.plant_lidar_scan.restype = None
     lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
@@ -155,6 +161,20 @@ def odometry(pos: np.ndarray, t: np.ndarray, pose: np.ndarray, vel: np.ndarray,
     ``last`` (n, 2), ``last_t`` (n) updated. float64, C-contiguous."""
     library().plant_odometry(t.size, ptr(pos), ptr(t), ptr(pose), ptr(vel), ptr(last),
                              ptr(last_t), ptr(r), ptr(d))
+
+
+def kinematic_step(n: int, tick_s: float, targets: np.ndarray, robots: tuple[int, ...],
+                   statics: tuple[int, ...], foot_r: float, centre_x: float, pairs: bool) -> None:
+    """One tick of ``n`` kinematic robots (plant/kernels/kinematic.c; the reference:
+    :func:`plant.kinematic.reference_step`): ``targets`` (n, 2) float64, C-contiguous, the
+    wheel-speed targets; ``robots`` the addresses of their arrays (radius, separation,
+    world, pose, wheels, speeds, vel; the last four updated) and ``statics`` the footprint
+    test's (:meth:`plant.footprint.Footprints.kernel_args`), taken once by the caller, which
+    keeps the arrays alive; ``pairs``: some world has two robots."""
+    assert targets.shape == (n, 2) and targets.dtype == np.float64
+    if library().plant_kinematic_step(n, tick_s, ptr(targets), *robots, *statics, foot_r,
+                                      centre_x, int(pairs)):
+        raise MemoryError("plant_kinematic_step: out of memory")
 
 
 class LidarWork:

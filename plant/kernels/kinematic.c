@@ -1,0 +1,151 @@
+/* The kinematic world's control tick (plant/kinematic.py): every robot of one world, or of
+ * a batch of copies of one world, moved along the exact arc of its wheel speeds unless its
+ * footprint would come closer to a wall, a low static object or another robot of its world
+ * within the footprint's radius.
+ *
+ * plant/kinematic.py's reference_step is the same arithmetic in numpy, element by element;
+ * here it is operation by operation and in the same order, in IEEE doubles: no fused
+ * multiply-adds (-ffp-contract=off, plant/kernels/build.py), libm's sin, cos and hypot
+ * (numpy's ufuncs give the same values here: tests/test_kernels.py compares the two to the
+ * bit), and numpy's minimum and maximum, which keep a NaN.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+
+#define EXPORT __attribute__((visibility("default")))
+
+EXPORT int plant_kinematic_abi(void) { return 1; }
+
+/* np.minimum / np.maximum of two doubles: a NaN in, a NaN out */
+static inline double npmin(double a, double b)
+{
+    if (isnan(a) || isnan(b))
+        return NAN;
+    return (b < a) ? b : a;
+}
+
+static inline double npmax(double a, double b)
+{
+    if (isnan(a) || isnan(b))
+        return NAN;
+    return (b > a) ? b : a;
+}
+
+/* The static world as the footprint test sees it (plant.footprint.Footprints). */
+typedef struct {
+    int64_t nbox, ncirc;
+    const double *box_c, *box_cos, *box_sin, *box_half, *circ_c, *circ_r, *half;
+} Statics;
+
+/* Footprints.clearances of one point: the floor's walls, then the boxes, then the circles,
+ * each reduced with np.minimum.reduce (a NaN anywhere is the result). */
+static double clearance(const Statics *s, double cx, double cy)
+{
+    double out = npmin(s->half[0] - fabs(cx), s->half[1] - fabs(cy));
+    if (s->nbox) {
+        double least = 0.0;
+        for (int64_t b = 0; b < s->nbox; b++) {
+            double dx = cx - s->box_c[2 * b], dy = cy - s->box_c[2 * b + 1];
+            double qx = npmax(fabs(dx * s->box_cos[b] + dy * s->box_sin[b]) - s->box_half[2 * b],
+                              0.0);
+            double qy = npmax(fabs(-dx * s->box_sin[b] + dy * s->box_cos[b])
+                              - s->box_half[2 * b + 1], 0.0);
+            double h = hypot(qx, qy);
+            least = b ? npmin(least, h) : h;
+        }
+        out = npmin(out, least);
+    }
+    if (s->ncirc) {
+        double least = 0.0;
+        for (int64_t c = 0; c < s->ncirc; c++) {
+            double d = hypot(cx - s->circ_c[2 * c], cy - s->circ_c[2 * c + 1]) - s->circ_r[c];
+            d = npmax(d, 0.0);
+            least = c ? npmin(least, d) : d;
+        }
+        out = npmin(out, least);
+    }
+    return out;
+}
+
+/* One tick of n robots. targets (n, 2) wheel-speed targets (rad/s, left, right); radius,
+ * separation (n); world (n) each robot's world (robots of one world next to each other);
+ * pose (n, 3), wheels (n, 2), speeds (n, 2), vel (n, 2) updated in place; T the tick (s);
+ * foot_r the footprint's radius, centre_x its centre along the heading; pairs: 0 when no
+ * world has two robots (no robot-robot test). Returns 0, or -1 if out of memory. */
+EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
+                                const double *radius, const double *separation,
+                                const int64_t *world, double *pose, double *wheels,
+                                double *speeds, double *vel, int64_t nbox, const double *box_c,
+                                const double *box_cos, const double *box_sin,
+                                const double *box_half, int64_t ncirc, const double *circ_c,
+                                const double *circ_r, const double *half, double foot_r,
+                                double centre_x, int64_t pairs)
+{
+    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half};
+    /* per robot: v, w, nx, ny, nyaw, old centre (x, y), new centre (x, y), blocked */
+    double *m = malloc((size_t)(n > 0 ? n : 1) * 10 * sizeof(double));
+    if (!m)
+        return -1;
+    for (int64_t i = 0; i < n; i++) {
+        double *q = m + 10 * i;
+        double wl = targets[2 * i], wr = targets[2 * i + 1], r = radius[i];
+        double v = r * (wr + wl) / 2.0;
+        double w = r * (wr - wl) / separation[i];
+        double x = pose[3 * i], y = pose[3 * i + 1], yaw = pose[3 * i + 2];
+        double h = w * (T / 2.0);
+        double chord = v * T * (h != 0.0 ? sin(h) / h : 1.0);    /* the arc's chord */
+        double mid = yaw + h;
+        double nx = x + chord * cos(mid);
+        double ny = y + chord * sin(mid);
+        double nyaw = yaw + 2.0 * h;
+        q[0] = v;
+        q[1] = w;
+        q[2] = nx;
+        q[3] = ny;
+        q[4] = nyaw;
+        q[5] = x + centre_x * cos(yaw);          /* footprint_centres */
+        q[6] = y + centre_x * sin(yaw);
+        q[7] = nx + centre_x * cos(nyaw);
+        q[8] = ny + centre_x * sin(nyaw);
+        double c_old = clearance(&s, q[5], q[6]);
+        double c_new = clearance(&s, q[7], q[8]);
+        q[9] = (c_new < foot_r) && (c_new < c_old);
+    }
+    if (pairs && n > 1) {
+        double two_r = 2 * foot_r;
+        for (int64_t i = 0; i < n; i++) {
+            double *a = m + 10 * i;
+            if (a[9] != 0.0)
+                continue;
+            for (int64_t j = 0; j < n; j++) {
+                if (j == i || world[j] != world[i])
+                    continue;
+                double *b = m + 10 * j;
+                double d_old = hypot(a[5] - b[5], a[6] - b[6]);
+                double d_new = hypot(a[7] - b[7], a[8] - b[8]);
+                if (d_new < two_r && d_new < d_old) {
+                    a[9] = 1.0;
+                    break;
+                }
+            }
+        }
+    }
+    for (int64_t i = 0; i < n; i++) {
+        double *q = m + 10 * i;
+        int blocked = q[9] != 0.0;
+        if (!blocked) {
+            pose[3 * i] = q[2];
+            pose[3 * i + 1] = q[3];
+            pose[3 * i + 2] = q[4];
+        }
+        vel[2 * i] = blocked ? 0.0 : q[0];
+        vel[2 * i + 1] = blocked ? 0.0 : q[1];
+        for (int k = 0; k < 2; k++) {
+            wheels[2 * i + k] = wheels[2 * i + k] + targets[2 * i + k] * T;
+            speeds[2 * i + k] = targets[2 * i + k];
+        }
+    }
+    free(m);
+    return 0;
+}
