@@ -224,13 +224,14 @@ class ArrayTicks:
         steps = np.array([s.steps for s in sims], np.int64)
         sub, step_ns = spec.substeps, int(round(spec.physics_step_s * 1e9))
         drive = _Limiters(sims, names, cmds, self)
+        odo_state = tuple(map(kernels.ptr, (pose, vel, last, last_t, r, d)))   # (taken once)
         for _ in range(repeat):
             worlds.step(drive.targets())
             steps += sub
             t_ns = steps * step_ns
             # encoders -> odometry (Odometry.update, arc_step: plant/kernels/drive.c)
             pos = np.ascontiguousarray(_noisy(worlds.wheels(), enc_noise))
-            kernels.odometry(pos, t_ns * 1e-9, pose, vel, last, last_t, r, d)
+            kernels.odometry(w, pos, t_ns * 1e-9, *odo_state)
             # lidar, where due
             due = np.flatnonzero((t_ns // tick_ns) % period == 0)
             if due.size:
@@ -362,17 +363,20 @@ class _Limiters:
         std = self.robots[0].spec.sensors.command_noise_std_radps
         self.noise = None if std <= 0.0 else [ticks._stream(s.motion_rng[n], std, (2,))
                                               for s, n in zip(sims, names)]
-        self.out = self.wheels
+        self.out = np.empty_like(self.wheels)     # each tick's targets (the last one's kept)
+        self._state = tuple(map(kernels.ptr, (self.v, self.w, self.wheels, self.v_target,
+                                              self.w_target)))     # addresses, taken once
+        self._out = kernels.ptr(self.out)
 
     def targets(self) -> np.ndarray:
-        out = np.empty_like(self.wheels)
-        kernels.drive_limit(self.v, self.w, self.wheels, self.v_target, self.w_target,
-                            *self._limits, out)
+        """This tick's wheel-speed targets (n, 2): the same buffer each tick, read by the
+        worlds' step before the next tick's call."""
+        out = self.out
+        kernels.drive_limit(len(out), *self._state, *self._limits, self._out)
         if self.noise is not None:          # Simulation._set_targets: only when it moves
             moving = np.flatnonzero((out[:, 0] != 0.0) | (out[:, 1] != 0.0))
             if moving.size:
                 out[moving] += np.array([self.noise[j].take() for j in moving])
-        self.out = out
         return out
 
     def done(self) -> None:

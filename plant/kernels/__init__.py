@@ -76,8 +76,12 @@ def load(path: Path) -> ctypes.CDLL:
     return lib
 
 
-def ptr(a: np.ndarray) -> int:
-    """The address of a C-contiguous array's data (checked)."""
+def ptr(a: np.ndarray | int) -> int:
+    """The address of a C-contiguous array's data (checked), or ``a`` if it is an address
+    already: a caller that calls a kernel tick after tick with the same arrays takes their
+    addresses once (an address costs ~4 us) and keeps the arrays alive."""
+    if type(a) is int:
+        return a
     assert a.flags.c_contiguous, "kernel arrays must be C-contiguous"
     return a.ctypes.data
 
@@ -144,23 +148,26 @@ def image_noise(img: np.ndarray, seed: int, table: tuple[np.ndarray, np.ndarray]
                                 ptr(out))
 
 
-def drive_limit(v: np.ndarray, w: np.ndarray, wheels: np.ndarray, v_target: np.ndarray,
-                w_target: np.ndarray, dv: float, dw: float, r: float, d: float, m: float,
-                a: float, out: np.ndarray) -> None:
-    """:meth:`plant.drive.DriveLimiter.from_twist` of n robots of one drive, one tick
+Array = np.ndarray | int      # an array, or its address (:func:`ptr`)
+
+
+def drive_limit(n: int, v: Array, w: Array, wheels: Array, v_target: Array, w_target: Array,
+                dv: float, dw: float, r: float, d: float, m: float, a: float,
+                out: Array) -> None:
+    """:meth:`plant.drive.DriveLimiter.from_twist` of ``n`` robots of one drive, one tick
     (plant/kernels/drive.c): ``v``, ``w`` (n) and ``wheels`` (n, 2) the limiters' state,
     updated; ``out`` (n, 2) the wheel-speed targets. float64, C-contiguous."""
-    library().plant_drive_limit(v.size, ptr(v), ptr(w), ptr(wheels), ptr(v_target),
-                                ptr(w_target), dv, dw, r, d, m, a, ptr(out))
+    library().plant_drive_limit(n, ptr(v), ptr(w), ptr(wheels), ptr(v_target), ptr(w_target),
+                                dv, dw, r, d, m, a, ptr(out))
 
 
-def odometry(pos: np.ndarray, t: np.ndarray, pose: np.ndarray, vel: np.ndarray,
-             last: np.ndarray, last_t: np.ndarray, r: np.ndarray, d: np.ndarray) -> None:
-    """:meth:`controllers.odometry.Odometry.update` of n robots (plant/kernels/drive.c):
+def odometry(n: int, pos: Array, t: Array, pose: Array, vel: Array, last: Array,
+             last_t: Array, r: Array, d: Array) -> None:
+    """:meth:`controllers.odometry.Odometry.update` of ``n`` robots (plant/kernels/drive.c):
     encoder angles ``pos`` (n, 2) at times ``t`` (n); ``pose`` (n, 3), ``vel`` (n, 2),
     ``last`` (n, 2), ``last_t`` (n) updated. float64, C-contiguous."""
-    library().plant_odometry(t.size, ptr(pos), ptr(t), ptr(pose), ptr(vel), ptr(last),
-                             ptr(last_t), ptr(r), ptr(d))
+    library().plant_odometry(n, ptr(pos), ptr(t), ptr(pose), ptr(vel), ptr(last), ptr(last_t),
+                             ptr(r), ptr(d))
 
 
 def kinematic_step(n: int, tick_s: float, targets: np.ndarray, robots: tuple[int, ...],
