@@ -99,6 +99,65 @@ class _Draws:
         return self.buf[self.next - 1]
 
 
+class _Gather:
+    """The streams of a batch's worlds (row j: world j's :class:`_Draws`, or None: no
+    stream, zeros) read as one array for a step: a take of some rows is one index into
+    every stream's block at its own position, a block refilled when used up, as
+    :meth:`_Draws.take` does stream by stream; :meth:`sync` leaves the streams where the
+    step left them."""
+
+    def __init__(self, draws: list, shape: tuple[int, ...]) -> None:
+        self.draws, self.shape = draws, shape
+        self.live = np.array([d is not None for d in draws])
+        self.all_live = bool(self.live.all())
+        self.buf = np.zeros((len(draws), _BLOCK) + shape)
+        self.next = np.full(len(draws), _BLOCK, np.int64)     # (an empty block: refill)
+        for j, d in enumerate(draws):
+            if d is not None and len(d.buf):
+                self.buf[j], self.next[j] = d.buf, d.next
+
+    def take(self, rows: np.ndarray) -> np.ndarray:
+        """The next reading (len(rows), *shape) of each of worlds ``rows`` (distinct)."""
+        live = rows if self.all_live else rows[self.live[rows]]
+        at = self.next[live]
+        for j in live[at == _BLOCK].tolist():
+            d = self.draws[j]
+            d.buf = d.rng.normal(0.0, d.std, size=(_BLOCK,) + self.shape)
+            self.buf[j], self.next[j] = d.buf, 0
+        vals = self.buf[live, self.next[live]]
+        self.next[live] += 1
+        if self.all_live:
+            return vals
+        out = np.zeros((len(rows),) + self.shape)
+        out[self.live[rows]] = vals
+        return out
+
+    def sync(self) -> None:
+        for d, k in zip(self.draws, self.next.tolist()):
+            if d is not None and len(d.buf):
+                d.next = k
+
+
+class _Rows:
+    """The streams of a batch's worlds read stream by stream (:meth:`_Draws.take`): for wide
+    readings (a lidar's), taken once a scan, whose blocks :class:`_Gather` would copy."""
+
+    def __init__(self, draws: list, shape: tuple[int, ...]) -> None:
+        self.draws, self.shape = draws, shape
+
+    def take(self, rows: np.ndarray) -> np.ndarray:
+        zero = np.zeros(self.shape)
+        return np.array([d.take() if (d := self.draws[j]) is not None else zero
+                         for j in rows.tolist()]).reshape((len(rows),) + self.shape)
+
+    def sync(self) -> None:
+        pass
+
+
+#: readings of at most this many values are read through :class:`_Gather`
+_GATHER_MAX = 8
+
+
 class _RowNoise:
     """One sensor's noise (:class:`plant.noise.NoiseModel`) of every world of a batch, row j
     world j's, as :meth:`NoiseModel.apply` of a float array gives it: offset, the stream's
@@ -108,7 +167,8 @@ class _RowNoise:
     def __init__(self, models: list, draws: list, shape: tuple[int, ...]) -> None:
         self.config = next(m for m in models if m is not None).config
         self.have = np.array([m is not None for m in models])
-        self.draws, self.shape = draws, shape
+        self.gather = (_Gather if math.prod(shape) <= _GATHER_MAX else _Rows)(draws, shape)
+        self.idx = np.arange(len(models))
 
     @classmethod
     def of(cls, models: list, draws: list, shape: tuple[int, ...]) -> "_RowNoise | None":
@@ -117,8 +177,7 @@ class _RowNoise:
     def rows(self, idx: np.ndarray) -> "_RowNoise":
         """The noise of worlds ``idx`` only (their own streams)."""
         sub = object.__new__(_RowNoise)
-        sub.config, sub.have, sub.shape = self.config, self.have[idx], self.shape
-        sub.draws = [self.draws[j] for j in idx]
+        sub.config, sub.have, sub.gather, sub.idx = self.config, self.have[idx], self.gather, idx
         return sub
 
     def apply(self, values: np.ndarray) -> np.ndarray:
@@ -126,8 +185,7 @@ class _RowNoise:
         out = values.astype(np.float64)
         noisy = out + (c.bias + c.mean)
         if c.std > 0:
-            noisy = noisy + np.array([d.take() if d is not None else np.zeros(self.shape)
-                                      for d in self.draws]).reshape(noisy.shape)
+            noisy = noisy + self.gather.take(self.idx).reshape(noisy.shape)
         if c.resolution > 0:
             with np.errstate(invalid="ignore"):
                 noisy = np.where(np.isfinite(noisy),
@@ -248,6 +306,9 @@ class ArrayTicks:
                     tasks[j].scans[names[j]] = _Scan(row, cfg)
         worlds.finish(steps)
         drive.done()
+        for noise in (enc_noise, lid_noise):
+            if noise is not None:
+                noise.gather.sync()
         truth = worlds.truth()
         # the observers' and tasks' state out, the truth at the step's end
         for j, (task, o, od, p, u, e, te) in enumerate(zip(
@@ -361,8 +422,8 @@ class _Limiters:
                         spec.wheel_radius_m, spec.wheel_separation_m, spec.max_wheel_speed_radps,
                         spec.max_wheel_accel_radps2 * dt)
         std = self.robots[0].spec.sensors.command_noise_std_radps
-        self.noise = None if std <= 0.0 else [ticks._stream(s.motion_rng[n], std, (2,))
-                                              for s, n in zip(sims, names)]
+        self.noise = None if std <= 0.0 else _Gather(
+            [ticks._stream(s.motion_rng[n], std, (2,)) for s, n in zip(sims, names)], (2,))
         self.out = np.empty_like(self.wheels)     # each tick's targets (the last one's kept)
         self._state = tuple(map(kernels.ptr, (self.v, self.w, self.wheels, self.v_target,
                                               self.w_target)))     # addresses, taken once
@@ -376,10 +437,12 @@ class _Limiters:
         if self.noise is not None:          # Simulation._set_targets: only when it moves
             moving = np.flatnonzero((out[:, 0] != 0.0) | (out[:, 1] != 0.0))
             if moving.size:
-                out[moving] += np.array([self.noise[j].take() for j in moving])
+                out[moving] += self.noise.take(moving)
         return out
 
     def done(self) -> None:
+        if self.noise is not None:
+            self.noise.sync()
         for j, (lim, robot) in enumerate(zip(self.lims, self.robots)):
             lim.v, lim.w = float(self.v[j]), float(self.w[j])
             lim.wheels = (float(self.wheels[j, 0]), float(self.wheels[j, 1]))
