@@ -86,7 +86,9 @@ def step_arrays(k, targets: np.ndarray) -> None:
     arrays = (k.radius, k.separation, k.world, k.pose, k.wheels, k.speeds, k.vel)
     kept = k._kernel_args
     if kept is None or any(a is not b for a, b in zip(kept[0], arrays)):
-        w = k.world
+        n, w = len(k.pose), k.world          # (the kernel reads n rows of each)
+        assert all(len(a) == n for a in arrays) and w.dtype == np.int64 and all(
+            a.dtype == np.float64 for a in arrays if a is not w), "kinematic arrays"
         pairs = len(w) > 1 and (w.size == 0 or bool(np.any(w[1:] == w[:-1])))
         kept = k._kernel_args = (arrays, tuple(map(kernels.ptr, arrays)), pairs)
     kernels.kinematic_step(len(k.pose), k.tick_s, targets, kept[1], k.foot.kernel_args(),

@@ -167,7 +167,7 @@ class _RowNoise:
     def __init__(self, models: list, draws: list, shape: tuple[int, ...]) -> None:
         self.config = next(m for m in models if m is not None).config
         self.have = np.array([m is not None for m in models])
-        self.gather = (_Gather if math.prod(shape) <= _GATHER_MAX else _Rows)(draws, shape)
+        self.streams = (_Gather if math.prod(shape) <= _GATHER_MAX else _Rows)(draws, shape)
         self.idx = np.arange(len(models))
 
     @classmethod
@@ -177,7 +177,7 @@ class _RowNoise:
     def rows(self, idx: np.ndarray) -> "_RowNoise":
         """The noise of worlds ``idx`` only (their own streams)."""
         sub = object.__new__(_RowNoise)
-        sub.config, sub.have, sub.gather, sub.idx = self.config, self.have[idx], self.gather, idx
+        sub.config, sub.have, sub.streams, sub.idx = self.config, self.have[idx], self.streams, idx
         return sub
 
     def apply(self, values: np.ndarray) -> np.ndarray:
@@ -185,7 +185,7 @@ class _RowNoise:
         out = values.astype(np.float64)
         noisy = out + (c.bias + c.mean)
         if c.std > 0:
-            noisy = noisy + self.gather.take(self.idx).reshape(noisy.shape)
+            noisy = noisy + self.streams.take(self.idx).reshape(noisy.shape)
         if c.resolution > 0:
             with np.errstate(invalid="ignore"):
                 noisy = np.where(np.isfinite(noisy),
@@ -308,7 +308,7 @@ class ArrayTicks:
         drive.done()
         for noise in (enc_noise, lid_noise):
             if noise is not None:
-                noise.gather.sync()
+                noise.streams.sync()
         truth = worlds.truth()
         # the observers' and tasks' state out, the truth at the step's end
         for j, (task, o, od, p, u, e, te) in enumerate(zip(

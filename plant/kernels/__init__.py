@@ -67,10 +67,10 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_drive_limit.restype = None
     lib.plant_drive_limit.argtypes = [_I] + [_P] * 5 + [_D] * 6 + [_P]
     lib.plant_odometry.restype = None
+    lib.plant_odometry.argtypes = [_I] + [_P] * 8
     lib.plant_kinematic_step.restype = ctypes.c_int
     lib.plant_kinematic_step.argtypes = ([_I, _D] + [_P] * 8 + [_I] + [_P] * 4 + [_I]
                                          + [_P] * 3 + [_D, _D, _I])
-    lib.plant_odometry.argtypes = [_I] + [_P] * 8
     lib.plant_lidar_scan.restype = None
     lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
     return lib
