@@ -20,33 +20,38 @@
 #define EXPORT __attribute__((visibility("default")))
 #define PI 3.14159265358979323846
 
-/* numpy's np.maximum / np.minimum: a NaN in either gives NaN */
-static inline double np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
-static inline double np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
-/* numpy's np.fmax / np.fmin: a NaN gives way to the other */
-static inline double np_fmax(double a, double b) { return (a >= b || isnan(b)) ? a : b; }
-static inline double np_fmin(double a, double b) { return (a <= b || isnan(b)) ? a : b; }
+/* numpy's np.maximum / np.minimum: a NaN in either gives NaN; np.fmax / np.fmin: a NaN
+ * gives way to the other. Written as selects of doubles (no || ), which the compiler turns
+ * into vector blends: the loop below is vectorised, each lane the scalar arithmetic. */
+static inline double np_max(double a, double b) { double r = (a >= b) ? a : b; return (a != a) ? a : r; }
+static inline double np_min(double a, double b) { double r = (a <= b) ? a : b; return (a != a) ? a : r; }
+static inline double np_fmax(double a, double b) { double r = (a >= b) ? a : b; return (b != b) ? a : r; }
+static inline double np_fmin(double a, double b) { double r = (a <= b) ? a : b; return (b != b) ? a : r; }
 
 /* The rays lo..hi of one fan against one shape (cast_sectors' elements): ray i from the
  * origin at ol (in the shape's frame) along (dx[i], dy[i], dz[i]) (world frame), the
- * nearest entering hit kept in row[i]. A branch-free loop over the rays, for the
- * compiler to vectorise: the selects below are numpy's maxima and minima, in order. */
-static void rays_vs_shape(const double *ol, const double *dx, const double *dy,
-                          const double *dz, int64_t lo, int64_t hi, const double *R,
-                          const double *h, const double *q, double rr, int round_,
-                          double max_range, double *row)
+ * nearest entering hit kept in row[i]. Branch-free, for the compiler to vectorise (each
+ * lane does the scalar operations, so the bits are the same); ``round_`` is a constant
+ * at each call below, so each kind of shape gets a loop of its own. */
+static inline __attribute__((always_inline)) void rays_vs(
+    const double *ol, const double *dx, const double *dy, const double *dz, int64_t lo,
+    int64_t hi, const double *R, const double *h, const double *q, double rr,
+    const int round_, double max_range, double *restrict row)
 {
     const double ax = -h[0] - ol[0], bx = h[0] - ol[0];
     const double ay = -h[1] - ol[1], by = h[1] - ol[1];
     const double az = -h[2] - ol[2], bz = h[2] - ol[2];
     const double q0 = q[0], q1 = q[1], q2 = q[2];
-    const double c = q0 * ol[0] * ol[0] + q1 * ol[1] * ol[1] + q2 * ol[2] * ol[2] - rr;
+    const double o0 = ol[0], o1 = ol[1], o2 = ol[2];
+    const double R0 = R[0], R1 = R[1], R2 = R[2], R3 = R[3], R4 = R[4], R5 = R[5],
+                 R6 = R[6], R7 = R[7], R8 = R[8];
+    const double c = q0 * o0 * o0 + q1 * o1 * o1 + q2 * o2 * o2 - rr;
     const double flat0 = c < 0.0 ? -INFINITY : NAN, flat1 = c < 0.0 ? INFINITY : NAN;
     for (int64_t i = lo; i <= hi; i++) {
         const double d0 = dx[i], d1 = dy[i], d2 = dz[i];
-        const double l0 = d0 * R[0] + d1 * R[3] + d2 * R[6];
-        const double l1 = d0 * R[1] + d1 * R[4] + d2 * R[7];
-        const double l2 = d0 * R[2] + d1 * R[5] + d2 * R[8];
+        const double l0 = d0 * R0 + d1 * R3 + d2 * R6;
+        const double l1 = d0 * R1 + d1 * R4 + d2 * R7;
+        const double l2 = d0 * R2 + d1 * R5 + d2 * R8;
         double inv = 1.0 / l0, t1 = ax * inv, t2 = bx * inv;
         double tn = np_fmin(t1, t2), tf = np_fmax(t1, t2);
         inv = 1.0 / l1; t1 = ay * inv; t2 = by * inv;
@@ -57,19 +62,40 @@ static void rays_vs_shape(const double *ol, const double *dx, const double *dy,
         tf = np_min(tf, np_fmax(t1, t2));
         if (round_) {
             const double a = q0 * l0 * l0 + q1 * l1 * l1 + q2 * l2 * l2;
-            const double b = q0 * l0 * ol[0] + q1 * l1 * ol[1] + q2 * l2 * ol[2];
+            const double b = q0 * l0 * o0 + q1 * l1 * o1 + q2 * l2 * o2;
             /* raycast.quadratic_roots; a == 0: along a cylinder's axis */
             const double sq = sqrt(b * b - a * c);
             const double qq = -(b + copysign(sq, b));
             const double x1 = qq / a, x2 = c / qq;
-            const double r0 = a == 0.0 ? flat0 : np_min(x1, x2);
-            const double r1 = a == 0.0 ? flat1 : np_max(x1, x2);
+            const double m0 = np_min(x1, x2), m1 = np_max(x1, x2);
+            const double r0 = (a == 0.0) ? flat0 : m0;
+            const double r1 = (a == 0.0) ? flat1 : m1;
             tn = np_max(tn, r0);
             tf = np_min(tf, r1);
         }
-        const int hit = (tn <= tf) & (tn >= 0.0) & (tn <= max_range) & (tn < row[i]);
-        row[i] = hit ? tn : row[i];
+        /* hit: tn <= tf, 0 <= tn <= max_range, nearer than what the ray has */
+        const double old = row[i];
+        double v = (tn <= tf) ? tn : old;
+        v = (tn >= 0.0) ? v : old;
+        v = (tn <= max_range) ? v : old;
+        row[i] = (tn < old) ? v : old;
     }
+}
+
+static void rays_vs_box(const double *ol, const double *dx, const double *dy,
+                        const double *dz, int64_t lo, int64_t hi, const double *R,
+                        const double *h, const double *q, double rr, double max_range,
+                        double *restrict row)
+{
+    rays_vs(ol, dx, dy, dz, lo, hi, R, h, q, rr, 0, max_range, row);
+}
+
+static void rays_vs_round(const double *ol, const double *dx, const double *dy,
+                          const double *dz, int64_t lo, int64_t hi, const double *R,
+                          const double *h, const double *q, double rr, double max_range,
+                          double *restrict row)
+{
+    rays_vs(ol, dx, dy, dz, lo, hi, R, h, q, rr, 1, max_range, row);
 }
 
 EXPORT int plant_lidar_abi(void) { return 3; }
@@ -207,7 +233,10 @@ EXPORT void plant_lidar_scan(
             for (int k = 0; k < 3; k++)
                 ol[k] = o[0] * R[k] + o[1] * R[3 + k] + o[2] * R[6 + k];
             const double *q = quad + 3 * s;
-            rays_vs_shape(ol, dx, dy, dz, lo, hi, R, h, q, rr[s], q[0] > 0.0, max_range, row);
+            if (q[0] > 0.0)
+                rays_vs_round(ol, dx, dy, dz, lo, hi, R, h, q, rr[s], max_range, row);
+            else
+                rays_vs_box(ol, dx, dy, dz, lo, hi, R, h, q, rr[s], max_range, row);
         }
         for (int64_t i = 0; i < n; i++)
             if (row[i] < min_range)
