@@ -8,7 +8,7 @@ TF2MSGS := $(VENV)/share/tf2_msgs/diffbot-build.txt
 FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
 # the plant's C kernels (lidar, camera): plant/kernels/build/, loaded with ctypes
 KERNELS := plant/kernels/build/.built
-KERNEL_SRC := $(wildcard plant/kernels/*.c) plant/kernels/build.py plant/kernels/__init__.py
+KERNEL_SRC := $(wildcard plant/kernels/*.c plant/kernels/*.h) plant/kernels/build.py plant/kernels/__init__.py
 
 .PHONY: setup demo test test-fast soak bench clean netns-tools
 

@@ -13,24 +13,11 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+#include "npmath.h"
+
 #define EXPORT __attribute__((visibility("default")))
 
 EXPORT int plant_kinematic_abi(void) { return 1; }
-
-/* np.minimum / np.maximum of two doubles: a NaN in, a NaN out */
-static inline double npmin(double a, double b)
-{
-    if (isnan(a) || isnan(b))
-        return NAN;
-    return (b < a) ? b : a;
-}
-
-static inline double npmax(double a, double b)
-{
-    if (isnan(a) || isnan(b))
-        return NAN;
-    return (b > a) ? b : a;
-}
 
 /* The static world as the footprint test sees it (plant.footprint.Footprints). */
 typedef struct {
@@ -42,28 +29,28 @@ typedef struct {
  * each reduced with np.minimum.reduce (a NaN anywhere is the result). */
 static double clearance(const Statics *s, double cx, double cy)
 {
-    double out = npmin(s->half[0] - fabs(cx), s->half[1] - fabs(cy));
+    double out = np_min(s->half[0] - fabs(cx), s->half[1] - fabs(cy));
     if (s->nbox) {
         double least = 0.0;
         for (int64_t b = 0; b < s->nbox; b++) {
             double dx = cx - s->box_c[2 * b], dy = cy - s->box_c[2 * b + 1];
-            double qx = npmax(fabs(dx * s->box_cos[b] + dy * s->box_sin[b]) - s->box_half[2 * b],
+            double qx = np_max(fabs(dx * s->box_cos[b] + dy * s->box_sin[b]) - s->box_half[2 * b],
                               0.0);
-            double qy = npmax(fabs(-dx * s->box_sin[b] + dy * s->box_cos[b])
+            double qy = np_max(fabs(-dx * s->box_sin[b] + dy * s->box_cos[b])
                               - s->box_half[2 * b + 1], 0.0);
             double h = hypot(qx, qy);
-            least = b ? npmin(least, h) : h;
+            least = b ? np_min(least, h) : h;
         }
-        out = npmin(out, least);
+        out = np_min(out, least);
     }
     if (s->ncirc) {
         double least = 0.0;
         for (int64_t c = 0; c < s->ncirc; c++) {
             double d = hypot(cx - s->circ_c[2 * c], cy - s->circ_c[2 * c + 1]) - s->circ_r[c];
-            d = npmax(d, 0.0);
-            least = c ? npmin(least, d) : d;
+            d = np_max(d, 0.0);
+            least = c ? np_min(least, d) : d;
         }
-        out = npmin(out, least);
+        out = np_min(out, least);
     }
     return out;
 }

@@ -17,35 +17,10 @@
 #include <math.h>
 #include <stdint.h>
 
+#include "npmath.h"
+
 #define EXPORT __attribute__((visibility("default")))
 #define PI 3.14159265358979323846
-
-/* numpy's np.maximum / np.minimum: a NaN in either gives NaN; np.fmax / np.fmin: a NaN
- * gives way to the other. Written as selects of doubles (no || ), which the compiler turns
- * into vector blends: the loop below is vectorised, each lane the scalar arithmetic. */
-static inline double np_max(double a, double b)
-{
-    double r = (a >= b) ? a : b;
-    return (a != a) ? a : r;
-}
-
-static inline double np_min(double a, double b)
-{
-    double r = (a <= b) ? a : b;
-    return (a != a) ? a : r;
-}
-
-static inline double np_fmax(double a, double b)
-{
-    double r = (a >= b) ? a : b;
-    return (b != b) ? a : r;
-}
-
-static inline double np_fmin(double a, double b)
-{
-    double r = (a <= b) ? a : b;
-    return (b != b) ? a : r;
-}
 
 /* The rays lo..hi of one fan against one shape (cast_sectors' elements): ray i from the
  * origin at ol (in the shape's frame) along (dx[i], dy[i], dz[i]) (world frame), the
