@@ -273,16 +273,6 @@ def _check_orphan_soon() -> None:
     signal.setitimer(signal.ITIMER_REAL, ORPHAN_CHECK_S)
 
 
-@atexit.register
-def _cancel_orphan_check() -> None:
-    """The interpreter puts SIGALRM back to its default action once the atexit functions
-    have run, and finalizing may take longer than ORPHAN_CHECK_S (a session's threads, an
-    object's finaliser): a check still pending would then end a process that stopped
-    cleanly with SIGALRM. One already ending as an orphan keeps its deadline."""
-    if not _orphan_ending:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-
-
 def _orphan_check(signum, frame) -> None:
     global _orphan_ending
     if os.getppid() != _PARENT:

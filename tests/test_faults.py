@@ -231,9 +231,13 @@ def test_a_node_whose_input_producer_left_exits_4_while_the_plant_holds_time(
     odo = odometry(procs, endpoint, tmp_path)
     sq = start_node(procs, endpoint, tmp_path, "controller", "square_path", "--laps", "50",
                     tag="square")
-    tap = Tap(bus())
+    session = bus()
+    tap = Tap(session)
+    odoms: set[int] = set()
+    session.declare_subscriber(K.topic("robot1", "odom"), lambda s: odoms.add(codec.msg_stamp_ns(
+        codec.decode(s.payload.to_bytes(), "nav_msgs/msg/Odometry"))))
     wait_for(lambda: tap.last_t() >= 1_000_000_000, 60, what="t=1 s")
-    odo.send_signal(signal.SIGKILL)
+    kill_between_ticks(odo, tap, odoms)
     code, took = exits_within(sq, LEASE_S + PRODUCER_EXIT_S + 10)
     log = procs.log(sq)
     assert code == EXIT_INPUT_GONE == 4, log
@@ -245,6 +249,27 @@ def test_a_node_whose_input_producer_left_exits_4_while_the_plant_holds_time(
 
 
 PRODUCER_EXIT_S = 0.5 + 0.2 + SLACK_S      # grace + poll period + scheduling
+
+
+def kill_between_ticks(odo, tap: Tap, odoms: set[int]) -> None:
+    """SIGKILL the odometry node while it has not published the odom of the plant's last
+    tick, so its consumer waits for that odom. (Killed after publishing it and before its
+    ACK reached the plant, the consumer has all it needs and simply waits for a next clock
+    that the plant, holding time for the lost member, never sends: no input is missing.)
+    The node is stopped first (SIGSTOP, well inside its 1 s lease) to look where it is."""
+    for _ in range(50):
+        odo.send_signal(signal.SIGSTOP)
+        t, quiet_since, t0 = tap.last_t(), time.monotonic(), time.monotonic()
+        while time.monotonic() - quiet_since < 0.25 and time.monotonic() - t0 < 0.6:
+            time.sleep(0.02)
+            if tap.last_t() != t:
+                t, quiet_since = tap.last_t(), time.monotonic()
+        if time.monotonic() - quiet_since >= 0.25 and t not in odoms:
+            odo.send_signal(signal.SIGKILL)
+            return
+        odo.send_signal(signal.SIGCONT)
+        tap.wait_sim(0.1)
+    raise AssertionError("never caught the odometry node before its odom of a tick")
 
 
 def test_odometry_killed_in_realtime_its_consumer_stops_steering_blind(

@@ -277,6 +277,11 @@ def test_sim_over_ros2_rep105_odom_robot_description_one_type_and_reset(
     kinds = {e.get("name"): e.get("type") for e in robot.iter("joint")}
     assert set(joints[0].name) <= {n for n, k in kinds.items() if k == "continuous"}
     # one type per topic, one bridge node
+    # (the graph is discovered asynchronously: the bridge's subscriptions may come after its
+    # publications have delivered)
+    wanted = {"/robot1/cmd_vel", "/robot1/cmd_vel_unstamped"}
+    wait_for(lambda: wanted <= set(dict(peer.node.get_topic_names_and_types())), 20,
+             what="the bridge's cmd_vel topics in the ROS 2 graph")
     types = dict(peer.node.get_topic_names_and_types())
     assert types["/robot1/cmd_vel"] == ["geometry_msgs/msg/TwistStamped"]
     assert types["/robot1/cmd_vel_unstamped"] == ["geometry_msgs/msg/Twist"]
