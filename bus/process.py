@@ -19,12 +19,18 @@ bridge, the router): its exit codes, its log, its bus session, its stop signals 
 turns an :class:`Exit` raised anywhere in the body into its logged message and exit code,
 and at the end closes the session (a close that times out is logged, not raised), then
 writes ``--stats`` (after the session closed: a path it cannot write is one logged error,
-never a hang at exit).
+never a hang at exit). A process that seems stuck tells where each of its threads is on
+SIGUSR1 (``kill -USR1 PID``: Python's :mod:`faulthandler`, to its stderr, the run's log;
+it works while the main thread is blocked inside native code, where no Python signal
+handler would run), and goes on.
 """
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
+import signal
+import sys
 import threading
 from typing import Callable
 
@@ -104,6 +110,10 @@ def run_process(body: Callable[[Process], int | None], args: argparse.Namespace,
                 name: str) -> int:
     """Run ``body(Process(args, name))`` in the scaffold (module docstring); its exit code."""
     proc = Process(args, name)
+    try:
+        faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True, chain=False)
+    except (AttributeError, ValueError, OSError):
+        pass     # run in a host whose stderr is no file (a test's captured output)
     try:
         code = body(proc)
     except Exit as exc:

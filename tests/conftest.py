@@ -169,6 +169,19 @@ class Procs:
         with open(p.log_path, "rb") as f:
             return f.read().decode("utf-8", "replace")
 
+    @staticmethod
+    def wait(p, timeout: float, what: str = "the process to exit") -> int:
+        """``p``'s exit code once it exits within ``timeout`` s; else fail with where its
+        threads are (SIGUSR1: bus/process.py has every process dump its stacks to its log)
+        and the end of its log."""
+        try:
+            return p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            p.send_signal(signal.SIGUSR1)
+            time.sleep(0.5)
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}; its log "
+                                 f"ends:\n{Procs.log(p)[-6000:]}") from None
+
     def cleanup(self) -> None:
         for p in self.procs:
             if p.poll() is None:

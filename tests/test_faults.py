@@ -37,7 +37,7 @@ from bus.runtime import EXIT_INPUT_GONE
 from bus.session import OPEN_TIMEOUT_MS
 from plant.modes import STALL_S
 
-from .conftest import ROOT, SLACK_S, require_built_fmus, wait_for
+from .conftest import ROOT, SLACK_S, Procs, require_built_fmus, wait_for
 from .test_scenarios import processes_mentioning
 
 #: serial: kills and freezes processes and times their answers against the wall clock (a second xdist worker would disturb it: tests/conftest.py)
@@ -141,7 +141,7 @@ def odometry(procs, endpoint, tmp_path, *extra, tag="odo"):
 
 def exits_within(p, timeout: float) -> tuple[int, float]:
     t0 = time.monotonic()
-    code = p.wait(timeout)
+    code = Procs.wait(p, timeout, f"{' '.join(p.args[3:5])} to exit")
     return code, time.monotonic() - t0
 
 
@@ -246,6 +246,12 @@ def test_a_node_whose_input_producer_left_exits_4_while_the_plant_holds_time(
     assert took < LEASE_S + PRODUCER_EXIT_S, f"exited {took:.2f} s after the kill"
     assert p.poll() is None, "the plant holds time for the lost member (--rejoin-timeout)"
     tap.check_sane()
+    # docs/failures.md: a process that seems stuck says where its threads are on SIGUSR1
+    p.send_signal(signal.SIGUSR1)
+    wait_for(lambda: "(most recent call first)" in procs.log(p), 10, what="the stack dump")
+    assert "in hold" in procs.log(p), procs.log(p)[-3000:]     # (plant/modes.py: Lockstep.hold)
+    time.sleep(0.2)
+    assert p.poll() is None, "SIGUSR1 does not stop a process"
 
 
 PRODUCER_EXIT_S = 0.5 + 0.2 + SLACK_S      # grace + poll period + scheduling

@@ -234,7 +234,7 @@ def test_the_plant_says_what_is_wrong_with_a_member_s_outputs(procs, endpoint, b
         # Ctrl-C while the member is still there: with its token gone first, the plant may
         # see a member lost (exit 1) before the signal (a race a CI run met)
         plant.send_signal(signal.SIGINT)
-        assert plant.wait(20) == 0
+        assert procs.wait(plant, 20, "the plant to stop on Ctrl-C") == 0
     finally:
         token.undeclare()
         sub.undeclare()
