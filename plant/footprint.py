@@ -81,7 +81,15 @@ class Footprints:
         return float(self.clearances(np.asarray(c, float).reshape(1, 2))[0])
 
     def clearances(self, cs: np.ndarray) -> np.ndarray:
-        """:meth:`clearance` of M points ``cs`` (M, 2) at once, (M,)."""
+        """:meth:`clearance` of M points ``cs`` (M, 2) at once, (M,): one call of
+        plant/kernels/kinematic.c, :meth:`reference_clearances`' arithmetic."""
+        from .kernels import clearances
+        return clearances(np.ascontiguousarray(cs, np.float64).reshape(-1, 2),
+                          self.kernel_args())
+
+    def reference_clearances(self, cs: np.ndarray) -> np.ndarray:
+        """:meth:`clearances` in numpy (the kernel's reference: tests/test_kernels.py
+        compares them to the bit)."""
         least = np.minimum.reduce          # (np.min without its wrapper: the same minimum)
         out = least(self.half - np.abs(cs), axis=1)
         if len(self.box_c):

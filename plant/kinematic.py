@@ -122,7 +122,7 @@ def reference_step(k, targets: np.ndarray) -> None:
 def _blocked(k, x, y, yaw, nx, ny, nyaw) -> np.ndarray:
     """Which robots may not make their move."""
     old, new = footprint_centres(x, y, yaw), footprint_centres(nx, ny, nyaw)
-    c_old, c_new = k.foot.clearances(old), k.foot.clearances(new)
+    c_old, c_new = k.foot.reference_clearances(old), k.foot.reference_clearances(new)
     blocked = (c_new < FOOTPRINT_RADIUS_M) & (c_new < c_old)
     n = len(x)
     if n > 1 and (k.world.size == 0 or np.any(k.world[1:] == k.world[:-1])):

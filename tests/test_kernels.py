@@ -214,3 +214,24 @@ def test_kinematic_kernel_gives_the_numpy_reference_to_the_bit():
         seen["room"] += int(by_room.sum())
         seen["robot"] += int((stopped & ~by_room).sum())
     assert min(seen.values()) > 20, seen
+
+
+@pytest.mark.parametrize("world", ["living_room", "living_room_follow", "empty"])
+def test_footprint_clearances_kernel_gives_the_numpy_reference_to_the_bit(world):
+    """plant/kernels/kinematic.c's clearances (Footprints.clearances: the environments'
+    contacts and free points) against Footprints.reference_clearances: points all
+    over the room and beyond its walls, inside furniture, on a box's corner and a circle's
+    centre exactly, and a NaN (numpy's minimum keeps it); every value equal to the bit."""
+    from plant.footprint import Footprints
+    foot = Footprints(load_world(world))
+    rng = np.random.default_rng(5)
+    hx, hy = foot.box_half.T
+    corners = foot.box_c + np.column_stack([hx * foot.box_cos - hy * foot.box_sin,
+                                            hx * foot.box_sin + hy * foot.box_cos])
+    pts = [rng.uniform(-1.2, 1.2, (4000, 2)) * foot.half, foot.box_c, foot.circ_c, corners,
+           np.array([[np.nan, 0.0], [0.0, np.nan], [0.0, 0.0]])]
+    pts = np.concatenate([p.reshape(-1, 2) for p in pts])
+    got, want = foot.clearances(pts), foot.reference_clearances(pts)
+    assert got.tobytes() == want.tobytes()
+    assert np.isnan(got[-3]) and np.isnan(got[-2]) and got[-1] > 0
+    assert (got <= 0).any() and (got > 0.5).any()        # beyond a wall and far from all

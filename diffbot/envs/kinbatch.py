@@ -73,11 +73,15 @@ class _Scan:
 
     __slots__ = ("ranges", "range_max", "angle_min", "angle_increment")
 
-    def __init__(self, ranges: np.ndarray, cfg) -> None:
+    def __init__(self, ranges: np.ndarray, range_max: float, angle_min: float,
+                 angle_increment: float) -> None:
         self.ranges = ranges
-        self.range_max = float(cfg.max_range_m)
-        self.angle_min = float(cfg.angle_min)
-        self.angle_increment = float(cfg.angle_increment)
+        self.range_max, self.angle_min, self.angle_increment = range_max, angle_min, angle_increment
+
+    @staticmethod
+    def fields(cfg) -> tuple[float, float, float]:
+        """The message's fields of lidar ``cfg``: (range_max, angle_min, angle_increment)."""
+        return float(cfg.max_range_m), float(cfg.angle_min), float(cfg.angle_increment)
 
 
 class _Draws:
@@ -283,6 +287,7 @@ class ArrayTicks:
         sub, step_ns = spec.substeps, int(round(spec.physics_step_s * 1e9))
         drive = _Limiters(sims, names, cmds, self)
         odo_state = tuple(map(kernels.ptr, (pose, vel, last, last_t, r, d)))   # (taken once)
+        scan_fields = _Scan.fields(cfg)
         for _ in range(repeat):
             worlds.step(drive.targets())
             steps += sub
@@ -302,27 +307,29 @@ class ArrayTicks:
                 scans[due] = np.where(np.isfinite(r32), np.clip(r32, 0.0, obs[0].max_range),
                                       hi).astype(np.float32)
                 new_scan[due] = True
-                for j, row in zip(due, r32):
-                    tasks[j].scans[names[j]] = _Scan(row, cfg)
+                for j, row in zip(due.tolist(), r32):
+                    tasks[j].scans[names[j]] = _Scan(row, *scan_fields)
         worlds.finish(steps)
         drive.done()
         for noise in (enc_noise, lid_noise):
             if noise is not None:
                 noise.streams.sync()
         truth = worlds.truth()
-        # the observers' and tasks' state out, the truth at the step's end
-        for j, (task, o, od, p, u, e, te) in enumerate(zip(
-                tasks, obs, odo, pose.tolist(), vel.tolist(), last.tolist(), last_t.tolist())):
+        # the observers' and tasks' state out, the truth at the step's end (an observer's
+        # new scan: a row of this step's array, which nothing writes to after this)
+        for task, od, name, p, u, e, te, t, tr in zip(
+                tasks, odo, names, pose.tolist(), vel.tolist(), last.tolist(),
+                last_t.tolist(), t_ns.tolist(), truth.tolist()):
             od.x, od.y, od.theta = p
             od.v, od.w = u
             od._last = (e[0], e[1])
             od._last_t = te
-            if new_scan[j]:
-                o.scan = scans[j].copy()
-                o._scan_msg = None
-            task.t_ns = int(t_ns[j])
+            task.t_ns = t
             task._ticks_left = 0
-            task.truth = {names[j]: tuple(truth[j].tolist())}
+            task.truth = {name: tuple(tr)}
+        for j in np.flatnonzero(new_scan).tolist():
+            obs[j].scan = scans[j]
+            obs[j]._scan_msg = None
         # AvoidObserver.observation, every world's at once
         x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
         v, om = vel[:, 0], vel[:, 1]
@@ -443,10 +450,12 @@ class _Limiters:
     def done(self) -> None:
         if self.noise is not None:
             self.noise.sync()
-        for j, (lim, robot) in enumerate(zip(self.lims, self.robots)):
-            lim.v, lim.w = float(self.v[j]), float(self.w[j])
-            lim.wheels = (float(self.wheels[j, 0]), float(self.wheels[j, 1]))
-            robot.targets = (float(self.out[j, 0]), float(self.out[j, 1]))
+        for lim, robot, v, w, (wl, wr), (tl, tr) in zip(
+                self.lims, self.robots, self.v.tolist(), self.w.tolist(), self.wheels.tolist(),
+                self.out.tolist()):
+            lim.v, lim.w = v, w
+            lim.wheels = (wl, wr)
+            robot.targets = (tl, tr)
 
 
 def _clamp(x: np.ndarray, lim: float) -> np.ndarray:

@@ -28,6 +28,7 @@ ends with :meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
 """
 from __future__ import annotations
 
+import math
 import os
 import signal
 import socket
@@ -76,6 +77,11 @@ class Worlds:
         #: kinematic worlds ticked as arrays (:mod:`diffbot.envs.kinbatch`; None: every
         #: world through its messages, the path the arrays are tested against)
         self.arrays: ArrayTicks | None = ArrayTicks()
+        # Kept from step to step until the env is reset: ArrayTicks.eligible's answer for
+        # the env's task, and its goal distance where the last array step left it.
+        self._eligible = np.zeros(self.n, bool)
+        self._dist = np.zeros(self.n)
+        self._dist_kept = np.zeros(self.n, bool)
 
     def spaces(self):
         t = self.tasks[0]
@@ -90,6 +96,7 @@ class Worlds:
         task.episode.seed = seed
         self._steps[i] = 0
         self._needs_reset[i] = False
+        self._eligible[i] = self._dist_kept[i] = False
         return obs[self.robot], info[self.robot]
 
     def reset(self, seeds: list[int | None]) -> list[tuple[dict, dict]]:
@@ -103,9 +110,10 @@ class Worlds:
         resets = np.flatnonzero(self._needs_reset)
         live = np.flatnonzero(~self._needs_reset)
         tasks = [self.tasks[i] for i in live]
-        if live.size and self.arrays is not None and self.arrays.eligible(tasks):
+        if live.size and self._arrays_for(live):
             self._step_arrays(live, tasks, np.asarray(actions)[live], out)
         elif live.size:
+            self._dist_kept[live] = False
             cmds = {i: self.tasks[i].begin_step({self.robot: actions[i]}) for i in live}
             self._advance(live.tolist(), cmds)
             for i in live:
@@ -121,17 +129,35 @@ class Worlds:
         self._needs_reset = out.term | out.trunc
         return out.obs, out.rew, out.term, out.trunc, out.infos
 
+    def _arrays_for(self, live: np.ndarray) -> bool:
+        """Whether the ``live`` envs step as arrays (ArrayTicks.eligible, asked of an env's
+        task once after each of its resets: nothing else changes its world's make-up)."""
+        if self.arrays is None:
+            return False
+        unknown = live[~self._eligible[live]]
+        if unknown.size:
+            if not self.arrays.eligible([self.tasks[i] for i in unknown]):
+                return False
+            self._eligible[unknown] = True
+        return True
+
     def _step_arrays(self, live: np.ndarray, tasks: list[AvoidTask], actions: np.ndarray,
                      out: "_Out") -> None:
         """The live envs' step as arrays (:mod:`diffbot.envs.kinbatch`): each task's
         ``begin_step``, ticks and ``end_step`` for all at once, the same numbers."""
         robot, first = self.robot, tasks[0]
         twists = first.drives[robot].commands(actions)
-        before = np.array([t._distance(robot) for t in tasks])
+        before = self._dist[live]                  # where the last step left each robot
+        fresh = np.flatnonzero(~self._dist_kept[live])
+        for j in fresh.tolist():
+            before[j] = tasks[j]._distance(robot)
         made = self.arrays.advance(tasks, twists)
         contact = first.geo.touching(footprint_centres(*made.truth.T))
         goals = np.array([t.goals[robot] for t in tasks], float).reshape(-1, 2)
-        d = np.array([t._distance(robot) for t in tasks])        # by the truth advance left
+        # AvoidTask._distance of each, by the truth advance left
+        d = np.array([math.hypot(gx - x, gy - y) for (gx, gy), (x, y, _)
+                      in zip(goals.tolist(), made.truth.tolist())])
+        self._dist[live], self._dist_kept[live] = d, True
         success = d < first.goal_radius
         rew = step_rewards(before, d, success, contact)
         term = success | contact

@@ -19,13 +19,13 @@ import numpy as np
 
 
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr",
-           "drive_limit", "odometry", "kinematic_step"]
+           "drive_limit", "odometry", "kinematic_step", "clearances"]
 
 ABI = 3
 CAMERA_ABI = 2
 NOISE_ABI = 1
 DRIVE_ABI = 1
-KINEMATIC_ABI = 1
+KINEMATIC_ABI = 2
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -71,6 +71,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_kinematic_step.restype = ctypes.c_int
     lib.plant_kinematic_step.argtypes = ([_I, _D] + [_P] * 8 + [_I] + [_P] * 4 + [_I]
                                          + [_P] * 3 + [_D, _D, _I])
+    lib.plant_clearances.restype = None
+    lib.plant_clearances.argtypes = [_I, _P, _I] + [_P] * 4 + [_I] + [_P] * 4
     lib.plant_lidar_scan.restype = None
     lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
     return lib
@@ -182,6 +184,16 @@ def kinematic_step(n: int, tick_s: float, targets: np.ndarray, robots: tuple[int
     if library().plant_kinematic_step(n, tick_s, ptr(targets), *robots, *statics, foot_r,
                                       centre_x, int(pairs)):
         raise MemoryError("plant_kinematic_step: out of memory")
+
+
+def clearances(pts: np.ndarray, statics: tuple) -> np.ndarray:
+    """:meth:`plant.footprint.Footprints.clearances` of the points ``pts`` (M, 2) float64,
+    C-contiguous (plant/kernels/kinematic.c; ``statics``: the test's
+    :meth:`~plant.footprint.Footprints.kernel_args`): a new (M,) array."""
+    assert pts.ndim == 2 and pts.shape[1] == 2 and pts.dtype == np.float64
+    out = np.empty(len(pts))
+    library().plant_clearances(len(pts), ptr(pts), *statics, ptr(out))
+    return out
 
 
 class LidarWork:

@@ -17,7 +17,7 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_kinematic_abi(void) { return 1; }
+EXPORT int plant_kinematic_abi(void) { return 2; }
 
 /* The static world as the footprint test sees it (plant.footprint.Footprints). */
 typedef struct {
@@ -53,6 +53,17 @@ static double clearance(const Statics *s, double cx, double cy)
         out = np_min(out, least);
     }
     return out;
+}
+
+/* Footprints.clearances of n points pts (n, 2) into out (n). */
+EXPORT void plant_clearances(int64_t n, const double *pts, int64_t nbox, const double *box_c,
+                             const double *box_cos, const double *box_sin,
+                             const double *box_half, int64_t ncirc, const double *circ_c,
+                             const double *circ_r, const double *half, double *out)
+{
+    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half};
+    for (int64_t i = 0; i < n; i++)
+        out[i] = clearance(&s, pts[2 * i], pts[2 * i + 1]);
 }
 
 /* One tick of n robots. targets (n, 2) wheel-speed targets (rad/s, left, right); radius,
