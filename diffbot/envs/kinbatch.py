@@ -34,9 +34,11 @@ A DART world that diverges (not finite) is an error here (FloatingPointError), w
 message path rebuilds it at t = 0 and goes on. What the env never reads is not made (the
 GPS; the ground truth before a step's end); the GPS noise stream is not drawn either, as
 nobody reads it before the world is rebuilt at its next reset. Each env's observer,
-limiter and task keep their state between steps, so
-rendering and resets (through the message path) are the task's own code; the rewards,
-flags and ``info`` of all worlds are :meth:`diffbot.envs.vector.Worlds._step_arrays`'.
+limiter and task keep their state between steps (written back at each step's end; the
+batch also keeps it as arrays, :class:`_Kept`, read again from an env's objects only after
+its reset), so rendering and resets (through the message path) are the task's own code;
+the rewards, flags and ``info`` of all worlds are
+:meth:`diffbot.envs.vector.Worlds._step_arrays`'.
 """
 from __future__ import annotations
 
@@ -205,6 +207,7 @@ class ArrayTicks:
     """The fast path for a batch's tasks (module docstring); :meth:`eligible` says when."""
 
     def __init__(self) -> None:
+        self._kept = _Kept(0)                   # advance's rows, from step to step
         self._draws: dict[int, _Draws] = {}     # id(generator) -> its block of draws
         self._last: dict[int, _Draws] = {}      # the last step's
         self._scene: Scene | None = None
@@ -250,27 +253,35 @@ class ArrayTicks:
             self._scene_of = sim.spec.name
         return self._scene
 
-    def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray) -> Made:
+    def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray,
+                rows: np.ndarray | None = None, fresh: np.ndarray | None = None) -> Made:
         """``action_repeat`` ticks of every task in ``tasks`` with its command (``cmds``,
         (W, 2): v m/s, w rad/s each), each task left as its own ``_observe`` at the step's
-        last tick leaves it (its contacts not judged: the caller's, all at once)."""
+        last tick leaves it (its contacts not judged: the caller's, all at once).
+
+        ``rows`` (W,), the tasks' indices in the caller's batch, keep each task's objects
+        and state (:class:`_Kept`) from this step to its next; ``fresh`` (W,) bool marks the
+        tasks whose objects may have changed since their last step here (a reset): those
+        are read again. Without ``rows`` every task is read from its objects."""
         w = len(tasks)
         self._last, self._draws = self._draws, {}
-        ticks = [t.transport.tick for t in tasks]
-        names = [t.robots[0] for t in tasks]
-        sensors = [tick.sensors[n] for tick, n in zip(ticks, names)]
-        sims = [tick.sim for tick in ticks]
+        if rows is None:
+            k, at = _Kept(w), np.arange(w)
+            k.read(at, tasks)
+        else:
+            k, at = self._kept, np.asarray(rows, np.int64)
+            if len(k.roster) <= int(at.max()):
+                k = self._kept = k.grown(int(at.max()) + 1)
+                fresh = None
+            stale = np.arange(w) if fresh is None else np.flatnonzero(fresh)
+            if stale.size:
+                k.read(at[stale], [tasks[j] for j in stale.tolist()])
+        ticks, names, sensors, sims, obs, odo, lims, robots = (
+            list(c) for c in zip(*[k.roster[i] for i in at.tolist()]))
         worlds = (_Kinematic if sims[0].kin is not None else _Dart)(ticks, sims, names)
-        obs = [t.observers[n] for t, n in zip(tasks, names)]
-        odo = [o.odom for o in obs]
-        # the observers' state in
-        pose = np.array([(o.x, o.y, o.theta) for o in odo], float).reshape(w, 3)
-        vel = np.array([(o.v, o.w) for o in odo], float).reshape(w, 2)
-        last = np.array([o._last for o in odo], float).reshape(w, 2)
-        last_t = np.array([o._last_t for o in odo], float)
-        r = np.array([o.r for o in odo])
-        d = np.array([o.d for o in odo])
-        scans = np.array([o.scan for o in obs])
+        # the observers' and limiters' state in
+        pose, vel, last, last_t = k.pose[at], k.vel[at], k.last[at], k.last_t[at]
+        r, d, scans = k.r[at], k.d[at], k.scans[at]
         new_scan = np.zeros(w, bool)
         models = [s.enc_noise for s in sensors]
         enc_noise = _RowNoise.of(models, [self._draws_of(m, (2,)) for m in models], (2,))
@@ -283,9 +294,10 @@ class ArrayTicks:
         repeat = tasks[0].action_repeat
         # Simulation.time_ns: steps counted, times their length in whole ns
         spec = sims[0].spec
-        steps = np.array([s.steps for s in sims], np.int64)
+        steps = k.steps[at]
         sub, step_ns = spec.substeps, int(round(spec.physics_step_s * 1e9))
-        drive = _Limiters(sims, names, cmds, self)
+        drive = _Limiters(sims, names, lims, robots, k.lim_v[at], k.lim_w[at], k.wheels[at],
+                          cmds, self)
         odo_state = tuple(map(kernels.ptr, (pose, vel, last, last_t, r, d)))   # (taken once)
         scan_fields = _Scan.fields(cfg)
         for _ in range(repeat):
@@ -330,6 +342,7 @@ class ArrayTicks:
         for j in np.flatnonzero(new_scan).tolist():
             obs[j].scan = scans[j]
             obs[j]._scan_msg = None
+        k.keep(at, pose, vel, last, last_t, scans, steps, drive)
         # AvoidObserver.observation, every world's at once
         x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
         v, om = vel[:, 0], vel[:, 1]
@@ -408,20 +421,73 @@ class _Dart:
         return out
 
 
+class _Kept:
+    """A batch's tasks by index, as :meth:`ArrayTicks.advance` left them: each one's objects
+    (``roster``: tick, robot name, sensors, simulation, observer, its odometry, drive
+    limiter, robot) and the state it wrote back to them (the odometry's pose, velocity,
+    last encoder angles and their time, wheel radius and separation, the observer's scan,
+    the world's step count, the limiter's v, w and wheel speeds), so a step reads the
+    arrays, not every task's objects; a task reset since is read again (:meth:`read`)."""
+
+    def __init__(self, n: int) -> None:
+        self.roster: list = [None] * n
+        self.pose, self.vel, self.last = np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2))
+        self.last_t, self.r, self.d = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.scans: np.ndarray | None = None
+        self.steps = np.zeros(n, np.int64)
+        self.lim_v, self.lim_w, self.wheels = np.zeros(n), np.zeros(n), np.zeros((n, 2))
+
+    def grown(self, n: int) -> "_Kept":
+        """Room for ``n`` tasks (what was kept is read again)."""
+        return _Kept(max(n, len(self.roster)))
+
+    def read(self, at: np.ndarray, tasks: Sequence[AvoidTask]) -> None:
+        """Rows ``at`` from ``tasks``' objects (one task each, in order)."""
+        for i, t in zip(at.tolist(), tasks):
+            name = t.robots[0]
+            tick = t.transport.tick
+            sim, o = tick.sim, t.observers[name]
+            self.roster[i] = (tick, name, tick.sensors[name], sim, o, o.odom,
+                              sim.limiters[name], sim.robots[name])
+        objs = [self.roster[i] for i in at.tolist()]
+        odo = [r[5] for r in objs]
+        self.pose[at] = [(o.x, o.y, o.theta) for o in odo]
+        self.vel[at] = [(o.v, o.w) for o in odo]
+        self.last[at] = [o._last for o in odo]
+        self.last_t[at] = [o._last_t for o in odo]
+        self.r[at] = [o.r for o in odo]
+        self.d[at] = [o.d for o in odo]
+        scans = np.array([r[4].scan for r in objs])
+        if self.scans is None:        # (the first read: every row; one spec, one scan shape)
+            self.scans = np.zeros((len(self.roster),) + scans.shape[1:], scans.dtype)
+        self.scans[at] = scans
+        self.steps[at] = [r[3].steps for r in objs]
+        lims = [r[6] for r in objs]
+        self.lim_v[at] = [lim.v for lim in lims]
+        self.lim_w[at] = [lim.w for lim in lims]
+        self.wheels[at] = [lim.wheels for lim in lims]
+
+    def keep(self, at: np.ndarray, pose, vel, last, last_t, scans, steps, drive: "_Limiters"
+             ) -> None:
+        """What a step left (and wrote back to the objects) of rows ``at``."""
+        self.pose[at], self.vel[at], self.last[at], self.last_t[at] = pose, vel, last, last_t
+        self.scans[at], self.steps[at] = scans, steps
+        self.lim_v[at], self.lim_w[at], self.wheels[at] = drive.v, drive.w, drive.wheels
+
+
 class _Limiters:
     """The batch's :class:`plant.drive.DriveLimiter` s and motion noise: each tick's
     wheel-speed targets of every world, as ``Simulation.command_twist`` sets them
     (:meth:`DriveLimiter.from_twist` in plant/kernels/drive.c, then the command noise);
-    the limiters' state is read at the step's start and left at its end."""
+    the limiters' state comes in as arrays (:class:`_Kept`) and is left in the limiters at
+    the step's end."""
 
-    def __init__(self, sims: list, names: list[str], cmds: np.ndarray, ticks: ArrayTicks
+    def __init__(self, sims: list, names: list[str], lims: list, robots: list, v: np.ndarray,
+                 w: np.ndarray, wheels: np.ndarray, cmds: np.ndarray, ticks: ArrayTicks
                  ) -> None:
-        self.lims = [s.limiters[n] for s, n in zip(sims, names)]
-        self.robots = [s.robots[n] for s, n in zip(sims, names)]
+        self.lims, self.robots = lims, robots
         spec = self.lims[0].spec
-        self.v = np.array([lim.v for lim in self.lims], float)
-        self.w = np.array([lim.w for lim in self.lims], float)
-        self.wheels = np.array([lim.wheels for lim in self.lims], float).reshape(-1, 2)
+        self.v, self.w, self.wheels = v, w, wheels      # (the limiters' state: fresh copies)
         self.v_target = _clamp(cmds[:, 0], spec.max_linear_mps)
         self.w_target = _clamp(cmds[:, 1], spec.max_angular_radps)
         dt = sims[0].spec.control_tick_s

@@ -78,10 +78,11 @@ class Worlds:
         #: world through its messages, the path the arrays are tested against)
         self.arrays: ArrayTicks | None = ArrayTicks()
         # Kept from step to step until the env is reset: ArrayTicks.eligible's answer for
-        # the env's task, and its goal distance where the last array step left it.
+        # the env's task; and (``_kept``) its goal distance where the last array step left
+        # it, with its objects and state in ``arrays`` (ArrayTicks.advance's rows).
         self._eligible = np.zeros(self.n, bool)
         self._dist = np.zeros(self.n)
-        self._dist_kept = np.zeros(self.n, bool)
+        self._kept = np.zeros(self.n, bool)
 
     def spaces(self):
         t = self.tasks[0]
@@ -96,7 +97,7 @@ class Worlds:
         task.episode.seed = seed
         self._steps[i] = 0
         self._needs_reset[i] = False
-        self._eligible[i] = self._dist_kept[i] = False
+        self._eligible[i] = self._kept[i] = False
         return obs[self.robot], info[self.robot]
 
     def reset(self, seeds: list[int | None]) -> list[tuple[dict, dict]]:
@@ -113,7 +114,7 @@ class Worlds:
         if live.size and self._arrays_for(live):
             self._step_arrays(live, tasks, np.asarray(actions)[live], out)
         elif live.size:
-            self._dist_kept[live] = False
+            self._kept[live] = False
             cmds = {i: self.tasks[i].begin_step({self.robot: actions[i]}) for i in live}
             self._advance(live.tolist(), cmds)
             for i in live:
@@ -148,16 +149,16 @@ class Worlds:
         robot, first = self.robot, tasks[0]
         twists = first.drives[robot].commands(actions)
         before = self._dist[live]                  # where the last step left each robot
-        fresh = np.flatnonzero(~self._dist_kept[live])
-        for j in fresh.tolist():
+        fresh = ~self._kept[live]
+        for j in np.flatnonzero(fresh).tolist():
             before[j] = tasks[j]._distance(robot)
-        made = self.arrays.advance(tasks, twists)
+        made = self.arrays.advance(tasks, twists, live, fresh)
         contact = first.geo.touching(footprint_centres(*made.truth.T))
         goals = np.array([t.goals[robot] for t in tasks], float).reshape(-1, 2)
         # AvoidTask._distance of each, by the truth advance left
         d = np.array([math.hypot(gx - x, gy - y) for (gx, gy), (x, y, _)
                       in zip(goals.tolist(), made.truth.tolist())])
-        self._dist[live], self._dist_kept[live] = d, True
+        self._dist[live], self._kept[live] = d, True
         success = d < first.goal_radius
         rew = step_rewards(before, d, success, contact)
         term = success | contact
