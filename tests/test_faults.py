@@ -141,7 +141,7 @@ def odometry(procs, endpoint, tmp_path, *extra, tag="odo"):
 
 def exits_within(p, timeout: float) -> tuple[int, float]:
     t0 = time.monotonic()
-    code = Procs.wait(p, timeout, f"{' '.join(p.args[3:5])} to exit")
+    code = Procs.wait(p, timeout, f"{os.path.basename(p.log_path)[:-4]} to exit")
     return code, time.monotonic() - t0
 
 
