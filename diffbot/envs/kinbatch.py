@@ -204,10 +204,11 @@ def _noisy(values: np.ndarray, noise: _RowNoise | None) -> np.ndarray:
 
 
 class ArrayTicks:
-    """The fast path for a batch's tasks (module docstring); :meth:`eligible` says when."""
+    """The fast path for a batch of ``n`` tasks (module docstring); :meth:`eligible` says
+    when."""
 
-    def __init__(self) -> None:
-        self._kept = _Kept(0)                   # advance's rows, from step to step
+    def __init__(self, n: int) -> None:
+        self._kept = _Kept(n)                   # advance's rows, from step to step
         self._draws: dict[int, _Draws] = {}     # id(generator) -> its block of draws
         self._last: dict[int, _Draws] = {}      # the last step's
         self._scene: Scene | None = None
@@ -253,29 +254,22 @@ class ArrayTicks:
             self._scene_of = sim.spec.name
         return self._scene
 
-    def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray,
-                rows: np.ndarray | None = None, fresh: np.ndarray | None = None) -> Made:
+    def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray, rows: np.ndarray,
+                fresh: np.ndarray) -> Made:
         """``action_repeat`` ticks of every task in ``tasks`` with its command (``cmds``,
         (W, 2): v m/s, w rad/s each), each task left as its own ``_observe`` at the step's
         last tick leaves it (its contacts not judged: the caller's, all at once).
 
-        ``rows`` (W,), the tasks' indices in the caller's batch, keep each task's objects
-        and state (:class:`_Kept`) from this step to its next; ``fresh`` (W,) bool marks the
-        tasks whose objects may have changed since their last step here (a reset): those
-        are read again. Without ``rows`` every task is read from its objects."""
+        ``rows`` (W,) are the tasks' indices in the batch: each task's objects and state
+        are kept (:class:`_Kept`) from this step to its next; ``fresh`` (W,) bool marks the
+        tasks whose objects may have changed since their last step here (a reset, or no
+        step yet): those are read again."""
         w = len(tasks)
         self._last, self._draws = self._draws, {}
-        if rows is None:
-            k, at = _Kept(w), np.arange(w)
-            k.read(at, tasks)
-        else:
-            k, at = self._kept, np.asarray(rows, np.int64)
-            if len(k.roster) <= int(at.max()):
-                k = self._kept = k.grown(int(at.max()) + 1)
-                fresh = None
-            stale = np.arange(w) if fresh is None else np.flatnonzero(fresh)
-            if stale.size:
-                k.read(at[stale], [tasks[j] for j in stale.tolist()])
+        k, at = self._kept, np.asarray(rows, np.int64)
+        stale = np.flatnonzero(fresh)
+        if stale.size:
+            k.read(at[stale], [tasks[j] for j in stale.tolist()])
         ticks, names, sensors, sims, obs, odo, lims, robots = (
             list(c) for c in zip(*[k.roster[i] for i in at.tolist()]))
         worlds = (_Kinematic if sims[0].kin is not None else _Dart)(ticks, sims, names)
@@ -436,10 +430,6 @@ class _Kept:
         self.scans: np.ndarray | None = None
         self.steps = np.zeros(n, np.int64)
         self.lim_v, self.lim_w, self.wheels = np.zeros(n), np.zeros(n), np.zeros((n, 2))
-
-    def grown(self, n: int) -> "_Kept":
-        """Room for ``n`` tasks (what was kept is read again)."""
-        return _Kept(max(n, len(self.roster)))
 
     def read(self, at: np.ndarray, tasks: Sequence[AvoidTask]) -> None:
         """Rows ``at`` from ``tasks``' objects (one task each, in order)."""

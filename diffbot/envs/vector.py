@@ -76,7 +76,7 @@ class Worlds:
         self._needs_reset = np.zeros(self.n, bool)
         #: kinematic worlds ticked as arrays (:mod:`diffbot.envs.kinbatch`; None: every
         #: world through its messages, the path the arrays are tested against)
-        self.arrays: ArrayTicks | None = ArrayTicks()
+        self.arrays: ArrayTicks | None = ArrayTicks(self.n)
         # Kept from step to step until the env is reset: ArrayTicks.eligible's answer for
         # the env's task; and (``_kept``) its goal distance where the last array step left
         # it, with its objects and state in ``arrays`` (ArrayTicks.advance's rows).

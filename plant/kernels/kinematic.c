@@ -34,10 +34,10 @@ static double clearance(const Statics *s, double cx, double cy)
         double least = 0.0;
         for (int64_t b = 0; b < s->nbox; b++) {
             double dx = cx - s->box_c[2 * b], dy = cy - s->box_c[2 * b + 1];
-            double qx = np_max(fabs(dx * s->box_cos[b] + dy * s->box_sin[b]) - s->box_half[2 * b],
-                              0.0);
+            double qx = np_max(fabs(dx * s->box_cos[b] + dy * s->box_sin[b])
+                               - s->box_half[2 * b], 0.0);
             double qy = np_max(fabs(-dx * s->box_sin[b] + dy * s->box_cos[b])
-                              - s->box_half[2 * b + 1], 0.0);
+                               - s->box_half[2 * b + 1], 0.0);
             double h = hypot(qx, qy);
             least = b ? np_min(least, h) : h;
         }
