@@ -145,15 +145,17 @@ def scan(config: LidarConfig, robot_pose: np.ndarray,
 
 
 def scan_many(config: LidarConfig, robot_poses, scene: Scene,
-              exclude_owners: Sequence[str | None]) -> np.ndarray:
+              exclude_owners: Sequence[str | None], threads: int = 1) -> np.ndarray:
     """:func:`scan` for G robots carrying the same lidar: (G, num_rays), row g bit for bit
     what ``scan(config, robot_poses[g], scene, exclude_owners[g])`` gives.
 
     One call of the C kernel (plant/kernels/lidar.c) for every robot: each shape is
     tested on the rays of its bearing sector only, with the arithmetic of
-    :func:`scan_many_reference` (the numpy code the tests compare it with), the same bits."""
+    :func:`scan_many_reference` (the numpy code the tests compare it with), the same bits.
+    ``threads`` > 1 splits the robots over up to that many threads (at least 8 robots
+    each: plant/kernels/lidar.c), the same bits."""
     base = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4)
-    ws = kernels.lidar_work(base.shape[0], config.num_rays)
+    ws = kernels.lidar_work(base.shape[0], config.num_rays, threads)
     # _fans, into the reused buffers (the same matmuls, the same bits)
     np.matmul(base, _mount_pose(config), out=ws.poses)
     np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None],

@@ -53,6 +53,22 @@ def test_lidar_kernel_gives_the_numpy_reference_to_the_bit(world, robot):
     assert np.isinf(got).any() and np.isfinite(got).any()
 
 
+def test_lidar_kernel_split_over_threads_gives_the_same_bits():
+    """A batch's lidars cast on several threads (each a contiguous part of the fans, at
+    least 8 each; parts of unequal size) are the same bits as on one, and the reference's."""
+    spec = load_world("living_room")
+    scene = Scene(Simulation(spec).shapes())
+    cfg = spec.robot("robot1").sensors.lidar or LidarConfig()
+    rng = np.random.default_rng(3)
+    poses = _poses(rng, np.eye(4), 37, tilt=0.2)
+    owners = ["robot1", None] * 18 + [None]
+    want = scan_many_reference(cfg, poses, scene, owners)
+    assert np.isfinite(want).any()
+    for threads in (1, 2, 3, 4, 5, 64):
+        got = scan_many(cfg, poses, scene, owners, threads)
+        assert got.tobytes() == want.tobytes(), threads
+
+
 def test_lidar_sweeps_of_several_worlds_in_one_call_are_each_worlds_own():
     """A batched environment's worlds: robots in different copies of a world (moved
     differently) cast in one call, each row the bits of its own world's scan."""

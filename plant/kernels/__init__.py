@@ -21,7 +21,7 @@ import numpy as np
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr",
            "drive_limit", "odometry", "kinematic_step", "clearances"]
 
-ABI = 3
+ABI = 4
 CAMERA_ABI = 2
 NOISE_ABI = 1
 DRIVE_ABI = 1
@@ -74,7 +74,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_clearances.restype = None
     lib.plant_clearances.argtypes = [_I, _P, _I] + [_P] * 4 + [_I] + [_P] * 4
     lib.plant_lidar_scan.restype = None
-    lib.plant_lidar_scan.argtypes = [_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4 + [_P, _P]
+    lib.plant_lidar_scan.argtypes = ([_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4
+                                     + [_P, _P, _I])
     return lib
 
 
@@ -105,7 +106,7 @@ def lidar_scan(scene_arrays: tuple[int, ...], n_shapes: int, poses: np.ndarray,
         *scene_arrays, n_shapes, g, n, ptr(poses), ptr(dirs), ptr(skip_owner),
         None if first_shape is None else ptr(first_shape),
         None if last_shape is None else ptr(last_shape), a0, inc, min_range, max_range,
-        out.ctypes.data, work.ctypes.data)
+        out.ctypes.data, work.ctypes.data, 1)
     return out
 
 
@@ -200,32 +201,33 @@ class LidarWork:
     """Buffers of one call shape (G fans of n rays), reused call after call with their
     addresses taken once (an address costs more than the kernel's work on a small fan):
     ``poses`` (G, 4, 4), ``dirs`` (G, n, 3), ``skip`` (G,) int64, ``out`` (G, n), and the
-    kernel's scratch."""
+    kernel's scratch for ``threads`` threads (the fans split between them: the same
+    ranges)."""
 
-    def __init__(self, g: int, n: int) -> None:
+    def __init__(self, g: int, n: int, threads: int = 1) -> None:
         self.poses = np.zeros((g, 4, 4))
         self.dirs = np.zeros((g, n, 3))
         self.skip = np.zeros(g, dtype=np.int64)
         self.out = np.zeros((g, n))
-        self.work = np.zeros(3 * n)
-        self.g, self.n = g, n
+        self.work = np.zeros(3 * n * threads)
+        self.g, self.n, self.threads = g, n, threads
         self.ptrs = tuple(a.ctypes.data for a in (self.poses, self.dirs, self.skip))
-        self.out_ptrs = (self.out.ctypes.data, self.work.ctypes.data)
+        self.out_ptrs = (self.out.ctypes.data, self.work.ctypes.data, threads)
 
 
 _local = threading.local()
 
 
-def lidar_work(g: int, n: int) -> LidarWork:
-    """This thread's buffers for G fans of n rays."""
+def lidar_work(g: int, n: int, threads: int = 1) -> LidarWork:
+    """This thread's buffers for G fans of n rays, cast on up to ``threads`` threads."""
     cache = getattr(_local, "lidar", None)
     if cache is None:
         cache = _local.lidar = {}
-    ws = cache.get((g, n))
+    ws = cache.get((g, n, threads))
     if ws is None:
         if len(cache) > 16:
             cache.clear()
-        ws = cache[(g, n)] = LidarWork(g, n)
+        ws = cache[(g, n, threads)] = LidarWork(g, n, threads)
     return ws
 
 

@@ -45,7 +45,7 @@ def build(out_dir: Path = BUILD_DIR) -> Path:
     target = out_dir / LIBRARY
     fd, tmp = tempfile.mkstemp(prefix=".lib-", suffix=target.suffix, dir=out_dir)
     os.close(fd)
-    cmd = [*find_c_compiler(), *CFLAGS, "-o", tmp, *map(str, SOURCES), "-lm"]
+    cmd = [*find_c_compiler(), *CFLAGS, "-pthread", "-o", tmp, *map(str, SOURCES), "-lm"]
     try:
         subprocess.run(cmd, check=True)
         os.replace(tmp, target)

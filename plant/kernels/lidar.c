@@ -15,6 +15,7 @@
  * the range of shapes [first, last) it sees (several worlds may share one call).
  */
 #include <math.h>
+#include <pthread.h>
 #include <stdint.h>
 
 #include "npmath.h"
@@ -92,7 +93,7 @@ static void rays_vs_round(const double *ol, const double *dx, const double *dy,
     rays_vs(ol, dx, dy, dz, lo, hi, R, h, q, rr, 1, max_range, row);
 }
 
-EXPORT int plant_lidar_abi(void) { return 3; }
+EXPORT int plant_lidar_abi(void) { return 4; }
 
 /* atan2 to within 2e-5 rad (a minimax polynomial for atan on [0, 1]; the culls below
  * widen every angle they take from it by SLACK, so they stay conservative) */
@@ -179,38 +180,41 @@ static int sector(const double *rel, const double *A, const double *h, double ra
     return 1;
 }
 
-/* Nearest entering hit of every ray of every fan: out (G x n), +inf where none,
- * work: room for 3 n doubles, and a
- * hit nearer than min_range reported as +inf (it still occludes what lies behind).
- * poses: the sensors' world poses (G x 16, row-major 4x4); ray i of a fan points at
- * a0 + i inc in its sensor's plane (used only to skip the rays outside a shape's bearing
- * sector). first_shape / last_shape: the shapes [first, last) fan g sees (NULL: all). */
-EXPORT void plant_lidar_scan(
-    const double *centers, const double *rot, const double *halves, const double *quad,
-    const double *rr, const double *radii, const int64_t *owner, int64_t n_shapes,
-    int64_t n_fans, int64_t n, const double *poses, const double *dirs,
-    const int64_t *skip_owner, const int64_t *first_shape, const int64_t *last_shape,
-    double a0, double inc, double min_range, double max_range, double *out, double *work)
+/* The scene and the fans of one call (plant_lidar_scan's arguments). */
+typedef struct {
+    const double *centers, *rot, *halves, *quad, *rr, *radii;
+    const int64_t *owner;
+    int64_t n_shapes, n;
+    const double *poses, *dirs;
+    const int64_t *skip_owner, *first_shape, *last_shape;
+    double a0, inc, min_range, max_range;
+    double *out;
+} Fans;
+
+/* Fans g0 .. g1 - 1 of ``a`` (each fan's row of ``out`` is its own: fans split over
+ * threads give the bits they give in one). work: room for 3 n doubles. */
+static void scan_fans(const Fans *a, int64_t g0, int64_t g1, double *work)
 {
+    const int64_t n = a->n;
     double *dx = work, *dy = work + n, *dz = work + 2 * n;
-    for (int64_t g = 0; g < n_fans; g++) {
-        double *row = out + g * n;
+    for (int64_t g = g0; g < g1; g++) {
+        double *row = a->out + g * n;
         for (int64_t i = 0; i < n; i++)
             row[i] = INFINITY;
-        const double *P = poses + 16 * g;
+        const double *P = a->poses + 16 * g;
         const double org[3] = {P[3], P[7], P[11]};
-        const double *fd = dirs + 3 * n * g;
+        const double *fd = a->dirs + 3 * n * g;
         for (int64_t i = 0; i < n; i++) {          /* the rays as columns (SoA) */
             dx[i] = fd[3 * i];
             dy[i] = fd[3 * i + 1];
             dz[i] = fd[3 * i + 2];
         }
-        int64_t s0 = first_shape ? first_shape[g] : 0;
-        int64_t s1 = last_shape ? last_shape[g] : n_shapes;
+        int64_t s0 = a->first_shape ? a->first_shape[g] : 0;
+        int64_t s1 = a->last_shape ? a->last_shape[g] : a->n_shapes;
         for (int64_t s = s0; s < s1; s++) {
-            if (owner[s] == skip_owner[g])
+            if (a->owner[s] == a->skip_owner[g])
                 continue;
-            const double *c = centers + 3 * s, *R = rot + 9 * s, *h = halves + 3 * s;
+            const double *c = a->centers + 3 * s, *R = a->rot + 9 * s, *h = a->halves + 3 * s;
             double o[3] = {org[0] - c[0], org[1] - c[1], org[2] - c[2]};
             /* the cull, in the sensor's frame: the centre, the shape's axes */
             double rel[3], A[9];
@@ -220,20 +224,78 @@ EXPORT void plant_lidar_scan(
                     A[3 * k + i] = R[k] * P[i] + R[3 + k] * P[4 + i] + R[6 + k] * P[8 + i];
             }
             int64_t lo, hi;
-            if (!sector(rel, A, h, radii[s], n, a0, inc, max_range, &lo, &hi))
+            if (!sector(rel, A, h, a->radii[s], n, a->a0, a->inc, a->max_range, &lo, &hi))
                 continue;
             /* the origin in the shape's frame, as cast_sectors computes it per pair */
             double ol[3];
             for (int k = 0; k < 3; k++)
                 ol[k] = o[0] * R[k] + o[1] * R[3 + k] + o[2] * R[6 + k];
-            const double *q = quad + 3 * s;
+            const double *q = a->quad + 3 * s;
             if (q[0] > 0.0)
-                rays_vs_round(ol, dx, dy, dz, lo, hi, R, h, q, rr[s], max_range, row);
+                rays_vs_round(ol, dx, dy, dz, lo, hi, R, h, q, a->rr[s], a->max_range, row);
             else
-                rays_vs_box(ol, dx, dy, dz, lo, hi, R, h, q, rr[s], max_range, row);
+                rays_vs_box(ol, dx, dy, dz, lo, hi, R, h, q, a->rr[s], a->max_range, row);
         }
         for (int64_t i = 0; i < n; i++)
-            if (row[i] < min_range)
+            if (row[i] < a->min_range)
                 row[i] = INFINITY;
+    }
+}
+
+typedef struct {
+    const Fans *fans;
+    int64_t g0, g1;
+    double *work;
+} Part;
+
+static void *scan_part(void *arg)
+{
+    const Part *p = (const Part *)arg;
+    scan_fans(p->fans, p->g0, p->g1, p->work);
+    return NULL;
+}
+
+#define MAX_THREADS 64
+#define MIN_FANS_PER_THREAD 8        /* a thread costs about what a few scans do */
+
+/* Nearest entering hit of every ray of every fan: out (G x n), +inf where none, and a
+ * hit nearer than min_range reported as +inf (it still occludes what lies behind).
+ * poses: the sensors' world poses (G x 16, row-major 4x4); ray i of a fan points at
+ * a0 + i inc in its sensor's plane (used only to skip the rays outside a shape's bearing
+ * sector). first_shape / last_shape: the shapes [first, last) fan g sees (NULL: all).
+ * n_threads: at most that many threads (this one included), each with a contiguous part
+ * of at least MIN_FANS_PER_THREAD fans (a thread that cannot be started leaves its part
+ * to this one); work: room for 3 n doubles per thread. The result does not depend on
+ * n_threads. */
+EXPORT void plant_lidar_scan(
+    const double *centers, const double *rot, const double *halves, const double *quad,
+    const double *rr, const double *radii, const int64_t *owner, int64_t n_shapes,
+    int64_t n_fans, int64_t n, const double *poses, const double *dirs,
+    const int64_t *skip_owner, const int64_t *first_shape, const int64_t *last_shape,
+    double a0, double inc, double min_range, double max_range, double *out, double *work,
+    int64_t n_threads)
+{
+    const Fans fans = {centers, rot, halves, quad, rr, radii, owner, n_shapes, n, poses, dirs,
+                       skip_owner, first_shape, last_shape, a0, inc, min_range, max_range, out};
+    int64_t t_n = n_threads < 1 ? 1 : (n_threads > MAX_THREADS ? MAX_THREADS : n_threads);
+    if (t_n > n_fans / MIN_FANS_PER_THREAD)
+        t_n = n_fans / MIN_FANS_PER_THREAD < 1 ? 1 : n_fans / MIN_FANS_PER_THREAD;
+    if (t_n == 1) {
+        scan_fans(&fans, 0, n_fans, work);
+        return;
+    }
+    Part parts[MAX_THREADS];
+    pthread_t threads[MAX_THREADS];
+    int started[MAX_THREADS];
+    for (int64_t t = 0; t < t_n; t++) {
+        parts[t] = (Part){&fans, n_fans * t / t_n, n_fans * (t + 1) / t_n, work + 3 * n * t};
+        started[t] = t > 0 && pthread_create(&threads[t], NULL, scan_part, &parts[t]) == 0;
+    }
+    scan_part(&parts[0]);
+    for (int64_t t = 1; t < t_n; t++) {
+        if (started[t])
+            pthread_join(threads[t], NULL);
+        else
+            scan_part(&parts[t]);
     }
 }
