@@ -38,6 +38,20 @@ def _same_infos(a: dict, b: dict) -> bool:
     return True
 
 
+def _objects(task) -> tuple:
+    """What a task's objects hold between steps (the array path writes it back only when
+    asked: ArrayTicks.flush): odometry, observer scan, limiter, wheel targets, world clock,
+    the task's time, truth and last scan (what its render draws)."""
+    name = task.robots[0]
+    sim, obs = task.transport.tick.sim, task.observers[name]
+    od, lim = obs.odom, sim.limiters[name]
+    scan = task.scans.get(name)
+    return (od.x, od.y, od.theta, od.v, od.w, tuple(od._last), od._last_t, lim.v, lim.w,
+            tuple(lim.wheels), tuple(sim.robots[name].targets), sim.steps, task.t_ns,
+            task._ticks_left, task.truth, np.asarray(obs.scan).tobytes(),
+            None if scan is None else np.asarray(scan.ranges, np.float32).tobytes())
+
+
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("mode", ["kinematic", "dynamic"])
 def test_each_batched_env_is_the_single_env_with_its_seed(mode):
@@ -179,6 +193,9 @@ def test_worlds_ticked_as_arrays_give_the_messages_numbers(mode, repeat, normali
             contacts += int(np.sum(ra[4]["contact"]))
             if step % 25 == 24:
                 assert all(np.array_equal(x, y) for x, y in zip(fast.render(), slow.render()))
+            if step % 25 == 12:      # (the objects up to date without a render first)
+                assert ([_objects(t) for t in fast.unwrapped.tasks]
+                        == [_objects(t) for t in slow.unwrapped.tasks]), f"objects at {step}"
         assert contacts >= 2, "no episode ended on a contact"
         # the noise drawn ahead is kept for the worlds' current streams only (three each:
         # encoders, lidar, commands), not for every episode's since the start

@@ -33,11 +33,12 @@ and poses read back into arrays. Everything else is arrays:
 A DART world that diverges (not finite) is an error here (FloatingPointError), where the
 message path rebuilds it at t = 0 and goes on. What the env never reads is not made (the
 GPS; the ground truth before a step's end); the GPS noise stream is not drawn either, as
-nobody reads it before the world is rebuilt at its next reset. Each env's observer,
-limiter and task keep their state between steps (written back at each step's end; the
-batch also keeps it as arrays, :class:`_Kept`, read again from an env's objects only after
-its reset), so rendering and resets (through the message path) are the task's own code;
-the rewards, flags and ``info`` of all worlds are
+nobody reads it before the world is rebuilt at its next reset. Between steps the batch
+keeps each env's state as arrays (:class:`_Kept`: read from an env's objects once after
+its reset), and writes it back to the env's observer, odometry, limiter, world and task
+only when something is to read them (:meth:`ArrayTicks.flush`: a render, a reset, the
+message path, :attr:`AvoidVectorEnv.tasks`), so rendering and resets are the task's own
+code; the rewards, flags and ``info`` of all worlds are
 :meth:`diffbot.envs.vector.Worlds._step_arrays`'.
 """
 from __future__ import annotations
@@ -205,9 +206,11 @@ def _noisy(values: np.ndarray, noise: _RowNoise | None) -> np.ndarray:
 
 class ArrayTicks:
     """The fast path for a batch of ``n`` tasks (module docstring); :meth:`eligible` says
-    when."""
+    when. Its lidars are cast on up to ``threads`` threads (:func:`plant.lidar.scan_many`:
+    the same bits whatever their number)."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, threads: int = 1) -> None:
+        self.threads = int(threads)
         self._kept = _Kept(n)                   # advance's rows, from step to step
         self._draws: dict[int, _Draws] = {}     # id(generator) -> its block of draws
         self._last: dict[int, _Draws] = {}      # the last step's
@@ -254,24 +257,35 @@ class ArrayTicks:
             self._scene_of = sim.spec.name
         return self._scene
 
+    def flush(self, rows: np.ndarray | None = None) -> None:
+        """Rows ``rows``' (None: every row's) objects brought up to date with the state the
+        steps left in the arrays (:class:`_Kept`): to be called before anything reads or
+        changes a task's objects (its observer, odometry, limiter, world, truth, scans)."""
+        k = self._kept
+        k.flush(np.flatnonzero(k.dirty) if rows is None else np.asarray(rows, np.int64))
+
     def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray, rows: np.ndarray,
                 fresh: np.ndarray) -> Made:
         """``action_repeat`` ticks of every task in ``tasks`` with its command (``cmds``,
-        (W, 2): v m/s, w rad/s each), each task left as its own ``_observe`` at the step's
-        last tick leaves it (its contacts not judged: the caller's, all at once).
+        (W, 2): v m/s, w rad/s each), each task's state left as its own ``_observe`` at the
+        step's last tick leaves it (its contacts not judged: the caller's, all at once).
 
         ``rows`` (W,) are the tasks' indices in the batch: each task's objects and state
-        are kept (:class:`_Kept`) from this step to its next; ``fresh`` (W,) bool marks the
-        tasks whose objects may have changed since their last step here (a reset, or no
-        step yet): those are read again."""
+        are kept (:class:`_Kept`) from this step to its next, and written back to the
+        objects by :meth:`flush`; ``fresh`` (W,) bool marks the tasks whose objects may
+        have changed since their last step here (a reset, or no step yet; flushed before
+        it): those are read again."""
         w = len(tasks)
         self._last, self._draws = self._draws, {}
         k, at = self._kept, np.asarray(rows, np.int64)
         stale = np.flatnonzero(fresh)
         if stale.size:
+            if k.dirty[at[stale]].any():
+                raise RuntimeError("an env's objects were changed before its state was "
+                                   "written back (ArrayTicks.flush)")
             k.read(at[stale], [tasks[j] for j in stale.tolist()])
-        ticks, names, sensors, sims, obs, odo, lims, robots = (
-            list(c) for c in zip(*[k.roster[i] for i in at.tolist()]))
+        ticks, names, sensors, sims, obs = (
+            list(c) for c in zip(*[k.roster[i][:5] for i in at.tolist()]))
         worlds = (_Kinematic if sims[0].kin is not None else _Dart)(ticks, sims, names)
         # the observers' and limiters' state in
         pose, vel, last, last_t = k.pose[at], k.vel[at], k.last[at], k.last_t[at]
@@ -283,6 +297,7 @@ class ArrayTicks:
         models = [s.lidar_noise for s in sensors]
         lid_noise = _RowNoise.of(models, [self._draws_of(m, (cfg.num_rays,)) for m in models],
                                  (cfg.num_rays,))
+        raw = np.empty((w, cfg.num_rays), np.float32)   # each one's last scan, as sent
         period = sensors[0].periods["scan"]
         tick_ns = ticks[0].tick_ns
         repeat = tasks[0].action_repeat
@@ -290,10 +305,8 @@ class ArrayTicks:
         spec = sims[0].spec
         steps = k.steps[at]
         sub, step_ns = spec.substeps, int(round(spec.physics_step_s * 1e9))
-        drive = _Limiters(sims, names, lims, robots, k.lim_v[at], k.lim_w[at], k.wheels[at],
-                          cmds, self)
+        drive = _Limiters(sims, names, k.lim_v[at], k.lim_w[at], k.wheels[at], cmds, self)
         odo_state = tuple(map(kernels.ptr, (pose, vel, last, last_t, r, d)))   # (taken once)
-        scan_fields = _Scan.fields(cfg)
         for _ in range(repeat):
             worlds.step(drive.targets())
             steps += sub
@@ -305,38 +318,24 @@ class ArrayTicks:
             due = np.flatnonzero((t_ns // tick_ns) % period == 0)
             if due.size:
                 scene = self._static_scene(sims[0])
-                exact = lid.scan_many(cfg, worlds.transforms(due), scene, [None] * due.size)
+                exact = lid.scan_many(cfg, worlds.transforms(due), scene, [None] * due.size,
+                                      self.threads)
                 ranges = _lidar_noise(cfg, exact, None if lid_noise is None
                                       else lid_noise.rows(due))
-                r32 = ranges.astype(np.float32)
+                r32 = raw[due] = ranges.astype(np.float32)
                 hi = np.float32(obs[0].max_range)
                 scans[due] = np.where(np.isfinite(r32), np.clip(r32, 0.0, obs[0].max_range),
                                       hi).astype(np.float32)
                 new_scan[due] = True
-                for j, row in zip(due.tolist(), r32):
-                    tasks[j].scans[names[j]] = _Scan(row, *scan_fields)
-        worlds.finish(steps)
-        drive.done()
+        worlds.finish()
+        if drive.noise is not None:
+            drive.noise.sync()
         for noise in (enc_noise, lid_noise):
             if noise is not None:
                 noise.streams.sync()
         truth = worlds.truth()
-        # the observers' and tasks' state out, the truth at the step's end (an observer's
-        # new scan: a row of this step's array, which nothing writes to after this)
-        for task, od, name, p, u, e, te, t, tr in zip(
-                tasks, odo, names, pose.tolist(), vel.tolist(), last.tolist(),
-                last_t.tolist(), t_ns.tolist(), truth.tolist()):
-            od.x, od.y, od.theta = p
-            od.v, od.w = u
-            od._last = (e[0], e[1])
-            od._last_t = te
-            task.t_ns = t
-            task._ticks_left = 0
-            task.truth = {name: tuple(tr)}
-        for j in np.flatnonzero(new_scan).tolist():
-            obs[j].scan = scans[j]
-            obs[j]._scan_msg = None
-        k.keep(at, pose, vel, last, last_t, scans, steps, drive)
+        # kept, for the next step and for flush (the objects are not written here)
+        k.keep(at, pose, vel, last, last_t, scans, steps, drive, t_ns, truth, raw, new_scan)
         # AvoidObserver.observation, every world's at once
         x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
         v, om = vel[:, 0], vel[:, 1]
@@ -368,12 +367,10 @@ class _Kinematic:
     def transforms(self, idx: np.ndarray) -> np.ndarray:
         return self.batch.transforms()[idx]
 
-    def finish(self, steps: np.ndarray) -> None:
-        """The step's end: the worlds' clocks (Simulation.steps) where the ticks left them."""
+    def finish(self) -> None:
+        """The step's end (the worlds' clocks, Simulation.steps: :meth:`ArrayTicks.flush`)."""
         if not self.batch.finite():     # (not a number stays one: checked once a step)
             raise FloatingPointError("a kinematic world of the batch is no longer finite")
-        for sim, k in zip(self.sims, steps.tolist()):
-            sim.steps = k
 
     def truth(self) -> np.ndarray:
         return truths(self.batch.pose)
@@ -401,7 +398,7 @@ class _Dart:
     def transforms(self, idx: np.ndarray) -> np.ndarray:
         return np.array([self.robots[j].transform() for j in idx.tolist()])
 
-    def finish(self, steps: np.ndarray) -> None:
+    def finish(self) -> None:
         pass                                         # (Tick.step counted the steps)
 
     def truth(self) -> np.ndarray:
@@ -418,18 +415,26 @@ class _Dart:
 class _Kept:
     """A batch's tasks by index, as :meth:`ArrayTicks.advance` left them: each one's objects
     (``roster``: tick, robot name, sensors, simulation, observer, its odometry, drive
-    limiter, robot) and the state it wrote back to them (the odometry's pose, velocity,
-    last encoder angles and their time, wheel radius and separation, the observer's scan,
-    the world's step count, the limiter's v, w and wheel speeds), so a step reads the
-    arrays, not every task's objects; a task reset since is read again (:meth:`read`)."""
+    limiter, robot, task) and its state (the odometry's pose, velocity, last encoder angles
+    and their time, wheel radius and separation, the observer's scan, the world's step
+    count, the limiter's v, w and wheel speeds; the robot's wheel targets, the task's time
+    and ground truth, its last scan as sent), so a step reads the arrays, not every task's
+    objects (a task reset since is read again: :meth:`read`). ``dirty``: the rows whose
+    objects are behind the arrays (:meth:`ArrayTicks.flush` writes them back);
+    ``new_scan``: those with a scan since their last write-back."""
 
     def __init__(self, n: int) -> None:
         self.roster: list = [None] * n
         self.pose, self.vel, self.last = np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2))
         self.last_t, self.r, self.d = np.zeros(n), np.zeros(n), np.zeros(n)
         self.scans: np.ndarray | None = None
+        self.raw: np.ndarray | None = None
         self.steps = np.zeros(n, np.int64)
         self.lim_v, self.lim_w, self.wheels = np.zeros(n), np.zeros(n), np.zeros((n, 2))
+        self.targets, self.truth = np.zeros((n, 2)), np.zeros((n, 3))
+        self.t_ns = np.zeros(n, np.int64)
+        self.dirty, self.new_scan = np.zeros(n, bool), np.zeros(n, bool)
+        self.scan_fields: tuple = ()
 
     def read(self, at: np.ndarray, tasks: Sequence[AvoidTask]) -> None:
         """Rows ``at`` from ``tasks``' objects (one task each, in order)."""
@@ -438,7 +443,7 @@ class _Kept:
             tick = t.transport.tick
             sim, o = tick.sim, t.observers[name]
             self.roster[i] = (tick, name, tick.sensors[name], sim, o, o.odom,
-                              sim.limiters[name], sim.robots[name])
+                              sim.limiters[name], sim.robots[name], t)
         objs = [self.roster[i] for i in at.tolist()]
         odo = [r[5] for r in objs]
         self.pose[at] = [(o.x, o.y, o.theta) for o in odo]
@@ -450,6 +455,8 @@ class _Kept:
         scans = np.array([r[4].scan for r in objs])
         if self.scans is None:        # (the first read: every row; one spec, one scan shape)
             self.scans = np.zeros((len(self.roster),) + scans.shape[1:], scans.dtype)
+            self.raw = np.zeros((len(self.roster),) + scans.shape[1:], np.float32)
+            self.scan_fields = _Scan.fields(objs[0][2].lidar)
         self.scans[at] = scans
         self.steps[at] = [r[3].steps for r in objs]
         lims = [r[6] for r in objs]
@@ -457,26 +464,65 @@ class _Kept:
         self.lim_w[at] = [lim.w for lim in lims]
         self.wheels[at] = [lim.wheels for lim in lims]
 
-    def keep(self, at: np.ndarray, pose, vel, last, last_t, scans, steps, drive: "_Limiters"
-             ) -> None:
-        """What a step left (and wrote back to the objects) of rows ``at``."""
+    def keep(self, at: np.ndarray, pose, vel, last, last_t, scans, steps, drive: "_Limiters",
+             t_ns, truth, raw, new_scan) -> None:
+        """What a step left of rows ``at`` (its objects now behind: ``dirty``)."""
         self.pose[at], self.vel[at], self.last[at], self.last_t[at] = pose, vel, last, last_t
         self.scans[at], self.steps[at] = scans, steps
         self.lim_v[at], self.lim_w[at], self.wheels[at] = drive.v, drive.w, drive.wheels
+        self.targets[at], self.t_ns[at], self.truth[at] = drive.out, t_ns, truth
+        got = at[new_scan]
+        self.raw[got] = raw[new_scan]
+        self.new_scan[got] = True
+        self.dirty[at] = True
+
+    def flush(self, rows: np.ndarray) -> None:
+        """Rows ``rows``' state written back to their objects, as the message path leaves
+        them after a step: the odometry, the observer's scan (a copy), the limiter, the
+        robot's wheel targets, the world's step count, the task's time, truth and last scan
+        (:class:`_Scan`, what :meth:`AvoidTask.render` draws)."""
+        rows = rows[self.dirty[rows]]
+        if not rows.size:
+            return
+        at = rows.tolist()
+        for i, p, u, e, te, n, v, w, wh, tg, t, tr in zip(
+                at, self.pose[rows].tolist(), self.vel[rows].tolist(),
+                self.last[rows].tolist(), self.last_t[rows].tolist(),
+                self.steps[rows].tolist(), self.lim_v[rows].tolist(),
+                self.lim_w[rows].tolist(), self.wheels[rows].tolist(),
+                self.targets[rows].tolist(), self.t_ns[rows].tolist(),
+                self.truth[rows].tolist()):
+            _tick, name, _s, sim, _o, od, lim, robot, task = self.roster[i]
+            od.x, od.y, od.theta = p
+            od.v, od.w = u
+            od._last = (e[0], e[1])
+            od._last_t = te
+            sim.steps = n
+            lim.v, lim.w = v, w
+            lim.wheels = (wh[0], wh[1])
+            robot.targets = (tg[0], tg[1])
+            task.t_ns = t
+            task._ticks_left = 0
+            task.truth = {name: tuple(tr)}
+        for i in rows[self.new_scan[rows]].tolist():
+            _tick, name, _s, _sim, o, _od, _lim, _robot, task = self.roster[i]
+            o.scan = self.scans[i].copy()
+            o._scan_msg = None
+            task.scans[name] = _Scan(self.raw[i].copy(), *self.scan_fields)
+        self.dirty[rows] = False
+        self.new_scan[rows] = False
 
 
 class _Limiters:
     """The batch's :class:`plant.drive.DriveLimiter` s and motion noise: each tick's
     wheel-speed targets of every world, as ``Simulation.command_twist`` sets them
     (:meth:`DriveLimiter.from_twist` in plant/kernels/drive.c, then the command noise);
-    the limiters' state comes in as arrays (:class:`_Kept`) and is left in the limiters at
-    the step's end."""
+    the limiters' state comes in as arrays (:class:`_Kept`) and leaves in them (``v``,
+    ``w``, ``wheels``; ``out``: the last tick's targets)."""
 
-    def __init__(self, sims: list, names: list[str], lims: list, robots: list, v: np.ndarray,
-                 w: np.ndarray, wheels: np.ndarray, cmds: np.ndarray, ticks: ArrayTicks
-                 ) -> None:
-        self.lims, self.robots = lims, robots
-        spec = self.lims[0].spec
+    def __init__(self, sims: list, names: list[str], v: np.ndarray, w: np.ndarray,
+                 wheels: np.ndarray, cmds: np.ndarray, ticks: ArrayTicks) -> None:
+        spec = sims[0].limiters[names[0]].spec
         self.v, self.w, self.wheels = v, w, wheels      # (the limiters' state: fresh copies)
         self.v_target = _clamp(cmds[:, 0], spec.max_linear_mps)
         self.w_target = _clamp(cmds[:, 1], spec.max_angular_radps)
@@ -484,7 +530,7 @@ class _Limiters:
         self._limits = (spec.max_linear_accel_mps2 * dt, spec.max_angular_accel_radps2 * dt,
                         spec.wheel_radius_m, spec.wheel_separation_m, spec.max_wheel_speed_radps,
                         spec.max_wheel_accel_radps2 * dt)
-        std = self.robots[0].spec.sensors.command_noise_std_radps
+        std = sims[0].robots[names[0]].spec.sensors.command_noise_std_radps
         self.noise = None if std <= 0.0 else _Gather(
             [ticks._stream(s.motion_rng[n], std, (2,)) for s, n in zip(sims, names)], (2,))
         self.out = np.empty_like(self.wheels)     # each tick's targets (the last one's kept)
@@ -502,16 +548,6 @@ class _Limiters:
             if moving.size:
                 out[moving] += self.noise.take(moving)
         return out
-
-    def done(self) -> None:
-        if self.noise is not None:
-            self.noise.sync()
-        for lim, robot, v, w, (wl, wr), (tl, tr) in zip(
-                self.lims, self.robots, self.v.tolist(), self.w.tolist(), self.wheels.tolist(),
-                self.out.tolist()):
-            lim.v, lim.w = v, w
-            lim.wheels = (wl, wr)
-            robot.targets = (tl, tr)
 
 
 def _clamp(x: np.ndarray, lim: float) -> np.ndarray:

@@ -25,6 +25,8 @@ episode's first observation with reward 0 and both flags False.
 this process, each other in a worker process of its own (a fresh interpreter), all at
 once, so a batch uses K cores; env i is the same env, to the bit, whatever K. A worker
 ends with :meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
+``threads=T`` casts a process's lidars on up to T threads (default: the CPUs this process
+may use divided by K); the same bits whatever T.
 """
 from __future__ import annotations
 
@@ -58,7 +60,7 @@ class Worlds:
 
     def __init__(self, n: int, max_episode_steps: int | None, world: str, action_repeat: int,
                  goal_radius_m: float, overrides: tuple[str, ...],
-                 normalize_actions: bool) -> None:
+                 normalize_actions: bool, threads: int = 1) -> None:
         self.n = int(n)
         self.max_episode_steps = max_episode_steps
         self.tasks: list[AvoidTask] = []
@@ -76,7 +78,7 @@ class Worlds:
         self._needs_reset = np.zeros(self.n, bool)
         #: kinematic worlds ticked as arrays (:mod:`diffbot.envs.kinbatch`; None: every
         #: world through its messages, the path the arrays are tested against)
-        self.arrays: ArrayTicks | None = ArrayTicks(self.n)
+        self.arrays: ArrayTicks | None = ArrayTicks(self.n, threads)
         # Kept from step to step until the env is reset: ArrayTicks.eligible's answer for
         # the env's task; and (``_kept``) its goal distance where the last array step left
         # it, with its objects and state in ``arrays`` (ArrayTicks.advance's rows).
@@ -92,6 +94,8 @@ class Worlds:
         """As :meth:`AvoidEnv.reset` (Env.reset's seeding rules, then the task's)."""
         if seed is not None or self._rngs[i] is None:
             self._rngs[i], _ = seeding.np_random(seed)
+        if self.arrays is not None:
+            self.arrays.flush(np.array([i]))
         task = self.tasks[i]
         obs, info = task.reset(self._rngs[i])
         task.episode.seed = seed
@@ -114,6 +118,8 @@ class Worlds:
         if live.size and self._arrays_for(live):
             self._step_arrays(live, tasks, np.asarray(actions)[live], out)
         elif live.size:
+            if self.arrays is not None:
+                self.arrays.flush(live)
             self._kept[live] = False
             cmds = {i: self.tasks[i].begin_step({self.robot: actions[i]}) for i in live}
             self._advance(live.tolist(), cmds)
@@ -204,8 +210,15 @@ class Worlds:
             for task, touched in zip(ended, geo.contacts_of([t.centres() for t in ended])):
                 task.touched = touched
 
+    def sync(self) -> list[AvoidTask]:
+        """The tasks, their objects brought up to date with the array steps' state (which
+        writes it back only when asked: :meth:`ArrayTicks.flush`)."""
+        if self.arrays is not None:
+            self.arrays.flush()
+        return self.tasks
+
     def render(self) -> list:
-        return [t.render() for t in self.tasks]
+        return [t.render() for t in self.sync()]
 
     def close(self) -> None:
         for t in self.tasks:
@@ -413,6 +426,14 @@ class _Worker:
         self.conn.close()
 
 
+def _cpus() -> int:
+    """The CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:                         # (not on Linux)
+        return os.cpu_count() or 1
+
+
 class AvoidVectorEnv(VectorEnv):
     """N ``diffbot/Avoid-v0`` worlds in one process, or in ``workers`` (module docstring)."""
 
@@ -423,7 +444,8 @@ class AvoidVectorEnv(VectorEnv):
                  world: str = "living_room", action_repeat: int = 5,
                  goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
                  normalize_actions: bool = False, render_mode: str | None = None,
-                 transport: str = "inproc", workers: int = 1) -> None:
+                 transport: str = "inproc", workers: int = 1, threads: int | None = None
+                 ) -> None:
         if transport != "inproc":
             raise ValueError("vector_entry_point batches in-process worlds; for plants over "
                              "the bus use vectorization_mode='async' (one plant per worker)")
@@ -434,12 +456,17 @@ class AvoidVectorEnv(VectorEnv):
                              f"got {workers!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if threads is None:       # the CPUs this process may use, shared among the processes
+            threads = max(1, _cpus() // int(workers))
+        elif int(threads) < 1:
+            raise ValueError(f"threads must be >= 1, got {threads!r}")
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         kw = dict(max_episode_steps=self.max_episode_steps, world=world,
                   action_repeat=action_repeat, goal_radius_m=goal_radius_m,
-                  overrides=tuple(overrides), normalize_actions=normalize_actions)
+                  overrides=tuple(overrides), normalize_actions=normalize_actions,
+                  threads=int(threads))
         k = int(workers)
         sizes = [self.num_envs // k + (1 if j < self.num_envs % k else 0) for j in range(k)]
         self.chunks: list = []
@@ -465,8 +492,9 @@ class AvoidVectorEnv(VectorEnv):
 
     @property
     def tasks(self) -> list[AvoidTask]:
-        """The tasks of the worlds in this process (all of them with ``workers=1``)."""
-        return self.chunks[0].tasks if self.chunks and isinstance(self.chunks[0], Worlds) else []
+        """The tasks of the worlds in this process (all of them with ``workers=1``), up to
+        date."""
+        return self.chunks[0].sync() if self.chunks and isinstance(self.chunks[0], Worlds) else []
 
     def _all(self, method: str, per_chunk: list) -> list:
         """``method`` of every chunk with its argument, the workers' sent first, so they
