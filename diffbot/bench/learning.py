@@ -100,8 +100,8 @@ def gym_suite(ctx):
                 (f", {k} workers" if k > 1 else "")
             yield Probe(what, lambda m=mode, n=n, k=k, e=env_steps: _vec_rate(m, n, e, k), [
                 Metric("steps_per_s", f"{what}: env steps per second", "1/s",
-                       notes=("vector_entry_point, one process" if k == 1 else
-                              f"vector_entry_point, workers={k}: {k} processes")
+                       notes=("vector_entry_point, one process (lidars on a thread a CPU)"
+                              if k == 1 else f"vector_entry_point, workers={k}: {k} processes")
                              + "; random actions"
                              + (f"; {VEC_TARGETS[mode]}" if n == 64 else "")),
                 Metric("cpu_steps_per_s", f"{what}: env steps per CPU second", "1/s",
