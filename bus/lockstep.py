@@ -42,6 +42,9 @@ class AckLedger:
         # members gone without their FINAL that the plant holds time for ("Lost members")
         self.lost: dict[str, int] = {}          # member -> the plant's tick when it went
         self.rejoined: dict[str, int] = {}      # member -> the plant's tick when it came back
+        # processes that are not members (a recorder, a view: a sim/alive token) gone with
+        # the plant's link to its router: time is held for them too ("Lost members")
+        self.away: set[str] = set()
         self.resent_upto = -1                   # the last tick the plant re-published
         # tick stamp -> the members present when the plant began that tick
         self.owed_by: dict[int, frozenset[str]] = {}
@@ -82,8 +85,32 @@ class AckLedger:
     def held_for(self) -> list[str]:
         """Section 4, "Lost members": the members gone without their FINAL whose rejoin the
         plant waits for before it advances time (an ``--end-with`` member's FINAL may still
-        come after its token: then it is not lost)."""
-        return sorted(m for m in self.lost if m not in self.finished)
+        come after its token: then it is not lost), then the other processes gone with the
+        plant's link (:meth:`gone_with_link`)."""
+        members = sorted(m for m in self.lost if m not in self.finished)
+        return members + sorted(self.away - set(members))
+
+    def gone_with_link(self, node: str) -> None:
+        """Section 4, "Lost members": a process that is not a member (its ``sim/alive``
+        token only: a recorder, a view) went with the plant's link to its router; time is
+        held until it is back (:meth:`back`) or the plant gives up on it
+        (:meth:`give_up_away`)."""
+        if node not in self.members_seen:
+            self.away.add(node)
+
+    def back(self, node: str) -> bool:
+        """Section 4, "Lost members": a process's ``sim/alive`` token is back; True if time
+        was held for it."""
+        if node in self.away:
+            self.away.discard(node)
+            return True
+        return False
+
+    def give_up_away(self) -> list[str]:
+        """Section 4, "Lost members": the processes held for that are not members, given up
+        on (the rejoin timeout ran out: the run goes on without them)."""
+        gone, self.away = sorted(self.away), set()
+        return gone
 
     def all_finished(self, due_ns: int) -> bool:
         """Section 4, "Finishing": every member still present sent its FINAL for a tick

@@ -234,7 +234,9 @@ class Lockstep(Mode):
         """Members are lost (docs/PROTOCOL.md section 4, "Lost members"): simulated time
         stays at ``t_ns`` until they are back (the plant then re-publishes its last ticks,
         Plant.republish) or ``--rejoin-timeout`` runs out: then the run ends with a reason
-        naming them, and the plant exits 1."""
+        naming them, and the plant exits 1. Processes that are not members, gone with the
+        plant's link (a recorder), are held for alike; if only they are missing when the
+        timeout runs out, the run goes on without them."""
         p = self.plant
         lost = p.ledger.held_for()
         timeout = p.rejoin_timeout_s
@@ -245,7 +247,13 @@ class Lockstep(Mode):
         deadline = time.monotonic() + timeout
         while lost and not p.stop_event.is_set() and not p.reset_in_tick:
             left = deadline - time.monotonic()
+            if left <= 0 and not set(lost) - p.ledger.away:
+                p.log.warning("lockstep: %s not back within --rejoin-timeout %g s: going on "
+                              "without %s at t=%.3f s", ", ".join(p.ledger.give_up_away()),
+                              timeout, "it" if len(lost) == 1 else "them", t_ns * 1e-9)
+                return None
             if left <= 0:
+                lost = [m for m in lost if m not in p.ledger.away]
                 p.exit_code = 1
                 why = (f"lost lockstep member {', '.join(lost)} at t={t_ns * 1e-9:.3f} s"
                        + (f" (not back within --rejoin-timeout {timeout:g} s)" if timeout

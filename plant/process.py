@@ -49,6 +49,11 @@ from .world import WorldSpec
 
 #: how long the sim/end text goes before the sim/end token (wall s)
 END_TEXT_HEAD_START_S = 0.1
+#: the name of the plant's own sim/alive token
+PLANT_TOKEN = "plant"
+#: a process whose sim/alive token went within this long (wall s) of the plant losing its
+#: link to its router went with it (its token and the plant's own vanish together)
+LINK_WINDOW_S = 1.0
 
 
 class Plant:
@@ -125,12 +130,14 @@ class Plant:
         self.inbox.watch_liveliness(keys.alive(), "alive")
         self.alive: set[str] = set()
         self._vanished: set[str] = set()         # processes whose sim/alive token went
+        self._went: dict[str, float] = {}        # ... and when (monotonic s), while away
+        self._link_lost_at = -LINK_WINDOW_S      # when the plant last lost its router link
         self.inbox.serve(keys.reset, "reset")
         # sim/info is answered on Zenoh's thread, from what the main thread last put here
         self._info = self.info()
         self._info_queryable = session.declare_queryable(keys.info, self._answer_info)
-        self._token = session.liveliness().declare_token(keys.alive("plant"))
-        self.router = RouterWatch(session, log, mode)
+        self._token = session.liveliness().declare_token(keys.alive(PLANT_TOKEN))
+        self.router = RouterWatch(session, log, mode, on_lost=self._link_lost)
 
     @property
     def sim(self):
@@ -255,6 +262,29 @@ class Plant:
         local = self.composed.reads
         return lambda topic: reads(key(robot, topic)) or local(key(robot, topic))
 
+    # ------------------------------------------------------------------ lost link
+    def _link_lost(self) -> None:
+        """The plant lost its link to its router (its own ``sim/alive`` token went from its
+        view, or the router is gone): the processes that went with it are held for."""
+        now = self._link_lost_at = time.monotonic()
+        for node, went in list(self._went.items()):
+            if now - went <= LINK_WINDOW_S:
+                self._hold_for(node)
+
+    def _hold_for(self, node: str) -> None:
+        """docs/PROTOCOL.md section 4, "Lost members": a process that is not a member (a
+        recorder, a view), gone with the plant's link, would miss what the plant publishes
+        before it is back; in lockstep with a rejoin timeout, time is held for it too (the
+        ledger leaves members to their own rules)."""
+        if (node == PLANT_TOKEN or node in self.alive or not self.strategy.lockstep
+                or self.rejoin_timeout_s <= 0 or node in self.ledger.members_seen
+                or node in self.ledger.away):
+            return
+        self.ledger.gone_with_link(node)
+        self.log.warning("%s went with the router at t=%.3f s: time is held for it too, up to "
+                         "--rejoin-timeout %g s", node, self.sim.time_ns * 1e-9,
+                         self.rejoin_timeout_s)
+
     # ------------------------------------------------------------------ input
     def handle(self, ev: Event) -> None:
         if ev.tag == "reset":
@@ -273,14 +303,21 @@ class Plant:
             if not ev.alive:
                 self.alive.discard(node)
                 self._vanished.add(node)
+                now = self._went[node] = time.monotonic()
+                if node == PLANT_TOKEN:      # its own token, seen through the router: gone
+                    self._link_lost()
+                elif self.router.gone or now - self._link_lost_at <= LINK_WINDOW_S:
+                    self._hold_for(node)
                 return
             self.alive.add(node)
+            self._went.pop(node, None)
+            held = self.ledger.back(node)          # (time was held for it: goes on now)
             if node in self._vanished and self.strategy.lockstep:
                 # back after a blip (a recorder, say): what it missed of the last ticks,
                 # tick 0 included (a blip before the first step: nothing stepped yet, but the
                 # members' answers to t=0 went out while it was away)
                 self._vanished.discard(node)
-                self.log.info("%s is back", node)
+                self.log.info("%s is back%s", node, ": time goes on" if held else "")
                 self.republish()
         elif ev.tag == "member":
             self.outbox.changed()

@@ -14,8 +14,9 @@ class RouterWatch:
 
     CHECK_S = 0.25
 
-    def __init__(self, session: zenoh.Session, log, mode: str) -> None:
+    def __init__(self, session: zenoh.Session, log, mode: str, on_lost=None) -> None:
         self.session = session
+        self.on_lost = on_lost            # called when it finds the router gone
         self.log = log
         self.mode = mode
         # a session connected to a router watches it; the router itself has none to lose
@@ -41,6 +42,8 @@ class RouterWatch:
                              "simulated time is held until the members are back"
                              if self.mode == "lockstep"
                              else "running on; nothing published reaches anyone")
+            if self.on_lost is not None:
+                self.on_lost()
         elif self.gone and not gone:
             self.log.warning("the router is back at t=%.3f s", t_ns * 1e-9)
         self.gone = gone

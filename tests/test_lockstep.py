@@ -184,6 +184,29 @@ def test_an_unexpected_member_is_dropped_unless_last_or_the_link_is_lost():
     assert led.leave("c") == "lost"
 
 
+def test_a_process_gone_with_the_link_is_held_for_until_back_or_given_up():
+    """A recorder (a sim/alive token, no membership) gone with the plant's link: time is
+    held for it after the members, not for a member through this path, and until it is
+    back or the plant gives up on it (the rejoin timeout); no step, no end meanwhile."""
+    led, _ = ledger()
+    led.join("a")
+    led.begin_tick(0)
+    send(led, "a", 0, codec.ACK, n_plant=1)
+    led.gone_with_link("recorder")
+    led.gone_with_link("a")                       # a member: the ledger's own rules
+    assert led.held_for() == ["recorder"] and not led.may_step(0)
+    assert led.leave("a", link_lost=True) == "lost"
+    assert led.held_for() == ["a", "recorder"]
+    assert led.join("a") and led.held_for() == ["recorder"]
+    send(led, "a", T, codec.ACK | codec.FINAL, n_plant=1)
+    assert not led.all_finished(2 * T)             # the recorder would miss the end
+    assert led.back("recorder") and not led.back("recorder")
+    assert led.held_for() == [] and led.may_step(0) and led.all_finished(2 * T)
+    led.gone_with_link("view")
+    led.gone_with_link("recorder")
+    assert led.give_up_away() == ["recorder", "view"] and led.held_for() == []
+
+
 def test_a_member_that_finished_is_not_lost_and_the_run_ends_when_all_have():
     led, _ = ledger(expect=("a",))
     led.join("a")
@@ -273,3 +296,37 @@ def test_a_member_leaves_after_a_clock_past_its_final_and_the_actuation_delay():
     seq, pipe = MemberTick("n", T, 0), MemberTick("n", T, 1)
     assert not seq.may_leave(5 * T, 5 * T) and seq.may_leave(5 * T, 6 * T)
     assert not pipe.may_leave(5 * T, 6 * T) and pipe.may_leave(5 * T, 7 * T)
+
+
+def test_the_hold_goes_on_without_a_process_given_up_and_ends_for_a_member():
+    """Lockstep.hold (plant/modes.py) past --rejoin-timeout: with only a non-member process
+    (a recorder gone with the link) missing, the run goes on without it (None, exit code
+    untouched, a warning naming it); with a member missing too, the run ends naming the
+    member only (exit 1)."""
+    import logging
+    import threading
+    import time
+
+    from plant.modes import Lockstep
+
+    class Host:
+        tick_ns, rate, rejoin_timeout_s, exit_code, reset_in_tick = T, 0.0, 0.05, 0, False
+        stop_event = threading.Event()
+        time_ns = 0
+        log = logging.getLogger("test-hold")
+
+        def drain(self, timeout=0.0):
+            time.sleep(timeout or 0.0)
+            return False
+
+    host = Host()
+    host.ledger, _ = ledger()
+    host.ledger.join("a")
+    host.ledger.gone_with_link("recorder")
+    assert Lockstep(host, "sequential").hold(4 * T) is None
+    assert host.exit_code == 0 and host.ledger.held_for() == []
+    host.ledger.gone_with_link("recorder")
+    assert host.ledger.leave("a", link_lost=True) == "lost"
+    why = Lockstep(host, "sequential").hold(4 * T)
+    assert why == "lost lockstep member a at t=0.080 s (not back within --rejoin-timeout 0.05 s)"
+    assert host.exit_code == 1
