@@ -54,6 +54,10 @@ PLANT_TOKEN = "plant"
 #: a process whose sim/alive token went within this long (wall s) of the plant losing its
 #: link to its router went with it (its token and the plant's own vanish together)
 LINK_WINDOW_S = 1.0
+#: (wall s) how long time stays held after such a process is back: its token may reach the
+#: plant before its subscriptions reach the router (a CI run lost 41 ticks of a recorder
+#: that way); the plant re-publishes its last ticks again when this has passed
+SETTLE_S = 0.5
 
 
 class Plant:
@@ -132,6 +136,7 @@ class Plant:
         self._vanished: set[str] = set()         # processes whose sim/alive token went
         self._went: dict[str, float] = {}        # ... and when (monotonic s), while away
         self._link_lost_at = -LINK_WINDOW_S      # when the plant last lost its router link
+        self._settling: dict[str, float] = {}    # held process back -> when time goes on
         self.inbox.serve(keys.reset, "reset")
         # sim/info is answered on Zenoh's thread, from what the main thread last put here
         self._info = self.info()
@@ -271,6 +276,17 @@ class Plant:
             if now - went <= LINK_WINDOW_S:
                 self._hold_for(node)
 
+    def _settle(self) -> None:
+        """Held processes back for SETTLE_S: the last ticks once more (what went out before
+        their subscriptions were in place reaches them now), then time goes on."""
+        now = time.monotonic()
+        done = [n for n, t in self._settling.items() if t <= now]
+        for node in done:
+            del self._settling[node]
+            if self.ledger.back(node):
+                self.log.info("%s: time goes on", node)
+                self.republish()
+
     def _hold_for(self, node: str) -> None:
         """docs/PROTOCOL.md section 4, "Lost members": a process that is not a member (a
         recorder, a view), gone with the plant's link, would miss what the plant publishes
@@ -303,6 +319,7 @@ class Plant:
             if not ev.alive:
                 self.alive.discard(node)
                 self._vanished.add(node)
+                self._settling.pop(node, None)
                 now = self._went[node] = time.monotonic()
                 if node == PLANT_TOKEN:      # its own token, seen through the router: gone
                     self._link_lost()
@@ -311,13 +328,16 @@ class Plant:
                 return
             self.alive.add(node)
             self._went.pop(node, None)
-            held = self.ledger.back(node)          # (time was held for it: goes on now)
+            held = node in self.ledger.away        # (time goes on SETTLE_S from now)
+            if held:
+                self._settling[node] = time.monotonic() + SETTLE_S
             if node in self._vanished and self.strategy.lockstep:
                 # back after a blip (a recorder, say): what it missed of the last ticks,
                 # tick 0 included (a blip before the first step: nothing stepped yet, but the
                 # members' answers to t=0 went out while it was away)
                 self._vanished.discard(node)
-                self.log.info("%s is back%s", node, ": time goes on" if held else "")
+                self.log.info("%s is back%s", node,
+                              f": time goes on in {SETTLE_S:g} s" if held else "")
                 self.republish()
         elif ev.tag == "member":
             self.outbox.changed()
@@ -391,6 +411,8 @@ class Plant:
     def drain(self, timeout: float | None = 0.0) -> bool:
         """Handle queued events; wait up to ``timeout`` for the first. True if any came."""
         self.router.check(self.sim.time_ns)
+        if self._settling:
+            self._settle()
         ev = self.inbox.get(timeout=timeout) if timeout else self.inbox.get_nowait()
         if ev is None:
             return False

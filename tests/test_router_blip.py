@@ -122,7 +122,7 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float
                 assert "recorder went with the router" in r.log(plant), r.log(plant)
                 time.sleep(late[0])
                 rec.send_signal(signal.SIGCONT)
-                wait_for(lambda: "recorder is back: time goes on" in r.log(plant), 30,
+                wait_for(lambda: "recorder: time goes on" in r.log(plant), 30,
                          what=f"the recorder back after blip {i + 1}")
         assert plant.wait(120) == 0, r.log(plant)
         # every process ends by itself with the run (--wait included): none is killed here
