@@ -88,15 +88,20 @@ class AckLedger:
         come after its token: then it is not lost), then the other processes gone with the
         plant's link (:meth:`gone_with_link`)."""
         members = sorted(m for m in self.lost if m not in self.finished)
+        if not self.away:                       # (asked every tick: the usual case first)
+            return members
         return members + sorted(self.away - set(members))
 
-    def gone_with_link(self, node: str) -> None:
+    def gone_with_link(self, node: str) -> bool:
         """Section 4, "Lost members": a process that is not a member (its ``sim/alive``
         token only: a recorder, a view) went with the plant's link to its router; time is
         held until it is back (:meth:`back`) or the plant gives up on it
-        (:meth:`give_up_away`)."""
-        if node not in self.members_seen:
-            self.away.add(node)
+        (:meth:`give_up_away`). True if it is held for from now (not a member, not held
+        for already)."""
+        if node in self.members_seen or node in self.away:
+            return False
+        self.away.add(node)
+        return True
 
     def back(self, node: str) -> bool:
         """Section 4, "Lost members": a process's ``sim/alive`` token is back; True if time

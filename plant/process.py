@@ -293,10 +293,8 @@ class Plant:
         before it is back; in lockstep with a rejoin timeout, time is held for it too (the
         ledger leaves members to their own rules)."""
         if (node == PLANT_TOKEN or node in self.alive or not self.strategy.lockstep
-                or self.rejoin_timeout_s <= 0 or node in self.ledger.members_seen
-                or node in self.ledger.away):
+                or self.rejoin_timeout_s <= 0 or not self.ledger.gone_with_link(node)):
             return
-        self.ledger.gone_with_link(node)
         self.log.warning("%s went with the router at t=%.3f s: time is held for it too, up to "
                          "--rejoin-timeout %g s", node, self.sim.time_ns * 1e-9,
                          self.rejoin_timeout_s)

@@ -192,8 +192,9 @@ def test_a_process_gone_with_the_link_is_held_for_until_back_or_given_up():
     led.join("a")
     led.begin_tick(0)
     send(led, "a", 0, codec.ACK, n_plant=1)
-    led.gone_with_link("recorder")
-    led.gone_with_link("a")                       # a member: the ledger's own rules
+    assert led.gone_with_link("recorder")
+    assert not led.gone_with_link("recorder")      # held for already
+    assert not led.gone_with_link("a")             # a member: the ledger's own rules
     assert led.held_for() == ["recorder"] and not led.may_step(0)
     assert led.leave("a", link_lost=True) == "lost"
     assert led.held_for() == ["a", "recorder"]
