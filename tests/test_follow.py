@@ -19,10 +19,24 @@ def run_follow(out, *extra):
     return json.load(open(out / "summary.json"))
 
 
+@pytest.fixture(scope="module")
+def band_runs(tmp_path_factory):
+    """The scenario's 60-s runs (its default seed) by coupling, each made once: the band
+    test checks them and the identity test compares a shorter run with one."""
+    runs: dict[str, tuple] = {}
+
+    def get(coupling: str):
+        if coupling not in runs:
+            out = tmp_path_factory.mktemp(f"follow_{coupling}")
+            runs[coupling] = (out, run_follow(out, "--coupling", coupling))
+        return runs[coupling]
+    return get
+
+
 @pytest.mark.parametrize("coupling", ["pipelined", "sequential"])
-def test_follower_holds_the_band_for_60_s_with_camera_noise(tmp_path, coupling):
+def test_follower_holds_the_band_for_60_s_with_camera_noise(band_runs, coupling):
     # 60 s, camera noise std 10 (the scenario's), under both couplings (docs/PROTOCOL.md)
-    s = run_follow(tmp_path, "--coupling", coupling)
+    out, s = band_runs(coupling)
     assert s["coupling"] == coupling
     m = s["metrics"]
     assert s["sim_time_s"] == pytest.approx(60.0)
@@ -31,19 +45,23 @@ def test_follower_holds_the_band_for_60_s_with_camera_noise(tmp_path, coupling):
     assert m["ball_lost_frames"] == 0 and m["frames"] >= 1400
     check_real_time_factor(s)
     assert all(code == 0 for code in s["exit_codes"].values()), s["exit_codes"]
-    assert (tmp_path / "tracking_distance.png").stat().st_size > 20_000
-    assert (tmp_path / "follow.gif").read_bytes()[:6] == b"GIF89a"
-    header = (tmp_path / "tracking.csv").read_text().splitlines()[0]
+    assert (out / "tracking_distance.png").stat().st_size > 20_000
+    assert (out / "follow.gif").read_bytes()[:6] == b"GIF89a"
+    header = (out / "tracking.csv").read_text().splitlines()[0]
     assert header.startswith("t_s,distance_m,estimated_distance_m,ball_found")
 
 
-def test_same_seed_gives_a_byte_identical_tracking_csv(tmp_path):
-    a, b = tmp_path / "a", tmp_path / "b"
-    run_follow(a, "--duration", "12", "--seed", "3")
-    run_follow(b, "--duration", "12", "--seed", "3")
-    ta, tb = (a / "tracking.csv").read_bytes(), (b / "tracking.csv").read_bytes()
-    assert len(ta.splitlines()) > 500
-    assert ta == tb
+def test_same_seed_gives_a_byte_identical_tracking_csv(band_runs, tmp_path):
+    """A run of one seed is the same bytes again, and a shorter run is the longer one's
+    beginning (the 60-s band run of the scenario's seed, against a new 12-s run)."""
+    long_out, s = band_runs("pipelined")
+    r = run_follow(tmp_path, "--duration", "12", "--seed", str(s["seed"]),
+                   "--coupling", "pipelined")
+    short = (tmp_path / "tracking.csv").read_bytes().splitlines(keepends=True)
+    long = (long_out / "tracking.csv").read_bytes().splitlines(keepends=True)
+    assert r["sim_time_s"] == pytest.approx(12.0)
+    assert 500 < len(short) < len(long)
+    assert b"".join(short) == b"".join(long[:len(short)])
 
 
 @pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
