@@ -177,10 +177,22 @@ class Procs:
         try:
             return p.wait(timeout)
         except subprocess.TimeoutExpired:
-            p.send_signal(signal.SIGUSR1)
-            time.sleep(0.5)
+            Procs.dump_stacks(p, 5.0)
             raise AssertionError(f"timed out after {timeout} s waiting for {what}; its log "
                                  f"ends:\n{Procs.log(p)[-6000:]}") from None
+
+    @staticmethod
+    def dump_stacks(p, timeout: float) -> str:
+        """Where ``p``'s threads are (SIGUSR1, docs/failures.md), once its main thread's stack
+        is in its log whole (faulthandler writes it last, down to the bottom frame), or what
+        came within ``timeout`` s: the main thread's part of the dump."""
+        p.send_signal(signal.SIGUSR1)
+        deadline = time.monotonic() + timeout
+        while True:
+            main = Procs.log(p).rpartition("Current thread")[2]
+            if "in _run_module_as_main" in main or time.monotonic() > deadline:
+                return main
+            time.sleep(0.05)
 
     def cleanup(self) -> None:
         for p in self.procs:

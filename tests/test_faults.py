@@ -247,11 +247,8 @@ def test_a_node_whose_input_producer_left_exits_4_while_the_plant_holds_time(
     assert p.poll() is None, "the plant holds time for the lost member (--rejoin-timeout)"
     tap.check_sane()
     # docs/failures.md: a process that seems stuck says where its threads are on SIGUSR1
-    p.send_signal(signal.SIGUSR1)
-    # faulthandler writes the main thread last, down to its bottom frame; read it whole
-    wait_for(lambda: "in _run_module_as_main" in procs.log(p).rpartition("Current thread")[2],
-             10, what="the stack dump of the main thread")
-    main_thread = procs.log(p).rpartition("Current thread")[2]
+    main_thread = procs.dump_stacks(p, 10.0)
+    assert "in _run_module_as_main" in main_thread, procs.log(p)[-3000:]   # dumped whole
     assert "in hold" in main_thread, main_thread              # (plant/modes.py: Lockstep.hold)
     time.sleep(0.2)
     assert p.poll() is None, "SIGUSR1 does not stop a process"
