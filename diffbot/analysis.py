@@ -6,7 +6,9 @@ messages into files in the run's output directory (``analyse``).
 from __future__ import annotations
 
 import csv
+import importlib
 import os
+import threading
 
 import numpy as np
 
@@ -23,7 +25,25 @@ def _fmt(x: float) -> str:
     return f"{x:.9f}"
 
 
+def import_plots_meanwhile() -> threading.Thread:
+    """Import matplotlib (:mod:`diffbot.plots`: ~0.5-0.9 s) on a thread of its own, started
+    while the run goes on: the launcher only waits then, and a lockstep run's processes take
+    turns, so a core is mostly free. The analysis after the run then draws at once (its own
+    import waits for this one if it is not done). A failed import here is left to the
+    analysis to report."""
+    def load() -> None:
+        try:
+            importlib.import_module("diffbot.plots")
+        except Exception:      # (the analysis imports it again and says why)
+            pass
+    t = threading.Thread(target=load, name="import-plots")
+    t.start()
+    return t
+
+
 class NoAnalysis:
+    draws = False          # whether ``analyse`` plots (diffbot.plots)
+
     @staticmethod
     def keys(keys: Keys, spec, world) -> dict[str, str]:
         return {}
@@ -35,6 +55,8 @@ class NoAnalysis:
 
 class SquareAnalysis:
     """Odometry against GPS over the square: ``trajectory.csv``, ``odometry_vs_gps.png``."""
+
+    draws = True
 
     @staticmethod
     def keys(keys: Keys, spec, world) -> dict[str, str]:
@@ -101,6 +123,8 @@ def plot_odometry_vs_gps(a: np.ndarray, path: str, title: str, every: int = 10) 
 
 class DriveTestAnalysis:
     """Linear and angular velocity from ground truth: ``velocity.csv``, ``velocity.png``."""
+
+    draws = True
 
     @staticmethod
     def keys(keys: Keys, spec, world) -> dict[str, str]:

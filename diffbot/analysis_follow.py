@@ -42,6 +42,8 @@ def ball_offset(world) -> np.ndarray:
 
 
 class FollowAnalysis:
+    draws = True
+
     @staticmethod
     def keys(keys: Keys, spec, world) -> dict[str, str]:
         return {keys.topic(LEADER, "ground_truth"): TOPICS["ground_truth"].msgtype,

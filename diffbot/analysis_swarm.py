@@ -64,6 +64,8 @@ def collisions(c: np.ndarray, world) -> dict:
 
 
 class SwarmAnalysis:
+    draws = True
+
     @staticmethod
     def keys(keys: Keys, spec, world) -> dict[str, str]:
         return {keys.topic(r.name, "ground_truth"): TOPICS["ground_truth"].msgtype

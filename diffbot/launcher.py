@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     except (WorldError, ValueError) as exc:
         print(f"diffbot run: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    from .analysis import ANALYSES
+    from .analysis import ANALYSES, import_plots_meanwhile
     os.makedirs(out, exist_ok=True)
     tmp = None
     endpoint = args.endpoint
@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     analysis = ANALYSES[spec.analysis]
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
-    observer = session = watch = None
+    observer = session = watch = plots = None
     wall0 = time.monotonic()
     code = EXIT_FAILED
     try:
@@ -178,6 +178,8 @@ def main(argv: list[str] | None = None) -> int:
                               f"{len(run.children)} processes, output in {out}", file=sys.stderr)
                         if placed:
                             print(f"diffbot run: {placement.describe(run)}", file=sys.stderr)
+                        if analysis.draws:
+                            plots = import_plots_meanwhile()
                         code = run.supervise(stop_flag)
                     elif stop_flag:
                         run.reason = f"interrupted ({stop_flag[0]})"
@@ -203,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     if placed:
         summary["placement"] = placement.where_ran(run)
     if observer is not None:
+        if plots is not None:
+            plots.join()
         try:
             summary["metrics"] = analysis.analyse(observer, keys, spec, world, out)
         except Exception as exc:  # analysis must not lose the summary
