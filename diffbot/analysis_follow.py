@@ -182,7 +182,7 @@ def write_animation(observer, keys, world, a: np.ndarray, path: str) -> int:
         frame = np.hstack([cam, np.full((td.h, 4, 3), 255, np.uint8), top])
         cv2.putText(frame, label, (4, td.h - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1,
                     cv2.LINE_AA)
-        frames.append(Image.fromarray(frame).quantize(colors=64, method=Image.Quantize.MEDIANCUT))
+        frames.append(Image.fromarray(frame).quantize(colors=64, method=Image.Quantize.FASTOCTREE))
     if frames:
         frames[0].save(path, save_all=True, append_images=frames[1:],
                        duration=int(ANIMATION_PERIOD_S * 1000 / 2), loop=0, optimize=False)
