@@ -20,6 +20,7 @@ SETTLE_S = 5.0
 BAND_M = (0.60, 0.70)
 TARGET_M = 0.65
 ANIMATION_PERIOD_S = 0.4          # one animation frame per 0.4 s of simulated time (played 2x)
+BALL_RGB = (25, 215, 40)          # the ball in the animation's top-down view
 LEADER, FOLLOWER = "leader", "follower"
 
 
@@ -148,7 +149,7 @@ class TopDown:
             tip = (x + 0.3 * math.cos(yaw), y + 0.3 * math.sin(yaw))
             cv2.line(img, self.px(x, y), self.px(*tip), (20, 20, 20), 1, cv2.LINE_AA)
         if ball_xy is not None:
-            cv2.circle(img, self.px(*ball_xy), 3, (25, 215, 40), -1, cv2.LINE_AA)
+            cv2.circle(img, self.px(*ball_xy), 3, BALL_RGB, -1, cv2.LINE_AA)
         return img
 
 

@@ -5,7 +5,10 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
+
+from diffbot.analysis_follow import ANIMATION_PERIOD_S, BALL_RGB
 
 from .conftest import ROOT, check_real_time_factor, check_realtime_pace
 
@@ -47,8 +50,24 @@ def test_follower_holds_the_band_for_60_s_with_camera_noise(band_runs, coupling)
     assert all(code == 0 for code in s["exit_codes"].values()), s["exit_codes"]
     assert (out / "tracking_distance.png").stat().st_size > 20_000
     assert (out / "follow.gif").read_bytes()[:6] == b"GIF89a"
+    check_the_ball_is_in_every_frame(out / "follow.gif", m["frames"])
     header = (out / "tracking.csv").read_text().splitlines()[0]
     assert header.startswith("t_s,distance_m,estimated_distance_m,ball_found")
+
+
+def check_the_ball_is_in_every_frame(gif, camera_frames: int) -> None:
+    """follow.gif: a frame each ANIMATION_PERIOD_S, and in each the green ball as drawn
+    in the top-down view (its 64 colours once lost it: the median cut merged the few
+    green pixels into a dull one)."""
+    from PIL import Image
+    with Image.open(gif) as im:
+        assert im.n_frames >= 60.0 / ANIMATION_PERIOD_S - 1, im.n_frames
+        assert im.n_frames < camera_frames
+        for k in range(im.n_frames):
+            im.seek(k)
+            rgb = np.asarray(im.convert("RGB")).astype(int)
+            near = (np.abs(rgb - np.array(BALL_RGB)).max(axis=2) < 40).sum()
+            assert near >= 10, f"frame {k}: {near} pixels of the ball's green"
 
 
 def test_same_seed_gives_a_byte_identical_tracking_csv(band_runs, tmp_path):
