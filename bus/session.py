@@ -59,6 +59,9 @@ def make_config(role: str, endpoint: str = DEFAULT_ENDPOINT, config_file: str | 
 
     put("scouting/multicast/enabled", False)
     put("scouting/gossip/enabled", False)
+    # With scouting off there is nobody to scout for, but a router's open still waits
+    # scouting/delay (500 ms by default) for them: half a second of every plant's start-up.
+    put("scouting/delay", 0)
     put("transport/link/tx/lease", int(lease_ms))
     put("transport/link/tx/keep_alive", 4)
     # A frozen (SIGSTOPped) router still accepts connections in the kernel, so a client's
