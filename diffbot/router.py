@@ -49,7 +49,8 @@ def router_config(listen: list[str] | None, config_file: str | None) -> zenoh.Co
     else:
         conf = zenoh.Config()
         for key, value in (("mode", "router"), ("scouting/multicast/enabled", False),
-                           ("scouting/gossip/enabled", False), ("connect/endpoints", []),
+                           ("scouting/gossip/enabled", False), ("scouting/delay", 0),
+                           ("connect/endpoints", []),
                            ("transport/link/tx/lease", DEFAULT_LEASE_MS),
                            ("transport/link/tx/keep_alive", 4),
                            ("timestamping/enabled", False)):
