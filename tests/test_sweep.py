@@ -104,9 +104,10 @@ def test_sweep_table_plots_and_resume(procs, tmp_path):
 @pytest.mark.slow
 def test_a_failed_run_is_a_row_with_its_log_tail_and_is_retried(procs, tmp_path):
     out = str(tmp_path / "sweep")
-    # 1 s of wall clock cannot hold 30 s of simulated time at ~10x: `diffbot run` fails
-    p = procs.diffbot("sweep", "drive-test", "--grid", f"{NOISE}=0", "--duration", "30",
-                      "--timeout", "1", "--retries", "1", "--out", out)
+    # 1 s of wall clock cannot hold 30 s of simulated time paced to the wall clock (in
+    # lockstep a composed drive-test ran its schedule within 1 s): `diffbot run` fails
+    p = procs.diffbot("sweep", "drive-test", "--grid", f"{NOISE}=0", "--grid", "mode=realtime",
+                      "--duration", "30", "--timeout", "1", "--retries", "1", "--out", out)
     assert p.wait(100) == 1, procs.log(p)
     (row,) = read_rows(out)
     assert row["status"] == "failed" and row["exit_code"] not in ("", "0")
