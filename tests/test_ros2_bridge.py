@@ -285,6 +285,9 @@ def test_sim_over_ros2_rep105_odom_robot_description_one_type_and_reset(
     types = dict(peer.node.get_topic_names_and_types())
     assert types["/robot1/cmd_vel"] == ["geometry_msgs/msg/TwistStamped"]
     assert types["/robot1/cmd_vel_unstamped"] == ["geometry_msgs/msg/Twist"]
+    # (node names are discovered on their own, after or before the topics)
+    wait_for(lambda: any(n.startswith("ros2_bridge") for n in peer.node.get_node_names()), 20,
+             what="the bridge node in the ROS 2 graph")
     assert [n for n in peer.node.get_node_names() if n.startswith("ros2_bridge")] == ["ros2_bridge"]
     # a teleop at rest says "stop" once and falls silent: nothing to warn about
     pub = peer.node.create_publisher(Twist, "/robot1/cmd_vel_unstamped",
