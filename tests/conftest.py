@@ -102,9 +102,9 @@ def pytest_runtest_protocol(item, nextitem):
         yield
 
 
-#: programs libraries run for a quick answer (platform.processor(), the docs' file list):
-#: not a process the test is about
-QUICK_LOOKUPS = {"uname", "git"}
+#: programs libraries run for a quick answer (platform.processor(), the docs' file list,
+#: matplotlib's font list on a machine with no font cache yet): not a process the test is about
+QUICK_LOOKUPS = {"uname", "git", "fc-list"}
 
 
 @pytest.fixture(autouse=True)
