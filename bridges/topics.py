@@ -247,7 +247,8 @@ def format_message(key: str, payload: bytes, attachment: bytes | None, keys: Key
             flags = [f for f, bit in (("ACK", codec.ACK), ("FINAL", codec.FINAL))
                      if a.flags & bit]
             head += (f"  member {a.node}  flags {'|'.join(flags) or '-'}"
-                     + (f"  n_plant {a.n_plant}" if a.flags & codec.ACK else ""))
+                     + (f"  n_plant {a.n_plant}" if a.flags & codec.ACK else "")
+                     + (f"  hold {h}" if (h := codec.hold_of(a.flags)) else ""))
     elif attachment:
         head += f"  (malformed attachment of {len(attachment)} bytes: {attachment[:24].hex()})"
     msgtype = keys.msgtype_of(key) or (types or {}).get(key)

@@ -113,9 +113,23 @@ TRAILER = struct.Struct("<BHB")
 #: each reset or rebuild (docs/PROTOCOL.md section 3), so a reset is told from a re-publish
 EPOCH = struct.Struct("<I")
 #: trailer flags: ACK = the member published everything for this tick (this is its last
-#: message for it); FINAL = the member's last tick (it leaves after it)
+#: message for it); FINAL = the member's last tick (it leaves after it); bits 2-7 the
+#: *hold*: how many ticks after this one the member will not answer (docs/PROTOCOL.md
+#: section 4, "Holding"; :func:`hold_of`, :func:`with_hold`)
 ACK, FINAL = 1, 2
-_FLAGS = ACK | FINAL
+HOLD_SHIFT, HOLD_MAX = 2, 63
+
+
+def hold_of(flags: int) -> int:
+    """The hold in trailer ``flags``: ticks after this one the member will not answer."""
+    return flags >> HOLD_SHIFT
+
+
+def with_hold(flags: int, hold: int) -> int:
+    """``flags`` with hold ``hold`` (0..:data:`HOLD_MAX`)."""
+    if not 0 <= hold <= HOLD_MAX:
+        raise ValueError(f"a hold is 0..{HOLD_MAX} ticks, got {hold}")
+    return (flags & (ACK | FINAL)) | (hold << HOLD_SHIFT)
 
 _EMPTY = np.zeros(0, dtype=np.float64)
 _ZERO_COV = np.zeros(36, dtype=np.float64)
@@ -252,7 +266,7 @@ def attachment(seq: int, t_ns: int, flags: int = 0, n_plant: int = 0,
 def parse_attachment(data: bytes | None) -> Attachment | None:
     """The :class:`Attachment` in ``data`` (plain: 16 bytes; the plant's: 20, with the epoch;
     a member's: 21 and more, with the trailer), or None if absent or malformed (wrong length,
-    unknown flag bits, a name that is not UTF-8 or not as long as it says)."""
+    a hold with FINAL, a name that is not UTF-8 or not as long as it says)."""
     if data is None or len(data) < ATTACHMENT.size:
         return None
     seq, t_ns = ATTACHMENT.unpack_from(data)
@@ -264,7 +278,7 @@ def parse_attachment(data: bytes | None) -> Attachment | None:
         return None
     flags, n_plant, n = TRAILER.unpack_from(data, ATTACHMENT.size)
     name = data[ATTACHMENT.size + TRAILER.size:]
-    if flags & ~_FLAGS or len(name) != n or not 0 < n <= NAME_MAX:
+    if (flags & FINAL and hold_of(flags)) or len(name) != n or not 0 < n <= NAME_MAX:
         return None
     try:
         return Attachment(seq, t_ns, flags, n_plant, name.decode("utf-8"))

@@ -35,6 +35,9 @@ class AckLedger:
         # member -> {tick stamp: (n_plant, final)} from its ACKs, the last few ticks: a
         # stray, late or forged ACK never hides the one the plant waits for
         self.acks: dict[str, dict[int, tuple[int, bool]]] = {}
+        # member -> {tick stamp of an ACK with a hold: the last tick it holds}, the last few
+        # ("Holding"): the ticks in between count as answered, with nothing
+        self.holds: dict[str, dict[int, int]] = {}
         self.finished: dict[str, int] = {}      # member -> stamp of its FINAL tick
         self.final_awaited: set[str] = set()    # ending members given their grace once
         # (member, tick stamp) -> the plant-read keys of its messages stamped for that tick
@@ -161,6 +164,11 @@ class AckLedger:
         if member not in self.members and member not in self.members_seen:
             self.report(f"{key}: from {member!r}, not a lockstep member",
                         "(no sim/sync token); used, not waited for")
+        if (held := self.holding(member, t)) is not None:
+            self.report(f"{key}: a message from {member} for a tick it holds",
+                        f"t={t * 1e-9:.3f} s, held from its ACK of t={held * 1e-9:.3f} s; "
+                        "ignored")
+            return False
         # A member that left is not waited for, but its ACK is still filed: its FINAL may
         # arrive just after its sim/sync token went (liveliness and data take different
         # paths), and --end-with must still end the run at that tick.
@@ -180,12 +188,21 @@ class AckLedger:
                                                           self.resent_upto):
             return False                                 # an empty ACK re-sent after a rejoin
         if att.flags & codec.ACK:
-            self._ack(key, member, t, att.n_plant, bool(att.flags & codec.FINAL))
+            self._ack(key, member, t, att.n_plant, bool(att.flags & codec.FINAL),
+                      codec.hold_of(att.flags))
         return True
 
-    def _ack(self, key: str, member: str, t: int, n_plant: int, final: bool) -> None:
+    def _ack(self, key: str, member: str, t: int, n_plant: int, final: bool,
+             hold: int = 0) -> None:
         """Section 7: a member ACKs a tick once; a second ACK is forged or a bug, and the
-        smaller ``n_plant`` is kept, so no stray ACK can hold the run forever."""
+        smaller ``n_plant`` is kept, so no stray ACK can hold the run forever. Section 4,
+        "Holding": an ACK with a hold answers the ``hold`` ticks after ``t`` too (the first
+        ACK's hold: a second one's is ignored with it)."""
+        if hold and t not in self.acks.get(member, {}):
+            holds = self.holds.setdefault(member, {})
+            holds[t] = t + hold * self.tick_ns
+            if len(holds) > RECENT_TICKS:
+                del holds[next(iter(holds))]
         acks = self.acks.setdefault(member, {})
         ack = (n_plant, final)
         if t in acks:
@@ -201,11 +218,23 @@ class AckLedger:
             del acks[next(iter(acks))]
 
     # ------------------------------------------------------------ the barrier
+    def holding(self, member: str, t_ns: int) -> int | None:
+        """Section 4, "Holding": the tick of the member's ACK whose hold covers ``t_ns``
+        (a later tick, up to its hold), or None."""
+        holds = self.holds.get(member)
+        if holds:
+            for t0, t1 in reversed(holds.items()):      # (the latest first: the usual ask)
+                if t0 < t_ns <= t1:
+                    return t0
+        return None
+
     def done(self, member: str, t_ns: int) -> bool:
         """Section 4, step 4: the member ACKed tick ``t_ns`` and all ``n_plant`` of its
-        messages stamped ``t_ns`` are in."""
+        messages stamped ``t_ns`` are in, or an ACK of its holds ``t_ns`` ("Holding")."""
         ack = self.acks.get(member, {}).get(t_ns)
-        return ack is not None and len(self.member_msgs.get((member, t_ns), ())) >= ack[0]
+        if ack is None:
+            return self.holding(member, t_ns) is not None
+        return len(self.member_msgs.get((member, t_ns), ())) >= ack[0]
 
     def waiting_for(self, t_ns: int) -> list[str]:
         """Section 4, step 4 and "Finishing": the members owed tick ``t_ns`` (present when
@@ -300,6 +329,7 @@ class AckLedger:
         """Section 4, "Reset": the world restarted at t = 0, so the old world's ACKs, FINALs
         and messages are forgotten (their stamps would match the new world's ticks)."""
         self.acks.clear()
+        self.holds.clear()
         self.finished.clear()
         self.member_msgs.clear()
         self.owed_by.clear()

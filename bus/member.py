@@ -146,6 +146,8 @@ class MemberTick:
         its world was reset from inside ``step``: the new world's clock starts again at 0)."""
         self.buf: dict[str, dict[int, Any]] = {}
         self.used: set[tuple[str, int]] = set()
+        # input key -> (stamp of a sample whose producer holds, the last tick it holds)
+        self.covered: dict[str, tuple[int, int]] = {}
         self.pending: dict[int, float] = {}    # lockstep: clock stamp -> wall time it came
         self.last_clock: int | None = None
         # what this member sent for its last ticks, to re-send (stamp -> messages); reset
@@ -153,6 +155,7 @@ class MemberTick:
         self.sent: dict[int, Sent] = {}
         self._keep_sent = False
         self._last_acted: int | None = None    # lockstep: the last tick acted on
+        self.hold_until: int | None = None     # lockstep: the last tick its last answer holds
         self.epoch: int | None = None          # lockstep: the plant's epoch of the last clock
 
     # ------------------------------------------------------------ input (section 4, step 2)
@@ -206,6 +209,12 @@ class MemberTick:
         else:
             buf[stamp] = msg
             self.used.discard((key, stamp))    # a new sample for that tick (a reset)
+            if self.topics[topic].awaited and att is not None:
+                a = codec.parse_attachment(att)
+                if a is not None and a.node is not None and codec.hold_of(a.flags):
+                    # "Holding": its producer answers nothing for the ticks it holds, so
+                    # this sample stands for them (take_observation shows the latest)
+                    self.covered[key] = (stamp, stamp + codec.hold_of(a.flags) * self.tick_ns)
         if len(buf) > BUF_PER_TOPIC:           # drop what lies farthest from the clock
             ref = self.last_clock if self.last_clock is not None else stamp
             del buf[max(buf, key=lambda s: abs(s - ref))]
@@ -225,13 +234,13 @@ class MemberTick:
         if epoch is not None:
             if self.epoch is not None and epoch != self.epoch:
                 self.sent.clear()
-                self._last_acted = None
+                self._last_acted = self.hold_until = None
             self.epoch = epoch
         if t_ns in self.sent:                  # re-published after a rejoin
             return self.sent[t_ns], None
         if self.sent and t_ns < max(self.sent):      # the world went back
             self.sent.clear()
-            self._last_acted = None
+            self._last_acted = self.hold_until = None
         self.pending[t_ns] = now or time.monotonic()
         if len(self.pending) > PENDING_MAX:
             old = next(iter(self.pending))
@@ -242,9 +251,18 @@ class MemberTick:
     def _complete(self, t_ns: int) -> bool:
         """Every robot still driven has, for every input due at ``t_ns``, a sample (good or
         held) of the stamp it needs that this member has not acted on yet."""
-        return all(s in self.buf.get(key, ()) and (key, s) not in self.used
+        return all(self._has(key, s) and (key, s) not in self.used
                    for slot in self.slots if not slot.done
                    for key, _, s in self.needs(slot, t_ns))
+
+    def _has(self, key: str, stamp: int) -> bool:
+        """A sample (good or held) of input ``key`` for ``stamp``: its own, or one whose
+        producer holds ``stamp`` (section 4, "Holding")."""
+        buf = self.buf.get(key, ())
+        if stamp in buf:
+            return True
+        cov = self.covered.get(key)
+        return cov is not None and cov[0] < stamp <= cov[1] and cov[0] in buf
 
     def next_due(self) -> int | None:
         """Section 4, step 2: the next tick to act on now, or None. A member answers every
@@ -272,7 +290,7 @@ class MemberTick:
         """Section 4, step 2: the topics tick ``t_ns`` still waits for (a member whose
         producer left tells why it stops)."""
         return [tp for slot in self.slots if not slot.done
-                for key, tp, s in self.needs(slot, t_ns) if s not in self.buf.get(key, ())]
+                for key, tp, s in self.needs(slot, t_ns) if not self._has(key, s)]
 
     def take_observation(self, slot: Slot, t_ns: int) -> Observation:
         """Section 4, step 2: the latest good message of each of a robot's inputs stamped at
@@ -345,37 +363,66 @@ class MemberTick:
             raise TypeError(f"step() returned {type(out).__name__}; expected Twist, "
                             "WheelSpeeds, dict or None")
 
-    def send_tick(self, t_ns: int, final: bool = False) -> Sent:
+    def send_tick(self, t_ns: int, final: bool = False, hold: int = 0) -> Sent:
         """Section 4, step 3: the tick's queued outputs as sent (:meth:`owed`'s order and
-        flags), kept for a re-send; a member that is not in lockstep sends them as queued."""
+        flags), kept for a re-send; a member that is not in lockstep sends them as queued.
+        ``hold``: "Holding", the answer also stands for the ``hold`` ticks after this one
+        (not with ``final``): the member then passes them with :meth:`skip`."""
         out, self._out = self._out, []
         self.ticks += 1
         if final:
             self.final_tick = t_ns
         if not self.sync:
             return [(o.key, codec.encode(o.msg), 0, 0) for o in out]
+        if final and hold:
+            raise ValueError("a FINAL tick holds no tick after it (docs/PROTOCOL.md)")
         sent = [(key, b"" if msg is None else codec.encode(msg), flags, n_plant)
-                for key, msg, flags, n_plant in self.owed(out, self.ack_key, final)]
+                for key, msg, flags, n_plant in self.owed(out, self.ack_key, final, hold)]
+        # (the old world's last tick, answered after a reset from inside step: no hold)
+        self.hold_until = t_ns + hold * self.tick_ns if self._keep_sent else None
+        self._keep(t_ns, sent)
+        return sent
+
+    def _keep(self, t_ns: int, sent: Sent) -> None:
         if self._keep_sent:           # (not the old world's last tick, after a reset)
             self.sent[t_ns] = sent
             while len(self.sent) > RESEND_TICKS:
                 del self.sent[min(self.sent)]
         self._keep_sent = True
-        return sent
 
-    def owed(self, outputs: list[Output], ack_key: str,
-             final: bool = False) -> list[tuple[str, Any, int, int]]:
+    def holds(self, t_ns: int) -> bool:
+        """Section 4, "Holding": tick ``t_ns`` is one the member's last answer holds (it
+        sends nothing for it: :meth:`skip`)."""
+        return self.sync and self.hold_until is not None and t_ns <= self.hold_until
+
+    def skip(self, t_ns: int) -> Sent:
+        """Section 4, "Holding": pass a tick the last answer holds, sending nothing (kept as
+        such: re-published, it is answered with nothing again). What was queued for it is
+        an error: the plant would ignore it."""
+        if self._out:
+            keys = sorted({o.key for o in self._out})
+            self._out = []
+            raise ValueError(f"outputs on {', '.join(keys)} for t={t_ns * 1e-9:.3f} s, a "
+                             "tick this member holds (docs/PROTOCOL.md section 4, Holding)")
+        self.ticks += 1
+        self._keep(t_ns, [])
+        return []
+
+    def owed(self, outputs: list[Output], ack_key: str, final: bool = False,
+             hold: int = 0) -> list[tuple[str, Any, int, int]]:
         """Section 4, step 3: what the member sends for a tick, in order, as (key, message or
         None for the empty ACK, flags, n_plant): plant-read outputs last (a stable sort:
         robot order kept), the very last with ``ACK`` (and ``FINAL``) and ``n_plant``; a tick
         with no plant-read output ends with an empty message on ``sim/ack/<node>``. One
         message per key and tick (the plant keeps only the first, section 7): of two
-        outputs queued on one key, the later (e.g. a stop after the last step's command)."""
+        outputs queued on one key, the later (e.g. a stop after the last step's command).
+        ``hold`` ("Holding") is in the flags of every message of the tick."""
         last = {o.key: o for o in outputs}
         out = sorted(last.values(), key=lambda o: o.plant_read)
         n_plant = sum(1 for o in out if o.plant_read)
-        end = codec.ACK | (codec.FINAL if final else 0)
-        sent = [(o.key, o.msg, end if (n_plant and i == len(out) - 1) else 0,
+        end = codec.with_hold(codec.ACK | (codec.FINAL if final else 0), hold)
+        mid = codec.with_hold(0, hold)
+        sent = [(o.key, o.msg, end if (n_plant and i == len(out) - 1) else mid,
                  n_plant if (n_plant and i == len(out) - 1) else 0)
                 for i, o in enumerate(out)]
         if not n_plant:

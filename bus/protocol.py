@@ -7,7 +7,7 @@ against docs/PROTOCOL.md.
 from __future__ import annotations
 
 #: announced by the plant in ``sim/info`` as ``"protocol"``; a node of another version exits 2
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
 
 #: how the plant and the lockstep members are coupled (co-simulation master algorithm)
 COUPLINGS = ("sequential", "pipelined")

@@ -31,7 +31,7 @@ import time
 import zenoh
 from rosbags.typesys import Stores, get_typestore
 
-PROTOCOL = 4                                   # section "The diffbot-cosim bus protocol, version 4"
+PROTOCOL = 5                                   # section "The diffbot-cosim bus protocol, version 5"
 ACK, FINAL = 1, 2                              # section 3: flags
 KEEP_TICKS = 26                                # section 4, "Lost members": answers kept
 TS = get_typestore(Stores.ROS2_JAZZY)

@@ -60,7 +60,10 @@ def _compare(env_id: str, steps: int, info_keys, seed: int, **kw) -> dict:
                 assert _same_obs(oi, ob) and _same_info(ii, ib, info_keys), \
                     f"differ after reset {episodes}"
                 episodes += 1
-        return {"episodes": episodes}
+        task = getattr(bus.unwrapped, "task", None)       # (Avoid's; Follow is its own)
+        member = (task or bus.unwrapped).transport._res.member
+        return {"episodes": episodes, "commands_sent": sum(
+            n for k, n in member.published.items() if k.endswith("/cmd_vel"))}
     finally:
         bus.close()
         inproc.close()
@@ -76,6 +79,9 @@ def test_avoid_inproc_and_bus_agree_to_the_bit_over_300_steps_and_resets():
                               "robots.robot1.lidar.noise={std = 0.01}",
                               "robots.robot1.motion.command_noise_std_radps=0.05"))
     assert out["episodes"] >= 4
+    # an action is one command over the bus, its other ticks held (PROTOCOL.md section 4,
+    # "Holding"; without it, action_repeat = 5 of them), plus two per reset
+    assert out["commands_sent"] <= STEPS + 2 * out["episodes"] + 1, out
 
 
 @pytest.mark.slow

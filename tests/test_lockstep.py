@@ -2,6 +2,8 @@
 the plant's ACK ledger and a member's tick (bus/lockstep.py)."""
 from __future__ import annotations
 
+import pytest
+
 from bus import codec
 from bus.lockstep import AckLedger
 from bus.member import MemberTick, Output
@@ -331,3 +333,66 @@ def test_the_hold_goes_on_without_a_process_given_up_and_ends_for_a_member():
     why = Lockstep(host, "sequential").hold(4 * T)
     assert why == "lost lockstep member a at t=0.080 s (not back within --rejoin-timeout 0.05 s)"
     assert host.exit_code == 1
+
+
+# ---------------------------------------------------------------- holding (section 4)
+def test_an_ack_with_a_hold_answers_the_held_ticks_and_nothing_may_come_for_them():
+    led, errors = ledger(expect=("a",))
+    led.join("a")
+    led.begin_tick(0)
+    assert send(led, "a", 0, codec.with_hold(codec.ACK, 3), n_plant=1, now=0) is True
+    for k in range(4):                                   # t0 ACKed, t1..t3 held
+        led.begin_tick(k * T)
+        assert led.waiting_for(k * T) == [] and led.done("a", k * T)
+    assert led.holding("a", 3 * T) == 0 and led.holding("a", 4 * T) is None
+    led.begin_tick(4 * T)
+    assert led.waiting_for(4 * T) == ["a"]                # the hold is over: waited for again
+    # a command for a held tick would act or not by timing: ignored whole, an error
+    assert send(led, "a", 2 * T, codec.ACK, n_plant=1, now=4 * T) is False
+    assert errors and "a tick it holds" in errors[-1][0]
+    assert led.stale_command(2 * T, (CMD,), 0) is None   # t0's command acts at t2: the rule's
+    # lost and back: the held ticks are not owed again (it would never answer them)
+    assert led.leave("a") == "lost" and led.join("a", now_ns=4 * T) is True
+    assert [led.waiting_for(k * T) for k in range(5)] == [[], [], [], [], ["a"]]
+    led.restart()                                         # a reset forgets every hold
+    assert led.holding("a", 2 * T) is None
+
+
+def test_a_member_that_holds_marks_every_message_and_passes_the_held_ticks_sending_nothing():
+    m = MemberTick("n", T, ack_key="sim/ack/n")
+    m._out = [Output("robot1/cmd_vel", None, True), Output("robot1/debug", None, False)]
+    sent = m.send_tick(0, hold=2)
+    assert [(k, f) for k, _, f, _ in sent] == [("robot1/debug", codec.with_hold(0, 2)),
+                                              ("robot1/cmd_vel", codec.with_hold(codec.ACK, 2))]
+    assert [m.holds(k * T) for k in (1, 2, 3)] == [True, True, False]
+    assert m.skip(T) == [] and m.sent[T] == []
+    assert m.clock(T, 1.0) == ([], None)                   # re-published: answered with nothing
+    m._out = [Output("robot1/cmd_vel", None, True)]
+    with pytest.raises(ValueError, match="a tick this member holds"):
+        m.skip(2 * T)
+    with pytest.raises(ValueError, match="FINAL"):
+        m.send_tick(3 * T, final=True, hold=1)
+
+
+def test_a_reader_takes_a_holding_producer_s_sample_for_the_ticks_it_holds():
+    from bus.keys import TOPICS
+    from bus.member import Slot
+
+    class Reads:
+        inputs = ["odom"]
+
+        def step(self, obs):
+            return None
+    m = MemberTick("reader", T, slots=[Slot("robot1", Reads(), ["odom"], False)],
+                   topics=dict(TOPICS), ack_key="sim/ack/reader")
+    m.configure({"mode": "lockstep", "control_tick_s": T * 1e-9,
+                 "robots": {"robot1": {"topics": {}}}})
+    odom = codec.odometry(0, 1.0, 2.0, 0.0, 0.0, 0.0, "robot1/odom", "robot1/base_link")
+    m.file_input("robot1/odom", odom, codec.attachment(1, 0, codec.with_hold(codec.ACK, 2), 1,
+                                                       "odometry"))
+    for k in range(4):
+        m.clock(k * T, 1.0)
+    assert [m.next_due() for _ in range(4)] == [0, T, 2 * T, None]   # t3: not held, not in
+    for k in (0, 1, 2):
+        assert m.take_observation(m.slots[0], k * T).msgs["odom"] is odom
+    assert m.missing(3 * T) == ["odom"]

@@ -111,7 +111,13 @@ def test_attachments_round_trip_and_malformed_ones_are_refused():
     plant = codec.attachment(9, 5, epoch=2)                 # the plant's: 20 bytes
     assert len(plant) == 20 and codec.parse_attachment(plant) == (9, 5, 0, 0, None, 2)
     good = codec.attachment(1, 2, codec.ACK, 1, "abc")
-    for bad in (good[:-1], good + b"x", good[:17], good[:16] + b"\x04" + good[17:],
+    # a hold (flags bits 2-7, section 4 "Holding") round-trips; with FINAL it is malformed
+    held = codec.parse_attachment(codec.attachment(1, 2, codec.with_hold(codec.ACK, 63), 1, "abc"))
+    assert (held.flags & codec.ACK, codec.hold_of(held.flags)) == (codec.ACK, 63)
+    assert codec.hold_of(codec.parse_attachment(good[:16] + b"\x04" + good[17:]).flags) == 1
+    with pytest.raises(ValueError, match="0..63"):
+        codec.with_hold(codec.ACK, 64)
+    for bad in (good[:-1], good + b"x", good[:17], good[:16] + b"\x07" + good[17:],
                 good[:19] + b"\x00a", codec.attachment(1, 2)[:15], b"",
                 codec.attachment(1, 2, codec.ACK, 1, "n" * 65)):
         assert codec.parse_attachment(bad) is None, bad

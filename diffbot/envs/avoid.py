@@ -189,7 +189,8 @@ class AvoidTask:
 
     def step(self, actions: dict) -> tuple[dict, dict, dict, dict, dict]:
         cmds = self.begin_step(actions)
-        self.transport.advance(self.action_repeat, lambda t, m: cmds, self._observe)
+        self.transport.advance(self.action_repeat, lambda t, m: cmds, self._observe,
+                               constant=True)
         return self.end_step()
 
     def begin_step(self, actions: dict) -> dict:

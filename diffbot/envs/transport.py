@@ -4,9 +4,11 @@ Both offer the same three calls, and give the same messages to the bit:
 
 * ``reset(seed, poses, observe)``: rebuild the world with that noise seed and start
   poses; ``observe(0, msgs)`` gets tick 0's messages;
-* ``advance(n, command, observe)``: n control ticks; at each tick t ``command(t, msgs)``
-  gives every robot's ``(v, w)``, the world steps, and ``observe(t + tick, msgs)`` gets the
-  new tick's messages;
+* ``advance(n, command, observe, constant=False)``: n control ticks; at each tick t
+  ``command(t, msgs)`` gives every robot's ``(v, w)``, the world steps, and
+  ``observe(t + tick, msgs)`` gets the new tick's messages; ``constant``: the command is
+  the same at every one of the n ticks (asked once: over the bus the member answers the
+  first tick and holds the others, docs/PROTOCOL.md section 4, "Holding");
 * ``close()``.
 
 ``msgs`` is ``{robot: {topic: latest message}}``, the latest sample of each topic stamped at
@@ -30,6 +32,7 @@ import time
 import weakref
 from typing import Callable
 
+from bus import codec
 from bus.keys import Keys
 from bus.node import NodeRunner, Twist
 from bus.session import close_session, open_when_listening, zenoh_error
@@ -123,10 +126,13 @@ class InProc:
             if msg is not None:                  # (None: a topic the env does not read)
                 self.latest[name][topic] = msg
 
-    def advance(self, n: int, command: Command, observe: Observe) -> None:
+    def advance(self, n: int, command: Command, observe: Observe,
+                constant: bool = False) -> None:
         tick = self.tick
+        cmds = None
         for _ in range(n):
-            cmds = command(tick.t_ns, self.latest)
+            if cmds is None or not constant:
+                cmds = command(tick.t_ns, self.latest)
             for name in tick.sim.robots:     # every robot, every tick, as the plant does
                 v, w = cmds.get(name, (0.0, 0.0))
                 tick.drive(name, Twist(v, w))
@@ -144,9 +150,10 @@ class _Job:
     for each new tick ``observe`` it and (but after the last) answer it."""
 
     def __init__(self, n: int, command: Command, observe: Observe,
-                 new_world: bool = False) -> None:
+                 new_world: bool = False, constant: bool = False) -> None:
         self.n, self.command, self.observe = n, command, observe
         self.new_world = new_world       # the world was reset since the member's last answer
+        self.constant = constant         # one command for all n ticks: answered once, held
         self.done = threading.Event()
         self.t_end: int | None = None
         self.error: BaseException | None = None
@@ -175,7 +182,10 @@ class _Member(NodeRunner):
     """The environment as a lockstep member: the standard node (joining, inputs filed by
     stamp, ACK trailer, FINAL, the plant watched), with one change: at each complete tick
     it hands every robot's observation to the environment's thread and answers with the
-    commands it gets back (docs/PROTOCOL.md, section 4)."""
+    commands it gets back (docs/PROTOCOL.md, section 4). A job whose command is constant
+    is answered once, holding its other ticks ("Holding"): the plant steps them without
+    a round trip each, and their commands are the same (the latest acts), up to the
+    robots' ``cmd_timeout_s`` (a longer hold would let the plant stop them)."""
 
     def __init__(self, *a, **kw) -> None:
         super().__init__(*a, **kw)
@@ -183,6 +193,12 @@ class _Member(NodeRunner):
         self.pending: _Job | None = None
         self.current: _Job | None = None
         self.closing = False
+        tick_ns = max(1, round(self.info.get("control_tick_s", 0.0) * 1e9))
+        timeouts = [r.get("drive", {}).get("cmd_timeout_s", 0.0)
+                    for r in self.info.get("robots", {}).values()]
+        # ticks a command may stand: its age stays under every robot's cmd_timeout_s
+        self.max_hold = max(0, min(codec.HOLD_MAX, min(
+            (round(t * 1e9) // tick_ns - 1 for t in timeouts), default=0)))
 
     def submit(self, job: _Job) -> None:
         with self.cv:
@@ -221,6 +237,9 @@ class _Member(NodeRunner):
                 job.t_end, self.current = t_ns, None
                 job.done.set()
                 job = None
+        if m.holds(t_ns):                    # answered by the last answer's hold
+            self._send(m.skip(t_ns), t_ns)
+            return False
         if job is None:
             job = self.current = self._take()
             if job is not None and job.new_world:
@@ -238,7 +257,9 @@ class _Member(NodeRunner):
             v, w = cmds.get(slot.robot, (0.0, 0.0))
             m.queue_output(Twist(v, w), t_ns, slot.robot)
         final = job is None and self.closing
-        self._send(m.send_tick(t_ns, final=final), t_ns)
+        hold = (min(job.n - 1, self.max_hold)
+                if job is not None and job.constant and self.current is job else 0)
+        self._send(m.send_tick(t_ns, final=final, hold=hold), t_ns)
         return final
 
 
@@ -355,8 +376,9 @@ class Bus:
                                      + reply.err.payload.to_bytes().decode("utf-8", "replace"))
         raise TransportError(f"no answer on {self.keys.reset}: {self._gone()}")
 
-    def advance(self, n: int, command: Command, observe: Observe) -> None:
-        self._run(_Job(n, command, observe))
+    def advance(self, n: int, command: Command, observe: Observe,
+                constant: bool = False) -> None:
+        self._run(_Job(n, command, observe, constant=constant))
 
     def close(self) -> None:
         self._finalizer()
