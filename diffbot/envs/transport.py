@@ -193,12 +193,15 @@ class _Member(NodeRunner):
         self.pending: _Job | None = None
         self.current: _Job | None = None
         self.closing = False
-        tick_ns = max(1, round(self.info.get("control_tick_s", 0.0) * 1e9))
+
+    @property
+    def max_hold(self) -> int:
+        """Ticks a command may stand after its own: its age stays under every robot's
+        ``cmd_timeout_s`` (from the plant's ``sim/info``, as :meth:`_apply_info` last took it)."""
         timeouts = [r.get("drive", {}).get("cmd_timeout_s", 0.0)
                     for r in self.info.get("robots", {}).values()]
-        # ticks a command may stand: its age stays under every robot's cmd_timeout_s
-        self.max_hold = max(0, min(codec.HOLD_MAX, min(
-            (round(t * 1e9) // tick_ns - 1 for t in timeouts), default=0)))
+        return max(0, min(codec.HOLD_MAX, min(
+            (round(t * 1e9) // max(1, self.tick_ns) - 1 for t in timeouts), default=0)))
 
     def submit(self, job: _Job) -> None:
         with self.cv:
