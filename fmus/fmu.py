@@ -138,11 +138,15 @@ class Fmu:
         #: the FMU's own communication step (DefaultExperiment stepSize), s, or None
         self.step_size = float(experiment.stepSize) if experiment is not None and \
             experiment.stepSize not in (None, "") and float(experiment.stepSize) > 0 else None
-        self.unzipdir = extraction_dir()
-        extract(str(self.path), self.unzipdir)
-        self.instance_name = instance_name
-        self._instantiate()
         self._snapshot = None
+        self.unzipdir = extraction_dir()
+        self.instance_name = instance_name
+        try:
+            extract(str(self.path), self.unzipdir)
+            self._instantiate()
+        except BaseException:
+            self._remove_dir()
+            raise
         self.time = 0.0
 
     # ------------------------------------------------------------------ plumbing
@@ -324,15 +328,24 @@ class Fmu:
         self.fmu = None
 
     def close(self) -> None:
-        """Terminate and free the instance (never raises)."""
-        if self.fmu is None:
-            return
-        self._free_snapshot()
-        try:
-            self.fmu.terminate()
-        except Exception:
-            pass
-        self._free_instance()
+        """Terminate and free the instance, and remove its extraction folder (never raises;
+        the object is done then)."""
+        if self.fmu is not None:
+            self._free_snapshot()
+            try:
+                self.fmu.terminate()
+            except Exception:
+                pass
+            self._free_instance()
+        self._remove_dir()
+
+    def _remove_dir(self) -> None:
+        """The extraction folder gone now, not at the process's exit (a master or a test
+        opens many FMUs in one process)."""
+        d = getattr(self, "unzipdir", None)
+        if d and d in _TMP_DIRS:
+            _TMP_DIRS.remove(d)
+            shutil.rmtree(d, ignore_errors=True)
 
 
 

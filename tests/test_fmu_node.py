@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import queue
 import re
 import signal
@@ -26,6 +27,7 @@ from bus.keys import Keys
 from bus.controller import Observation
 from bus.protocol import PROTOCOL_VERSION
 from controllers.odometry import integrate
+from fmus import fmu as fmu_mod
 from fmus import fmu_node
 
 from .conftest import ROOT, require_built_fmus, wait_for
@@ -286,22 +288,33 @@ def bad_mappings(tmp: Path) -> dict[str, tuple[Path, str]]:
     }
 
 
+def extraction_folders() -> set[Path]:
+    """This process's FMU extraction folders (fmus/fmu.py: TMP_ROOT/<pid>-*)."""
+    return set(fmu_mod.TMP_ROOT.glob(f"{os.getpid()}-*"))
+
+
 def test_mapping_errors_name_file_key_and_variable(fmus, tmp_path):
+    before = extraction_folders()
     for name, (path, pattern) in bad_mappings(tmp_path).items():
         with pytest.raises(fmu_node.FmuNodeError) as err:
             fmu_node.open_node(fmus[2], path)
         msg = str(err.value)
         assert "\n" not in msg, name
         assert re.search(pattern, msg), f"{name}: {msg}"
+    # a refused FMU leaves no folder behind (a master trying mappings one by one)
+    assert extraction_folders() <= before
 
 
 def test_shipped_mapping_is_found_from_the_model_identifier(fmus):
+    before = extraction_folders()
     node = fmu_node.open_node(fmus[3])
     try:
         assert Path(node.mapping.path) == MAPPING
         assert node.inputs == ["joint_states"] and node.name == "odometry"
+        assert len(extraction_folders() - before) == 1
     finally:
         node.close()
+    assert extraction_folders() <= before, "closing the node removes its FMU's folder"
 
 
 def test_fmu_paths_resolve_from_any_directory(monkeypatch, tmp_path):
