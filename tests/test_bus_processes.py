@@ -206,11 +206,9 @@ def _try(f):
         return None
 
 
-def test_user_zenoh_config_passes_through_a_router(procs, tmp_path):
+def test_user_zenoh_config_passes_through_a_router(procs, tmp_path, endpoint):
     """Plant and controller as clients of a separate router, configured by the user's file."""
-    import tempfile
-    d = tempfile.mkdtemp(prefix="dbr-")
-    ep = f"unixsock-stream/{d}/router.sock"
+    ep = endpoint
     conf = zenoh.Config()
     conf.insert_json5("mode", '"router"')
     conf.insert_json5("listen/endpoints", json.dumps([ep]))

@@ -9,7 +9,6 @@ import json
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 
 import pytest
@@ -144,10 +143,9 @@ def test_join_timeout_is_waited_out_in_full(procs, endpoint):
 # ---------------------------------------------------------------------- --namespace
 
 @pytest.fixture
-def router(tmp_path):
+def router(tmp_path, endpoint):
     """A Zenoh router in this process and a client config file for it."""
-    d = tempfile.mkdtemp(prefix="dbn-")
-    ep = f"unixsock-stream/{d}/router.sock"
+    ep = endpoint
     conf = zenoh.Config()
     conf.insert_json5("mode", '"router"')
     conf.insert_json5("listen/endpoints", json.dumps([ep]))
