@@ -2,7 +2,8 @@
 
 Each process is its own OS process in its own session (process group), so the run decides
 the order of shutdown: on Ctrl-C, SIGTERM, the end of the run or a failure, it sends SIGINT
-to every child, waits, then SIGKILLs what is left, by PID. A required process that dies
+to every child, waits, then SIGKILLs what is left, by PID (at the plant's normal end, the
+nodes first have a moment to end by themselves on its sim/end). A required process that dies
 ends the run with a non-zero exit code and its last stderr lines; an optional one may die
 alone. A process marked ``ends_run`` that exits 0 ends the run normally. A process that is
 still there but has lost its bus lease (stopped with SIGSTOP, or wedged) counts as dead: the
@@ -36,6 +37,9 @@ from .procs import diffbot_argv
 from .scenario import ScenarioSpec, expand
 
 STOP_GRACE_S = 1.5
+#: after the plant ended the run (exit 0), how long its nodes have to end by themselves on
+#: its sim/end before they are asked to stop (they take a fraction of a second)
+END_GRACE_S = 3.0
 #: a child whose bus token is gone but whose process still runs is taken as hung after this
 WEDGED_S = 3.0
 EXIT_FAILED = 1
@@ -198,11 +202,19 @@ class ScenarioRun:
 
     def stop_all(self) -> None:
         """SIGINT the nodes, then the plant (so nodes do not see it vanish), then SIGKILL
-        by PID whatever is left after the grace period, the recorder last. A placed run
-        then waits for its tasks to report (:meth:`Placement.wait_tasks`)."""
+        by PID whatever is left after the grace period, the recorder last. After a plant
+        that ended the run (exit 0) the nodes first get :data:`END_GRACE_S` to end by
+        themselves. A placed run then waits for its tasks to report
+        (:meth:`Placement.wait_tasks`)."""
         try:
             plant = self.children[0]
             nodes = [c for c in self.children[1:] if c is not self.recorder]
+            if plant.poll() == 0:
+                # The run's normal end: every node got the plant's sim/end and ends by
+                # itself. A stop request meanwhile races that end; a placed node's Ray task
+                # cancelled as it returns loses the node's exit code (summary.json said -2
+                # for an odometry node that had ended 0). The view stays until stopped.
+                procs.wait_all([c for c in nodes if c.name != VIEW], END_GRACE_S)
             for c in nodes:
                 c.signal(signal.SIGINT)
             procs.wait_all(nodes, STOP_GRACE_S / 2)

@@ -200,3 +200,27 @@ def test_two_namespaced_runs_on_one_router_see_nothing_of_each_other(router, tmp
     assert derived <= set(counts), sorted(counts)
     assert {t: n for t, n in counts.items() if t not in derived} == \
         {f"/{k}": n for k, n in sa["message_counts"].items()}
+
+
+# ---------------------------------------------------------------------- the end of a run
+
+def test_at_the_plant_s_end_the_nodes_end_by_themselves_before_they_are_asked(tmp_path):
+    """A plant that ended the run (exit 0) published sim/end: its nodes end by themselves,
+    and the launcher asks them to stop only if they have not within END_GRACE_S. Asked at
+    once, a node still finishing raced the request: a placed node's Ray task cancelled as it
+    returned lost the node's exit code (a summary.json said -2 for a node that ended 0)."""
+    from diffbot import procs
+    from diffbot.scenario import load_scenario
+    from diffbot.scenario_run import END_GRACE_S, ScenarioRun
+    run = ScenarioRun(load_scenario("square"), str(tmp_path), "lockstep", 0, "")
+    plant = procs.Child("plant", [sys.executable, "-c", "pass"], str(tmp_path / "p.log"))
+    plant.start().wait(30)
+    # a node a SIGINT would end with -2 (KeyboardInterrupt), done in half a second
+    finishing = 0.5
+    node = procs.Child("node", [sys.executable, "-c", f"import time; time.sleep({finishing})"],
+                       str(tmp_path / "n.log")).start()
+    run.children, run.recorder = [plant, node], None
+    t0 = time.monotonic()
+    run.stop_all()
+    assert plant.exit_code == 0 and node.exit_code == 0, node.describe_exit()
+    assert time.monotonic() - t0 < END_GRACE_S, "waited out the grace for a node that had ended"
