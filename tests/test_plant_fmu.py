@@ -39,6 +39,17 @@ def fmus(tmp_path_factory):
     return paths
 
 
+#: the folders Slave extracted FMUs to during the running test (removed after it)
+_EXTRACTED: list[str] = []
+
+
+@pytest.fixture(autouse=True)
+def _remove_extracted():
+    yield
+    while _EXTRACTED:
+        shutil.rmtree(_EXTRACTED.pop(), ignore_errors=True)
+
+
 class Slave:
     """An fmpy instance of the plant FMU with its log and its variables by name."""
 
@@ -47,6 +58,8 @@ class Slave:
         self.md = read_model_description(str(path))
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
         self.dir = unzipped or extract(str(path))
+        if unzipped is None:
+            _EXTRACTED.append(self.dir)
         self.fmi, self.log, self.t = fmi, [], 0.0
         kw = dict(guid=self.md.guid, unzipDirectory=self.dir, modelIdentifier="plant",
                   instanceName="plant")
