@@ -23,6 +23,25 @@ from .scenario import ProcessSpec, load_scenario
 from .scenario_run import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, VIEW, ScenarioRun,
                            summarize)
 
+#: a run's bus socket folder, <tmp>/diffbot-run-<launcher PID>-<random>, removed when the run
+#: ends; a SIGKILLed launcher cannot, and the next run removes the folders of launchers gone
+SOCKET_DIR_PREFIX = "diffbot-run-"
+
+
+def socket_dir() -> str:
+    """A new folder for this run's unix socket, after removing those of dead launchers."""
+    root = tempfile.gettempdir()
+    for name in os.listdir(root):
+        pid = name[len(SOCKET_DIR_PREFIX):].split("-", 1)[0]
+        path = os.path.join(root, name)
+        if name.startswith(SOCKET_DIR_PREFIX) and pid.isdigit() and not procs.alive(int(pid)):
+            try:
+                if os.stat(path).st_uid == os.getuid():
+                    shutil.rmtree(path, ignore_errors=True)
+            except OSError:
+                pass
+    return tempfile.mkdtemp(prefix=f"{SOCKET_DIR_PREFIX}{os.getpid()}-")
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = ArgumentParser(prog="diffbot run", description="Run a scenario.")
@@ -131,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     endpoint = args.endpoint
     placed = placement.wanted(args)
     if endpoint is None and args.zenoh_config is None and not placed:
-        tmp = tempfile.mkdtemp(prefix="diffbot-")
+        tmp = socket_dir()
         endpoint = f"unixsock-stream/{tmp}/bus.sock"
     run = ScenarioRun(spec, out, args.mode or spec.mode, args.seed, endpoint or "", args.namespace,
               args.zenoh_config, args.duration if args.duration is not None else spec.duration_s,

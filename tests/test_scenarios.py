@@ -1,15 +1,19 @@
 """`diffbot run`: the study's drive test and square, determinism, supervision, Ctrl-C."""
 from __future__ import annotations
 
+import glob
 import json
 import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import pytest
+
+from diffbot.launcher import SOCKET_DIR_PREFIX
 
 from .conftest import ROOT, check_real_time_factor, wait_for
 
@@ -168,6 +172,8 @@ def test_a_sigkilled_launcher_leaves_no_process_behind(tmp_path):
                  what="the plant to start running")
         wait_for(lambda: len(processes_mentioning(str(out))) >= 4, 30,
                  what="the scenario's processes")
+        left = glob.glob(os.path.join(tempfile.gettempdir(), f"{SOCKET_DIR_PREFIX}{p.pid}-*"))
+        assert len(left) == 1, left                  # its bus socket's folder
         p.kill()
         p.wait(10)
         # (a node whose plant went at the same moment may spend a while closing its session)
@@ -176,6 +182,13 @@ def test_a_sigkilled_launcher_leaves_no_process_behind(tmp_path):
         except AssertionError as exc:         # name what is left now, not what was at the kill
             left = [(_cmdline(p) or "")[:120] for p in processes_mentioning(str(out))]
             raise AssertionError(f"{exc}: {left}") from None
+        # SIGKILL left the folder; the next run removes it (here one that stops at once)
+        assert os.path.isdir(left[0])
+        again = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square",
+                                "--duration", "0.1", "--out", str(tmp_path / "again")],
+                               cwd=ROOT, capture_output=True, text=True, timeout=120)
+        assert again.returncode == 0, again.stderr
+        assert not os.path.exists(left[0]), "the dead launcher's socket folder is still there"
     finally:
         if p.poll() is None:
             p.kill()
