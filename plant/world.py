@@ -22,6 +22,10 @@ from .noise import NoiseConfig, parse_noise
 from .tomlfile import Table, WorldError, read_toml, shipped_or_path, tomllib
 
 WORLDS_DIR = os.path.join(os.path.dirname(__file__), "worlds")
+#: bounds of [world] control_tick_s and of the DART steps in one: beyond them a world file
+#: would make one tick take hours (the fuzz test met control_tick_s = 3.5e16 s, which hung)
+MAX_CONTROL_TICK_S = 1.0
+MAX_STEPS_PER_TICK = 1000
 
 
 # ---------------------------------------------------------------------------- spec
@@ -226,10 +230,16 @@ def parse_world(data: dict, path: str) -> WorldSpec:
     spec.mode = w.string("mode", "dynamic", choices=("dynamic", "kinematic"))
     spec.physics_step_s = w.number("physics_step_s", 0.001, positive=True)
     spec.control_tick_s = w.number("control_tick_s", 0.02, positive=True)
+    if spec.control_tick_s > MAX_CONTROL_TICK_S:
+        w.fail("control_tick_s", f"{spec.control_tick_s:g} s is longer than a control tick can "
+                                 f"be (at most {MAX_CONTROL_TICK_S:g} s)")
     ratio = spec.control_tick_s / spec.physics_step_s
     if not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
         w.fail("control_tick_s", f"must be a whole multiple of physics_step_s "
                                  f"({spec.physics_step_s:g} s), got {spec.control_tick_s:g} s")
+    if round(ratio) > MAX_STEPS_PER_TICK:
+        w.fail("physics_step_s", f"{spec.physics_step_s:g} s makes {round(ratio)} physics "
+                                 f"steps a control tick (at most {MAX_STEPS_PER_TICK})")
     if spec.physics_step_s > 0.01:
         w.fail("physics_step_s", f"{spec.physics_step_s:g} s is too coarse for contact "
                                  "(use at most 0.01 s)")

@@ -48,6 +48,11 @@ def test_shipped_worlds_load():
     (("physics_step_s = 0.001", "physics_step_s = 0"), "world.physics_step_s", "must be > 0"),
     (("physics_step_s = 0.001", "physics_step_s = -0.001"), "world.physics_step_s", "must be > 0"),
     (("control_tick_s = 0.02", "control_tick_s = 0.0205"), "world.control_tick_s", "whole multiple"),
+    # one tick that would take hours: refused, not hung on (a fuzz find: 3.5e16 s)
+    (("control_tick_s = 0.02", "control_tick_s = 35394908873780496"), "world.control_tick_s",
+     "at most 1 s"),
+    (("physics_step_s = 0.001", "physics_step_s = 1e-9"), "world.physics_step_s",
+     "20000000 physics steps a control tick (at most 1000)"),
     (("radius_m = 0.2", "radius_m = -0.2"), "objects[0].radius_m", "must be > 0"),
     (('shape = "sphere"', 'shape = "cone"'), "objects[0].shape", "must be one of"),
     (("pose = [1.0, 0.0]", "pose = [1.0]"), "objects[0].pose", "list of"),
