@@ -32,14 +32,15 @@ def socket_dir() -> str:
     """A new folder for this run's unix socket, after removing those of dead launchers."""
     root = tempfile.gettempdir()
     for name in os.listdir(root):
+        if not name.startswith(SOCKET_DIR_PREFIX):
+            continue
         pid = name[len(SOCKET_DIR_PREFIX):].split("-", 1)[0]
         path = os.path.join(root, name)
-        if name.startswith(SOCKET_DIR_PREFIX) and pid.isdigit() and not procs.alive(int(pid)):
-            try:
-                if os.stat(path).st_uid == os.getuid():
-                    shutil.rmtree(path, ignore_errors=True)
-            except OSError:
-                pass
+        try:
+            if pid.isdigit() and not procs.alive(int(pid)) and os.stat(path).st_uid == os.getuid():
+                shutil.rmtree(path, ignore_errors=True)
+        except OSError:
+            pass
     return tempfile.mkdtemp(prefix=f"{SOCKET_DIR_PREFIX}{os.getpid()}-")
 
 
