@@ -172,8 +172,9 @@ def test_a_sigkilled_launcher_leaves_no_process_behind(tmp_path):
                  what="the plant to start running")
         wait_for(lambda: len(processes_mentioning(str(out))) >= 4, 30,
                  what="the scenario's processes")
-        left = glob.glob(os.path.join(tempfile.gettempdir(), f"{SOCKET_DIR_PREFIX}{p.pid}-*"))
-        assert len(left) == 1, left                  # its bus socket's folder
+        sock_dirs = glob.glob(os.path.join(tempfile.gettempdir(),
+                                           f"{SOCKET_DIR_PREFIX}{p.pid}-*"))
+        assert len(sock_dirs) == 1, sock_dirs        # its bus socket's folder
         p.kill()
         p.wait(10)
         # (a node whose plant went at the same moment may spend a while closing its session)
@@ -183,12 +184,12 @@ def test_a_sigkilled_launcher_leaves_no_process_behind(tmp_path):
             left = [(_cmdline(p) or "")[:120] for p in processes_mentioning(str(out))]
             raise AssertionError(f"{exc}: {left}") from None
         # SIGKILL left the folder; the next run removes it (here one that stops at once)
-        assert os.path.isdir(left[0])
+        assert os.path.isdir(sock_dirs[0])
         again = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square",
                                 "--duration", "0.1", "--out", str(tmp_path / "again")],
                                cwd=ROOT, capture_output=True, text=True, timeout=120)
         assert again.returncode == 0, again.stderr
-        assert not os.path.exists(left[0]), "the dead launcher's socket folder is still there"
+        assert not os.path.exists(sock_dirs[0]), "the dead launcher's socket folder is still there"
     finally:
         if p.poll() is None:
             p.kill()
