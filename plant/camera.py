@@ -48,6 +48,7 @@ import numpy as np
 
 from plant import kernels
 from plant.lens import undistort
+from plant.lidar import MIN_RATE_HZ
 from plant.raycast import Scene
 from plant.shapes import Shape, pose_matrix
 
@@ -84,6 +85,11 @@ DEFAULT_BACKGROUND = (0.70, 0.82, 0.95)
 _TILE = 8
 
 
+#: the largest image side (a 4K sensor's is 3840): beyond it a world file would run the
+#: plant out of memory
+MAX_SIDE_PX = 4096
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     """Pinhole camera. SI units (m, rad, Hz); distortion in OpenCV's convention."""
@@ -111,9 +117,11 @@ class CameraConfig:
             v = getattr(self, key)
             if int(v) != v or v < 1:
                 raise ValueError(f"camera {key} must be a positive integer, got {v!r}")
+            if v > MAX_SIDE_PX:
+                raise ValueError(f"camera {key} {v} is more than {MAX_SIDE_PX} pixels")
         checks = {
             "hfov_rad": 0.0 < self.hfov_rad < math.pi,
-            "rate_hz": self.rate_hz > 0.0,
+            "rate_hz": self.rate_hz >= MIN_RATE_HZ,
             "near_m": 0.0 < self.near_m < self.far_m,
             "far_m": self.far_m > 0.0,
         }

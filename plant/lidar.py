@@ -44,6 +44,13 @@ __all__ = ["LidarConfig", "scan", "scan_many", "scan_worlds", "scan_many_referen
            "apply_noise", "measure", "ray_directions", "sensor_pose"]
 
 
+#: bounds a lidar's configuration is held to: more rays than any planar lidar has (0.036 deg
+#: apart over a full turn), and a sensor's slowest rate (one reading every 100 s); beyond
+#: them a world file would run out of memory or overflow the period of its readings
+MAX_RAYS = 10_000
+MIN_RATE_HZ = 0.01
+
+
 @dataclass(frozen=True)
 class LidarConfig:
     """SICK LMS 291-like planar lidar. SI units (m, rad, Hz)."""
@@ -62,12 +69,14 @@ class LidarConfig:
     def __post_init__(self) -> None:
         if int(self.num_rays) != self.num_rays or self.num_rays < 1:
             raise ValueError(f"num_rays must be a positive integer, got {self.num_rays!r}")
+        if self.num_rays > MAX_RAYS:
+            raise ValueError(f"lidar num_rays {self.num_rays} is more than {MAX_RAYS}")
         checks = {
             "fov_rad": 0.0 <= self.fov_rad <= 2.0 * math.pi,
             "min_range_m": 0.0 <= self.min_range_m < self.max_range_m,
             "max_range_m": self.max_range_m > 0.0,
             "resolution_m": self.resolution_m >= 0.0,
-            "rate_hz": self.rate_hz > 0.0,
+            "rate_hz": self.rate_hz >= MIN_RATE_HZ,
         }
         for key, ok in checks.items():
             if not ok:

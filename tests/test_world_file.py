@@ -135,3 +135,19 @@ def test_a_sensor_can_be_switched_off_in_place():
     w = load_world("living_room", ["robots.robot1.lidar.enabled=false",
                                    "robots.robot1.camera.enabled=false"])
     assert w.robots[0].sensors.lidar is None and w.robots[0].sensors.camera is None
+
+
+@pytest.mark.parametrize("override,reason", [
+    # what would run the plant out of memory or overflow a sensor's period: refused
+    ("robots.robot1.lidar.num_rays=1000000000000", "lidar num_rays 1000000000000 is more than 10000"),
+    ("robots.robot1.lidar.rate_hz=1e-320", "lidar rate_hz out of range"),
+    ("robots.robot1.camera.width=100000", "camera width 100000 is more than 4096 pixels"),
+    ("robots.robot1.camera.rate_hz=0.001", "camera rate_hz out of range"),
+])
+def test_sensors_beyond_their_bounds_are_world_errors(override, reason):
+    with pytest.raises(WorldError) as e:
+        load_world("living_room", [override])
+    assert reason in str(e.value) and "robots[0]." in str(e.value), str(e.value)
+    # the bounds themselves are accepted
+    load_world("living_room", ["robots.robot1.lidar.num_rays=10000",
+                               "robots.robot1.camera.width=4096", "robots.robot1.lidar.rate_hz=0.01"])
