@@ -44,9 +44,10 @@ __all__ = ["LidarConfig", "scan", "scan_many", "scan_worlds", "scan_many_referen
            "apply_noise", "measure", "ray_directions", "sensor_pose"]
 
 
-#: bounds a lidar's configuration is held to: more rays than any planar lidar has (0.036 deg
-#: apart over a full turn), and a sensor's slowest rate (one reading every 100 s); beyond
-#: them a world file would run out of memory or overflow the period of its readings
+#: bounds a lidar's configuration is held to: 10,000 rays (0.036 deg apart over a full
+#: turn, finer than planar lidars' 0.1-0.25 deg steps), and a sensor's slowest rate (one
+#: reading every 100 s); beyond them a world file ran the plant out of memory or overflowed
+#: the period of its readings
 MAX_RAYS = 10_000
 MIN_RATE_HZ = 0.01
 
