@@ -4,11 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-try:
-    import cv2
-except ImportError:          # opencv is optional: Newton steps alone then
-    cv2 = None
-
 
 def distort(x, y, d):
     """Distorted normalised coords of undistorted (x, y) under d = (k1, k2, p1, p2, k3)."""
@@ -26,6 +21,10 @@ def undistort(xd, yd, d, k):
     OpenCV's iterative ``undistortPoints`` gives the start, Newton steps with the
     analytic Jacobian polish it to < 1e-12 (normalised units)."""
     x, y = xd.copy(), yd.copy()
+    try:        # imported here: a plant whose cameras have no distortion never loads OpenCV
+        import cv2
+    except ImportError:      # opencv is optional: Newton steps alone then
+        cv2 = None
     if cv2 is not None:
         pts = (np.stack([xd * k[0, 0] + k[0, 2], yd * k[1, 1] + k[1, 2]], -1)
                .reshape(-1, 1, 2).astype(np.float64))
