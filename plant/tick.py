@@ -153,6 +153,7 @@ def messages_of(ticks: Sequence[Tick], wanted: Sequence[dict[str, Wanted] | None
     world's lidars due now cast in one call (:func:`plant.lidar.scan_worlds`, robots
     carrying the same lidar together)."""
     scenes, groups = [], {}
+    wanted = [settled(t.sensors, t.t_ns // t.tick_ns, want) for t, want in zip(ticks, wanted)]
     for k, (t, want) in enumerate(zip(ticks, wanted)):
         tick, w = t.t_ns // t.tick_ns, want or {}
         scene = None
@@ -196,6 +197,19 @@ def build_world(spec: WorldSpec, seed: int, disabled=(), restart: Simulation | N
     return sim, sensors
 
 
+def settled(sensors: dict[str, RobotSensors], tick: int, wanted: dict[str, Wanted] | None
+            ) -> dict[str, Wanted] | None:
+    """``wanted`` asked once for each robot's topics due at ``tick``, the answers kept for
+    the tick. The plant's answers change when a reader comes or goes (Zenoh's matching
+    listener, on another thread): asked twice, "is the scan read?" said no when the scene
+    was decided and yes when the scan was built, and the plant died casting rays into no
+    scene (a TypeError, when a ROS 2 bridge came up at that moment)."""
+    if wanted is None:
+        return None
+    return {name: frozenset(t for t in s.due(tick) if w(t)).__contains__
+            for name, s in sensors.items() if (w := wanted.get(name)) is not None}
+
+
 def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
                   state: Callable[[str], RobotState], shapes: Callable[[], list],
                   wanted: dict[str, Wanted] | None = None, encoded: bool = False,
@@ -207,10 +221,12 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
     ``wanted`` (robot -> ``wanted(topic)``, the plant's "does anyone read it"): a due topic
     nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
     rendered) but its noise drawn, so every other value is what it would have been (None:
-    every topic is built). ``encoded``: the messages' CDR bytes instead of the messages
+    every topic is built; each asked once a tick, :func:`settled`). ``encoded``: the messages' CDR bytes instead of the messages
     (:meth:`RobotSensors.messages`). ``cast``: (scene, {robot: noise-free ranges}) of this
     tick, made already (:func:`messages_of`)."""
     tick = t_ns // tick_ns
+    if cast is None:                       # (a cast's caller settled them already)
+        wanted = settled(sensors, tick, wanted)
     want = wanted or {}
     states = {name: state(name) for name in sensors}
     if cast is not None:

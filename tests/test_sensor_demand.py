@@ -100,3 +100,36 @@ def test_tick_messages_gives_every_due_topic_and_none_for_the_unread():
     assert [x for tick in part for x in tick if x[2] is not None] == read
     assert {t for tick in part for _, t, m in tick if m is None} == {
         "joint_states", "gps", "camera/image_raw"}
+
+
+def test_a_reader_that_comes_during_a_tick_changes_nothing_of_that_tick():
+    """The plant's ``wanted`` is Zenoh's matching status, which a reader coming up (a ROS 2
+    bridge, ``diffbot echo``) changes at any moment, on Zenoh's thread. Asked when the
+    scene was decided, "is the scan read?" said no; asked again when the scan was built, yes:
+    the plant cast rays into no scene and died (TypeError). Now each answer holds for the
+    whole tick, and the reader gets the topic from the next tick on, the same bytes."""
+    from plant.tick import build_world, tick_messages
+    spec = load_world("living_room_follow", NOISY)
+    tick_ns = int(round(spec.control_tick_s * 1e9))
+    asked: dict[str, int] = {}
+
+    def arriving(topic: str) -> bool:
+        """A reader of the scan and the image that comes just after the first question."""
+        if topic in ("scan", "camera/image_raw"):
+            asked[topic] = asked.get(topic, 0) + 1
+            return asked[topic] > 1
+        return True
+
+    def ticks(wanted) -> list:
+        sim, sensors = build_world(spec, 3)
+        out = []
+        for _ in range(6):
+            out.append(list(tick_messages(sim.time_ns, tick_ns, sensors, sim.state, sim.shapes,
+                                          wanted and {n: wanted for n in sensors}, True)))
+            sim.step_tick()
+        return out
+    full, part = ticks(None), ticks(arriving)
+    first = {t for _, t, m in part[0] if m is None}
+    assert first == {"scan", "camera/image_raw"}, first      # not built at the tick it came
+    assert [x for tick in part[1:] for x in tick] == \
+        [x for tick in full[1:] for x in tick]
