@@ -136,8 +136,11 @@ class ScenarioRun:
             # processes start beside it), so a plant that waits for its members before the
             # first tick waits for the observer, the recorder and the view too: they see
             # the whole run
-            watchers = [OBSERVER] + [c for c in (RECORDER,) if self.record and c not in expect] \
-                + ([VIEW] if self.view_port is not None else [])
+            watchers = [OBSERVER]
+            if self.record and RECORDER not in expect:     # (outside lockstep: expected)
+                watchers.append(RECORDER)
+            if self.view_port is not None:
+                watchers.append(VIEW)
             plant += ["--wait-for", ",".join(watchers)]
         if self.physics_process and "--physics-process" not in plant:
             plant.append("--physics-process")
