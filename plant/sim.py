@@ -150,6 +150,7 @@ class Simulation:
             self._part_owner, self._part_rel = self._parts_on_base()
         self._scene_template = None
         self._scene_template = Scene(list(self.shapes()))     # built once per world
+        self._room: Scene | None = None                         # room_scene()
         self._set_contact_solver(spec.contact_solver)
         self.motion_rng = {r.name: make_rng(spec.seed, f"{r.name}/motion") for r in spec.robots}
 
@@ -295,6 +296,15 @@ class Simulation:
         poses = np.array([s.pose for s in moving], dtype=float).reshape(-1, 4, 4)
         return ShapeList(self._static_shapes + moving, self._scene_template,
                          len(self._static_shapes), poses)
+
+    def room_scene(self) -> Scene:
+        """The world without its robots, as one :class:`~plant.raycast.Scene`, built once:
+        the still shapes and the movable objects where the world file puts them
+        (:meth:`shapes` never moves them either). What a one-robot world's sensors see:
+        a lidar or a camera skips its own robot's parts."""
+        if self._room is None:
+            self._room = Scene(list(self._static_shapes) + list(self._movable_shapes))
+        return self._room
 
     def body_visuals(self, robot: str) -> list[dict]:
         """What a robot looks like, in its base_link frame: each visual shape (chassis,

@@ -36,6 +36,12 @@ class Stepper:
         return self.physics.state(self._index[robot])
 
     def shapes(self):
+        """What the robots' sensors see now (the scene of a tick's lidars and cameras). In a
+        one-robot world that is the room alone (:meth:`Simulation.room_scene`): a sensor
+        skips its own robot's parts, so the rays and pixels are the same, and the robot's
+        parts need not be placed (in DART, a world transform per part) every time."""
+        if len(self.sim.robots) == 1:
+            return self.sim.room_scene()
         if self.physics is None:
             return self.sim.shapes()
         assert self.physics.parts is not None, "a scene is due but the snapshot has no parts"

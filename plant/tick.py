@@ -158,7 +158,7 @@ def messages_of(ticks: Sequence[Tick], wanted: Sequence[dict[str, Wanted] | None
         tick, w = t.t_ns // t.tick_ns, want or {}
         scene = None
         if any(s.needs_scene(tick, w.get(name)) for name, s in t.sensors.items()):
-            scene = Scene(t.stepper.shapes())
+            scene = Scene.from_shapes(t.stepper.shapes())
         scenes.append(scene)
         if scene is None:
             continue
@@ -216,7 +216,8 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
                   cast: tuple | None = None) -> Iterator[tuple[str, str, object]]:
     """(robot, topic, message) of every sensor due at time ``t_ns``, robot by robot in a
     fixed order (the order the plant publishes them in). ``state(robot)`` gives a robot's
-    true state, ``shapes()`` the world's solids (called only when a lidar or camera is due).
+    true state, ``shapes()`` the world's solids, or their Scene (called only when a lidar or camera
+    is due).
 
     ``wanted`` (robot -> ``wanted(topic)``, the plant's "does anyone read it"): a due topic
     nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
@@ -234,7 +235,7 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
     else:
         scene = None
         if any(s.needs_scene(tick, want.get(name)) for name, s in sensors.items()):
-            scene = Scene(shapes())
+            scene = Scene.from_shapes(shapes())
         scans = scan_all(sensors, states, tick, scene, wanted) if scene is not None else {}
     for name, s in sensors.items():
         built = iter(s.messages(tick, t_ns, states[name], scene, scans.get(name),

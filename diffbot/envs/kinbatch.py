@@ -249,11 +249,10 @@ class ArrayTicks:
         return d
 
     def _static_scene(self, sim) -> Scene:
-        """The room without its robot: the still shapes and the movable objects where the
-        world file puts them (:meth:`plant.sim.Simulation.shapes` never moves them either);
-        every world of the batch has the same room."""
+        """The room without its robot (:meth:`plant.sim.Simulation.room_scene`), one for
+        the batch: every world of the batch has the same room."""
         if self._scene is None or self._scene_of != sim.spec.name:
-            self._scene = Scene(list(sim._static_shapes) + list(sim._movable_shapes))
+            self._scene = sim.room_scene()
             self._scene_of = sim.spec.name
         return self._scene
 
