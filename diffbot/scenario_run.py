@@ -178,9 +178,10 @@ class ScenarioRun:
     def early(self) -> list[Child]:
         """The processes started together with the plant, not once it listens: the
         recorder, the view and the scenario's ``diffbot`` members (each one's start-up, a
-        few tenths of a second of imports, overlaps the plant's). Each waits for the plant's socket and
-        ``sim/info`` (``bus.session``: 15 s), and the plant does not tick before they and
-        the observer are there (``--expect``, ``--wait-for``). ``exec`` programs are not
+        few tenths of a second of imports, overlaps the plant's). Each waits for the
+        plant's socket and ``sim/info`` (``bus.session``: 15 s), and the plant does not tick
+        before they and the observer are there (``--expect``, ``--wait-for``). ``exec``
+        programs are not
         ours to know whether they wait: they start once the plant listens, as do the
         processes of a placed run (Ray tasks) and every process of a run in which the plant
         does not wait for anyone (it would tick without them)."""

@@ -222,8 +222,8 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
     ``wanted`` (robot -> ``wanted(topic)``, the plant's "does anyone read it"): a due topic
     nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
     rendered) but its noise drawn, so every other value is what it would have been (None:
-    every topic is built; each asked once a tick, :func:`settled`). ``encoded``: the messages' CDR bytes instead of the messages
-    (:meth:`RobotSensors.messages`). ``cast``: (scene, {robot: noise-free ranges}) of this
+    every topic is built; each asked once a tick, :func:`settled`). ``encoded``: the
+    messages' CDR bytes instead of the messages (:meth:`RobotSensors.messages`). ``cast``: (scene, {robot: noise-free ranges}) of this
     tick, made already (:func:`messages_of`)."""
     tick = t_ns // tick_ns
     if cast is None:                       # (a cast's caller settled them already)
