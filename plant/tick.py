@@ -223,8 +223,9 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
     nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
     rendered) but its noise drawn, so every other value is what it would have been (None:
     every topic is built; each asked once a tick, :func:`settled`). ``encoded``: the
-    messages' CDR bytes instead of the messages (:meth:`RobotSensors.messages`). ``cast``: (scene, {robot: noise-free ranges}) of this
-    tick, made already (:func:`messages_of`)."""
+    messages' CDR bytes instead of the messages (:meth:`RobotSensors.messages`).
+    ``cast``: (scene, {robot: noise-free ranges}) of this tick, made already
+    (:func:`messages_of`)."""
     tick = t_ns // tick_ns
     if cast is None:                       # (a cast's caller settled them already)
         wanted = settled(sensors, tick, wanted)
