@@ -237,11 +237,17 @@ class ScenarioRun:
                 # cancelled as it returns loses the node's exit code (summary.json said -2
                 # for an odometry node that had ended 0). The view stays until stopped.
                 procs.wait_all([c for c in nodes if c.name != VIEW], END_GRACE_S)
+            # STOP_GRACE_S in all: the nodes up to half of it, the plant the other half or
+            # what they left, if more (it ends its tick, logs, says sim/end: ~0.2 s, more
+            # on a loaded machine, where a fixed half once cut it off and lost its
+            # statistics); the half at least, counted from its own SIGINT, as this thread
+            # may have been held up on the way (a busy machine, the plots' imports)
+            deadline = time.monotonic() + STOP_GRACE_S
             for c in nodes:
                 c.signal(signal.SIGINT)
             procs.wait_all(nodes, STOP_GRACE_S / 2)
             plant.signal(signal.SIGINT)
-            procs.wait_all([plant, *nodes], STOP_GRACE_S / 2)
+            procs.wait_all([plant, *nodes], max(STOP_GRACE_S / 2, deadline - time.monotonic()))
             self._stop_recorder()
             procs.stop(self.children, 0.0, signal.SIGKILL)
             if self.placement is not None:
@@ -329,11 +335,11 @@ class ScenarioRun:
             self.reason += " (it lost the plant)"
 
     # ------------------------------------------------------------ recorder (--record)
-    # An optional extra process, started right after the plant and before every other
-    # node; it declares sim/alive/recorder once subscribed. In lockstep the plant cannot
-    # tick before the nodes join, and they start only once that token is seen; in
-    # realtime/fast the plant --expects it too. It is stopped last, after the plant,
-    # with time to close its file.
+    # An optional extra process, started with the plant (:meth:`early`); it declares
+    # sim/alive/recorder once subscribed. In lockstep the plant does not tick before that
+    # token is seen (--wait-for); in realtime/fast the plant --expects it. The launcher
+    # waits for the token too (a recorder that never comes fails the run). It is stopped
+    # last, after the plant, with time to close its file.
     def _recorder_expect(self) -> list[str]:
         return [RECORDER] if self.record and self.mode != "lockstep" else []
 

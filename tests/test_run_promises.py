@@ -224,3 +224,29 @@ def test_at_the_plant_s_end_the_nodes_end_by_themselves_before_they_are_asked(tm
     run.stop_all()
     assert plant.exit_code == 0 and node.exit_code == 0, node.describe_exit()
     assert time.monotonic() - t0 < END_GRACE_S, "waited out the grace for a node that had ended"
+
+
+def test_on_ctrl_c_the_plant_gets_the_grace_its_nodes_did_not_use(tmp_path):
+    """Ctrl-C: the nodes are asked to stop, then the plant, and whatever is left after
+    STOP_GRACE_S in all is killed. The plant once got a fixed half of it (0.75 s); on a
+    loaded machine a plant that needed more was SIGKILLed and its statistics lost
+    (summary.json: sim_time_s null). Nodes that end at once leave it the rest."""
+    from diffbot import procs
+    from diffbot.scenario import load_scenario
+    from diffbot.scenario_run import STOP_GRACE_S, ScenarioRun
+    run = ScenarioRun(load_scenario("square"), str(tmp_path), "realtime", 0, "")
+    slow = 0.7 * STOP_GRACE_S            # more than half the grace, less than all of it
+    plant = procs.Child("plant", [sys.executable, "-c", (
+        "import signal, sys, time\n"
+        f"signal.signal(signal.SIGINT, lambda *a: (time.sleep({slow}), sys.exit(0)))\n"
+        "print('ready', flush=True)\n"
+        "while True: time.sleep(1)\n")], str(tmp_path / "p.log")).start()
+    node = procs.Child("node", [sys.executable, "-c", "import time; time.sleep(60)"],
+                       str(tmp_path / "n.log")).start()
+    wait_for(lambda: "ready" in (tmp_path / "p.log").read_text(), 30, what="the plant")
+    run.children, run.recorder = [plant, node], None
+    t0 = time.monotonic()
+    run.stop_all()
+    assert plant.exit_code == 0, plant.describe_exit()           # ended by itself
+    assert node.exit_code not in (None, -signal.SIGKILL)         # stopped by the SIGINT
+    assert time.monotonic() - t0 < STOP_GRACE_S + SLACK_S
