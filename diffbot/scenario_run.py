@@ -242,14 +242,21 @@ class ScenarioRun:
             # on a loaded machine, where a fixed half once cut it off and lost its
             # statistics); the half at least, counted from its own SIGINT, as this thread
             # may have been held up on the way (a busy machine, the plots' imports)
-            deadline = time.monotonic() + STOP_GRACE_S
+            t0 = time.monotonic()
+            deadline = t0 + STOP_GRACE_S
             for c in nodes:
                 c.signal(signal.SIGINT)
             procs.wait_all(nodes, STOP_GRACE_S / 2)
+            asked = time.monotonic()
             plant.signal(signal.SIGINT)
             procs.wait_all([plant, *nodes], max(STOP_GRACE_S / 2, deadline - time.monotonic()))
             self._stop_recorder()
+            left = [c.name for c in self.children if c.running()]
             procs.stop(self.children, 0.0, signal.SIGKILL)
+            if left:            # (what a killed plant's missing statistics come from)
+                print(f"diffbot run: {', '.join(left)} did not stop in time; killed (SIGKILL; "
+                      f"the nodes were asked to stop {time.monotonic() - t0:.2f} s before, "
+                      f"the plant {time.monotonic() - asked:.2f} s before)", file=sys.stderr)
             if self.placement is not None:
                 self.placement.wait_tasks(self.children, self.out)
         finally:
