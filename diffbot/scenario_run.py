@@ -180,11 +180,10 @@ class ScenarioRun:
         recorder, the view and the scenario's ``diffbot`` members (each one's start-up, a
         few tenths of a second of imports, overlaps the plant's). Each waits for the
         plant's socket and ``sim/info`` (``bus.session``: 15 s), and the plant does not tick
-        before they and the observer are there (``--expect``, ``--wait-for``). ``exec``
-        programs are not
-        ours to know whether they wait: they start once the plant listens, as do the
-        processes of a placed run (Ray tasks) and every process of a run in which the plant
-        does not wait for anyone (it would tick without them)."""
+        before they and the observer are there (``--expect``, ``--wait-for``). Whether an
+        ``exec`` program waits is not ours to know: it starts once the plant listens, as
+        do the processes of a placed run (Ray tasks) and every process of a run in which
+        the plant waits for no one (it would tick without them)."""
         if self.placement is not None or "--wait-for" not in self.children[0].argv:
             return []
         execs = {p.name for p in self.spec.processes if p.exec is not None}

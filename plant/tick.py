@@ -211,13 +211,13 @@ def settled(sensors: dict[str, RobotSensors], tick: int, wanted: dict[str, Wante
 
 
 def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
-                  state: Callable[[str], RobotState], shapes: Callable[[], list],
+                  state: Callable[[str], RobotState], shapes: Callable[[], list | Scene],
                   wanted: dict[str, Wanted] | None = None, encoded: bool = False,
                   cast: tuple | None = None) -> Iterator[tuple[str, str, object]]:
     """(robot, topic, message) of every sensor due at time ``t_ns``, robot by robot in a
     fixed order (the order the plant publishes them in). ``state(robot)`` gives a robot's
-    true state, ``shapes()`` the world's solids, or their Scene (called only when a lidar or camera
-    is due).
+    true state, ``shapes()`` the world's solids or their Scene (called only when a lidar or
+    a camera is due).
 
     ``wanted`` (robot -> ``wanted(topic)``, the plant's "does anyone read it"): a due topic
     nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
