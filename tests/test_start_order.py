@@ -39,7 +39,7 @@ def test_members_recorder_and_view_start_with_a_plant_that_waits_for_them(tmp_pa
     assert run.early() == []
 
 
-def test_a_realtime_run_whose_plant_waits_for_no_one_starts_its_processes_after_it(tmp_path):
+def test_a_realtime_run_starts_its_members_early_only_if_its_plant_waits_for_them(tmp_path):
     run = built(tmp_path, mode="realtime")
     # its members are sync (the default): the plant waits for them, and for the observer
     assert option(run.children[0].argv, "--wait-for") == "observer"
