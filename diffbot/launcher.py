@@ -180,8 +180,6 @@ def main(argv: list[str] | None = None) -> int:
         with procs.stop_requests() as stop_flag:   # Ctrl-C, SIGTERM: stop the run in order
             try:
                 run.children[0].start(env)
-                for c in run.early():
-                    c.start(env)
                 try:
                     session = run.open_observer()
                 except BusConfigError as exc:
@@ -194,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                     history=True)
                     if run.start_recorder(env, session, stop_flag):
                         for c in run.children[1:]:
-                            if not c.started and c is not run.recorder and c.name != VIEW:
+                            if c is not run.recorder and c.name != VIEW:
                                 c.start(env)
                         print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
                               f"{len(run.children)} processes, output in {out}", file=sys.stderr)

@@ -131,17 +131,10 @@ class ScenarioRun:
             plant += ["--end-with", ",".join(enders)]
         if self.duration_s is not None:
             plant += ["--duration", repr(self.duration_s)]
-        if self.mode == "lockstep" or expect:
-            # the members start with the plant (composed ones are in it, :meth:`early`
-            # processes start beside it), so a plant that waits for its members before the
-            # first tick waits for the observer, the recorder and the view too: they see
-            # the whole run
-            watchers = [OBSERVER]
-            if self.record and RECORDER not in expect:     # (outside lockstep: expected)
-                watchers.append(RECORDER)
-            if self.view_port is not None:
-                watchers.append(VIEW)
-            plant += ["--wait-for", ",".join(watchers)]
+        if self.mode == "lockstep" and self.composed:
+            # composed members are there at once: the plant must not tick before the
+            # observer and the recorder listen (process members start only once they do)
+            plant += ["--wait-for", ",".join([OBSERVER] + ([RECORDER] if self.record else []))]
         if self.physics_process and "--physics-process" not in plant:
             plant.append("--physics-process")
         for p in self.spec.processes:
@@ -174,20 +167,6 @@ class ScenarioRun:
                                        log_path=os.path.join(logs, f"{p.name}.log")))
         if self.placement is not None:
             self._place(self.placement)
-
-    def early(self) -> list[Child]:
-        """The processes started together with the plant, not once it listens: the
-        recorder, the view and the scenario's ``diffbot`` members (each one's start-up, a
-        few tenths of a second of imports, overlaps the plant's). Each waits for the
-        plant's socket and ``sim/info`` (``bus.session``: 15 s), and the plant does not tick
-        before they and the observer are there (``--expect``, ``--wait-for``). Whether an
-        ``exec`` program waits is not ours to know: it starts once the plant listens, as
-        do the processes of a placed run (Ray tasks) and every process of a run in which
-        the plant waits for no one (it would tick without them)."""
-        if self.placement is not None or "--wait-for" not in self.children[0].argv:
-            return []
-        execs = {p.name for p in self.spec.processes if p.exec is not None}
-        return [c for c in self.children[1:] if c.name not in execs]
 
     def process_names(self) -> list[str]:
         """The run's processes (composed ones too), as ``--place`` names them."""
@@ -341,11 +320,11 @@ class ScenarioRun:
             self.reason += " (it lost the plant)"
 
     # ------------------------------------------------------------ recorder (--record)
-    # An optional extra process, started with the plant (:meth:`early`); it declares
-    # sim/alive/recorder once subscribed. In lockstep the plant does not tick before that
-    # token is seen (--wait-for); in realtime/fast the plant --expects it. The launcher
-    # waits for the token too (a recorder that never comes fails the run). It is stopped
-    # last, after the plant, with time to close its file.
+    # An optional extra process, started right after the plant and before every other
+    # node; it declares sim/alive/recorder once subscribed. In lockstep the plant cannot
+    # tick before the nodes join, and they start only once that token is seen; in
+    # realtime/fast the plant --expects it too. It is stopped last, after the plant,
+    # with time to close its file.
     def _recorder_expect(self) -> list[str]:
         return [RECORDER] if self.record and self.mode != "lockstep" else []
 
@@ -367,8 +346,7 @@ class ScenarioRun:
                    for c in (self.recorder, view) if c is not None)
 
     def _start_waited(self, child: Child, env: dict, session, stop_flag: list) -> bool:
-        if not child.started:
-            child.start(env)
+        child.start(env)
         key = Keys(self.namespace).alive(child.name)
         deadline = time.monotonic() + RECORDER_JOIN_S
         while time.monotonic() < deadline and child.poll() is None and not stop_flag:
