@@ -27,6 +27,9 @@ class Stepper:
         self.overlap = overlap and physics is not None
         self.tick_ns = spec.tick_ns
         self._index = {name: i for i, name in enumerate(sim.robots)}
+        #: one robot: its sensors see the room alone (:meth:`shapes`), so a physics
+        #: process need not send its parts' poses
+        self._room_only = len(sim.robots) == 1
         self._published = False           # this tick's sensors went out
 
     # ------------------------------------------------------------ the world's state
@@ -40,7 +43,7 @@ class Stepper:
         one-robot world that is the room alone (:meth:`Simulation.room_scene`): a sensor
         skips its own robot's parts, so the rays and pixels are the same, and the robot's
         parts need not be placed (in DART, a world transform per part) every time."""
-        if len(self.sim.robots) == 1:
+        if self._room_only:
             return self.sim.room_scene()
         if self.physics is None:
             return self.sim.shapes()
@@ -76,6 +79,7 @@ class Stepper:
         else:
             tick = self.sim.time_ns // self.tick_ns + 1
             self.physics.start_step([r.targets for r in self.sim.robots.values()],
+                                    not self._room_only and
                                     any(s.needs_scene(tick) for s in self.sensors.values()))
             publish_s = self.publish_pending(publish)     # while the physics process steps
             self.physics.finish_step()
