@@ -83,6 +83,15 @@ def step_arrays(k, targets: np.ndarray) -> None:
     """Every robot of ``k`` (a :class:`Kinematics` or a batch of them) one tick on, in one
     call of plant/kernels/kinematic.c (:func:`reference_step` is the same in numpy)."""
     targets = np.ascontiguousarray(targets, np.float64)
+    robots, pairs = kernel_state(k)
+    kernels.kinematic_step(len(k.pose), k.tick_s, targets, robots, k.foot.kernel_args(),
+                           FOOTPRINT_RADIUS_M, CHASSIS_CENTRE_X_M, pairs)
+
+
+def kernel_state(k) -> tuple[tuple[int, ...], bool]:
+    """The addresses of ``k``'s arrays as plant/kernels/kinematic.c takes them (radius,
+    separation, world, pose, wheels, speeds, vel) and whether some world has two robots,
+    taken again only when ``k`` has new arrays."""
     arrays = (k.radius, k.separation, k.world, k.pose, k.wheels, k.speeds, k.vel)
     kept = k._kernel_args
     if kept is None or any(a is not b for a, b in zip(kept[0], arrays)):
@@ -91,8 +100,7 @@ def step_arrays(k, targets: np.ndarray) -> None:
             a.dtype == np.float64 for a in arrays if a is not w), "kinematic arrays"
         pairs = len(w) > 1 and (w.size == 0 or bool(np.any(w[1:] == w[:-1])))
         kept = k._kernel_args = (arrays, tuple(map(kernels.ptr, arrays)), pairs)
-    kernels.kinematic_step(len(k.pose), k.tick_s, targets, kept[1], k.foot.kernel_args(),
-                           FOOTPRINT_RADIUS_M, CHASSIS_CENTRE_X_M, kept[2])
+    return kept[1], kept[2]
 
 
 def reference_step(k, targets: np.ndarray) -> None:

@@ -244,7 +244,13 @@ class AvoidTask:
 class AvoidEnv(gym.Env):
     """``diffbot/Avoid-v0`` (module docstring). ``transport="inproc"`` (default) runs the
     plant's code in this process; ``"bus"`` starts a lockstep plant and joins it over
-    Zenoh (or joins the one at ``endpoint``): same seed and actions, same numbers."""
+    Zenoh (or joins the one at ``endpoint``): same seed and actions, same numbers.
+
+    In-process in a kinematic world, a step's ticks are the batch's fast path for one
+    world (:class:`diffbot.envs.kinbatch.ArrayTicks`: its ticks in one call of the plant's
+    kernels, the numbers the messages give, to the bit), and the task's objects (its
+    observer, odometry, world) are brought up to date when something reads them: a
+    render, a reset, :attr:`task`."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
@@ -256,31 +262,90 @@ class AvoidEnv(gym.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array' (a top-down view; "
                              f"diffbot view watches a bus env live), got {render_mode!r}")
         self.render_mode = render_mode
-        self.task = AvoidTask(world, transport, endpoint, action_repeat, None, goal_radius_m,
-                              overrides, normalize_actions)
-        if len(self.task.robots) != 1:
-            self.task.close()
-            raise ValueError(f"{world} has {len(self.task.robots)} robots; Avoid-v0 drives one "
+        self._task = AvoidTask(world, transport, endpoint, action_repeat, None, goal_radius_m,
+                               overrides, normalize_actions)
+        if len(self._task.robots) != 1:
+            self._task.close()
+            raise ValueError(f"{world} has {len(self._task.robots)} robots; Avoid-v0 drives one "
                              "(diffbot.envs.swarm_v0 drives many)")
-        self.robot = self.task.robots[0]
+        self.robot = self._task.robots[0]
         self.transport_name = transport
-        self.observation_space = self.task.observation_space(self.robot)
-        self.action_space = self.task.action_space(self.robot)
-        self.dt = self.task.dt
+        self.observation_space = self._task.observation_space(self.robot)
+        self.action_space = self._task.action_space(self.robot)
+        self.dt = self._task.dt
         self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
+        self._arrays = None           # the fast path (kinbatch.ArrayTicks), when it applies
+        self._fresh = np.ones(1, bool)          # its state to be read from the objects
+        self._dist = 0.0                        # the goal's distance where the last step left it
+
+    @property
+    def task(self) -> AvoidTask:
+        """The task, its objects up to date (the fast path writes them back when asked)."""
+        if self._arrays is not None:
+            self._arrays.flush()
+        return self._task
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        obs, info = self.task.reset(self.np_random)
-        self.task.episode.seed = seed
+        task = self.task
+        obs, info = task.reset(self.np_random)
+        task.episode.seed = seed
+        self._fresh[0] = True
+        self._arrays = self._fast_path()
         return obs[self.robot], info[self.robot]
 
+    def _fast_path(self):
+        from .kinbatch import ArrayTicks
+        task = self._task
+        if task.spec.mode != "kinematic" or not ArrayTicks.eligible([task]):
+            return None
+        if self._arrays is None:
+            return ArrayTicks(1)
+        return self._arrays
+
     def step(self, action):
-        if not self.task.active:
+        task = self._task
+        if not task.active:
             raise RuntimeError("the episode is over: call reset()")
-        obs, rew, term, trunc, info = self.task.step({self.robot: action})
+        if self._arrays is not None:
+            return self._step_arrays(task, action)
+        obs, rew, term, trunc, info = task.step({self.robot: action})
         r = self.robot
         return obs[r], float(rew[r]), bool(term[r]), bool(trunc[r]), info[r]
+
+    def _step_arrays(self, task: AvoidTask, action):
+        """:meth:`AvoidTask.step` of the one robot through the fast path: the same numbers
+        (``tests/test_envs_vector.py``: the message path beside it, every noise on)."""
+        robot = self.robot
+        cmd = task.drives[robot].command(action, robot)
+        fresh = self._fresh
+        before = task._distance(robot) if fresh[0] else self._dist
+        made = self._arrays.advance([task], np.array([cmd]), _ROW0, fresh)
+        fresh[0] = False
+        truth = made.truth[0].tolist()
+        task.truth = {robot: tuple(truth)}
+        touched = task.geo.contacts(task.centres())
+        task.touched = touched
+        x, y, _ = truth
+        gx, gy = task.goals[robot]
+        d = self._dist = math.hypot(gx - x, gy - y)
+        r = PROGRESS_GAIN * (before - d) - STEP_COST
+        success = d < task.goal_radius
+        contact = robot in touched
+        if success:
+            r += GOAL_BONUS
+        if contact:
+            r -= CONTACT_PENALTY
+        task.steps += 1
+        term = success or contact
+        trunc = not term and task.max_steps is not None and task.steps >= task.max_steps
+        if term or trunc:
+            task.active.discard(robot)
+        obs = {k: v[0] for k, v in made.obs.items()}
+        info = {"pose": np.array(truth), "goal": np.array(task.goals[robot]), "distance": d,
+                "is_success": success and not contact, "contact": contact,
+                "t": int(made.t_ns[0]) * 1e-9, "plant": task.episode}
+        return obs, r, term, trunc, info
 
     def render(self):
         """``rgb_array``: the top-down view of the room (H x W x 3 uint8), robot, goal and
@@ -290,4 +355,8 @@ class AvoidEnv(gym.Env):
         return None
 
     def close(self) -> None:
-        self.task.close()
+        self._arrays = None
+        self._task.close()
+
+
+_ROW0 = np.zeros(1, np.int64)

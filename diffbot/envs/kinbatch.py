@@ -89,7 +89,8 @@ class _Scan:
 
 class _Draws:
     """A stream's normals (``rng.normal(0, std, shape)`` a reading) drawn ``_BLOCK``
-    readings ahead, handed out reading by reading in the order the message path draws them."""
+    readings ahead, handed out reading by reading in the order the message path draws them:
+    ``buf[next:]`` are the readings drawn and not yet read."""
 
     __slots__ = ("rng", "std", "shape", "buf", "next")
 
@@ -105,43 +106,69 @@ class _Draws:
         self.next += 1
         return self.buf[self.next - 1]
 
+    def ahead(self, k: int) -> np.ndarray:
+        """At least ``k`` readings not yet read (a block more drawn after those left, if
+        fewer: a generator's block of draws is its draws one by one, so the readings are
+        the same), which become ``buf`` from ``next`` = 0: returned."""
+        if len(self.buf) - self.next < k:
+            self.buf = np.concatenate([self.buf[self.next:], self.rng.normal(
+                0.0, self.std, size=(_BLOCK,) + self.shape)])
+        else:
+            self.buf = self.buf[self.next:]
+        self.next = 0
+        return self.buf
+
 
 class _Gather:
     """The streams of a batch's worlds (row j: world j's :class:`_Draws`, or None: no
-    stream, zeros) read as one array for a step: a take of some rows is one index into
-    every stream's block at its own position, a block refilled when used up, as
-    :meth:`_Draws.take` does stream by stream; :meth:`sync` leaves the streams where the
-    step left them."""
+    stream, zeros) read as one array: ``buf`` (W, cap, *shape), row j's readings
+    ``buf[j, next[j]:end[j]]``, ``live`` (W,) int64 the rows with a stream. A take of some
+    rows is one index into every row at its own position; :meth:`ahead` refills the rows
+    with too few readings left (the readings left first, then a new block), as
+    :meth:`_Draws.take` does stream by stream, so the readings are the streams' in order;
+    :meth:`sync` leaves the streams where the reads left them. plant/kernels/ticks.c reads
+    ``buf`` and advances ``next`` in place (the arrays stay where they are)."""
 
-    def __init__(self, draws: list, shape: tuple[int, ...]) -> None:
+    def __init__(self, draws: list, shape: tuple[int, ...], most: int = 1) -> None:
         self.draws, self.shape = draws, shape
-        self.live = np.array([d is not None for d in draws])
+        self.live = np.array([d is not None for d in draws], np.int64)
         self.all_live = bool(self.live.all())
-        self.buf = np.zeros((len(draws), _BLOCK) + shape)
-        self.next = np.full(len(draws), _BLOCK, np.int64)     # (an empty block: refill)
+        self.buf = np.zeros((len(draws), _BLOCK + most) + shape)
+        self.next = np.zeros(len(draws), np.int64)
+        self.end = np.zeros(len(draws), np.int64)
         for j, d in enumerate(draws):
-            if d is not None and len(d.buf):
-                self.buf[j], self.next[j] = d.buf, d.next
+            if d is not None:
+                self._put(j, d.ahead(0))        # (the readings left: none drawn yet)
+
+    def _put(self, j: int, readings: np.ndarray) -> None:
+        if len(readings) > self.buf.shape[1]:
+            raise ValueError("more readings asked ahead than the gather holds")
+        self.buf[j, :len(readings)] = readings
+        self.next[j], self.end[j] = 0, len(readings)
+
+    def ahead(self, k: int) -> None:
+        """At least ``k`` readings left in every live row."""
+        short = np.flatnonzero((self.end - self.next < k) & (self.live != 0))
+        for j in short.tolist():
+            d = self.draws[j]
+            d.next = int(self.next[j])
+            self._put(j, d.ahead(k))
 
     def take(self, rows: np.ndarray) -> np.ndarray:
         """The next reading (len(rows), *shape) of each of worlds ``rows`` (distinct)."""
-        live = rows if self.all_live else rows[self.live[rows]]
-        at = self.next[live]
-        for j in live[at == _BLOCK].tolist():
-            d = self.draws[j]
-            d.buf = d.rng.normal(0.0, d.std, size=(_BLOCK,) + self.shape)
-            self.buf[j], self.next[j] = d.buf, 0
+        self.ahead(1)
+        live = rows if self.all_live else rows[self.live[rows] != 0]
         vals = self.buf[live, self.next[live]]
         self.next[live] += 1
         if self.all_live:
             return vals
         out = np.zeros((len(rows),) + self.shape)
-        out[self.live[rows]] = vals
+        out[self.live[rows] != 0] = vals
         return out
 
     def sync(self) -> None:
         for d, k in zip(self.draws, self.next.tolist()):
-            if d is not None and len(d.buf):
+            if d is not None:
                 d.next = k
 
 
@@ -216,6 +243,7 @@ class ArrayTicks:
         self._last: dict[int, _Draws] = {}      # the last step's
         self._scene: Scene | None = None
         self._scene_of = None
+        self._plan: _TickPlan | None = None     # the kinematic worlds' call, kept
 
     @staticmethod
     def eligible(tasks: Sequence[AvoidTask]) -> bool:
@@ -275,7 +303,6 @@ class ArrayTicks:
         have changed since their last step here (a reset, or no step yet; flushed before
         it): those are read again."""
         w = len(tasks)
-        self._last, self._draws = self._draws, {}
         k, at = self._kept, np.asarray(rows, np.int64)
         stale = np.flatnonzero(fresh)
         if stale.size:
@@ -283,6 +310,14 @@ class ArrayTicks:
                 raise RuntimeError("an env's objects were changed before its state was "
                                    "written back (ArrayTicks.flush)")
             k.read(at[stale], [tasks[j] for j in stale.tolist()])
+        plan = self._plan
+        if plan is None or stale.size or not plan.fits(at):
+            self._plan = plan = None
+            self._last, self._draws = self._draws, {}
+            if k.roster[int(at[0])][3].kin is not None:
+                self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
+        if plan is not None:
+            return plan.step(self, cmds)
         ticks, names, sensors, sims, obs = (
             list(c) for c in zip(*[k.roster[i][:5] for i in at.tolist()]))
         worlds = (_Kinematic if sims[0].kin is not None else _Dart)(ticks, sims, names)
@@ -336,16 +371,150 @@ class ArrayTicks:
         # kept, for the next step and for flush (the objects are not written here)
         k.keep(at, pose, vel, last, last_t, scans, steps, drive, t_ns, truth, raw, new_scan)
         # AvoidObserver.observation, every world's at once
-        x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
-        v, om = vel[:, 0], vel[:, 1]
         goal = np.array([o.goal for o in obs], float).reshape(w, 2)
-        c, s = np.cos(th), np.sin(th)
-        dx, dy = goal[:, 0] - x, goal[:, 1] - y
-        in_robot = np.stack([dx * c + dy * s, -dx * s + dy * c], 1).astype(np.float32)
-        odom = np.stack([x, y, (th + math.pi) % (2 * math.pi) - math.pi, v, om], 1
-                        ).astype(np.float32)
-        return Made({"scan": scans, "odom": np.clip(odom, -ODOM_HIGH, ODOM_HIGH),
-                     "goal": np.clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}, truth, t_ns)
+        return Made(_observation(pose, vel, goal, scans), truth, t_ns)
+
+
+#: plant/kernels/ticks.c's slots (its enums), in order
+_SLOTS = ("v w lim_wheels v_target w_target targets cmd_buf cmd_next cmd_live cmd_len "
+          "radius separation world pose wheels speeds vel pairs "
+          "nbox box_c box_cos box_sin box_half ncirc circ_c circ_r half "
+          "enc_have enc_buf enc_next enc_live enc_len "
+          "odo_pose odo_vel last last_t odo_r odo_d pos t "
+          "steps t_ns due sub step_ns tick_ns period").split()
+_PARAMS = "dv dw r d m a tick_s foot_r centre_x enc_offset enc_res".split()
+
+
+class _TickPlan:
+    """An Avoid step of one-robot kinematic worlds ``at`` (rows of the batch): its ticks in
+    calls of plant/kernels/ticks.c, the lidars cast where due between them, with everything
+    the calls read laid out once: the rows' state (views of the :class:`_Kept` arrays when
+    ``at`` is a run of rows, else copies written back each step), the noise streams
+    gathered (:class:`_Gather`), the addresses. Kept from step to step while the same
+    worlds step and none was reset since (:meth:`fits`)."""
+
+    def __init__(self, owner: ArrayTicks, at: np.ndarray, repeat: int) -> None:
+        k = owner._kept
+        self.at, self.repeat = at.copy(), int(repeat)
+        w = len(at)
+        roster = [k.roster[i] for i in at.tolist()]
+        ticks, names, sensors, sims, obs = (list(c) for c in zip(*[r[:5] for r in roster]))
+        self.sims, self.obs = sims, obs
+        self.worlds = _Kinematic(ticks, sims, names)
+        lo = int(at[0])
+        self.run = bool(np.array_equal(at, np.arange(lo, lo + w)))
+        self.rows = slice(lo, lo + w) if self.run else at      # (a slice: views)
+        self.state = {f: getattr(k, f)[self.rows] for f in _Kept.STATE}
+        st = self.state
+        self.v_target, self.w_target = np.zeros(w), np.zeros(w)
+        self.pos, self.t, self.due = np.zeros((w, 2)), np.zeros(w), np.zeros(w, np.int64)
+        self.cfg = cfg = sensors[0].lidar
+        self.raw = np.zeros((w, cfg.num_rays), np.float32)
+        self.new_scan = np.zeros(w, bool)
+        self.goal = np.array([o.goal for o in obs], float).reshape(w, 2)
+        self.max_range = obs[0].max_range
+        # the noise: commands, encoders (gathered for the kernel), lidar (row by row)
+        spec = sims[0].limiters[names[0]].spec
+        self.limits = (spec.max_linear_mps, spec.max_angular_radps)
+        std = sims[0].robots[names[0]].spec.sensors.command_noise_std_radps
+        self.cmd = None if std <= 0.0 else _Gather(
+            [owner._stream(s.motion_rng[n], std, (2,)) for s, n in zip(sims, names)], (2,),
+            self.repeat)
+        models = [s.enc_noise for s in sensors]
+        have = [m is not None for m in models]
+        enc_cfg = next((m.config for m in models if m is not None), None)
+        self.enc = None if enc_cfg is None or enc_cfg.std <= 0 else _Gather(
+            [owner._draws_of(m, (2,)) for m in models], (2,), self.repeat)
+        self.enc_have = np.array(have, np.int64)
+        models = [s.lidar_noise for s in sensors]
+        self.lid_noise = _RowNoise.of(
+            models, [owner._draws_of(m, (cfg.num_rays,)) for m in models], (cfg.num_rays,))
+        self.gathers = [g for g in (self.cmd, self.enc) if g is not None]
+        # the blocks
+        dt = sims[0].spec.control_tick_s
+        robots, pairs = kinematic.kernel_state(self.worlds.batch)
+        sim_spec = sims[0].spec
+        slots = {
+            "v": st["lim_v"], "w": st["lim_w"], "lim_wheels": st["wheels"],
+            "v_target": self.v_target, "w_target": self.w_target, "targets": st["targets"],
+            "pairs": int(pairs), "enc_have": self.enc_have if any(have) else 0,
+            "odo_pose": st["pose"], "odo_vel": st["vel"], "last": st["last"],
+            "last_t": st["last_t"], "odo_r": st["r"], "odo_d": st["d"], "pos": self.pos,
+            "t": self.t, "steps": st["steps"], "t_ns": st["t_ns"], "due": self.due,
+            "sub": sim_spec.substeps, "step_ns": int(round(sim_spec.physics_step_s * 1e9)),
+            "tick_ns": ticks[0].tick_ns, "period": sensors[0].periods["scan"]}
+        slots.update(zip(_SLOTS[_SLOTS.index("radius"):], robots))
+        slots.update(zip(_SLOTS[_SLOTS.index("nbox"):], self.worlds.batch.foot.kernel_args()))
+        for name, g in (("cmd", self.cmd), ("enc", self.enc)):
+            slots.update({f"{name}_buf": g.buf, f"{name}_next": g.next, f"{name}_live": g.live,
+                          f"{name}_len": g.buf.shape[1]} if g is not None else
+                         {f"{name}_{x}": 0 for x in ("buf", "next", "live", "len")})
+        self.slots = np.array([kernels.ptr(slots[n]) for n in _SLOTS], np.int64)
+        params = {"dv": spec.max_linear_accel_mps2 * dt, "dw": spec.max_angular_accel_radps2 * dt,
+                  "r": spec.wheel_radius_m, "d": spec.wheel_separation_m,
+                  "m": spec.max_wheel_speed_radps, "a": spec.max_wheel_accel_radps2 * dt,
+                  "tick_s": self.worlds.batch.tick_s, "foot_r": kinematic.FOOTPRINT_RADIUS_M,
+                  "centre_x": kinematic.CHASSIS_CENTRE_X_M,
+                  "enc_offset": 0.0 if enc_cfg is None else enc_cfg.bias + enc_cfg.mean,
+                  "enc_res": 0.0 if enc_cfg is None else float(enc_cfg.resolution)}
+        self.params = np.array([params[n] for n in _PARAMS], float)
+        self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
+        self._first_kin = sims[0].kin
+
+    def fits(self, at: np.ndarray) -> bool:
+        """Whether this plan steps rows ``at`` (none of them reset since it was made)."""
+        return (len(at) == len(self.at) and bool(np.array_equal(at, self.at))
+                and (self._first_kin.batch or self._first_kin) is self.worlds.batch)
+
+    def step(self, owner: ArrayTicks, cmds: np.ndarray) -> Made:
+        """:meth:`ArrayTicks.advance` of the plan's rows with ``cmds`` (W, 2)."""
+        st, w = self.state, len(self.at)
+        self.v_target[:] = _clamp(cmds[:, 0], self.limits[0])
+        self.w_target[:] = _clamp(cmds[:, 1], self.limits[1])
+        self.new_scan[:] = False
+        done = 0
+        while done < self.repeat:
+            for g in self.gathers:
+                g.ahead(self.repeat - done)
+            done += kernels.ticks(w, self.repeat - done, *self._addr)
+            due = np.flatnonzero(self.due)
+            if due.size:
+                self._scan(owner, due)
+        self.worlds.finish()
+        for g in self.gathers:
+            g.sync()
+        truth = self.worlds.truth()
+        owner._kept.keep_plan(self, truth)
+        return Made(_observation(st["pose"], st["vel"], self.goal, st["scans"]), truth,
+                    st["t_ns"].copy())
+
+    def _scan(self, owner: ArrayTicks, due: np.ndarray) -> None:
+        """The lidars of rows ``due`` (their robots where the last tick left them)."""
+        cfg = self.cfg
+        scene = owner._static_scene(self.sims[0])
+        exact = lid.scan_many(cfg, self.worlds.transforms(due), scene, [None] * due.size,
+                              owner.threads)
+        ranges = _lidar_noise(cfg, exact, None if self.lid_noise is None
+                              else self.lid_noise.rows(due))
+        r32 = self.raw[due] = ranges.astype(np.float32)
+        self.state["scans"][due] = np.where(np.isfinite(r32),
+                                            np.clip(r32, 0.0, self.max_range),
+                                            np.float32(self.max_range)).astype(np.float32)
+        self.new_scan[due] = True
+
+
+def _observation(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray,
+                 scans: np.ndarray) -> dict:
+    """:meth:`AvoidObserver.observation` of every world at once."""
+    x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
+    v, om = vel[:, 0], vel[:, 1]
+    c, s = np.cos(th), np.sin(th)
+    dx, dy = goal[:, 0] - x, goal[:, 1] - y
+    in_robot = np.stack([dx * c + dy * s, -dx * s + dy * c], 1).astype(np.float32)
+    odom = np.stack([x, y, (th + math.pi) % (2 * math.pi) - math.pi, v, om], 1
+                    ).astype(np.float32)
+    return {"scan": scans.copy(), "odom": np.clip(odom, -ODOM_HIGH, ODOM_HIGH),
+            "goal": np.clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
 
 
 class _Kinematic:
@@ -422,6 +591,10 @@ class _Kept:
     objects are behind the arrays (:meth:`ArrayTicks.flush` writes them back);
     ``new_scan``: those with a scan since their last write-back."""
 
+    #: the arrays a step changes (a :class:`_TickPlan` steps them in place, or copies)
+    STATE = ("pose", "vel", "last", "last_t", "r", "d", "scans", "steps", "lim_v", "lim_w",
+             "wheels", "targets", "t_ns")
+
     def __init__(self, n: int) -> None:
         self.roster: list = [None] * n
         self.pose, self.vel, self.last = np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2))
@@ -474,6 +647,18 @@ class _Kept:
         self.raw[got] = raw[new_scan]
         self.new_scan[got] = True
         self.dirty[at] = True
+
+    def keep_plan(self, plan: _TickPlan, truth: np.ndarray) -> None:
+        """What a :class:`_TickPlan`'s step left of its rows (as :meth:`keep`)."""
+        rows = plan.rows
+        if not plan.run:
+            for f in self.STATE:
+                getattr(self, f)[rows] = plan.state[f]
+        self.truth[rows] = truth
+        got = plan.at[plan.new_scan]
+        self.raw[got] = plan.raw[plan.new_scan]
+        self.new_scan[got] = True
+        self.dirty[rows] = True
 
     def flush(self, rows: np.ndarray) -> None:
         """Rows ``rows``' state written back to their objects, as the message path leaves

@@ -19,13 +19,14 @@ import numpy as np
 
 
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr",
-           "drive_limit", "odometry", "kinematic_step", "clearances"]
+           "drive_limit", "odometry", "kinematic_step", "clearances", "ticks"]
 
 ABI = 4
 CAMERA_ABI = 2
 NOISE_ABI = 1
 DRIVE_ABI = 1
 KINEMATIC_ABI = 2
+TICKS_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -54,7 +55,7 @@ def load(path: Path) -> ctypes.CDLL:
     lib = ctypes.CDLL(str(path))
     for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI),
                        ("plant_noise_abi", NOISE_ABI), ("plant_drive_abi", DRIVE_ABI),
-                       ("plant_kinematic_abi", KINEMATIC_ABI)):
+                       ("plant_kinematic_abi", KINEMATIC_ABI), ("plant_ticks_abi", TICKS_ABI)):
         abi = getattr(lib, name)() if hasattr(lib, name) else None
         if abi != want:
             raise KernelsMissing(f"{path} is out of date ({name} {abi}, expected {want}): "
@@ -71,6 +72,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_kinematic_step.restype = ctypes.c_int
     lib.plant_kinematic_step.argtypes = ([_I, _D] + [_P] * 8 + [_I] + [_P] * 4 + [_I]
                                          + [_P] * 3 + [_D, _D, _I])
+    lib.plant_ticks.restype = ctypes.c_int64
+    lib.plant_ticks.argtypes = [_I, _I, _P, _P]
     lib.plant_clearances.restype = None
     lib.plant_clearances.argtypes = [_I, _P, _I] + [_P] * 4 + [_I] + [_P] * 4
     lib.plant_lidar_scan.restype = None
@@ -185,6 +188,18 @@ def kinematic_step(n: int, tick_s: float, targets: np.ndarray, robots: tuple[int
     if library().plant_kinematic_step(n, tick_s, ptr(targets), *robots, *statics, foot_r,
                                       centre_x, int(pairs)):
         raise MemoryError("plant_kinematic_step: out of memory")
+
+
+def ticks(n: int, most: int, slots: Array, params: Array) -> int:
+    """Up to ``most`` control ticks of ``n`` one-robot kinematic worlds in one call
+    (plant/kernels/ticks.c: the drive limiters, command noise, kinematic step, encoders and
+    dead reckoning of each): ``slots`` the int64 block of addresses and counts, ``params``
+    the double block, in the order ticks.c names them (or their addresses). The ticks made: fewer when a lidar
+    came due."""
+    made = library().plant_ticks(n, most, ptr(slots), ptr(params))
+    if made < 0:
+        raise MemoryError("plant_ticks: out of memory")
+    return made
 
 
 def clearances(pts: np.ndarray, statics: tuple) -> np.ndarray:

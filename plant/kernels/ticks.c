@@ -1,0 +1,142 @@
+/* Control ticks of a batch of one-robot kinematic worlds, many per call
+ * (diffbot/envs/kinbatch.py: an Avoid step's ticks, the batched env's and the single env's).
+ *
+ * Each tick is what kinbatch.ArrayTicks did with one call of each kernel and numpy between
+ * them: the drive limiters (plant_drive_limit), the command noise of the robots that move,
+ * the kinematic step (plant_kinematic_step), the encoders' noise, the dead reckoning
+ * (plant_odometry) and the worlds' clocks. The same operations in the same order, so the
+ * same bits (tests/test_envs_vector.py runs the message path beside it, every noise on).
+ * The noise is numpy's: each stream's normals drawn ahead by the caller, at least one
+ * reading per tick asked for left in every stream, read here in order.
+ *
+ * The calls stop after a tick at which some world's lidar is due (its scan is cast in
+ * Python before the next tick moves the robot): the number of ticks made is returned.
+ */
+#include <math.h>
+#include <stdint.h>
+
+#define EXPORT __attribute__((visibility("default")))
+
+EXPORT int plant_ticks_abi(void) { return 1; }
+
+void plant_drive_limit(int64_t n, double *v, double *w, double *wheels,
+                       const double *v_target, const double *w_target, double dv, double dw,
+                       double r, double d, double m, double a, double *out);
+void plant_odometry(int64_t n, const double *pos, const double *t, double *pose, double *vel,
+                    double *last, double *last_t, const double *r, const double *d);
+int plant_kinematic_step(int64_t n, double T, const double *targets, const double *radius,
+                         const double *separation, const int64_t *world, double *pose,
+                         double *wheels, double *speeds, double *vel, int64_t nbox,
+                         const double *box_c, const double *box_cos, const double *box_sin,
+                         const double *box_half, int64_t ncirc, const double *circ_c,
+                         const double *circ_r, const double *half, double foot_r,
+                         double centre_x, int64_t pairs);
+
+/* The slots of the call's int64 block (addresses and counts; kinbatch._TickPlan fills it
+ * in this order). A stream of noise: buf (n, len, 2) each row's readings, next (n) the
+ * next reading of each row (advanced here), live (n, int64) whether the row has a stream
+ * (a row without reads zeros). */
+enum {
+    A_V, A_W, A_LIM_WHEELS, A_V_TARGET, A_W_TARGET, A_TARGETS,   /* drive limiters */
+    A_CMD_BUF, A_CMD_NEXT, A_CMD_LIVE, A_CMD_LEN,                  /* command noise (0: none) */
+    A_RADIUS, A_SEPARATION, A_WORLD, A_POSE, A_WHEELS, A_SPEEDS, A_VEL, A_PAIRS, /* robots */
+    A_NBOX, A_BOX_C, A_BOX_COS, A_BOX_SIN, A_BOX_HALF, A_NCIRC, A_CIRC_C, A_CIRC_R, A_HALF,
+    A_ENC_HAVE, A_ENC_BUF, A_ENC_NEXT, A_ENC_LIVE, A_ENC_LEN,     /* encoder noise (0: none) */
+    A_ODO_POSE, A_ODO_VEL, A_LAST, A_LAST_T, A_ODO_R, A_ODO_D, A_POS, A_T, /* dead reckoning */
+    A_STEPS, A_T_NS, A_DUE, A_SUB, A_STEP_NS, A_TICK_NS, A_PERIOD, /* clocks, lidar due */
+    A_COUNT
+};
+/* ... and of its double block */
+enum {
+    P_DV, P_DW, P_R, P_D, P_M, P_A,                /* the limiter's (plant_drive_limit) */
+    P_TICK_S, P_FOOT_R, P_CENTRE_X,                /* the kinematic step's */
+    P_ENC_OFFSET, P_ENC_RES,                       /* encoders: bias + mean, resolution */
+    P_COUNT
+};
+
+EXPORT int64_t plant_ticks_count(void) { return A_COUNT * 1000 + P_COUNT; }
+
+#define PTR(type, slot) ((type *)(intptr_t)a[slot])
+
+/* Up to `ticks` control ticks of n worlds; returns the ticks made (fewer when a lidar came
+ * due: due (n, int64) marks the worlds whose lidar is due after the last one), or -1 if out
+ * of memory. */
+EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const double *p)
+{
+    double *targets = PTR(double, A_TARGETS);
+    const double *cmd_buf = PTR(const double, A_CMD_BUF);
+    int64_t *cmd_next = PTR(int64_t, A_CMD_NEXT);
+    const int64_t *cmd_live = PTR(const int64_t, A_CMD_LIVE);
+    double *wheels = PTR(double, A_WHEELS);
+    const int64_t *enc_have = PTR(const int64_t, A_ENC_HAVE);
+    const double *enc_buf = PTR(const double, A_ENC_BUF);
+    int64_t *enc_next = PTR(int64_t, A_ENC_NEXT);
+    const int64_t *enc_live = PTR(const int64_t, A_ENC_LIVE);
+    double *pos = PTR(double, A_POS), *t = PTR(double, A_T);
+    int64_t *steps = PTR(int64_t, A_STEPS), *t_ns = PTR(int64_t, A_T_NS);
+    int64_t *due = PTR(int64_t, A_DUE);
+    const int64_t cmd_len = a[A_CMD_LEN], enc_len = a[A_ENC_LEN];
+    const int64_t sub = a[A_SUB], step_ns = a[A_STEP_NS], tick_ns = a[A_TICK_NS];
+    const int64_t period = a[A_PERIOD];
+    const double offset = p[P_ENC_OFFSET], res = p[P_ENC_RES];
+    for (int64_t k = 0; k < ticks; k++) {
+        /* Simulation.command_twist: the limiter, then the noise of a robot that moves */
+        plant_drive_limit(n, PTR(double, A_V), PTR(double, A_W), PTR(double, A_LIM_WHEELS),
+                          PTR(const double, A_V_TARGET), PTR(const double, A_W_TARGET),
+                          p[P_DV], p[P_DW], p[P_R], p[P_D], p[P_M], p[P_A], targets);
+        if (cmd_buf) {
+            for (int64_t i = 0; i < n; i++) {
+                double *o = targets + 2 * i;
+                if (o[0] == 0.0 && o[1] == 0.0)
+                    continue;
+                double n0 = 0.0, n1 = 0.0;
+                if (cmd_live[i]) {
+                    const double *r = cmd_buf + 2 * (i * cmd_len + cmd_next[i]++);
+                    n0 = r[0];
+                    n1 = r[1];
+                }
+                o[0] = o[0] + n0;
+                o[1] = o[1] + n1;
+            }
+        }
+        if (plant_kinematic_step(n, p[P_TICK_S], targets, PTR(const double, A_RADIUS),
+                                 PTR(const double, A_SEPARATION), PTR(const int64_t, A_WORLD),
+                                 PTR(double, A_POSE), wheels, PTR(double, A_SPEEDS),
+                                 PTR(double, A_VEL), a[A_NBOX], PTR(const double, A_BOX_C),
+                                 PTR(const double, A_BOX_COS), PTR(const double, A_BOX_SIN),
+                                 PTR(const double, A_BOX_HALF), a[A_NCIRC],
+                                 PTR(const double, A_CIRC_C), PTR(const double, A_CIRC_R),
+                                 PTR(const double, A_HALF), p[P_FOOT_R], p[P_CENTRE_X],
+                                 a[A_PAIRS]))
+            return -1;
+        int any_due = 0;
+        for (int64_t i = 0; i < n; i++) {
+            steps[i] += sub;
+            t_ns[i] = steps[i] * step_ns;
+            t[i] = (double)t_ns[i] * 1e-9;
+            due[i] = (t_ns[i] / tick_ns) % period == 0;
+            any_due |= (int)due[i];
+            /* the encoders: NoiseModel.apply (offset, the stream's normal, quantised) */
+            for (int c = 0; c < 2; c++) {
+                double x = wheels[2 * i + c];
+                if (enc_have && enc_have[i]) {
+                    x = x + offset;
+                    if (enc_buf)
+                        x = x + (enc_live[i] ? enc_buf[2 * (i * enc_len + enc_next[i]) + c]
+                                             : 0.0);
+                    if (res > 0.0 && isfinite(x))
+                        x = rint(x / res) * res;
+                }
+                pos[2 * i + c] = x;
+            }
+            if (enc_buf && enc_have && enc_live[i])
+                enc_next[i]++;
+        }
+        plant_odometry(n, pos, t, PTR(double, A_ODO_POSE), PTR(double, A_ODO_VEL),
+                       PTR(double, A_LAST), PTR(double, A_LAST_T), PTR(const double, A_ODO_R),
+                       PTR(const double, A_ODO_D));
+        if (any_due)
+            return k + 1;
+    }
+    return ticks;
+}
