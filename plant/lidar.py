@@ -166,14 +166,38 @@ def scan_many(config: LidarConfig, robot_poses, scene: Scene,
     each: plant/kernels/lidar.c), the same bits."""
     base = np.asarray(robot_poses, dtype=float).reshape(-1, 4, 4)
     ws = kernels.lidar_work(base.shape[0], config.num_rays, threads)
-    # _fans, into the reused buffers (the same matmuls, the same bits)
-    np.matmul(base, _mount_pose(config), out=ws.poses)
-    np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None],
-              ws.poses[:, :3, :3].transpose(0, 2, 1), out=ws.dirs)
+    _fill_fans(config, base, ws)
     ws.skip[:] = [scene.owner_id(o) if o else -1 for o in exclude_owners]
     return kernels.lidar_scan_work(scene.kernel_arrays(), len(scene), ws, config.angle_min,
                                    config.angle_increment, config.min_range_m,
                                    config.max_range_m)
+
+
+def _fill_fans(config: LidarConfig, base: np.ndarray, ws: kernels.LidarWork) -> None:
+    """:func:`_fans` of robots at ``base`` (G, 4, 4) into ``ws``' buffers (the same matmuls,
+    the same bits)."""
+    np.matmul(base, _mount_pose(config), out=ws.poses)
+    np.matmul(_local_dirs(config.num_rays, config.fov_rad)[None],
+              ws.poses[:, :3, :3].transpose(0, 2, 1), out=ws.dirs)
+
+
+class Fans:
+    """:func:`scan_many` of G robots in one ``scene`` (none of whose shapes they skip),
+    call after call: the buffers, their addresses and the scene's taken once (this object
+    keeps the scene alive). The same bits."""
+
+    def __init__(self, config: LidarConfig, scene: Scene, g: int, threads: int = 1) -> None:
+        self.config, self.scene = config, scene
+        self.ws = kernels.LidarWork(g, config.num_rays, threads)
+        self.ws.skip[:] = -1
+        self._scene = (scene.kernel_arrays(), len(scene))
+        self._range = (config.angle_min, config.angle_increment, config.min_range_m,
+                       config.max_range_m)
+
+    def scan(self, base: np.ndarray) -> np.ndarray:
+        """(G, num_rays) exact ranges of the robots at ``base`` (G, 4, 4) float64."""
+        _fill_fans(self.config, base, self.ws)
+        return kernels.lidar_scan_work(*self._scene, self.ws, *self._range)
 
 
 def scan_worlds(config: LidarConfig, scenes: Sequence[Scene], robot_poses,

@@ -45,13 +45,16 @@ class Drive:
         hi = np.array([1.0, 1.0] if self.normalize else [self.v_max, self.w_max], np.float32)
         self.space = spaces.Box(-hi, hi, dtype=np.float32)
         self._hi = hi.astype(np.float64)
+        self._hi_f = tuple(self._hi.tolist())
 
     def command(self, action, who: str = "the robot") -> tuple[float, float]:
         """The twist ``(v m/s, w rad/s)`` an action gives (module docstring)."""
-        v, w = np.clip(check_action(action, who), -self._hi, self._hi)
+        v, w = check_action(action, who).tolist()        # (float32 values, exact as floats)
+        hv, hw = self._hi_f
+        v, w = min(max(v, -hv), hv), min(max(w, -hw), hw)  # np.clip's values (finite)
         if self.normalize:
-            return float(v) * self.v_max, float(w) * self.w_max
-        return float(v), float(w)
+            return v * self.v_max, w * self.w_max
+        return v, w
 
     def commands(self, actions) -> np.ndarray:
         """:meth:`command` of each row of ``actions`` (K, 2), checked already (a batch's,

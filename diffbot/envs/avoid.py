@@ -297,7 +297,7 @@ class AvoidEnv(gym.Env):
     def _fast_path(self):
         from .kinbatch import ArrayTicks
         task = self._task
-        if task.spec.mode != "kinematic" or not ArrayTicks.eligible([task]):
+        if not ArrayTicks.eligible([task]):
             return None
         if self._arrays is None:
             return ArrayTicks(1)
@@ -324,14 +324,14 @@ class AvoidEnv(gym.Env):
         fresh[0] = False
         truth = made.truth[0].tolist()
         task.truth = {robot: tuple(truth)}
-        touched = task.geo.contacts(task.centres())
-        task.touched = touched
+        # geo.contacts of the one robot: its footprint against the walls and objects
+        contact = bool(task.geo.touching(Footprints.centre(*truth)[None])[0])
+        task.touched = {robot} if contact else set()
         x, y, _ = truth
         gx, gy = task.goals[robot]
         d = self._dist = math.hypot(gx - x, gy - y)
         r = PROGRESS_GAIN * (before - d) - STEP_COST
         success = d < task.goal_radius
-        contact = robot in touched
         if success:
             r += GOAL_BONUS
         if contact:

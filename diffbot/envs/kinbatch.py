@@ -48,7 +48,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH
+from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, in_frame, wrap
 from plant import kernels, kinematic
 from plant import lidar as lid
 from plant.noise import NoiseModel
@@ -314,8 +314,7 @@ class ArrayTicks:
         if plan is None or stale.size or not plan.fits(at):
             self._plan = plan = None
             self._last, self._draws = self._draws, {}
-            if k.roster[int(at[0])][3].kin is not None:
-                self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
+            self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
         if plan is not None:
             return plan.step(self, cmds)
         ticks, names, sensors, sims, obs = (
@@ -386,8 +385,10 @@ _PARAMS = "dv dw r d m a tick_s foot_r centre_x enc_offset enc_res".split()
 
 
 class _TickPlan:
-    """An Avoid step of one-robot kinematic worlds ``at`` (rows of the batch): its ticks in
-    calls of plant/kernels/ticks.c, the lidars cast where due between them, with everything
+    """An Avoid step of one-robot worlds ``at`` (rows of the batch): its ticks in calls of
+    plant/kernels/ticks.c (a kinematic world's whole ticks; a DART world's two halves of
+    each tick, DART stepping it between them), the lidars cast where due between them,
+    with everything
     the calls read laid out once: the rows' state (views of the :class:`_Kept` arrays when
     ``at`` is a run of rows, else copies written back each step), the noise streams
     gathered (:class:`_Gather`), the addresses. Kept from step to step while the same
@@ -400,7 +401,8 @@ class _TickPlan:
         roster = [k.roster[i] for i in at.tolist()]
         ticks, names, sensors, sims, obs = (list(c) for c in zip(*[r[:5] for r in roster]))
         self.sims, self.obs = sims, obs
-        self.worlds = _Kinematic(ticks, sims, names)
+        self.kinematic = sims[0].kin is not None
+        self.worlds = (_Kinematic if self.kinematic else _Dart)(ticks, sims, names)
         lo = int(at[0])
         self.run = bool(np.array_equal(at, np.arange(lo, lo + w)))
         self.rows = slice(lo, lo + w) if self.run else at      # (a slice: views)
@@ -432,7 +434,14 @@ class _TickPlan:
         self.gathers = [g for g in (self.cmd, self.enc) if g is not None]
         # the blocks
         dt = sims[0].spec.control_tick_s
-        robots, pairs = kinematic.kernel_state(self.worlds.batch)
+        self.wheels = np.zeros((w, 2))        # a DART world's wheel angles, each tick
+        if self.kinematic:
+            robots, pairs = kinematic.kernel_state(self.worlds.batch)
+            statics = self.worlds.batch.foot.kernel_args()
+            tick_s = self.worlds.batch.tick_s
+        else:
+            robots = (0, 0, 0, 0, self.wheels, 0, 0)      # (what ticks.c's after reads)
+            statics, pairs, tick_s = (0,) * 9, False, dt
         sim_spec = sims[0].spec
         slots = {
             "v": st["lim_v"], "w": st["lim_w"], "lim_wheels": st["wheels"],
@@ -444,7 +453,7 @@ class _TickPlan:
             "sub": sim_spec.substeps, "step_ns": int(round(sim_spec.physics_step_s * 1e9)),
             "tick_ns": ticks[0].tick_ns, "period": sensors[0].periods["scan"]}
         slots.update(zip(_SLOTS[_SLOTS.index("radius"):], robots))
-        slots.update(zip(_SLOTS[_SLOTS.index("nbox"):], self.worlds.batch.foot.kernel_args()))
+        slots.update(zip(_SLOTS[_SLOTS.index("nbox"):], statics))
         for name, g in (("cmd", self.cmd), ("enc", self.enc)):
             slots.update({f"{name}_buf": g.buf, f"{name}_next": g.next, f"{name}_live": g.live,
                           f"{name}_len": g.buf.shape[1]} if g is not None else
@@ -453,18 +462,40 @@ class _TickPlan:
         params = {"dv": spec.max_linear_accel_mps2 * dt, "dw": spec.max_angular_accel_radps2 * dt,
                   "r": spec.wheel_radius_m, "d": spec.wheel_separation_m,
                   "m": spec.max_wheel_speed_radps, "a": spec.max_wheel_accel_radps2 * dt,
-                  "tick_s": self.worlds.batch.tick_s, "foot_r": kinematic.FOOTPRINT_RADIUS_M,
+                  "tick_s": tick_s, "foot_r": kinematic.FOOTPRINT_RADIUS_M,
                   "centre_x": kinematic.CHASSIS_CENTRE_X_M,
                   "enc_offset": 0.0 if enc_cfg is None else enc_cfg.bias + enc_cfg.mean,
                   "enc_res": 0.0 if enc_cfg is None else float(enc_cfg.resolution)}
         self.params = np.array([params[n] for n in _PARAMS], float)
         self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
+        self._key = self.at.tobytes()
         self._first_kin = sims[0].kin
+        self.fans: lid.Fans | None = None                  # the lidars' casts (_scan)
+        self._base = np.zeros((1, 4, 4))                   # one robot's pose (_transforms)
+        self._base[0, 2, 2], self._base[0, 3, 3] = 1.0, 1.0
+        if self.kinematic:
+            self._base[0, 2, 3] = float(self.worlds.batch.radius[0])
+
+    def _transforms(self) -> np.ndarray:
+        """Every row's robot base -> world (W, 4, 4) (one kinematic robot: in Python floats,
+        as :meth:`plant.sim.Simulation.kin_state` makes it)."""
+        if not self.kinematic:
+            return self.worlds.transforms(np.arange(len(self.at)))
+        kin = self.worlds.batch
+        if len(kin.pose) != 1:
+            return kin.transforms()
+        x, y, yaw = kin.pose[0].tolist()
+        c, s = math.cos(yaw), math.sin(yaw)
+        tf = self._base[0]
+        tf[0, 0], tf[0, 1], tf[0, 3] = c, -s, x
+        tf[1, 0], tf[1, 1], tf[1, 3] = s, c, y
+        return self._base
 
     def fits(self, at: np.ndarray) -> bool:
         """Whether this plan steps rows ``at`` (none of them reset since it was made)."""
-        return (len(at) == len(self.at) and bool(np.array_equal(at, self.at))
-                and (self._first_kin.batch or self._first_kin) is self.worlds.batch)
+        return ((not self.kinematic
+                 or (self._first_kin.batch or self._first_kin) is self.worlds.batch)
+                and len(at) == len(self.at) and at.tobytes() == self._key)
 
     def step(self, owner: ArrayTicks, cmds: np.ndarray) -> Made:
         """:meth:`ArrayTicks.advance` of the plan's rows with ``cmds`` (W, 2)."""
@@ -472,14 +503,23 @@ class _TickPlan:
         self.v_target[:] = _clamp(cmds[:, 0], self.limits[0])
         self.w_target[:] = _clamp(cmds[:, 1], self.limits[1])
         self.new_scan[:] = False
-        done = 0
-        while done < self.repeat:
-            for g in self.gathers:
-                g.ahead(self.repeat - done)
-            done += kernels.ticks(w, self.repeat - done, *self._addr)
-            due = np.flatnonzero(self.due)
-            if due.size:
-                self._scan(owner, due)
+        for g in self.gathers:          # (a tick reads at most one of each stream's)
+            g.ahead(self.repeat)
+        if self.kinematic:
+            done = 0
+            while done < self.repeat:
+                done += kernels.ticks(w, self.repeat - done, *self._addr)
+                if self.due.any():
+                    self._scan(owner, np.flatnonzero(self.due))
+        else:
+            worlds, targets = self.worlds, st["targets"]
+            part, (a, p) = kernels.library().plant_tick_part, self._addr  # (kernels.tick_part)
+            for _ in range(self.repeat):
+                part(w, 0, a, p)
+                worlds.step(targets)
+                worlds.read_wheels(self.wheels)
+                if part(w, 1, a, p):
+                    self._scan(owner, np.flatnonzero(self.due))
         self.worlds.finish()
         for g in self.gathers:
             g.sync()
@@ -491,21 +531,37 @@ class _TickPlan:
     def _scan(self, owner: ArrayTicks, due: np.ndarray) -> None:
         """The lidars of rows ``due`` (their robots where the last tick left them)."""
         cfg = self.cfg
-        scene = owner._static_scene(self.sims[0])
-        exact = lid.scan_many(cfg, self.worlds.transforms(due), scene, [None] * due.size,
-                              owner.threads)
+        if self.fans is None or self.fans.scene is not owner._static_scene(self.sims[0]):
+            self.fans = lid.Fans(cfg, owner._static_scene(self.sims[0]), len(self.at),
+                                 owner.threads)
+        if due.size == len(self.at):
+            exact = self.fans.scan(self._transforms())
+        else:
+            exact = lid.scan_many(cfg, self.worlds.transforms(due), self.fans.scene,
+                                  [None] * due.size, owner.threads)
         ranges = _lidar_noise(cfg, exact, None if self.lid_noise is None
                               else self.lid_noise.rows(due))
-        r32 = self.raw[due] = ranges.astype(np.float32)
-        self.state["scans"][due] = np.where(np.isfinite(r32),
-                                            np.clip(r32, 0.0, self.max_range),
-                                            np.float32(self.max_range)).astype(np.float32)
-        self.new_scan[due] = True
+        r32 = ranges.astype(np.float32)
+        scans = np.where(np.isfinite(r32), _clip(r32, 0.0, self.max_range),
+                         np.float32(self.max_range)).astype(np.float32)
+        if due.size == len(self.at):
+            self.raw[:], self.state["scans"][:], self.new_scan[:] = r32, scans, True
+        else:
+            self.raw[due], self.state["scans"][due], self.new_scan[due] = r32, scans, True
 
 
 def _observation(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray,
                  scans: np.ndarray) -> dict:
-    """:meth:`AvoidObserver.observation` of every world at once."""
+    """:meth:`AvoidObserver.observation` of every world at once (one world: with its own
+    functions, Python floats, which numpy's arrays are slower at)."""
+    if len(pose) == 1:
+        x, y, th = pose[0].tolist()
+        v, om = vel[0].tolist()
+        gx, gy = goal[0].tolist()
+        odom = np.array([[x, y, wrap(th), v, om]], np.float32)
+        in_robot = np.array([in_frame((x, y, th), gx, gy)], np.float32)
+        return {"scan": scans.copy(), "odom": _clip(odom, -ODOM_HIGH, ODOM_HIGH),
+                "goal": _clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
     x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
     v, om = vel[:, 0], vel[:, 1]
     c, s = np.cos(th), np.sin(th)
@@ -513,8 +569,8 @@ def _observation(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray,
     in_robot = np.stack([dx * c + dy * s, -dx * s + dy * c], 1).astype(np.float32)
     odom = np.stack([x, y, (th + math.pi) % (2 * math.pi) - math.pi, v, om], 1
                     ).astype(np.float32)
-    return {"scan": scans.copy(), "odom": np.clip(odom, -ODOM_HIGH, ODOM_HIGH),
-            "goal": np.clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
+    return {"scan": scans.copy(), "odom": _clip(odom, -ODOM_HIGH, ODOM_HIGH),
+            "goal": _clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
 
 
 class _Kinematic:
@@ -537,7 +593,12 @@ class _Kinematic:
 
     def finish(self) -> None:
         """The step's end (the worlds' clocks, Simulation.steps: :meth:`ArrayTicks.flush`)."""
-        if not self.batch.finite():     # (not a number stays one: checked once a step)
+        b = self.batch
+        if len(b.pose) == 1:            # (one robot: Python floats, a fifth of the time)
+            finite = all(map(math.isfinite, b.pose[0].tolist() + b.wheels[0].tolist()))
+        else:
+            finite = b.finite()
+        if not finite:                  # (not a number stays one: checked once a step)
             raise FloatingPointError("a kinematic world of the batch is no longer finite")
 
     def truth(self) -> np.ndarray:
@@ -550,24 +611,31 @@ class _Dart:
     wheel angles each tick, poses where a lidar is due and at the step's end."""
 
     def __init__(self, ticks: list, sims: list, names: list[str]) -> None:
-        self.ticks = ticks
+        self.ticks, self.sims = ticks, sims
         self.robots = [s.robots[n] for s, n in zip(sims, names)]
 
     def step(self, targets: np.ndarray) -> None:
-        for tick, robot, (wl, wr) in zip(self.ticks, self.robots, targets.tolist()):
+        """One tick of every world (:meth:`plant.tick.Tick.step` without its timing and
+        its check, which :meth:`finish` makes once a step: not a number stays one)."""
+        for sim, robot, (wl, wr) in zip(self.sims, self.robots, targets.tolist()):
             robot.targets = (wl, wr)                 # as Simulation.command_twist sets them
-            if not tick.step()[2]:
-                raise FloatingPointError("a DART world of the batch diverged (not finite)")
+            sim.step_tick()
 
     def wheels(self) -> np.ndarray:
         return np.array([(r.wheels[0].getPosition(0), r.wheels[1].getPosition(0))
                          for r in self.robots])
 
+    def read_wheels(self, out: np.ndarray) -> None:
+        """:meth:`wheels` into ``out`` (W, 2)."""
+        for j, r in enumerate(self.robots):
+            out[j, 0], out[j, 1] = r.wheels[0].getPosition(0), r.wheels[1].getPosition(0)
+
     def transforms(self, idx: np.ndarray) -> np.ndarray:
         return np.array([self.robots[j].transform() for j in idx.tolist()])
 
     def finish(self) -> None:
-        pass                                         # (Tick.step counted the steps)
+        if not all(sim.is_finite() for sim in self.sims):
+            raise FloatingPointError("a DART world of the batch diverged (not finite)")
 
     def truth(self) -> np.ndarray:
         """As the ``ground_truth`` message read back gives it (codec.pose_2d)."""
@@ -655,9 +723,12 @@ class _Kept:
             for f in self.STATE:
                 getattr(self, f)[rows] = plan.state[f]
         self.truth[rows] = truth
-        got = plan.at[plan.new_scan]
-        self.raw[got] = plan.raw[plan.new_scan]
-        self.new_scan[got] = True
+        if plan.new_scan.all():
+            self.raw[rows], self.new_scan[rows] = plan.raw, True
+        else:
+            got = plan.at[plan.new_scan]
+            self.raw[got] = plan.raw[plan.new_scan]
+            self.new_scan[got] = True
         self.dirty[rows] = True
 
     def flush(self, rows: np.ndarray) -> None:
@@ -745,11 +816,17 @@ def _lidar_noise(cfg, exact: np.ndarray, noise: _RowNoise | None) -> np.ndarray:
     r = _noisy(exact, noise)
     finite = np.isfinite(r)
     lo, hi = cfg.min_range_m, cfg.max_range_m
-    r = np.where(finite, np.clip(r, lo, hi), r)
+    r = np.where(finite, _clip(r, lo, hi), r)
     if cfg.resolution_m > 0.0:
         q = cfg.resolution_m
-        r = np.where(finite, np.clip(np.round(r / q) * q, lo, hi), r)
+        r = np.where(finite, _clip(np.round(r / q) * q, lo, hi), r)
     return r
+
+
+def _clip(a: np.ndarray, lo, hi) -> np.ndarray:
+    """``np.clip(a, lo, hi)``'s values (a NaN stays one) without its Python wrappers,
+    which cost more than the clip of a row."""
+    return np.minimum(np.maximum(a, lo), hi)
 
 
 def truths(pose: np.ndarray) -> np.ndarray:
@@ -757,6 +834,8 @@ def truths(pose: np.ndarray) -> np.ndarray:
     messages give them: :meth:`plant.sim.Simulation.kin_state`'s rotation, its quaternion
     (:func:`plant.sim.rotation_to_quaternion`, both of its branches), back to a yaw
     (:func:`bus.codec.quaternion_to_yaw`, ``math.atan2``: numpy's differs in the last bit)."""
+    if len(pose) == 1:
+        return np.array([truth_of(*pose[0].tolist())])
     yaw = pose[:, 2]
     c, s = np.cos(yaw), np.sin(yaw)
     # the rotation [[c, -s, 0], [s, c, 0], [0, 0, 1]]: trace (m00 + m11) + m22
@@ -774,3 +853,20 @@ def truths(pose: np.ndarray) -> np.ndarray:
     out[:, :2] = pose[:, :2]
     out[:, 2] = [math.atan2(a, b) for a, b in zip(num.tolist(), den.tolist())]
     return out
+
+
+def truth_of(x: float, y: float, yaw: float) -> tuple[float, float, float]:
+    """:func:`truths` of one robot, in Python floats (``math``: what
+    :meth:`plant.sim.Simulation.kin_state` and :func:`plant.sim.rotation_to_quaternion`
+    compute with)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    tr = c + c + 1.0
+    if tr > 0:
+        s1 = math.sqrt(tr + 1.0) * 2
+        qx = qy = 0.0 / s1
+        qz, qw = (s - -s) / s1, 0.25 * s1
+    else:
+        s2 = math.sqrt(1.0 + 1.0 - c - c) * 2
+        qx = qy = 0.0 / s2
+        qz, qw = 0.25 * s2, (s - -s) / s2
+    return x, y, math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))

@@ -19,14 +19,15 @@ import numpy as np
 
 
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr",
-           "drive_limit", "odometry", "kinematic_step", "clearances", "ticks"]
+           "drive_limit", "odometry", "kinematic_step", "clearances", "ticks",
+           "tick_part"]
 
 ABI = 4
 CAMERA_ABI = 2
 NOISE_ABI = 1
 DRIVE_ABI = 1
 KINEMATIC_ABI = 2
-TICKS_ABI = 1
+TICKS_ABI = 2
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -74,6 +75,8 @@ def load(path: Path) -> ctypes.CDLL:
                                          + [_P] * 3 + [_D, _D, _I])
     lib.plant_ticks.restype = ctypes.c_int64
     lib.plant_ticks.argtypes = [_I, _I, _P, _P]
+    lib.plant_tick_part.restype = ctypes.c_int64
+    lib.plant_tick_part.argtypes = [_I, _I, _P, _P]
     lib.plant_clearances.restype = None
     lib.plant_clearances.argtypes = [_I, _P, _I] + [_P] * 4 + [_I] + [_P] * 4
     lib.plant_lidar_scan.restype = None
@@ -200,6 +203,14 @@ def ticks(n: int, most: int, slots: Array, params: Array) -> int:
     if made < 0:
         raise MemoryError("plant_ticks: out of memory")
     return made
+
+
+def tick_part(n: int, part: int, slots: Array, params: Array) -> int:
+    """Half a control tick of ``n`` one-robot worlds another engine steps (DART), as
+    :func:`ticks` makes whole ones: ``part`` 0 the commands (into the targets' slot), 1
+    what follows the step (the engine's wheel angles put in the wheels' slot first):
+    whether some world's lidar is due."""
+    return library().plant_tick_part(n, part, ptr(slots), ptr(params))
 
 
 def clearances(pts: np.ndarray, statics: tuple) -> np.ndarray:

@@ -11,13 +11,14 @@
  *
  * The calls stop after a tick at which some world's lidar is due (its scan is cast in
  * Python before the next tick moves the robot): the number of ticks made is returned.
+ * A DART world is stepped in Python between the two halves of a tick (plant_tick_part).
  */
 #include <math.h>
 #include <stdint.h>
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_ticks_abi(void) { return 1; }
+EXPORT int plant_ticks_abi(void) { return 2; }
 
 void plant_drive_limit(int64_t n, double *v, double *w, double *wheels,
                        const double *v_target, const double *w_target, double dv, double dw,
@@ -58,16 +59,41 @@ EXPORT int64_t plant_ticks_count(void) { return A_COUNT * 1000 + P_COUNT; }
 
 #define PTR(type, slot) ((type *)(intptr_t)a[slot])
 
-/* Up to `ticks` control ticks of n worlds; returns the ticks made (fewer when a lidar came
- * due: due (n, int64) marks the worlds whose lidar is due after the last one), or -1 if out
- * of memory. */
-EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const double *p)
+/* A tick's commands: Simulation.command_twist of every world (the limiter, then the noise
+ * of a robot that moves) into targets (n, 2). */
+static void commands(int64_t n, const int64_t *a, const double *p)
 {
     double *targets = PTR(double, A_TARGETS);
     const double *cmd_buf = PTR(const double, A_CMD_BUF);
     int64_t *cmd_next = PTR(int64_t, A_CMD_NEXT);
     const int64_t *cmd_live = PTR(const int64_t, A_CMD_LIVE);
-    double *wheels = PTR(double, A_WHEELS);
+    const int64_t cmd_len = a[A_CMD_LEN];
+    plant_drive_limit(n, PTR(double, A_V), PTR(double, A_W), PTR(double, A_LIM_WHEELS),
+                      PTR(const double, A_V_TARGET), PTR(const double, A_W_TARGET),
+                      p[P_DV], p[P_DW], p[P_R], p[P_D], p[P_M], p[P_A], targets);
+    if (!cmd_buf)
+        return;
+    for (int64_t i = 0; i < n; i++) {
+        double *o = targets + 2 * i;
+        if (o[0] == 0.0 && o[1] == 0.0)
+            continue;
+        double n0 = 0.0, n1 = 0.0;
+        if (cmd_live[i]) {
+            const double *r = cmd_buf + 2 * (i * cmd_len + cmd_next[i]++);
+            n0 = r[0];
+            n1 = r[1];
+        }
+        o[0] = o[0] + n0;
+        o[1] = o[1] + n1;
+    }
+}
+
+/* What follows a tick's step: the worlds' clocks, their encoders (the wheel angles in
+ * wheels (n, 2) with NoiseModel.apply's offset, normal and quantisation), the dead
+ * reckoning, and due (n): whose lidar is due now. Whether any is. */
+static int after(int64_t n, const int64_t *a, const double *p)
+{
+    const double *wheels = PTR(const double, A_WHEELS);
     const int64_t *enc_have = PTR(const int64_t, A_ENC_HAVE);
     const double *enc_buf = PTR(const double, A_ENC_BUF);
     int64_t *enc_next = PTR(int64_t, A_ENC_NEXT);
@@ -75,33 +101,47 @@ EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const dou
     double *pos = PTR(double, A_POS), *t = PTR(double, A_T);
     int64_t *steps = PTR(int64_t, A_STEPS), *t_ns = PTR(int64_t, A_T_NS);
     int64_t *due = PTR(int64_t, A_DUE);
-    const int64_t cmd_len = a[A_CMD_LEN], enc_len = a[A_ENC_LEN];
-    const int64_t sub = a[A_SUB], step_ns = a[A_STEP_NS], tick_ns = a[A_TICK_NS];
-    const int64_t period = a[A_PERIOD];
+    const int64_t enc_len = a[A_ENC_LEN], sub = a[A_SUB], step_ns = a[A_STEP_NS];
+    const int64_t tick_ns = a[A_TICK_NS], period = a[A_PERIOD];
     const double offset = p[P_ENC_OFFSET], res = p[P_ENC_RES];
-    for (int64_t k = 0; k < ticks; k++) {
-        /* Simulation.command_twist: the limiter, then the noise of a robot that moves */
-        plant_drive_limit(n, PTR(double, A_V), PTR(double, A_W), PTR(double, A_LIM_WHEELS),
-                          PTR(const double, A_V_TARGET), PTR(const double, A_W_TARGET),
-                          p[P_DV], p[P_DW], p[P_R], p[P_D], p[P_M], p[P_A], targets);
-        if (cmd_buf) {
-            for (int64_t i = 0; i < n; i++) {
-                double *o = targets + 2 * i;
-                if (o[0] == 0.0 && o[1] == 0.0)
-                    continue;
-                double n0 = 0.0, n1 = 0.0;
-                if (cmd_live[i]) {
-                    const double *r = cmd_buf + 2 * (i * cmd_len + cmd_next[i]++);
-                    n0 = r[0];
-                    n1 = r[1];
-                }
-                o[0] = o[0] + n0;
-                o[1] = o[1] + n1;
+    int any_due = 0;
+    for (int64_t i = 0; i < n; i++) {
+        steps[i] += sub;
+        t_ns[i] = steps[i] * step_ns;
+        t[i] = (double)t_ns[i] * 1e-9;
+        due[i] = (t_ns[i] / tick_ns) % period == 0;
+        any_due |= (int)due[i];
+        for (int c = 0; c < 2; c++) {
+            double x = wheels[2 * i + c];
+            if (enc_have && enc_have[i]) {
+                x = x + offset;
+                if (enc_buf)
+                    x = x + (enc_live[i] ? enc_buf[2 * (i * enc_len + enc_next[i]) + c] : 0.0);
+                if (res > 0.0 && isfinite(x))
+                    x = rint(x / res) * res;
             }
+            pos[2 * i + c] = x;
         }
-        if (plant_kinematic_step(n, p[P_TICK_S], targets, PTR(const double, A_RADIUS),
-                                 PTR(const double, A_SEPARATION), PTR(const int64_t, A_WORLD),
-                                 PTR(double, A_POSE), wheels, PTR(double, A_SPEEDS),
+        if (enc_buf && enc_have && enc_live[i])
+            enc_next[i]++;
+    }
+    plant_odometry(n, pos, t, PTR(double, A_ODO_POSE), PTR(double, A_ODO_VEL),
+                   PTR(double, A_LAST), PTR(double, A_LAST_T), PTR(const double, A_ODO_R),
+                   PTR(const double, A_ODO_D));
+    return any_due;
+}
+
+/* Up to `ticks` control ticks of n kinematic worlds (the commands, the kinematic step,
+ * what follows it); returns the ticks made (fewer when a lidar came due: due (n, int64)
+ * marks the worlds whose lidar is due after the last one), or -1 if out of memory. */
+EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const double *p)
+{
+    for (int64_t k = 0; k < ticks; k++) {
+        commands(n, a, p);
+        if (plant_kinematic_step(n, p[P_TICK_S], PTR(const double, A_TARGETS),
+                                 PTR(const double, A_RADIUS), PTR(const double, A_SEPARATION),
+                                 PTR(const int64_t, A_WORLD), PTR(double, A_POSE),
+                                 PTR(double, A_WHEELS), PTR(double, A_SPEEDS),
                                  PTR(double, A_VEL), a[A_NBOX], PTR(const double, A_BOX_C),
                                  PTR(const double, A_BOX_COS), PTR(const double, A_BOX_SIN),
                                  PTR(const double, A_BOX_HALF), a[A_NCIRC],
@@ -109,34 +149,20 @@ EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const dou
                                  PTR(const double, A_HALF), p[P_FOOT_R], p[P_CENTRE_X],
                                  a[A_PAIRS]))
             return -1;
-        int any_due = 0;
-        for (int64_t i = 0; i < n; i++) {
-            steps[i] += sub;
-            t_ns[i] = steps[i] * step_ns;
-            t[i] = (double)t_ns[i] * 1e-9;
-            due[i] = (t_ns[i] / tick_ns) % period == 0;
-            any_due |= (int)due[i];
-            /* the encoders: NoiseModel.apply (offset, the stream's normal, quantised) */
-            for (int c = 0; c < 2; c++) {
-                double x = wheels[2 * i + c];
-                if (enc_have && enc_have[i]) {
-                    x = x + offset;
-                    if (enc_buf)
-                        x = x + (enc_live[i] ? enc_buf[2 * (i * enc_len + enc_next[i]) + c]
-                                             : 0.0);
-                    if (res > 0.0 && isfinite(x))
-                        x = rint(x / res) * res;
-                }
-                pos[2 * i + c] = x;
-            }
-            if (enc_buf && enc_have && enc_live[i])
-                enc_next[i]++;
-        }
-        plant_odometry(n, pos, t, PTR(double, A_ODO_POSE), PTR(double, A_ODO_VEL),
-                       PTR(double, A_LAST), PTR(double, A_LAST_T), PTR(const double, A_ODO_R),
-                       PTR(const double, A_ODO_D));
-        if (any_due)
+        if (after(n, a, p))
             return k + 1;
     }
     return ticks;
+}
+
+/* One tick's half, for worlds another engine steps (DART): part 0 the commands (into
+ * targets), part 1 what follows the step (the engine's wheel angles put in wheels first).
+ * Part 1 returns whether some world's lidar is due. */
+EXPORT int64_t plant_tick_part(int64_t n, int64_t part, const int64_t *a, const double *p)
+{
+    if (part == 0) {
+        commands(n, a, p);
+        return 0;
+    }
+    return after(n, a, p);
 }
