@@ -1,4 +1,4 @@
-"""A batch of one-robot Avoid worlds ticked as arrays (the batch's fast path).
+"""One-robot Avoid worlds ticked as arrays (the batch's fast path, and the single env's).
 
 :class:`diffbot.envs.vector.Worlds` ticks its worlds through the plant's messages
 (:func:`plant.tick.messages_of`, then each env's :meth:`AvoidTask._observe` reads them):
@@ -6,39 +6,48 @@ a hundred microseconds of Python per world and tick, most of it building and rea
 message objects. When every world of the batch is in this process (no physics process)
 with one robot and no camera, :class:`ArrayTicks` makes the same numbers for all of them
 at once, each to the bit what the message path gives (``tests/test_envs_vector.py`` runs
-both side by side, noise on, in both world modes). A kinematic world's robots are the
-kinematic batch's arrays (:mod:`plant.kinematic`, one call steps all); a dynamic world's
-DART world steps world by world as before (:meth:`plant.tick.Tick.step`), its wheel angles
-and poses read back into arrays. Everything else is arrays:
+both side by side, noise on, in both world modes; ``tests/test_envs_identity.py`` the
+single env against a plant over the bus). :class:`diffbot.envs.avoid.AvoidEnv` steps its
+one world the same way.
 
-- encoders: the wheel angles plus the encoder noise of :class:`plant.noise.NoiseModel`,
-  each world's own stream drawn in blocks of ticks ahead (a generator's block of draws is
-  its draws one by one, in order);
-- lidar: every robot due cast in one kernel call against the room without the robot (a
-  one-robot world's lidar skips its own parts, so that is what it sees), then
-  noise, clip and quantisation as :func:`plant.lidar.apply_noise`, all rows at once;
-- the commands: each world's :class:`plant.drive.DriveLimiter` and motion noise
-  (:meth:`plant.sim.Simulation.command_twist`; :class:`_Limiters`), the limiters' and the
-  dead reckoning's arithmetic (:meth:`controllers.odometry.Odometry.update`) for all
-  worlds in one call each of plant/kernels/drive.c, the Python code's operations in its
-  order with libm's ``sin`` and ``cos``, which are what ``math`` calls;
+A step's ticks are calls of plant/kernels/ticks.c (:class:`_TickPlan`): in a kinematic
+world all of a step's ticks in one call, stopping where a lidar comes due; a DART world's
+ticks in two halves each, DART stepping it between them (:meth:`plant.sim.Simulation.step_tick`).
+A tick is what the plant's tick does, in its order, to the bit:
+
+- the commands: each world's :class:`plant.drive.DriveLimiter` and the motion noise of a
+  robot that moves (:meth:`plant.sim.Simulation.command_twist`), plant/kernels/drive.c:
+  the Python code's operations in its order with libm's ``sin`` and ``cos``, which are
+  what ``math`` calls;
+- the kinematic step (plant/kernels/kinematic.c, :mod:`plant.kinematic`), or DART's;
+- encoders: the wheel angles plus the encoder noise of :class:`plant.noise.NoiseModel`;
+  then the dead reckoning (:meth:`controllers.odometry.Odometry.update`, drive.c);
+- lidar, where due: every robot due cast in one kernel call against the room without the
+  robot (a one-robot world's lidar skips its own parts, so that is what it sees), then
+  noise, clip and quantisation as :func:`plant.lidar.apply_noise`, all rows at once.
+
+Each noise stream is each world's own, drawn in blocks ahead and read in order (a
+generator's block of draws is its draws one by one): :class:`_Gather` lays the command and
+encoder streams out for the kernel. After the ticks, in numpy for many worlds and in
+Python floats for one (what the message path computes with):
+
 - the observer: the scan as :meth:`controllers.learned.AvoidObserver.feed` keeps it, the
-  observation as :meth:`AvoidObserver.observation` makes it, in numpy (``+ - * /``,
-  ``sqrt``, ``sin``, ``cos``, ``%``: numpy 2.4 gives Python's bits, which the oracle test
-  would catch otherwise; ``atan2`` and ``hypot`` it does not, so those are ``math``'s,
-  robot by robot);
+  observation as :meth:`AvoidObserver.observation` makes it (numpy 2.4's ``+ - * /``,
+  ``sqrt``, ``sin``, ``cos``, ``%`` give Python's bits, which the oracle test would
+  catch otherwise; ``atan2`` and ``hypot`` do not, so those are ``math``'s, robot by
+  robot);
 - the ground truth at the step's end, as the ``ground_truth`` message and
   :func:`bus.codec.pose_2d` give it (:func:`truths`).
 
-A DART world that diverges (not finite) is an error here (FloatingPointError), where the
+A world that diverges (not finite) is an error here (FloatingPointError), where the
 message path rebuilds it at t = 0 and goes on. What the env never reads is not made (the
 GPS; the ground truth before a step's end); the GPS noise stream is not drawn either, as
 nobody reads it before the world is rebuilt at its next reset. Between steps the batch
 keeps each env's state as arrays (:class:`_Kept`: read from an env's objects once after
 its reset), and writes it back to the env's observer, odometry, limiter, world and task
 only when something is to read them (:meth:`ArrayTicks.flush`: a render, a reset, the
-message path, :attr:`AvoidVectorEnv.tasks`), so rendering and resets are the task's own
-code; the rewards, flags and ``info`` of all worlds are
+message path, :attr:`AvoidVectorEnv.tasks`, :attr:`AvoidEnv.task`), so rendering and
+resets are the task's own code; the rewards, flags and ``info`` of all worlds are
 :meth:`diffbot.envs.vector.Worlds._step_arrays`'.
 """
 from __future__ import annotations
@@ -121,18 +130,16 @@ class _Draws:
 
 class _Gather:
     """The streams of a batch's worlds (row j: world j's :class:`_Draws`, or None: no
-    stream, zeros) read as one array: ``buf`` (W, cap, *shape), row j's readings
-    ``buf[j, next[j]:end[j]]``, ``live`` (W,) int64 the rows with a stream. A take of some
-    rows is one index into every row at its own position; :meth:`ahead` refills the rows
-    with too few readings left (the readings left first, then a new block), as
-    :meth:`_Draws.take` does stream by stream, so the readings are the streams' in order;
-    :meth:`sync` leaves the streams where the reads left them. plant/kernels/ticks.c reads
-    ``buf`` and advances ``next`` in place (the arrays stay where they are)."""
+    stream, zeros) laid out for plant/kernels/ticks.c, which reads them in place: ``buf``
+    (W, cap, *shape), row j's readings not yet read ``buf[j, next[j]:end[j]]`` (the kernel
+    advances ``next``), ``live`` (W,) int64 the rows with a stream. :meth:`ahead` refills
+    the rows with too few readings left (those left first, then a new block, as
+    :meth:`_Draws.ahead`), so the readings are each stream's in order; :meth:`sync` leaves
+    the streams where the reads left them. ``most``: the most readings asked ahead."""
 
     def __init__(self, draws: list, shape: tuple[int, ...], most: int = 1) -> None:
         self.draws, self.shape = draws, shape
         self.live = np.array([d is not None for d in draws], np.int64)
-        self.all_live = bool(self.live.all())
         self.buf = np.zeros((len(draws), _BLOCK + most) + shape)
         self.next = np.zeros(len(draws), np.int64)
         self.end = np.zeros(len(draws), np.int64)
@@ -154,18 +161,6 @@ class _Gather:
             d.next = int(self.next[j])
             self._put(j, d.ahead(k))
 
-    def take(self, rows: np.ndarray) -> np.ndarray:
-        """The next reading (len(rows), *shape) of each of worlds ``rows`` (distinct)."""
-        self.ahead(1)
-        live = rows if self.all_live else rows[self.live[rows] != 0]
-        vals = self.buf[live, self.next[live]]
-        self.next[live] += 1
-        if self.all_live:
-            return vals
-        out = np.zeros((len(rows),) + self.shape)
-        out[self.live[rows] != 0] = vals
-        return out
-
     def sync(self) -> None:
         for d, k in zip(self.draws, self.next.tolist()):
             if d is not None:
@@ -173,8 +168,8 @@ class _Gather:
 
 
 class _Rows:
-    """The streams of a batch's worlds read stream by stream (:meth:`_Draws.take`): for wide
-    readings (a lidar's), taken once a scan, whose blocks :class:`_Gather` would copy."""
+    """The streams of a batch's worlds read stream by stream (:meth:`_Draws.take`): a
+    lidar's, taken once a scan."""
 
     def __init__(self, draws: list, shape: tuple[int, ...]) -> None:
         self.draws, self.shape = draws, shape
@@ -188,10 +183,6 @@ class _Rows:
         pass
 
 
-#: readings of at most this many values are read through :class:`_Gather`
-_GATHER_MAX = 8
-
-
 class _RowNoise:
     """One sensor's noise (:class:`plant.noise.NoiseModel`) of every world of a batch, row j
     world j's, as :meth:`NoiseModel.apply` of a float array gives it: offset, the stream's
@@ -201,7 +192,7 @@ class _RowNoise:
     def __init__(self, models: list, draws: list, shape: tuple[int, ...]) -> None:
         self.config = next(m for m in models if m is not None).config
         self.have = np.array([m is not None for m in models])
-        self.streams = (_Gather if math.prod(shape) <= _GATHER_MAX else _Rows)(draws, shape)
+        self.streams = _Rows(draws, shape)
         self.idx = np.arange(len(models))
 
     @classmethod
@@ -312,66 +303,10 @@ class ArrayTicks:
             k.read(at[stale], [tasks[j] for j in stale.tolist()])
         plan = self._plan
         if plan is None or stale.size or not plan.fits(at):
-            self._plan = plan = None
+            # the streams of the worlds stepped last time and now, kept (_stream)
             self._last, self._draws = self._draws, {}
             self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
-        if plan is not None:
-            return plan.step(self, cmds)
-        ticks, names, sensors, sims, obs = (
-            list(c) for c in zip(*[k.roster[i][:5] for i in at.tolist()]))
-        worlds = (_Kinematic if sims[0].kin is not None else _Dart)(ticks, sims, names)
-        # the observers' and limiters' state in
-        pose, vel, last, last_t = k.pose[at], k.vel[at], k.last[at], k.last_t[at]
-        r, d, scans = k.r[at], k.d[at], k.scans[at]
-        new_scan = np.zeros(w, bool)
-        models = [s.enc_noise for s in sensors]
-        enc_noise = _RowNoise.of(models, [self._draws_of(m, (2,)) for m in models], (2,))
-        cfg = sensors[0].lidar
-        models = [s.lidar_noise for s in sensors]
-        lid_noise = _RowNoise.of(models, [self._draws_of(m, (cfg.num_rays,)) for m in models],
-                                 (cfg.num_rays,))
-        raw = np.empty((w, cfg.num_rays), np.float32)   # each one's last scan, as sent
-        period = sensors[0].periods["scan"]
-        tick_ns = ticks[0].tick_ns
-        repeat = tasks[0].action_repeat
-        # Simulation.time_ns: steps counted, times their length in whole ns
-        spec = sims[0].spec
-        steps = k.steps[at]
-        sub, step_ns = spec.substeps, int(round(spec.physics_step_s * 1e9))
-        drive = _Limiters(sims, names, k.lim_v[at], k.lim_w[at], k.wheels[at], cmds, self)
-        odo_state = tuple(map(kernels.ptr, (pose, vel, last, last_t, r, d)))   # (taken once)
-        for _ in range(repeat):
-            worlds.step(drive.targets())
-            steps += sub
-            t_ns = steps * step_ns
-            # encoders -> odometry (Odometry.update, arc_step: plant/kernels/drive.c)
-            pos = np.ascontiguousarray(_noisy(worlds.wheels(), enc_noise))
-            kernels.odometry(w, pos, t_ns * 1e-9, *odo_state)
-            # lidar, where due
-            due = np.flatnonzero((t_ns // tick_ns) % period == 0)
-            if due.size:
-                scene = self._static_scene(sims[0])
-                exact = lid.scan_many(cfg, worlds.transforms(due), scene, [None] * due.size,
-                                      self.threads)
-                ranges = _lidar_noise(cfg, exact, None if lid_noise is None
-                                      else lid_noise.rows(due))
-                r32 = raw[due] = ranges.astype(np.float32)
-                hi = np.float32(obs[0].max_range)
-                scans[due] = np.where(np.isfinite(r32), np.clip(r32, 0.0, obs[0].max_range),
-                                      hi).astype(np.float32)
-                new_scan[due] = True
-        worlds.finish()
-        if drive.noise is not None:
-            drive.noise.sync()
-        for noise in (enc_noise, lid_noise):
-            if noise is not None:
-                noise.streams.sync()
-        truth = worlds.truth()
-        # kept, for the next step and for flush (the objects are not written here)
-        k.keep(at, pose, vel, last, last_t, scans, steps, drive, t_ns, truth, raw, new_scan)
-        # AvoidObserver.observation, every world's at once
-        goal = np.array([o.goal for o in obs], float).reshape(w, 2)
-        return Made(_observation(pose, vel, goal, scans), truth, t_ns)
+        return plan.step(self, cmds)
 
 
 #: plant/kernels/ticks.c's slots (its enums), in order
@@ -582,12 +517,6 @@ class _Kinematic:
         kins = [s.kin for s in sims]
         self.batch = kinematic.join(kins) if len(kins) > 1 else kins[0]
 
-    def step(self, targets: np.ndarray) -> None:
-        self.batch.step(targets)
-
-    def wheels(self) -> np.ndarray:
-        return self.batch.wheels
-
     def transforms(self, idx: np.ndarray) -> np.ndarray:
         return self.batch.transforms()[idx]
 
@@ -621,12 +550,8 @@ class _Dart:
             robot.targets = (wl, wr)                 # as Simulation.command_twist sets them
             sim.step_tick()
 
-    def wheels(self) -> np.ndarray:
-        return np.array([(r.wheels[0].getPosition(0), r.wheels[1].getPosition(0))
-                         for r in self.robots])
-
     def read_wheels(self, out: np.ndarray) -> None:
-        """:meth:`wheels` into ``out`` (W, 2)."""
+        """The wheel angles (W, 2) into ``out``."""
         for j, r in enumerate(self.robots):
             out[j, 0], out[j, 1] = r.wheels[0].getPosition(0), r.wheels[1].getPosition(0)
 
@@ -704,18 +629,6 @@ class _Kept:
         self.lim_w[at] = [lim.w for lim in lims]
         self.wheels[at] = [lim.wheels for lim in lims]
 
-    def keep(self, at: np.ndarray, pose, vel, last, last_t, scans, steps, drive: "_Limiters",
-             t_ns, truth, raw, new_scan) -> None:
-        """What a step left of rows ``at`` (its objects now behind: ``dirty``)."""
-        self.pose[at], self.vel[at], self.last[at], self.last_t[at] = pose, vel, last, last_t
-        self.scans[at], self.steps[at] = scans, steps
-        self.lim_v[at], self.lim_w[at], self.wheels[at] = drive.v, drive.w, drive.wheels
-        self.targets[at], self.t_ns[at], self.truth[at] = drive.out, t_ns, truth
-        got = at[new_scan]
-        self.raw[got] = raw[new_scan]
-        self.new_scan[got] = True
-        self.dirty[at] = True
-
     def keep_plan(self, plan: _TickPlan, truth: np.ndarray) -> None:
         """What a :class:`_TickPlan`'s step left of its rows (as :meth:`keep`)."""
         rows = plan.rows
@@ -766,43 +679,6 @@ class _Kept:
             task.scans[name] = _Scan(self.raw[i].copy(), *self.scan_fields)
         self.dirty[rows] = False
         self.new_scan[rows] = False
-
-
-class _Limiters:
-    """The batch's :class:`plant.drive.DriveLimiter` s and motion noise: each tick's
-    wheel-speed targets of every world, as ``Simulation.command_twist`` sets them
-    (:meth:`DriveLimiter.from_twist` in plant/kernels/drive.c, then the command noise);
-    the limiters' state comes in as arrays (:class:`_Kept`) and leaves in them (``v``,
-    ``w``, ``wheels``; ``out``: the last tick's targets)."""
-
-    def __init__(self, sims: list, names: list[str], v: np.ndarray, w: np.ndarray,
-                 wheels: np.ndarray, cmds: np.ndarray, ticks: ArrayTicks) -> None:
-        spec = sims[0].limiters[names[0]].spec
-        self.v, self.w, self.wheels = v, w, wheels      # (the limiters' state: fresh copies)
-        self.v_target = _clamp(cmds[:, 0], spec.max_linear_mps)
-        self.w_target = _clamp(cmds[:, 1], spec.max_angular_radps)
-        dt = sims[0].spec.control_tick_s
-        self._limits = (spec.max_linear_accel_mps2 * dt, spec.max_angular_accel_radps2 * dt,
-                        spec.wheel_radius_m, spec.wheel_separation_m, spec.max_wheel_speed_radps,
-                        spec.max_wheel_accel_radps2 * dt)
-        std = sims[0].robots[names[0]].spec.sensors.command_noise_std_radps
-        self.noise = None if std <= 0.0 else _Gather(
-            [ticks._stream(s.motion_rng[n], std, (2,)) for s, n in zip(sims, names)], (2,))
-        self.out = np.empty_like(self.wheels)     # each tick's targets (the last one's kept)
-        self._state = tuple(map(kernels.ptr, (self.v, self.w, self.wheels, self.v_target,
-                                              self.w_target)))     # addresses, taken once
-        self._out = kernels.ptr(self.out)
-
-    def targets(self) -> np.ndarray:
-        """This tick's wheel-speed targets (n, 2): the same buffer each tick, read by the
-        worlds' step before the next tick's call."""
-        out = self.out
-        kernels.drive_limit(len(out), *self._state, *self._limits, self._out)
-        if self.noise is not None:          # Simulation._set_targets: only when it moves
-            moving = np.flatnonzero((out[:, 0] != 0.0) | (out[:, 1] != 0.0))
-            if moving.size:
-                out[moving] += self.noise.take(moving)
-        return out
 
 
 def _clamp(x: np.ndarray, lim: float) -> np.ndarray:

@@ -1,7 +1,8 @@
 """The plant's compiled kernels (C, built by ``make setup`` into plant/kernels/build/),
 loaded with ctypes: the lidar's sweep (:func:`lidar_scan`), the camera's per-pixel work, the
-kinematic world's tick (:func:`kinematic_step`), and a batch's drive limiters and dead
-reckoning (:func:`drive_limit`, :func:`odometry`).
+kinematic world's tick (:func:`kinematic_step`), and the ticks of one-robot worlds an
+environment steps (:func:`ticks`, :func:`tick_part`: drive limiters, command and encoder
+noise, kinematic step, dead reckoning; plant/kernels/drive.c and ticks.c).
 
 The numpy code of :mod:`plant.raycast` stays as the reference the tests compare the
 kernels with, value for value. There is no silent fallback: without the library the
@@ -19,7 +20,7 @@ import numpy as np
 
 
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr",
-           "drive_limit", "odometry", "kinematic_step", "clearances", "ticks",
+           "kinematic_step", "clearances", "ticks",
            "tick_part"]
 
 ABI = 4
@@ -66,10 +67,6 @@ def load(path: Path) -> ctypes.CDLL:
                                          _D, _D] + [_P] * 5)
     lib.plant_image_noise.restype = None
     lib.plant_image_noise.argtypes = [_P, _I, ctypes.c_uint64, _I, _P, _P, _P]
-    lib.plant_drive_limit.restype = None
-    lib.plant_drive_limit.argtypes = [_I] + [_P] * 5 + [_D] * 6 + [_P]
-    lib.plant_odometry.restype = None
-    lib.plant_odometry.argtypes = [_I] + [_P] * 8
     lib.plant_kinematic_step.restype = ctypes.c_int
     lib.plant_kinematic_step.argtypes = ([_I, _D] + [_P] * 8 + [_I] + [_P] * 4 + [_I]
                                          + [_P] * 3 + [_D, _D, _I])
@@ -158,25 +155,6 @@ def image_noise(img: np.ndarray, seed: int, table: tuple[np.ndarray, np.ndarray]
 
 
 Array = np.ndarray | int      # an array, or its address (:func:`ptr`)
-
-
-def drive_limit(n: int, v: Array, w: Array, wheels: Array, v_target: Array, w_target: Array,
-                dv: float, dw: float, r: float, d: float, m: float, a: float,
-                out: Array) -> None:
-    """:meth:`plant.drive.DriveLimiter.from_twist` of ``n`` robots of one drive, one tick
-    (plant/kernels/drive.c): ``v``, ``w`` (n) and ``wheels`` (n, 2) the limiters' state,
-    updated; ``out`` (n, 2) the wheel-speed targets. float64, C-contiguous."""
-    library().plant_drive_limit(n, ptr(v), ptr(w), ptr(wheels), ptr(v_target), ptr(w_target),
-                                dv, dw, r, d, m, a, ptr(out))
-
-
-def odometry(n: int, pos: Array, t: Array, pose: Array, vel: Array, last: Array,
-             last_t: Array, r: Array, d: Array) -> None:
-    """:meth:`controllers.odometry.Odometry.update` of ``n`` robots (plant/kernels/drive.c):
-    encoder angles ``pos`` (n, 2) at times ``t`` (n); ``pose`` (n, 3), ``vel`` (n, 2),
-    ``last`` (n, 2), ``last_t`` (n) updated. float64, C-contiguous."""
-    library().plant_odometry(n, ptr(pos), ptr(t), ptr(pose), ptr(vel), ptr(last), ptr(last_t),
-                             ptr(r), ptr(d))
 
 
 def kinematic_step(n: int, tick_s: float, targets: np.ndarray, robots: tuple[int, ...],

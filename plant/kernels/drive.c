@@ -1,5 +1,5 @@
 /* A batch of robots' drive limiters and dead reckoning, one control tick each call
- * (diffbot/envs/kinbatch.py calls them for a batched environment's N worlds).
+ * (plant/kernels/ticks.c calls them for the worlds an environment steps).
  *
  * Both are Python code elsewhere, run with Python floats: plant/drive.py's DriveLimiter
  * (from_twist) and controllers/odometry.py's Odometry.update (arc_step). Here is the same
