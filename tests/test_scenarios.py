@@ -147,14 +147,18 @@ def test_ctrl_c_stops_every_process_and_leaves_a_summary(tmp_path):
         wait_for(lambda: set(processes_mentioning(str(out))) <= {p.pid}, 5,
                  what="children to go")
         assert time.monotonic() - t0 < 2.0 + 0.5      # children gone within 2 s
-        p.wait(30)
+        _, err = p.communicate(timeout=30)
         assert not processes_mentioning(str(out))
     finally:
         if p.poll() is None:
             p.kill()
-    assert p.returncode == 130
+    err = err.decode(errors="replace")
+    assert p.returncode == 130, err
     s = json.load(open(out / "summary.json"))
     assert s["end_reason"] == "interrupted (SIGINT)"
+    # (a child the launcher had to SIGKILL: its stderr says which and how long after its
+    # SIGINT, scenario_run.stop_all)
+    assert s["exit_codes"]["plant"] == 0, (s["exit_codes"], err)
     assert s["sim_time_s"] > 0.5
     assert (out / "trajectory.csv").read_text().startswith("t_s,")
 

@@ -44,6 +44,7 @@ from plant.world import load_world
 from .actions import Drive, check_repeat
 from .episode import Episode
 from .geometry import Footprints
+from .kinbatch import ArrayTicks
 from .transport import Bus, InProc
 
 PROGRESS_GAIN = 1.0
@@ -54,6 +55,17 @@ CONTACT_PENALTY = 1.0
 INPUTS = ["joint_states", "ground_truth", "scan"]
 _READ = frozenset(INPUTS)
 TRANSPORTS = ("inproc", "bus")
+
+
+def step_reward(before: float, d: float, success: bool, contact: bool) -> float:
+    """A robot's reward for a step (module docstring), from its distances to the goal
+    before and after it."""
+    r = PROGRESS_GAIN * (before - d) - STEP_COST
+    if success:
+        r += GOAL_BONUS
+    if contact:
+        r -= CONTACT_PENALTY
+    return r
 
 
 def step_rewards(before: np.ndarray, d: np.ndarray, success: np.ndarray,
@@ -213,13 +225,9 @@ class AvoidTask:
         rew, term, trunc, info = {}, {}, {}, {}
         for name in list(self.active):
             d = self._distance(name)
-            r = PROGRESS_GAIN * (before[name] - d) - STEP_COST     # (a batch: step_rewards)
             success = d < self.goal_radius
             contact = name in self.touched
-            if success:
-                r += GOAL_BONUS
-            if contact:
-                r -= CONTACT_PENALTY
+            r = step_reward(before[name], d, success, contact)    # (a batch: step_rewards)
             rew[name], term[name] = r, success or contact
             trunc[name] = (not term[name] and self.max_steps is not None
                            and self.steps >= self.max_steps)
@@ -246,10 +254,10 @@ class AvoidEnv(gym.Env):
     plant's code in this process; ``"bus"`` starts a lockstep plant and joins it over
     Zenoh (or joins the one at ``endpoint``): same seed and actions, same numbers.
 
-    In-process in a kinematic world, a step's ticks are the batch's fast path for one
-    world (:class:`diffbot.envs.kinbatch.ArrayTicks`: its ticks in one call of the plant's
-    kernels, the numbers the messages give, to the bit), and the task's objects (its
-    observer, odometry, world) are brought up to date when something reads them: a
+    In-process (a world without a physics process), a step's ticks are the batched env's
+    fast path for one world (:class:`diffbot.envs.kinbatch.ArrayTicks`: its ticks in the
+    plant's C kernels, the numbers the messages give, to the bit), and the task's objects
+    (its observer, odometry, world) are brought up to date when something reads them: a
     render, a reset, :attr:`task`."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -294,8 +302,7 @@ class AvoidEnv(gym.Env):
         self._arrays = self._fast_path()
         return obs[self.robot], info[self.robot]
 
-    def _fast_path(self):
-        from .kinbatch import ArrayTicks
+    def _fast_path(self) -> ArrayTicks | None:
         task = self._task
         if not ArrayTicks.eligible([task]):
             return None
@@ -315,7 +322,7 @@ class AvoidEnv(gym.Env):
 
     def _step_arrays(self, task: AvoidTask, action):
         """:meth:`AvoidTask.step` of the one robot through the fast path: the same numbers
-        (``tests/test_envs_vector.py``: the message path beside it, every noise on)."""
+        (``tests/test_envs_identity.py``: a plant over the bus beside it, every noise on)."""
         robot = self.robot
         cmd = task.drives[robot].command(action, robot)
         fresh = self._fresh
@@ -330,12 +337,8 @@ class AvoidEnv(gym.Env):
         x, y, _ = truth
         gx, gy = task.goals[robot]
         d = self._dist = math.hypot(gx - x, gy - y)
-        r = PROGRESS_GAIN * (before - d) - STEP_COST
         success = d < task.goal_radius
-        if success:
-            r += GOAL_BONUS
-        if contact:
-            r -= CONTACT_PENALTY
+        r = step_reward(before, d, success, contact)
         task.steps += 1
         term = success or contact
         trunc = not term and task.max_steps is not None and task.steps >= task.max_steps

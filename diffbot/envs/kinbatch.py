@@ -1,7 +1,8 @@
 """One-robot Avoid worlds ticked as arrays (the batch's fast path, and the single env's).
 
 :class:`diffbot.envs.vector.Worlds` ticks its worlds through the plant's messages
-(:func:`plant.tick.messages_of`, then each env's :meth:`AvoidTask._observe` reads them):
+(:func:`plant.tick.messages_of`, then each env's :meth:`diffbot.envs.avoid.AvoidTask._observe`
+reads them; the tasks this module steps are :class:`~diffbot.envs.avoid.AvoidTask` s):
 a hundred microseconds of Python per world and tick, most of it building and reading
 message objects. When every world of the batch is in this process (no physics process)
 with one robot and no camera, :class:`ArrayTicks` makes the same numbers for all of them
@@ -64,7 +65,6 @@ from plant.noise import NoiseModel
 from plant.raycast import Scene
 from plant.sim import rotation_to_quaternion
 
-from .avoid import AvoidTask
 from .transport import InProc
 
 #: ticks of noise drawn at once per stream
@@ -237,7 +237,7 @@ class ArrayTicks:
         self._plan: _TickPlan | None = None     # the kinematic worlds' call, kept
 
     @staticmethod
-    def eligible(tasks: Sequence[AvoidTask]) -> bool:
+    def eligible(tasks: Sequence) -> bool:
         """One-robot worlds in this process (kinematic, or DART without a physics process),
         no camera, every world the same spec (a batch's are: one world file, one set of
         overrides)."""
@@ -282,7 +282,7 @@ class ArrayTicks:
         k = self._kept
         k.flush(np.flatnonzero(k.dirty) if rows is None else np.asarray(rows, np.int64))
 
-    def advance(self, tasks: Sequence[AvoidTask], cmds: np.ndarray, rows: np.ndarray,
+    def advance(self, tasks: Sequence, cmds: np.ndarray, rows: np.ndarray,
                 fresh: np.ndarray) -> Made:
         """``action_repeat`` ticks of every task in ``tasks`` with its command (``cmds``,
         (W, 2): v m/s, w rad/s each), each task's state left as its own ``_observe`` at the
@@ -601,7 +601,7 @@ class _Kept:
         self.dirty, self.new_scan = np.zeros(n, bool), np.zeros(n, bool)
         self.scan_fields: tuple = ()
 
-    def read(self, at: np.ndarray, tasks: Sequence[AvoidTask]) -> None:
+    def read(self, at: np.ndarray, tasks: Sequence) -> None:
         """Rows ``at`` from ``tasks``' objects (one task each, in order)."""
         for i, t in zip(at.tolist(), tasks):
             name = t.robots[0]

@@ -175,8 +175,8 @@ def ticks(n: int, most: int, slots: Array, params: Array) -> int:
     """Up to ``most`` control ticks of ``n`` one-robot kinematic worlds in one call
     (plant/kernels/ticks.c: the drive limiters, command noise, kinematic step, encoders and
     dead reckoning of each): ``slots`` the int64 block of addresses and counts, ``params``
-    the double block, in the order ticks.c names them (or their addresses). The ticks made: fewer when a lidar
-    came due."""
+    the double block, in the order ticks.c names them (or their addresses). The ticks
+    made: fewer when a lidar came due."""
     made = library().plant_ticks(n, most, ptr(slots), ptr(params))
     if made < 0:
         raise MemoryError("plant_ticks: out of memory")
