@@ -122,6 +122,7 @@ class Simulation:
 
     def __init__(self, spec: WorldSpec) -> None:
         self.spec = spec
+        self._substeps = spec.substeps      # (a property of the spec: computed each call)
         w = dart.simulation.World()
         w.setTimeStep(spec.physics_step_s)
         w.setGravity(np.array([0.0, 0.0, -spec.gravity_mps2]))
@@ -210,9 +211,9 @@ class Simulation:
         else:
             for r in robots:
                 r.apply()
-            for _ in range(self.spec.substeps):
+            for _ in range(self._substeps):
                 self.world.step(False)
-        self.steps += self.spec.substeps
+        self.steps += self._substeps
 
     # ------------------------------------------------------------------ commands
     def command_twist(self, robot: str, v_mps: float, w_radps: float) -> None:
