@@ -234,7 +234,7 @@ class ArrayTicks:
         self._last: dict[int, _Draws] = {}      # the last step's
         self._scene: Scene | None = None
         self._scene_of = None
-        self._plan: _TickPlan | None = None     # the kinematic worlds' call, kept
+        self._plan: _TickPlan | None = None     # the last step's calls, kept
 
     @staticmethod
     def eligible(tasks: Sequence) -> bool:
@@ -323,11 +323,10 @@ class _TickPlan:
     """An Avoid step of one-robot worlds ``at`` (rows of the batch): its ticks in calls of
     plant/kernels/ticks.c (a kinematic world's whole ticks; a DART world's two halves of
     each tick, DART stepping it between them), the lidars cast where due between them,
-    with everything
-    the calls read laid out once: the rows' state (views of the :class:`_Kept` arrays when
-    ``at`` is a run of rows, else copies written back each step), the noise streams
-    gathered (:class:`_Gather`), the addresses. Kept from step to step while the same
-    worlds step and none was reset since (:meth:`fits`)."""
+    with everything the calls read laid out once: the rows' state (views of the
+    :class:`_Kept` arrays when ``at`` is a run of rows, else copies written back each
+    step), the noise streams gathered (:class:`_Gather`), the addresses. Kept from step to
+    step while the same worlds step and none was reset since (:meth:`fits`)."""
 
     def __init__(self, owner: ArrayTicks, at: np.ndarray, repeat: int) -> None:
         k = owner._kept
@@ -459,7 +458,7 @@ class _TickPlan:
         for g in self.gathers:
             g.sync()
         truth = self.worlds.truth()
-        owner._kept.keep_plan(self, truth)
+        owner._kept.keep(self, truth)
         return Made(_observation(st["pose"], st["vel"], self.goal, st["scans"]), truth,
                     st["t_ns"].copy())
 
@@ -639,8 +638,9 @@ class _Kept:
         self.lim_w[at] = [lim.w for lim in lims]
         self.wheels[at] = [lim.wheels for lim in lims]
 
-    def keep_plan(self, plan: _TickPlan, truth: np.ndarray) -> None:
-        """What a :class:`_TickPlan`'s step left of its rows (as :meth:`keep`)."""
+    def keep(self, plan: _TickPlan, truth: np.ndarray) -> None:
+        """What a :class:`_TickPlan`'s step left of its rows (their objects now behind:
+        ``dirty``)."""
         rows = plan.rows
         if not plan.run:
             for f in self.STATE:
