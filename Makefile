@@ -10,7 +10,7 @@ FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
 KERNELS := plant/kernels/build/.built
 KERNEL_SRC := $(wildcard plant/kernels/*.c plant/kernels/*.h) plant/kernels/build.py plant/kernels/__init__.py
 
-.PHONY: setup demo test test-fast soak bench clean netns-tools
+.PHONY: setup demo test test-random test-fast soak bench clean netns-tools
 
 setup: $(STAMP) $(FMUS) $(KERNELS) $(TF2MSGS)
 
@@ -48,6 +48,14 @@ demo: setup
 TEST_WORKERS ?= 0
 test: setup netns-tools
 	CI=$${CI:-true} $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+
+# The whole suite in an order shuffled by pytest-randomly (no test may need another to run
+# first), as `make test` otherwise: SEED=N repeats an order (default: a new one, printed).
+SEED ?= $(shell date +%s)
+test-random: setup netns-tools
+	@echo "test order: --randomly-seed=$(SEED)"
+	CI=$${CI:-true} $(BIN)/python -m pytest -q -p randomly --randomly-seed=$(SEED) \
+	  -n $(TEST_WORKERS) --dist loadgroup
 
 # tests/test_netns.py needs `ip` (iproute2) and `openssl`, the Ecos runs of tests/test_plant_fmu.py
 # libtbb.so.12 (libtbb12). Installed only when missing,
