@@ -77,9 +77,9 @@ def _compare(env_id: str, steps: int, info_keys, seed: int, **kw) -> dict:
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("mode", ["dynamic", "kinematic"])
 def test_avoid_inproc_and_bus_agree_to_the_bit_over_300_steps_and_resets(mode):
-    # short episodes so that several resets (sim/reset over the bus) are crossed. In the
-    # kinematic world the in-process env steps through the batch's fast path for one world
-    # (diffbot/envs/kinbatch.py, plant/kernels/ticks.c); the plant over the bus through
+    # short episodes so that several resets (sim/reset over the bus) are crossed. In both
+    # world modes the in-process env steps through the batch's fast path for one world
+    # (diffbot/envs/kinbatch.py, plant/kernels/ticks.c), the plant over the bus through
     # its messages: the same numbers, every noise on.
     out = _compare("diffbot/Avoid-v0", STEPS, ("pose", "goal", "distance", "t"), seed=7,
                    max_episode_steps=60,

@@ -401,6 +401,10 @@ class _TickPlan:
                   "enc_offset": 0.0 if enc_cfg is None else enc_cfg.bias + enc_cfg.mean,
                   "enc_res": 0.0 if enc_cfg is None else float(enc_cfg.resolution)}
         self.params = np.array([params[n] for n in _PARAMS], float)
+        if kernels.library().plant_ticks_count() != len(_SLOTS) * 1000 + len(_PARAMS):
+            raise kernels.KernelsMissing("plant/kernels/ticks.c's blocks are not the ones "
+                                         "diffbot/envs/kinbatch.py lays out: rebuild the "
+                                         "kernels (make setup)")
         self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
         self._key = self.at.tobytes()
         self._first_kin = sims[0].kin

@@ -74,6 +74,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_ticks.argtypes = [_I, _I, _P, _P]
     lib.plant_tick_part.restype = ctypes.c_int64
     lib.plant_tick_part.argtypes = [_I, _I, _P, _P]
+    lib.plant_ticks_count.restype = ctypes.c_int64
+    lib.plant_ticks_count.argtypes = []
     lib.plant_clearances.restype = None
     lib.plant_clearances.argtypes = [_I, _P, _I] + [_P] * 4 + [_I] + [_P] * 4
     lib.plant_lidar_scan.restype = None

@@ -1,11 +1,12 @@
-/* Control ticks of a batch of one-robot kinematic worlds, many per call
- * (diffbot/envs/kinbatch.py: an Avoid step's ticks, the batched env's and the single env's).
+/* Control ticks of one-robot worlds, a batch of them per call (diffbot/envs/kinbatch.py:
+ * an Avoid step's ticks, the batched env's and the single env's).
  *
- * Each tick is what kinbatch.ArrayTicks did with one call of each kernel and numpy between
- * them: the drive limiters (plant_drive_limit), the command noise of the robots that move,
- * the kinematic step (plant_kinematic_step), the encoders' noise, the dead reckoning
- * (plant_odometry) and the worlds' clocks. The same operations in the same order, so the
- * same bits (tests/test_envs_vector.py runs the message path beside it, every noise on).
+ * Each tick is what the plant's tick does for such a world: the drive limiters
+ * (plant_drive_limit), the command noise of the robots that move, the kinematic step
+ * (plant_kinematic_step), the encoders' noise, the dead reckoning (plant_odometry) and the
+ * worlds' clocks. The same operations in the same order as its Python, so the same bits
+ * (tests/test_envs_vector.py runs the message path beside it, every noise on;
+ * tests/test_envs_identity.py a plant over the bus).
  * The noise is numpy's: each stream's normals drawn ahead by the caller, at least one
  * reading per tick asked for left in every stream, read here in order.
  *
@@ -55,6 +56,7 @@ enum {
     P_COUNT
 };
 
+/* The blocks' sizes (A_COUNT * 1000 + P_COUNT): the caller checks its layout against it. */
 EXPORT int64_t plant_ticks_count(void) { return A_COUNT * 1000 + P_COUNT; }
 
 #define PTR(type, slot) ((type *)(intptr_t)a[slot])
