@@ -127,3 +127,41 @@ def test_check_env_passes_without_a_warning_with_normalized_actions_and_renderin
             check_env(env.unwrapped)
     finally:
         env.close()
+
+
+def test_a_diverged_world_raises_and_a_reset_starts_a_sound_episode():
+    """In-process, a DART world that is no longer finite ends the step with a
+    FloatingPointError that says what to do (the single env and the batch alike: both step
+    through diffbot/envs/kinbatch.py); reset() then gives a fresh world that steps as a new
+    env with that seed does."""
+    env = gym.make("diffbot/Avoid-v0")
+    fresh = gym.make("diffbot/Avoid-v0")
+    envs = gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    go = np.array([0.2, 0.0], np.float32)
+    try:
+        env.reset(seed=1)
+        envs.reset(seed=1)
+        for _ in range(2):
+            env.step(go)
+            envs.step(np.stack([go, go]))
+
+        def break_world(task):
+            sk = task.transport.tick.sim.robots[task.robots[0]].skeleton
+            v = sk.getVelocities()
+            v[:] = np.nan
+            sk.setVelocities(v)
+        break_world(env.unwrapped.task)
+        with pytest.raises(FloatingPointError, match=r"env 0 diverged .*reset\(\)"):
+            env.step(go)
+        break_world(envs.unwrapped.tasks[1])
+        with pytest.raises(FloatingPointError, match=r"env 1 diverged"):
+            envs.step(np.stack([go, go]))
+        a, b = env.reset(seed=5), fresh.reset(seed=5)
+        assert _same(a[0], b[0])
+        for _ in range(3):
+            a, b = env.step(go), fresh.step(go)
+            assert _same(a[0], b[0]) and a[1] == b[1]
+    finally:
+        env.close()
+        fresh.close()
+        envs.close()

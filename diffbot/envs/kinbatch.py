@@ -458,7 +458,14 @@ class _TickPlan:
                 worlds.read_wheels(self.wheels)
                 if part(w, 1, a, p):
                     self._scan(owner, np.flatnonzero(self.due))
-        self.worlds.finish()
+        try:
+            self.worlds.finish()
+        except Diverged as e:
+            envs = [int(self.at[j]) for j in e.worlds]
+            raise FloatingPointError(
+                f"the world of env {', '.join(map(str, envs))} diverged (not finite) in this "
+                "step: reset() it (in-process a world that diverges ends the episode here; a "
+                "plant over the bus rebuilds it at t = 0 and goes on)") from None
         for g in self.gathers:
             g.sync()
         truth = self.worlds.truth()
@@ -511,6 +518,14 @@ def _observation(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray,
             "goal": _clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
 
 
+class Diverged(Exception):
+    """Worlds (their indices in a step) no longer finite."""
+
+    def __init__(self, worlds: list[int]) -> None:
+        super().__init__(worlds)
+        self.worlds = worlds
+
+
 class _Kinematic:
     """The worlds' robots as the kinematic batch's arrays (:mod:`plant.kinematic`): one
     call steps them all."""
@@ -531,7 +546,9 @@ class _Kinematic:
         else:
             finite = b.finite()
         if not finite:                  # (not a number stays one: checked once a step)
-            raise FloatingPointError("a kinematic world of the batch is no longer finite")
+            b = self.batch
+            raise Diverged(np.flatnonzero(~(np.isfinite(b.pose).all(1)
+                                            & np.isfinite(b.wheels).all(1))).tolist())
 
     def truth(self) -> np.ndarray:
         return truths(self.batch.pose)
@@ -572,8 +589,9 @@ class _Dart:
         return np.array([self._tf(j) for j in idx.tolist()])
 
     def finish(self) -> None:
-        if not all(sim.is_finite() for sim in self.sims):
-            raise FloatingPointError("a DART world of the batch diverged (not finite)")
+        bad = [j for j, sim in enumerate(self.sims) if not sim.is_finite()]
+        if bad:
+            raise Diverged(bad)
 
     def truth(self) -> np.ndarray:
         """As the ``ground_truth`` message read back gives it (codec.pose_2d)."""
