@@ -232,9 +232,10 @@ class ScenarioRun:
             left = [c.name for c in self.children if c.running()]
             procs.stop(self.children, 0.0, signal.SIGKILL)
             if left:            # (what a killed plant's missing statistics come from)
+                now = time.monotonic()
                 print(f"diffbot run: {', '.join(left)} did not stop in time; killed (SIGKILL; "
-                      f"the nodes were asked to stop {time.monotonic() - t0:.2f} s before, "
-                      f"the plant {time.monotonic() - asked:.2f} s before)", file=sys.stderr)
+                      f"the nodes were asked to stop {now - t0:.2f} s before, "
+                      f"the plant {now - asked:.2f} s before)", file=sys.stderr)
             if self.placement is not None:
                 self.placement.wait_tasks(self.children, self.out)
         finally:

