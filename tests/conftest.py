@@ -1,7 +1,6 @@
 """Shared fixtures: a private bus endpoint per test and processes that are always cleaned up."""
 from __future__ import annotations
 
-import contextlib
 import fcntl
 import os
 import shutil
@@ -47,7 +46,10 @@ def examples(n: int) -> int:
 # - a test marked ``serial`` runs alone: the other worker waits between two of its tests
 #   until it is done. For what a second worker would disturb: wall-clock promises (a
 #   realtime plant's pace, detection within a lease, exits within a grace), system-wide
-#   state (multicast memberships, the default port, network namespaces);
+#   state (multicast memberships, the default port). The serial tests with no group of
+#   their own are one group ("serial"), so they run one after the other on one worker,
+#   which keeps its turn from one to the next: the other worker waits once for all of
+#   them, not once for each (then for the test it had in hand: that was ~100 s a run);
 # - every other test holds a shared lock while it runs, so a serial one waits for it.
 # Without xdist (plain `pytest`, `make test-fast`) none of this does anything.
 _LOCK_DIR = "DIFFBOT_TEST_LOCK_DIR"
@@ -70,36 +72,64 @@ def pytest_collection_modifyitems(config, items):
     groups: tryfirst)."""
     for item in items:
         if item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+            serial = item.get_closest_marker("serial") is not None
+            item.add_marker(pytest.mark.xdist_group("serial" if serial
+                                                    else item.nodeid.split("::")[0]))
 
 
-@contextlib.contextmanager
-def _turn(exclusive: bool):
-    """The suite lock: exclusive for a ``serial`` test, shared otherwise. A gate taken
-    first keeps a waiting exclusive turn from being passed by one shared turn after
-    another."""
-    d = os.environ.get(_LOCK_DIR)
-    if not d or not os.environ.get("PYTEST_XDIST_WORKER"):
-        yield
-        return
-    with open(os.path.join(d, "gate"), "a") as gate, open(os.path.join(d, "lock"), "a") as lock:
-        fcntl.flock(gate, fcntl.LOCK_EX)
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
-        finally:
-            fcntl.flock(gate, fcntl.LOCK_UN)
-        try:
-            yield
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
+def _serial(item) -> bool:
+    return item is not None and item.get_closest_marker("serial") is not None
+
+
+class _Turns:
+    """The suite lock (a file both workers open): exclusive for a ``serial`` test, shared
+    otherwise. A gate taken first keeps a waiting exclusive turn from being passed by one
+    shared turn after another. An exclusive turn is kept while the worker's next test is
+    serial too."""
+
+    def __init__(self) -> None:
+        self.lock = None            # the open lock file while this worker holds a turn
+        self.exclusive = False
+
+    def take(self, exclusive: bool) -> None:
+        if self.lock is not None:
+            if self.exclusive == exclusive:
+                return
+            self.give()
+        d = os.environ[_LOCK_DIR]
+        lock = open(os.path.join(d, "lock"), "a")
+        with open(os.path.join(d, "gate"), "a") as gate:
+            fcntl.flock(gate, fcntl.LOCK_EX)
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+            finally:
+                fcntl.flock(gate, fcntl.LOCK_UN)
+        self.lock, self.exclusive = lock, exclusive
+
+    def give(self) -> None:
+        if self.lock is not None:
+            fcntl.flock(self.lock, fcntl.LOCK_UN)
+            self.lock.close()
+            self.lock = None
+
+
+_TURNS = _Turns()
 
 
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)
 def pytest_runtest_protocol(item, nextitem):
     """Setup (module and session fixtures included), call and teardown in one turn; the
     outermost wrapper, so waiting for the turn does not count in pytest-timeout's time."""
-    with _turn(item.get_closest_marker("serial") is not None):
+    if not os.environ.get(_LOCK_DIR) or not os.environ.get("PYTEST_XDIST_WORKER"):
         yield
+        return
+    serial = _serial(item)
+    _TURNS.take(serial)
+    try:
+        yield
+    finally:
+        if not (serial and _serial(nextitem)):
+            _TURNS.give()
 
 
 #: programs libraries run for a quick answer (platform.processor(), the docs' file list,

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import gc
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -18,9 +20,6 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 import diffbot.envs  # noqa: E402,F401
 from diffbot.procs import alive, descendants  # noqa: E402
 
-#: xdist_group: the bus envs' tests on one worker (tests/test_envs.py looks for the socket
-#: folders they leave in /tmp, which another worker's envs would make meanwhile)
-pytestmark = pytest.mark.xdist_group("envs")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -49,6 +48,19 @@ def _shm_mapped(pids) -> set[str]:
 
 def _children() -> set[int]:
     return set(descendants(os.getpid()))
+
+
+@pytest.fixture
+def socket_dirs(monkeypatch):
+    """A temp folder of this test's own for the bus envs' socket folders (TMPDIR, which
+    spawned workers read, and tempfile's cached choice, which forked ones inherit): the
+    folders left are counted there, whatever else runs on the machine. Short, for a unix
+    socket's path. Yields a function listing the ``diffbot-env-*`` folders in it."""
+    d = tempfile.mkdtemp(prefix="dbt-env-", dir="/tmp")
+    monkeypatch.setenv("TMPDIR", d)
+    monkeypatch.setattr(tempfile, "tempdir", d)
+    yield lambda: [n for n in os.listdir(d) if n.startswith("diffbot-env-")]
+    shutil.rmtree(d, ignore_errors=True)
 
 
 @pytest.mark.parametrize("env_id", ["diffbot/Avoid-v0", "diffbot/Follow-v0"])
@@ -203,11 +215,9 @@ def test_swarm_on_the_bus_matches_inproc(mode):
 
 
 @pytest.mark.slow
-@pytest.mark.serial      # it counts the /tmp folders of bus envs: none from another worker
 @pytest.mark.timeout(240)
-def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
+def test_make_vec_async_on_the_bus_leaves_nothing_behind(socket_dirs):
     before, mine = _children(), _shm_mapped([os.getpid()])
-    tmp_before = set(os.listdir("/tmp"))
     # spawn: this test process ran Zenoh sessions before (other tests), and a fork of a
     # running Zenoh runtime hangs (docs/learning.md)
     venv = gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="async",
@@ -231,8 +241,7 @@ def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
     left = [p for p in _children() - before if alive(p)
             and b"resource_tracker" not in open(f"/proc/{p}/cmdline", "rb").read()]
     assert not left, f"processes left after close(): {left}"
-    assert not [d for d in set(os.listdir("/tmp")) - tmp_before
-                if d.startswith("diffbot-env-")], "socket directories left"
+    assert not socket_dirs(), "socket directories left"
     # /dev/shm is shared with whatever else runs here: judge the names the envs' processes
     # had mapped (multiprocessing's semaphores sem.mp-*, Zenoh's segments). Zenoh unlinks a
     # segment a moment after the last process using it is gone, except sometimes a small
@@ -248,7 +257,7 @@ def test_make_vec_async_on_the_bus_leaves_nothing_behind(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.timeout(120)
-def test_make_vec_async_forked_after_a_bus_env_refuses_with_the_reason_at_once():
+def test_make_vec_async_forked_after_a_bus_env_refuses_with_the_reason_at_once(socket_dirs):
     """The default "fork" context after a bus env ran in this process: the forked workers
     would hang in their first Zenoh session; they refuse at once, naming the remedy, and
     leave no plant and no socket folder."""
@@ -258,7 +267,6 @@ def test_make_vec_async_forked_after_a_bus_env_refuses_with_the_reason_at_once()
     finally:
         env.close()
     before = _children()
-    tmp_before = set(os.listdir("/tmp"))
     t0 = time.monotonic()
     venv = gym.make_vec("diffbot/Avoid-v0", num_envs=2, vectorization_mode="async",
                         vector_kwargs={"context": "fork"}, transport="bus")
@@ -274,8 +282,7 @@ def test_make_vec_async_forked_after_a_bus_env_refuses_with_the_reason_at_once()
     left = [p for p in _children() - before if alive(p)
             and b"resource_tracker" not in open(f"/proc/{p}/cmdline", "rb").read()]
     assert not left, f"processes left: {left}"
-    assert not [d for d in set(os.listdir("/tmp")) - tmp_before
-                if d.startswith("diffbot-env-")], "socket directories left"
+    assert not socket_dirs(), "socket directories left"
 
 
 @pytest.mark.slow

@@ -20,9 +20,6 @@ import pytest
 gym = pytest.importorskip("gymnasium")
 import diffbot.envs  # noqa: E402,F401  (registers the environments)
 
-#: xdist_group: the bus envs' tests on one worker (tests/test_envs.py looks for the socket
-#: folders they leave in /tmp, which another worker's envs would make meanwhile)
-pytestmark = pytest.mark.xdist_group("envs")
 STEPS = 300
 
 

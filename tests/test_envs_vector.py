@@ -10,9 +10,6 @@ gym = pytest.importorskip("gymnasium")
 import diffbot.envs  # noqa: E402,F401
 from gymnasium.vector import AutoresetMode  # noqa: E402
 
-#: xdist_group: the bus envs' tests on one worker (tests/test_envs.py looks for the socket
-#: folders they leave in /tmp, which another worker's envs would make meanwhile)
-pytestmark = pytest.mark.xdist_group("envs")
 NOISE = ("robots.robot1.encoders.noise={std = 0.002}", "robots.robot1.lidar.noise={std = 0.01}",
          "robots.robot1.motion.command_noise_std_radps=0.05")
 

@@ -114,6 +114,29 @@ def placed(procs, cluster, out: str, *args: str):
                          "--place", "plant=head,*=worker", env=ray_env(cluster))
 
 
+# (first in the file: the session's Ray cluster starts in this test's turn, not in the
+# serial one below, which the other xdist worker waits out)
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_ctrl_c_of_a_placed_run_leaves_no_process_on_either_node(cluster, procs, tmp_path):
+    out = str(tmp_path / "stopped")
+    p = placed(procs, cluster, out, "run", "square", "--duration", "300")
+    wait_for(lambda: where(cluster, out) == {"head": {"plant"},
+                                             "worker": {"fmu-node", "controller"}},
+             120, 0.1, "the plant on the head, the controllers on the worker")
+    time.sleep(1.0)
+    tree = [pid for n in cluster.nodes for pid in dprocs.descendants(n.pid)
+            if out in cmdline(pid)]
+    p.send_signal(2)
+    assert p.wait(120) == 130, procs.log(p)
+    assert not [pid for pid in tree if dprocs.alive(pid)]
+    assert not where(cluster, out)
+    with open(os.path.join(out, "summary.json")) as f:
+        summary = json.load(f)
+    assert summary["end_reason"] == "interrupted (SIGINT)"
+    assert set(summary["exit_codes"]) == {"plant", "odometry_robot1", "square_path_robot1"}
+
+
 @pytest.mark.serial      # the plant exits within the stop grace (exit_codes): alone under xdist
 @pytest.mark.slow
 @pytest.mark.timeout(420)
@@ -145,24 +168,3 @@ def test_placed_square_gives_the_local_runs_summary(cluster, procs, tmp_path):
     assert sorted(os.listdir(os.path.join(on_ray, "logs"))) == \
         sorted(os.listdir(os.path.join(local, "logs")))
     assert sorted(os.listdir(on_ray)) == sorted(os.listdir(local))
-
-
-@pytest.mark.slow
-@pytest.mark.timeout(300)
-def test_ctrl_c_of_a_placed_run_leaves_no_process_on_either_node(cluster, procs, tmp_path):
-    out = str(tmp_path / "stopped")
-    p = placed(procs, cluster, out, "run", "square", "--duration", "300")
-    wait_for(lambda: where(cluster, out) == {"head": {"plant"},
-                                             "worker": {"fmu-node", "controller"}},
-             120, 0.1, "the plant on the head, the controllers on the worker")
-    time.sleep(1.0)
-    tree = [pid for n in cluster.nodes for pid in dprocs.descendants(n.pid)
-            if out in cmdline(pid)]
-    p.send_signal(2)
-    assert p.wait(120) == 130, procs.log(p)
-    assert not [pid for pid in tree if dprocs.alive(pid)]
-    assert not where(cluster, out)
-    with open(os.path.join(out, "summary.json")) as f:
-        summary = json.load(f)
-    assert summary["end_reason"] == "interrupted (SIGINT)"
-    assert set(summary["exit_codes"]) == {"plant", "odometry_robot1", "square_path_robot1"}

@@ -28,8 +28,10 @@ from .compare_recordings import compare, topics_of
 from .conftest import ROOT, Procs, wait_for
 from .test_netns import net, start_router, tls_machines  # noqa: F401  (net: a fixture)
 
-#: serial: outages and graces timed against the wall clock (a second xdist worker would disturb it: tests/conftest.py)
-pytestmark = [pytest.mark.slow, pytest.mark.serial]
+#: the blip runs are not ``serial``: what they check (the bytes, no stale command, every
+#: process ending by itself) must hold however the machine's load moves a blip against the
+#: plant's graces; the outage test's exits within a time are, and it is
+pytestmark = pytest.mark.slow
 
 CLIENT = os.path.join(ROOT, "diffbot", "configs", "client.json5")
 #: long enough in simulated time for the blips below to come before the end on a quiet
@@ -182,6 +184,7 @@ OUTAGE_S = 3.0
 GRACE_S, SLACK_S = 2.0, 3.0
 
 
+@pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 @pytest.mark.parametrize("coupling", COUPLINGS)
 def test_a_router_lost_past_the_rejoin_timeout_ends_every_process_by_itself(tmp_path,
                                                                            coupling):
