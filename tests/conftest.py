@@ -120,16 +120,23 @@ _TURNS = _Turns()
 def pytest_runtest_protocol(item, nextitem):
     """Setup (module and session fixtures included), call and teardown in one turn; the
     outermost wrapper, so waiting for the turn does not count in pytest-timeout's time."""
+    timeline = os.environ.get("DIFFBOT_TEST_TIMELINE")
+    t0 = time.time()
     if not os.environ.get(_LOCK_DIR) or not os.environ.get("PYTEST_XDIST_WORKER"):
         yield
-        return
-    serial = _serial(item)
-    _TURNS.take(serial)
-    try:
-        yield
-    finally:
-        if not (serial and _serial(nextitem)):
-            _TURNS.give()
+    else:
+        serial = _serial(item)
+        _TURNS.take(serial)
+        t0 = time.time()            # (the wait for the turn is the line's gap)
+        try:
+            yield
+        finally:
+            if not (serial and _serial(nextitem)):
+                _TURNS.give()
+    if timeline:                    # when each test ran, on which worker: tuning the schedule
+        with open(timeline, "a") as f:
+            f.write(f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')} {t0:.3f} {time.time():.3f}"
+                    f" {int(_serial(item))} {item.nodeid}\n")
 
 
 #: programs libraries run for a quick answer (platform.processor(), the docs' file list,
