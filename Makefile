@@ -47,7 +47,7 @@ demo: setup
 # the time but four fresh-clone runs each met a different timing race under them.
 TEST_WORKERS ?= 0
 test: setup netns-tools
-	CI=$${CI:-true} $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+	CI=$${CI:-true} $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder
 
 # The whole suite in an order shuffled by pytest-randomly (no test may need another to run
 # first), as `make test` otherwise: SEED=N repeats an order (default: a new one, printed).
