@@ -43,8 +43,8 @@ demo: setup
 # derandomised, fewer examples: tests/conftest.py) unless the environment says otherwise.
 # On TEST_WORKERS pytest-xdist workers: a file's tests on one worker, the tests marked
 # `serial` (wall-clock promises, machine-wide state) alone (tests/conftest.py).
-# TEST_WORKERS=0 (the default): one process, as plain `pytest`. Two workers take ~0.8 of
-# the time but four fresh-clone runs each met a different timing race under them.
+# TEST_WORKERS=0 (the default): one process, as plain `pytest`. Two workers take ~0.75 of
+# the time (docs/install.md) but load the machine enough to bring out timing races.
 TEST_WORKERS ?= 0
 test: setup netns-tools
 	CI=$${CI:-true} $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder

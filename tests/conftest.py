@@ -37,7 +37,8 @@ def examples(n: int) -> int:
 
 
 # ---------------------------------------------------------------- parallel runs (xdist)
-# `make test` runs the suite on two pytest-xdist workers (`-n 2 --dist loadgroup`). Three
+# `make test TEST_WORKERS=2` runs the suite on two pytest-xdist workers (`-n 2 --dist
+# loadgroup`; pytest below 9.2, where that groups: tests/test_suite_contract.py). Three
 # rules keep that as reliable as one worker:
 # - the tests of a file stay on one worker (their module and session fixtures run once), a
 #   file's ``xdist_group`` mark putting it with the other files of the same group (the
@@ -49,7 +50,7 @@ def examples(n: int) -> int:
 #   state (multicast memberships, the default port). The serial tests with no group of
 #   their own are one group ("serial"), so they run one after the other on one worker,
 #   which keeps its turn from one to the next: the other worker waits once for all of
-#   them, not once for each (then for the test it had in hand: that was ~100 s a run);
+#   them, not once for each (and each time for the test it had in hand);
 # - every other test holds a shared lock while it runs, so a serial one waits for it.
 # Without xdist (plain `pytest`, `make test-fast`) none of this does anything.
 _LOCK_DIR = "DIFFBOT_TEST_LOCK_DIR"
