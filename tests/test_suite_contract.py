@@ -2,7 +2,8 @@
 benchmarks (``diffbot bench``). A bound on a run's ``real_time_factor`` (how fast the
 machine was) or on a wall-clock ``per_step`` cost passes or fails with the machine's load,
 not with the code; a real-time factor is checked against the run's own times instead
-(tests/conftest.check_real_time_factor), a step's cost is measured by the benchmarks."""
+(tests/conftest.check_real_time_factor), a step's cost is measured by the benchmarks.
+And the two-worker run's premise: pytest-xdist keeps a group of tests on one worker."""
 from __future__ import annotations
 
 import ast
