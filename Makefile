@@ -43,9 +43,9 @@ demo: setup
 # derandomised, fewer examples: tests/conftest.py) unless the environment says otherwise.
 # On TEST_WORKERS pytest-xdist workers: a file's tests on one worker, the tests marked
 # `serial` (wall-clock promises, machine-wide state) alone (tests/conftest.py).
-# TEST_WORKERS=0 (the default): one process, as plain `pytest`. Two workers take ~0.75 of
-# the time (docs/install.md) but load the machine enough to bring out timing races.
-TEST_WORKERS ?= 0
+# Two workers (the default) take ~0.7 of one process's time (docs/install.md);
+# TEST_WORKERS=0: one process, as plain `pytest`.
+TEST_WORKERS ?= 2
 test: setup netns-tools
 	CI=$${CI:-true} $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder
 

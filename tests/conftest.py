@@ -37,8 +37,8 @@ def examples(n: int) -> int:
 
 
 # ---------------------------------------------------------------- parallel runs (xdist)
-# `make test TEST_WORKERS=2` runs the suite on two pytest-xdist workers (`-n 2 --dist
-# loadgroup`; pytest below 9.2, where that groups: tests/test_suite_contract.py). Three
+# `make test` runs the suite on two pytest-xdist workers (`-n 2 --dist loadgroup`; pytest
+# below 9.2, where that groups: tests/test_suite_contract.py). Three
 # rules keep that as reliable as one worker:
 # - the tests of a file stay on one worker (their module and session fixtures run once), a
 #   file's ``xdist_group`` mark putting it with the other files of the same group (the

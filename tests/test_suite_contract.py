@@ -79,7 +79,7 @@ def test_loose(i):
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_two_workers_keep_an_xdist_group_on_one_worker(tmp_path):
-    """`make test TEST_WORKERS=2` relies on ``--dist loadgroup`` (a file's tests, the
+    """`make test` (two workers) relies on ``--dist loadgroup`` (a file's tests, the
     serial ones, the Ray and ROS 2 tests each on one worker: tests/conftest.py). pytest
     9.2 made pytest-xdist 3.8's grouping a silent no-op (pytest-dev/pytest-xdist#1386:
     the tests spread over the workers as if unmarked): pyproject.toml keeps pytest below
