@@ -193,11 +193,12 @@ class AvoidTask:
     def _obs(self) -> dict:
         return {r: self.observers[r].observation() for r in self.robots}
 
-    def _info(self, robot: str, success: bool) -> dict:
+    def _info(self, robot: str, success: bool, distance: float | None = None,
+              t_ns: int | None = None) -> dict:
         return {"pose": np.array(self.truth[robot]), "goal": np.array(self.goals[robot]),
-                "distance": self._distance(robot), "is_success": success,
-                "contact": robot in self.touched, "t": self.t_ns * 1e-9,
-                "plant": self.episode}
+                "distance": self._distance(robot) if distance is None else distance,
+                "is_success": success, "contact": robot in self.touched,
+                "t": (self.t_ns if t_ns is None else t_ns) * 1e-9, "plant": self.episode}
 
     def step(self, actions: dict) -> tuple[dict, dict, dict, dict, dict]:
         cmds = self.begin_step(actions)
@@ -224,17 +225,23 @@ class AvoidTask:
         obs = self._obs()
         rew, term, trunc, info = {}, {}, {}, {}
         for name in list(self.active):
-            d = self._distance(name)
-            success = d < self.goal_radius
-            contact = name in self.touched
-            r = step_reward(before[name], d, success, contact)    # (a batch: step_rewards)
-            rew[name], term[name] = r, success or contact
-            trunc[name] = (not term[name] and self.max_steps is not None
-                           and self.steps >= self.max_steps)
-            info[name] = self._info(name, success and not contact)
-            if term[name] or trunc[name]:
-                self.active.discard(name)
+            rew[name], term[name], trunc[name], info[name] = self.end_robot(
+                name, before[name], self.t_ns)
         return obs, rew, term, trunc, info
+
+    def end_robot(self, name: str, before: float, t_ns: int) -> tuple[float, bool, bool, dict]:
+        """An active robot's reward, flags and info at the end of step ``steps`` (its truth
+        and contact as the step left them; ``before``: its distance to the goal before the
+        step); it leaves the episode if that ended it (a batch: ``step_rewards``)."""
+        d = self._distance(name)
+        success = d < self.goal_radius
+        contact = name in self.touched
+        term = success or contact
+        trunc = not term and self.max_steps is not None and self.steps >= self.max_steps
+        if term or trunc:
+            self.active.discard(name)
+        return (step_reward(before, d, success, contact), term, trunc,
+                self._info(name, success and not contact, d, t_ns))
 
     def render(self) -> np.ndarray:
         """The top-down view (:mod:`diffbot.envs.render`): room, robots, goals, rays."""
@@ -284,7 +291,6 @@ class AvoidEnv(gym.Env):
         self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
         self._arrays = None           # the fast path (kinbatch.ArrayTicks), when it applies
         self._fresh = np.ones(1, bool)          # its state to be read from the objects
-        self._dist = 0.0                        # the goal's distance where the last step left it
 
     @property
     def task(self) -> AvoidTask:
@@ -326,7 +332,7 @@ class AvoidEnv(gym.Env):
         robot = self.robot
         cmd = task.drives[robot].command(action, robot)
         fresh = self._fresh
-        before = task._distance(robot) if fresh[0] else self._dist
+        before = task._distance(robot)          # (its truth: the reset's or the last step's)
         made = self._arrays.advance([task], np.array([cmd]), _ROW0, fresh)
         fresh[0] = False
         truth = made.truth[0].tolist()
@@ -334,21 +340,9 @@ class AvoidEnv(gym.Env):
         # geo.contacts of the one robot: its footprint against the walls and objects
         contact = bool(task.geo.touching(Footprints.centre(*truth)[None])[0])
         task.touched = {robot} if contact else set()
-        x, y, _ = truth
-        gx, gy = task.goals[robot]
-        d = self._dist = math.hypot(gx - x, gy - y)
-        success = d < task.goal_radius
-        r = step_reward(before, d, success, contact)
         task.steps += 1
-        term = success or contact
-        trunc = not term and task.max_steps is not None and task.steps >= task.max_steps
-        if term or trunc:
-            task.active.discard(robot)
-        obs = {k: v[0] for k, v in made.obs.items()}
-        info = {"pose": np.array(truth), "goal": np.array(task.goals[robot]), "distance": d,
-                "is_success": success and not contact, "contact": contact,
-                "t": int(made.t_ns[0]) * 1e-9, "plant": task.episode}
-        return obs, r, term, trunc, info
+        r, term, trunc, info = task.end_robot(robot, before, int(made.t_ns[0]))
+        return {k: v[0] for k, v in made.obs.items()}, r, term, trunc, info
 
     def render(self):
         """``rgb_array``: the top-down view of the room (H x W x 3 uint8), robot, goal and
