@@ -334,7 +334,7 @@ class _TickPlan:
         w = len(at)
         roster = [k.roster[i] for i in at.tolist()]
         ticks, names, sensors, sims, obs = (list(c) for c in zip(*[r[:5] for r in roster]))
-        self.sims, self.obs = sims, obs
+        self.sims = sims
         self.kinematic = sims[0].kin is not None
         self.worlds = (_Kinematic if self.kinematic else _Dart)(ticks, sims, names)
         lo = int(at[0])
@@ -474,10 +474,9 @@ class _TickPlan:
 
     def _scan(self, owner: ArrayTicks, due: np.ndarray) -> None:
         """The lidars of rows ``due`` (their robots where the last tick left them)."""
-        cfg = self.cfg
-        if self.fans is None or self.fans.scene is not owner._static_scene(self.sims[0]):
-            self.fans = lid.Fans(cfg, owner._static_scene(self.sims[0]), len(self.at),
-                                 owner.threads)
+        cfg, scene = self.cfg, owner._static_scene(self.sims[0])
+        if self.fans is None or self.fans.scene is not scene:
+            self.fans = lid.Fans(cfg, scene, len(self.at), owner.threads)
         if due.size == len(self.at):
             exact = self.fans.scan(self._transforms())
         else:
@@ -593,8 +592,7 @@ class _Dart:
         for j in range(len(self.robots)):
             tf = self._tf(j)
             qx, qy, qz, qw = rotation_to_quaternion(tf[:3, :3])
-            out[j] = (float(tf[0, 3]), float(tf[1, 3]),
-                      math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)))
+            out[j] = (float(tf[0, 3]), float(tf[1, 3]), _yaw(qx, qy, qz, qw))
         return out
 
 
@@ -771,4 +769,9 @@ def truth_of(x: float, y: float, yaw: float) -> tuple[float, float, float]:
         s2 = math.sqrt(1.0 + 1.0 - c - c) * 2
         qx = qy = 0.0 / s2
         qz, qw = 0.25 * s2, (s - -s) / s2
-    return x, y, math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return x, y, _yaw(qx, qy, qz, qw)
+
+
+def _yaw(qx: float, qy: float, qz: float, qw: float) -> float:
+    """:func:`bus.codec.quaternion_to_yaw` of a quaternion given as floats."""
+    return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
