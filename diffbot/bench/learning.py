@@ -1,10 +1,11 @@
 """Suite ``gym``: the Gymnasium environment diffbot/Avoid-v0 with random actions, on both
 transports, one env and ``make_vec`` (async, spawned workers) with 2 and 4 envs: environment
 steps per second and simulated seconds per wall second (each step is ``dt`` = 0.1 s, five
-20 ms control ticks). The plant's physics alone is measured beside them, as the bound. Then
-the batched env (``vectorization_mode="vector_entry_point"``: N worlds in one process) with
-N = 1, 16, 64 in the kinematic and the dynamic world, N = 64 on 2 workers, and (kinematic)
-N = 256 on 2 workers, where a second process pays off on two cores."""
+20 ms control ticks); in-process, one env also with DART's Dantzig contact solver. The
+plant's physics alone is measured beside them, as the bound. Then the batched env
+(``vectorization_mode="vector_entry_point"``: N worlds in one process) with N = 1, 16, 64
+in the kinematic and the dynamic world, N = 64 on 2 workers, and (kinematic) N = 256 on 2
+workers, where a second process pays off on two cores."""
 from __future__ import annotations
 
 import time
@@ -25,12 +26,13 @@ def _physics_rtf(sim_s: float = 2.0) -> dict:
     return {"real_time_factor": sim_s / (time.perf_counter() - t0)}
 
 
-def _env_rate(transport: str, num_envs: int, steps: int, mode: str | None = None) -> dict:
+def _env_rate(transport: str, num_envs: int, steps: int, mode: str | None = None,
+              overrides: tuple[str, ...] = ()) -> dict:
     import gymnasium as gym
     import diffbot.envs  # noqa: F401
     if num_envs == 1:
         env = gym.make("diffbot/Avoid-v0", transport=transport,
-                       overrides=(f"world.mode={mode}",) if mode else ())
+                       overrides=((f"world.mode={mode}",) if mode else ()) + overrides)
     else:
         env = gym.make_vec("diffbot/Avoid-v0", num_envs=num_envs, vectorization_mode="async",
                            vector_kwargs={"context": "spawn"}, transport=transport)
@@ -79,6 +81,10 @@ VEC_TARGETS = {"kinematic": "target >= 20,000/s at N = 64", "dynamic": "target >
 #: and for one env (simulated s per wall s): (transport, world mode) -> target
 ONE_ENV_TARGETS = {("inproc", "dynamic"): "target >= 80x", ("inproc", "kinematic"): "target >= 1,000x",
                    ("bus", "dynamic"): "target >= 20x", ("bus", "kinematic"): "target >= 20x"}
+#: the one knob of the dynamic world a training user may turn for speed: DART's default
+#: Dantzig contact solver instead of the living room's PGS (exact Coulomb limit, which the
+#: study's slip results need; Dantzig over-grips ~20 % under hard acceleration: FIELD_NOTES)
+DANTZIG = ("world.contact_solver=dantzig",)
 
 
 @suite("gym", "diffbot/Avoid-v0 steps per second, in-process and over the bus, one env "
@@ -116,15 +122,22 @@ def gym_suite(ctx):
                        notes="all envs together, dt = 0.1 s per step")],
                 repeats=repeats, warmup=0)
     for transport in ("inproc", "bus"):
-        for n, mode in ((1, None), (1, "kinematic"), (2, None), (4, None)):
+        rows = ((1, None, ()), (1, "kinematic", ()), (2, None, ()), (4, None, ()))
+        if transport == "inproc":
+            rows = rows[:1] + ((1, None, DANTZIG),) + rows[1:]
+        for n, mode, extra in rows:
             what = f"Avoid-v0 {transport}, " + ("1 env" if n == 1 else f"make_vec {n} async") \
-                + (f", {mode} world" if mode else "")
-            target = ONE_ENV_TARGETS.get((transport, mode or "dynamic")) if n == 1 else None
-            yield Probe(what, lambda t=transport, n=n, m=mode: _env_rate(t, n, steps, m), [
+                + (f", {mode} world" if mode else "") + (", Dantzig solver" if extra else "")
+            target = ONE_ENV_TARGETS.get((transport, mode or "dynamic")) \
+                if n == 1 and not extra else None
+            yield Probe(what, lambda t=transport, n=n, m=mode, x=extra:
+                        _env_rate(t, n, steps, m, x), [
                 Metric("steps_per_s", f"{what}: env steps per second", "1/s",
                        notes="all envs together; random actions, drawn beforehand"),
                 Metric("real_time_factor", f"{what}: simulated s per wall s", "x",
                        notes="dt = 0.1 s per step"
                              + ("" if mode else "; the living room's dynamic world")
+                             + (f" with overrides={extra!r} (the study's worlds keep PGS)"
+                                if extra else "")
                              + (f"; {target}" if target else ""))],
                 repeats=repeats, warmup=0)
