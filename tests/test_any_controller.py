@@ -20,6 +20,11 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 AGENT = '''
 from bus.node import Twist
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
+
 class Forward:
     """Drives ahead at `speed` for `ticks` control ticks, then is done."""
     inputs = ["ground_truth"]
