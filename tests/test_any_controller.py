@@ -15,15 +15,14 @@ from controllers import hosted
 from diffbot.scenario import load_scenario
 from plant.world import WorldError
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-AGENT = '''
-from bus.node import Twist
-
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
 #: lowest CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+AGENT = '''
+from bus.node import Twist
 
 class Forward:
     """Drives ahead at `speed` for `ticks` control ticks, then is done."""
