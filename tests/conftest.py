@@ -44,13 +44,14 @@ def examples(n: int) -> int:
 #   file's ``xdist_group`` mark putting it with the other files of the same group (the
 #   Ray cluster's tests; the ROS 2 tests, whose DDS domains are numbered per worker; the
 #   files that share a session run);
-# - a test marked ``serial`` runs alone: the other worker waits between two of its tests
-#   until it is done. For what a second worker would disturb: wall-clock promises (a
-#   realtime plant's pace, detection within a lease, exits within a grace), system-wide
-#   state (multicast memberships, the default port). The serial tests with no group of
-#   their own are one group ("serial"), so they run one after the other on one worker,
-#   which keeps its turn from one to the next: the other worker waits once for all of
-#   them, not once for each (and each time for the test it had in hand);
+# - a test marked ``serial`` runs with no other test beside it but ``background`` ones
+#   (below): the other worker waits between two of its tests until it is done. For what
+#   a second worker would disturb: wall-clock promises (a realtime plant's pace, detection
+#   within a lease, exits within a grace), system-wide state (multicast memberships, the
+#   default port). The serial tests with no group of their own are one group ("serial"),
+#   so they run one after the other on one worker, which keeps its turn from one to the
+#   next: the other worker waits once for all of them, not once for each (and each time
+#   for the test it had in hand);
 # - every other test holds a shared lock while it runs, so a serial one waits for it;
 # - except a ``background`` test (a whole group of them, handed out right after the serial
 #   group): it has no wall-clock bound of its own, takes no lock, and every process it
