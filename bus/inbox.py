@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from .session import undeclare_all
+from .session import undeclare_all, wake_on_stop
 
 
 @dataclass(slots=True)
@@ -28,11 +28,20 @@ class Event:
     query: zenoh.Query | None = None   # a query to answer (:meth:`Inbox.serve`)
 
 
+#: put by :meth:`Inbox.wake`; :meth:`Inbox.get` gives None for it, as for nothing
+WAKE = Event("wake", "", b"", None)
+
+
 class Inbox:
     def __init__(self, session: zenoh.Session) -> None:
         self.session = session
         self.queue: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._handles: list = []
+        wake_on_stop(self.wake)
+
+    def wake(self) -> None:
+        """Ends a wait in :meth:`get` now (a stop signal: bus.session.wake_on_stop)."""
+        self.queue.put(WAKE)
 
     def subscribe(self, key: str, tag: str, remote_only: bool = False) -> None:
         """Samples on ``key`` become events tagged ``tag``; ``remote_only``: not this
@@ -75,15 +84,18 @@ class Inbox:
     def get_nowait(self) -> Event | None:
         """The next event, or None if there is none (nothing else is caught)."""
         try:
-            return self.queue.get_nowait()
+            ev = self.queue.get_nowait()
         except queue.Empty:
             return None
+        return None if ev is WAKE else ev
 
     def get(self, timeout: float | None = None) -> Event | None:
+        """The next event within ``timeout`` s, or None (none came, or :meth:`wake`)."""
         try:
-            return self.queue.get(timeout=timeout)
+            ev = self.queue.get(timeout=timeout)
         except queue.Empty:
             return None
+        return None if ev is WAKE else ev
 
     def close(self) -> None:
         undeclare_all(self._handles)

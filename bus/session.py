@@ -18,6 +18,7 @@ import re
 import signal
 import threading
 import time
+import weakref
 
 import zenoh
 
@@ -295,9 +296,27 @@ def _cancel_orphan_check() -> None:
         signal.setitimer(signal.ITIMER_REAL, 0)
 
 
+#: what a stop signal wakes besides its event: the inboxes' queues (:func:`wake_on_stop`)
+_WAKE_ON_STOP: list[weakref.WeakMethod] = []
+
+
+def wake_on_stop(method) -> None:
+    """Have a stop signal call ``method`` (a bound method; kept weakly) after it set the
+    stop event: an inbox puts a wake-up in its queue, so a main thread waiting on it
+    looks at the event at once.
+
+    It must: CPython 3.11's ``SimpleQueue.get(timeout=...)``, interrupted by a signal whose
+    handler runs past the timeout's deadline, waits on with no timeout at all, until
+    something is put (``_queuemodule.c``: the recomputed timeout comes out negative, which
+    means forever). A realtime plant with no node left got its SIGINT there about once in
+    forty stops, kept stepping, and was SIGKILLed by the launcher after its grace."""
+    _WAKE_ON_STOP.append(weakref.WeakMethod(method))
+
+
 def install_stop_signals(stop_event: threading.Event) -> None:
-    """SIGINT/SIGTERM stop the process cleanly: ``stop_event`` is set, once; the session is
-    closed on the way out.
+    """SIGINT/SIGTERM stop the process cleanly: ``stop_event`` is set, once, and what
+    waits for events is woken (:func:`wake_on_stop`); the session is closed on the way
+    out.
 
     The handler runs on the main thread between two bytecodes of whatever it interrupted,
     so it does no more than it must. A process started with ``die_with_parent`` gets one
@@ -312,5 +331,9 @@ def install_stop_signals(stop_event: threading.Event) -> None:
         if not stopping:
             stopping.append(signum)
             stop_event.set()
+            for ref in _WAKE_ON_STOP:
+                wake = ref()
+                if wake is not None:
+                    wake()
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
