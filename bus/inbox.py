@@ -37,7 +37,7 @@ class Inbox:
         self.session = session
         self.queue: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._handles: list = []
-        wake_on_stop(self.wake)
+        wake_on_stop(self)
 
     def wake(self) -> None:
         """Ends a wait in :meth:`get` now (a stop signal: bus.session.wake_on_stop)."""

@@ -296,13 +296,13 @@ def _cancel_orphan_check() -> None:
         signal.setitimer(signal.ITIMER_REAL, 0)
 
 
-#: what a stop signal wakes besides its event: the inboxes' queues (:func:`wake_on_stop`)
-_WAKE_ON_STOP: list[weakref.WeakMethod] = []
+#: what a stop signal wakes besides its event: the inboxes (:func:`wake_on_stop`)
+_WAKE_ON_STOP: weakref.WeakSet = weakref.WeakSet()
 
 
-def wake_on_stop(method) -> None:
-    """Have a stop signal call ``method`` (a bound method; kept weakly) after it set the
-    stop event: an inbox puts a wake-up in its queue, so a main thread waiting on it
+def wake_on_stop(waiter) -> None:
+    """Have a stop signal call ``waiter.wake()`` after it set the stop event (``waiter``
+    kept weakly): an inbox puts a wake-up in its queue, so a main thread waiting on it
     looks at the event at once.
 
     It must: CPython 3.11's ``SimpleQueue.get(timeout=...)``, interrupted by a signal whose
@@ -310,7 +310,7 @@ def wake_on_stop(method) -> None:
     something is put (``_queuemodule.c``: the recomputed timeout comes out negative, which
     means forever). A realtime plant with no node left got its SIGINT there about once in
     forty stops, kept stepping, and was SIGKILLed by the launcher after its grace."""
-    _WAKE_ON_STOP.append(weakref.WeakMethod(method))
+    _WAKE_ON_STOP.add(waiter)
 
 
 def install_stop_signals(stop_event: threading.Event) -> None:
@@ -331,9 +331,7 @@ def install_stop_signals(stop_event: threading.Event) -> None:
         if not stopping:
             stopping.append(signum)
             stop_event.set()
-            for ref in _WAKE_ON_STOP:
-                wake = ref()
-                if wake is not None:
-                    wake()
+            for waiter in list(_WAKE_ON_STOP):
+                waiter.wake()
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)

@@ -14,8 +14,6 @@ import pytest
 
 from .conftest import ROOT
 
-pytestmark = pytest.mark.slow
-
 #: the signal goes to the main thread itself (as the kernel may choose to deliver it)
 CODE = """
 import json, os, signal, threading, time
@@ -33,6 +31,7 @@ print(json.dumps({{"got": repr(got), "stopped": stop.is_set(),
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_a_stop_signal_ends_the_main_thread_s_wait_for_events(sig):
     out = subprocess.run([sys.executable, "-c", CODE.format(sig=sig)], cwd=ROOT,
@@ -42,3 +41,18 @@ def test_a_stop_signal_ends_the_main_thread_s_wait_for_events(sig):
     assert r["stopped"] and r["got"] == "None" and r["after"] == "None", r
     # woken, not timed out: the wait ends with the signal (0.2 s), well before its 10 s
     assert r["waited_s"] < 5.0, r
+
+
+def test_the_stop_signal_keeps_no_inbox_alive():
+    """An env that builds a bus node per episode makes an inbox each time: the stop
+    signal's list of them holds them weakly, so it does not grow with the episodes."""
+    import gc
+
+    from bus import session
+    from bus.inbox import Inbox
+    before = len(session._WAKE_ON_STOP)
+    kept = Inbox(None)
+    for _ in range(100):
+        Inbox(None)
+    gc.collect()
+    assert len(session._WAKE_ON_STOP) == before + 1 and kept in session._WAKE_ON_STOP
