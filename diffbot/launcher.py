@@ -21,7 +21,7 @@ from plant.world import WorldError, load_world
 from . import placement, procs
 from .scenario import ProcessSpec, load_scenario
 from .scenario_run import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, VIEW, ScenarioRun,
-                           summarize)
+                           published_counts, run_stats, summarize)
 
 #: a run's bus socket folder, <tmp>/diffbot-run-<launcher PID>-<random>, removed when the run
 #: ends; a SIGKILLed launcher cannot, and the next run removes the folders of launchers gone
@@ -211,6 +211,7 @@ def main(argv: list[str] | None = None) -> int:
         if watch is not None:
             watch.undeclare()
         if observer is not None:
+            observer.settle(published_counts(run_stats(run)))
             observer.close()
         if session is not None:
             session.close()

@@ -7,6 +7,7 @@ process's own stats.
 from __future__ import annotations
 
 import threading
+import time
 
 import zenoh
 
@@ -59,6 +60,20 @@ class Observer:
                     att = sample.attachment
                     att = codec.parse_attachment(att.to_bytes() if att is not None else None)
                     out.append((att[1] if att else -1, sample.payload.to_bytes()))
+
+    def settle(self, expected: dict[str, int], timeout_s: float = 2.0) -> None:
+        """Wait, up to ``timeout_s``, until every kept key holds as many samples as its
+        publishers say they put (``expected``, their --stats): the last messages of a
+        node that has just exited may still be on their way here (a loaded machine's
+        square once lost its last three commands, and three rows of trajectory.csv)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self.drain()
+            with self.lock:
+                behind = [k for k, got in self.samples.items() if len(got) < expected.get(k, 0)]
+            if not behind or time.monotonic() >= deadline:
+                return
+            time.sleep(0.02)
 
     def stamped(self, key: str) -> list[tuple[int, object]]:
         """(sim-time stamp from the attachment, decoded message) on ``key``, in stamp

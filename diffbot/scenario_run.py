@@ -396,14 +396,25 @@ def composable(p) -> bool:
     return True
 
 
-def summarize(run: ScenarioRun, wall: float, code: int) -> dict:
+def run_stats(run: ScenarioRun) -> dict[str, dict]:
+    """Each process's (and composed member's) --stats file, by name ({} if it wrote none)."""
     names = [c.name for c in run.children] + run.composed
-    stats = {n: read_json(os.path.join(run.out, "logs", f"{n}.json")) for n in names}
-    plant = stats["plant"]
+    return {n: read_json(os.path.join(run.out, "logs", f"{n}.json")) for n in names}
+
+
+def published_counts(stats: dict[str, dict]) -> dict[str, int]:
+    """Messages put on each key, as the processes count what they published."""
     counts: dict[str, int] = {}
-    for st in stats.values():            # every process counts what it published
+    for st in stats.values():
         for key, n in st.get("published", {}).items():
             counts[key] = counts.get(key, 0) + n
+    return counts
+
+
+def summarize(run: ScenarioRun, wall: float, code: int) -> dict:
+    stats = run_stats(run)
+    plant = stats["plant"]
+    counts = published_counts(stats)
     return {
         "scenario": run.spec.name, "world": run.spec.world, "mode": run.mode, "seed": run.seed,
         "coupling": plant.get("coupling", run.coupling),
