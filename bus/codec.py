@@ -304,7 +304,12 @@ def yaw_to_quaternion(yaw: float):
 
 
 def quaternion_to_yaw(q) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return yaw_of(q.x, q.y, q.z, q.w)
+
+
+def yaw_of(x: float, y: float, z: float, w: float) -> float:
+    """The yaw (rad) of the quaternion (x, y, z, w): :func:`quaternion_to_yaw` of floats."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def pose_2d(odometry) -> tuple[float, float, float]:

@@ -58,6 +58,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from bus.codec import yaw_of
 from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, in_frame, wrap
 from plant import kernels, kinematic
 from plant import lidar as lid
@@ -592,7 +593,7 @@ class _Dart:
         for j in range(len(self.robots)):
             tf = self._tf(j)
             qx, qy, qz, qw = rotation_to_quaternion(tf[:3, :3])
-            out[j] = (float(tf[0, 3]), float(tf[1, 3]), _yaw(qx, qy, qz, qw))
+            out[j] = (float(tf[0, 3]), float(tf[1, 3]), yaw_of(qx, qy, qz, qw))
         return out
 
 
@@ -769,9 +770,4 @@ def truth_of(x: float, y: float, yaw: float) -> tuple[float, float, float]:
         s2 = math.sqrt(1.0 + 1.0 - c - c) * 2
         qx = qy = 0.0 / s2
         qz, qw = 0.25 * s2, (s - -s) / s2
-    return x, y, _yaw(qx, qy, qz, qw)
-
-
-def _yaw(qx: float, qy: float, qz: float, qw: float) -> float:
-    """:func:`bus.codec.quaternion_to_yaw` of a quaternion given as floats."""
-    return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return x, y, yaw_of(qx, qy, qz, qw)
