@@ -173,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     analysis = ANALYSES[spec.analysis]
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
-    observer = session = watch = plots = None
+    observer = session = watch = plots = stats = None
     wall0 = time.monotonic()
     code = EXIT_FAILED
     try:
@@ -211,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
         if watch is not None:
             watch.undeclare()
         if observer is not None:
-            observer.settle(published_counts(run_stats(run)))
+            stats = run_stats(run)        # every process has ended: its stats are final
+            observer.settle(published_counts(stats))
             observer.close()
         if session is not None:
             session.close()
@@ -222,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"diffbot run: {run.reason or run.failed.name + ' failed'}\n"
               f"--- last lines of {run.failed.name}'s log ({run.failed.log_path}):\n"
               f"{run.failed.tail()}", file=sys.stderr)
-    summary = summarize(run, wall, code)
+    summary = summarize(run, wall, code, stats)
     if placed:
         summary["placement"] = placement.where_ran(run)
     if observer is not None:

@@ -411,8 +411,9 @@ def published_counts(stats: dict[str, dict]) -> dict[str, int]:
     return counts
 
 
-def summarize(run: ScenarioRun, wall: float, code: int) -> dict:
-    stats = run_stats(run)
+def summarize(run: ScenarioRun, wall: float, code: int, stats: dict | None = None) -> dict:
+    """summary.json of ``run``; ``stats``: its processes' (:func:`run_stats`), if read."""
+    stats = run_stats(run) if stats is None else stats
     plant = stats["plant"]
     counts = published_counts(stats)
     return {
