@@ -279,6 +279,7 @@ def _check_orphan_soon() -> None:
 
 def _orphan_check(signum, frame) -> None:
     global _orphan_ending
+    _wake_waiters()          # (a Python handler too: the wait it interrupted must not hang)
     if os.getppid() != _PARENT:
         _orphan_ending = True
         signal.signal(signal.SIGALRM, signal.SIG_DFL)
@@ -313,6 +314,13 @@ def wake_on_stop(waiter) -> None:
     _WAKE_ON_STOP.add(waiter)
 
 
+def _wake_waiters() -> None:
+    """Each registered waiter's ``wake()``: what every Python signal handler here calls
+    (the stop signals', and the orphan check's SIGALRM half a second later)."""
+    for waiter in list(_WAKE_ON_STOP):
+        waiter.wake()
+
+
 def install_stop_signals(stop_event: threading.Event) -> None:
     """SIGINT/SIGTERM stop the process cleanly: ``stop_event`` is set, once, and what
     waits for events is woken (:func:`wake_on_stop`); the session is closed on the way
@@ -331,7 +339,6 @@ def install_stop_signals(stop_event: threading.Event) -> None:
         if not stopping:
             stopping.append(signum)
             stop_event.set()
-            for waiter in list(_WAKE_ON_STOP):
-                waiter.wake()
+            _wake_waiters()
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
