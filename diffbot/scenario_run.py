@@ -92,6 +92,8 @@ class ScenarioRun:
     children: list[Child] = field(default_factory=list)
     reason: str = ""
     failed: Child | None = None
+    #: the run ended normally: the plant or a required process exited 0 (:meth:`supervise`)
+    finished: bool = False
     #: bus liveliness of the processes (sim/alive/<name>): name -> wall time its token went,
     #: None while it is there (kept by the supervising thread from :attr:`alive_events`)
     gone: dict[str, float | None] = field(default_factory=dict)
@@ -209,6 +211,13 @@ class ScenarioRun:
         try:
             plant = self.children[0]
             nodes = [c for c in self.children[1:] if c is not self.recorder]
+            if self.finished and plant.poll() is None:
+                # A required node's exit was seen first: the plant is ending the run too
+                # (its enders left, or it said sim/end and is still on its way out, or, when
+                # placed, its task's report trails the node's). SIGINT now would race those
+                # ends: a node asked to stop as it exits dies of the signal (a placed square
+                # path said -2 after a run that ended 0).
+                procs.wait_all([plant], END_GRACE_S)
             if plant.poll() == 0:
                 # The run's normal end: every node got the plant's sim/end and ends by
                 # itself. A stop request meanwhile races that end; a placed node's Ray task
@@ -289,6 +298,7 @@ class ScenarioRun:
                 if c.name == "plant" or c.required:
                     if code == 0:
                         self.reason = f"{c.name} finished"
+                        self.finished = True
                         return 0
                     self.failed = c
                     self.reason = f"{c.name} {c.describe_exit()}"
