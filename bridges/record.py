@@ -36,6 +36,13 @@
   anything unknown) and payloads that do not decode as their key's type (counted,
   logged at a limited rate); liveliness tokens never reach a subscriber.
 
+Lockstep: the recorder says what it has taken in (``sim/seen/<name>``, the latest
+``sim/clock`` stamp, every few ticks; docs/PROTOCOL.md section 4, "Watchers that keep up"), so
+the plant never runs more ticks ahead of it than it re-publishes after a router blip: a
+recording with blips in it has the bytes of one without, however far a loaded machine let
+the recorder fall behind. (It subscribes to ``sim/clock`` for that even when the given keys
+leave the clock out; it is then not recorded.)
+
 Crash safety: chunks are closed and flushed to the OS at least every ``--flush``
 seconds of wall time (default 1 s) and whenever they reach ``--chunk-size``.
 SIGINT, SIGTERM and ``sim/end`` close the file properly (summary, index, footer), and so
@@ -64,6 +71,7 @@ from bus.cliargs import ArgumentParser, positive_float, positive_int
 from bus.keys import Keys
 from bus.log import RejectCounter
 from bus.plantwatch import EXIT_PLANT_GONE, PlantWatch
+from bus.protocol import SEEN_EVERY_TICKS, encode_seen
 from bus.process import EXIT_BAD_CONFIG as EXIT_BAD_INPUT, EXIT_FAILED as EXIT_WRITE_FAILED
 from bus.process import EXIT_OK, Exit, Process, process_main
 from bus.session import add_process_args, undeclare_all
@@ -114,6 +122,13 @@ class Recorder:
         self._late_info_tried = False
         self._subs: list = []
         self._token = None
+        # what it has taken in, said on sim/seen/<name> (the module docstring): the latest
+        # clock stamp of the world's epoch, and the clocks taken in since it was last said
+        self._seen_pub = None
+        self._clock_max = -1
+        self._clocks_unsaid = 0
+        self.records_clock = any(zenoh.KeyExpr(e).includes(zenoh.KeyExpr(keys.clock))
+                                 for e in exprs)
         #: the plant's sim/alive token: a recorder whose plant is gone for longer than the
         #: run's rejoin timeout ends by itself (its sim/end may never come: bus.plantwatch)
         self.watch = PlantWatch()
@@ -128,7 +143,8 @@ class Recorder:
             q.put((str(sample.key_expr), sample.payload.to_bytes(),
                    att.to_bytes() if att is not None else None, time.time_ns()))
 
-        for expr in _distinct([*self.exprs, self.keys.end]):
+        clock = [] if self.records_clock else [self.keys.clock]     # (to keep up only)
+        for expr in _distinct([*self.exprs, self.keys.end, *clock]):
             # Direct callbacks (Zenoh's receive thread) keep the arrival order across keys.
             self._subs.append(self.session.declare_subscriber(
                 expr, zenoh.handlers.Callback(cb, indirect=False)))
@@ -181,6 +197,8 @@ class Recorder:
     def announce(self) -> None:
         """Liveliness ``sim/alive/<name>`` once subscribed: the launcher and the plant's
         ``--expect`` wait for it, so nothing is published before the recorder listens."""
+        self._seen_pub = self.session.declare_publisher(
+            self.keys.seen(self.name), congestion_control=zenoh.CongestionControl.BLOCK)
         self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
 
     def handle(self, item) -> None:
@@ -188,6 +206,12 @@ class Recorder:
         if key == self.keys.end:
             if self.end_reason is None:
                 self.end_reason = payload.decode("utf-8", "replace") or "sim/end"
+            return
+        if key == self.keys.clock and not self.records_clock:   # subscribed to keep up only
+            a = codec.parse_attachment(att)
+            if a is not None:
+                self._new_epoch(a.epoch)
+                self._keep_up(a.t_ns)
             return
         msgtype = self.keys.msgtype_of(key) or self.fmu_types(key)
         if msgtype is None:
@@ -201,15 +225,17 @@ class Recorder:
         a = codec.parse_attachment(att)
         if a is not None:
             seq, t_ns = a.seq, a.t_ns
-            if a.epoch is not None and a.epoch != self._epoch:   # a reset: all new again
-                self._epoch = a.epoch
-                self._recent.clear()
+            self._new_epoch(a.epoch)
             if self._repeated(key, t_ns, payload):
+                if key == self.keys.clock:
+                    self._keep_up(t_ns)      # re-published after a blip: say where it is
                 return
             self._sim_ns = max(self._sim_ns, t_ns)
         else:
             seq, t_ns = 0, self._sim_ns
         self.out.write(key, msgtype, payload, t_ns, recv_ns, seq)
+        if key == self.keys.clock:
+            self._keep_up(t_ns)
         if self.with_scene and (robot := scene.robot_of_ground_truth(self.keys, key)):
             self.out.write(self._derived(scene.TF_TOPIC), scene.TF_TYPE,
                            codec.encode(scene.tf([scene.ground_truth_transform(robot, msg, t_ns)])),
@@ -217,6 +243,26 @@ class Recorder:
         if self.info is None and key == self.keys.clock and not self._late_info_tried:
             self._late_info_tried = True      # the plant came after the recorder: ask once
             self.fetch_info(1.0)
+
+    def _new_epoch(self, epoch: int | None) -> None:
+        """A reset (the plant's attachment's epoch changed): its stamps are all new again."""
+        if epoch is not None and epoch != self._epoch:
+            self._epoch = epoch
+            self._recent.clear()
+            self._clock_max = -1
+
+    def _keep_up(self, t_ns: int) -> None:
+        """A clock taken in (docs/PROTOCOL.md section 4, "Watchers that keep up"): say the
+        latest stamp every SEEN_EVERY_TICKS new clocks, and at once for one seen before
+        (re-published: the plant held time for this recorder and waits to hear from it)."""
+        if t_ns > self._clock_max:
+            self._clock_max = t_ns
+            self._clocks_unsaid += 1
+            if self._clocks_unsaid < SEEN_EVERY_TICKS:
+                return
+        if self._seen_pub is not None:
+            self._seen_pub.put(encode_seen(self._clock_max))
+            self._clocks_unsaid = 0
 
     def _repeated(self, key: str, t_ns: int, payload: bytes) -> bool:
         """A message already recorded: the same key, stamp and bytes again, as lockstep
@@ -288,6 +334,9 @@ class Recorder:
         """Stop listening, write what is still queued, close the file."""
         undeclare_all(self._subs)
         self._subs.clear()
+        if self._seen_pub is not None:
+            self._seen_pub.undeclare()
+            self._seen_pub = None
         try:
             while True:
                 try:

@@ -208,6 +208,11 @@ class Keys:
     def ack(self, node: str = "*") -> str:
         return self._k(f"sim/ack/{node}")
 
+    def seen(self, node: str = "*") -> str:
+        """What a process that is not a member (a recorder) has taken in: lockstep paces
+        to it (docs/PROTOCOL.md section 4, "Watchers that keep up")."""
+        return self._k(f"sim/seen/{node}")
+
     @property
     def all(self) -> str:
         """Every key of this simulation (for recorders and observers)."""

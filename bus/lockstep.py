@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Callable
 
 from . import codec
+from .protocol import PACE_TICKS
 
 #: ACKs per member, member messages and the members owed per tick, remembered (ticks)
 RECENT_TICKS = 32
@@ -51,6 +52,9 @@ class AckLedger:
         self.resent_upto = -1                   # the last tick the plant re-published
         # tick stamp -> the members present when the plant began that tick
         self.owed_by: dict[int, frozenset[str]] = {}
+        # processes that are not members and say what they have taken in (sim/seen/<node>:
+        # a recorder) -> the stamp they last said ("Watchers that keep up")
+        self.seen: dict[str, int] = {}
 
     # ------------------------------------------------------------ membership
     def join(self, node: str, now_ns: int = 0) -> bool:
@@ -116,9 +120,32 @@ class AckLedger:
 
     def give_up_away(self) -> list[str]:
         """Section 4, "Lost members": the processes held for that are not members, given up
-        on (the rejoin timeout ran out: the run goes on without them)."""
+        on (the rejoin timeout ran out: the run goes on without them), and no longer kept up
+        with ("Watchers that keep up")."""
         gone, self.away = sorted(self.away), set()
+        for node in gone:
+            self.seen.pop(node, None)
         return gone
+
+    def saw(self, node: str, t_ns: int) -> None:
+        """Section 4, "Watchers that keep up": ``node``, a process that is not a member, has
+        taken in the ticks up to ``t_ns`` (its latest ``sim/seen``; a member's is ignored)."""
+        if node not in self.members_seen:
+            self.seen[node] = t_ns
+
+    def unseen(self, node: str) -> None:
+        """Section 4, "Watchers that keep up": ``node`` is gone (and not held for): the plant
+        no longer keeps up with it."""
+        self.seen.pop(node, None)
+
+    def behind(self, t_ns: int) -> list[str]:
+        """Section 4, "Watchers that keep up": the processes that said what they have taken
+        in and have not reached ``PACE_TICKS`` ticks before ``t_ns``: tick ``t_ns`` is not
+        published until they have."""
+        if not self.seen:                       # (asked every tick: the usual case first)
+            return []
+        least = t_ns - PACE_TICKS * self.tick_ns
+        return sorted(n for n, t in self.seen.items() if t < least)
 
     def all_finished(self, due_ns: int) -> bool:
         """Section 4, "Finishing": every member still present sent its FINAL for a tick
@@ -334,4 +361,5 @@ class AckLedger:
         self.member_msgs.clear()
         self.owed_by.clear()
         self.rejoined.clear()
+        self.seen.clear()             # (stamps of the old world; the new one's come)
         self.resent_upto = -1

@@ -20,8 +20,28 @@ PLANT_READS = ("cmd_vel", "wheel_cmd", "odom")
 #: lockstep: the plant keeps its last this many ticks' messages and re-publishes them when a
 #: lost member or a watcher comes back (section 4, "Lost members"): what a blip swallowed,
 #: for the members (at most the last three ticks) and for a recorder, whose share of the
-#: router's queue may lag further behind
+#: router's queue may lag further behind (up to PACE_TICKS and the members' last outputs)
 REPUBLISH_TICKS = 25
+
+#: lockstep: the plant never publishes a tick more than this many ticks after the latest
+#: ``sim/seen/<node>`` of a process that reports one (section 4, "Watchers that keep up"),
+#: so what a blip swallows of that process's share is within the re-published ticks (the
+#: rest of REPUBLISH_TICKS: members' outputs of a tick may reach it after the next clocks)
+PACE_TICKS = 20
+#: how often a watcher that keeps up says what it has taken in (every this many ticks)
+SEEN_EVERY_TICKS = 5
+
+
+def encode_seen(t_ns: int) -> bytes:
+    """``sim/seen/<node>``'s payload: the stamp as a little-endian u64."""
+    return int(t_ns).to_bytes(8, "little")
+
+
+def decode_seen(payload: bytes) -> int:
+    """The stamp of a ``sim/seen/<node>`` payload; ValueError unless it is 8 bytes."""
+    if len(payload) != 8:
+        raise ValueError(f"sim/seen: {len(payload)} bytes, not 8 (a u64 stamp)")
+    return int.from_bytes(payload, "little")
 
 
 class ProtocolError(Exception):

@@ -1,8 +1,9 @@
 """What the plant waits for between publishing a tick and stepping, one strategy per mode.
 
 * :class:`Lockstep` — the tick's barrier: the members' ACKs (sequential: of this tick;
-  pipelined: of the one before), and the end of the run when an ``--end-with`` member
-  has finished (docs/PROTOCOL.md section 4; the ledger is :class:`bus.lockstep.AckLedger`).
+  pipelined: of the one before), a recorder that says what it has taken in kept within
+  ``PACE_TICKS``, and the end of the run when an ``--end-with`` member has finished
+  (docs/PROTOCOL.md section 4; the ledger is :class:`bus.lockstep.AckLedger`).
 * :class:`Realtime` — paces to the wall clock times ``--rate``; the last command is held
   and one older than ``cmd_timeout_s`` of wall time stops its robot.
 * :class:`Fast` — free running: takes what has come, waits for nobody.
@@ -82,6 +83,7 @@ class Mode:
     lockstep = False           # members hold the ticks: ACKs, nothing dropped, re-publishing
     check_age = False          # commands older than cmd_timeout_s are rejected on arrival
     stalls = 0                 # times the wall clock was re-anchored (realtime)
+    paced_s = 0.0              # wall time waited for watchers to keep up (lockstep)
 
     def __init__(self, plant: Host) -> None:
         self.plant = plant
@@ -170,6 +172,7 @@ class Lockstep(Mode):
         p = self.plant
         due = t_ns - self.delay_ns
         while True:
+            self.wait_for_watchers(t_ns + p.tick_ns)
             if due >= 0:
                 self.wait_for_acks(due)
             if p.reset_in_tick or p.stop_event.is_set():
@@ -229,6 +232,29 @@ class Lockstep(Mode):
                               t_ns * 1e-9, "; ".join(p.ledger.describe_wait(t_ns, waiting)))
                 report_at = since + next(reports)
             p.drain(min(0.5, max(report_at - now, 0.01)))
+
+    def wait_for_watchers(self, t_ns: int) -> None:
+        """docs/PROTOCOL.md section 4, "Watchers that keep up": tick ``t_ns`` (the next) is
+        not published before every process that says what it has taken in (``sim/seen``: a
+        recorder) has taken in the tick PACE_TICKS before it; after WAIT_REPORT_S of wall
+        time, say whom it waits for. Its token going (not held for) ends the wait."""
+        p = self.plant
+        behind = p.ledger.behind(t_ns)
+        if not behind:
+            return
+        since = time.monotonic()
+        reports = wait_reports()
+        report_at = since + next(reports)
+        while behind and not p.stop_event.is_set() and not p.reset_in_tick:
+            now = time.monotonic()
+            if now >= report_at:
+                p.log.warning("lockstep: waited %.1f s before tick t=%.3f s for %s to keep "
+                              "up (taken in: %s)", now - since, t_ns * 1e-9, ", ".join(behind),
+                              ", ".join(f"t={p.ledger.seen[n] * 1e-9:.3f} s" for n in behind))
+                report_at = since + next(reports)
+            p.drain(min(0.5, max(report_at - now, 0.01)))
+            behind = p.ledger.behind(t_ns)
+        self.paced_s += time.monotonic() - since
 
     def hold(self, t_ns: int) -> str | None:
         """Members are lost (docs/PROTOCOL.md section 4, "Lost members"): simulated time

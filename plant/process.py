@@ -37,7 +37,7 @@ from bus.inbox import Event, Inbox
 from bus.keys import Keys
 from bus.lockstep import AckLedger
 from bus.log import RejectCounter
-from bus.protocol import PLANT_READS, PROTOCOL_VERSION
+from bus.protocol import PLANT_READS, PROTOCOL_VERSION, decode_seen
 
 from . import modes
 from .commands import STALE, Command, CommandBook, decode_command, stale_commands
@@ -126,6 +126,8 @@ class Plant:
                 self._robot_of_key[key] = (name, topic)
                 self.inbox.subscribe(key, "out", remote_only=True)
         self.inbox.subscribe(keys.ack(), "out", remote_only=True)
+        if lockstep:                             # watchers that keep up (a recorder)
+            self.inbox.subscribe(keys.seen(), "seen", remote_only=True)
         self._ack_prefix = keys.ack("")
         for key in sorted(composed.input_keys() if composed else ()):
             if key not in self._robot_of_key:    # another process member's output
@@ -310,6 +312,9 @@ class Plant:
             if self.composed is not None:     # a process member's output a composed one reads
                 self.composed.deliver(ev.key, ev.payload, ev.attachment)
             return
+        if ev.tag == "seen":
+            self._on_seen(ev)
+            return
         self.router.check(self.sim.time_ns, now=True)   # a token came or went: the router?
         if ev.tag == "alive":
             self.outbox.changed()          # its subscribers are in the tables by now
@@ -323,6 +328,8 @@ class Plant:
                     self._link_lost()
                 elif self.router.gone or now - self._link_lost_at <= LINK_WINDOW_S:
                     self._hold_for(node)
+                if node not in self.ledger.away:      # gone for good: not kept up with
+                    self.ledger.unseen(node)
                 return
             self.alive.add(node)
             self._went.pop(node, None)
@@ -355,6 +362,19 @@ class Plant:
                 self.log.warning("lockstep member lost: %s (gone without its FINAL at "
                                  "t=%.3f s; %s)", node, self.sim.time_ns * 1e-9,
                                  lost_note(how, self.rejoin_timeout_s))
+
+    def _on_seen(self, ev: Event) -> None:
+        """docs/PROTOCOL.md section 4, "Watchers that keep up": a process that is not a
+        member says what it has taken in (only while its sim/alive token is here: a late
+        one of a process gone would hold time for nobody)."""
+        node = self.keys.node_of(ev.key)
+        try:
+            t_ns = decode_seen(ev.payload)
+        except ValueError as exc:
+            self.rejects.reject(f"sim/seen/{node}", str(exc))
+            return
+        if node in self.alive or node in self.ledger.away:
+            self.ledger.saw(node, t_ns)
 
     def _on_output(self, ev: Event) -> None:
         """A message on a key the plant reads: a command to apply, and in lockstep a
@@ -512,6 +532,7 @@ class Plant:
                 "members_seen": sorted(self.ledger.members_seen),
                 "members_lost": sorted(self.ledger.lost), "exit_code": self.exit_code,
                 "stalls": self.strategy.stalls,
+                "paced_s": round(self.strategy.paced_s, 3),
                 "protocol": PROTOCOL_VERSION, "coupling": self.coupling, **self.delays,
                 "physics_process": self.tick.physics is not None,
                 "composed": self.composed.names if self.composed is not None else [],

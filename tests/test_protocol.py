@@ -15,7 +15,8 @@ import pytest
 
 from bus import codec
 from bus.keys import TOPICS, Keys, check_name
-from bus.protocol import COUPLINGS, PLANT_READS, PROTOCOL_VERSION, REPUBLISH_TICKS
+from bus.protocol import (COUPLINGS, PACE_TICKS, PLANT_READS, PROTOCOL_VERSION,
+                          REPUBLISH_TICKS, SEEN_EVERY_TICKS)
 
 from .conftest import ROOT, wait_for
 
@@ -35,8 +36,12 @@ def test_version_in_the_document_is_the_code_s():
         str(PROTOCOL_VERSION)
     assert f'"protocol": {PROTOCOL_VERSION}' in text
     # the ticks the plant keeps to re-publish, as sections 4 and 8 give them
-    assert text.count(f"last {REPUBLISH_TICKS} ticks") == 2
+    assert text.count(f"last {REPUBLISH_TICKS} ticks") == 3
     assert f"its last {REPUBLISH_TICKS}," in text
+    # how far lockstep runs ahead of a watcher that keeps up, and how often it reports
+    assert f"at least t - {PACE_TICKS} ticks" in text and f"within {PACE_TICKS}\nticks" in text
+    assert f"every {SEEN_EVERY_TICKS} new clocks" in text
+    assert PACE_TICKS < REPUBLISH_TICKS
 
 
 def test_every_key_is_in_the_document():
@@ -44,7 +49,7 @@ def test_every_key_is_in_the_document():
     table = {m.group(1) for m in re.finditer(r"^\| `([^`]+)` \|", text, re.M)}
     wanted = {f"<robot>/{t.suffix}" for t in TOPICS.values()}
     wanted |= {"sim/clock", "sim/end", "sim/info", "sim/reset", "sim/alive/<node>",
-               "sim/sync/<node>", "sim/ack/<node>"}
+               "sim/sync/<node>", "sim/ack/<node>", "sim/seen/<node>"}
     assert wanted <= table, f"missing from PROTOCOL.md: {sorted(wanted - table)}"
     for name, t in TOPICS.items():
         row = next(ln for ln in text.splitlines() if ln.startswith(f"| `<robot>/{t.suffix}` |"))
@@ -252,3 +257,63 @@ def test_the_plant_says_what_is_wrong_with_a_member_s_outputs(procs, endpoint, b
     assert errors["robot1/cmd_vel: no attachment"] == 1
     assert errors["robot1/cmd_vel: stamped for a tick not due"] == 1
     assert errors["missing outputs"] >= 1
+
+
+@pytest.mark.slow
+def test_lockstep_keeps_within_pace_ticks_of_a_watcher_that_says_what_it_took_in(
+        procs, endpoint, bus, tmp_path):
+    """Section 4, "Watchers that keep up": the plant publishes no tick more than PACE_TICKS
+    after the latest sim/seen of a process whose token it sees, says whom it waits for, and
+    forgets it when the token goes; a report of a process without a token, or a malformed
+    one, holds nothing."""
+    import zenoh
+
+    from bus.protocol import encode_seen
+    tick = 20_000_000
+    stats = tmp_path / "plant.json"
+    plant = procs.diffbot("plant", "--world", "empty", "--expect", "member", "--duration",
+                          "1.5", "--endpoint", endpoint, "--stats", str(stats), name="plant")
+    s = bus()
+    clocks: queue.Queue = queue.Queue()
+    sub = s.declare_subscriber(K.clock, lambda smp: clocks.put(
+        codec.parse_attachment(smp.attachment.to_bytes()).t_ns))
+    watcher = s.liveliness().declare_token(K.alive("slowpoke"))
+    seen = s.declare_publisher(K.seen("slowpoke"),
+                               congestion_control=zenoh.CongestionControl.BLOCK)
+    s.put(K.seen("ghost"), encode_seen(0))            # no token: ignored
+    s.put(K.seen("slowpoke"), b"\x00" * 4)            # not a u64: rejected, holds nothing
+    member = s.liveliness().declare_token(K.sync("member"))
+    seq, last = 0, -tick
+
+    def answer_until_quiet() -> int:
+        """ACK every clock (a member with no plant-read output) until none comes for 1 s;
+        the last stamp. Until the plant takes the watcher in, it says it saw nothing yet."""
+        nonlocal seq, last
+        while True:
+            try:
+                t = clocks.get(timeout=1.0 if last >= 0 else 60)
+            except queue.Empty:
+                return last
+            assert t == last + tick, (last, t)         # every tick, in order
+            last = t
+            if t <= tick:
+                seen.put(encode_seen(0))
+            seq += 1
+            s.put(K.ack("member"), b"", attachment=codec.attachment(seq, t, codec.ACK, 0,
+                                                                     "member"))
+    try:
+        assert answer_until_quiet() == PACE_TICKS * tick              # seen 0: up to tick 20
+        wait_for(lambda: "for slowpoke to keep up (taken in: t=0.000 s)" in procs.log(plant),
+                 15, what="the plant's wait report")
+        seen.put(encode_seen(PACE_TICKS * tick))
+        assert answer_until_quiet() == 2 * PACE_TICKS * tick          # 40 ticks after 20
+        watcher.undeclare()                                           # gone: not waited for
+        assert answer_until_quiet() == 75 * tick                      # on to --duration 1.5
+        assert procs.wait(plant, 20, "the plant's end") == 0
+    finally:
+        member.undeclare()
+        sub.undeclare()
+    st = json.loads(stats.read_text())
+    assert st["end_reason"] == "duration reached" and st["protocol_errors"] == {}, st
+    assert st["rejected"] == {"sim/seen/slowpoke": 1}, st
+    assert st["paced_s"] >= 2.0, st                   # waited through the report at 2 s

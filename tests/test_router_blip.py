@@ -52,6 +52,12 @@ DOWN_S = ((0.0, 0.1), (0.1, 0.5))
 #: runs: many more ticks than the plant re-publishes (25), had it not held time for it (a
 #: CI run across namespaces once had its recorder back ~54 ticks after the members)
 RECORDER_LATE_S = 1.5
+#: (wall s) how long the recorder is frozen before the router goes in another blip, with
+#: its token still there (the client config's lease is 1 s): unpaced, lockstep would run on
+#: ~100 ticks past what it took in, more than the plant re-publishes, as a loaded machine
+#: once let a recorder fall behind before a blip (docs/PROTOCOL.md section 4, "Watchers
+#: that keep up")
+RECORDER_LAG_S = 0.5
 
 
 def free_port() -> int:
@@ -84,7 +90,9 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float
     rejoin, the router is SIGKILLed and restarted ``down`` s later; the plant must notice
     and the members rejoin each time. With ``late``, the recorder is frozen over the blip
     and let go ``late`` s after the members are back: it comes back after them (as a slow
-    reconnect does), and the plant, which held time for it, goes on only then."""
+    reconnect does), and the plant, which held time for it, goes on only then. With
+    ``lag`` too, it is frozen ``lag`` s before the router goes: the plant, running on,
+    comes to wait for it (docs/PROTOCOL.md section 4, "Watchers that keep up")."""
     os.makedirs(tmp, exist_ok=True)
     r = Procs(tmp)
     mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
@@ -114,6 +122,7 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float
                 f"the run ended before blip {i + 1} (too fast for the plan?): {r.log(plant)}"
             if late:
                 rec.send_signal(signal.SIGSTOP)
+                time.sleep(late[1] if len(late) > 1 else 0.0)
             router.send_signal(signal.SIGKILL)
             router.wait(5)
             time.sleep(down)
@@ -169,6 +178,7 @@ def test_router_blips_leave_the_recording_as_an_undisturbed_run_s(tmp_path, coup
     ref = undisturbed(coupling)
     plan = blip_plan(coupling, LOOPBACK_BLIPS, LOOPBACK_AFTER_S)
     plan[0] += (RECORDER_LATE_S,)            # the recorder back well after the members
+    plan[1] += (0.0, RECORDER_LAG_S)         # ... far behind when the router goes
     got = square(str(tmp_path / "blips"), coupling, loopback_router(), {}, plan)
     same_run(ref, got)
     print(f"\n{coupling}: {LOOPBACK_BLIPS} of {LOOPBACK_BLIPS} router blips on loopback: "

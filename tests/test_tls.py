@@ -264,7 +264,7 @@ PUBLISH = {
              "ns1/robot1/cmd_vel"},
     "view": {"robot1/cmd_vel", "ns1/robot1/cmd_vel"},
     "bridge": {"robot1/cmd_vel", "robot1/wheel_cmd", "sim/ack/x", "ns1/robot1/cmd_vel"},
-    "recorder": set(),
+    "recorder": {"sim/seen/x", "ns1/sim/seen/x"},                    # what it took in
     "intruder": set(),
 }
 def topic_counts(msgs) -> dict:
