@@ -42,6 +42,8 @@ STOP_GRACE_S = 1.5
 END_GRACE_S = 3.0
 #: a child whose bus token is gone but whose process still runs is taken as hung after this
 WEDGED_S = 3.0
+#: how long a process that did not stop in time is given to write its stacks (SIGUSR1)
+DUMP_S = 0.3
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -239,6 +241,8 @@ class ScenarioRun:
             procs.wait_all([plant, *nodes], max(STOP_GRACE_S / 2, deadline - time.monotonic()))
             self._stop_recorder()
             left = [c.name for c in self.children if c.running()]
+            if left:
+                self._dump_stacks()
             procs.stop(self.children, 0.0, signal.SIGKILL)
             if left:            # (what a killed plant's missing statistics come from)
                 now = time.monotonic()
@@ -250,6 +254,17 @@ class ScenarioRun:
         finally:
             if self.placement is not None:
                 self.placement.close()
+
+    def _dump_stacks(self) -> None:
+        """Before a process that did not stop in time is killed: its threads' stacks into
+        its log (SIGUSR1: every diffbot process registers :mod:`faulthandler` for it,
+        bus/process.py), which is what tells where it hung. Not for another program (any
+        program may be a scenario process), to which SIGUSR1 may mean something else."""
+        ours = [c for c in self.children if c.running() and c.argv[:3] == diffbot_argv()]
+        for c in ours:
+            c.signal(signal.SIGUSR1)
+        if ours:
+            time.sleep(DUMP_S)
 
     def on_alive(self, sample) -> None:
         """Liveliness callback (Zenoh's thread): a process's ``sim/alive/<name>`` token came or

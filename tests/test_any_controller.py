@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import signal
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -148,3 +151,60 @@ def test_a_scenario_process_may_run_any_program(agent_dir):
     summary = _run(agent_dir, scen, env=env)
     assert "outsider finished" in summary["end_reason"]
     assert summary["sim_time_s"] == pytest.approx(15 * 0.02, abs=0.05)
+
+
+HANGS = '''
+import time
+from bus.node import Twist
+
+class Hangs:
+    """Answers two ticks, then hangs in its step (a deadlock, a blocking call)."""
+    inputs = ["ground_truth"]
+
+    def __init__(self, robot=None):
+        self.n = 0
+
+    def step(self, obs):
+        self.n += 1
+        if self.n > 2:
+            hang_here()
+        return Twist(0.1, 0.0)
+
+def hang_here():
+    while True:
+        time.sleep(0.05)
+'''
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_a_process_that_does_not_stop_leaves_its_stacks_in_its_log(agent_dir):
+    """Ctrl-C to a run whose node hangs in its step: the node does not end within the
+    grace, so diffbot run has it write its stacks (SIGUSR1, faulthandler) before killing it,
+    and its log says where it hung."""
+    (agent_dir / "hangs.py").write_text(HANGS)
+    scen = _scenario(agent_dir, '[[process]]\nname = "agent"\n'
+                                'command = ["controller", "python:hangs:Hangs"]\n')
+    env = dict(os.environ, PYTHONPATH=f"{agent_dir}{os.pathsep}{ROOT}")
+    run = subprocess.Popen([sys.executable, "-m", "diffbot.cli", "run", scen, "--out",
+                            str(agent_dir / "run"), "--no-compose"], cwd=ROOT, env=env,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        log = agent_dir / "run" / "logs" / "plant.log"
+        deadline = time.monotonic() + 60
+        while "lockstep: waited" not in (log.read_text() if log.exists() else ""):
+            assert run.poll() is None and time.monotonic() < deadline, "no wait for the agent"
+            time.sleep(0.1)
+        run.send_signal(signal.SIGINT)
+        err = run.communicate(timeout=60)[1]
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert run.returncode == 130, err
+    assert "agent did not stop in time; killed (SIGKILL" in err, err
+    agent_log = (agent_dir / "run" / "logs" / "agent.log").read_text()
+    assert "most recent call first" in agent_log, agent_log[-2000:]      # faulthandler's
+    assert re.search(r'hangs\.py", line \d+ in hang_here', agent_log), agent_log[-2000:]
+    assert json.loads((agent_dir / "run" / "summary.json").read_text())["exit_codes"][
+        "agent"] == -signal.SIGKILL
