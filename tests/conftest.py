@@ -44,15 +44,22 @@ def examples(n: int) -> int:
 #   file's ``xdist_group`` mark putting it with the other files of the same group (the
 #   Ray cluster's tests; the ROS 2 tests, whose DDS domains are numbered per worker; the
 #   files that share a session run);
-# - a test marked ``serial`` runs alone: the other worker waits between two of its tests
-#   until it is done. For what a second worker would disturb: wall-clock promises (a
-#   realtime plant's pace, detection within a lease, exits within a grace), system-wide
-#   state (multicast memberships, the default port). The serial tests with no group of
-#   their own are one group ("serial"), so they run one after the other on one worker,
-#   which keeps its turn from one to the next: the other worker waits once for all of
-#   them, not once for each (and each time for the test it had in hand);
-# - every other test holds a shared lock while it runs, so a serial one waits for it.
-# Without xdist (plain `pytest`, `make test-fast`) none of this does anything.
+# - a test marked ``serial`` runs with no other test beside it but ``background`` ones
+#   (below): the other worker waits between two of its tests until it is done. For what
+#   a second worker would disturb: wall-clock promises (a realtime plant's pace, detection
+#   within a lease, exits within a grace), system-wide state (multicast memberships, the
+#   default port). The serial tests with no group of their own are one group ("serial"),
+#   so they run one after the other on one worker, which keeps its turn from one to the
+#   next: the other worker waits once for all of them, not once for each (and each time
+#   for the test it had in hand);
+# - every other test holds a shared lock while it runs, so a serial one waits for it;
+# - except a ``background`` test (a whole group of them, handed out right after the serial
+#   group): it has no wall-clock bound of its own, takes no lock, and every process it
+#   starts runs at the lowest CPU priority (nice 19, in a session and so a scheduler
+#   autogroup of its own), so it fills the cores the serial tests leave idle (~70 % of
+#   two: /proc/stat) and yields them whenever a serial test's processes want them.
+# Without xdist (plain `pytest`, `make test-fast`) the locks and the order do nothing (a
+# background test's processes still run niced).
 _LOCK_DIR = "DIFFBOT_TEST_LOCK_DIR"
 
 
@@ -87,6 +94,14 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(mark)
             mark = mark.mark
         group[item] = str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+    background: dict[str, set[bool]] = {}
+    for item in items:
+        background.setdefault(group[item], set()).add(_background(item))
+        if _background(item) and _serial(item):
+            raise pytest.UsageError(f"{item.nodeid}: a test is serial or background, not both")
+    mixed = sorted(g for g, kinds in background.items() if len(kinds) > 1)
+    if mixed:       # a group runs on one worker in one go: all of it yields, or none of it
+        raise pytest.UsageError("xdist groups with background tests and others: " + ", ".join(mixed))
     if not os.environ.get("PYTEST_XDIST_WORKER"):
         return
     cost: dict[str, float] = {}
@@ -94,11 +109,18 @@ def pytest_collection_modifyitems(config, items):
         cost[group[item]] = cost.get(group[item], 0.0) + (
             _COST_SLOW_S if item.get_closest_marker("slow") else _COST_FAST_S)
     first = {g: i for i, g in reversed(list(enumerate(group[it] for it in items)))}
-    items.sort(key=lambda it: (-cost[group[it]], first[group[it]]))   # stable: in a group as collected
+
+    def rank(g: str) -> int:        # the serial group, then the background ones, then the rest
+        return 0 if g == "serial" else 1 if True in background[g] else 2
+    items.sort(key=lambda it: (rank(group[it]), -cost[group[it]], first[group[it]]))  # stable
 
 
 def _serial(item) -> bool:
     return item is not None and item.get_closest_marker("serial") is not None
+
+
+def _background(item) -> bool:
+    return item is not None and item.get_closest_marker("background") is not None
 
 
 class _Turns:
@@ -142,7 +164,8 @@ def pytest_runtest_protocol(item, nextitem):
     outermost wrapper, so waiting for the turn does not count in pytest-timeout's time."""
     timeline = os.environ.get("DIFFBOT_TEST_TIMELINE")
     t0 = time.time()
-    if not os.environ.get(_LOCK_DIR) or not os.environ.get("PYTEST_XDIST_WORKER"):
+    if not os.environ.get(_LOCK_DIR) or not os.environ.get("PYTEST_XDIST_WORKER") \
+            or _background(item):
         yield
     else:
         serial = _serial(item)
@@ -162,6 +185,45 @@ def pytest_runtest_protocol(item, nextitem):
 #: programs libraries run for a quick answer (platform.processor(), the docs' file list,
 #: matplotlib's font list on a machine with no font cache yet): not a process the test is about
 QUICK_LOOKUPS = {"uname", "git", "fc-list"}
+
+
+#: a background test's processes: the lowest CPU priority (``nice``), for the process and
+#: for its session's scheduler autogroup (with autogroups on, as on the build machine, the
+#: kernel shares the CPU between sessions first: a process's own nice counts only inside
+#: its session)
+BACKGROUND_NICE = 19
+
+
+def lower_priority(pid: int, nice: int = BACKGROUND_NICE) -> None:
+    """``pid`` (a session leader: its session's autogroup too) at CPU priority ``nice``;
+    quietly nothing where the system does not allow it."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, pid, nice)
+    except OSError:
+        pass
+    try:
+        with open(f"/proc/{pid}/autogroup", "w") as f:
+            f.write(str(nice))
+    except OSError:                 # no autogroups (or the process is already gone)
+        pass
+
+
+@pytest.fixture(autouse=True)
+def _background_processes_yield(request, monkeypatch):
+    """Every process a ``background`` test starts runs in a session of its own (so its
+    children share its autogroup) at the lowest CPU priority, set from here as it starts."""
+    if not _background(request.node):
+        yield
+        return
+    real_init = subprocess.Popen.__init__
+
+    def init(self, args, *a, **kw):
+        if not kw.get("start_new_session") and kw.get("process_group") is None:
+            kw["start_new_session"] = True
+        real_init(self, args, *a, **kw)
+        lower_priority(self.pid)
+    monkeypatch.setattr(subprocess.Popen, "__init__", init)
+    yield
 
 
 @pytest.fixture(autouse=True)

@@ -18,6 +18,10 @@ from controllers import hosted
 from diffbot.scenario import load_scenario
 from plant.world import WorldError
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 AGENT = '''

@@ -14,6 +14,10 @@ import pytest
 from diffbot import bench
 from diffbot.cli import main as cli_main
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CASE_KEYS = {"suite", "name", "unit", "median", "min", "max", "repeats", "samples", "notes"}
 

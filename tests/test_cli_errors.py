@@ -19,6 +19,10 @@ from plant.world import WorldError, load_world
 
 from .conftest import ROOT
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 
 def _strict_load(path):
     def refuse(name):

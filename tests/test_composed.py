@@ -15,6 +15,10 @@ import pytest
 from .compare_recordings import compare
 from .conftest import ROOT
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 
 def run(tmp_path, name: str, scenario: str, *args: str) -> tuple[str, dict]:
     """``diffbot run SCENARIO ARGS --record``: (the recording, its summary)."""

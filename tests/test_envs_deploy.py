@@ -19,6 +19,10 @@ from controllers.learned import N_FEATURES, MLPPolicy  # noqa: E402
 from diffbot.envs import deploy  # noqa: E402
 from diffbot.envs.episode import Episode  # noqa: E402
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 

@@ -29,6 +29,10 @@ from fmus import fmu_node
 
 from .conftest import ROOT, wait_for
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 K = Keys()
 TICK_NS = 20_000_000
 INFO = {"protocol": PROTOCOL_VERSION, "mode": "lockstep", "control_tick_s": 0.02,

@@ -33,7 +33,9 @@ from fmus import build as fmu_build  # noqa: E402
 from .conftest import CI  # noqa: E402
 
 #: xdist_group: with test_fmu_node, one worker builds the session's FMUs (conftest.built_fmus)
-pytestmark = pytest.mark.xdist_group("fmus")
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = [pytest.mark.xdist_group("fmus"), pytest.mark.background]
 VERSIONS = (2, 3)
 R, D = 0.12, 0.36  # default wheel_radius, wheel_separation (m)
 VR = {"omega_left": 1, "omega_right": 2, "wheel_radius": 3, "wheel_separation": 4, "x0": 5, "y0": 6,

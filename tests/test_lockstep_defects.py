@@ -20,6 +20,10 @@ from bus.protocol import PROTOCOL_VERSION, REPUBLISH_TICKS
 from .conftest import wait_for
 from .test_pipelined_end import TICK_NS, member_ends
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 K = Keys()
 
 

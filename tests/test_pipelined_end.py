@@ -13,6 +13,10 @@ import zenoh
 from bus import codec
 from bus.keys import Keys
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 K = Keys()
 TICK_NS = 20_000_000
 

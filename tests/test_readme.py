@@ -14,6 +14,10 @@ from bus.keys import Keys
 
 from .conftest import ROOT
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 
 def readme_example() -> str:
     text = open(os.path.join(ROOT, "README.md")).read()

@@ -11,6 +11,10 @@ import pytest
 from .compare_recordings import compare
 from .conftest import ROOT
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 
 def record(tmp_path, name: str, *args: str):
     path = tmp_path / f"{name}.mcap"

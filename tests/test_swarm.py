@@ -16,6 +16,10 @@ from plant.world import load_world
 
 from .conftest import ROOT, check_real_time_factor
 
+#: background: no wall-clock bound here; runs beside the serial tests, its processes at the
+#: lowest CPU priority (tests/conftest.py)
+pytestmark = pytest.mark.background
+
 
 def test_swarm_world_is_deterministic_and_differs_by_seed():
     assert swarm_world_text(8, 3) == swarm_world_text(8, 3)
