@@ -141,11 +141,12 @@ class AckLedger:
     def behind(self, t_ns: int) -> list[str]:
         """Section 4, "Watchers that keep up": the processes that said what they have taken
         in and have not reached ``PACE_TICKS`` ticks before ``t_ns``: tick ``t_ns`` is not
-        published until they have."""
+        published until they have. One held for ("Lost members") is the hold's, with its
+        timeout, until it is back."""
         if not self.seen:                       # (asked every tick: the usual case first)
             return []
         least = t_ns - PACE_TICKS * self.tick_ns
-        return sorted(n for n, t in self.seen.items() if t < least)
+        return sorted(n for n, t in self.seen.items() if t < least and n not in self.away)
 
     def all_finished(self, due_ns: int) -> bool:
         """Section 4, "Finishing": every member still present sent its FINAL for a tick

@@ -237,7 +237,9 @@ class Lockstep(Mode):
         """docs/PROTOCOL.md section 4, "Watchers that keep up": tick ``t_ns`` (the next) is
         not published before every process that says what it has taken in (``sim/seen``: a
         recorder) has taken in the tick PACE_TICKS before it; after WAIT_REPORT_S of wall
-        time, say whom it waits for. Its token going (not held for) ends the wait."""
+        time, say whom it waits for. Its token going ends the wait, and so does anyone
+        lost: time is then held (:meth:`hold`, with the rejoin timeout), and this wait
+        comes again once they are back."""
         p = self.plant
         behind = p.ledger.behind(t_ns)
         if not behind:
@@ -245,7 +247,8 @@ class Lockstep(Mode):
         since = time.monotonic()
         reports = wait_reports()
         report_at = since + next(reports)
-        while behind and not p.stop_event.is_set() and not p.reset_in_tick:
+        while (behind and not p.ledger.held_for() and not p.stop_event.is_set()
+               and not p.reset_in_tick):
             now = time.monotonic()
             if now >= report_at:
                 p.log.warning("lockstep: waited %.1f s before tick t=%.3f s for %s to keep "

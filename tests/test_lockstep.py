@@ -210,6 +210,39 @@ def test_a_process_gone_with_the_link_is_held_for_until_back_or_given_up():
     assert led.give_up_away() == ["recorder", "view"] and led.held_for() == []
 
 
+def test_a_watcher_that_says_what_it_took_in_is_kept_within_pace_ticks():
+    """Section 4, "Watchers that keep up": a tick is not published while a reporting
+    process is PACE_TICKS behind it; the latest report counts; a member's report is
+    ignored; one held for is the hold's until back; gone, given up or a reset: forgotten."""
+    from bus.protocol import PACE_TICKS
+    led, _ = ledger()
+    led.join("a")
+    assert led.behind(1000 * T) == []                       # nobody reports: no pacing
+    led.saw("a", 0)                                          # a member: its ACKs pace it
+    assert led.behind(1000 * T) == []
+    led.saw("recorder", 5 * T)
+    assert led.behind((5 + PACE_TICKS) * T) == []
+    assert led.behind((6 + PACE_TICKS) * T) == ["recorder"]
+    led.saw("recorder", 6 * T)
+    assert led.behind((6 + PACE_TICKS) * T) == []
+    led.saw("recorder", 0)                                   # the latest counts (a reset's)
+    assert led.behind((1 + PACE_TICKS) * T) == ["recorder"]
+    assert led.gone_with_link("recorder")
+    assert led.behind(1000 * T) == [] and led.held_for() == ["recorder"]   # the hold's
+    led.back("recorder")
+    assert led.behind(1000 * T) == ["recorder"]              # back: kept up with again
+    led.gone_with_link("recorder")
+    led.give_up_away()
+    led.back("recorder")
+    assert led.behind(1000 * T) == []                        # given up: forgotten
+    led.saw("view", 0)
+    led.unseen("view")
+    assert led.behind(1000 * T) == []                        # its token went
+    led.saw("view", 0)
+    led.restart()
+    assert led.behind(1000 * T) == []                        # the old world's stamps
+
+
 def test_a_member_that_finished_is_not_lost_and_the_run_ends_when_all_have():
     led, _ = ledger(expect=("a",))
     led.join("a")
