@@ -40,7 +40,9 @@ Lockstep: the recorder says what it has taken in (``sim/seen/<name>``, the lates
 ``sim/clock`` stamp, every few ticks; docs/PROTOCOL.md section 4, "Watchers that keep up"), so
 the plant never runs more ticks ahead of it than it re-publishes after a router blip: a
 recording with blips in it has the bytes of one without, however far a loaded machine let
-the recorder fall behind. (It subscribes to ``sim/clock`` for that even when the given keys
+the recorder fall behind. At the end of any run it answers the plant's get on
+``sim/seen/*`` with the latest clock it has received, and the plant ends once that is its
+last tick (section 4, "End"). (It subscribes to ``sim/clock`` for that even when the given keys
 leave the clock out; it is then not recorded.)
 
 Crash safety: chunks are closed and flushed to the OS at least every ``--flush``
@@ -125,8 +127,10 @@ class Recorder:
         # what it has taken in, said on sim/seen/<name> (the module docstring): the latest
         # clock stamp of the world's epoch, and the clocks taken in since it was last said
         self._seen_pub = None
+        self._seen_queryable = None
         self._clock_max = -1
         self._clocks_unsaid = 0
+        self._received_clock: bytes | None = None     # the attachment of the latest clock
         self.records_clock = any(zenoh.KeyExpr(e).includes(zenoh.KeyExpr(keys.clock))
                                  for e in exprs)
         #: the plant's sim/alive token: a recorder whose plant is gone for longer than the
@@ -138,10 +142,15 @@ class Recorder:
     def subscribe(self) -> None:
         q = self.queue
 
+        clock = self.keys.clock
+
         def cb(sample: zenoh.Sample) -> None:
             att = sample.attachment
-            q.put((str(sample.key_expr), sample.payload.to_bytes(),
-                   att.to_bytes() if att is not None else None, time.time_ns()))
+            key = str(sample.key_expr)
+            att = att.to_bytes() if att is not None else None
+            if key == clock and att is not None:
+                self._received_clock = att         # (what a get on sim/seen/* is answered)
+            q.put((key, sample.payload.to_bytes(), att, time.time_ns()))
 
         clock = [] if self.records_clock else [self.keys.clock]     # (to keep up only)
         for expr in _distinct([*self.exprs, self.keys.end, *clock]):
@@ -199,6 +208,8 @@ class Recorder:
         ``--expect`` wait for it, so nothing is published before the recorder listens."""
         self._seen_pub = self.session.declare_publisher(
             self.keys.seen(self.name), congestion_control=zenoh.CongestionControl.BLOCK)
+        self._seen_queryable = self.session.declare_queryable(self.keys.seen(self.name),
+                                                              self._answer_seen)
         self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
 
     def handle(self, item) -> None:
@@ -263,6 +274,13 @@ class Recorder:
         if self._seen_pub is not None:
             self._seen_pub.put(encode_seen(self._clock_max))
             self._clocks_unsaid = 0
+
+    def _answer_seen(self, query: zenoh.Query) -> None:
+        """Zenoh's thread: the plant asks at a run's end what has come (docs/PROTOCOL.md
+        section 4, "End"): the latest clock received (queued is taken in: it is written)."""
+        a = codec.parse_attachment(self._received_clock)
+        if a is not None:
+            query.reply(self.keys.seen(self.name), encode_seen(a.t_ns))
 
     def _repeated(self, key: str, t_ns: int, payload: bytes) -> bool:
         """A message already recorded: the same key, stamp and bytes again, as lockstep
@@ -334,9 +352,8 @@ class Recorder:
         """Stop listening, write what is still queued, close the file."""
         undeclare_all(self._subs)
         self._subs.clear()
-        if self._seen_pub is not None:
-            self._seen_pub.undeclare()
-            self._seen_pub = None
+        undeclare_all([h for h in (self._seen_pub, self._seen_queryable) if h is not None])
+        self._seen_pub = self._seen_queryable = None
         try:
             while True:
                 try:

@@ -30,6 +30,10 @@ REPUBLISH_TICKS = 25
 PACE_TICKS = 20
 #: how often a watcher that keeps up says what it has taken in (every this many ticks)
 SEEN_EVERY_TICKS = 5
+#: at a run's end, how long (wall s) the plant waits for every process that answers a get on
+#: ``sim/seen/*`` to have taken in its last tick before it says sim/end and leaves (what is
+#: still on its way when the plant's session closes is lost)
+END_SEEN_S = 2.0
 
 
 def encode_seen(t_ns: int) -> bytes:

@@ -2,7 +2,9 @@
 
 It never takes part in lockstep; it only listens to the keys it keeps, so the plant
 does not build messages nobody else reads. Message counts come from each
-process's own stats.
+process's own stats. At a run's end it answers the plant's get on ``sim/seen/*`` with the
+latest clock it has received, so the plant leaves only once the last tick is here
+(docs/PROTOCOL.md section 4, "End": a loaded machine's run once lacked its last 20 ticks).
 """
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ import zenoh
 
 from bus import codec
 from bus.keys import Keys
+from bus.protocol import encode_seen
 from bus.session import undeclare_all
 
 
@@ -42,6 +45,12 @@ class Observer:
         self.lock = threading.Lock()
         self._subs = {k: session.declare_subscriber(k, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
                       for k in keep}
+        # the latest clock received, for the plant's get on sim/seen/* at a run's end (its
+        # channel is emptied with the others; the stamp of the last one is kept)
+        self._clock = session.declare_subscriber(keys.clock,
+                                                 zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+        self._clock_ns: int | None = None
+        self._seen = session.declare_queryable(keys.seen(OBSERVER), self._answer_seen)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._drain_loop, name="observer", daemon=True)
         self._thread.start()
@@ -51,9 +60,22 @@ class Observer:
         while not self._stop.wait(DRAIN_S):
             self.drain()
 
+    def _answer_seen(self, query: zenoh.Query) -> None:
+        """Zenoh's thread (the plant asks at a run's end): the latest clock received. The
+        get came after the plant's last messages, so what it sent before is in the
+        channels by now."""
+        self.drain()
+        if self._clock_ns is not None:
+            query.reply(self.keys.seen(OBSERVER), encode_seen(self._clock_ns))
+
     def drain(self) -> None:
         """Move what the channels hold into ``samples``."""
         with self.lock:
+            while self._clock is not None and (sample := self._clock.try_recv()) is not None:
+                att = sample.attachment
+                att = codec.parse_attachment(att.to_bytes() if att is not None else None)
+                if att is not None:
+                    self._clock_ns = att.t_ns
             for key, sub in self._subs.items():
                 out = self.samples[key]
                 while (sample := sub.try_recv()) is not None:
@@ -102,4 +124,5 @@ class Observer:
         self._thread.join()
         self.drain()                      # what arrived before the close is kept
         subs, self._subs = self._subs, {}
-        undeclare_all(subs.values())
+        undeclare_all([*subs.values(), self._seen, self._clock])
+        self._clock = None

@@ -37,7 +37,7 @@ from bus.inbox import Event, Inbox
 from bus.keys import Keys
 from bus.lockstep import AckLedger
 from bus.log import RejectCounter
-from bus.protocol import PLANT_READS, PROTOCOL_VERSION, decode_seen
+from bus.protocol import END_SEEN_S, PLANT_READS, PROTOCOL_VERSION, decode_seen
 
 from . import modes
 from .commands import STALE, Command, CommandBook, decode_command, stale_commands
@@ -506,7 +506,48 @@ class Plant:
                     self.restart_world("the physics diverged", rebuilt=True)
         finally:
             self.wall_end = time.monotonic()
+        if self.end_reason != "stopped":      # (an end of its own, not a stop signal)
+            self.last_tick_taken_in(self.sim.time_ns)
         return 0
+
+    def last_tick_taken_in(self, t_ns: int) -> None:
+        """docs/PROTOCOL.md section 4, "End": the run ended at tick ``t_ns``; the processes
+        that answer a get on ``sim/seen/*`` (a recorder, the launcher's observer) get up to
+        END_SEEN_S to have taken that tick in before the plant says sim/end and closes its
+        session: what is still on its way then is lost (a loaded machine's run summary once
+        lacked its last 20 ticks). The get also goes after the last messages, on the same
+        links."""
+        deadline = time.monotonic() + END_SEEN_S
+        while not self.stop_event.is_set():
+            left = deadline - time.monotonic()
+            short = {n: t for n, t in self._ask_seen(max(left, 0.05)).items() if t < t_ns}
+            if not short:
+                return
+            if left <= 0:
+                self.log.warning("%s had not taken in the last tick (t=%.3f s) %.0f s after "
+                                 "it; ending all the same", ", ".join(
+                                     f"{n} (t={t * 1e-9:.3f} s)" for n, t in sorted(short.items())),
+                                 t_ns * 1e-9, END_SEEN_S)
+                return
+            self.drain(0.02)
+
+    def _ask_seen(self, timeout_s: float) -> dict[str, int]:
+        """What each process answering ``sim/seen/*`` says it has taken in (a malformed
+        answer is counted and left out)."""
+        out = {}
+        try:
+            replies = self.session.get(self.keys.seen(), timeout=min(timeout_s, 1.0))
+            for reply in replies:
+                if reply.ok is None:
+                    continue
+                node = self.keys.node_of(str(reply.ok.key_expr))
+                try:
+                    out[node] = decode_seen(reply.ok.payload.to_bytes())
+                except ValueError as exc:
+                    self.rejects.reject(f"sim/seen/{node}", str(exc))
+        except Exception as exc:         # (the session closing under a stop signal)
+            self.log.debug("sim/seen: %s", exc)
+        return out
 
     def _duration_reached(self, t_ns: int) -> str | None:
         if self.duration_ns is None or t_ns < self.duration_ns:

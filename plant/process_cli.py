@@ -16,8 +16,6 @@ from .memory import keep_freed_memory
 from .physics_process import PhysicsError
 from .world import WorldError, load_world
 
-#: how long the sim/end text goes before the sim/end token (wall s)
-END_TEXT_HEAD_START_S = 0.1
 from .process import Plant
 
 

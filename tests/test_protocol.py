@@ -15,7 +15,7 @@ import pytest
 
 from bus import codec
 from bus.keys import TOPICS, Keys, check_name
-from bus.protocol import (COUPLINGS, PACE_TICKS, PLANT_READS, PROTOCOL_VERSION,
+from bus.protocol import (COUPLINGS, END_SEEN_S, PACE_TICKS, PLANT_READS, PROTOCOL_VERSION,
                           REPUBLISH_TICKS, SEEN_EVERY_TICKS)
 
 from .conftest import ROOT, wait_for
@@ -39,8 +39,10 @@ def test_version_in_the_document_is_the_code_s():
     assert text.count(f"last {REPUBLISH_TICKS} ticks") == 3
     assert f"its last {REPUBLISH_TICKS}," in text
     # how far lockstep runs ahead of a watcher that keeps up, and how often it reports
-    assert f"at least t - {PACE_TICKS} ticks" in text and f"within {PACE_TICKS}\nticks" in text
+    assert f"at least t - {PACE_TICKS} ticks" in text
+    assert re.search(rf"within {PACE_TICKS}\s+ticks of it", text)
     assert f"every {SEEN_EVERY_TICKS} new clocks" in text
+    assert re.search(rf"or later, up to {END_SEEN_S:g} s \(then it logs", text)
     assert PACE_TICKS < REPUBLISH_TICKS
 
 
@@ -265,7 +267,10 @@ def test_lockstep_keeps_within_pace_ticks_of_a_watcher_that_says_what_it_took_in
     """Section 4, "Watchers that keep up": the plant publishes no tick more than PACE_TICKS
     after the latest sim/seen of a process whose token it sees, says whom it waits for, and
     forgets it when the token goes; a report of a process without a token, or a malformed
-    one, holds nothing."""
+    one, holds nothing. "End": the plant says sim/end only once a process answering a get on
+    sim/seen/* has its last tick."""
+    import time
+
     import zenoh
 
     from bus.protocol import encode_seen
@@ -285,13 +290,14 @@ def test_lockstep_keeps_within_pace_ticks_of_a_watcher_that_says_what_it_took_in
     member = s.liveliness().declare_token(K.sync("member"))
     seq, last = 0, -tick
 
-    def answer_until_quiet() -> int:
-        """ACK every clock (a member with no plant-read output) until none comes for 1 s;
-        the last stamp. Until the plant takes the watcher in, it says it saw nothing yet."""
+    def answer_until_quiet(quiet_s: float = 1.0) -> int:
+        """ACK every clock (a member with no plant-read output) until none comes for
+        ``quiet_s``; the last stamp. Until the plant takes the watcher in, it says it saw
+        nothing yet."""
         nonlocal seq, last
         while True:
             try:
-                t = clocks.get(timeout=1.0 if last >= 0 else 60)
+                t = clocks.get(timeout=quiet_s if last >= 0 else 60)
             except queue.Empty:
                 return last
             assert t == last + tick, (last, t)         # every tick, in order
@@ -307,9 +313,20 @@ def test_lockstep_keeps_within_pace_ticks_of_a_watcher_that_says_what_it_took_in
                  15, what="the plant's wait report")
         seen.put(encode_seen(PACE_TICKS * tick))
         assert answer_until_quiet() == 2 * PACE_TICKS * tick          # 40 ticks after 20
+        # "End": a process that answers sim/seen/* one tick short of the end holds sim/end
+        has = [74 * tick]
+        finisher = s.declare_queryable(K.seen("finisher"), lambda q: q.reply(
+            K.seen("finisher"), encode_seen(has[0])))
+        ends: queue.Queue = queue.Queue()
+        end_sub = s.declare_subscriber(K.end, lambda smp: ends.put(time.monotonic()))
         watcher.undeclare()                                           # gone: not waited for
-        assert answer_until_quiet() == 75 * tick                      # on to --duration 1.5
+        assert answer_until_quiet(0.5) == 75 * tick                   # on to --duration 1.5
+        assert ends.empty(), "sim/end before the finisher had the last tick"
+        has[0] = 75 * tick
+        ends.get(timeout=10)
         assert procs.wait(plant, 20, "the plant's end") == 0
+        finisher.undeclare()
+        end_sub.undeclare()
     finally:
         member.undeclare()
         sub.undeclare()
@@ -317,3 +334,4 @@ def test_lockstep_keeps_within_pace_ticks_of_a_watcher_that_says_what_it_took_in
     assert st["end_reason"] == "duration reached" and st["protocol_errors"] == {}, st
     assert st["rejected"] == {"sim/seen/slowpoke": 1}, st
     assert st["paced_s"] >= 2.0, st                   # waited through the report at 2 s
+    assert "had not taken in the last tick" not in procs.log(plant)
