@@ -285,8 +285,6 @@ def test_lockstep_keeps_within_pace_ticks_of_a_watcher_that_says_what_it_took_in
     watcher = s.liveliness().declare_token(K.alive("slowpoke"))
     seen = s.declare_publisher(K.seen("slowpoke"),
                                congestion_control=zenoh.CongestionControl.BLOCK)
-    s.put(K.seen("ghost"), encode_seen(0))            # no token: ignored
-    s.put(K.seen("slowpoke"), b"\x00" * 4)            # not a u64: rejected, holds nothing
     member = s.liveliness().declare_token(K.sync("member"))
     seq, last = 0, -tick
 
@@ -311,6 +309,9 @@ def test_lockstep_keeps_within_pace_ticks_of_a_watcher_that_says_what_it_took_in
         assert answer_until_quiet() == PACE_TICKS * tick              # seen 0: up to tick 20
         wait_for(lambda: "for slowpoke to keep up (taken in: t=0.000 s)" in procs.log(plant),
                  15, what="the plant's wait report")
+        # (the plant's subscriber is in place now: it took slowpoke's report in)
+        s.put(K.seen("ghost"), encode_seen(0))        # no token: ignored (else held at 20)
+        s.put(K.seen("slowpoke"), b"\x00" * 4)        # not a u64: rejected, holds nothing
         seen.put(encode_seen(PACE_TICKS * tick))
         assert answer_until_quiet() == 2 * PACE_TICKS * tick          # 40 ticks after 20
         # "End": a process that answers sim/seen/* one tick short of the end holds sim/end
