@@ -209,8 +209,9 @@ class Keys:
         return self._k(f"sim/ack/{node}")
 
     def seen(self, node: str = "*") -> str:
-        """What a process that is not a member (a recorder) has taken in: lockstep paces
-        to it (docs/PROTOCOL.md section 4, "Watchers that keep up")."""
+        """What a process that is not a member has taken in: a recorder's reports, which
+        lockstep paces to, and the queryable the plant asks at a run's end (docs/PROTOCOL.md
+        section 4, "Watchers that keep up", "End")."""
         return self._k(f"sim/seen/{node}")
 
     @property
