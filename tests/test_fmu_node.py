@@ -420,7 +420,10 @@ def test_fmu_node_on_the_bus_equals_the_reference_every_tick(procs, endpoint, bu
     assert abs(ref[-1, 2] - pose0[2]) > 1.0, "the run includes the first 90 degree turn"
     st = json.loads(stats.read_text())
     assert st["fmu"]["steps"] == len(stamps) - 1 and st["rejected"] == {}
-    assert plant.poll() is None
+    # the node was an --expect member stopped mid-run: the plant, with no rejoin timeout,
+    # ends the run at once and exits 1 (docs/PROTOCOL.md section 4, "Lost members")
+    assert procs.wait(plant, 30, "the plant's end") == 1
+    assert "lost lockstep member odometry_robot1" in procs.log(plant)
 
 
 def _info(session):
