@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Protocol
+from typing import Callable, Protocol
 
 from bus.lockstep import AckLedger
 from bus.protocol import delays as coupling_delays
@@ -215,23 +215,35 @@ class Lockstep(Mode):
         waiting_for); after WAIT_REPORT_S of wall time, say whom it waits for (then less
         and less often). A sim/reset answered meanwhile ends the wait: the tick is gone."""
         p = self.plant
-        since = time.monotonic()
         # What came meanwhile, even when nobody is to be waited for (every member gone): a
         # member joining, a late FINAL, a sim/reset query would otherwise stay queued.
         p.drain(0.0)
+
+        def say(waited_s: float, waiting: list[str]) -> None:
+            p.ledger.report_missing(t_ns, waiting)
+            p.log.warning("lockstep: waited %.1f s for tick t=%.3f s: %s", waited_s,
+                          t_ns * 1e-9, "; ".join(p.ledger.describe_wait(t_ns, waiting)))
+        self._wait_while(lambda: p.ledger.waiting_for(t_ns), say)
+
+    def _wait_while(self, pending: Callable[[], list[str]],
+                    say: Callable[[float, list[str]], None]) -> float:
+        """Handle events until ``pending()`` is empty, someone is lost (the hold waits then),
+        a stop or a sim/reset; ``say(waited_s, pending)`` at :func:`wait_reports`' times.
+        The wall time waited."""
+        p = self.plant
+        since = time.monotonic()
         reports = wait_reports()
         report_at = since + next(reports)
         while not p.stop_event.is_set() and not p.reset_in_tick:
-            waiting = p.ledger.waiting_for(t_ns)
+            waiting = pending()
             if not waiting or p.ledger.held_for():
-                return
+                break
             now = time.monotonic()
             if now >= report_at:
-                p.ledger.report_missing(t_ns, waiting)
-                p.log.warning("lockstep: waited %.1f s for tick t=%.3f s: %s", now - since,
-                              t_ns * 1e-9, "; ".join(p.ledger.describe_wait(t_ns, waiting)))
+                say(now - since, waiting)
                 report_at = since + next(reports)
             p.drain(min(0.5, max(report_at - now, 0.01)))
+        return time.monotonic() - since
 
     def wait_for_watchers(self, t_ns: int) -> None:
         """docs/PROTOCOL.md section 4, "Watchers that keep up": tick ``t_ns`` (the next) is
@@ -241,23 +253,14 @@ class Lockstep(Mode):
         lost: time is then held (:meth:`hold`, with the rejoin timeout), and this wait
         comes again once they are back."""
         p = self.plant
-        behind = p.ledger.behind(t_ns)
-        if not behind:
+        if not p.ledger.behind(t_ns):           # (every tick: the usual case first)
             return
-        since = time.monotonic()
-        reports = wait_reports()
-        report_at = since + next(reports)
-        while (behind and not p.ledger.held_for() and not p.stop_event.is_set()
-               and not p.reset_in_tick):
-            now = time.monotonic()
-            if now >= report_at:
-                p.log.warning("lockstep: waited %.1f s before tick t=%.3f s for %s to keep "
-                              "up (taken in: %s)", now - since, t_ns * 1e-9, ", ".join(behind),
-                              ", ".join(f"t={p.ledger.seen[n] * 1e-9:.3f} s" for n in behind))
-                report_at = since + next(reports)
-            p.drain(min(0.5, max(report_at - now, 0.01)))
-            behind = p.ledger.behind(t_ns)
-        self.paced_s += time.monotonic() - since
+
+        def say(waited_s: float, behind: list[str]) -> None:
+            p.log.warning("lockstep: waited %.1f s before tick t=%.3f s for %s to keep up "
+                          "(taken in: %s)", waited_s, t_ns * 1e-9, ", ".join(behind),
+                          ", ".join(f"t={p.ledger.seen[n] * 1e-9:.3f} s" for n in behind))
+        self.paced_s += self._wait_while(lambda: p.ledger.behind(t_ns), say)
 
     def hold(self, t_ns: int) -> str | None:
         """Members are lost (docs/PROTOCOL.md section 4, "Lost members"): simulated time
