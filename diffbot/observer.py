@@ -71,9 +71,11 @@ class Observer:
     def drain(self) -> None:
         """Move what the channels hold into ``samples``."""
         with self.lock:
+            last = None                          # (only the latest clock counts)
             while self._clock is not None and (sample := self._clock.try_recv()) is not None:
-                att = sample.attachment
-                att = codec.parse_attachment(att.to_bytes() if att is not None else None)
+                last = sample
+            if last is not None and last.attachment is not None:
+                att = codec.parse_attachment(last.attachment.to_bytes())
                 if att is not None:
                     self._clock_ns = att.t_ns
             for key, sub in self._subs.items():
