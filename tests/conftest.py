@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import resource
 import shutil
 import signal
 import subprocess
@@ -163,14 +164,14 @@ def pytest_runtest_protocol(item, nextitem):
     """Setup (module and session fixtures included), call and teardown in one turn; the
     outermost wrapper, so waiting for the turn does not count in pytest-timeout's time."""
     timeline = os.environ.get("DIFFBOT_TEST_TIMELINE")
-    t0 = time.time()
+    t0, cpu0 = time.time(), _cpu_s()
     if not os.environ.get(_LOCK_DIR) or not os.environ.get("PYTEST_XDIST_WORKER") \
             or _background(item):
         yield
     else:
         serial = _serial(item)
         _TURNS.take(serial)
-        t0 = time.time()            # (the wait for the turn is the line's gap)
+        t0, cpu0 = time.time(), _cpu_s()    # (the wait for the turn is the line's gap)
         try:
             yield
         finally:
@@ -179,7 +180,14 @@ def pytest_runtest_protocol(item, nextitem):
     if timeline:                    # when each test ran, on which worker: tuning the schedule
         with open(timeline, "a") as f:
             f.write(f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')} {t0:.3f} {time.time():.3f}"
-                    f" {int(_serial(item))} {item.nodeid}\n")
+                    f" {int(_serial(item))} {_cpu_s() - cpu0:.2f} {item.nodeid}\n")
+
+
+def _cpu_s() -> float:
+    """CPU seconds (user and system) of this process and of the children it has waited
+    for: a test's processes, theirs included once each is reaped by its parent."""
+    use = (resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    return sum(u.ru_utime + u.ru_stime for u in use)
 
 
 #: programs libraries run for a quick answer (platform.processor(), the docs' file list,
