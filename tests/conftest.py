@@ -434,7 +434,8 @@ def check_realtime_pace(stats: dict, rate: float = 1.0, tick_s: float = 0.02) ->
 def square_seed0(tmp_path_factory):
     """``diffbot run square --seed 0 --record`` (the scenario's whole square, lockstep),
     run once for the files that compare against it (tests/test_netns.py: the recording;
-    tests/test_plant_fmu.py: the odometry error), and by whichever runs first: a test run
+    tests/test_plant_fmu.py: the odometry error; tests/test_ros2_bridge.py: the trajectory
+    the rclpy square drives), and by whichever runs first: a test run
     alone runs it too. Those files are one xdist group, so one worker runs it.
     {"out": results folder, "mcap": recording, "summary": summary.json}."""
     d = tmp_path_factory.mktemp("square_seed0")

@@ -17,8 +17,9 @@ from tests.conftest import ROOT, wait_for
 from tests.test_ros2_bridge import Peer, _latched, domain_id
 from tests.test_view import JS, _node_client
 
-#: one xdist worker for the ROS 2 tests: their DDS domains are numbered per process (ros2_peer)
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ros2")]
+#: one xdist worker for the ROS 2 tests: their DDS domains are numbered per process
+#: (ros2_peer); tests/test_ros2_bridge.py's group
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("square_seed0")]
 rclpy = pytest.importorskip("rclpy", reason="rclpy is not importable (the ros2 extra)")
 
 #: what the plant and the odometry node publish for robot1, as topics under /robot1/

@@ -19,8 +19,9 @@ from tests.ros2_peer import domain_id, latched, peer_factory  # noqa: F401  (a f
 rclpy = pytest.importorskip(
     "rclpy", reason="rclpy is not importable: `pip install -e '.[ros2]'` (make setup does)")
 
-#: one xdist worker for the ROS 2 tests: their DDS domains are numbered per process (ros2_peer)
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ros2")]
+#: one xdist worker for the ROS 2 tests: their DDS domains are numbered per process
+#: (ros2_peer); tests/test_ros2_bridge.py's group
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("square_seed0")]
 
 
 def _matrix(translation, q) -> np.ndarray:
