@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -291,10 +292,28 @@ def test_decoder_raises_only_codec_errors():
 
 # ====================================================================== command lines
 
-def _diffbot(*args, timeout=60):
-    return subprocess.Popen([sys.executable, "-m", "diffbot.cli", *args], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            stdin=subprocess.DEVNULL, start_new_session=True)
+def _diffbot(*args: str) -> tuple[int, str]:
+    """``diffbot ARGS`` as a process of its own: (exit code, stderr)."""
+    p = subprocess.run([sys.executable, "-m", "diffbot.cli", *args], cwd=ROOT, text=True,
+                       capture_output=True, stdin=subprocess.DEVNULL, start_new_session=True,
+                       timeout=90)
+    return p.returncode, p.stderr
+
+
+def _refusals(commands: list[list[str]]) -> list[tuple[int, str]]:
+    """(exit code, stderr) of ``diffbot ARGS`` for each of ``commands``, each in a process
+    of its own forked from one interpreter that imported the command line once
+    (tests/forked_cli.py: ~0.3 s of CPU less per command). The first is also run as a
+    process started afresh, and must give the same (but for its log lines' times)."""
+    r = subprocess.run([sys.executable, "-m", "tests.forked_cli"], input=json.dumps(commands),
+                       cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    got = [tuple(x) for x in json.loads(r.stdout)]
+    assert len(got) == len(commands)
+    fresh, forked = (f"{code}\n" + re.sub(r"(?m)^\d\d:\d\d:\d\d ", "", err)   # (log times)
+                     for code, err in (_diffbot(*commands[0]), got[0]))
+    assert forked == fresh, "a forked command differs from the process"
+    return got
 
 
 EMPTY_ROBOT = '[[robots]]\nname = "robot1"\npose = [0.0, 0.0, 0.0]\n'
@@ -342,37 +361,32 @@ def test_bad_world_and_scenario_files_exit_2_with_file_key_reason(tmp_path):
         path = tmp_path / f"{tag}.toml"
         path.write_text(text)
         runs.append((f"plant world {tag}", f"{path}:{want}",
-                     _diffbot("plant", "--world", str(path), "--endpoint",
-                              f"unixsock-stream/{tmp_path}/never.sock")))
+                     ["plant", "--world", str(path), "--endpoint",
+                      f"unixsock-stream/{tmp_path}/never.sock"]))
     for tag, (text, want) in BAD_SCENARIOS.items():
         path = tmp_path / f"scenario_{tag}.toml"
         path.write_text(text)
         runs.append((f"run scenario {tag}", f"{path}:{want}",
-                     _diffbot("run", str(path), "--out", str(tmp_path / "out"))))
+                     ["run", str(path), "--out", str(tmp_path / "out")]))
     world = tmp_path / "overlap.toml"
     world.write_text(BAD_WORLDS["overlap"][0])
     scen = tmp_path / "uses_bad_world.toml"
     scen.write_text(f'[scenario]\nworld = "{world}"\n')
     runs.append(("run scenario with a bad world", f"{world}:robots: robots 'robot1'",
-                 _diffbot("run", str(scen), "--out", str(tmp_path / "out"))))
+                 ["run", str(scen), "--out", str(tmp_path / "out")]))
     runs.append(("plant missing world", "no-such-world.toml: no such world file",
-                 _diffbot("plant", "--world", "no-such-world.toml")))
+                 ["plant", "--world", "no-such-world.toml"]))
     runs.append(("run missing scenario", "no-such.toml: no such scenario",
-                 _diffbot("run", "no-such.toml")))
+                 ["run", "no-such.toml"]))
     runs.append(("plant missing zenoh config", "nope.json5: no such Zenoh config file",
-                 _diffbot("plant", "--world", "empty", "--zenoh-config", "nope.json5")))
+                 ["plant", "--world", "empty", "--zenoh-config", "nope.json5"]))
     runs.append(("plant bad override", "robots[0].pose: expected a list of 3 numbers",
-                 _diffbot("plant", "--world", "empty", "--set", "robots.robot1.pose=[1]")))
+                 ["plant", "--world", "empty", "--set", "robots.robot1.pose=[1]"]))
     failures = []
-    for what, want, p in runs:
-        try:
-            out, err = p.communicate(timeout=90)
-        finally:
-            if p.poll() is None:
-                p.kill()
+    for (what, want, _), (code, err) in zip(runs, _refusals([argv for _, _, argv in runs])):
         lines = [ln for ln in err.strip().splitlines() if ln.strip()]
-        if p.returncode != 2 or "Traceback" in err or len(lines) != 1 or want not in err:
-            failures.append(f"{what}: exit {p.returncode}, stderr:\n{err}")
+        if code != 2 or "Traceback" in err or len(lines) != 1 or want not in err:
+            failures.append(f"{what}: exit {code}, stderr:\n{err}")
     assert not failures, "\n\n".join(failures)
 
 
@@ -395,17 +409,12 @@ def test_names_that_would_change_key_expressions_are_refused_with_exit_2(tmp_pat
         else:         # an empty --namespace is the default: no prefix
             cases = cases[:2]
         for what, argv in cases:
-            runs.append((f"{what} {name!r}", _diffbot(*argv, "--endpoint", ep)
-                         if argv[0] != "run" else _diffbot(*argv)))
+            runs.append((f"{what} {name!r}",
+                         [*argv, "--endpoint", ep] if argv[0] != "run" else argv))
     failures = []
-    for what, p in runs:
-        try:
-            _, err = p.communicate(timeout=90)
-        finally:
-            if p.poll() is None:
-                p.kill()
-        if p.returncode != 2 or "Traceback" in err or "invalid" not in err:
-            failures.append(f"{what}: exit {p.returncode}, stderr:\n{err[-600:]}")
+    for (what, _), (code, err) in zip(runs, _refusals([argv for _, argv in runs])):
+        if code != 2 or "Traceback" in err or "invalid" not in err:
+            failures.append(f"{what}: exit {code}, stderr:\n{err[-600:]}")
     assert not failures, "\n\n".join(failures)
 
 
