@@ -264,12 +264,16 @@ class Recorder:
 
     def _keep_up(self, t_ns: int) -> None:
         """A clock taken in (docs/PROTOCOL.md section 4, "Watchers that keep up"): say the
-        latest stamp every SEEN_EVERY_TICKS new clocks, and at once for one seen before
-        (re-published: the plant held time for this recorder and waits to hear from it)."""
+        latest stamp every SEEN_EVERY_TICKS new clocks, and at once for the first of a world
+        (the plant paces no one it has not heard from: a recorder slow to take in a run's
+        first ticks could otherwise fall more ticks behind than a blip's re-publish covers)
+        and for one seen before (re-published: the plant held time for this recorder and
+        waits to hear from it)."""
         if t_ns > self._clock_max:
+            first = self._clock_max < 0
             self._clock_max = t_ns
             self._clocks_unsaid += 1
-            if self._clocks_unsaid < SEEN_EVERY_TICKS:
+            if self._clocks_unsaid < SEEN_EVERY_TICKS and not first:
                 return
         if self._seen_pub is not None:
             self._seen_pub.put(encode_seen(self._clock_max))

@@ -261,6 +261,42 @@ def test_the_plant_says_what_is_wrong_with_a_member_s_outputs(procs, endpoint, b
     assert errors["missing outputs"] >= 1
 
 
+def test_a_recorder_says_the_first_clock_of_a_world_at_once_then_every_few(endpoint,
+                                                                        tmp_path):
+    """The plant paces no watcher it has not heard from (section 4, "Watchers that keep
+    up"), so the recorder says a world's first clock at once, then every SEEN_EVERY_TICKS
+    new clocks (a recorder slow to take in a run's first ticks once fell further behind than
+    a blip's re-publish covers), and a clock seen before (re-published) at once."""
+    import logging
+
+    from bridges.mcapfile import McapRecording
+    from bridges.record import Recorder
+    from bus.protocol import decode_seen
+    from bus.session import open_session
+    keys = Keys()
+    s = open_session("plant", endpoint)
+    said: queue.SimpleQueue = queue.SimpleQueue()
+    sub = s.declare_subscriber(keys.seen("recorder"),
+                               lambda smp: said.put(decode_seen(smp.payload.to_bytes())))
+    rec = Recorder(s, keys, McapRecording(str(tmp_path / "r.mcap")), [keys.clock],
+                   logging.getLogger("test"))
+    try:
+        rec.announce()
+        tick = 20_000_000
+        for k in range(11):
+            rec._keep_up(k * tick)           # (what taking in a clock calls)
+        rec._keep_up(7 * tick)               # re-published after a blip
+        rec._new_epoch(1)                    # a reset: a new world
+        rec._keep_up(0)
+        wait_for(lambda: said.qsize() >= 5, 10, what="the recorder's reports")
+        assert [said.get() for _ in range(5)] == [0, 5 * tick, 10 * tick, 10 * tick, 0]
+        assert said.empty()
+    finally:
+        rec.close()
+        sub.undeclare()
+        s.close()
+
+
 @pytest.mark.slow
 def test_lockstep_keeps_within_pace_ticks_of_a_watcher_that_says_what_it_took_in(
         procs, endpoint, bus, tmp_path):
