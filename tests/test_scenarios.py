@@ -69,17 +69,22 @@ def test_drive_test_matches_the_study(tmp_path):
 @pytest.mark.xdist_group("square_seed0")      # (its worker runs the session's square)
 @pytest.mark.parametrize("coupling", ["sequential", "pipelined"])
 def test_square_closes_and_is_byte_identical_across_runs(tmp_path, coupling, request):
-    """Two runs of one seed drive the same trajectory to the byte. The pipelined case's
-    first run is the session's recorded square (conftest.square_seed0, the scenario's
-    coupling): recording a run leaves it as it was."""
+    """Two runs of one seed drive the same trajectory to the byte, the second with its
+    members composed in the plant's process (`--compose`: the same bytes, for about half
+    the CPU, over the whole square). The pipelined case's first run is the session's
+    recorded square (conftest.square_seed0, the scenario's coupling): recording a run
+    leaves it as it was."""
     outs = [tmp_path / "a", tmp_path / "b"]
     if coupling == "pipelined":
         outs[0] = Path(request.getfixturevalue("square_seed0")["out"])
-    for out in outs:
+    for out, compose in zip(outs, ((), ("--compose",))):
         if out.exists():
             continue
-        r = diffbot_run("square", "--seed", "0", "--out", str(out), "--coupling", coupling)
+        r = diffbot_run("square", "--seed", "0", "--out", str(out), "--coupling", coupling,
+                        *compose)
         assert r.returncode == 0, r.stderr
+    assert json.load(open(outs[1] / "summary.json"))["composed"] == [
+        "odometry_robot1", "square_path_robot1"]
     a, b = ((o / "trajectory.csv").read_bytes() for o in outs)
     assert len(a.splitlines()) > 1000
     assert a == b
