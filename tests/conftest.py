@@ -341,6 +341,26 @@ def procs(tmp_path):
     pr.cleanup()
 
 
+#: tests/test_sweep.py's table and tests/test_sweep_ray.py's reference (conftest.local_sweep)
+LOCAL_SWEEP = ("sweep", "drive-test", "--grid",
+               "robots.robot1.motion.command_noise_std_radps=0,0.3", "--seeds", "0-1",
+               "--duration", "10.5")
+
+
+@pytest.fixture(scope="session")
+def local_sweep(tmp_path_factory):
+    """``diffbot sweep`` LOCAL_SWEEP on the local engine, run once for the files that read
+    it (tests/test_sweep.py: its table, plots and resume; tests/test_sweep_ray.py: the
+    metrics the Ray engine must give), one xdist group ("ray"). {"out": its folder,
+    "args": the command's arguments, "log": its output}."""
+    out = tmp_path_factory.mktemp("local_sweep") / "sweep"
+    args = (*LOCAL_SWEEP, "--out", str(out))
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", *args], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-2000:]
+    return {"out": str(out), "args": args, "log": r.stdout + r.stderr}
+
+
 @pytest.fixture(scope="session")
 def ray_cluster():
     """A real two-node Ray cluster on this machine (tests/ray_cluster.py), started once for

@@ -16,6 +16,9 @@ from .conftest import check_real_time_factor, wait_for
 from .test_exposure import cmdline as _cmdline
 
 NOISE = "robots.robot1.motion.command_noise_std_radps"
+#: one xdist group with tests/test_sweep_ray.py, whose reference is this file's sweep
+#: (conftest.local_sweep)
+pytestmark = pytest.mark.xdist_group("ray")
 
 
 def read_rows(out: str) -> list[dict]:
@@ -71,12 +74,9 @@ def test_a_wrong_world_key_exits_2_before_any_run(procs, tmp_path):
 
 # ------------------------------------------------------------------ real runs
 @pytest.mark.slow
-def test_sweep_table_plots_and_resume(procs, tmp_path):
-    out = str(tmp_path / "sweep")
-    args = ("sweep", "drive-test", "--grid", f"{NOISE}=0,0.3", "--seeds", "0-1",
-            "--duration", "10.5", "--out", out)
-    p = procs.diffbot(*args)
-    assert p.wait(100) == 0, procs.log(p)
+def test_sweep_table_plots_and_resume(procs, local_sweep):
+    out, args = local_sweep["out"], local_sweep["args"]      # (conftest.LOCAL_SWEEP)
+    assert f"{NOISE}=0,0.3" in args
     rows = read_rows(out)
     assert [(r[NOISE], r["seed"]) for r in rows] == [("0", "0"), ("0", "1"), ("0.3", "0"),
                                                       ("0.3", "1")]

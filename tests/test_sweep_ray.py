@@ -9,15 +9,14 @@ import pytest
 
 from diffbot import procs as dprocs
 
-from .conftest import wait_for
-from .test_sweep import NOISE, _cmdline, read_rows
+from .conftest import LOCAL_SWEEP, wait_for
+from .test_sweep import _cmdline, read_rows
 
 ray = pytest.importorskip("ray", reason="the [cluster] extra (make setup installs it)")
 
 #: xdist_group: one worker starts the session's Ray cluster (conftest.ray_cluster)
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(420), pytest.mark.xdist_group("ray")]
-SWEEP = ("sweep", "drive-test", "--grid", f"{NOISE}=0.05,0.2", "--seeds", "0-1",
-         "--duration", "10.5")
+SWEEP = LOCAL_SWEEP                  # (conftest.local_sweep is its run on the local engine)
 #: what must be identical between engines: the parameters and every metric
 NOT_COMPARED = {"run", "wall_time_s", "real_time_factor", "node", "host", "out", "log_tail"}
 
@@ -58,11 +57,9 @@ def test_ctrl_c_stops_the_runs_on_every_node(cluster, procs, tmp_path):
 
 
 def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster, procs,
-                                                                        tmp_path):
+                                                                        tmp_path, local_sweep):
     env = ray_env(cluster)
-    local = str(tmp_path / "local")
-    p = sweep(procs, local)
-    assert p.wait(150) == 0, procs.log(p)
+    local = local_sweep["out"]          # the same sweep on the local engine (conftest)
 
     on_ray = str(tmp_path / "ray")
     p = sweep(procs, on_ray, "--engine", "ray", "--address", cluster.address, env=env)
