@@ -42,7 +42,7 @@ def _child(argv: list[str], err_path: str) -> None:
         from diffbot import cli
         sys.argv = ["diffbot", *argv]
         try:
-            code = cli.main(argv)
+            code = cli.main(argv) or 0
         except SystemExit as exc:           # as the interpreter treats sys.exit's argument
             if exc.code is None or isinstance(exc.code, int):
                 code = exc.code or 0
