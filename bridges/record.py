@@ -130,6 +130,7 @@ class Recorder:
         self._seen_queryable = None
         self._clock_max = -1
         self._clocks_unsaid = 0
+        self._seen_epoch = 0
         self._received_clock: bytes | None = None     # the attachment of the latest clock
         self.records_clock = any(zenoh.KeyExpr(e).includes(zenoh.KeyExpr(keys.clock))
                                  for e in exprs)
@@ -141,18 +142,17 @@ class Recorder:
 
     def subscribe(self) -> None:
         q = self.queue
-
-        clock = self.keys.clock
+        clock_key = self.keys.clock
 
         def cb(sample: zenoh.Sample) -> None:
             att = sample.attachment
             key = str(sample.key_expr)
             att = att.to_bytes() if att is not None else None
-            if key == clock and att is not None:
-                self._received_clock = att         # (what a get on sim/seen/* is answered)
+            if key == clock_key and att is not None:
+                self._took_in_clock(att)
             q.put((key, sample.payload.to_bytes(), att, time.time_ns()))
 
-        clock = [] if self.records_clock else [self.keys.clock]     # (to keep up only)
+        clock = [] if self.records_clock else [clock_key]     # (to keep up only)
         for expr in _distinct([*self.exprs, self.keys.end, *clock]):
             # Direct callbacks (Zenoh's receive thread) keep the arrival order across keys.
             self._subs.append(self.session.declare_subscriber(
@@ -219,10 +219,6 @@ class Recorder:
                 self.end_reason = payload.decode("utf-8", "replace") or "sim/end"
             return
         if key == self.keys.clock and not self.records_clock:   # subscribed to keep up only
-            a = codec.parse_attachment(att)
-            if a is not None:
-                self._new_epoch(a.epoch)
-                self._keep_up(a.t_ns)
             return
         msgtype = self.keys.msgtype_of(key) or self.fmu_types(key)
         if msgtype is None:
@@ -238,15 +234,11 @@ class Recorder:
             seq, t_ns = a.seq, a.t_ns
             self._new_epoch(a.epoch)
             if self._repeated(key, t_ns, payload):
-                if key == self.keys.clock:
-                    self._keep_up(t_ns)      # re-published after a blip: say where it is
                 return
             self._sim_ns = max(self._sim_ns, t_ns)
         else:
             seq, t_ns = 0, self._sim_ns
         self.out.write(key, msgtype, payload, t_ns, recv_ns, seq)
-        if key == self.keys.clock:
-            self._keep_up(t_ns)
         if self.with_scene and (robot := scene.robot_of_ground_truth(self.keys, key)):
             self.out.write(self._derived(scene.TF_TOPIC), scene.TF_TYPE,
                            codec.encode(scene.tf([scene.ground_truth_transform(robot, msg, t_ns)])),
@@ -260,15 +252,29 @@ class Recorder:
         if epoch is not None and epoch != self._epoch:
             self._epoch = epoch
             self._recent.clear()
+
+    def _took_in_clock(self, att: bytes) -> None:
+        """Zenoh's receive thread: a clock has come, and what has come is taken in (queued,
+        it is written however far the writing lags). It is what the plant's get on
+        sim/seen/* is answered with, and said on sim/seen/<name> as it comes, not once
+        written: a run's first clocks are said while the writing thread may still be busy
+        with the first messages (a plant unpaced for those ~0.1 s ran 48 ticks past what
+        this recorder had, and a blip then lost what it had not re-published)."""
+        self._received_clock = att
+        a = codec.parse_attachment(att)
+        if a is None:
+            return
+        if a.epoch is not None and a.epoch != self._seen_epoch:     # a reset: a new world
+            self._seen_epoch = a.epoch
             self._clock_max = -1
+        self._keep_up(a.t_ns)
 
     def _keep_up(self, t_ns: int) -> None:
-        """A clock taken in (docs/PROTOCOL.md section 4, "Watchers that keep up"): say the
-        latest stamp every SEEN_EVERY_TICKS new clocks, and at once for the first of a world
-        (the plant paces no one it has not heard from: a recorder slow to take in a run's
-        first ticks could otherwise fall more ticks behind than a blip's re-publish covers)
-        and for one seen before (re-published: the plant held time for this recorder and
-        waits to hear from it)."""
+        """Zenoh's receive thread: a clock taken in (docs/PROTOCOL.md section 4, "Watchers
+        that keep up"): say the latest stamp every SEEN_EVERY_TICKS new clocks, and at once
+        for the first of a world (the plant paces no one it has not heard from) and for one
+        seen before (re-published: the plant held time for this recorder and waits to hear
+        from it)."""
         if t_ns > self._clock_max:
             first = self._clock_max < 0
             self._clock_max = t_ns
