@@ -37,7 +37,8 @@
   logged at a limited rate); liveliness tokens never reach a subscriber.
 
 Lockstep: the recorder says what it has taken in (``sim/seen/<name>``, the latest
-``sim/clock`` stamp, every few ticks; docs/PROTOCOL.md section 4, "Watchers that keep up"), so
+``sim/clock`` stamp received, the first at once and then every few ticks, however far its
+writing lags; docs/PROTOCOL.md section 4, "Watchers that keep up"), so
 the plant never runs more ticks ahead of it than it re-publishes after a router blip: a
 recording with blips in it has the bytes of one without, however far a loaded machine let
 the recorder fall behind. At the end of any run it answers the plant's get on
