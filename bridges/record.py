@@ -132,7 +132,7 @@ class Recorder:
         self._clock_max = -1
         self._clocks_unsaid = 0
         self._seen_epoch = 0
-        self._received_clock: bytes | None = None     # the attachment of the latest clock
+        self._received_ns: int | None = None     # the stamp of the latest clock received
         self.records_clock = any(zenoh.KeyExpr(e).includes(zenoh.KeyExpr(keys.clock))
                                  for e in exprs)
         #: the plant's sim/alive token: a recorder whose plant is gone for longer than the
@@ -261,8 +261,8 @@ class Recorder:
         written: a run's first clocks are said while the writing thread may still be busy
         with the first messages (a plant unpaced for those ~0.1 s ran 48 ticks past what
         this recorder had, and a blip then lost what it had not re-published)."""
-        self._received_clock = att
         a = codec.parse_attachment(att)
+        self._received_ns = a.t_ns if a is not None else None
         if a is None:
             return
         if a.epoch is not None and a.epoch != self._seen_epoch:     # a reset: a new world
@@ -289,9 +289,9 @@ class Recorder:
     def _answer_seen(self, query: zenoh.Query) -> None:
         """Zenoh's thread: the plant asks at a run's end what has come (docs/PROTOCOL.md
         section 4, "End"): the latest clock received (queued is taken in: it is written)."""
-        a = codec.parse_attachment(self._received_clock)
-        if a is not None:
-            query.reply(self.keys.seen(self.name), encode_seen(a.t_ns))
+        t_ns = self._received_ns
+        if t_ns is not None:
+            query.reply(self.keys.seen(self.name), encode_seen(t_ns))
 
     def _repeated(self, key: str, t_ns: int, payload: bytes) -> bool:
         """A message already recorded: the same key, stamp and bytes again, as lockstep
