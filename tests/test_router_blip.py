@@ -83,6 +83,16 @@ def blip_plan(seed: str, n: int, after_s: tuple[float, float]) -> list[tuple[flo
     return [(rng.uniform(*after_s), rng.uniform(*DOWN_S[i % len(DOWN_S)])) for i in range(n)]
 
 
+#: the run, as the plant and its two members take it: the same in the blipped runs and in
+#: the undisturbed reference (composed_square)
+PLANT_ARGS = ("--world", "living_room", "--disable", "camera", "--seed", "0",
+              "--duration", DURATION_S, "--end-with", "square_path_robot1")
+ODOMETRY = ("fmu-node", "fmus/build/odometry_fmi2.fmu", "--robot", "robot1",
+            "--name", "odometry_robot1")
+SQUARE = ("controller", "square_path", "--robot", "robot1", "--side", "1.5",
+          "--name", "square_path_robot1")
+
+
 def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float, ...]]
            ) -> tuple[str, dict, str]:
     """A square run through a router: (MCAP path, plant stats, plant log). For each of
@@ -98,21 +108,17 @@ def square(tmp: str, coupling: str, bus: dict, ns: dict, blips: list[tuple[float
     mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
     try:
         router = start_router(r, bus, ns.get("router"))
-        plant = r.diffbot("plant", "--world", "living_room", "--disable", "camera",
-                          "--coupling", coupling, "--seed", "0", "--duration", DURATION_S,
+        plant = r.diffbot("plant", *PLANT_ARGS, "--coupling", coupling,
                           "--expect", "odometry_robot1,square_path_robot1",
-                          "--end-with", "square_path_robot1",
                           "--rejoin-timeout", "30", "--stats", stats, *bus["plant_args"],
                           name="plant", netns=ns.get("plant"), env=bus["plant_env"])
         rec = r.diffbot("record", mcap, "--compression", "none", *bus["rec_args"],
                         name="recorder", netns=ns.get("ctrl"), env=bus["ctrl_env"])
         wait_for(lambda: "recording" in r.log(rec) or rec.poll() is not None, 30,
                  what="the recorder")
-        odometry = r.diffbot("fmu-node", "fmus/build/odometry_fmi2.fmu", "--robot", "robot1",
-                             "--name", "odometry_robot1", "--wait", *bus["node_args"],
+        odometry = r.diffbot(*ODOMETRY, "--wait", *bus["node_args"],
                              name="odometry", netns=ns.get("ctrl"), env=bus["ctrl_env"])
-        square_node = r.diffbot("controller", "square_path", "--robot", "robot1", "--side",
-                                "1.5", "--name", "square_path_robot1", "--wait",
+        square_node = r.diffbot(*SQUARE, "--wait",
                                 *bus["node_args"], name="square", netns=ns.get("ctrl"),
                                 env=bus["ctrl_env"])
         wait_for(lambda: "running living_room" in r.log(plant), 60, what="the run")
@@ -160,14 +166,9 @@ def composed_square(tmp: str, coupling: str) -> tuple[str, dict, str]:
     mcap, stats = os.path.join(tmp, "run.mcap"), os.path.join(tmp, "plant.json")
     ep = ["--endpoint", f"unixsock-stream/{tmp}/bus.sock"]
     try:
-        plant = r.diffbot("plant", "--world", "living_room", "--disable", "camera",
-                          "--coupling", coupling, "--seed", "0", "--duration", DURATION_S,
-                          "--compose", "fmu-node fmus/build/odometry_fmi2.fmu --robot robot1 "
-                          "--name odometry_robot1",
-                          "--compose", "controller square_path --robot robot1 --side 1.5 "
-                          "--name square_path_robot1",
-                          "--end-with", "square_path_robot1", "--wait-for", "recorder",
-                          "--stats", stats, *ep, name="plant")
+        plant = r.diffbot("plant", *PLANT_ARGS, "--coupling", coupling,
+                          "--compose", " ".join(ODOMETRY), "--compose", " ".join(SQUARE),
+                          "--wait-for", "recorder", "--stats", stats, *ep, name="plant")
         rec = r.diffbot("record", mcap, "--compression", "none", *ep, name="recorder")
         assert plant.wait(120) == 0, r.log(plant)
         assert rec.wait(30) == 0, r.log(rec)
