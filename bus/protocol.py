@@ -63,6 +63,34 @@ def delays(coupling: str) -> dict[str, int]:
     return {"actuation_delay_ticks": d, "node_input_delay_ticks": d}
 
 
+def command_expired(age_ns: int, cmd_timeout_s: float) -> bool:
+    """Section 4, "Couplings": whether a command ``age_ns`` old (the simulated time of the
+    tick it acts from, minus its stamp) is past a robot's ``cmd_timeout_s``, which stops the
+    robot. An age equal to the timeout is not past it; compared in whole nanoseconds."""
+    return age_ns > round(cmd_timeout_s * 1e9)
+
+
+def max_hold(tick_ns: int, cmd_timeout_s: float, actuation_delay_ticks: int) -> int:
+    """Section 4, "Holding": the longest hold whose command still acts on its last held
+    tick: the command of t_k acts at t_{k+h+delay} at the latest, aged (h + delay) ticks,
+    which must not be past ``cmd_timeout_s`` (:func:`command_expired`). So (h + delay) x
+    tick <= cmd_timeout_s, at most the 63 the trailer holds; 0 if even one tick is past it."""
+    h = round(cmd_timeout_s * 1e9) // max(1, tick_ns) - actuation_delay_ticks
+    return max(0, min(63, h))
+
+
+def info_max_hold(info: dict) -> int:
+    """:func:`max_hold` of a plant's ``sim/info`` (section 5): its control tick, its
+    coupling's actuation delay and the smallest ``cmd_timeout_s`` of its robots (a hold is
+    the member's, whichever robots it drives); 63 for a world without robots."""
+    timeouts = [r.get("drive", {}).get("cmd_timeout_s") for r in info.get("robots", {}).values()]
+    timeouts = [t for t in timeouts if t is not None]
+    if not timeouts:
+        return 63
+    return max_hold(round(info["control_tick_s"] * 1e9), min(timeouts),
+                    int(info.get("actuation_delay_ticks", 0)))
+
+
 def check_version(info: dict) -> None:
     """Raise :class:`ProtocolError` unless the plant's ``sim/info`` speaks this version."""
     theirs = info.get("protocol")

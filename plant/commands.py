@@ -185,10 +185,18 @@ class CommandBook:
         none for that tick, which :func:`stale_commands` must not count."""
         self.refused[robot] = t_ns
 
-    def forget(self, robot: str) -> None:
-        """The robot's command timed out: it holds none until a new one comes."""
-        self.latest.pop(robot, None)
-        self.by_tick.pop(robot, None)
+    def forget(self, robot: str, upto_ns: int) -> None:
+        """The robot's command stamped ``upto_ns`` timed out: it and every older one are
+        dropped, so the robot has none until a newer one acts. A command already filed for a
+        later tick (pipelined: the next answer, often in before this tick is applied) stays:
+        what acts never depends on when it arrived (docs/PROTOCOL.md section 4)."""
+        cmd = self.latest.get(robot)
+        if cmd is not None and cmd.t_ns <= upto_ns:
+            del self.latest[robot]
+        by_tick = self.by_tick.get(robot)
+        if by_tick:
+            for t in [t for t in by_tick if t <= upto_ns]:
+                del by_tick[t]
 
     def clear(self) -> None:
         self.latest.clear()

@@ -21,6 +21,7 @@ import time
 from typing import Callable, Protocol
 
 from bus.lockstep import AckLedger
+from bus.protocol import command_expired
 from bus.protocol import delays as coupling_delays
 
 from .commands import Command, CommandBook
@@ -109,6 +110,10 @@ class Mode:
 
     def age_s(self, cmd: Command) -> float:
         return time.monotonic() - cmd.wall
+
+    def expired(self, cmd: Command, timeout_s: float) -> bool:
+        """Whether ``cmd`` is past its robot's ``cmd_timeout_s`` (it stops the robot)."""
+        return self.age_s(cmd) > timeout_s
 
 
 class Fast(Mode):
@@ -209,6 +214,11 @@ class Lockstep(Mode):
 
     def age_s(self, cmd: Command) -> float:
         return (self.plant.time_ns - cmd.t_ns) * 1e-9
+
+    def expired(self, cmd: Command, timeout_s: float) -> bool:
+        """Section 4: a command's age is the simulated time of the tick it would act from
+        (the plant's, as it applies the commands) minus its stamp, in whole ns."""
+        return command_expired(self.plant.time_ns - cmd.t_ns, timeout_s)
 
     def wait_for_acks(self, t_ns: int) -> None:
         """Until every member owed tick ``t_ns`` has answered it in full (AckLedger.

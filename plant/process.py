@@ -417,12 +417,11 @@ class Plant:
             cmd = picked[name]
             if cmd is not None:
                 timeout = robot.spec.drive.cmd_timeout_s
-                age = self.strategy.age_s(cmd)
-                if age > timeout:
+                if self.strategy.expired(cmd, timeout):
                     if cmd.moving:       # a robot told to stand still needs no stopping
                         self.log.warning("%s: no command for %.2f s (cmd_timeout %.2f s): "
-                                         "stopping it", name, age, timeout)
-                    self.commands.forget(name)
+                                         "stopping it", name, self.strategy.age_s(cmd), timeout)
+                    self.commands.forget(name, cmd.t_ns)
                     cmd = None
             self.tick.drive(name, cmd.value if cmd is not None else None)
 

@@ -15,7 +15,9 @@ stamped for a tick the plant has not published yet (ignored, counted as protocol
 ``--reset-at N`` drives backwards until tick N, then resets the world (``sim/reset``) instead
 of answering it and drives the new world from its tick 0 (told from a re-publish by the
 epoch of the plant's attachment: N may be below 26). A clock for a tick it answered already,
-in the same epoch, is answered again byte for byte (a re-publish after a rejoin).
+in the same epoch, is answered again byte for byte (a re-publish after a rejoin). ``--hold H``
+(with ``--ticks``) answers a tick with ``hold`` = H whenever its next H commands are the same
+(section 4, "Holding") and answers the held ticks with nothing, before the FINAL tick.
 
 Exit codes: 0 done, 2 a plant of another protocol version, 3 the plant went away.
 """
@@ -33,6 +35,7 @@ from rosbags.typesys import Stores, get_typestore
 
 PROTOCOL = 5                                   # section "The diffbot-cosim bus protocol, version 5"
 ACK, FINAL = 1, 2                              # section 3: flags
+HOLD_SHIFT, HOLD_MAX = 2, 63                   # section 3: flags bits 2-7
 KEEP_TICKS = 26                                # section 4, "Lost members": answers kept
 TS = get_typestore(Stores.ROS2_JAZZY)
 T = TS.types
@@ -107,7 +110,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--reset-at", type=int, default=None, metavar="N",
                    help="drive backwards until tick N, then reset the world instead of "
                         "answering it, and drive the new world from its tick 0")
+    p.add_argument("--hold", type=int, default=0, metavar="H",
+                   help="with --ticks: answer with hold H (at most up to the FINAL tick) and "
+                        "send nothing for the held ticks")
     a = p.parse_args(argv)
+    if a.hold and a.ticks is None:
+        p.error("--hold needs --ticks (the commands ahead must be known)")
     with zenoh.open(client_config(a.endpoint)) as s:
         info = get_info(s)
         if info.get("protocol") != PROTOCOL or info.get("mode") != "lockstep":
@@ -134,6 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         clocks: list[int] = []
         x_of: dict[tuple[int, int], float] = {}    # ground truth x by (epoch, stamp)
         sent: dict[int, list[tuple[bytes, int]]] = {}   # tick -> (payload, flags) answered
+        held: set[int] = set()                     # ticks held: answered with nothing
+        skip = 0                                   # held ticks still to pass
         epoch = None                               # of the world the clocks are of
         x0 = None
         seq = 0
@@ -166,8 +176,9 @@ def main(argv: list[str] | None = None) -> int:
                     if epoch is not None and e < epoch or e <= reset_from:
                         continue                   # the old world's, late
                     if e != epoch:                 # a new world (section 4, "Reset")
-                        epoch, clocks, x0, n = e, [], None, 0
+                        epoch, clocks, x0, n, skip = e, [], None, 0, 0
                         sent.clear()
+                        held.clear()                # a reset forgets every hold
                     if final_tick is not None:
                         if t > final_tick:         # the plant moved past our last tick
                             code = 0
@@ -177,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
                         for data, flags in sent[t]:
                             put(t, data, flags)
                         continue
+                    if t in held:                  # a held tick re-published: nothing again
+                        continue
                     clocks.append(t)
                 # Section 4, step 2: act on a tick once its clock and every input due are in
                 # (ground truth is published every tick).
@@ -184,6 +197,11 @@ def main(argv: list[str] | None = None) -> int:
                     t = clocks.pop(0)
                     x = x_of.pop((epoch, t))
                     x0 = x if x0 is None else x0
+                    if skip:                       # "Holding": observed, not answered
+                        skip -= 1
+                        held.add(t)
+                        n += 1
+                        continue
                     if n == a.quit_at:
                         print(f"conformance client: giving up at tick {n}", file=sys.stderr)
                         return 1
@@ -203,12 +221,17 @@ def main(argv: list[str] | None = None) -> int:
                     # without --end-with, section 4 "Finishing"); else it stops the robot
                     speed = a.speed if not done or a.ticks is not None else 0.0
                     flags = ACK | (FINAL if done else 0)
+                    if a.hold and not done:        # the held ticks come before the FINAL one
+                        skip = max(0, min(a.hold, HOLD_MAX, a.ticks - 2 - n))
+                        flags |= skip << HOLD_SHIFT
                     data = twist_stamped(t, -speed if resetting else speed)
                     # Step 3: one command, the last plant-read output, so it carries the ACK.
                     put(t, data, flags)
                     sent[t] = [(data, flags)]
                     while len(sent) > KEEP_TICKS:
                         del sent[min(sent)]
+                    while len(held) > 2 * HOLD_MAX:
+                        held.discard(min(held))
                     n += 1
                     i, r = divmod(n - 1, 5)
                     if not r and 1 <= i <= a.duplicates:
