@@ -16,6 +16,9 @@ from .protocol import PACE_TICKS
 
 #: ACKs per member, member messages and the members owed per tick, remembered (ticks)
 RECENT_TICKS = 32
+#: the protocol error kind of a hold longer than the world's command timeout allows
+#: (section 4, "Holding"; counted in the plant's stats as ``holds_past_timeout``)
+HOLD_PAST = "hold past cmd_timeout"
 
 
 class AckLedger:
@@ -39,6 +42,9 @@ class AckLedger:
         # member -> {tick stamp of an ACK with a hold: the last tick it holds}, the last few
         # ("Holding"): the ticks in between count as answered, with nothing
         self.holds: dict[str, dict[int, int]] = {}
+        # the longest hold whose command still acts on its last held tick (the plant sets it
+        # from its robots' cmd_timeout_s: bus.protocol.max_hold); a longer one is reported
+        self.max_hold = codec.HOLD_MAX
         self.finished: dict[str, int] = {}      # member -> stamp of its FINAL tick
         self.final_awaited: set[str] = set()    # ending members given their grace once
         # (member, tick stamp) -> the plant-read keys of its messages stamped for that tick
@@ -184,6 +190,13 @@ class AckLedger:
             self.report(f"{key}: stamp off the tick grid", f"t={t * 1e-9:.9f} s from {member}; "
                         "ignored")
             return False
+        # A tick the member holds is told by its own earlier ACK (in order from its session),
+        # so this comes before "not due", which depends on how far the plant has got.
+        if (held := self.holding(member, t)) is not None:
+            self.report(f"{key}: a message from {member} for a tick it holds",
+                        f"t={t * 1e-9:.3f} s, held from its ACK of t={held * 1e-9:.3f} s; "
+                        "ignored")
+            return False
         if t > now_ns:
             self.report(f"{key}: stamped for a tick not due",
                         f"t={t * 1e-9:.3f} s from {member}, the plant is at "
@@ -192,11 +205,6 @@ class AckLedger:
         if member not in self.members and member not in self.members_seen:
             self.report(f"{key}: from {member!r}, not a lockstep member",
                         "(no sim/sync token); used, not waited for")
-        if (held := self.holding(member, t)) is not None:
-            self.report(f"{key}: a message from {member} for a tick it holds",
-                        f"t={t * 1e-9:.3f} s, held from its ACK of t={held * 1e-9:.3f} s; "
-                        "ignored")
-            return False
         # A member that left is not waited for, but its ACK is still filed: its FINAL may
         # arrive just after its sim/sync token went (liveliness and data take different
         # paths), and --end-with must still end the run at that tick.
@@ -227,6 +235,12 @@ class AckLedger:
         "Holding": an ACK with a hold answers the ``hold`` ticks after ``t`` too (the first
         ACK's hold: a second one's is ignored with it)."""
         if hold and t not in self.acks.get(member, {}):
+            if hold > self.max_hold:
+                # Taken all the same (the member sends nothing for those ticks: waiting would
+                # stall the run); the command it leaves standing expires at the bound.
+                self.report(HOLD_PAST, f"{member} holds {hold} ticks from t={t * 1e-9:.3f} s; "
+                            f"at most {self.max_hold} keep its commands within cmd_timeout_s: "
+                            "its robots stop when their command expires")
             holds = self.holds.setdefault(member, {})
             holds[t] = t + hold * self.tick_ns
             if len(holds) > RECENT_TICKS:

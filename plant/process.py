@@ -35,9 +35,9 @@ from bus import codec, jsonio, packed
 from bus.composed import Composed
 from bus.inbox import Event, Inbox
 from bus.keys import Keys
-from bus.lockstep import AckLedger
+from bus.lockstep import HOLD_PAST, AckLedger
 from bus.log import RejectCounter
-from bus.protocol import END_SEEN_S, PLANT_READS, PROTOCOL_VERSION, decode_seen
+from bus.protocol import END_SEEN_S, PLANT_READS, PROTOCOL_VERSION, decode_seen, max_hold
 
 from . import modes
 from .commands import STALE, Command, CommandBook, decode_command, stale_commands
@@ -101,6 +101,9 @@ class Plant:
         # counted per kind and said at most every 2 s
         self.protocol_errors = RejectCounter(log, verb="lockstep protocol:")
         self.ledger = AckLedger(self.tick_ns, self.protocol_errors.reject, end_with, expect)
+        self.ledger.max_hold = min((max_hold(self.tick_ns, r.spec.drive.cmd_timeout_s,
+                                             self.delays["actuation_delay_ticks"])
+                                    for r in self.sim.robots.values()), default=codec.HOLD_MAX)
         self.stop_event = threading.Event()
         self.reset_in_tick = False               # a sim/reset came during the current tick
         self.ticks = 0
@@ -578,6 +581,7 @@ class Plant:
                 "composed": self.composed.names if self.composed is not None else [],
                 "protocol_errors": dict(self.protocol_errors.counts),
                 "stale_commands": self.protocol_errors.counts.get(STALE, 0),
+                "holds_past_timeout": self.protocol_errors.counts.get(HOLD_PAST, 0),
                 "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
                                 for k, v in self.timing.items()}}
 

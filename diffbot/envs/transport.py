@@ -32,9 +32,9 @@ import time
 import weakref
 from typing import Callable
 
-from bus import codec
 from bus.keys import Keys
 from bus.node import NodeRunner, Twist
+from bus.protocol import info_max_hold
 from bus.session import close_session, open_when_listening, zenoh_error
 from plant.tick import Tick
 from plant.world import WorldSpec
@@ -196,12 +196,10 @@ class _Member(NodeRunner):
 
     @property
     def max_hold(self) -> int:
-        """Ticks a command may stand after its own: its age stays under every robot's
-        ``cmd_timeout_s`` (from the plant's ``sim/info``, as :meth:`_apply_info` last took it)."""
-        timeouts = [r.get("drive", {}).get("cmd_timeout_s", 0.0)
-                    for r in self.info.get("robots", {}).values()]
-        return max(0, min(codec.HOLD_MAX, min(
-            (round(t * 1e9) // max(1, self.tick_ns) - 1 for t in timeouts), default=0)))
+        """Ticks a command may stand after its own, still acting on the last of them: the
+        bound of docs/PROTOCOL.md section 4, "Holding" (:func:`bus.protocol.info_max_hold`,
+        from the plant's ``sim/info`` as :meth:`_apply_info` last took it)."""
+        return info_max_hold(self.info) if self.info.get("robots") else 0
 
     def submit(self, job: _Job) -> None:
         with self.cv:
