@@ -18,6 +18,9 @@ epoch of the plant's attachment: N may be below 26). A clock for a tick it answe
 in the same epoch, is answered again byte for byte (a re-publish after a rejoin). ``--hold H``
 (with ``--ticks``) answers a tick with ``hold`` = H whenever its next H commands are the same
 (section 4, "Holding") and answers the held ticks with nothing, before the FINAL tick.
+``--episodes N`` drives N times ``--ticks`` ticks, resetting the world (``sim/reset`` without
+a seed: the same world again) at the tick after each but the last; ``--hold H1,H2,...``
+then holds H1 in the first episode, H2 in the second, and so on, cycling.
 
 Exit codes: 0 done, 2 a plant of another protocol version, 3 the plant went away.
 """
@@ -75,6 +78,7 @@ def client_config(endpoint: str) -> zenoh.Config:
     """Section 1: a client session to the plant's endpoint, no scouting."""
     conf = zenoh.Config()
     for key, value in (("mode", "client"), ("connect/endpoints", [endpoint]),
+                       ("transport/link/tx/lease", 1000),
                        ("listen/endpoints", []), ("scouting/multicast/enabled", False),
                        ("scouting/gossip/enabled", False)):
         conf.insert_json5(key, json.dumps(value))
@@ -90,6 +94,19 @@ def get_info(session: zenoh.Session, timeout_s: float = 15.0) -> dict:
                 return json.loads(reply.ok.payload.to_bytes())
         time.sleep(0.1)
     raise TimeoutError("no plant answered sim/info")
+
+
+def reset_world(session: zenoh.Session, epoch: int) -> bool:
+    """Section 6: reset the world (the same seed and poses again); whether it was. A reply
+    lost on the way (this process frozen past the lease, say) is told from a refusal by the
+    plant's epoch (section 5): a new one means the reset was done."""
+    for _ in range(3):
+        replies = list(session.get("sim/reset", payload=b"{}", timeout=10.0))
+        if replies:
+            return replies[0].ok is not None
+        if get_info(session).get("epoch", epoch) > epoch:
+            return True
+    return False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -110,12 +127,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--reset-at", type=int, default=None, metavar="N",
                    help="drive backwards until tick N, then reset the world instead of "
                         "answering it, and drive the new world from its tick 0")
-    p.add_argument("--hold", type=int, default=0, metavar="H",
+    p.add_argument("--hold", default="0", metavar="H[,H...]",
                    help="with --ticks: answer with hold H (at most up to the FINAL tick) and "
-                        "send nothing for the held ticks")
+                        "send nothing for the held ticks; a list: one per episode, cycling")
+    p.add_argument("--episodes", type=int, default=1, metavar="N",
+                   help="with --ticks: drive N episodes, resetting the world between them")
     a = p.parse_args(argv)
-    if a.hold and a.ticks is None:
-        p.error("--hold needs --ticks (the commands ahead must be known)")
+    holds = [int(h) for h in a.hold.split(",")]
+    if (any(holds) or a.episodes > 1) and a.ticks is None:
+        p.error("--hold and --episodes need --ticks (the commands ahead must be known)")
     with zenoh.open(client_config(a.endpoint)) as s:
         info = get_info(s)
         if info.get("protocol") != PROTOCOL or info.get("mode") != "lockstep":
@@ -143,13 +163,14 @@ def main(argv: list[str] | None = None) -> int:
         x_of: dict[tuple[int, int], float] = {}    # ground truth x by (epoch, stamp)
         sent: dict[int, list[tuple[bytes, int]]] = {}   # tick -> (payload, flags) answered
         held: set[int] = set()                     # ticks held: answered with nothing
-        skip = 0                                   # held ticks still to pass
+        hold_until = -1                            # the stamp of the last tick held
         epoch = None                               # of the world the clocks are of
         x0 = None
         seq = 0
         n = 0                                      # ticks answered (in this world)
         final_tick = None
         resetting = a.reset_at is not None         # drives backwards until the reset
+        episode = 0
         reset_from = -1                            # the epoch this client reset away from
         code = 3
 
@@ -176,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
                     if epoch is not None and e < epoch or e <= reset_from:
                         continue                   # the old world's, late
                     if e != epoch:                 # a new world (section 4, "Reset")
-                        epoch, clocks, x0, n, skip = e, [], None, 0, 0
+                        epoch, clocks, x0, n, hold_until = e, [], None, 0, -1
                         sent.clear()
                         held.clear()                # a reset forgets every hold
                     if final_tick is not None:
@@ -188,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
                         for data, flags in sent[t]:
                             put(t, data, flags)
                         continue
-                    if t in held:                  # a held tick re-published: nothing again
+                    if t in held or t in clocks:   # held, or still to answer: once only
                         continue
                     clocks.append(t)
                 # Section 4, step 2: act on a tick once its clock and every input due are in
@@ -197,33 +218,38 @@ def main(argv: list[str] | None = None) -> int:
                     t = clocks.pop(0)
                     x = x_of.pop((epoch, t))
                     x0 = x if x0 is None else x0
-                    if skip:                       # "Holding": observed, not answered
-                        skip -= 1
-                        held.add(t)
-                        n += 1
+                    k = t // tick_ns               # the tick's number in this world
+                    if t <= hold_until:            # "Holding": observed, not answered (by
+                        held.add(t)                # stamp: a held tick's clock may be lost)
+                        n = k + 1
                         continue
-                    if n == a.quit_at:
-                        print(f"conformance client: giving up at tick {n}", file=sys.stderr)
+                    if k == a.quit_at:
+                        print(f"conformance client: giving up at tick {k}", file=sys.stderr)
                         return 1
-                    if resetting and n == a.reset_at:
+                    last = episode + 1 >= a.episodes
+                    if resetting and k == a.reset_at or not last and k == a.ticks:
                         # Section 6: the world restarts at t = 0 instead of this tick
-                        replies = list(s.get("sim/reset", payload=b"{}", timeout=10.0))
-                        if not replies or replies[0].ok is None:
+                        if not reset_world(s, epoch):
                             print("conformance client: sim/reset refused", file=sys.stderr)
                             return 1
-                        resetting = False
+                        if resetting:
+                            resetting = False
+                        else:
+                            episode += 1
                         reset_from = epoch         # its clocks still on their way: not ours
                         clocks.clear()
                         break
-                    done = (n + 1 >= a.ticks if a.ticks is not None
+                    done = (last and k + 1 >= a.ticks if a.ticks is not None
                             else x - x0 >= a.distance)
                     # --ticks: the FINAL tick's command is the last of the drive (applied
                     # without --end-with, section 4 "Finishing"); else it stops the robot
                     speed = a.speed if not done or a.ticks is not None else 0.0
                     flags = ACK | (FINAL if done else 0)
-                    if a.hold and not done:        # the held ticks come before the FINAL one
-                        skip = max(0, min(a.hold, HOLD_MAX, a.ticks - 2 - n))
-                        flags |= skip << HOLD_SHIFT
+                    hold = holds[episode % len(holds)]
+                    if hold and not done:          # the held ticks come before the FINAL one
+                        h = max(0, min(hold, HOLD_MAX, a.ticks - 2 - k))
+                        flags |= h << HOLD_SHIFT
+                        hold_until = t + h * tick_ns
                     data = twist_stamped(t, -speed if resetting else speed)
                     # Step 3: one command, the last plant-read output, so it carries the ACK.
                     put(t, data, flags)
@@ -232,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
                         del sent[min(sent)]
                     while len(held) > 2 * HOLD_MAX:
                         held.discard(min(held))
-                    n += 1
+                    n = k + 1
                     i, r = divmod(n - 1, 5)
                     if not r and 1 <= i <= a.duplicates:
                         # Section 7: a second message on the key for the same tick is
@@ -246,7 +272,10 @@ def main(argv: list[str] | None = None) -> int:
                     if done:
                         final_tick = t             # finishing: keep the tokens until then
         except queue.Empty:
-            print("conformance client: nothing from the plant for 30 s", file=sys.stderr)
+            print(f"conformance client: nothing from the plant for 30 s (epoch {epoch}, "
+                  f"{n} ticks answered or held, waiting for the ticks {clocks[:3]} of "
+                  f"{len(clocks)}, ground truth of {sorted(t for _, t in x_of)[-3:]})",
+                  file=sys.stderr)
         finally:
             for tok in tokens:
                 tok.undeclare()
