@@ -8,6 +8,9 @@ from __future__ import annotations
 
 #: announced by the plant in ``sim/info`` as ``"protocol"``; a node of another version exits 2
 PROTOCOL_VERSION = 5
+#: additions within the version (``sim/info`` ``protocol_minor``; absent: 0): 1 ``sim/seen``,
+#: 2 the hold's bound enforced and counted, the reset reply's ``epoch`` (docs/PROTOCOL.md 8)
+PROTOCOL_MINOR = 2
 
 #: how the plant and the lockstep members are coupled (co-simulation master algorithm)
 COUPLINGS = ("sequential", "pipelined")

@@ -37,7 +37,8 @@ from bus.inbox import Event, Inbox
 from bus.keys import Keys
 from bus.lockstep import HOLD_PAST, AckLedger
 from bus.log import RejectCounter
-from bus.protocol import END_SEEN_S, PLANT_READS, PROTOCOL_VERSION, decode_seen, max_hold
+from bus.protocol import (END_SEEN_S, PLANT_READS, PROTOCOL_MINOR, PROTOCOL_VERSION, decode_seen,
+                          max_hold)
 
 from . import modes
 from .commands import STALE, Command, CommandBook, decode_command, stale_commands
@@ -177,7 +178,8 @@ class Plant:
         d = self.sim.describe()
         for name, sensors in self.tick.sensors.items():
             d["robots"][name]["topics"] = dict(sensors.periods)
-        d.update(protocol=PROTOCOL_VERSION, mode=self.mode, coupling=self.coupling,
+        d.update(protocol=PROTOCOL_VERSION, protocol_minor=PROTOCOL_MINOR, mode=self.mode,
+                 coupling=self.coupling,
                  **self.delays, seed=self.seed, time_ns=self.sim.time_ns,
                  namespace=self.keys.namespace, rate=self.rate,
                  rejoin_timeout_s=self.rejoin_timeout_s,
@@ -206,7 +208,8 @@ class Plant:
         # Answered at once, even while the plant waits for a tick's ACKs (a node may ask
         # from inside its step); the loop then starts over at the new world's t = 0.
         self.reset_in_tick = True
-        query.reply(self.keys.reset, jsonio.dumps({"ok": True, "seed": self.seed, "time_ns": 0}))
+        query.reply(self.keys.reset, jsonio.dumps({"ok": True, "seed": self.seed, "time_ns": 0,
+                                                   "epoch": self.outbox.epoch}))
 
     # ------------------------------------------------------------------ publishing
     def republish(self) -> None:

@@ -56,6 +56,23 @@ def test_a_clock_of_a_new_epoch_is_a_new_world_never_a_re_publish():
     assert m.clock(0, 1.0, epoch=1) == (new, None)           # and that answer is what re-sends
 
 
+def test_a_clock_of_an_older_epoch_is_the_old_world_s_late_and_ignored():
+    """"Reset": any member, not only the one that asked: it neither answers nor re-sends it,
+    and it does not take it for yet another world."""
+    m = commander()
+    m.clock(0, 1.0, epoch=3)
+    m.next_due()
+    sent = answer(m, 0)
+    assert m.clock(T, 1.0, epoch=2) == (None, None) and m.next_due() is None
+    assert m.clock(0, 1.0, epoch=3) == (sent, None)          # still the same world
+    m.reset(epoch=4)                        # asked from inside step: the reply's new epoch
+    assert m.clock(T, 1.0, epoch=3) == (None, None) and m.next_due() is None
+    assert m.clock(0, 1.0, epoch=4) == (None, None) and m.next_due() == 0
+    answer(m, 0)
+    m.configure({"mode": "lockstep", "control_tick_s": T * 1e-9, "epoch": 0, "robots": {}})
+    assert m.clock(0, 1.0, epoch=0) == (None, None) and m.next_due() == 0   # another run
+
+
 def test_a_new_epoch_forgets_the_member_s_hold():
     m = commander()
     m.clock(0, 1.0, epoch=0)
