@@ -103,7 +103,10 @@ def reset_world(session: zenoh.Session, epoch: int) -> bool:
     for _ in range(3):
         replies = list(session.get("sim/reset", payload=b"{}", timeout=10.0))
         if replies:
-            return replies[0].ok is not None
+            if replies[0].ok is None:
+                return False
+            said = json.loads(replies[0].ok.payload.to_bytes())
+            return said.get("epoch", epoch + 1) > epoch      # the new world's (5.2)
         if get_info(session).get("epoch", epoch) > epoch:
             return True
     return False

@@ -19,7 +19,7 @@ import pytest
 from bus import codec
 from bus.keys import Keys
 from bus.lockstep import HOLD_PAST
-from bus.protocol import COUPLINGS, max_hold
+from bus.protocol import COUPLINGS, PROTOCOL_MINOR, max_hold
 
 from .conftest import ROOT, wait_for
 
@@ -53,7 +53,7 @@ def test_soak_20_episodes_per_hold_at_the_bound_give_one_recording_each(procs, e
                           "--expect", "conformance", "--end-with", "conformance",
                           "--rejoin-timeout", "20", "--endpoint", endpoint,
                           "--stats", str(stats), name="plant")
-    from bus.session import open_session
+    from bus.session import open_session, query_info
     s = open_session("test", endpoint)
     truth: dict[tuple[int, int], bytes] = {}
 
@@ -62,6 +62,8 @@ def test_soak_20_episodes_per_hold_at_the_bound_give_one_recording_each(procs, e
         truth.setdefault((a.epoch, a.t_ns), smp.payload.to_bytes())
     try:
         sub = s.declare_subscriber(K.topic("robot1", "ground_truth"), on_truth)
+        info = query_info(s, K, 30.0)
+        assert info["protocol_minor"] == PROTOCOL_MINOR          # the bound is enforced
         log = open(tmp_path / "client.log", "wb")
         client = subprocess.Popen(
             [sys.executable, CLIENT, "--endpoint", endpoint, "--ticks", str(TICKS),

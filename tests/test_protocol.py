@@ -15,7 +15,8 @@ import pytest
 
 from bus import codec
 from bus.keys import TOPICS, Keys, check_name
-from bus.protocol import (COUPLINGS, END_SEEN_S, PACE_TICKS, PLANT_READS, PROTOCOL_VERSION,
+from bus.protocol import (COUPLINGS, END_SEEN_S, PACE_TICKS, PLANT_READS, PROTOCOL_MINOR,
+                          PROTOCOL_VERSION, max_hold,
                           REPUBLISH_TICKS, SEEN_EVERY_TICKS)
 
 from .conftest import ROOT, wait_for
@@ -35,6 +36,13 @@ def test_version_in_the_document_is_the_code_s():
     assert re.search(r"^# .*protocol, version (\d+)$", text, re.M).group(1) == \
         str(PROTOCOL_VERSION)
     assert f'"protocol": {PROTOCOL_VERSION}' in text
+    # the additions within the version: sim/info's protocol_minor and section 8's list
+    assert f"| `protocol_minor` | the additions within the version this plant has (section 8, " \
+           f'"Added within 5"): {PROTOCOL_MINOR};' in text
+    assert f"\n- {PROTOCOL_MINOR}: " in text and f"\n- {PROTOCOL_MINOR + 1}: " not in text
+    # holding's bound, as the page's worked example gives it (bus.protocol.max_hold)
+    assert "allow h = 25 under sequential coupling and h = 24 under pipelined" in text
+    assert (max_hold(20_000_000, 0.5, 0), max_hold(20_000_000, 0.5, 1)) == (25, 24)
     # the ticks the plant keeps to re-publish, as sections 4 and 8 give them
     assert text.count(f"last {REPUBLISH_TICKS} ticks") == 3
     assert f"its last {REPUBLISH_TICKS}," in text
