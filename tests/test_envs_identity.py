@@ -99,3 +99,17 @@ def test_avoid_inproc_and_bus_agree_to_the_bit_over_300_steps_and_resets(mode):
 def test_follow_inproc_and_bus_agree_to_the_bit_with_camera_noise():
     _compare("diffbot/Follow-v0", 100, ("distance", "pose", "leader_pose", "t"), seed=3,
              detection=True, overrides=("robots.follower.camera.noise={std = 10.0}",))
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_avoid_over_the_bus_holding_at_the_bound_agrees_with_inproc_to_the_bit():
+    """The project's own member (diffbot.envs.transport) holds each action's command for the
+    bound's 25 ticks (sequential, 20 ms, cmd_timeout_s 0.5: PROTOCOL.md section 4, "Holding"),
+    across resets: the command still acts on the last held tick, so the bus equals in-process."""
+    out = _compare("diffbot/Avoid-v0", 24, ("pose", "goal", "distance", "t"), seed=11,
+                   max_episode_steps=8, action_repeat=26,
+                   overrides=("world.mode=kinematic",
+                              "robots.robot1.motion.command_noise_std_radps=0.05"))
+    assert out["episodes"] >= 3
+    assert out["commands_sent"] <= 24 + 2 * out["episodes"] + 1, out     # one per action
