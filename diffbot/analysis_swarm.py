@@ -38,6 +38,17 @@ def count_episodes(touching: np.ndarray) -> int:
     return int(t[0]) + int(np.sum(t[1:] & ~t[:-1])) if len(t) else 0
 
 
+def footprint_gap(c: np.ndarray, i: int, j: int) -> np.ndarray:
+    """Per tick, the gap (m) between robots ``i``'s and ``j``'s footprints (negative: they
+    overlap), from footprint centres ``c`` (ticks, robots, 2)."""
+    return np.hypot(*(c[:, i] - c[:, j]).T) - 2 * FOOTPRINT_RADIUS_M
+
+
+def robot_contacts(gap: np.ndarray) -> int:
+    """Contact episodes of two robots from their footprint gap per tick."""
+    return count_episodes(gap < CONTACT_MARGIN_M)
+
+
 def collisions(c: np.ndarray, world) -> dict:
     """Collision events from footprint centres ``c`` (ticks, robots, 2)."""
     n = c.shape[1]
@@ -46,8 +57,7 @@ def collisions(c: np.ndarray, world) -> dict:
     pairs = []
     for i in range(n):
         for j in range(i + 1, n):
-            d = np.hypot(*(c[:, i] - c[:, j]).T)
-            k = count_episodes(d < 2 * FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M)
+            k = robot_contacts(footprint_gap(c, i, j))
             if k:
                 pairs.append([i, j, k])
             robot_robot += k
