@@ -188,3 +188,24 @@ def test_the_documented_world_keys_load_and_are_every_key(tmp_path):
                 "shape", "radius_m", "static", "mass_kg", "enabled", "noise", "std",
                 "command_noise_std_radps"})
     assert known - keys == set()
+
+
+def test_the_documented_object_heights_are_the_living_rooms():
+    """docs/sensors.md's table of what the lidar and the camera see lists every object of
+    the living room with its height range, and says "hit" exactly for those that cross the
+    lidar's scan plane (robot1's wheel radius plus the lidar's mount height)."""
+    from plant.footprint import bottom
+    w = load_world("living_room")
+    r = w.robot("robot1")
+    plane = r.drive.wheel_radius_m + r.sensors.lidar.mount_z_m
+    text = open(os.path.join(ROOT, "docs", "sensors.md")).read()
+    assert f"its plane is at **{plane:.2f} m**" in text
+    rows = {m[0]: m[1:] for m in re.findall(
+        r"^\| `(\w+)` \| ([0-9.]+)-([0-9.]+) \| ([^|]+) \|", text, re.M)}
+    assert set(rows) == {o.name for o in w.objects}
+    for o in w.objects:
+        low, high, lidar = rows[o.name]
+        top = bottom(o) + (o.size[2] if o.shape == "box" else o.size[1] if o.shape == "cylinder"
+                           else 2 * o.size[0])
+        assert (float(low), float(high)) == (round(bottom(o), 2), round(top, 2)), o.name
+        assert lidar.startswith("hit") == (bottom(o) <= plane <= top), o.name
