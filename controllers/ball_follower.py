@@ -77,7 +77,8 @@ def image_noise_std(rgb: np.ndarray) -> float:
     frame's neighbours are mostly equal, so the median is the noise's (for Gaussian noise
     of std s the difference has std s*sqrt(2), its median absolute value 0.674 of that).
     """
-    d = np.abs(np.diff(rgb[::2].astype(np.int16), axis=1))
+    # every 4th row of one channel: ~4,800 differences, 2 % precision, ~0.1 ms a frame
+    d = np.abs(np.diff(rgb[::4, :, 1].astype(np.int16), axis=1))
     return float(np.median(d)) / (0.6745 * math.sqrt(2.0))
 
 
