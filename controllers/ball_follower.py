@@ -3,9 +3,10 @@
 Reads only its own camera (``camera/image_raw``, ``camera/camera_info``). Each new frame:
 the image noise is estimated from the frame itself and, when it is strong, the frame is
 smoothed before the HSV threshold for green (a noisy pixel's hue and saturation are
-meaningless, its neighbourhood's average is not); the largest round blob
-(``cv2.minEnclosingCircle``, its contour filling most of the circle) is the ball; the
-distance follows from its apparent radius through the pinhole model (ball radius given,
+meaningless, its neighbourhood's average is not); the largest round blob (its contour
+fills most of its ``cv2.minEnclosingCircle``) is the ball, sized by that circle, or on a
+smoothed frame by a least-squares ellipse through its contour; the distance follows from
+its apparent radius through the pinhole model (ball radius given,
 focal length and principal point from CameraInfo). The distance is filtered over time
 (an alpha-beta filter: distance and its rate) and a measurement far from the prediction
 is not believed. Proportional steering keeps the ball centred; PI speed control holds the
