@@ -425,7 +425,7 @@ class View(Derived, ClientInput):
         next_path = next_time = 0.0
         get = self.queue.get_nowait
         # Wake every LOOP_S and take what came in one batch: a wake-up per sample (thousands
-        # a second) costs more than the work here (FIELD_NOTES: halting vCPUs).
+        # a second) costs more than the work here.
         while not self.stop_event.wait(LOOP_S if self._watched else IDLE_LOOP_S):
             for _ in range(20000):
                 try:

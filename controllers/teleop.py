@@ -2,7 +2,8 @@
 
 Keys: up / w faster, down / s slower (or backwards), left / a turn left,
 right / d turn right, space stop, q quit. Each press changes the commanded speed
-by a step; the current command is shown on one status line. It publishes
+by a step; the current command is shown on one status line. The keys are listed once
+at start (on the terminal; on stderr when stdin is not one, e.g. piped). It publishes
 ``cmd_vel`` on every clock tick while the command is not zero (at rest it falls
 silent after a few zeros, so ``diffbot run teleop --view`` can be driven from
 Foxglove too), without holding the simulation (not a lockstep member), so it suits
@@ -23,6 +24,9 @@ from bus.node import node_arg_parser, run_node_args
 
 #: at rest the zero command is repeated this many ticks (a lost one is covered), then withheld
 _REST_TICKS = 5
+
+HELP = ("teleop keys: up/w faster, down/s slower (backwards below 0), left/a turn left, "
+        "right/d turn right, space stop, q quit ({linear:.2f} m/s, {angular:.2f} rad/s a press)")
 
 KEYS = {
     "\x1b[A": "up", "w": "up", "W": "up",
@@ -59,7 +63,7 @@ class Teleop:
 
     def __init__(self, linear_step: float = 0.05, angular_step: float = 0.2,
                  max_linear: float = 0.5, max_angular: float = 2.0, fd: int | None = None,
-                 out=None) -> None:
+                 out=None, err=None) -> None:
         self.linear_step, self.angular_step = linear_step, angular_step
         self.max_linear, self.max_angular = max_linear, max_angular
         self.v = 0.0
@@ -68,6 +72,11 @@ class Teleop:
         self._rest_sent = 0
         self.fd = sys.stdin.fileno() if fd is None else fd
         self.out = out or sys.stdout
+        # the keys before the first press: with the status line on a terminal, else (keys
+        # piped in) on stderr, where a reader of the run's log finds them
+        help_out = self.out if os.isatty(self.fd) else (err or sys.stderr)
+        help_out.write(HELP.format(linear=linear_step, angular=angular_step) + "\n")
+        help_out.flush()
         self.lock = threading.Lock()
         self._thread = threading.Thread(target=self._read_keys, daemon=True)
         self._thread.start()

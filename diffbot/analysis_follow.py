@@ -2,7 +2,11 @@
 
 The true distance is measured from ground truth: the follower's camera centre (its
 mount on the follower) to the centre of the leader's green ball (its part pose on
-the leader), both placed with the robots' full 3-D poses.
+the leader), both placed with the robots' full 3-D poses. Contacts between the two
+robots are judged on ground truth with the swarm's footprints
+(:mod:`diffbot.analysis_swarm`). Stretches of frames in which the follower believed no
+ball (its ``follower/debug``) are reported with how far it drove during them once it had
+stopped for them.
 """
 from __future__ import annotations
 
@@ -15,6 +19,10 @@ import numpy as np
 
 from bus import codec
 from bus.keys import TOPICS, Keys
+from controllers.ball_follower import LOST_AFTER_FRAMES
+from plant.footprint import footprint_centres
+
+from .analysis_swarm import footprint_gap, robot_contacts
 
 SETTLE_S = 5.0
 BAND_M = (0.60, 0.70)
@@ -65,18 +73,22 @@ class FollowAnalysis:
             d = float(np.linalg.norm((lt @ ball)[:3] - (ft @ cam_mount)[:3, 3]))
             dbg = debug.get(t)
             found, est = (dbg.data[0], dbg.data[4]) if dbg is not None else (math.nan, math.nan)
-            rows.append((t * 1e-9, d, est, found, lt[0, 3], lt[1, 3], ft[0, 3], ft[1, 3]))
+            rows.append((t * 1e-9, d, est, found, lt[0, 3], lt[1, 3], ft[0, 3], ft[1, 3],
+                         math.atan2(lt[1, 0], lt[0, 0]), math.atan2(ft[1, 0], ft[0, 0])))
         with open(os.path.join(out, "tracking.csv"), "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(["t_s", "distance_m", "estimated_distance_m", "ball_found",
                         "leader_x_m", "leader_y_m", "follower_x_m", "follower_y_m"])
             for r in rows:
-                w.writerow([f"{v:.9f}" if isinstance(v, float) else v for v in r])
+                w.writerow([f"{v:.9f}" if isinstance(v, float) else v for v in r[:8]])
         if not rows:
             return {"rows": 0}
         a = np.array(rows)
         settled = a[a[:, 0] - a[0, 0] >= SETTLE_S]
         lost = sum(1 for m in debug.values() if m.data[0] == 0.0)
+        # (ticks, [leader, follower], x y yaw)
+        poses = np.stack([a[:, [4, 5, 8]], a[:, [6, 7, 9]]], axis=1)
+        gap = footprint_gap(footprint_centres(poses[..., 0], poses[..., 1], poses[..., 2]), 0, 1)
         plot_tracking(a, os.path.join(out, "tracking_distance.png"))
         frames = write_animation(observer, keys, world, a, os.path.join(out, "follow.gif"))
         in_band = settled[:, 1] if len(settled) else a[:, 1]
@@ -85,8 +97,40 @@ class FollowAnalysis:
             "distance_rms_error_m": float(np.sqrt(np.mean((in_band - TARGET_M) ** 2))),
             "distance_in_band": bool(in_band.min() >= BAND_M[0] and in_band.max() <= BAND_M[1]),
             "settle_s": SETTLE_S, "ball_lost_frames": lost, "frames": len(debug),
+            "ball_lost": lost_stretches(debug, a),
+            # the robots' footprints as the swarm's collisions judge them: the closest they
+            # came (negative: overlapping) and the times they touched
+            "robot_contacts": {"count": robot_contacts(gap), "min_gap_m": float(gap.min())},
             "animation_frames": frames, "duration_s": float(a[-1, 0] - a[0, 0]),
         }
+
+
+def lost_stretches(debug: dict, a: np.ndarray) -> dict:
+    """The stretches of at least ``LOST_AFTER_FRAMES`` frames without a believed ball (the
+    follower stops for them): how many, the longest (s), whether the run ended in one, and
+    how far the follower's base moved in them after the stretch's first
+    ``LOST_AFTER_FRAMES`` frames (it should stand or turn on the spot: ~0 m)."""
+    stamps = sorted(debug)
+    found = [debug[t].data[0] != 0.0 for t in stamps]
+    where = {round(r[0] * 1e9): k for k, r in enumerate(a)}
+    stretches, start = [], None
+    for k, f in enumerate(found + [True]):
+        if not f and start is None:
+            start = k
+        elif f and start is not None:
+            if k - start >= LOST_AFTER_FRAMES:
+                stretches.append((start, k - 1))
+            start = None
+    moved = 0.0
+    for s, e in stretches:
+        rows = [where[t] for t in stamps[s + LOST_AFTER_FRAMES - 1:e + 1] if t in where]
+        if len(rows) > 1:
+            xy = a[rows[0]:rows[-1] + 1, 6:8]
+            moved += float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+    return {"stretches": len(stretches),
+            "longest_s": max(((stamps[e] - stamps[s]) * 1e-9 for s, e in stretches), default=0.0),
+            "at_end": bool(stretches) and stretches[-1][1] == len(stamps) - 1,
+            "moved_while_lost_m": moved}
 
 
 def plot_tracking(a: np.ndarray, path: str) -> str:

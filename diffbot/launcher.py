@@ -145,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     except (WorldError, ValueError) as exc:
         print(f"diffbot run: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    from . import analysis_paths
     from .analysis import ANALYSES, import_plots_meanwhile
     os.makedirs(out, exist_ok=True)
     tmp = None
@@ -171,6 +172,8 @@ def main(argv: list[str] | None = None) -> int:
         run.endpoint, run.zenoh_config = run.placement.endpoint, run.placement.zenoh_config
     run.build()
     analysis = ANALYSES[spec.analysis]
+    # every run draws its robots' paths (paths.png, paths.csv) unless its analysis does
+    own_paths = getattr(analysis, "draws_paths", False)
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
     observer = session = watch = plots = stats = None
@@ -187,7 +190,10 @@ def main(argv: list[str] | None = None) -> int:
                     run.failed = run.children[0]
                 if session is not None:
                     from .observer import Observer
-                    observer = Observer(session, keys, analysis.keys(keys, spec, world))
+                    keep = analysis.keys(keys, spec, world)
+                    if not own_paths:
+                        keep = {**analysis_paths.keys(keys, world), **keep}
+                    observer = Observer(session, keys, keep)
                     watch = session.liveliness().declare_subscriber(keys.alive(), run.on_alive,
                                                                     history=True)
                     if run.start_recorder(env, session, stop_flag):
@@ -198,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
                               f"{len(run.children)} processes, output in {out}", file=sys.stderr)
                         if placed:
                             print(f"diffbot run: {placement.describe(run)}", file=sys.stderr)
-                        if analysis.draws:
+                        if analysis.draws or not own_paths:
                             plots = import_plots_meanwhile()
                         code = run.supervise(stop_flag)
                     elif stop_flag:
@@ -234,6 +240,12 @@ def main(argv: list[str] | None = None) -> int:
         except Exception as exc:  # analysis must not lose the summary
             summary["analysis_error"] = f"{type(exc).__name__}: {exc}"
             code = code or EXIT_FAILED
+        if not own_paths:
+            try:
+                summary["paths"] = analysis_paths.write_paths(observer, keys, spec, world, out)
+            except Exception as exc:  # nor the paths
+                summary["paths_error"] = f"{type(exc).__name__}: {exc}"
+                code = code or EXIT_FAILED
     write_json(os.path.join(out, "summary.json"), summary)
     print(f"diffbot run {spec.name}: {summary['end_reason']}; summary in {os.path.join(out, 'summary.json')}",
           file=sys.stderr)

@@ -21,7 +21,7 @@ from .world import ObjectSpec, WorldSpec
 FLOOR_THICKNESS_M = 0.1
 
 #: Bullet is ~15 % faster per step than DART's default FCL here, with the same contact
-#: results for the sphere wheels (see FIELD_NOTES).
+#: results for the sphere wheels (docs/sensors.md, "Friction and contacts"; docs/benchmarks.md).
 DETECTORS = {
     "bullet": dart.collision.BulletCollisionDetector,
     "fcl": dart.collision.FCLCollisionDetector,
@@ -183,8 +183,8 @@ class Simulation:
 
     def _set_contact_solver(self, name: str) -> None:
         """PGS honours the Coulomb friction limit; DART's default Dantzig solver over-grips
-        under hard acceleration (FIELD_NOTES). PGS is only reachable as the stock secondary
-        solver, so the two are swapped."""
+        under hard acceleration (docs/sensors.md, "Friction and contacts"). PGS is only
+        reachable as the stock secondary solver, so the two are swapped."""
         cs = self.world.getConstraintSolver()
         if name == "pgs" and cs.getBoxedLcpSolver().getType() != "PgsBoxedLcpSolver":
             primary, secondary = cs.getBoxedLcpSolver(), cs.getSecondaryBoxedLcpSolver()

@@ -155,6 +155,33 @@ def test_a_scenario_process_may_run_any_program(agent_dir):
     summary = _run(agent_dir, scen, env=env)
     assert "outsider finished" in summary["end_reason"]
     assert summary["sim_time_s"] == pytest.approx(15 * 0.02, abs=0.05)
+    check_paths(agent_dir / "run", summary)
+
+
+def check_paths(out, summary) -> None:
+    """A run without an analysis of its own draws its robot's ground-truth path on the room
+    (paths.png) and lists it (paths.csv): from robot1's start pose, straight ahead."""
+    import csv
+
+    import numpy as np
+    from PIL import Image
+
+    from plant.world import load_world
+    robot = load_world("living_room").robot("robot1")
+    rows = list(csv.DictReader(open(out / "paths.csv")))
+    assert {r["robot"] for r in rows} == {"robot1"}
+    xy = np.array([[float(r["x_m"]), float(r["y_m"])] for r in rows])
+    t = np.array([float(r["t_s"]) for r in rows])
+    assert len(rows) >= 15 and np.all(np.diff(t) > 0)
+    x0, y0, yaw0 = robot.pose
+    assert np.hypot(*(xy[0] - (x0, y0))) < 1e-3
+    ahead = (xy - xy[0]) @ (np.cos(yaw0), np.sin(yaw0))
+    assert 0.02 < ahead[-1] < 0.2 * summary["sim_time_s"] + 0.01 and np.all(np.diff(ahead) > -1e-4)
+    assert summary["paths"]["robots"] == 1
+    assert summary["paths"]["distance_m"]["robot1"] == pytest.approx(ahead[-1], abs=0.01)
+    img = np.asarray(Image.open(out / "paths.png").convert("RGB")).astype(int)
+    colour = np.array([round(255 * c) for c in robot.color])
+    assert img.shape[0] > 500 and (np.abs(img - colour).max(axis=2) < 30).sum() >= 20
 
 
 HANGS = '''

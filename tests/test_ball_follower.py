@@ -8,7 +8,9 @@ import pytest
 
 from bus import codec
 from bus.controller import Observation, Twist
-from controllers.ball_follower import BallFollower, detect_ball, distance_from_radius, locate_ball
+from controllers.ball_follower import (LOST_AFTER_FRAMES, SEARCH_S, BallFollower, DistanceFilter,
+                                       detect_ball, distance_from_radius, image_noise_std,
+                                       locate_ball)
 from plant import camera as cam
 from plant.noise import NoiseConfig, NoiseModel, make_rng
 from plant.shapes import Shape, pose_matrix
@@ -92,14 +94,27 @@ def test_control_law_closes_distance_steers_toward_ball_and_searches_when_lost()
     assert cmd.linear > 0.1 and cmd.angular > 0.05            # too far and to the left
     assert out["follower/debug"].data[0] == 1.0
     assert out["follower/debug"].data[4] == pytest.approx(1.0, rel=0.06)
-    cmd = ctrl.step(observation(0.08, render(scene_with_ball(0.45, math.radians(-10)))))["cmd"]
-    assert cmd.linear < 0 and cmd.angular < 0                 # too close and to the right
+    # a jump from 1.0 to 0.45 m is doubted at first (a mis-sized blob?), then believed
+    near = render(scene_with_ball(0.45, math.radians(-10)))
+    out = ctrl.step(observation(0.08, near))
+    assert out["follower/debug"].data[0] == 0.0 and ctrl.filter.rejected == 1
+    t = 0.08
+    for _ in range(DistanceFilter().reset_after - 1):
+        t += 0.04
+        out = ctrl.step(observation(t, near))
+    assert out["follower/debug"].data[0] == 1.0
+    assert out["cmd"].linear < 0 and out["cmd"].angular < 0      # too close and to the right
     shapes = [s for s in scene_with_ball(1, 0) if s.name != "ball"]
-    out = ctrl.step(observation(0.12, render(shapes)))
-    assert out["cmd"].linear == 0.0 and out["cmd"].angular < 0   # turns to where it was last seen
-    assert out["follower/debug"].data[0] == 0.0 and ctrl.lost_frames == 1
+    empty = render(shapes)
+    lost_before = ctrl.lost_frames
+    out = ctrl.step(observation(t + 0.04, empty))
+    assert out["follower/debug"].data[0] == 0.0 and ctrl.lost_frames == lost_before + 1
     # the same frame again (no new image this tick): the command is held, not recomputed
-    assert ctrl.step(observation(0.12, render(shapes))) is ctrl.command
+    assert ctrl.step(observation(t + 0.04, empty)) is ctrl.command
+    for k in range(2, LOST_AFTER_FRAMES + 1):
+        out = ctrl.step(observation(t + 0.04 * k, empty))
+    assert out["cmd"].linear == 0.0 and out["cmd"].angular < 0   # turns to where it was last seen
+    assert ctrl.lost_episodes == 1
 
 
 def test_follow_world_has_the_ball_on_the_leader_and_a_camera_on_the_follower():
@@ -109,3 +124,65 @@ def test_follow_world_has_the_ball_on_the_leader_and_a_camera_on_the_follower():
     assert ball.size[0] == BALL_R and ball.pose[0] < -0.25          # behind: the back bumper
     assert w.robot("follower").sensors.camera is not None
     assert len(w.objects) == len(load_world("living_room").objects)   # the furniture, inherited
+
+
+WEBOTS_02 = 0.2 * 255       # the study's camera noise 0.2 (Webots: 1.0 is a std of 255)
+
+
+def test_the_noise_of_a_frame_is_estimated_from_the_frame():
+    clean = render(scene_with_ball(0.65, 0.0))
+    assert image_noise_std(clean) < 1.0
+    for std in (10.0, 25.5, WEBOTS_02):
+        # clipping at 0 and 255 takes a little off the strongest
+        assert 0.75 * std < image_noise_std(render(scene_with_ball(0.65, 0.0), std)) < 1.1 * std
+
+
+@pytest.mark.parametrize("distance", [0.55, 0.65, 0.8])
+def test_distance_at_the_studys_camera_noise(distance):
+    """At std 51 a frame's own pixels are meaningless: smoothed first, the ball is found in
+    every frame and its distance within 12 % (the median of seeds: the time filter's job).
+    Here, in front of the wall's foot, smoothing takes up to a pixel off the ball's dark
+    lower edge (+10 % at 0.65 m straight ahead); in the follow scenario, in front of the
+    leader, its estimate is within 1 cm on average. Without the smoothing: 1-3 m."""
+    f, cx, cy = focal()
+    for bearing in (-20, 0, 20):
+        shapes = scene_with_ball(distance, math.radians(bearing))
+        est = []
+        for seed in range(6):
+            det = detect_ball(render(shapes, WEBOTS_02, seed))
+            assert det is not None
+            est.append(locate_ball(det, f, f, cx, cy, BALL_R)[0])
+        assert np.median(est) == pytest.approx(distance, rel=0.12), (bearing, est)
+
+
+def test_a_green_blob_that_is_not_round_is_not_the_ball():
+    bar = [Shape("box", (20, 20, 0.1), pose_matrix(0, 0, -0.55), (0.72, 0.58, 0.42), "floor"),
+           Shape("box", (0.05, 0.8, 0.03), pose_matrix(0.8, 0, -0.1), GREEN, "green bar")]
+    assert detect_ball(render(bar)) is None
+    # beside the ball, and larger than it: the ball is still the one found
+    det = detect_ball(render(bar + scene_with_ball(0.7, 0.3, clutter=False)[1:]))
+    f, cx, cy = focal()
+    assert locate_ball(det, f, f, cx, cy, BALL_R)[1] == pytest.approx(0.3, abs=0.02)
+
+
+def test_it_slows_down_when_unsure_and_stands_still_when_the_ball_stays_away():
+    ctrl = BallFollower()
+    far = render(scene_with_ball(1.2, 0.0))
+    empty = render([s for s in scene_with_ball(1.2, 0.0) if s.name != "ball"])
+    t = 0.04
+    assert ctrl.step(observation(t, far))["cmd"].linear == pytest.approx(ctrl.v_max)
+    for _ in range(LOST_AFTER_FRAMES - 2):      # a few frames without it: not lost yet
+        t += 0.04
+        ctrl.step(observation(t, empty))
+    t += 0.04
+    unsure = ctrl.step(observation(t, far))["cmd"].linear
+    assert 0 < unsure < 0.6 * ctrl.v_max
+    for _ in range(LOST_AFTER_FRAMES):
+        t += 0.04
+        ctrl.step(observation(t, empty))
+    assert ctrl.command.linear == 0.0 and ctrl.command.angular != 0.0   # searching
+    while t < 0.2 + LOST_AFTER_FRAMES * 0.04 + SEARCH_S + 0.1:
+        t += 0.04
+        ctrl.step(observation(t, empty))
+    assert (ctrl.command.linear, ctrl.command.angular) == (0.0, 0.0)   # standing still
+    assert ctrl.stats()["ball_lost_episodes"] == 1

@@ -97,7 +97,9 @@ def test_noisy_lidar_webots_value_in_metres(tmp_path):
     assert_png(tmp_path / "noisy_lidar.png")
     p = s["parameters"]
     assert p["lidar_noise_webots"] == 0.2 and p["lidar_noise_std_m"] == pytest.approx(16.0)
-    assert "16 m" in s["noise_meaning"]
+    assert "16 m" in s["noise_meaning"] and "relative to maxRange" in s["noise_meaning"]
+    assert f"{100 * s['fraction_clipped_to_min_range']:.0f} % of the rays read the 0.01 m minimum" \
+        in s["noise_meaning"]
     header, rows = read_csv(tmp_path / "scan_noisy.csv")
     assert header == ["angle_rad", "range_noiseless_m", "range_noisy_m"] and len(rows) == 180
     # clipping to [0.01, 80] m leaves less than 16 m of spread; measured matches the model
@@ -111,6 +113,9 @@ def test_noisy_lidar_std_in_metres_option(tmp_path):
     assert s["parameters"]["lidar_noise_webots"] is None
     assert s["fraction_clipped_to_min_range"] == 0.0 == s["fraction_clipped_to_max_range"]
     assert s["expected_residual_std_with_clipping_m"] == pytest.approx(0.05)   # none clipped
+    # explained as given: an absolute std on every ray, not one relative to the max range
+    assert s["noise_meaning"].startswith("std 0.05 m (given in metres): the same Gaussian std")
+    assert "relative to maxRange" not in s["noise_meaning"] and "no ray was clipped" in s["noise_meaning"]
     # 180 rays of N(0, 0.05 m): the sample std within 4 standard errors of 0.05
     # (0.05 / sqrt(2 * 180) = 2.6 mm each), the mean within 4 of 0 (0.05 / sqrt(180))
     n = s["rays"]

@@ -1,6 +1,6 @@
 """Wheel slip (the study's ContactProperties, friction 0.4): encoders overstate the distance.
 
-A hard torque step (no acceleration ramp, 8 rad/s for 1.5 s, as in FIELD_NOTES) makes
+A hard torque step (no acceleration ramp, 8 rad/s for 1.5 s, as docs/sensors.md quotes) makes
 the wheels spin faster than the robot moves: the encoder distance r x (wheel angle)
 exceeds the distance really travelled, and the gap shrinks as friction rises.
 """

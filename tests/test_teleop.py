@@ -76,3 +76,24 @@ def test_teleop_drives_the_robot_over_a_pty(procs, endpoint, bus):
     assert p.wait(10) == 0
     os.close(master)
     sub.undeclare()
+
+
+def test_the_keys_are_listed_at_start_on_the_terminal_or_else_on_stderr():
+    import io
+
+    from controllers.teleop import Teleop
+    master, slave = pty.openpty()
+    out, err = io.StringIO(), io.StringIO()
+    t = Teleop(fd=slave, out=out, err=err)          # a terminal: before any key press
+    t.close()
+    assert "teleop keys:" in out.getvalue() and "q quit" in out.getvalue() and not err.getvalue()
+    os.close(master)
+    os.close(slave)
+    r, w = os.pipe()                                # keys piped in: the help goes to stderr
+    out, err = io.StringIO(), io.StringIO()
+    t = Teleop(0.1, 0.3, fd=r, out=out, err=err)
+    t.close()
+    assert "teleop keys:" in err.getvalue() and "0.10 m/s, 0.30 rad/s" in err.getvalue()
+    assert not out.getvalue()
+    os.close(r)
+    os.close(w)

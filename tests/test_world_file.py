@@ -1,5 +1,6 @@
 """World files: shipped ones load; every mistake is one line `file:key: reason`, exit 2."""
 import os
+import re
 import subprocess
 import sys
 
@@ -151,3 +152,60 @@ def test_sensors_beyond_their_bounds_are_world_errors(override, reason):
     # the bounds themselves are accepted
     load_world("living_room", ["robots.robot1.lidar.num_rays=10000",
                                "robots.robot1.camera.width=4096", "robots.robot1.lidar.rate_hz=0.01"])
+
+
+def _doc_block(page: str, after: str) -> str:
+    """The first ```toml block of docs/``page`` after the line starting with ``after``."""
+    text = open(os.path.join(ROOT, "docs", page)).read()
+    rest = text[text.index(after):]
+    return rest.split("```toml\n", 1)[1].split("```", 1)[0]
+
+
+def test_the_documented_world_keys_load_and_are_every_key(tmp_path):
+    """docs/scenarios.md's list of every world-file key is a world file the loader takes,
+    and it names every key the loader knows (a new key must be documented there)."""
+    import dataclasses
+
+    from plant.camera import CameraConfig
+    from plant.lidar import LidarConfig
+    from plant.world import DriveSpec, RobotSpec, WorldSpec
+    block = _doc_block("scenarios.md", "Every key of a world file")
+    path = tmp_path / "every_key.toml"
+    path.write_text(block)
+    w = load_world(str(path))
+    assert w.contact_solver == "pgs" and w.robots[0].sensors.camera is not None
+    keys = set(re.findall(r"^\s*([a-z_0-9]+)\s*=", block, re.M))
+    keys |= set(re.findall(r"\{ ?([a-z_]+) =", block))
+    world_keys = {f.name for f in dataclasses.fields(WorldSpec)} - {
+        "path", "materials", "objects", "robots", "floor_size_m", "floor_color",
+        "floor_material", "wall_height_m", "wall_thickness_m", "wall_color"}
+    robot_keys = {f.name for f in dataclasses.fields(RobotSpec)} - {"pose", "drive", "parts",
+                                                                     "sensors"}
+    known = (world_keys | robot_keys | {f.name for f in dataclasses.fields(DriveSpec)}
+             | {f.name for f in dataclasses.fields(LidarConfig)}
+             | {f.name for f in dataclasses.fields(CameraConfig)}
+             | {"extends", "size_m", "height_m", "thickness_m", "material", "friction",
+                "shape", "radius_m", "static", "mass_kg", "enabled", "noise", "std",
+                "command_noise_std_radps"})
+    assert known - keys == set()
+
+
+def test_the_documented_object_heights_are_the_living_rooms():
+    """docs/sensors.md's table of what the lidar and the camera see lists every object of
+    the living room with its height range, and says "hit" exactly for those that cross the
+    lidar's scan plane (robot1's wheel radius plus the lidar's mount height)."""
+    from plant.footprint import bottom
+    w = load_world("living_room")
+    r = w.robot("robot1")
+    plane = r.drive.wheel_radius_m + r.sensors.lidar.mount_z_m
+    text = open(os.path.join(ROOT, "docs", "sensors.md")).read()
+    assert f"its plane is at **{plane:.2f} m**" in text
+    rows = {m[0]: m[1:] for m in re.findall(
+        r"^\| `(\w+)` \| ([0-9.]+)-([0-9.]+) \| ([^|]+) \|", text, re.M)}
+    assert set(rows) == {o.name for o in w.objects}
+    for o in w.objects:
+        low, high, lidar = rows[o.name]
+        top = bottom(o) + (o.size[2] if o.shape == "box" else o.size[1] if o.shape == "cylinder"
+                           else 2 * o.size[0])
+        assert (float(low), float(high)) == (round(bottom(o), 2), round(top, 2)), o.name
+        assert lidar.startswith("hit") == (bottom(o) <= plane <= top), o.name

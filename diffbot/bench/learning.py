@@ -83,7 +83,8 @@ ONE_ENV_TARGETS = {("inproc", "dynamic"): "target >= 80x", ("inproc", "kinematic
                    ("bus", "dynamic"): "target >= 20x", ("bus", "kinematic"): "target >= 20x"}
 #: the one knob of the dynamic world a training user may turn for speed: DART's default
 #: Dantzig contact solver instead of the living room's PGS (exact Coulomb limit, which the
-#: study's slip results need; Dantzig over-grips ~20 % under hard acceleration: FIELD_NOTES)
+#: study's slip results need; Dantzig over-grips ~20 % under hard acceleration: docs/sensors.md,
+#: "Friction and contacts")
 DANTZIG = ("world.contact_solver=dantzig",)
 
 

@@ -122,12 +122,9 @@ def noisy_lidar(args) -> dict:
                        else args.lidar_noise,
                        "lidar_noise_std_m": std, "max_range_m": cfg.max_range_m,
                        "min_range_m": cfg.min_range_m, "num_rays": cfg.num_rays},
-        "noise_meaning": (f"{form}. Webots' lidar noise is a Gaussian std RELATIVE TO maxRange "
-                          f"(SICK LMS 291: 80 m): here a std of {std:g} m on ranges that "
-                          f"are {np.nanmin(np.where(np.isfinite(clean), clean, np.nan)):.1f}-"
-                          f"{np.nanmax(np.where(np.isfinite(clean), clean, np.nan)):.1f} m in "
-                          "this room; noisy values are clipped to [min, max] range, so "
-                          f"{100 * at_min.mean():.0f} % of the rays read the 0.01 m minimum."),
+        "noise_meaning": noise_meaning(form, std, args.lidar_noise_std is not None, cfg, clean,
+                                       float(at_min.mean()) if both.any() else 0.0,
+                                       float(at_max.mean()) if both.any() else 0.0),
         "rays": int(len(clean)),
         "measured_residual_std_m": float(resid.std()) if resid.size else None,
         "expected_residual_std_with_clipping_m": expected,
@@ -135,6 +132,27 @@ def noisy_lidar(args) -> dict:
         "fraction_clipped_to_min_range": float(at_min.mean()) if both.any() else 0.0,
         "fraction_clipped_to_max_range": float(at_max.mean()) if both.any() else 0.0,
     }
+
+
+def noise_meaning(form: str, std: float, in_metres: bool, cfg, clean: np.ndarray,
+                  at_min: float, at_max: float) -> str:
+    """What the noise the options gave means: a std given in metres is one absolute std on
+    every ray; a Webots value is relative to the max range. Then what clipping did."""
+    fin = clean[np.isfinite(clean)]
+    ranges = f"{fin.min():.1f}-{fin.max():.1f} m" if fin.size else "no finite ranges"
+    if in_metres:
+        text = (f"{form}: the same Gaussian std on every ray, whatever its range (in Webots' "
+                f"terms, relative to the max range {cfg.max_range_m:g} m, "
+                f"{std / cfg.max_range_m:.3g}); the ranges in this room are {ranges}")
+    else:
+        text = (f"{form}. Webots' lidar noise is a Gaussian std relative to maxRange (SICK "
+                f"LMS 291: {cfg.max_range_m:g} m): here a std of {std:g} m on ranges that are "
+                f"{ranges} in this room")
+    clipped = [f"{100 * frac:.0f} % of the rays read the {lim:g} m {what}"
+               for frac, lim, what in ((at_min, cfg.min_range_m, "minimum"),
+                                       (at_max, cfg.max_range_m, "maximum")) if frac > 0]
+    return text + ("; noisy values are clipped to [min, max] range, so "
+                   + " and ".join(clipped) if clipped else "; no ray was clipped") + "."
 
 
 # ------------------------------------------------------------------ camera (Fig. 8/11)
