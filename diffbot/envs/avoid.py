@@ -42,7 +42,7 @@ from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, AvoidObserver
 from plant.world import load_world
 
 from .actions import Drive, check_repeat
-from .episode import Episode
+from .episode import Episode, next_seed
 from .geometry import Footprints
 from .kinbatch import ArrayTicks
 from .transport import Bus, InProc
@@ -300,6 +300,10 @@ class AvoidEnv(gym.Env):
         return self._task
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is None:                # the next seed of the stream (episode.next_seed)
+            if self._np_random is None:
+                super().reset()
+            seed = next_seed(self.np_random)
         super().reset(seed=seed)
         task = self.task
         obs, info = task.reset(self.np_random)

@@ -5,6 +5,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
+#: episode seeds are drawn in [0, SEED_SPAN)
+SEED_SPAN = 2**31
+
+
+def next_seed(rng: np.random.Generator) -> int:
+    """The seed of an env's next episode when ``reset()`` is given none: drawn from the
+    env's generator, which is then seeded with it, so every episode has a reset seed (its
+    ``info["plant"].seed``) and ``reset(seed=that)`` plays it again; the seeds still follow
+    from the first one given."""
+    return int(rng.integers(0, SEED_SPAN))
+
 
 @dataclass(eq=True)
 class Episode:
@@ -19,7 +32,7 @@ class Episode:
     world: str = "living_room"
     overrides: tuple[str, ...] = ()                   # the env's world overrides (--set)
     disabled: tuple[str, ...] = ("camera",)           # sensors the env leaves off (--disable)
-    seed: int | None = None                           # the reset seed, when one was given
+    seed: int | None = None                           # the reset seed (reset(seed=...) replays)
 
     @property
     def robot(self) -> str:

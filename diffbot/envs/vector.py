@@ -43,6 +43,7 @@ from plant.tick import messages_of, step_ticks
 
 from .actions import check_action
 from .avoid import AvoidTask, step_rewards
+from .episode import next_seed
 from .kinbatch import ArrayTicks
 from .workers import _Worker, cpus, merge
 
@@ -54,9 +55,11 @@ class Worlds:
 
     def __init__(self, n: int, max_episode_steps: int | None, world: str, action_repeat: int,
                  goal_radius_m: float, overrides: tuple[str, ...],
-                 normalize_actions: bool, threads: int = 1) -> None:
+                 normalize_actions: bool, threads: int = 1,
+                 autoreset_mode: AutoresetMode = AutoresetMode.NEXT_STEP) -> None:
         self.n = int(n)
         self.max_episode_steps = max_episode_steps
+        self.autoreset_mode = autoreset_mode
         self.tasks: list[AvoidTask] = []
         try:
             for _ in range(self.n):
@@ -85,9 +88,13 @@ class Worlds:
         return (len(t.robots), t.dt, t.observation_space(self.robot), t.action_space(self.robot))
 
     def _reset_one(self, i: int, seed: int | None) -> tuple[dict, dict]:
-        """As :meth:`AvoidEnv.reset` (Env.reset's seeding rules, then the task's)."""
-        if seed is not None or self._rngs[i] is None:
-            self._rngs[i], _ = seeding.np_random(seed)
+        """As :meth:`AvoidEnv.reset` (Env.reset's seeding rules, a seed drawn when none is
+        given: :func:`diffbot.envs.episode.next_seed`; then the task's)."""
+        if seed is None:
+            if self._rngs[i] is None:
+                self._rngs[i], _ = seeding.np_random(None)
+            seed = next_seed(self._rngs[i])
+        self._rngs[i], _ = seeding.np_random(seed)
         if self.arrays is not None:
             self.arrays.flush(np.array([i]))
         task = self.tasks[i]
@@ -98,16 +105,22 @@ class Worlds:
         self._eligible[i] = self._kept[i] = False
         return obs[self.robot], info[self.robot]
 
-    def reset(self, seeds: list[int | None]) -> list[tuple[dict, dict]]:
-        return [self._reset_one(i, s) for i, s in enumerate(seeds)]
+    def reset(self, seeds: list[int | None], mask: np.ndarray | None = None
+              ) -> list[tuple[dict, dict]]:
+        """Each env's reset (``mask``: only those where it is True), in order."""
+        return [self._reset_one(i, s) for i, s in enumerate(seeds)
+                if mask is None or mask[i]]
 
     def step(self, actions: np.ndarray) -> tuple:
         """(obs {key: (n, ...)}, reward (n,), terminated (n,), truncated (n,), infos) of
         the chunk's envs, ``infos`` batched as Gymnasium's vector envs batch them (each key
         with its ``_key`` mask)."""
         out = _Out(self.n, self._obs_space)
-        resets = np.flatnonzero(self._needs_reset)
-        live = np.flatnonzero(~self._needs_reset)
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            resets = np.flatnonzero(self._needs_reset)
+            live = np.flatnonzero(~self._needs_reset)
+        else:          # (DISABLED: AvoidVectorEnv.step refused a step of an ended episode)
+            resets, live = np.zeros(0, np.int64), np.arange(self.n)
         tasks = [self.tasks[i] for i in live]
         if live.size and self._arrays_for(live):
             self._step_arrays(live, tasks, np.asarray(actions)[live], out)
@@ -128,7 +141,30 @@ class Worlds:
             o, info = self._reset_one(int(i), None)
             out.put(i, o, 0.0, False, False, info)
         self._needs_reset = out.term | out.trunc
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and self._needs_reset.any():
+            self._reset_ended(out)
         return out.obs, out.rew, out.term, out.trunc, out.infos
+
+    def _reset_ended(self, out: "_Out") -> None:
+        """Same-step autoreset, as Gymnasium's ``SyncVectorEnv`` does it: each env whose
+        episode this step ended is reset at once; its last observation goes to
+        ``infos["final_obs"]`` (an object array of single observations), its step's info to
+        ``infos["final_info"]`` (batched, with masks), and the new episode's first
+        observation and reset info take its row."""
+        ended = np.flatnonzero(self._needs_reset)
+        final_obs = np.full(self.n, None, dtype=object)
+        final = _Out(self.n, None)
+        for i in ended.tolist():
+            final_obs[i] = {k: a[i].copy() for k, a in out.obs.items()}
+            final.put_info(i, out.info_of(i))
+        for i in ended.tolist():
+            o, info = self._reset_one(i, None)
+            out.put(i, o, out.rew[i], out.term[i], out.trunc[i], info)
+        mask = np.zeros(self.n, np.bool_)
+        mask[ended] = True
+        out.infos.update({"final_obs": final_obs, "_final_obs": mask,
+                          "final_info": final.infos, "_final_info": mask.copy()})
+        self._needs_reset[:] = False
 
     def _arrays_for(self, live: np.ndarray) -> bool:
         """Whether the ``live`` envs step as arrays (ArrayTicks.eligible, asked of an env's
@@ -228,7 +264,8 @@ class _Out:
 
     def __init__(self, n: int, space) -> None:
         self.n = n
-        self.obs = {k: np.zeros((n, *sp.shape), sp.dtype) for k, sp in space.spaces.items()}
+        self.obs = ({} if space is None else
+                    {k: np.zeros((n, *sp.shape), sp.dtype) for k, sp in space.spaces.items()})
         self.rew = np.zeros(n, np.float64)
         self.term = np.zeros(n, bool)
         self.trunc = np.zeros(n, bool)
@@ -251,9 +288,23 @@ class _Out:
         for k, a in self.obs.items():
             a[i] = obs[k]
         self.rew[i], self.term[i], self.trunc[i] = rew, term, trunc
+        self.put_info(i, info)
+
+    def put_info(self, i: int, info: dict) -> None:
         for key, value in info.items():
             self._array(key, value)[i] = value
             self.infos[f"_{key}"][i] = True
+
+    def info_of(self, i: int) -> dict:
+        """Env ``i``'s info as the single env gives it (Python scalars, array rows copied)."""
+        out = {}
+        for key, a in self.infos.items():
+            if key.startswith("_") or not self.infos[f"_{key}"][i]:
+                continue
+            v = a[i]
+            out[key] = v.copy() if isinstance(v, np.ndarray) else (
+                v.item() if isinstance(v, np.generic) else v)
+        return out
 
     def put_rows(self, rows: np.ndarray, obs: dict, rew, term, trunc, info: dict) -> None:
         """Rows ``rows`` at once; ``info``: key -> one value per row (an array's rows, or a
@@ -283,8 +334,9 @@ class AvoidVectorEnv(VectorEnv):
                  world: str = "living_room", action_repeat: int = 5,
                  goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
                  normalize_actions: bool = False, render_mode: str | None = None,
-                 transport: str = "inproc", workers: int = 1, threads: int | None = None
-                 ) -> None:
+                 transport: str = "inproc", workers: int = 1, threads: int | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP) -> None:
+        autoreset_mode = _autoreset_mode(autoreset_mode)
         if transport != "inproc":
             raise ValueError("vector_entry_point batches in-process worlds; for plants over "
                              "the bus use vectorization_mode='async' (one plant per worker)")
@@ -305,7 +357,7 @@ class AvoidVectorEnv(VectorEnv):
         kw = dict(max_episode_steps=self.max_episode_steps, world=world,
                   action_repeat=action_repeat, goal_radius_m=goal_radius_m,
                   overrides=tuple(overrides), normalize_actions=normalize_actions,
-                  threads=int(threads))
+                  threads=int(threads), autoreset_mode=autoreset_mode)
         k = int(workers)
         sizes = [self.num_envs // k + (1 if j < self.num_envs % k else 0) for j in range(k)]
         self.chunks: list = []
@@ -321,13 +373,16 @@ class AvoidVectorEnv(VectorEnv):
         if robots != 1:
             self.close_extras()
             raise ValueError(f"{world} has {robots} robots; Avoid-v0 drives one")
-        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt),
+                         "autoreset_mode": autoreset_mode}
+        self.autoreset_mode = autoreset_mode
         self.single_observation_space = obs_space
         self.single_action_space = act_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._bounds = np.concatenate([[0], np.cumsum(sizes)])
         self._needs_reset = np.zeros(self.num_envs, bool)   # as each chunk's (autoreset)
+        self._obs: dict | None = None                       # the last observations
 
     @property
     def tasks(self) -> list[AvoidTask]:
@@ -361,6 +416,11 @@ class AvoidVectorEnv(VectorEnv):
         return [(values[lo:hi],) for lo, hi in zip(self._bounds[:-1], self._bounds[1:])]
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        """All envs, or with ``options={"reset_mask": m}`` (a bool array, one per env, at
+        least one True) only envs i where ``m[i]``: the others keep their episodes, their
+        rows of the observation are their last, and ``infos`` holds the reset envs' only
+        (as Gymnasium's vector envs do). ``seed``: None, an int (env i: ``seed + i``) or a
+        list of one per env (a masked reset reads the masked envs' only)."""
         super().reset(seed=seed if isinstance(seed, int) else None)
         if seed is None:
             seeds = [None] * self.num_envs
@@ -370,18 +430,40 @@ class AvoidVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
+        mask = _reset_mask(options, self.num_envs)
+        if mask is not None and self._obs is None:
+            raise RuntimeError("reset_mask resets some envs of a running batch: call reset() "
+                               "without it first")
+        parts = self._all("reset", [(s, m) for (s,), (m,) in zip(
+            self._split(seeds), self._split(mask) if mask is not None
+            else [(None,)] * len(self.chunks))])
+        which = np.arange(self.num_envs) if mask is None else np.flatnonzero(mask)
         obs, infos = [], {}
-        self._needs_reset[:] = False
-        for i, (o, info) in enumerate(r for part in self._all("reset", self._split(seeds))
-                                      for r in part):
+        for i, (o, info) in zip(which.tolist(), (r for part in parts for r in part)):
             obs.append(o)
             infos = self._add_info(infos, info, i)
-        return self._stack(obs), infos
+        if mask is None:
+            self._needs_reset[:] = False
+            self._obs = self._stack(obs)
+        else:
+            self._needs_reset[mask] = False
+            self._obs = {k: a.copy() for k, a in self._obs.items()}
+            for k, a in self._obs.items():
+                a[mask] = np.stack([o[k] for o in obs])
+        return self._obs, infos
 
     def step(self, actions):
         actions = np.asarray(actions)
         if actions.shape[:1] != (self.num_envs,):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
+        if self._obs is None:
+            raise RuntimeError("call reset() before step()")
+        if self.autoreset_mode == AutoresetMode.DISABLED and self._needs_reset.any():
+            ended = np.flatnonzero(self._needs_reset).tolist()
+            raise RuntimeError(
+                f"the episodes of env {', '.join(map(str, ended))} are over and "
+                "autoreset_mode is DISABLED: reset them first, "
+                "reset(options={'reset_mask': terminated | truncated})")
         # checked before any world steps (a reset's action is ignored): check_action's
         # error for the first bad one
         live = ~self._needs_reset
@@ -394,7 +476,10 @@ class AvoidVectorEnv(VectorEnv):
             for i in np.flatnonzero(live):
                 check_action(actions[i], f"env {i}")
         obs, rew, term, trunc, infos = merge(self._all("step", self._split(actions)))
-        self._needs_reset = term | trunc
+        # (same-step autoreset: every env's episode goes on)
+        self._needs_reset = ((term | trunc) if self.autoreset_mode != AutoresetMode.SAME_STEP
+                             else np.zeros(self.num_envs, bool))
+        self._obs = obs
         return obs, rew, term, trunc, infos
 
     def _stack(self, obs: list[dict]) -> dict:
@@ -410,3 +495,31 @@ class AvoidVectorEnv(VectorEnv):
             c.close()
         self.chunks = []
 
+
+def _autoreset_mode(mode) -> AutoresetMode:
+    """``mode`` as an :class:`AutoresetMode` (or its value: ``"NextStep"``, ``"SameStep"``,
+    ``"Disabled"``; or its name, any case)."""
+    if isinstance(mode, AutoresetMode):
+        return mode
+    for m in AutoresetMode:
+        if isinstance(mode, str) and mode.lower() in (m.value.lower(), m.name.lower()):
+            return m
+    raise ValueError(f"autoreset_mode must be one of {', '.join(m.name for m in AutoresetMode)} "
+                     f"(gymnasium.vector.AutoresetMode), got {mode!r}")
+
+
+def _reset_mask(options: dict | None, n: int) -> np.ndarray | None:
+    """``options["reset_mask"]`` checked as Gymnasium's vector envs check it (a bool numpy
+    array of shape (n,), at least one True), or None."""
+    if not options or "reset_mask" not in options:
+        return None
+    mask = options["reset_mask"]
+    if not isinstance(mask, np.ndarray):
+        raise TypeError(f"options['reset_mask'] must be a numpy array, got {type(mask)}")
+    if mask.shape != (n,):
+        raise ValueError(f"options['reset_mask'] must have shape ({n},), got {mask.shape}")
+    if mask.dtype != np.bool_:
+        raise TypeError(f"options['reset_mask'] must have dtype=np.bool_, got {mask.dtype}")
+    if not mask.any():
+        raise ValueError("options['reset_mask'] resets no env (all False)")
+    return mask

@@ -22,18 +22,28 @@ def merge(parts: list[tuple]) -> tuple:
     obs = {k: np.concatenate([p[0][k] for p in parts]) for k in parts[0][0]}
     rew, term, trunc = (np.concatenate([p[j] for p in parts]) for j in (1, 2, 3))
     sizes = [len(p[1]) for p in parts]
-    infos: dict = {}
-    for key in dict.fromkeys(k for p in parts for k in p[4]):
+    return obs, rew, term, trunc, merge_infos([p[4] for p in parts], sizes)
+
+
+def merge_infos(infos: list[dict], sizes: list[int]) -> dict:
+    """Chunks' batched infos (each of ``sizes[j]`` envs) as one batch's: each key's arrays
+    joined in env order, a key a chunk lacks filled (and masked out) for its envs; a
+    nested info (``final_info``) joined the same way."""
+    out: dict = {}
+    for key in dict.fromkeys(k for info in infos for k in info):
+        like = next(info[key] for info in infos if key in info)
+        if isinstance(like, dict):
+            out[key] = merge_infos([info.get(key, {}) for info in infos], sizes)
+            continue
         cols = []
-        for p, n in zip(parts, sizes):
-            if key in p[4]:
-                cols.append(p[4][key])
+        for info, n in zip(infos, sizes):
+            if key in info:
+                cols.append(info[key])
             else:        # a key no env of this chunk gave: empty, masked out
-                like = next(q[4][key] for q in parts if key in q[4])
                 cols.append(np.zeros((n, *like.shape[1:]), like.dtype) if like.dtype != object
                             else np.full(n, None, dtype=object))
-        infos[key] = np.concatenate(cols)
-    return obs, rew, term, trunc, infos
+        out[key] = np.concatenate(cols)
+    return out
 
 
 def _serve(conn) -> None:
