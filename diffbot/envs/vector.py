@@ -15,11 +15,22 @@ then each env's observation. One-robot worlds (no camera: Avoid's) skip the mess
 ``info`` as arrays, the same numbers to the bit (``Worlds.arrays = None`` takes the
 message path, the oracle ``tests/test_envs_vector.py`` compares them with).
 
-Autoreset is Gymnasium 1.x's next-step mode (``metadata["autoreset_mode"]``): the step that
-ends env i's episode (terminated, or truncated at ``max_episode_steps``, 300 as registered)
-returns its last observation; the next ``step`` ignores env i's action, resets it (its own
-seed stream, as the single env's ``reset()`` without a seed) and returns the new
-episode's first observation with reward 0 and both flags False.
+Autoreset is Gymnasium 1.x's, ``autoreset_mode=`` (``metadata["autoreset_mode"]``), as
+``gymnasium.vector.SyncVectorEnv`` over single envs gives it, to the bit:
+
+- ``NEXT_STEP`` (the default): the step that ends env i's episode (terminated, or
+  truncated at ``max_episode_steps``, 300 as registered) returns its last observation; the
+  next ``step`` ignores env i's action, resets it and returns the new episode's first
+  observation with reward 0 and both flags False;
+- ``SAME_STEP``: the step that ends it resets it at once and returns the new episode's
+  first observation, the last one in ``infos["final_obs"]`` and its info in
+  ``infos["final_info"]`` (each with its ``_`` mask);
+- ``DISABLED``: a step of an ended episode is refused (RuntimeError); reset those envs with
+  ``reset(options={"reset_mask": terminated | truncated})``.
+
+``reset(options={"reset_mask": m})`` resets only the envs where ``m`` is True, in any mode.
+An autoreset, like the single env's ``reset()`` without a seed, draws the episode's seed
+from the env's own stream (:func:`diffbot.envs.episode.next_seed`): ``info["plant"].seed``.
 
 ``workers=K`` (default 1) splits the N worlds into K contiguous chunks: the first steps in
 this process, each other in a worker process of its own (a fresh interpreter), all at
@@ -45,7 +56,9 @@ from .actions import check_action
 from .avoid import AvoidTask, step_rewards
 from .episode import next_seed
 from .kinbatch import ArrayTicks
-from .workers import _Worker, cpus, merge
+from .results import Out, merge, reset_mask
+from .results import autoreset_mode as autoreset_mode_of
+from .workers import _Worker, cpus
 
 
 class Worlds:
@@ -115,7 +128,7 @@ class Worlds:
         """(obs {key: (n, ...)}, reward (n,), terminated (n,), truncated (n,), infos) of
         the chunk's envs, ``infos`` batched as Gymnasium's vector envs batch them (each key
         with its ``_key`` mask)."""
-        out = _Out(self.n, self._obs_space)
+        out = Out(self.n, self._obs_space)
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
             resets = np.flatnonzero(self._needs_reset)
             live = np.flatnonzero(~self._needs_reset)
@@ -145,7 +158,7 @@ class Worlds:
             self._reset_ended(out)
         return out.obs, out.rew, out.term, out.trunc, out.infos
 
-    def _reset_ended(self, out: "_Out") -> None:
+    def _reset_ended(self, out: "Out") -> None:
         """Same-step autoreset, as Gymnasium's ``SyncVectorEnv`` does it: each env whose
         episode this step ended is reset at once; its last observation goes to
         ``infos["final_obs"]`` (an object array of single observations), its step's info to
@@ -153,7 +166,7 @@ class Worlds:
         observation and reset info take its row."""
         ended = np.flatnonzero(self._needs_reset)
         final_obs = np.full(self.n, None, dtype=object)
-        final = _Out(self.n, None)
+        final = Out(self.n, None)
         for i in ended.tolist():
             final_obs[i] = {k: a[i].copy() for k, a in out.obs.items()}
             final.put_info(i, out.info_of(i))
@@ -179,7 +192,7 @@ class Worlds:
         return True
 
     def _step_arrays(self, live: np.ndarray, tasks: list[AvoidTask], actions: np.ndarray,
-                     out: "_Out") -> None:
+                     out: "Out") -> None:
         """The live envs' step as arrays (:mod:`diffbot.envs.kinbatch`): each task's
         ``begin_step``, ticks and ``end_step`` for all at once, the same numbers."""
         robot, first = self.robot, tasks[0]
@@ -256,74 +269,6 @@ class Worlds:
         self.tasks = []
 
 
-class _Out:
-    """A chunk's step results, env by env (:meth:`put`) or rows at once (:meth:`put_rows`),
-    batched as :meth:`gymnasium.vector.VectorEnv._add_info` batches ``info``: each key an
-    array typed by its value's type (bool, int, float: that dtype; an ndarray: its shape
-    and dtype; else objects) with a ``_key`` mask of the envs that gave it."""
-
-    def __init__(self, n: int, space) -> None:
-        self.n = n
-        self.obs = ({} if space is None else
-                    {k: np.zeros((n, *sp.shape), sp.dtype) for k, sp in space.spaces.items()})
-        self.rew = np.zeros(n, np.float64)
-        self.term = np.zeros(n, bool)
-        self.trunc = np.zeros(n, bool)
-        self.infos: dict = {}
-
-    def _array(self, key: str, sample) -> np.ndarray:
-        a = self.infos.get(key)
-        if a is None:
-            if type(sample) in (int, float, bool) or issubclass(type(sample), np.number):
-                a = np.zeros(self.n, dtype=type(sample))
-            elif isinstance(sample, np.ndarray):
-                a = np.zeros((self.n, *sample.shape), dtype=sample.dtype)
-            else:
-                a = np.full(self.n, None, dtype=object)
-            self.infos[key] = a
-            self.infos[f"_{key}"] = np.zeros(self.n, dtype=np.bool_)
-        return a
-
-    def put(self, i: int, obs: dict, rew: float, term: bool, trunc: bool, info: dict) -> None:
-        for k, a in self.obs.items():
-            a[i] = obs[k]
-        self.rew[i], self.term[i], self.trunc[i] = rew, term, trunc
-        self.put_info(i, info)
-
-    def put_info(self, i: int, info: dict) -> None:
-        for key, value in info.items():
-            self._array(key, value)[i] = value
-            self.infos[f"_{key}"][i] = True
-
-    def info_of(self, i: int) -> dict:
-        """Env ``i``'s info as the single env gives it (Python scalars, array rows copied)."""
-        out = {}
-        for key, a in self.infos.items():
-            if key.startswith("_") or not self.infos[f"_{key}"][i]:
-                continue
-            v = a[i]
-            out[key] = v.copy() if isinstance(v, np.ndarray) else (
-                v.item() if isinstance(v, np.generic) else v)
-        return out
-
-    def put_rows(self, rows: np.ndarray, obs: dict, rew, term, trunc, info: dict) -> None:
-        """Rows ``rows`` at once; ``info``: key -> one value per row (an array's rows, or a
-        list), typed as the single env's values are (float64, bool, ndarray rows)."""
-        for k, a in self.obs.items():
-            a[rows] = obs[k]
-        self.rew[rows], self.term[rows], self.trunc[rows] = rew, term, trunc
-        for key, col in info.items():
-            first = col[0]
-            sample = first.item() if isinstance(first, np.generic) else first
-            a = self._array(key, sample)
-            if a.dtype == object:
-                for r, v in zip(rows.tolist(), col):
-                    a[r] = v
-            else:
-                a[rows] = col
-            self.infos[f"_{key}"][rows] = True
-
-
 class AvoidVectorEnv(VectorEnv):
     """N ``diffbot/Avoid-v0`` worlds in one process, or in ``workers`` (module docstring)."""
 
@@ -336,7 +281,7 @@ class AvoidVectorEnv(VectorEnv):
                  normalize_actions: bool = False, render_mode: str | None = None,
                  transport: str = "inproc", workers: int = 1, threads: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP) -> None:
-        autoreset_mode = _autoreset_mode(autoreset_mode)
+        autoreset_mode = autoreset_mode_of(autoreset_mode)
         if transport != "inproc":
             raise ValueError("vector_entry_point batches in-process worlds; for plants over "
                              "the bus use vectorization_mode='async' (one plant per worker)")
@@ -430,7 +375,7 @@ class AvoidVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
-        mask = _reset_mask(options, self.num_envs)
+        mask = reset_mask(options, self.num_envs)
         if mask is not None and self._obs is None:
             raise RuntimeError("reset_mask resets some envs of a running batch: call reset() "
                                "without it first")
@@ -494,32 +439,3 @@ class AvoidVectorEnv(VectorEnv):
         for c in getattr(self, "chunks", []):
             c.close()
         self.chunks = []
-
-
-def _autoreset_mode(mode) -> AutoresetMode:
-    """``mode`` as an :class:`AutoresetMode` (or its value: ``"NextStep"``, ``"SameStep"``,
-    ``"Disabled"``; or its name, any case)."""
-    if isinstance(mode, AutoresetMode):
-        return mode
-    for m in AutoresetMode:
-        if isinstance(mode, str) and mode.lower() in (m.value.lower(), m.name.lower()):
-            return m
-    raise ValueError(f"autoreset_mode must be one of {', '.join(m.name for m in AutoresetMode)} "
-                     f"(gymnasium.vector.AutoresetMode), got {mode!r}")
-
-
-def _reset_mask(options: dict | None, n: int) -> np.ndarray | None:
-    """``options["reset_mask"]`` checked as Gymnasium's vector envs check it (a bool numpy
-    array of shape (n,), at least one True), or None."""
-    if not options or "reset_mask" not in options:
-        return None
-    mask = options["reset_mask"]
-    if not isinstance(mask, np.ndarray):
-        raise TypeError(f"options['reset_mask'] must be a numpy array, got {type(mask)}")
-    if mask.shape != (n,):
-        raise ValueError(f"options['reset_mask'] must have shape ({n},), got {mask.shape}")
-    if mask.dtype != np.bool_:
-        raise TypeError(f"options['reset_mask'] must have dtype=np.bool_, got {mask.dtype}")
-    if not mask.any():
-        raise ValueError("options['reset_mask'] resets no env (all False)")
-    return mask

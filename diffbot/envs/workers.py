@@ -1,7 +1,7 @@
 """The batched env's chunks in worker processes (:class:`diffbot.envs.vector.AvoidVectorEnv`
 with ``workers=K``): each a fresh interpreter (``python -m diffbot.envs.workers FD``)
 holding a :class:`diffbot.envs.vector.Worlds` and answering its parent's calls over a
-socket pair, and :func:`merge`, which joins the chunks' results in env order."""
+socket pair (:func:`diffbot.envs.results.merge` joins the chunks' results)."""
 from __future__ import annotations
 
 import os
@@ -13,37 +13,6 @@ import traceback
 from multiprocessing.connection import Connection
 
 import numpy as np
-
-
-def merge(parts: list[tuple]) -> tuple:
-    """Chunks' :meth:`Worlds.step` results, in env order, as one batch's."""
-    if len(parts) == 1:
-        return parts[0]
-    obs = {k: np.concatenate([p[0][k] for p in parts]) for k in parts[0][0]}
-    rew, term, trunc = (np.concatenate([p[j] for p in parts]) for j in (1, 2, 3))
-    sizes = [len(p[1]) for p in parts]
-    return obs, rew, term, trunc, merge_infos([p[4] for p in parts], sizes)
-
-
-def merge_infos(infos: list[dict], sizes: list[int]) -> dict:
-    """Chunks' batched infos (each of ``sizes[j]`` envs) as one batch's: each key's arrays
-    joined in env order, a key a chunk lacks filled (and masked out) for its envs; a
-    nested info (``final_info``) joined the same way."""
-    out: dict = {}
-    for key in dict.fromkeys(k for info in infos for k in info):
-        like = next(info[key] for info in infos if key in info)
-        if isinstance(like, dict):
-            out[key] = merge_infos([info.get(key, {}) for info in infos], sizes)
-            continue
-        cols = []
-        for info, n in zip(infos, sizes):
-            if key in info:
-                cols.append(info[key])
-            else:        # a key no env of this chunk gave: empty, masked out
-                cols.append(np.zeros((n, *like.shape[1:]), like.dtype) if like.dtype != object
-                            else np.full(n, None, dtype=object))
-        out[key] = np.concatenate(cols)
-    return out
 
 
 def _serve(conn) -> None:
