@@ -21,7 +21,9 @@ process, or ``workers=K``) in its same-step autoreset mode and gives what SB3's 
 - ``reset()`` takes no seed: ``seed(s)`` sets env i's next reset seed to ``s + i`` (env i
   is then the single env after ``reset(seed=s + i)``, to the bit), used once.
 
-Attributes are the batch's (``get_attr("dt")``, ``get_attr("render_mode")``: one value
+``spec`` is the single env's spec with the same settings (``gymnasium.make(venv.spec)``
+makes one, for evaluation; ``spec.to_json()`` beside a saved model tells a deployed policy
+its action scaling). Attributes are the batch's (``get_attr("dt")``, ``get_attr("render_mode")``: one value
 per env); ``env_method("render")`` gives each env's frame (``render_mode="rgb_array"``).
 Stable-Baselines3 is imported only here.
 """
@@ -51,6 +53,9 @@ class AvoidVecEnv(VecEnv):
                              f"autoreset_mode must be SAME_STEP, got {mode!r}")
         self.venv = AvoidVectorEnv(num_envs, autoreset_mode=AutoresetMode.SAME_STEP, **kwargs)
         self.episode_stats = bool(episode_stats)
+        #: the single env's spec with these settings (``gymnasium.make(spec)`` makes one of
+        #: the envs; ``spec.to_json()`` keeps it beside a model: SB3Policy reads it)
+        self.spec = _spec(kwargs, self.venv.max_episode_steps)
         try:
             super().__init__(self.venv.num_envs, self.venv.single_observation_space,
                              self.venv.single_action_space)
@@ -139,6 +144,22 @@ class AvoidVecEnv(VecEnv):
         """``Monitor``: whether the infos carry its ``"episode"`` statistics."""
         wrapped = self.episode_stats and issubclass(Monitor, wrapper_class)
         return [wrapped for _ in self._get_indices(indices)]
+
+
+#: the batched env's arguments that are not the single env's
+_BATCH_ONLY = ("workers", "threads", "max_episode_steps", "render_mode")
+
+
+def _spec(kwargs: dict, max_episode_steps: int | None):
+    """``diffbot/Avoid-v0``'s registered spec with the env arguments of ``kwargs``."""
+    import dataclasses
+
+    import gymnasium
+    env_kw = {k: (list(v) if isinstance(v, tuple) else v) for k, v in kwargs.items()
+              if k not in _BATCH_ONLY}
+    base = gymnasium.spec("diffbot/Avoid-v0")
+    return dataclasses.replace(base, kwargs={**base.kwargs, **env_kw},
+                               max_episode_steps=max_episode_steps)
 
 
 def _rows(infos: dict, n: int, which: Iterable[int] | None = None) -> list[dict]:
