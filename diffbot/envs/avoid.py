@@ -103,6 +103,8 @@ class AvoidTask:
         if max_steps is not None and int(max_steps) < 1:
             raise ValueError("max_steps must be >= 1")
         self.world, self.overrides = world, tuple(overrides)
+        #: a generated world's text (the swarm's), which its episodes carry: "" for a file
+        self.world_toml = ""
         self.spec = load_world(world, list(overrides))
         self.robots = [r.name for r in self.spec.robots]
         for r in self.spec.robots:
@@ -161,7 +163,8 @@ class AvoidTask:
         for name in self.robots:
             self.observers[name].reset(poses[name], goals[name])
         self._ticks_left = 1
-        self.episode = Episode(seed, poses, goals, self.world, self.overrides, ("camera",))
+        self.episode = Episode(seed, poses, goals, self.world, self.overrides, ("camera",),
+                               world_toml=self.world_toml)
         self.transport.reset(seed, poses, self._observe)
         return self._obs(), {r: self._info(r, False) for r in self.robots}
 

@@ -33,6 +33,7 @@ class Episode:
     overrides: tuple[str, ...] = ()                   # the env's world overrides (--set)
     disabled: tuple[str, ...] = ("camera",)           # sensors the env leaves off (--disable)
     seed: int | None = None                           # the reset seed (reset(seed=...) replays)
+    world_toml: str = ""                              # a generated world's file text (world: its name)
 
     @property
     def robot(self) -> str:
@@ -57,10 +58,27 @@ class Episode:
             out += ["--set", o]
         return out
 
-    def plant_args(self) -> list[str]:
+    def write_world(self, directory: str) -> str:
+        """The world's file: a generated world's text written to ``directory/<world>.toml``
+        (its path returned); a world file's name or path as it is."""
+        if not self.world_toml:
+            return self.world
+        import os
+        path = os.path.join(directory, f"{self.world}.toml")
+        with open(path, "w") as f:
+            f.write(self.world_toml)
+        return path
+
+    def plant_args(self, world: str | None = None) -> list[str]:
         """``diffbot plant`` arguments that build this episode's world, lockstep with
-        sequential coupling (the environment's coupling: a command acts at once)."""
-        out = ["--world", self.world, "--mode", "lockstep", "--coupling", "sequential",
+        sequential coupling (the environment's coupling: a command acts at once); a
+        generated world's: with ``world``, the path :meth:`write_world` gave."""
+        if world is None:
+            if self.world_toml:
+                raise ValueError(f"the episode's world ({self.world}) is generated: "
+                                 "plant_args(ep.write_world(directory))")
+            world = self.world
+        out = ["--world", world, "--mode", "lockstep", "--coupling", "sequential",
                "--seed", str(self.plant_seed), *self.world_args()]
         if self.disabled:
             out += ["--disable", ",".join(self.disabled)]
