@@ -36,8 +36,11 @@ from the env's own stream (:func:`diffbot.envs.episode.next_seed`): ``info["plan
 this process, each other in a worker process of its own (a fresh interpreter), all at
 once, so a batch uses K cores; env i is the same env, to the bit, whatever K. A worker
 ends with :meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
-``threads=T`` casts a process's lidars on up to T threads (default: the CPUs this process
-may use divided by K); the same bits whatever T.
+``engine="ray"`` puts every chunk in a Ray actor instead, spread over a cluster's nodes
+(``address=``, or a private instance on this machine: :mod:`diffbot.envs.ray_workers`);
+the same envs, to the bit. ``threads=T`` casts a process's lidars on up to T threads
+(default: the CPUs this process may use divided by K; 1 in a Ray actor); the same bits
+whatever T.
 """
 from __future__ import annotations
 
@@ -280,8 +283,13 @@ class AvoidVectorEnv(VectorEnv):
                  goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
                  normalize_actions: bool = False, render_mode: str | None = None,
                  transport: str = "inproc", workers: int = 1, threads: int | None = None,
-                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP) -> None:
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 engine: str = "processes", address: str | None = None) -> None:
         autoreset_mode = autoreset_mode_of(autoreset_mode)
+        if engine not in ("processes", "ray"):
+            raise ValueError(f"engine must be 'processes' or 'ray', got {engine!r}")
+        if address is not None and engine != "ray":
+            raise ValueError("address= is a Ray cluster's: engine='ray'")
         if transport != "inproc":
             raise ValueError("vector_entry_point batches in-process worlds; for plants over "
                              "the bus use vectorization_mode='async' (one plant per worker)")
@@ -293,7 +301,7 @@ class AvoidVectorEnv(VectorEnv):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if threads is None:       # the CPUs this process may use, shared among the processes
-            threads = max(1, cpus() // int(workers))
+            threads = 1 if engine == "ray" else max(1, cpus() // int(workers))
         elif int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads!r}")
         self.num_envs = int(num_envs)
@@ -306,11 +314,19 @@ class AvoidVectorEnv(VectorEnv):
         k = int(workers)
         sizes = [self.num_envs // k + (1 if j < self.num_envs % k else 0) for j in range(k)]
         self.chunks: list = []
+        self._ray = None
         try:
-            for size in sizes[1:]:                 # the workers start while ours is built
-                self.chunks.append(_Worker(size, kw))
-            self.chunks.insert(0, Worlds(sizes[0], **kw))
-            spaces = [self.chunks[0].spaces()] + [w.result() for w in self.chunks[1:]]
+            if engine == "ray":                    # every chunk an actor (ray_workers)
+                from .ray_workers import Session
+                self._ray = Session(address)
+                for size in sizes:
+                    self.chunks.append(self._ray.chunk(size, kw))
+                spaces = [c.result() for c in self.chunks]
+            else:
+                for size in sizes[1:]:             # the workers start while ours is built
+                    self.chunks.append(_Worker(size, kw))
+                self.chunks.insert(0, Worlds(sizes[0], **kw))
+                spaces = [self.chunks[0].spaces()] + [w.result() for w in self.chunks[1:]]
         except BaseException:
             self.close_extras()
             raise
@@ -336,23 +352,28 @@ class AvoidVectorEnv(VectorEnv):
         return self.chunks[0].sync() if self.chunks and isinstance(self.chunks[0], Worlds) else []
 
     def _all(self, method: str, per_chunk: list) -> list:
-        """``method`` of every chunk with its argument, the workers' sent first, so they
-        run while this process does its own; each chunk's result, in env order. Every worker's
-        answer is read even when a chunk fails (the first error is raised after), so the
-        next call reads its own answers."""
-        for c, arg in zip(self.chunks[1:], per_chunk[1:]):
-            c.send(method, *arg)
-        out: list = []
+        """``method`` of every chunk with its argument, the remote ones' (worker processes,
+        Ray actors) sent first, so they run while this process does its own; each chunk's
+        result, in env order. Every remote chunk's answer is read even when a chunk fails
+        (the first error is raised after), so the next call reads its own answers."""
+        local = [isinstance(c, Worlds) for c in self.chunks]
+        for c, arg, here in zip(self.chunks, per_chunk, local):
+            if not here:
+                c.send(method, *arg)
+        out: list = [None] * len(self.chunks)
         error = None
-        try:
-            out.append(getattr(self.chunks[0], method)(*per_chunk[0]))
-        except Exception as exc:
-            error = exc
-        for c in self.chunks[1:]:
-            try:
-                out.append(c.result())
-            except Exception as exc:
-                error = error or exc
+        for j, (c, arg, here) in enumerate(zip(self.chunks, per_chunk, local)):
+            if here:
+                try:
+                    out[j] = getattr(c, method)(*arg)
+                except Exception as exc:
+                    error = error or exc
+        for j, (c, here) in enumerate(zip(self.chunks, local)):
+            if not here:
+                try:
+                    out[j] = c.result()
+                except Exception as exc:
+                    error = error or exc
         if error is not None:
             raise error
         return out
@@ -439,3 +460,6 @@ class AvoidVectorEnv(VectorEnv):
         for c in getattr(self, "chunks", []):
             c.close()
         self.chunks = []
+        if getattr(self, "_ray", None) is not None:
+            self._ray.close()
+            self._ray = None
