@@ -32,11 +32,13 @@ def test_ppo_example_trains_saves_and_deploys_as_a_node(tmp_path):
     # the saved model as `diffbot controller PATH.py:CLASS`, on an episode over the bus
     ctl = f"examples/learn/ppo_avoid.py:SB3Policy --arg model={out / 'model.zip'}"
     dep = subprocess.run([sys.executable, "-m", "diffbot.envs.deploy", "--seed", "3",
-                          "--controller", ctl, "--duration", "3", "--out", str(tmp_path / "run")],
+                          "--controller", ctl, "--duration", "2", "--set", "world.mode=kinematic",
+                          "--out", str(tmp_path / "run")],
                          cwd=ROOT, capture_output=True, text=True, timeout=180)
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert dep.returncode == 0, dep.stderr[-3000:]
     assert summary["sim_time_s"] > 1.0
+    assert (out / "model.spec.json").exists()
 
 
 @pytest.mark.parametrize("normalize", [False, True])
