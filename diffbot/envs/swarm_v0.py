@@ -9,8 +9,14 @@ x, y, yaw and its goal's x, y in ``world``, robot after robot in ``possible_agen
 order. ``robot="avoid"`` gives the robots ``diffbot/Avoid-v0``'s action and observation
 spaces (its drive limits and lidar rays, :func:`plant.swarm_world.swarm_world_text`), so a
 policy trained on Avoid drives each of them; ``mode="kinematic"`` steps every robot in one
-numpy call (:mod:`plant.kinematic`), as the batched Avoid does. Same two transports as the
-Gymnasium environments::
+numpy call (:mod:`plant.kinematic`), as the batched Avoid does (``"dynamic"``, the
+default: DART). ``layout_seed`` picks the generated world (room, obstacles, start area),
+fixed for the env's life; ``reset(seed=)`` draws the poses, goals and noise. Every
+``info[agent]["plant"]`` is the episode's :class:`diffbot.envs.episode.Episode` with the
+reset seed (drawn from the env's stream when none is given) and the world's own text, so
+two envs made alike play the same episodes (PettingZoo's ``parallel_seed_test``) and
+``reset(seed=ep.seed)`` plays one again. Same two transports as the Gymnasium
+environments::
 
     from diffbot.envs import swarm_v0
     env = swarm_v0.parallel_env(n_robots=4)               # or transport="bus"
