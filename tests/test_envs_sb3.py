@@ -64,6 +64,8 @@ def test_the_adapter_is_dummy_vec_env_over_monitored_single_envs():
         assert episodes >= n, "no episode ended"
         assert ours.env_is_wrapped(Monitor) == [True] * n
         assert ours.get_attr("render_mode") == [None] * n
+        with pytest.raises(ValueError, match="SAME_STEP"):
+            AvoidVecEnv(1, autoreset_mode="next_step")
     finally:
         ours.close()
         theirs.close()

@@ -37,6 +37,7 @@ from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
+from .results import autoreset_mode
 from .vector import AvoidVectorEnv
 
 
@@ -47,10 +48,10 @@ class AvoidVecEnv(VecEnv):
     ``"episode"`` infos (for a ``VecMonitor`` of your own)."""
 
     def __init__(self, num_envs: int = 8, episode_stats: bool = True, **kwargs) -> None:
-        mode = kwargs.pop("autoreset_mode", AutoresetMode.SAME_STEP)
-        if mode not in (AutoresetMode.SAME_STEP, "same_step", "SameStep", "SAME_STEP"):
+        mode = autoreset_mode(kwargs.pop("autoreset_mode", AutoresetMode.SAME_STEP))
+        if mode != AutoresetMode.SAME_STEP:
             raise ValueError("SB3 resets an ended episode in the step that ends it: "
-                             f"autoreset_mode must be SAME_STEP, got {mode!r}")
+                             f"autoreset_mode must be SAME_STEP, got {mode.name}")
         self.venv = AvoidVectorEnv(num_envs, autoreset_mode=AutoresetMode.SAME_STEP, **kwargs)
         self.episode_stats = bool(episode_stats)
         #: the single env's spec with these settings (``gymnasium.make(spec)`` makes one of
