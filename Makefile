@@ -18,9 +18,18 @@ setup: $(STAMP) $(FMUS) $(KERNELS) $(TF2MSGS)
 # would (the same versions), with .pyc compiled, in a third of pip's time (docs/install.md).
 # uv reads no pip.conf: INSTALLER=pip for an index or constraints set up for pip only.
 INSTALLER ?= uv
-EXTRAS    := .[test,view,ros2,cluster,learn]
+# The sb3 extra (Stable-Baselines3) needs torch, installed first and by pip: pip takes the
+# CPU build this machine keeps on disk (~30 s, ~800 MB in the venv), where uv would download
+# a CUDA build of several GB; uv then finds it installed. `make setup TORCH=` leaves torch
+# and the sb3 extra out (their tests then skip, saying so).
+TORCH     ?= torch==2.13.0
+comma     := ,
+EXTRAS    := .[test,view,ros2,cluster,learn$(if $(TORCH),$(comma)sb3)]
 $(STAMP): pyproject.toml tests/js/package-lock.json
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+ifneq ($(TORCH),)
+	$(BIN)/python -m pip install --quiet '$(TORCH)'
+endif
 ifeq ($(INSTALLER),uv)
 	$(BIN)/python -m pip install --quiet 'uv>=0.5'
 	$(BIN)/uv pip install --quiet --python $(BIN)/python --compile-bytecode -e '$(EXTRAS)'

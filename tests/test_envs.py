@@ -177,7 +177,11 @@ def test_a_swarm_of_avoid_robots_has_avoids_spaces_and_steps_in_the_kinematic_wo
     plain = swarm_v0.parallel_env(n_robots=3)
     try:
         for a in swarm.possible_agents:       # an Avoid policy's input and output as they are
-            assert swarm.observation_space(a) == avoid.observation_space
+            sp, av = swarm.observation_space(a), avoid.observation_space
+            assert sp["odom"] == av["odom"] and sp["goal"] == av["goal"]
+            assert (sp["scan"].shape, sp["scan"].dtype) == (av["scan"].shape, av["scan"].dtype)
+            # the scan's bound is each room's (diffbot.envs.avoid.scan_bound): 10 m x 10 m
+            assert (float(sp["scan"].high[0]), float(av["scan"].high[0])) == (16.0, 9.0)
             assert swarm.action_space(a) == avoid.action_space
             assert plain.observation_space(a) != avoid.observation_space    # 36 rays
         assert swarm.task.spec.mode == "kinematic"

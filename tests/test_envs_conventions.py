@@ -165,3 +165,17 @@ def test_a_diverged_world_raises_and_a_reset_starts_a_sound_episode():
         env.close()
         fresh.close()
         envs.close()
+
+
+def test_the_scan_bound_is_the_longest_reading_the_room_allows():
+    from diffbot.envs.avoid import scan_bound
+    from plant.world import load_world
+    env = gym.make("diffbot/Avoid-v0", overrides=("world.mode=kinematic",))
+    try:
+        assert float(env.observation_space["scan"].high.max()) == 9.0    # 6 m x 5 m, walled
+        obs, _ = env.reset(seed=1)
+        assert obs["scan"].max() <= 9.0
+    finally:
+        env.close()
+    # without walls a ray may leave the room: the lidar's own range
+    assert scan_bound(load_world("living_room", ["walls.height_m=0"]), "robot1") == 80.0

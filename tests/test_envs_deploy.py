@@ -1,5 +1,5 @@
 """A policy for diffbot/Avoid-v0, deployed with `diffbot run` as `diffbot controller policy`
-(the one command `python -m diffbot.envs.deploy`), or with a plant and the controller
+(the one command `python -m diffbot.envs.deploy`, whose `--compare` checks it), or with a plant and the controller
 started by hand from the values of the reset's ``info["plant"]``, drives the robot over the
 bus exactly as it did in the environment (the same path to the bit, noise on) and to the
 goal."""
@@ -54,9 +54,8 @@ def _won_episode(policy: MLPPolicy):
 def _same_path(path: dict, truth: dict, goal) -> None:
     # every step but the last (the controller stops on its odometry, the environment on
     # ground truth: they may part there) lands on the same pose, to the bit
-    steps = sorted(path)[:-1]
-    assert all(truth.get(t) == path[t] for t in steps), \
-        [(t, path[t], truth.get(t)) for t in steps if truth.get(t) != path[t]][:3]
+    report = deploy.compare(path, truth)
+    assert report["identical"] and report["steps"] > 10, report
     x, y, _ = truth[max(truth)]
     assert math.hypot(goal[0] - x, goal[1] - y) < 0.4, "the robot stopped off the goal"
 
@@ -70,13 +69,15 @@ def test_a_deployed_policy_drives_the_same_path_over_the_bus(tmp_path):
     pfile = str(tmp_path / "p.npz")
     policy.save(pfile)
     argv = [sys.executable, "-m", "diffbot.envs.deploy", "--seed", str(seed), "--policy", pfile,
-            "--out", str(tmp_path / "run"), "--record"]
+            "--out", str(tmp_path / "run"), "--compare"]
     for o in NOISE:
         argv += ["--set", o]
     out = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=240)
     assert out.returncode == 0, out.stderr[-3000:]
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert "policy_robot1 finished" in summary["end_reason"]
+    report = json.loads((tmp_path / "run" / "compare.json").read_text())
+    assert report["identical"] and report["in_process_success"] and "identical" in out.stdout
     _same_path(path, deploy.ground_truth(str(tmp_path / "run" / "episode.mcap")), ep.goal)
 
 
@@ -113,3 +114,18 @@ def test_an_episode_writes_its_values_exactly():
     assert load_world("living_room", sets).robot("robot1").pose == ep.poses["robot1"]
     assert ep.goal_arg() == "--goal=1e-17,3.0"
     assert args[args.index("--seed") + 1] == "7" and args[-2:] == ["--disable", "camera"]
+
+
+def test_compare_finds_a_pose_one_ulp_off_and_a_missing_one():
+    path = {0: (0.0, 0.0, 0.0), 100_000_000: (0.1, 0.2, 0.3), 200_000_000: (0.2, 0.4, 0.6),
+            300_000_000: (0.3, 0.5, 0.7)}
+    truth = {t: p for t, p in path.items()}
+    truth[300_000_000] = (9.0, 9.0, 9.0)                 # the last step may part
+    assert deploy.compare(path, truth)["identical"]
+    off = dict(truth)
+    off[200_000_000] = (np.nextafter(0.2, 1.0), 0.4, 0.6)
+    r = deploy.compare(path, off)
+    assert not r["identical"] and r["equal"] == 2 and r["first_difference"]["t_s"] == 0.2
+    del off[200_000_000]
+    r = deploy.compare(path, off)
+    assert not r["identical"] and r["first_difference"]["over_the_bus"] is None

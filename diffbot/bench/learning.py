@@ -5,7 +5,8 @@ steps per second and simulated seconds per wall second (each step is ``dt`` = 0.
 plant's physics alone is measured beside them, as the bound. Then the batched env
 (``vectorization_mode="vector_entry_point"``: N worlds in one process) with N = 1, 16, 64
 in the kinematic and the dynamic world, N = 64 on 2 workers, and (kinematic) N = 256 on 2
-workers, where a second process pays off on two cores."""
+workers, where a second process pays off on two cores; and 32 kinematic envs through the
+Stable-Baselines3 adapter against the batched env alone (the sb3 extra)."""
 from __future__ import annotations
 
 import time
@@ -76,6 +77,45 @@ def _vec_rate(mode: str, num_envs: int, env_steps: int, workers: int = 1) -> dic
     return {"steps_per_s": n / wall, "cpu_steps_per_s": n / cpu, "real_time_factor": n * 0.1 / wall}
 
 
+def _sb3_rate(num_envs: int, env_steps: int, rounds: int = 3) -> dict:
+    """The batched env alone (its default next-step autoreset) and through the SB3 adapter
+    (:class:`diffbot.envs.sb3.AvoidVecEnv`: same-step autoreset, one info dict per env,
+    episode statistics), kinematic world, the same random actions, in alternate rounds."""
+    try:
+        from diffbot.envs.sb3 import AvoidVecEnv
+    except ImportError:
+        raise Skip("stable-baselines3 is not installed (the sb3 extra: make setup)") from None
+    import numpy as np
+    from diffbot.envs.vector import AvoidVectorEnv
+    kw = dict(overrides=("world.mode=kinematic",))
+    alone, adapter = AvoidVectorEnv(num_envs, **kw), AvoidVecEnv(num_envs, **kw)
+    try:
+        alone.reset(seed=0)
+        adapter.seed(0)
+        adapter.reset()
+        steps = max(2, env_steps // num_envs)
+        rng = np.random.default_rng(0)
+        high = alone.single_action_space.high
+        actions = [(rng.uniform(-1, 1, (num_envs, 2)) * high).astype(np.float32)
+                   for _ in range(steps)]
+        wall, cpu = np.zeros(2), np.zeros(2)     # [alone, adapter]
+        for _ in range(rounds):
+            t0, c0 = time.perf_counter(), time.process_time()
+            for a in actions:
+                alone.step(a)
+            t1, c1 = time.perf_counter(), time.process_time()
+            for a in actions:
+                adapter.step_async(a)
+                adapter.step_wait()
+            wall += (t1 - t0, time.perf_counter() - t1)
+            cpu += (c1 - c0, time.process_time() - c1)
+    finally:
+        alone.close()
+        adapter.close()
+    n = steps * num_envs * rounds
+    return {"alone": n / wall[0], "adapter": n / wall[1], "ratio": cpu[0] / cpu[1]}
+
+
 #: issue 38's targets for the batched env at N = 64 (2 cores), env steps/s
 VEC_TARGETS = {"kinematic": "target >= 20,000/s at N = 64", "dynamic": "target >= 1,000/s at N = 64"}
 #: and for one env (simulated s per wall s): (transport, world mode) -> target
@@ -90,7 +130,7 @@ DANTZIG = ("world.contact_solver=dantzig",)
 
 @suite("gym", "diffbot/Avoid-v0 steps per second, in-process and over the bus, one env "
               "and make_vec with 2 and 4, batched (vector_entry_point) with 1, 16, 64, "
-              "64 on 2 workers and (kinematic) 256 on 2 workers")
+              "64 on 2 workers and (kinematic) 256 on 2 workers, and through the SB3 adapter")
 def gym_suite(ctx):
     try:
         import gymnasium  # noqa: F401
@@ -122,6 +162,15 @@ def gym_suite(ctx):
                 Metric("real_time_factor", f"{what}: simulated s per wall s", "x",
                        notes="all envs together, dt = 0.1 s per step")],
                 repeats=repeats, warmup=0)
+    what = "Avoid-v0 SB3 adapter, kinematic, 32 envs"
+    yield Probe(what, lambda: _sb3_rate(32, 640 if ctx.quick else 3200), [
+        Metric("adapter", f"{what}: env steps per second", "1/s",
+               notes="diffbot.envs.sb3.AvoidVecEnv step_async/step_wait, random actions"),
+        Metric("alone", f"{what}: the batched env alone, env steps per second", "1/s",
+               notes="AvoidVectorEnv.step, the same actions, rounds alternating"),
+        Metric("ratio", f"{what}: adapter / batched env alone", "x",
+               notes="steps per CPU second of this process (one process: all of it), "
+                     "which a busy machine disturbs less than wall time; target >= 0.8")], repeats=repeats, warmup=0)
     for transport in ("inproc", "bus"):
         rows = ((1, None, ()), (1, "kinematic", ()), (2, None, ()), (4, None, ()))
         if transport == "inproc":

@@ -12,8 +12,11 @@ Importing this package registers them::
     from diffbot.envs import swarm_v0
     penv = swarm_v0.parallel_env(n_robots=4)                   # PettingZoo ParallelEnv
 
-gymnasium and pettingzoo are the ``learn`` extra (``make setup`` installs it); nothing
-outside this package imports them.
+    from diffbot.envs.sb3 import AvoidVecEnv                   # the batch as an SB3 VecEnv
+    venv = AvoidVecEnv(16, normalize_actions=True)
+
+gymnasium and pettingzoo are the ``learn`` extra, Stable-Baselines3 the ``sb3`` one (``make
+setup`` installs both); nothing outside this package imports them.
 """
 from gymnasium import register
 

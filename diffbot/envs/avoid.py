@@ -8,7 +8,9 @@ ValueError, :mod:`diffbot.envs.actions`) for ``action_repeat`` control ticks: 5 
 so ``dt`` = 0.1 s, the lidar's period, and every observation carries a fresh scan.
 
 Observation (:class:`controllers.learned.AvoidObserver`, the same code the deployed
-``diffbot controller policy`` runs): ``scan`` (the lidar's 180 ranges, m), ``odom``
+``diffbot controller policy`` runs): ``scan`` (the lidar's 180 ranges, m, within
+:func:`scan_bound`: 9 m in the living room, whose walls close every ray's path well
+inside the lidar's 80 m; a deployed controller clips at 80 m, the same readings), ``odom``
 (x, y, yaw, v, w dead-reckoned from the wheel encoders, in ``<robot>/odom``: from the
 origin, where the episode starts, as the bus's ``<robot>/odom`` topic, REP 105) and
 ``goal`` (the goal in the robot's own frame ``<robot>/base_link`` by that odometry).
@@ -42,7 +44,7 @@ from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, AvoidObserver
 from plant.world import load_world
 
 from .actions import Drive, check_repeat
-from .episode import Episode
+from .episode import Episode, next_seed
 from .geometry import Footprints
 from .kinbatch import ArrayTicks
 from .transport import Bus, InProc
@@ -77,6 +79,18 @@ def step_rewards(before: np.ndarray, d: np.ndarray, success: np.ndarray,
     return np.where(contact, r - CONTACT_PENALTY, r)
 
 
+def scan_bound(spec, robot: str) -> float:
+    """The largest scan reading the env reports (the scan's Box bound; the observer clips
+    at it): the lidar's max range or, in a room whose walls stand above the lidar (every ray
+    ends on a wall), the room's diagonal plus 1 m for noise, rounded up to whole metres,
+    if that is less (the living room: 9 m, where the lidar's range is 80 m)."""
+    lid = spec.robot(robot).sensors.lidar
+    bound = float(lid.max_range_m)
+    if spec.wall_height_m > lid.mount_z_m:
+        bound = min(bound, float(math.ceil(math.hypot(*spec.floor_size_m) + 1.0)))
+    return bound
+
+
 def make_transport(spec, world: str, inputs: dict, transport: str, endpoint, disabled,
                    overrides):
     if transport == "inproc":
@@ -103,6 +117,8 @@ class AvoidTask:
         if max_steps is not None and int(max_steps) < 1:
             raise ValueError("max_steps must be >= 1")
         self.world, self.overrides = world, tuple(overrides)
+        #: a generated world's text (the swarm's), which its episodes carry: "" for a file
+        self.world_toml = ""
         self.spec = load_world(world, list(overrides))
         self.robots = [r.name for r in self.spec.robots]
         for r in self.spec.robots:
@@ -114,7 +130,7 @@ class AvoidTask:
         self.geo = Footprints(self.spec)
         self.observers = {r.name: AvoidObserver(r.drive.wheel_radius_m, r.drive.wheel_separation_m,
                                                 r.sensors.lidar.num_rays,
-                                                r.sensors.lidar.max_range_m)
+                                                scan_bound(self.spec, r.name))
                           for r in self.spec.robots}
         self.drives = {r.name: Drive(r.drive.max_linear_mps, r.drive.max_angular_radps,
                                      normalize_actions) for r in self.spec.robots}
@@ -136,7 +152,8 @@ class AvoidTask:
     def observation_space(self, robot: str) -> spaces.Dict:
         lid = self.spec.robot(robot).sensors.lidar
         return spaces.Dict({
-            "scan": spaces.Box(0.0, np.float32(lid.max_range_m), (lid.num_rays,), np.float32),
+            "scan": spaces.Box(0.0, np.float32(scan_bound(self.spec, robot)), (lid.num_rays,),
+                               np.float32),
             "odom": spaces.Box(-ODOM_HIGH, ODOM_HIGH, (5,), np.float32),
             "goal": spaces.Box(-GOAL_LIMIT_M, GOAL_LIMIT_M, (2,), np.float32)})
 
@@ -161,7 +178,8 @@ class AvoidTask:
         for name in self.robots:
             self.observers[name].reset(poses[name], goals[name])
         self._ticks_left = 1
-        self.episode = Episode(seed, poses, goals, self.world, self.overrides, ("camera",))
+        self.episode = Episode(seed, poses, goals, self.world, self.overrides, ("camera",),
+                               world_toml=self.world_toml)
         self.transport.reset(seed, poses, self._observe)
         return self._obs(), {r: self._info(r, False) for r in self.robots}
 
@@ -300,6 +318,10 @@ class AvoidEnv(gym.Env):
         return self._task
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is None:                # the next seed of the stream (episode.next_seed)
+            if self._np_random is None:
+                super().reset()
+            seed = next_seed(self.np_random)
         super().reset(seed=seed)
         task = self.task
         obs, info = task.reset(self.np_random)

@@ -5,6 +5,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
+#: episode seeds are drawn in [0, SEED_SPAN)
+SEED_SPAN = 2**31
+
+
+def next_seed(rng: np.random.Generator) -> int:
+    """The seed of an env's next episode when ``reset()`` is given none: drawn from the
+    env's generator, which is then seeded with it, so every episode has a reset seed (its
+    ``info["plant"].seed``) and ``reset(seed=that)`` plays it again; the seeds still follow
+    from the first one given."""
+    return int(rng.integers(0, SEED_SPAN))
+
 
 @dataclass(eq=True)
 class Episode:
@@ -19,7 +32,8 @@ class Episode:
     world: str = "living_room"
     overrides: tuple[str, ...] = ()                   # the env's world overrides (--set)
     disabled: tuple[str, ...] = ("camera",)           # sensors the env leaves off (--disable)
-    seed: int | None = None                           # the reset seed, when one was given
+    seed: int | None = None                           # the reset seed (reset(seed=...) replays)
+    world_toml: str = ""                              # a generated world's file text (world: its name)
 
     @property
     def robot(self) -> str:
@@ -44,10 +58,27 @@ class Episode:
             out += ["--set", o]
         return out
 
-    def plant_args(self) -> list[str]:
+    def write_world(self, directory: str) -> str:
+        """The world's file: a generated world's text written to ``directory/<world>.toml``
+        (its path returned); a world file's name or path as it is."""
+        if not self.world_toml:
+            return self.world
+        import os
+        path = os.path.join(directory, f"{self.world}.toml")
+        with open(path, "w") as f:
+            f.write(self.world_toml)
+        return path
+
+    def plant_args(self, world: str | None = None) -> list[str]:
         """``diffbot plant`` arguments that build this episode's world, lockstep with
-        sequential coupling (the environment's coupling: a command acts at once)."""
-        out = ["--world", self.world, "--mode", "lockstep", "--coupling", "sequential",
+        sequential coupling (the environment's coupling: a command acts at once); a
+        generated world's: with ``world``, the path :meth:`write_world` gave."""
+        if world is None:
+            if self.world_toml:
+                raise ValueError(f"the episode's world ({self.world}) is generated: "
+                                 "plant_args(ep.write_world(directory))")
+            world = self.world
+        out = ["--world", world, "--mode", "lockstep", "--coupling", "sequential",
                "--seed", str(self.plant_seed), *self.world_args()]
         if self.disabled:
             out += ["--disable", ",".join(self.disabled)]

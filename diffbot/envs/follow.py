@@ -42,7 +42,7 @@ from plant.world import load_world
 
 from .actions import Drive, check_repeat
 from .avoid import make_transport, true_pose
-from .episode import Episode
+from .episode import Episode, next_seed
 from .geometry import Footprints
 
 INPUTS = {LEADER: ["ground_truth"], FOLLOWER: ["joint_states", "ground_truth", "camera/image_raw"]}
@@ -143,6 +143,10 @@ class FollowEnv(gym.Env):
 
     # ---------------------------------------------------------------- gymnasium
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is None:                # the next seed of the stream (episode.next_seed)
+            if self._np_random is None:
+                super().reset()
+            seed = next_seed(self.np_random)
         super().reset(seed=seed)
         self.leader = Wander()
         self.action = (0.0, 0.0)

@@ -9,8 +9,14 @@ x, y, yaw and its goal's x, y in ``world``, robot after robot in ``possible_agen
 order. ``robot="avoid"`` gives the robots ``diffbot/Avoid-v0``'s action and observation
 spaces (its drive limits and lidar rays, :func:`plant.swarm_world.swarm_world_text`), so a
 policy trained on Avoid drives each of them; ``mode="kinematic"`` steps every robot in one
-numpy call (:mod:`plant.kinematic`), as the batched Avoid does. Same two transports as the
-Gymnasium environments::
+numpy call (:mod:`plant.kinematic`), as the batched Avoid does (``"dynamic"``, the
+default: DART). ``layout_seed`` picks the generated world (room, obstacles, start area),
+fixed for the env's life; ``reset(seed=)`` draws the poses, goals and noise. Every
+``info[agent]["plant"]`` is the episode's :class:`diffbot.envs.episode.Episode` with the
+reset seed (drawn from the env's stream when none is given) and the world's own text, so
+two envs made alike play the same episodes (PettingZoo's ``parallel_seed_test``) and
+``reset(seed=ep.seed)`` plays one again. Same two transports as the Gymnasium
+environments::
 
     from diffbot.envs import swarm_v0
     env = swarm_v0.parallel_env(n_robots=4)               # or transport="bus"
@@ -32,9 +38,10 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from plant.swarm_world import write_swarm_world
+from plant.swarm_world import swarm_world_text
 
 from .avoid import AvoidTask
+from .episode import next_seed
 
 
 class SwarmEnv(ParallelEnv):
@@ -51,10 +58,14 @@ class SwarmEnv(ParallelEnv):
         self.render_mode = render_mode
         self._tmp = tempfile.mkdtemp(prefix="diffbot-swarm-")
         self._cleanup = weakref.finalize(self, shutil.rmtree, self._tmp, True)
-        world = write_swarm_world(os.path.join(self._tmp, "swarm.toml"), int(n_robots),
-                                  int(layout_seed), mode, robot)
+        text = swarm_world_text(int(n_robots), int(layout_seed), mode, robot)
+        world = os.path.join(self._tmp, "swarm.toml")
+        with open(world, "w") as f:
+            f.write(text)
         self.task = AvoidTask(world, transport, endpoint, action_repeat, max_steps,
                               goal_radius_m, (), normalize_actions)
+        # the episodes carry the world itself (this file goes with the env)
+        self.task.world, self.task.world_toml = "swarm", text
         self.possible_agents = list(self.task.robots)
         self.agents: list[str] = []
         self._obs_spaces = {a: self.task.observation_space(a) for a in self.possible_agents}
@@ -65,7 +76,7 @@ class SwarmEnv(ParallelEnv):
         high = np.tile(np.array([hx, hy, math.pi, hx, hy], np.float32),
                        len(self.possible_agents))
         self.state_space = spaces.Box(-high, high, dtype=np.float32)
-        self._rng = np.random.default_rng()
+        self._rng: np.random.Generator | None = None
 
     def observation_space(self, agent: str):
         return self._obs_spaces[agent]
@@ -74,9 +85,11 @@ class SwarmEnv(ParallelEnv):
         return self._act_spaces[agent]
 
     def reset(self, seed: int | None = None, options: dict | None = None):
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
+        if seed is None:                # the next seed of the stream (episode.next_seed)
+            seed = next_seed(self._rng or np.random.default_rng())
+        self._rng = np.random.default_rng(seed)
         obs, infos = self.task.reset(self._rng)
+        self.task.episode.seed = seed
         self.agents = list(self.possible_agents)
         return obs, infos
 

@@ -15,29 +15,36 @@ then each env's observation. One-robot worlds (no camera: Avoid's) skip the mess
 ``info`` as arrays, the same numbers to the bit (``Worlds.arrays = None`` takes the
 message path, the oracle ``tests/test_envs_vector.py`` compares them with).
 
-Autoreset is Gymnasium 1.x's next-step mode (``metadata["autoreset_mode"]``): the step that
-ends env i's episode (terminated, or truncated at ``max_episode_steps``, 300 as registered)
-returns its last observation; the next ``step`` ignores env i's action, resets it (its own
-seed stream, as the single env's ``reset()`` without a seed) and returns the new
-episode's first observation with reward 0 and both flags False.
+Autoreset is Gymnasium 1.x's, ``autoreset_mode=`` (``metadata["autoreset_mode"]``), as
+``gymnasium.vector.SyncVectorEnv`` over single envs gives it, to the bit:
+
+- ``NEXT_STEP`` (the default): the step that ends env i's episode (terminated, or
+  truncated at ``max_episode_steps``, 300 as registered) returns its last observation; the
+  next ``step`` ignores env i's action, resets it and returns the new episode's first
+  observation with reward 0 and both flags False;
+- ``SAME_STEP``: the step that ends it resets it at once and returns the new episode's
+  first observation, the last one in ``infos["final_obs"]`` and its info in
+  ``infos["final_info"]`` (each with its ``_`` mask);
+- ``DISABLED``: a step of an ended episode is refused (RuntimeError); reset those envs with
+  ``reset(options={"reset_mask": terminated | truncated})``.
+
+``reset(options={"reset_mask": m})`` resets only the envs where ``m`` is True, in any mode.
+An autoreset, like the single env's ``reset()`` without a seed, draws the episode's seed
+from the env's own stream (:func:`diffbot.envs.episode.next_seed`): ``info["plant"].seed``.
 
 ``workers=K`` (default 1) splits the N worlds into K contiguous chunks: the first steps in
 this process, each other in a worker process of its own (a fresh interpreter), all at
 once, so a batch uses K cores; env i is the same env, to the bit, whatever K. A worker
 ends with :meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
-``threads=T`` casts a process's lidars on up to T threads (default: the CPUs this process
-may use divided by K); the same bits whatever T.
+``engine="ray"`` puts every chunk in a Ray actor instead, spread over a cluster's nodes
+(``address=``, or a private instance on this machine: :mod:`diffbot.envs.ray_workers`);
+the same envs, to the bit. ``threads=T`` casts a process's lidars on up to T threads
+(default: the CPUs this process may use divided by K; 1 in a Ray actor); the same bits
+whatever T.
 """
 from __future__ import annotations
 
 import math
-import os
-import signal
-import socket
-import subprocess
-import sys
-import traceback
-from multiprocessing.connection import Connection
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -50,7 +57,11 @@ from plant.tick import messages_of, step_ticks
 
 from .actions import check_action
 from .avoid import AvoidTask, step_rewards
+from .episode import next_seed
 from .kinbatch import ArrayTicks
+from .results import Out, merge, reset_mask
+from .results import autoreset_mode as autoreset_mode_of
+from .workers import _Worker, cpus
 
 
 class Worlds:
@@ -60,9 +71,11 @@ class Worlds:
 
     def __init__(self, n: int, max_episode_steps: int | None, world: str, action_repeat: int,
                  goal_radius_m: float, overrides: tuple[str, ...],
-                 normalize_actions: bool, threads: int = 1) -> None:
+                 normalize_actions: bool, threads: int = 1,
+                 autoreset_mode: AutoresetMode = AutoresetMode.NEXT_STEP) -> None:
         self.n = int(n)
         self.max_episode_steps = max_episode_steps
+        self.autoreset_mode = autoreset_mode
         self.tasks: list[AvoidTask] = []
         try:
             for _ in range(self.n):
@@ -91,9 +104,13 @@ class Worlds:
         return (len(t.robots), t.dt, t.observation_space(self.robot), t.action_space(self.robot))
 
     def _reset_one(self, i: int, seed: int | None) -> tuple[dict, dict]:
-        """As :meth:`AvoidEnv.reset` (Env.reset's seeding rules, then the task's)."""
-        if seed is not None or self._rngs[i] is None:
-            self._rngs[i], _ = seeding.np_random(seed)
+        """As :meth:`AvoidEnv.reset` (Env.reset's seeding rules, a seed drawn when none is
+        given: :func:`diffbot.envs.episode.next_seed`; then the task's)."""
+        if seed is None:
+            if self._rngs[i] is None:
+                self._rngs[i], _ = seeding.np_random(None)
+            seed = next_seed(self._rngs[i])
+        self._rngs[i], _ = seeding.np_random(seed)
         if self.arrays is not None:
             self.arrays.flush(np.array([i]))
         task = self.tasks[i]
@@ -104,16 +121,22 @@ class Worlds:
         self._eligible[i] = self._kept[i] = False
         return obs[self.robot], info[self.robot]
 
-    def reset(self, seeds: list[int | None]) -> list[tuple[dict, dict]]:
-        return [self._reset_one(i, s) for i, s in enumerate(seeds)]
+    def reset(self, seeds: list[int | None], mask: np.ndarray | None = None
+              ) -> list[tuple[dict, dict]]:
+        """Each env's reset (``mask``: only those where it is True), in order."""
+        return [self._reset_one(i, s) for i, s in enumerate(seeds)
+                if mask is None or mask[i]]
 
     def step(self, actions: np.ndarray) -> tuple:
         """(obs {key: (n, ...)}, reward (n,), terminated (n,), truncated (n,), infos) of
         the chunk's envs, ``infos`` batched as Gymnasium's vector envs batch them (each key
         with its ``_key`` mask)."""
-        out = _Out(self.n, self._obs_space)
-        resets = np.flatnonzero(self._needs_reset)
-        live = np.flatnonzero(~self._needs_reset)
+        out = Out(self.n, self._obs_space)
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            resets = np.flatnonzero(self._needs_reset)
+            live = np.flatnonzero(~self._needs_reset)
+        else:          # (DISABLED: AvoidVectorEnv.step refused a step of an ended episode)
+            resets, live = np.zeros(0, np.int64), np.arange(self.n)
         tasks = [self.tasks[i] for i in live]
         if live.size and self._arrays_for(live):
             self._step_arrays(live, tasks, np.asarray(actions)[live], out)
@@ -134,7 +157,30 @@ class Worlds:
             o, info = self._reset_one(int(i), None)
             out.put(i, o, 0.0, False, False, info)
         self._needs_reset = out.term | out.trunc
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and self._needs_reset.any():
+            self._reset_ended(out)
         return out.obs, out.rew, out.term, out.trunc, out.infos
+
+    def _reset_ended(self, out: "Out") -> None:
+        """Same-step autoreset, as Gymnasium's ``SyncVectorEnv`` does it: each env whose
+        episode this step ended is reset at once; its last observation goes to
+        ``infos["final_obs"]`` (an object array of single observations), its step's info to
+        ``infos["final_info"]`` (batched, with masks), and the new episode's first
+        observation and reset info take its row."""
+        ended = np.flatnonzero(self._needs_reset)
+        final_obs = np.full(self.n, None, dtype=object)
+        final = Out(self.n, None)
+        for i in ended.tolist():
+            final_obs[i] = {k: a[i].copy() for k, a in out.obs.items()}
+            final.put_info(i, out.info_of(i))
+        for i in ended.tolist():
+            o, info = self._reset_one(i, None)
+            out.put(i, o, out.rew[i], out.term[i], out.trunc[i], info)
+        mask = np.zeros(self.n, np.bool_)
+        mask[ended] = True
+        out.infos.update({"final_obs": final_obs, "_final_obs": mask,
+                          "final_info": final.infos, "_final_info": mask.copy()})
+        self._needs_reset[:] = False
 
     def _arrays_for(self, live: np.ndarray) -> bool:
         """Whether the ``live`` envs step as arrays (ArrayTicks.eligible, asked of an env's
@@ -149,7 +195,7 @@ class Worlds:
         return True
 
     def _step_arrays(self, live: np.ndarray, tasks: list[AvoidTask], actions: np.ndarray,
-                     out: "_Out") -> None:
+                     out: "Out") -> None:
         """The live envs' step as arrays (:mod:`diffbot.envs.kinbatch`): each task's
         ``begin_step``, ticks and ``end_step`` for all at once, the same numbers."""
         robot, first = self.robot, tasks[0]
@@ -226,214 +272,6 @@ class Worlds:
         self.tasks = []
 
 
-class _Out:
-    """A chunk's step results, env by env (:meth:`put`) or rows at once (:meth:`put_rows`),
-    batched as :meth:`gymnasium.vector.VectorEnv._add_info` batches ``info``: each key an
-    array typed by its value's type (bool, int, float: that dtype; an ndarray: its shape
-    and dtype; else objects) with a ``_key`` mask of the envs that gave it."""
-
-    def __init__(self, n: int, space) -> None:
-        self.n = n
-        self.obs = {k: np.zeros((n, *sp.shape), sp.dtype) for k, sp in space.spaces.items()}
-        self.rew = np.zeros(n, np.float64)
-        self.term = np.zeros(n, bool)
-        self.trunc = np.zeros(n, bool)
-        self.infos: dict = {}
-
-    def _array(self, key: str, sample) -> np.ndarray:
-        a = self.infos.get(key)
-        if a is None:
-            if type(sample) in (int, float, bool) or issubclass(type(sample), np.number):
-                a = np.zeros(self.n, dtype=type(sample))
-            elif isinstance(sample, np.ndarray):
-                a = np.zeros((self.n, *sample.shape), dtype=sample.dtype)
-            else:
-                a = np.full(self.n, None, dtype=object)
-            self.infos[key] = a
-            self.infos[f"_{key}"] = np.zeros(self.n, dtype=np.bool_)
-        return a
-
-    def put(self, i: int, obs: dict, rew: float, term: bool, trunc: bool, info: dict) -> None:
-        for k, a in self.obs.items():
-            a[i] = obs[k]
-        self.rew[i], self.term[i], self.trunc[i] = rew, term, trunc
-        for key, value in info.items():
-            self._array(key, value)[i] = value
-            self.infos[f"_{key}"][i] = True
-
-    def put_rows(self, rows: np.ndarray, obs: dict, rew, term, trunc, info: dict) -> None:
-        """Rows ``rows`` at once; ``info``: key -> one value per row (an array's rows, or a
-        list), typed as the single env's values are (float64, bool, ndarray rows)."""
-        for k, a in self.obs.items():
-            a[rows] = obs[k]
-        self.rew[rows], self.term[rows], self.trunc[rows] = rew, term, trunc
-        for key, col in info.items():
-            first = col[0]
-            sample = first.item() if isinstance(first, np.generic) else first
-            a = self._array(key, sample)
-            if a.dtype == object:
-                for r, v in zip(rows.tolist(), col):
-                    a[r] = v
-            else:
-                a[rows] = col
-            self.infos[f"_{key}"][rows] = True
-
-
-def merge(parts: list[tuple]) -> tuple:
-    """Chunks' :meth:`Worlds.step` results, in env order, as one batch's."""
-    if len(parts) == 1:
-        return parts[0]
-    obs = {k: np.concatenate([p[0][k] for p in parts]) for k in parts[0][0]}
-    rew, term, trunc = (np.concatenate([p[j] for p in parts]) for j in (1, 2, 3))
-    sizes = [len(p[1]) for p in parts]
-    infos: dict = {}
-    for key in dict.fromkeys(k for p in parts for k in p[4]):
-        cols = []
-        for p, n in zip(parts, sizes):
-            if key in p[4]:
-                cols.append(p[4][key])
-            else:        # a key no env of this chunk gave: empty, masked out
-                like = next(q[4][key] for q in parts if key in q[4])
-                cols.append(np.zeros((n, *like.shape[1:]), like.dtype) if like.dtype != object
-                            else np.full(n, None, dtype=object))
-        infos[key] = np.concatenate(cols)
-    return obs, rew, term, trunc, infos
-
-
-def _serve(conn) -> None:
-    """A worker process: envs of a batch (:class:`Worlds`, built from the first message,
-    (n, kwargs)) answering its parent's calls ((method, args) -> ("ok", result) or
-    ("error", exception, traceback)) until ``close``, or until the parent is gone (its end
-    of the connection closed; the kernel's SIGTERM too, :func:`diffbot.procs._preexec`).
-    Ctrl-C is the parent's to handle: it closes the batch."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    worlds = None
-    try:
-        try:
-            n, kw = conn.recv()
-            worlds = Worlds(n, **kw)
-            conn.send(("ok", worlds.spaces()))
-        except (EOFError, OSError):
-            return
-        except Exception as exc:
-            conn.send(("error", exc, traceback.format_exc()))
-            return
-        episodes = _Episodes()
-        while True:
-            try:
-                method, args = conn.recv()
-            except (EOFError, OSError):
-                return
-            if method == "close":
-                return
-            try:
-                value = getattr(worlds, method)(*args)
-                conn.send(("ok", episodes.pack(value) if method == "step" else value))
-            except Exception as exc:
-                conn.send(("error", exc, traceback.format_exc()))
-    finally:
-        if worlds is not None:
-            worlds.close()
-        conn.close()
-
-
-class _Episodes:
-    """A step's ``info["plant"]`` across the pipe without the Episodes the parent has: an
-    env's :class:`diffbot.envs.episode.Episode` is a new object at each of its resets
-    (AvoidTask.reset) and the same one at every step after, so only the rows whose object
-    changed since the last step are sent (pickling all of them cost ~8 us an env each way,
-    a tenth of a step). The worker :meth:`pack` s, the parent's :class:`_Worker`
-    :meth:`unpack` s, each side keeping the column as the last step left it."""
-
-    def __init__(self) -> None:
-        self.rows: list = []
-
-    def pack(self, result: tuple) -> tuple:
-        col = result[4].get("plant")
-        if col is None:
-            return result
-        if len(self.rows) != len(col):
-            self.rows = [None] * len(col)
-        changed = [i for i, (e, old) in enumerate(zip(col, self.rows)) if e is not old]
-        for i in changed:
-            self.rows[i] = col[i]
-        return result[:4] + ({**result[4], "plant": (changed, [col[i] for i in changed])},)
-
-    def unpack(self, result: tuple) -> tuple:
-        packed = result[4].get("plant")
-        if packed is None:
-            return result
-        changed, episodes = packed
-        if len(self.rows) != len(result[1]):
-            self.rows = [None] * len(result[1])
-        for i, e in zip(changed, episodes):
-            self.rows[i] = e
-        col = np.empty(len(self.rows), dtype=object)
-        col[:] = self.rows
-        return result[:4] + ({**result[4], "plant": col},)
-
-
-class _Worker:
-    """A chunk of the batch in a worker process (``python -m diffbot.envs.vector FD``,
-    :func:`_serve`, over a socket pair; a fresh interpreter, so a user's script needs no
-    ``if __name__ == "__main__"`` guard): the same calls as :class:`Worlds`, sent
-    (:meth:`send`) and answered (:meth:`result`) apart, so that the chunks step at once."""
-
-    def __init__(self, n: int, kw: dict) -> None:
-        import diffbot
-        from diffbot import procs
-        ours, theirs = socket.socketpair()
-        root = os.path.dirname(os.path.dirname(os.path.abspath(diffbot.__file__)))
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-            [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}
-        try:
-            self.proc = subprocess.Popen(
-                [sys.executable, "-m", "diffbot.envs.vector", str(theirs.fileno())],
-                pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
-                preexec_fn=procs._preexec(die_with_parent=True))
-        finally:
-            theirs.close()
-        self.conn = Connection(ours.detach())
-        self.conn.send((n, kw))
-        self._method = ""
-        self._episodes = _Episodes()
-
-    def send(self, method: str, *args) -> None:
-        self._method = method
-        self.conn.send((method, args))
-
-    def result(self):
-        try:
-            status, value, *tb = self.conn.recv()
-        except (EOFError, OSError):
-            raise RuntimeError(f"a batch worker process (pid {self.proc.pid}) died, "
-                               f"exit code {self.proc.poll()}") from None
-        if status == "error":
-            raise value from RuntimeError(f"in the batch worker (pid {self.proc.pid}):\n{tb[0]}")
-        return self._episodes.unpack(value) if self._method == "step" else value
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            try:
-                self.conn.send(("close", ()))
-            except (BrokenPipeError, OSError):
-                pass
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        self.conn.close()
-
-
-def _cpus() -> int:
-    """The CPUs this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:                         # (not on Linux)
-        return os.cpu_count() or 1
-
-
 class AvoidVectorEnv(VectorEnv):
     """N ``diffbot/Avoid-v0`` worlds in one process, or in ``workers`` (module docstring)."""
 
@@ -444,8 +282,14 @@ class AvoidVectorEnv(VectorEnv):
                  world: str = "living_room", action_repeat: int = 5,
                  goal_radius_m: float = 0.3, overrides: tuple[str, ...] = (),
                  normalize_actions: bool = False, render_mode: str | None = None,
-                 transport: str = "inproc", workers: int = 1, threads: int | None = None
-                 ) -> None:
+                 transport: str = "inproc", workers: int = 1, threads: int | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 engine: str = "processes", address: str | None = None) -> None:
+        autoreset_mode = autoreset_mode_of(autoreset_mode)
+        if engine not in ("processes", "ray"):
+            raise ValueError(f"engine must be 'processes' or 'ray', got {engine!r}")
+        if address is not None and engine != "ray":
+            raise ValueError("address= is a Ray cluster's: engine='ray'")
         if transport != "inproc":
             raise ValueError("vector_entry_point batches in-process worlds; for plants over "
                              "the bus use vectorization_mode='async' (one plant per worker)")
@@ -457,7 +301,7 @@ class AvoidVectorEnv(VectorEnv):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if threads is None:       # the CPUs this process may use, shared among the processes
-            threads = max(1, _cpus() // int(workers))
+            threads = 1 if engine == "ray" else max(1, cpus() // int(workers))
         elif int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads!r}")
         self.num_envs = int(num_envs)
@@ -466,15 +310,23 @@ class AvoidVectorEnv(VectorEnv):
         kw = dict(max_episode_steps=self.max_episode_steps, world=world,
                   action_repeat=action_repeat, goal_radius_m=goal_radius_m,
                   overrides=tuple(overrides), normalize_actions=normalize_actions,
-                  threads=int(threads))
+                  threads=int(threads), autoreset_mode=autoreset_mode)
         k = int(workers)
         sizes = [self.num_envs // k + (1 if j < self.num_envs % k else 0) for j in range(k)]
         self.chunks: list = []
+        self._ray = None
         try:
-            for size in sizes[1:]:                 # the workers start while ours is built
-                self.chunks.append(_Worker(size, kw))
-            self.chunks.insert(0, Worlds(sizes[0], **kw))
-            spaces = [self.chunks[0].spaces()] + [w.result() for w in self.chunks[1:]]
+            if engine == "ray":                    # every chunk an actor (ray_workers)
+                from .ray_workers import Session
+                self._ray = Session(address)
+                for size in sizes:
+                    self.chunks.append(self._ray.chunk(size, kw))
+                spaces = [c.result() for c in self.chunks]
+            else:
+                for size in sizes[1:]:             # the workers start while ours is built
+                    self.chunks.append(_Worker(size, kw))
+                self.chunks.insert(0, Worlds(sizes[0], **kw))
+                spaces = [self.chunks[0].spaces()] + [w.result() for w in self.chunks[1:]]
         except BaseException:
             self.close_extras()
             raise
@@ -482,13 +334,16 @@ class AvoidVectorEnv(VectorEnv):
         if robots != 1:
             self.close_extras()
             raise ValueError(f"{world} has {robots} robots; Avoid-v0 drives one")
-        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt),
+                         "autoreset_mode": autoreset_mode}
+        self.autoreset_mode = autoreset_mode
         self.single_observation_space = obs_space
         self.single_action_space = act_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._bounds = np.concatenate([[0], np.cumsum(sizes)])
         self._needs_reset = np.zeros(self.num_envs, bool)   # as each chunk's (autoreset)
+        self._obs: dict | None = None                       # the last observations
 
     @property
     def tasks(self) -> list[AvoidTask]:
@@ -497,23 +352,28 @@ class AvoidVectorEnv(VectorEnv):
         return self.chunks[0].sync() if self.chunks and isinstance(self.chunks[0], Worlds) else []
 
     def _all(self, method: str, per_chunk: list) -> list:
-        """``method`` of every chunk with its argument, the workers' sent first, so they
-        run while this process does its own; each chunk's result, in env order. Every worker's
-        answer is read even when a chunk fails (the first error is raised after), so the
-        next call reads its own answers."""
-        for c, arg in zip(self.chunks[1:], per_chunk[1:]):
-            c.send(method, *arg)
-        out: list = []
+        """``method`` of every chunk with its argument, the remote ones' (worker processes,
+        Ray actors) sent first, so they run while this process does its own; each chunk's
+        result, in env order. Every remote chunk's answer is read even when a chunk fails
+        (the first error is raised after), so the next call reads its own answers."""
+        local = [isinstance(c, Worlds) for c in self.chunks]
+        for c, arg, here in zip(self.chunks, per_chunk, local):
+            if not here:
+                c.send(method, *arg)
+        out: list = [None] * len(self.chunks)
         error = None
-        try:
-            out.append(getattr(self.chunks[0], method)(*per_chunk[0]))
-        except Exception as exc:
-            error = exc
-        for c in self.chunks[1:]:
-            try:
-                out.append(c.result())
-            except Exception as exc:
-                error = error or exc
+        for j, (c, arg, here) in enumerate(zip(self.chunks, per_chunk, local)):
+            if here:
+                try:
+                    out[j] = getattr(c, method)(*arg)
+                except Exception as exc:
+                    error = error or exc
+        for j, (c, here) in enumerate(zip(self.chunks, local)):
+            if not here:
+                try:
+                    out[j] = c.result()
+                except Exception as exc:
+                    error = error or exc
         if error is not None:
             raise error
         return out
@@ -522,6 +382,11 @@ class AvoidVectorEnv(VectorEnv):
         return [(values[lo:hi],) for lo, hi in zip(self._bounds[:-1], self._bounds[1:])]
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        """All envs, or with ``options={"reset_mask": m}`` (a bool array, one per env, at
+        least one True) only envs i where ``m[i]``: the others keep their episodes, their
+        rows of the observation are their last, and ``infos`` holds the reset envs' only
+        (as Gymnasium's vector envs do). ``seed``: None, an int (env i: ``seed + i``) or a
+        list of one per env (a masked reset reads the masked envs' only)."""
         super().reset(seed=seed if isinstance(seed, int) else None)
         if seed is None:
             seeds = [None] * self.num_envs
@@ -531,18 +396,40 @@ class AvoidVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
+        mask = reset_mask(options, self.num_envs)
+        if mask is not None and self._obs is None:
+            raise RuntimeError("reset_mask resets some envs of a running batch: call reset() "
+                               "without it first")
+        parts = self._all("reset", [(s, m) for (s,), (m,) in zip(
+            self._split(seeds), self._split(mask) if mask is not None
+            else [(None,)] * len(self.chunks))])
+        which = np.arange(self.num_envs) if mask is None else np.flatnonzero(mask)
         obs, infos = [], {}
-        self._needs_reset[:] = False
-        for i, (o, info) in enumerate(r for part in self._all("reset", self._split(seeds))
-                                      for r in part):
+        for i, (o, info) in zip(which.tolist(), (r for part in parts for r in part)):
             obs.append(o)
             infos = self._add_info(infos, info, i)
-        return self._stack(obs), infos
+        if mask is None:
+            self._needs_reset[:] = False
+            self._obs = self._stack(obs)
+        else:
+            self._needs_reset[mask] = False
+            self._obs = {k: a.copy() for k, a in self._obs.items()}
+            for k, a in self._obs.items():
+                a[mask] = np.stack([o[k] for o in obs])
+        return self._obs, infos
 
     def step(self, actions):
         actions = np.asarray(actions)
         if actions.shape[:1] != (self.num_envs,):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
+        if self._obs is None:
+            raise RuntimeError("call reset() before step()")
+        if self.autoreset_mode == AutoresetMode.DISABLED and self._needs_reset.any():
+            ended = np.flatnonzero(self._needs_reset).tolist()
+            raise RuntimeError(
+                f"the episodes of env {', '.join(map(str, ended))} are over and "
+                "autoreset_mode is DISABLED: reset them first, "
+                "reset(options={'reset_mask': terminated | truncated})")
         # checked before any world steps (a reset's action is ignored): check_action's
         # error for the first bad one
         live = ~self._needs_reset
@@ -555,7 +442,10 @@ class AvoidVectorEnv(VectorEnv):
             for i in np.flatnonzero(live):
                 check_action(actions[i], f"env {i}")
         obs, rew, term, trunc, infos = merge(self._all("step", self._split(actions)))
-        self._needs_reset = term | trunc
+        # (same-step autoreset: every env's episode goes on)
+        self._needs_reset = ((term | trunc) if self.autoreset_mode != AutoresetMode.SAME_STEP
+                             else np.zeros(self.num_envs, bool))
+        self._obs = obs
         return obs, rew, term, trunc, infos
 
     def _stack(self, obs: list[dict]) -> dict:
@@ -570,7 +460,6 @@ class AvoidVectorEnv(VectorEnv):
         for c in getattr(self, "chunks", []):
             c.close()
         self.chunks = []
-
-
-if __name__ == "__main__":            # a batch's worker process (_Worker)
-    _serve(Connection(int(sys.argv[1])))
+        if getattr(self, "_ray", None) is not None:
+            self._ray.close()
+            self._ray = None

@@ -1,14 +1,16 @@
 """PPO from Stable-Baselines3 on diffbot/Avoid-v0, then the trained model as a bus node.
 
-    pip install -e '.[sb3]'        # stable-baselines3 (and torch: a CPU build is enough)
+    make setup                     # installs the sb3 extra (stable-baselines3, CPU torch)
     .venv/bin/python examples/learn/ppo_avoid.py --out out/ppo --steps 100000
     .venv/bin/python examples/learn/ppo_avoid.py --out out/ppo --quick     # a smoke run
 
-It trains ``MultiInputPolicy`` (the Dict observation as it is) on normalised actions
-(``normalize_actions=True``: the unit box PPO's Gaussian policy expects), ``--envs`` envs
-in this process (SB3's DummyVecEnv), then scores the deterministic policy and random
+It trains ``MultiInputPolicy`` (the Dict observation as it is) through
+:class:`diffbot.envs.sb3.AvoidVecEnv` (``--envs`` worlds stepped together in this process,
+``--mode`` kinematic by default), on normalised actions (the unit box PPO's Gaussian policy
+expects; ``--no-normalize``: m/s and rad/s), then scores the deterministic policy and random
 actions on ``--eval`` held-out seeds (goal reached without contact), and writes
-``OUT/model.zip``, ``OUT/curve.csv`` (episode return and success by training step),
+``OUT/model.zip``, ``OUT/model.spec.json`` (the env's spec: what :class:`SB3Policy` scales
+actions by), ``OUT/curve.csv`` (episode return and success by training step),
 ``OUT/curve.png`` and ``OUT/result.json``.
 
 The model deploys with no code of ours beyond this file's :class:`SB3Policy` (any class
@@ -42,22 +44,23 @@ from controllers.learned import AvoidObserver  # noqa: E402
 class SB3Policy:
     """A trained SB3 model as a controller: the Avoid observation built from the robot's
     messages (the environment's own code), a decision every ``action_repeat`` ticks, the
-    normalised action scaled to the drive limits as the environment does. Done when its
-    odometry puts it within ``goal_radius_m`` of ``goal`` (world, m)."""
+    action scaled as the environment it was trained in scaled it. That environment's
+    settings (``normalize_actions``, ``action_repeat``, ``world``, ``overrides``,
+    ``goal_radius_m``) come from its spec, saved beside the model (``spec``; default
+    MODEL.spec.json, as :func:`main` writes it); without one, the model's action space
+    tells: the unit box (normalised) or the world's drive limits. Done when its odometry
+    puts it within ``goal_radius_m`` of ``goal`` (world, m)."""
     inputs = ["joint_states", "scan"]
 
-    def __init__(self, model: str, goal=(0.0, 0.0), goal_radius_m: float = 0.3,
-                 action_repeat: int = 5, world: str = "living_room") -> None:
+    def __init__(self, model: str, goal=(0.0, 0.0), goal_radius_m: float | None = None,
+                 spec: str | None = None) -> None:
         from stable_baselines3 import PPO
-        from diffbot.envs.actions import Drive
-        from plant.world import load_world
         self.model = PPO.load(model, device="cpu")
+        self.env_kw = _trained_with(model, spec)
         self.goal = (float(goal[0]), float(goal[1]))
-        self.goal_radius = float(goal_radius_m)
-        self.action_repeat = int(action_repeat)
-        self.world = world
-        self._drive_of = lambda robot: load_world(world).robot(robot).drive
-        self.Drive = Drive
+        self.goal_radius = float(goal_radius_m if goal_radius_m is not None
+                                 else self.env_kw.get("goal_radius_m", 0.3))
+        self.action_repeat = int(self.env_kw.get("action_repeat", 5))
         self.observer = None
         self.action = (0.0, 0.0)
         self.ticks = 0
@@ -69,8 +72,7 @@ class SB3Policy:
         self.observer = AvoidObserver(r["wheel_radius_m"], r["wheel_separation_m"],
                                       int(lidar["num_rays"]), float(lidar["max_range_m"]))
         self.observer.reset(r["pose"], self.goal)
-        d = self._drive_of(robot)
-        self.drive = self.Drive(d.max_linear_mps, d.max_angular_radps, normalize=True)
+        self.drive = drive_of(self.model.action_space, self.env_kw, robot)
 
     def step(self, obs):
         self.observer.feed(obs.t_ns, obs.msgs)
@@ -85,22 +87,43 @@ class SB3Policy:
         return Twist(*self.action)
 
 
-def make_env(seed: int):
-    def thunk():
-        import gymnasium as gym
-        import diffbot.envs  # noqa: F401
-        from stable_baselines3.common.monitor import Monitor
-        env = Monitor(gym.make("diffbot/Avoid-v0", normalize_actions=True),
-                      info_keywords=("is_success",))
-        env.reset(seed=seed)
-        return env
-    return thunk
+def _trained_with(model: str, spec: str | None) -> dict:
+    """The env arguments of the spec saved beside ``model`` (or at ``spec``); {} if none."""
+    from gymnasium.envs.registration import EnvSpec
+    path = spec or (model[:-4] if model.endswith(".zip") else model) + ".spec.json"
+    if not os.path.exists(path):
+        if spec is not None:
+            raise FileNotFoundError(f"{spec}: no such env spec file")
+        return {}
+    with open(path) as f:
+        return dict(EnvSpec.from_json(f.read()).kwargs)
 
 
-def evaluate(act, seeds) -> float:
+def drive_of(space, env_kw: dict, robot: str):
+    """The action scaling the model was trained with (diffbot.envs.actions.Drive), from
+    the env arguments of its spec, or (none saved) from its action space; a model whose
+    action space is not the scaling's is refused."""
+    from diffbot.envs.actions import Drive
+    from plant.world import load_world
+    d = load_world(env_kw.get("world", "living_room"), list(env_kw.get("overrides", ()))
+                   ).robot(robot).drive
+    ways = ([bool(env_kw["normalize_actions"])] if "normalize_actions" in env_kw
+            else [True, False])
+    for normalize in ways:
+        drive = Drive(d.max_linear_mps, d.max_angular_radps, normalize=normalize)
+        if (np.array_equal(drive.space.low, space.low)
+                and np.array_equal(drive.space.high, space.high)):
+            return drive
+    raise ValueError(f"the model's action space {space} is not {robot}'s drive "
+                     f"(normalize_actions={ways}) in the env it was trained in: "
+                     "pass spec= (the env's spec.to_json() file)")
+
+
+def evaluate(act, seeds, spec) -> float:
+    """The share of episodes ``act`` wins (goal reached without contact), one a seed, in
+    the env of ``spec``."""
     import gymnasium as gym
-    import diffbot.envs  # noqa: F401
-    env = gym.make("diffbot/Avoid-v0", normalize_actions=True)
+    env = gym.make(spec)
     wins = 0
     try:
         for s in seeds:
@@ -123,15 +146,22 @@ def main(argv=None) -> int:
     p.add_argument("--envs", type=int, default=8)
     p.add_argument("--eval", type=int, default=30, help="held-out episodes to score")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--mode", choices=("kinematic", "dynamic"), default="kinematic",
+                   help="the world's mode while training (kinematic: ~20x faster; a policy "
+                        "trained there drives the dynamic world too)")
+    p.add_argument("--no-normalize", dest="normalize", action="store_false",
+                   help="actions in m/s and rad/s, not the unit box")
     p.add_argument("--quick", action="store_true", help="a smoke run: 512 steps, 2 episodes")
     args = p.parse_args(argv)
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.vec_env import DummyVecEnv
+    from diffbot.envs.sb3 import AvoidVecEnv
     if args.quick:
         args.steps, args.envs, args.eval = 512, 2, 2
     os.makedirs(args.out, exist_ok=True)
-    venv = DummyVecEnv([make_env(args.seed * 1000 + i) for i in range(args.envs)])
+    venv = AvoidVecEnv(args.envs, normalize_actions=args.normalize,
+                       overrides=(f"world.mode={args.mode}",))
+    venv.seed(args.seed * 1000)
     curve = []
 
     class Curve(BaseCallback):
@@ -151,15 +181,18 @@ def main(argv=None) -> int:
     venv.close()
     path = os.path.join(args.out, "model.zip")
     model.save(path)
+    with open(os.path.join(args.out, "model.spec.json"), "w") as f:
+        f.write(venv.spec.to_json())                # SB3Policy reads the scaling from it
     held_out = np.arange(10_000, 10_000 + args.eval)
-    ppo = evaluate(lambda env, o: model.predict(o, deterministic=True)[0], held_out)
-    rnd = evaluate(lambda env, o: env.action_space.sample(), held_out)
+    ppo = evaluate(lambda env, o: model.predict(o, deterministic=True)[0], held_out, venv.spec)
+    rnd = evaluate(lambda env, o: env.action_space.sample(), held_out, venv.spec)
     with open(os.path.join(args.out, "curve.csv"), "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["step", "episode_return", "success"])
         w.writerows(curve)
     _plot(curve, os.path.join(args.out, "curve.png"))
     result = {"train_steps": args.steps, "train_wall_s": round(train_s, 1), "envs": args.envs,
+              "mode": args.mode, "normalize_actions": args.normalize,
               "episodes": len(curve), "success_ppo": ppo, "success_random": rnd,
               "held_out_seeds": [int(held_out[0]), int(held_out[-1])], "model": path}
     with open(os.path.join(args.out, "result.json"), "w") as f:
