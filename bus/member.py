@@ -111,6 +111,8 @@ class MemberTick:
         self.slot_of = {self.key(s.robot, t): (s, t) for s in self.slots for t in s.inputs}
         self.ticks = 0
         self.final_tick: int | None = None   # the tick at which the last controller finished
+        # the newest world epoch seen (kept across reset(): a clock of an older one is late)
+        self.newest_epoch = 0
         self.mode = "lockstep"
         self.coupling = "sequential"
         self._out: list[Output] = []
@@ -123,6 +125,8 @@ class MemberTick:
         ValueError if a robot of this member is not in the plant's world."""
         self.mode = info.get("mode", "lockstep")
         self.coupling = info.get("coupling", "sequential")
+        # the plant's world now (a plant of another run starts again at 0)
+        self.newest_epoch = int(info.get("epoch", 0))
         self.sync = self.mode == "lockstep" and all(hooks.syncs(s.controller)
                                                     for s in self.slots)
         robots = info.get("robots", {})
@@ -141,9 +145,12 @@ class MemberTick:
         lag = int(info.get("node_input_delay_ticks", 0)) * self.tick_ns if self.sync else 0
         self.lag_ns = {t: lag if v.awaited else 0 for t, v in self.topics.items()}
 
-    def reset(self) -> None:
+    def reset(self, epoch: int | None = None) -> None:
         """Section 4, "Reset": forget every input sample and pending tick (the plant went, or
-        its world was reset from inside ``step``: the new world's clock starts again at 0)."""
+        its world was reset from inside ``step``: the new world's clock starts again at 0;
+        ``epoch``: the new world's, from the ``sim/reset`` reply: older clocks are late)."""
+        if epoch is not None:
+            self.newest_epoch = epoch
         self.buf: dict[str, dict[int, Any]] = {}
         self.used: set[tuple[str, int]] = set()
         # input key -> (stamp of a sample whose producer holds, the last tick it holds)
@@ -226,12 +233,16 @@ class MemberTick:
         plant's world ``epoch`` (section 3; None: not said). Returns (what to re-send: a
         tick this member answered, re-published after a rejoin; a problem to count, or
         None). Otherwise the tick waits for its inputs (:meth:`next_due`); ``now``: the
-        wall time it came. A clock of another epoch is a new world's (a reset), never a
-        re-publish, whatever its stamp."""
+        wall time it came. A clock of a newer epoch is a new world's (a reset), never a
+        re-publish, whatever its stamp; one of an older epoch than the newest seen is the
+        old world's, late, and ignored (section 4, "Reset")."""
+        if epoch is not None and epoch < self.newest_epoch:
+            return None, None                  # the old world's, late: never answered
         self.last_clock = t_ns
         if not self.sync:
             return None, None
         if epoch is not None:
+            self.newest_epoch = epoch
             if self.epoch is not None and epoch != self.epoch:
                 self.sent.clear()
                 self._last_acted = self.hold_until = None
