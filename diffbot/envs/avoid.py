@@ -237,7 +237,7 @@ class AvoidTask:
     def end_step(self) -> tuple[dict, dict, dict, dict, dict]:
         """A step's second half, after its ticks: observations, rewards, flags, infos (a
         batch of kinematic worlds makes them for all its worlds at once:
-        :meth:`diffbot.envs.vector.Worlds._step_arrays`)."""
+        :meth:`diffbot.envs.worlds.Worlds._step_arrays`)."""
         before = self._before
         self.steps += 1
         obs = self._obs()

@@ -1,6 +1,6 @@
 """One-robot Avoid worlds ticked as arrays (the batch's fast path, and the single env's).
 
-:class:`diffbot.envs.vector.Worlds` ticks its worlds through the plant's messages
+:class:`diffbot.envs.worlds.Worlds` ticks its worlds through the plant's messages
 (:func:`plant.tick.messages_of`, then each env's :meth:`diffbot.envs.avoid.AvoidTask._observe`
 reads them; the tasks this module steps are :class:`~diffbot.envs.avoid.AvoidTask` s):
 a hundred microseconds of Python per world and tick, most of it building and reading
@@ -49,7 +49,7 @@ its reset), and writes it back to the env's observer, odometry, limiter, world a
 only when something is to read them (:meth:`ArrayTicks.flush`: a render, a reset, the
 message path, :attr:`AvoidVectorEnv.tasks`, :attr:`AvoidEnv.task`), so rendering and
 resets are the task's own code; the rewards, flags and ``info`` of all worlds are
-:meth:`diffbot.envs.vector.Worlds._step_arrays`'.
+:meth:`diffbot.envs.worlds.Worlds._step_arrays`'.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The batched env's chunks on a Ray cluster (``AvoidVectorEnv(..., workers=K,
 engine="ray")``, the ``cluster`` extra): each of the K chunks a Ray actor holding a
-:class:`diffbot.envs.vector.Worlds`, one CPU each, spread over the cluster's nodes; env i is
+:class:`diffbot.envs.worlds.Worlds`, one CPU each, spread over the cluster's nodes; env i is
 the same env, to the bit, wherever its chunk runs. The actors answer the same calls as
 a worker process (:class:`diffbot.envs.workers._Worker`): ``send`` then ``result``, so the
 chunks step at once.
@@ -23,10 +23,10 @@ from .workers import _Episodes
 
 
 class _Chunk:
-    """The actor: a chunk of the batch (:class:`diffbot.envs.vector.Worlds`)."""
+    """The actor: a chunk of the batch (:class:`diffbot.envs.worlds.Worlds`)."""
 
     def __init__(self, n: int, kw: dict) -> None:
-        from .vector import Worlds
+        from .worlds import Worlds
         self.worlds = Worlds(n, **kw)
         self.episodes = _Episodes()
 

@@ -1,6 +1,6 @@
 """The batched env's chunks in worker processes (:class:`diffbot.envs.vector.AvoidVectorEnv`
 with ``workers=K``): each a fresh interpreter (``python -m diffbot.envs.workers FD``)
-holding a :class:`diffbot.envs.vector.Worlds` and answering its parent's calls over a
+holding a :class:`diffbot.envs.worlds.Worlds` and answering its parent's calls over a
 socket pair (:func:`diffbot.envs.results.merge` joins the chunks' results)."""
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def _serve(conn) -> None:
     ("error", exception, traceback)) until ``close``, or until the parent is gone (its end
     of the connection closed; the kernel's SIGTERM too, :func:`diffbot.procs._preexec`).
     Ctrl-C is the parent's to handle: it closes the batch."""
-    from .vector import Worlds
+    from .worlds import Worlds
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     worlds = None
     try:
