@@ -2,14 +2,17 @@
 
     diffbot fmu export-plant [--world W] [--robots R ...] [--fmi 3|2] [--set K=V ...] --out robot.fmu
 
-The FMU is a *tool-coupling* FMU (``needsExecutionTool="true"``): its binary, a C shim
-compiled here with the system C compiler (fmus/plant_wrapper/), embeds the Python
-interpreter of the environment that exports it and runs :mod:`fmus.plant_fmu` there.
-``resources/plant.cfg`` records where that environment is (its python executable, its
-libpython, this package's root); ``resources/plant.json`` the FMU's variables' layout.
-Move or delete the environment and the FMU says so through the FMI logger when it is
-instantiated; export it again where it should run. The variables are described in
-:mod:`fmus.plant_fmu` and docs/fmu.md.
+The FMU is a *tool-coupling* FMU (``needsExecutionTool="true"``), as PythonFMU's are: it
+carries no Python, and runs :mod:`fmus.plant_fmu` in a Python >= 3.10 of the machine it runs
+on that has diffbot-cosim of the same release series installed (0.1.x for 0.1.0). Its binary
+(fmus/plant_wrapper/, compiled here against Python's limited C API, so one binary serves
+every Python >= 3.10) uses the host's Python when the host runs one (fmpy, libcosimpy,
+ecospy), else the Python that ``$DIFFBOT_FMU_PYTHON`` names, else the active virtual
+environment's, else ``python3`` on PATH, whose shared libpython it loads (:mod:`fmus.plant_guest`
+says how). No path of the exporting machine is inside; ``--bound-to-this-python`` writes
+this interpreter's path into ``resources/plant.cfg`` (the FMU then looks there before the
+virtual environment and PATH). ``resources/plant.json`` holds the FMU's variables' layout.
+The variables are described in :mod:`fmus.plant_fmu` and docs/fmu.md.
 """
 from __future__ import annotations
 
@@ -32,31 +35,33 @@ from .plant_fmu import Var, layout
 MODEL_IDENTIFIER = "plant"
 _HERE = Path(__file__).resolve().parent
 _SHIM_DIR = _HERE / "plant_wrapper"
-_ROOT = _HERE.parent                       # the package root put on the FMU's sys.path
 _UNITS = ("m", "rad", "m/s", "rad/s", "s")
 _BASE_UNITS = {"m": 'm="1"', "rad": 'rad="1"', "m/s": 'm="1" s="-1"',
                "rad/s": 's="-1" rad="1"', "s": 's="1"'}
 DESCRIPTION = ("The diffbot-cosim DART plant (robots, noise, lidar) as a tool-coupling "
-               "co-simulation FMU: it runs in the Python environment it was exported from "
-               "(resources/plant.cfg); the communication step must be a whole number of "
+               "co-simulation FMU: it runs in a Python >= 3.10 with diffbot-cosim installed "
+               "(the host's, else $DIFFBOT_FMU_PYTHON, else the active virtual environment's, "
+               "else python3 on PATH); the communication step must be a whole number of "
                "control ticks.")
 
 
-def python_environment() -> dict[str, str]:
-    """Where this interpreter is (sysconfig, as python3-config would say): what the C shim
-    loads and puts on sys.path."""
-    libdir = sysconfig.get_config_var("LIBDIR") or ""
-    soname = sysconfig.get_config_var("INSTSONAME") or sysconfig.get_config_var("LDLIBRARY") or ""
-    if not sysconfig.get_config_var("Py_ENABLE_SHARED"):
-        soname = ""                        # a static interpreter: only Python hosts can run it
-    site = sysconfig.get_paths()["purelib"]
-    bootstrap = (f"import sys; r, s = {str(_ROOT)!r}, {site!r}; "
-                 "r in sys.path or sys.path.insert(0, r); s in sys.path or sys.path.append(s)")
-    return {"python_version": sysconfig.get_python_version(),
-            "executable": str(Path(sys.executable).absolute()),
-            "libpython": os.path.join(libdir, soname) if soname else "",
-            "root": str(_ROOT), "include": sysconfig.get_paths()["include"],
-            "bootstrap": bootstrap}
+def package_version() -> str:
+    """The installed diffbot-cosim's version (what the FMU asks of the Python it runs in)."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("diffbot-cosim")
+    except PackageNotFoundError:
+        raise FmuBuildError("diffbot-cosim is not installed in this Python (`make setup` or "
+                            "pip install): the FMU records its version") from None
+
+
+def python_include() -> str:
+    """This Python's C headers (the shim uses only the limited API of 3.10 from them)."""
+    include = sysconfig.get_paths()["include"]
+    if not os.path.isfile(os.path.join(include, "Python.h")):
+        raise FmuBuildError(f"Python.h not found in {include}: install this Python's "
+                            "development headers (python3-dev)")
+    return include
 
 
 def world_layout(world: str, robots: list[str] | None, overrides=()) -> tuple[str, list, float]:
@@ -153,9 +158,10 @@ def _variable2(v: Var) -> str:
 
 
 def compile_shim(fmi: int, binary: Path, include: str) -> None:
-    """The C shim for FMI ``fmi`` against this interpreter's headers (never linked with
-    libpython: the C-API is looked up at run time)."""
-    sources = [_SHIM_DIR / "plant_python.c", _SHIM_DIR / f"fmi{fmi}Functions.c"]
+    """The C shim for FMI ``fmi`` against this interpreter's headers, limited API of 3.10
+    (never linked with libpython: the C API is looked up at run time)."""
+    sources = [_SHIM_DIR / "plant_python.c", _SHIM_DIR / "plant_locate.c",
+               _SHIM_DIR / f"fmi{fmi}Functions.c"]
     binary.parent.mkdir(parents=True, exist_ok=True)
     command = [*find_c_compiler(), "-std=gnu99", "-O2", "-fPIC", "-shared", "-fvisibility=hidden",
                "-Wall", "-Wno-unused-parameter", "-I", str(fmi_headers_dir()), "-I", include,
@@ -170,14 +176,15 @@ def compile_shim(fmi: int, binary: Path, include: str) -> None:
 
 
 def export_plant(out: str | os.PathLike, world: str = "living_room", robots: list[str] | None = None,
-                 fmi: int = 3, overrides=(), seed: int = 0) -> Path:
-    """Write the plant FMU to ``out``; returns its path."""
+                 fmi: int = 3, overrides=(), seed: int = 0, bound: bool = False) -> Path:
+    """Write the plant FMU to ``out``; returns its path. ``bound``: record this Python's path
+    (module docstring)."""
     if fmi not in (2, 3):
         raise ValueError(f"fmi must be 2 or 3, not {fmi!r}")
-    env = python_environment()
-    if not os.path.isfile(os.path.join(env["include"], "Python.h")):
-        raise FmuBuildError(f"Python.h not found in {env['include']}: install this "
-                            "Python's development headers (python3-dev)")
+    include = python_include()
+    cfg = {"package": "diffbot-cosim", "package_version": package_version()}
+    if bound:
+        cfg["python"] = str(Path(sys.executable).absolute())
     world_name, rows, tick_s = world_layout(world, robots, overrides)
     variables = layout([(r, n, tuple(p)) for r, n, p in rows], fmi, world_name, seed)
     token = "{%s}" % uuid.uuid5(uuid.NAMESPACE_URL, json.dumps(
@@ -194,9 +201,9 @@ def export_plant(out: str | os.PathLike, world: str = "living_room", robots: lis
         (resources / "plant.json").write_text(json.dumps(
             {"token": token, "fmi": fmi, "world": world_name, "robots": rows, "seed": seed,
              "tick_s": tick_s, "overrides": list(overrides)}, indent=1), encoding="utf-8")
-        (resources / "plant.cfg").write_text("".join(
-            f"{k}={env[k]}\n" for k in ("python_version", "executable", "libpython", "root",
-                                        "bootstrap")), encoding="utf-8")
+        (resources / "plant.cfg").write_text("".join(f"{k}={v}\n" for k, v in cfg.items()),
+                                             encoding="utf-8")
+        shutil.copyfile(_HERE / "plant_guest.py", resources / "plant_guest.py")
         sources = stage / "sources"
         sources.mkdir()
         for src in sorted(_SHIM_DIR.iterdir()):
@@ -204,7 +211,7 @@ def export_plant(out: str | os.PathLike, world: str = "living_room", robots: lis
                 shutil.copyfile(src, sources / src.name)
         binary = (stage / "binaries" / (fmi3_dir if fmi == 3 else fmi2_dir)
                   / (MODEL_IDENTIFIER + _shared_library_suffix()))
-        compile_shim(fmi, binary, env["include"])
+        compile_shim(fmi, binary, include)
         _zip_directory(stage, target)
     return target
 
@@ -220,12 +227,15 @@ def main(argv: list[str] | None = None, prog: str = "diffbot fmu export-plant") 
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="world file override, as diffbot plant --set (repeatable)")
     p.add_argument("--seed", type=int, default=0, help="the seed parameter's start value")
+    p.add_argument("--bound-to-this-python", dest="bound", action="store_true",
+                   help="write this interpreter's path into the FMU: it runs there (unless "
+                   "$DIFFBOT_FMU_PYTHON says otherwise) and nowhere that path does not exist")
     p.add_argument("--out", required=True, help="the FMU file to write (robot.fmu)")
     args = p.parse_args(argv)
     from plant.world import WorldError
     try:
         path = export_plant(args.out, args.world, args.robots, args.fmi, args.overrides,
-                            args.seed)
+                            args.seed, args.bound)
     except (FmuBuildError, WorldError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2 if isinstance(e, WorldError) else 1
