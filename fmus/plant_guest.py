@@ -125,8 +125,8 @@ class _Finder:
 class Guest:
     """diffbot-cosim's modules, in ``sys.modules`` only within ``with guest:``."""
 
-    def __init__(self, root: str) -> None:
-        self.root = root
+    def __init__(self, root: str, version: str) -> None:
+        self.root, self.version = root, version
         self.finder = _Finder(root)
         self.ours: dict[str, object] = {}      # our modules, while outside a call
         self.host: dict[str, object] = {}      # the host's modules of our names, within one
@@ -166,6 +166,11 @@ class Guest:
         self.host = {}
 
     def instantiate(self, fmi: int, resources: str, name: str, token: str) -> "Instance":
+        exported = read_cfg(resources).get("package_version", "")
+        if exported and not compatible(self.version, exported):
+            raise LookupError(f"this process runs {DIST} {self.version} (from {self.root}); "
+                              f"this FMU was exported with {exported} and needs "
+                              f"{'.'.join(exported.split('.')[:2])}.x")
         with self:
             return Instance(self, self.plant_fmu.instantiate(fmi, resources, name, token))
 
@@ -212,7 +217,7 @@ def load(resources: str, query_text: str) -> Guest:
     if exported and not compatible(version, exported):
         raise LookupError(f"{DIST} {version} is installed in {where}; this FMU was exported with "
                           f"{exported} and needs {'.'.join(exported.split('.')[:2])}.x")
-    return Guest(root)
+    return Guest(root, version)
 
 
 if __name__ == "__main__":

@@ -287,8 +287,8 @@ def _children() -> set[str]:
     return out
 
 
-def _without_environment(path: Path, dest: Path, **cfg) -> Path:
-    """A copy of the FMU whose plant.cfg points at an environment that is not there."""
+def _with_cfg(path: Path, dest: Path, **cfg) -> Path:
+    """A copy of the FMU with these resources/plant.cfg entries."""
     with zipfile.ZipFile(path) as zin, zipfile.ZipFile(dest, "w") as zout:
         for item in zin.infolist():
             data = zin.read(item.filename)
@@ -300,13 +300,25 @@ def _without_environment(path: Path, dest: Path, **cfg) -> Path:
     return dest
 
 
-def test_a_missing_python_environment_is_a_clean_fmi_error(fmus, tmp_path):
-    gone = "/nonexistent/venv/bin/python"
-    broken = _without_environment(fmus[3], tmp_path / "broken.fmu", executable=gone)
-    s = Slave(broken, 3)
+def test_no_path_of_this_machine_is_inside_the_fmu(fmus):
+    """It travels: neither its files nor its binary name the clone, the venv or libpython."""
+    here = [str(ROOT), sys.prefix, sys.base_prefix, os.path.realpath(sys.executable)]
+    with zipfile.ZipFile(fmus[3]) as zf:
+        for name in zf.namelist():
+            data = zf.read(name)
+            assert not any(h.encode() in data for h in here), (name, here)
+        cfg = zf.read("resources/plant.cfg").decode()
+    assert cfg.splitlines() == ["package=diffbot-cosim", "package_version=0.1.0"], cfg
+
+
+def test_an_incompatible_package_version_is_a_clean_fmi_error(fmus, tmp_path):
+    """The host's Python has diffbot-cosim 0.1.x; an FMU exported with 9.9 says what it needs."""
+    other = _with_cfg(fmus[3], tmp_path / "other.fmu", package_version="9.9.0")
+    s = Slave(other, 3)
     with pytest.raises(Exception, match="Failed to instantiate"):
         s.instantiate()
-    assert any("Python environment" in m and gone in m for m in s.log), s.log
+    assert any("exported with 9.9.0 and needs 9.9.x" in m and "host's own Python" in m
+               for m in s.log), s.log
 
 
 @pytest.fixture(scope="module")
@@ -318,7 +330,7 @@ def c_host(tmp_path_factory):
     return exe
 
 
-def _run_c_host(c_host, fmu: Path, tmp_path: Path, steps: int):
+def _run_c_host(c_host, fmu: Path, tmp_path: Path, steps: int, python: str = sys.executable):
     from fmpy import read_model_description
     md = read_model_description(str(fmu))
     vr = {v.name: v.valueReference for v in md.modelVariables}
@@ -328,7 +340,8 @@ def _run_c_host(c_host, fmu: Path, tmp_path: Path, steps: int):
     binary = next((d / "binaries").glob("*/plant.so"))
     return subprocess.run([str(c_host), str(binary), str(d / "resources"), md.guid,
                            str(vr[f"{ROBOT}.v"]), str(vr[f"{ROBOT}.x"]), str(vr[f"{ROBOT}.y"]),
-                           "0.2", str(steps)], capture_output=True, text=True, timeout=300)
+                           "0.2", str(steps)], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "DIFFBOT_FMU_PYTHON": python})
 
 
 def test_a_c_master_without_python_runs_the_fmu(fmus, c_host, tmp_path):
@@ -345,12 +358,17 @@ def test_a_c_master_without_python_runs_the_fmu(fmus, c_host, tmp_path):
         s.free()
 
 
-def test_a_c_master_without_the_python_library_gets_a_logged_error(fmus, c_host, tmp_path):
-    broken = _without_environment(fmus[3], tmp_path / "nolib.fmu",
-                                  libpython="/nonexistent/libpython3.so")
-    result = _run_c_host(c_host, broken, tmp_path, 1)
+def test_a_c_master_without_a_usable_python_gets_a_logged_error(fmus, c_host, tmp_path):
+    """The Python chosen is named with the rule that chose it, and what is wrong with it."""
+    gone = "/nonexistent/venv/bin/python"
+    result = _run_c_host(c_host, fmus[3], tmp_path, 1, python=gone)
     assert result.returncode == 3, result.stdout + result.stderr
-    assert "cannot load the Python library" in result.stdout, result.stdout
+    assert "named by $DIFFBOT_FMU_PYTHON: " + gone + ") is missing" in result.stdout, \
+        result.stdout
+    bound = _with_cfg(fmus[3], tmp_path / "bound.fmu", python=gone)   # a bound export, moved
+    result = _run_c_host(c_host, bound, tmp_path, 1, python="")
+    assert result.returncode == 3, result.stdout + result.stderr
+    assert "exported bound to: " + gone + ") is missing" in result.stdout, result.stdout
 
 
 def test_libcosim_runs_the_fmi2_plant(fmus):

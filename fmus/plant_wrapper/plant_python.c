@@ -23,7 +23,8 @@
     X(PyEval_GetBuiltins) X(PyDict_New) X(PyDict_SetItemString) X(PyDict_GetItemString) \
     X(PyUnicode_FromString) X(PyObject_GetAttrString)                                   \
     X(PyObject_CallObject) X(Py_VaBuildValue) X(Py_DecRef) X(PyLong_AsLong)             \
-    X(PyErr_Fetch) X(PyErr_Clear) X(PyObject_Str) X(PyUnicode_AsUTF8AndSize)
+    X(PyErr_Fetch) X(PyErr_Clear) X(PyObject_Str) X(PyUnicode_AsUTF8AndSize)              \
+    X(PyImport_AddModule) X(PyModule_GetDict) X(Py_IncRef)
 
 #define DECLARE(f) static __typeof__(&f) p_##f;
 PY_FUNCTIONS(DECLARE)
@@ -38,7 +39,6 @@ typedef wchar_t *(*DecodeLocaleFn)(const char *, size_t *);
 
 static pthread_mutex_t py_lock = PTHREAD_MUTEX_INITIALIZER;
 static int py_ready = 0;
-static PyObject *py_guest = NULL;       /* plant_guest.Guest, kept for the process's life */
 static char *py_query = NULL;           /* what the chosen Python said about itself */
 static char py_where[4400];             /* which Python runs the FMU, and why that one */
 
@@ -270,15 +270,30 @@ int plant_call(PlantInstance *pi, const char *method, const char *fmt, ...) {
     return status;
 }
 
-/* resources/plant_guest.py compiled and run in a namespace of its own; its load(): the guest
- * through which every instance is made (NULL with the reason logged). The caller holds the
- * GIL. */
+/* The guest through which every instance is made (NULL with the reason logged): the
+ * process's one, kept in the private module GUEST_MODULE (this library may be unloaded and
+ * loaded again between instances: its static variables do not last), else made by
+ * resources/plant_guest.py's load(), that file run as that module's code, in a namespace of
+ * its own. The caller holds the GIL. */
+#define GUEST_MODULE "_diffbot_plant_guest"
 static PyObject *load_guest(PlantInstance *pi, const char *resources) {
     char path[4200], text[4096];
     FILE *f;
     long size;
     char *source;
-    PyObject *code = NULL, *globals = NULL, *done = NULL, *name, *load, *guest = NULL;
+    PyObject *module, *globals, *code = NULL, *done = NULL, *load, *guest = NULL;
+    module = p_PyImport_AddModule(GUEST_MODULE);                     /* borrowed */
+    globals = module ? p_PyModule_GetDict(module) : NULL;           /* borrowed */
+    guest = globals ? p_PyDict_GetItemString(globals, "guest") : NULL;
+    if (guest) {
+        p_Py_IncRef(guest);
+        return guest;
+    }
+    if (!globals) {
+        exception_text(text, sizeof text);
+        plant_log(pi, PLANT_ERROR, "%s: %s", py_where, text);
+        return NULL;
+    }
     snprintf(path, sizeof path, "%s/plant_guest.py", resources);
     f = fopen(path, "rb");
     if (!f) {
@@ -288,7 +303,7 @@ static PyObject *load_guest(PlantInstance *pi, const char *resources) {
     fseek(f, 0, SEEK_END);
     size = ftell(f);
     rewind(f);
-    source = malloc((size_t)size + 1);
+    source = size >= 0 ? malloc((size_t)size + 1) : NULL;
     if (source && fread(source, 1, (size_t)size, f) == (size_t)size) source[size] = '\0';
     else { free(source); source = NULL; }
     fclose(f);
@@ -298,21 +313,17 @@ static PyObject *load_guest(PlantInstance *pi, const char *resources) {
     }
     code = p_Py_CompileString(source, path, Py_file_input);
     free(source);
-    globals = code ? p_PyDict_New() : NULL;
-    if (globals) {
-        name = p_PyUnicode_FromString("diffbot_plant_guest");
+    if (code && !p_PyDict_GetItemString(globals, "__builtins__"))
         p_PyDict_SetItemString(globals, "__builtins__", p_PyEval_GetBuiltins());
-        if (name) { p_PyDict_SetItemString(globals, "__name__", name); p_Py_DecRef(name); }
-        done = p_PyEval_EvalCode(code, globals, globals);
-    }
+    done = code ? p_PyEval_EvalCode(code, globals, globals) : NULL;
     load = done ? p_PyDict_GetItemString(globals, "load") : NULL;     /* borrowed */
     if (load) guest = call_v(load, "__call__", "ss", resources, py_query ? py_query : "");
-    if (!guest) {
+    if (guest) p_PyDict_SetItemString(globals, "guest", guest);
+    else {
         exception_text(text, sizeof text);
         plant_log(pi, PLANT_ERROR, "%s: %s", py_where, text);
     }
     if (done) p_Py_DecRef(done);
-    if (globals) p_Py_DecRef(globals);    /* the guest's functions keep what they need */
     if (code) p_Py_DecRef(code);
     return guest;
 }
@@ -321,6 +332,7 @@ PlantInstance *plant_instantiate(const PlantInstance *proto, const char *resourc
                                  const char *token) {
     PlantConfig cfg;
     PlantInstance *pi = calloc(1, sizeof *pi);
+    PyObject *guest;
     PyGILState_STATE gil;
     char text[4096];
     if (!pi) return NULL;
@@ -341,10 +353,11 @@ PlantInstance *plant_instantiate(const PlantInstance *proto, const char *resourc
     }
     py_ready = 1;
     gil = p_PyGILState_Ensure();
-    if (!py_guest) py_guest = load_guest(pi, resources);
-    if (py_guest) {
-        pi->py = call_v(py_guest, "instantiate", "isss", pi->fmi, resources, pi->name,
+    guest = load_guest(pi, resources);
+    if (guest) {
+        pi->py = call_v(guest, "instantiate", "isss", pi->fmi, resources, pi->name,
                         token ? token : "");
+        p_Py_DecRef(guest);
         if (!pi->py) {
             exception_text(text, sizeof text);
             plant_log(pi, PLANT_ERROR, "%s (in %s)", text, py_where);
