@@ -113,3 +113,63 @@ def test_installed_wheel_runs_square_and_avoid_outside_the_clone(installed):
     assert r.returncode == 0, r.stderr[-3000:]
     where = Path(r.stdout.strip()).resolve()
     assert where.is_relative_to(venv.resolve()) and not where.is_relative_to(ROOT), where
+
+
+HOST_SCRIPT = '''\
+import sys
+r, s = "the host's r", "the host's s"      # names the FMU's loader once took from __main__
+import plant                               # the host's own plant.py, beside this script
+from fmpy import simulate_fmu
+fmu = sys.argv[1]
+result = simulate_fmu(fmu, stop_time=0.4, step_size=0.02, start_values={"robot1.v": 0.2},
+                      output=["robot1.x", "robot1.odom_x"])
+import plant as again
+assert plant.WHO == again.WHO == "host", plant
+assert (r, s) == ("the host's r", "the host's s"), (r, s)
+assert not {"Guest", "load", "locate"} & set(globals()), sorted(globals())   # its own namespace
+ours = sorted(k for k in sys.modules if k.split(".")[0] in ("fmus", "bus", "diffbot")
+              or k.startswith("plant."))
+assert not ours, ours                     # the FMU's modules are not left in the host's
+print(result["robot1.x"][-1] - result["robot1.x"][0], result["robot1.odom_x"][-1])
+'''
+
+
+def test_an_exported_plant_fmu_runs_from_the_wheel_and_leaves_its_host_alone(installed,
+                                                                              tmp_path):
+    """The FMU exported in the clone, copied elsewhere, simulated by fmpy of the fresh venv
+    (the clone's paths nowhere in reach) beside a host plant.py, under a host script whose
+    globals stay its own; and run by a C master with no Python, which finds the fresh venv's
+    Python through VIRTUAL_ENV."""
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "fmu", "export-plant", "--fmi", "3",
+                        "--out", str(tmp_path / "robot.fmu")], cwd=ROOT, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    cwd = tmp_path / "host"
+    cwd.mkdir()
+    fmu = shutil.copy(tmp_path / "robot.fmu", cwd / "robot.fmu")
+    (cwd / "plant.py").write_text('WHO = "host"\n')
+    (cwd / "host.py").write_text(HOST_SCRIPT)
+    r = subprocess.run([str(installed["python"]), "host.py", "robot.fmu"], cwd=cwd,
+                       env=installed["env"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+    moved, odom_x = map(float, r.stdout.split())
+    assert 0.03 < moved < 0.09, moved     # 0.2 m/s for 0.4 s, less the acceleration ramp
+
+    from fmus.build import fmi_headers_dir, find_c_compiler
+    from fmpy import read_model_description
+    host = tmp_path / "fmi3_host"
+    subprocess.run([*find_c_compiler(), "-std=gnu99", "-O1", "-I", str(fmi_headers_dir()),
+                    str(ROOT / "tests" / "fmi3_host.c"), "-o", str(host), "-ldl"],
+                   check=True, timeout=120)
+    md = read_model_description(fmu)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unzipped = tmp_path / "unzipped"
+    with zipfile.ZipFile(fmu) as zf:
+        zf.extractall(unzipped)
+    binary, = (unzipped / "binaries").glob("*/plant.so")
+    r = subprocess.run([str(host), str(binary), str(unzipped / "resources"), md.guid,
+                        str(vr["robot1.v"]), str(vr["robot1.odom_x"]), str(vr["robot1.y"]),
+                        "0.2", "20"], cwd=cwd, env=installed["env"], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert float(r.stdout.split()[-2]) == odom_x, (r.stdout, odom_x)   # the same run, to the bit
