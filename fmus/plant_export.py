@@ -94,6 +94,8 @@ def model_description(variables: list[Var], fmi: int, token: str, tick_s: float)
     units = "\n".join(f'    <Unit name="{u}"><BaseUnit {_BASE_UNITS[u]}/></Unit>' for u in _UNITS)
     cs = (f'  <CoSimulation modelIdentifier="{MODEL_IDENTIFIER}" needsExecutionTool="true" '
           'canHandleVariableCommunicationStepSize="true" canBeInstantiatedOnlyOncePerProcess="false"'
+          + (' canGetAndSetFMUState="true" canSerializeFMUState="true"' if fmi == 3
+             else ' canGetAndSetFMUstate="true" canSerializeFMUstate="true"')
           + (f' fixedInternalStepSize="{tick_s!r}" hasEventMode="false"/>' if fmi == 3
              else ' canNotUseMemoryManagementFunctions="true"/>'))
     head = (f'<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription fmiVersion="{fmi}.0" '
@@ -160,8 +162,8 @@ def _variable2(v: Var) -> str:
 def compile_shim(fmi: int, binary: Path, include: str) -> None:
     """The C shim for FMI ``fmi`` against this interpreter's headers, limited API of 3.10
     (never linked with libpython: the C API is looked up at run time)."""
-    sources = [_SHIM_DIR / "plant_python.c", _SHIM_DIR / "plant_locate.c",
-               _SHIM_DIR / f"fmi{fmi}Functions.c"]
+    sources = [_SHIM_DIR / name for name in ("plant_python.c", "plant_locate.c", "plant_state.c",
+                                             f"fmi{fmi}Functions.c")]
     binary.parent.mkdir(parents=True, exist_ok=True)
     command = [*find_c_compiler(), "-std=gnu99", "-O2", "-fPIC", "-shared", "-fvisibility=hidden",
                "-Wall", "-Wno-unused-parameter", "-I", str(fmi_headers_dir()), "-I", include,

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .plant_state import FmuStates
+
 OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
 #: value references: a robot's variables start at ROBOT_VR * (its index + 1)
 ROBOT_VR = 100_000
@@ -126,7 +128,7 @@ def _wanted(topic: str) -> bool:
     return topic in ("joint_states", "scan")
 
 
-class PlantInstance:
+class PlantInstance(FmuStates):
     """One FMI instance of the plant (states: instantiated, init, step, terminated)."""
 
     def __init__(self, fmi: int, resources: str, name: str, token: str) -> None:
@@ -144,6 +146,9 @@ class PlantInstance:
         self.messages: list[str] = []
         self.tick = None
         self.touching = None
+        self.states: dict[int, dict] = {}    # FMU states taken (getFMUState), by id >= 1
+        self._last_state = 0
+        self._serialized: tuple[int, bytes] | None = None
         self._start_values()
 
     # -------------------------------------------------------------- FMI calls
@@ -225,6 +230,9 @@ class PlantInstance:
         if v is None or v.type != "String":
             return self.fail(f"value reference {vr} is not a String variable")
         return self._store(v, value.decode("utf-8"))
+
+    def contacts_now(self) -> set[str]:
+        return contacts(self.tick.sim.world, self.robots)
 
     # -------------------------------------------------------------- values
     def _var(self, vr: int, kind: str) -> Var:
@@ -325,6 +333,7 @@ class PlantInstance:
             raise ValueError(f"the world's control tick is {spec.control_tick_s} s, the FMU's "
                              f"{self.cfg['tick_s']} s")
         self.tick = Tick(spec, disabled=("camera",))
+        self._built_from = self._params()
         self.ticks = 0
         self.odom = {name: None for name in self.robots}
         self._sense()

@@ -450,6 +450,96 @@ def test_the_ssp_square_has_the_odometry_error_of_diffbot_run_square(fmus, tmp_p
     assert abs(ssp["final_odom_error_m"] - err) < 0.001
 
 
+def _state_calls(s: Slave):
+    """(get, set, free, serialize, deserialize) of fmpy's FMI 3 or FMI 2 slave."""
+    f, v = s.fmu, "State" if s.fmi == 3 else "state"
+    return (getattr(f, f"getFMU{v}"), getattr(f, f"setFMU{v}"), getattr(f, f"freeFMU{v}"),
+            getattr(f, f"serializeFMU{v}"),
+            getattr(f, "deserializeFMUState" if s.fmi == 3 else "deSerializeFMUstate"))
+
+
+#: every noise stream of robot1 on: encoder readings, lidar ranges, commanded wheel speeds
+NOISY = ["robots.robot1.encoders.noise={std = 0.01}", "robots.robot1.lidar.noise={std = 0.02}",
+         "robots.robot1.motion.command_noise_std_radps=0.05"]
+
+
+@pytest.fixture(scope="module")
+def noisy_fmus(tmp_path_factory):
+    out = tmp_path_factory.mktemp("noisy_plant_fmu")
+    paths = {}
+    for fmi in (3, 2):
+        sets = [a for x in NOISY for a in ("--set", x)]
+        result = subprocess.run([sys.executable, "-m", "diffbot.cli", "fmu", "export-plant",
+                                 "--fmi", str(fmi), *sets, "--out", str(out / f"noisy{fmi}.fmu")],
+                                cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert result.returncode == 0, result.stderr
+        paths[fmi] = Path(result.stdout.strip())
+    return paths
+
+
+@pytest.mark.parametrize("fmi", [3, 2])
+def test_a_rollback_steps_again_to_the_bit(noisy_fmus, fmi):
+    """getFMUState, 20 steps, setFMUState and the same 20 steps: the same outputs to the bit
+    (pose, odometry, noisy encoder readings, noisy lidar, contact; the commands' noise on);
+    so too from the state serialized and deserialized into a second instance that never
+    ran (started with another seed and the noise off: the state brings its own)."""
+    fmus = noisy_fmus
+    s = Slave(fmus[fmi], fmi).start(seed=7)
+    get_state, set_state, free_state, serialize, deserialize = _state_calls(s)
+    outs = [v for v in s.md.modelVariables if v.causality == "output"]
+    floats = [v.valueReference for v in outs if v.type in ("Float64", "Real") and not v.dimensions]
+    flags = [v.valueReference for v in outs if v.type == "Boolean"]
+    arrays = [(v.valueReference, int(v.dimensions[0].start)) for v in outs if v.dimensions]
+    assert len(floats) > 100 if fmi == 2 else arrays, "the scan is among the outputs"
+    get = s.fmu.getFloat64 if fmi == 3 else s.fmu.getReal
+    setter = s.fmu.setFloat64 if fmi == 3 else s.fmu.setReal
+
+    def run(slave, t0: float) -> list:
+        seen = []
+        for k in range(20):        # a turn that changes each tick: the limiters ramp
+            setter([s.vr[f"{ROBOT}.v"], s.vr[f"{ROBOT}.w"]], [0.4, 0.8 - 0.1 * k])
+            slave.fmu.doStep(t0 + k * TICK_S, TICK_S)
+            seen.append((list(get(floats)), list(slave.fmu.getBoolean(flags)),
+                         [list(get([vr], nValues=n)) for vr, n in arrays]))
+        return seen
+
+    try:
+        s.set(f"{ROBOT}.v", 0.3)
+        s.step(0.6)
+        t0 = s.t
+        state = get_state()
+        first = run(s, t0)
+        set_state(state)
+        assert run(s, t0) == first
+        data = serialize(state)
+        free_state(state)
+        other = Slave(fmus[fmi], fmi).start(noise=False)
+        setter, get = (other.fmu.setFloat64, other.fmu.getFloat64) if fmi == 3 else \
+            (other.fmu.setReal, other.fmu.getReal)
+        restored = _state_calls(other)[4](data)
+        _state_calls(other)[1](restored)
+        try:
+            assert run(other, t0) == first
+        finally:
+            _state_calls(other)[2](restored)
+            other.free()
+    finally:
+        s.free()
+
+
+def test_a_state_of_another_fmu_is_refused_with_a_message(fmus):
+    s = Slave(fmus[3], 3).start()
+    try:
+        get_state, set_state, free_state, serialize, deserialize = _state_calls(s)
+        data = bytearray(serialize(get_state()))
+        data[data.index(b'"token":"') + 10] ^= 1            # another FMU's token
+        with pytest.raises(Exception):
+            deserialize(bytes(data))
+        assert any("a state of another FMU" in m for m in s.log), s.log
+    finally:
+        s.free()
+
+
 def test_outputs_stay_readable_after_terminate_and_two_instances_do_not_mix(fmus):
     a, b = Slave(fmus[3], 3).start(), Slave(fmus[3], 3).start()
     try:

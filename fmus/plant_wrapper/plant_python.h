@@ -59,6 +59,15 @@ int plant_set_strings(PlantInstance *pi, const unsigned int *vr, size_t nvr,
 
 void plant_log(PlantInstance *pi, int status, const char *fmt, ...);
 
+/* ---- plant_state.c: FMU states (an id the Python instance keeps, as the FMUState pointer) */
+int plant_get_state(PlantInstance *pi, void **state);     /* *state NULL: a new one */
+int plant_set_state(PlantInstance *pi, void *state);
+int plant_free_state(PlantInstance *pi, void **state);
+int plant_state_size(PlantInstance *pi, void *state, size_t *size);
+int plant_serialize_state(PlantInstance *pi, void *state, unsigned char *bytes, size_t size);
+int plant_deserialize_state(PlantInstance *pi, const unsigned char *bytes, size_t size,
+                            void **state);
+
 /* ---- plant_locate.c: the Python that runs the FMU in a host without one */
 #define PLANT_PYTHON_ENV "DIFFBOT_FMU_PYTHON"
 
