@@ -25,14 +25,18 @@ import sys
 import sysconfig
 import tempfile
 import uuid
+from datetime import datetime, timezone
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+from . import plant_docs
 from .build import (FmuBuildError, _shared_library_suffix, _zip_directory, find_c_compiler,
                     fmi_headers_dir, platform_dirs)
 from .plant_fmu import Var, layout
 
-MODEL_IDENTIFIER = "plant"
+MODEL_IDENTIFIER = "diffbot_plant"
+AUTHOR = "the diffbot-cosim authors"
+LICENSE = "MIT"
 _HERE = Path(__file__).resolve().parent
 _SHIM_DIR = _HERE / "plant_wrapper"
 _UNITS = ("m", "rad", "m/s", "rad/s", "s")
@@ -65,7 +69,8 @@ def python_include() -> str:
 
 
 def world_layout(world: str, robots: list[str] | None, overrides=()) -> tuple[str, list, float]:
-    """(world parameter's start value, [(robot, lidar rays, start pose)], control tick s)."""
+    """(world parameter's start value, [(robot, lidar rays, start pose, (max linear m/s, max
+    angular rad/s))], control tick s)."""
     from plant.world import load_world, resolve_world_path, WORLDS_DIR
     spec = load_world(world, list(overrides))
     path = resolve_world_path(world)
@@ -77,7 +82,9 @@ def world_layout(world: str, robots: list[str] | None, overrides=()) -> tuple[st
         if r not in names:
             raise FmuBuildError(f"world {world!r} has no robot {r!r} (it has {', '.join(names)})")
     rows = [(r, spec.robot(r).sensors.lidar.num_rays if spec.robot(r).sensors.lidar else 0,
-             list(spec.robot(r).pose)) for r in chosen]
+             list(spec.robot(r).pose),
+             [spec.robot(r).drive.max_linear_mps, spec.robot(r).drive.max_angular_radps])
+            for r in chosen]
     return name, rows, spec.control_tick_s
 
 
@@ -89,19 +96,31 @@ def _xml_start(v: Var, fmi: int) -> str:
     return str(v.start) if v.type == "String" else repr(v.start)
 
 
-def model_description(variables: list[Var], fmi: int, token: str, tick_s: float) -> str:
+def generation_time() -> str:
+    """Now (or $SOURCE_DATE_EPOCH, for a reproducible build) as xs:dateTime in UTC."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    when = (datetime.fromtimestamp(int(epoch), timezone.utc) if epoch and epoch.isdigit()
+            else datetime.now(timezone.utc))
+    return when.strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def model_description(variables: list[Var], fmi: int, token: str, tick_s: float,
+                      version: str = "", generated: str = "") -> str:
     """modelDescription.xml of the plant FMU (FMI 2.0 or 3.0)."""
     units = "\n".join(f'    <Unit name="{u}"><BaseUnit {_BASE_UNITS[u]}/></Unit>' for u in _UNITS)
     cs = (f'  <CoSimulation modelIdentifier="{MODEL_IDENTIFIER}" needsExecutionTool="true" '
-          'canHandleVariableCommunicationStepSize="true" canBeInstantiatedOnlyOncePerProcess="false"'
+          'canHandleVariableCommunicationStepSize="false" canBeInstantiatedOnlyOncePerProcess="false"'
           + (' canGetAndSetFMUState="true" canSerializeFMUState="true"' if fmi == 3
              else ' canGetAndSetFMUstate="true" canSerializeFMUstate="true"')
           + (f' fixedInternalStepSize="{tick_s!r}" hasEventMode="false"/>' if fmi == 3
              else ' canNotUseMemoryManagementFunctions="true"/>'))
     head = (f'<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription fmiVersion="{fmi}.0" '
             f'modelName="diffbot_plant" {"instantiationToken" if fmi == 3 else "guid"}="{token}" '
-            f'description={quoteattr(DESCRIPTION)} generationTool="diffbot-cosim fmus/plant_export.py" '
-            'variableNamingConvention="structured"'
+            f'description={quoteattr(DESCRIPTION)} author={quoteattr(AUTHOR)} '
+            f'version={quoteattr(version)} license={quoteattr(LICENSE)} '
+            f'generationTool={quoteattr(f"diffbot-cosim {version} (diffbot fmu export-plant)")} '
+            + (f'generationDateAndTime="{generated}" ' if generated else "")
+            + 'variableNamingConvention="structured"'
             + (' numberOfEventIndicators="0"' if fmi == 2 else "") + ">\n" + cs + "\n"
             f"  <UnitDefinitions>\n{units}\n  </UnitDefinitions>\n"
             "  <LogCategories>\n"
@@ -133,12 +152,18 @@ def _common(v: Var) -> str:
             f'variability="{v.variability}" description={quoteattr(v.description)}')
 
 
+def _range(v: Var) -> str:
+    return "".join(f' {k}="{getattr(v, k)!r}"' for k in ("min", "max")
+                   if getattr(v, k) is not None)
+
+
 def _variable3(v: Var) -> str:
     attrs = _common(v)
     if v.causality == "output":
         attrs += ' initial="calculated"'
     if v.unit:
         attrs += f' unit="{v.unit}"'
+    attrs += _range(v)
     start = _xml_start(v, 3)
     if v.type == "String":
         return f"    <String {attrs}><Start value={quoteattr(start)}/></String>\n"
@@ -152,7 +177,7 @@ def _variable3(v: Var) -> str:
 def _variable2(v: Var) -> str:
     attrs = _common(v) + (' initial="calculated"' if v.causality == "output" else "")
     kind = {"Float64": "Real", "Int32": "Integer", "Boolean": "Boolean", "String": "String"}[v.type]
-    inner = f' unit="{v.unit}"' if v.unit else ""
+    inner = (f' unit="{v.unit}"' if v.unit else "") + _range(v)
     start = _xml_start(v, 2)
     if start:
         inner += f" start={quoteattr(start)}"
@@ -178,31 +203,38 @@ def compile_shim(fmi: int, binary: Path, include: str) -> None:
 
 
 def export_plant(out: str | os.PathLike, world: str = "living_room", robots: list[str] | None = None,
-                 fmi: int = 3, overrides=(), seed: int = 0, bound: bool = False) -> Path:
+                 fmi: int = 3, overrides=(), seed: int = 0, bound: bool = False,
+                 scan_scalars: bool = False) -> Path:
     """Write the plant FMU to ``out``; returns its path. ``bound``: record this Python's path
-    (module docstring)."""
+    (module docstring); ``scan_scalars``: FMI 3's scan as scalars, as FMI 2's."""
     if fmi not in (2, 3):
         raise ValueError(f"fmi must be 2 or 3, not {fmi!r}")
     include = python_include()
-    cfg = {"package": "diffbot-cosim", "package_version": package_version()}
+    version = package_version()
+    cfg = {"package": "diffbot-cosim", "package_version": version}
     if bound:
         cfg["python"] = str(Path(sys.executable).absolute())
     world_name, rows, tick_s = world_layout(world, robots, overrides)
-    variables = layout([(r, n, tuple(p)) for r, n, p in rows], fmi, world_name, seed)
+    scan_scalars = scan_scalars and fmi == 3
+    variables = layout(rows, fmi, world_name, seed, scan_scalars)
     token = "{%s}" % uuid.uuid5(uuid.NAMESPACE_URL, json.dumps(
-        ["diffbot-plant", fmi, world_name, rows, list(overrides), tick_s]))
+        ["diffbot-plant", fmi, world_name, rows, list(overrides), tick_s, scan_scalars]))
     target = Path(out)
     target.parent.mkdir(parents=True, exist_ok=True)
     fmi2_dir, fmi3_dir = platform_dirs()
     with tempfile.TemporaryDirectory(prefix="plant_fmu_") as tmp:
         stage = Path(tmp)
-        (stage / "modelDescription.xml").write_text(
-            model_description(variables, fmi, token, tick_s), encoding="utf-8")
+        (stage / "modelDescription.xml").write_text(model_description(
+            variables, fmi, token, tick_s, version, generation_time()), encoding="utf-8")
+        (stage / "documentation").mkdir()
+        (stage / "documentation" / plant_docs.file_name(fmi)).write_text(
+            plant_docs.page(variables, fmi, world_name, tick_s, version), encoding="utf-8")
         resources = stage / "resources"
         resources.mkdir()
         (resources / "plant.json").write_text(json.dumps(
             {"token": token, "fmi": fmi, "world": world_name, "robots": rows, "seed": seed,
-             "tick_s": tick_s, "overrides": list(overrides)}, indent=1), encoding="utf-8")
+             "tick_s": tick_s, "overrides": list(overrides), "scan_scalars": scan_scalars},
+            indent=1), encoding="utf-8")
         (resources / "plant.cfg").write_text("".join(f"{k}={v}\n" for k, v in cfg.items()),
                                              encoding="utf-8")
         shutil.copyfile(_HERE / "plant_guest.py", resources / "plant_guest.py")
@@ -232,12 +264,15 @@ def main(argv: list[str] | None = None, prog: str = "diffbot fmu export-plant") 
     p.add_argument("--bound-to-this-python", dest="bound", action="store_true",
                    help="write this interpreter's path into the FMU: it runs there (unless "
                    "$DIFFBOT_FMU_PYTHON says otherwise) and nowhere that path does not exist")
+    p.add_argument("--scan-scalars", action="store_true", help="FMI 3: the lidar scan as "
+                   "R.scan[1] ... R.scan[n] (as in FMI 2), not one array: for masters that "
+                   "take no arrays")
     p.add_argument("--out", required=True, help="the FMU file to write (robot.fmu)")
     args = p.parse_args(argv)
     from plant.world import WorldError
     try:
         path = export_plant(args.out, args.world, args.robots, args.fmi, args.overrides,
-                            args.seed, args.bound)
+                            args.seed, args.bound, args.scan_scalars)
     except (FmuBuildError, WorldError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2 if isinstance(e, WorldError) else 1

@@ -61,7 +61,8 @@ class Slave:
         if unzipped is None:
             _EXTRACTED.append(self.dir)
         self.fmi, self.log, self.t = fmi, [], 0.0
-        kw = dict(guid=self.md.guid, unzipDirectory=self.dir, modelIdentifier="plant",
+        kw = dict(guid=self.md.guid, unzipDirectory=self.dir,
+                  modelIdentifier=self.md.coSimulation.modelIdentifier,
                   instanceName="plant")
         if fmi == 3:
             from fmpy.fmi3 import FMU3Slave
@@ -337,7 +338,7 @@ def _run_c_host(c_host, fmu: Path, tmp_path: Path, steps: int, python: str = sys
     d = tmp_path / fmu.stem
     with zipfile.ZipFile(fmu) as zf:
         zf.extractall(d)
-    binary = next((d / "binaries").glob("*/plant.so"))
+    binary = next((d / "binaries").glob("*/diffbot_plant.so"))
     return subprocess.run([str(c_host), str(binary), str(d / "resources"), md.guid,
                            str(vr[f"{ROBOT}.v"]), str(vr[f"{ROBOT}.x"]), str(vr[f"{ROBOT}.y"]),
                            "0.2", str(steps)], capture_output=True, text=True, timeout=300,

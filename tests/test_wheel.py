@@ -166,7 +166,7 @@ def test_an_exported_plant_fmu_runs_from_the_wheel_and_leaves_its_host_alone(ins
     unzipped = tmp_path / "unzipped"
     with zipfile.ZipFile(fmu) as zf:
         zf.extractall(unzipped)
-    binary, = (unzipped / "binaries").glob("*/plant.so")
+    binary, = (unzipped / "binaries").glob("*/diffbot_plant.so")
     r = subprocess.run([str(host), str(binary), str(unzipped / "resources"), md.guid,
                         str(vr["robot1.v"]), str(vr["robot1.odom_x"]), str(vr["robot1.y"]),
                         "0.2", "20"], cwd=cwd, env=installed["env"], capture_output=True,
