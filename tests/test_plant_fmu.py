@@ -170,6 +170,79 @@ def test_fmpy_validate_reports_no_problem(fmus):
         assert 'needsExecutionTool="true"' in xml and "tool-coupling" in xml
 
 
+def test_the_model_description_says_what_a_master_needs(fmus):
+    """Input ranges from the world's drive limits, the metadata, fixed steps, FMU state, the
+    documentation page; fmutool -check (an independent checker) finds no error."""
+    from fmpy import read_model_description
+    from plant.world import load_world
+    drive = load_world("living_room").robot(ROBOT).drive
+    for fmi, path in fmus.items():
+        md = read_model_description(str(path))
+        by = {v.name: v for v in md.modelVariables}
+        assert (float(by[f"{ROBOT}.v"].min), float(by[f"{ROBOT}.v"].max)) == \
+            (-drive.max_linear_mps, drive.max_linear_mps)
+        assert (float(by[f"{ROBOT}.w"].min), float(by[f"{ROBOT}.w"].max)) == \
+            (-drive.max_angular_radps, drive.max_angular_radps)
+        assert md.author and md.license == "MIT" and md.version == "0.1.0"
+        assert md.generationTool.startswith("diffbot-cosim 0.1.0") and md.generationDateAndTime
+        cs = md.coSimulation
+        assert cs.modelIdentifier == "diffbot_plant"
+        assert not cs.canHandleVariableCommunicationStepSize
+        assert cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
+        with zipfile.ZipFile(path) as zf:
+            page = zf.read("documentation/" + ("index.html" if fmi == 3 else "_main.html"))
+        assert b"whole 20 ms ticks" in page and f"{ROBOT}.scan_count".encode() in page
+        code = ("import sys; from fmu_manipulation_toolbox.cli.fmutool import fmutool; "
+                "sys.argv = ['fmutool'] + sys.argv[1:]; sys.exit(fmutool())")
+        r = subprocess.run([sys.executable, "-c", code, "-input", str(path), "-check"],
+                           capture_output=True, text=True, timeout=120)
+        output = r.stdout + r.stderr
+        assert r.returncode == 0 and f"No semantic error against the FMI-{fmi}" in output \
+            and "ERROR" not in output, output
+
+
+def test_scan_count_changes_when_a_new_scan_arrives_and_a_command_out_of_range_warns(fmus):
+    s = Slave(fmus[3], 3).start()
+    try:
+        counts, scans = [], []
+        for _ in range(11):
+            counts.append(s.fmu.getInt32([s.vr[f"{ROBOT}.scan_count"]])[0])
+            scans.append(list(s.fmu.getFloat64([s.vr[f"{ROBOT}.scan"]], nValues=180)))
+            s.set(f"{ROBOT}.w", 0.5)           # turning: every scan differs
+            s.step(TICK_S)
+        assert counts == [1] * 5 + [2] * 5 + [3]            # the 10 Hz lidar: every 5th tick
+        assert all((a == b) == (c == d) for a, b, c, d in
+                   zip(scans, scans[1:], counts, counts[1:])), "scan_count and the scan agree"
+        s.set(f"{ROBOT}.v", 100.0)             # a warning, not an error
+        assert any("robot1.v = 100.0 is outside its range [-0.5, 0.5]" in m for m in s.log), \
+            s.log
+    finally:
+        s.free()
+
+
+def test_scan_scalars_give_fmi3_the_fmi2_scan_to_the_bit(fmus, tmp_path):
+    """--scan-scalars: no array left (a master asking every Float64 output in one call),
+    each ray the array's value."""
+    path = tmp_path / "scalars.fmu"
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "fmu", "export-plant",
+                        "--scan-scalars", "--out", str(path)], cwd=ROOT, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    got = {}
+    for name, fmu in (("array", fmus[3]), ("scalars", path)):
+        s = Slave(fmu, 3).start()
+        try:
+            assert any(v.dimensions for v in s.md.modelVariables) == (name == "array")
+            s.set(f"{ROBOT}.w", 0.5)
+            s.step(0.2)
+            got[name] = (list(s.fmu.getFloat64([s.vr[f"{ROBOT}.scan"]], nValues=180))
+                         if name == "array" else
+                         s.get(*[f"{ROBOT}.scan[{k}]" for k in range(1, 181)]))
+        finally:
+            s.free()
+    assert got["array"] == got["scalars"]
+
+
 def test_a_step_that_is_not_whole_ticks_is_refused_with_a_message(fmus):
     from fmpy.fmi1 import FMICallException
     s = Slave(fmus[3], 3).start()
