@@ -131,6 +131,7 @@ class Guest:
         self.ours: dict[str, object] = {}      # our modules, while outside a call
         self.host: dict[str, object] = {}      # the host's modules of our names, within one
         self.depth = 0
+        self._swapped = False
         with self:
             self.plant_fmu = importlib.import_module("fmus.plant_fmu")
 
@@ -140,23 +141,27 @@ class Guest:
 
     def __enter__(self) -> "Guest":
         self.depth += 1
-        if self.depth == 1:
+        # (a host that frees the FMU while its interpreter shuts down has no sys.meta_path
+        # any more: the call then runs with the modules as they are)
+        if self.depth == 1 and isinstance(sys.meta_path, list) and isinstance(sys.modules, dict):
             mods = sys.modules
             if not NAMES.isdisjoint(mods):     # the host has modules of our names: aside
                 self.host = {k: mods.pop(k) for k in [k for k in mods if self._ours(k)]}
             mods.update(self.ours)
             sys.meta_path.insert(0, self.finder)
             self._count = len(mods)
+            self._swapped = True
         return self
 
     def __exit__(self, *exc) -> None:
         self.depth -= 1
-        if self.depth:
+        if self.depth or not self._swapped:
             return
+        self._swapped = False
         mods = sys.modules
         try:
             sys.meta_path.remove(self.finder)
-        except ValueError:
+        except (ValueError, AttributeError):
             pass
         if len(mods) != self._count:           # modules were imported: ours among them?
             self.ours.update((k, m) for k, m in list(mods.items()) if self._ours(k))

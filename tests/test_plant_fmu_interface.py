@@ -219,6 +219,20 @@ def test_the_ecos_command_line_runs_the_scalar_fmu(fmus, scalars_fmu, tmp_path):
     """Ecos's own command line (a C master: the FMU finds this venv's Python through
     VIRTUAL_ENV) writes every output to its CSV: with --scan-scalars the scan's rays are
     there; the FMI 3 array comes out as zeros (the master's limitation, why the option is)."""
+    ecos = _ecos_cli(tmp_path)
+    last = {}
+    for name, fmu in (("array", fmus[3]), ("scalars", scalars_fmu)):
+        rows = _ecos_simulate(ecos, fmu, tmp_path / name, 0.2)
+        assert len(rows) == 11, rows[:2]              # t = 0 and ten steps
+        last[name] = rows[-1]
+    rays = [last["scalars"][f"instance::{ROBOT}.scan[{k}][REAL]"] for k in range(1, 181)]
+    assert min(rays) > 0.1, rays
+    assert last["scalars"][f"instance::{ROBOT}.x[REAL]"] == pytest.approx(-1.0, abs=0.01)
+    assert last["array"][f"instance::{ROBOT}.scan[REAL]"] == 0.0
+
+
+def _ecos_cli(tmp_path: Path) -> Path:
+    """Ecos's command line, from ecospy (skipped where its library cannot load)."""
     try:
         import ecospy
     except (ImportError, OSError) as e:      # its binary needs libtbb.so.12 (apt: libtbb12)
@@ -226,21 +240,73 @@ def test_the_ecos_command_line_runs_the_scalar_fmu(fmus, scalars_fmu, tmp_path):
     ecos = tmp_path / "ecos"                 # the wheel installs it without the x bit
     shutil.copy(Path(ecospy.__file__).parent / "binaries" / "ecos", ecos)
     ecos.chmod(0o755)
+    return ecos
+
+
+def _ecos_simulate(ecos: Path, path: Path, folder: Path, stop_s: float) -> list[dict]:
+    """``ecos simulate`` of an FMU or SSP in ``folder``, as a C master with no Python (the
+    plant FMU finds this venv's through VIRTUAL_ENV): its CSV's rows, {column: value}."""
+    folder.mkdir()
     env = {k: v for k, v in os.environ.items() if k != "DIFFBOT_FMU_PYTHON"}
     env["VIRTUAL_ENV"] = sys.prefix
-    last = {}
-    for name, fmu in (("array", fmus[3]), ("scalars", scalars_fmu)):
-        d = tmp_path / name
-        d.mkdir()
-        r = subprocess.run([str(ecos), "simulate", "--path", str(fmu), "--stopTime", "0.2",
-                            "--stepSize", "0.02"], cwd=d, env=env, capture_output=True,
-                           text=True, timeout=120)
-        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-        rows = list(csv.reader(open(next(d.glob("*.csv")))))
-        assert len(rows) == 12, rows[:2]              # the header, t = 0 and ten steps
-        last[name] = {h.strip(): float(v) for h, v in zip(rows[0][2:], rows[-1][2:])
-                      if h.strip() and v.strip()}
-    rays = [last["scalars"][f"instance::{ROBOT}.scan[{k}][REAL]"] for k in range(1, 181)]
-    assert min(rays) > 0.1, rays
-    assert last["scalars"][f"instance::{ROBOT}.x[REAL]"] == pytest.approx(-1.0, abs=0.01)
-    assert last["array"][f"instance::{ROBOT}.scan[REAL]"] == 0.0
+    r = subprocess.run([str(ecos), "simulate", "--path", str(path), "--stopTime", str(stop_s),
+                        "--stepSize", str(TICK_S)], cwd=folder, env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    rows = list(csv.reader(open(next(folder.glob("*.csv")))))
+    head = [h.strip() for h in rows[0]]
+    return [{h: float(v) for h, v in zip(head, row) if h.endswith("[REAL]") and v.strip()}
+            for row in rows[1:]]
+
+
+@pytest.fixture(scope="module")
+def square_ssp(tmp_path_factory):
+    """``diffbot fmu export-ssp`` (FMI 2 and 3): plant, odometry and controller FMUs."""
+    out = tmp_path_factory.mktemp("ssp")
+    paths = {}
+    for fmi in (2, 3):
+        r = subprocess.run([sys.executable, "-m", "diffbot.cli", "fmu", "export-ssp", "--fmi",
+                            str(fmi), "--out", str(out / f"square{fmi}.ssp")], cwd=ROOT,
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        paths[fmi] = Path(r.stdout.strip())
+    return paths
+
+
+def _first_leg(plant_xy: tuple, odom_xy: tuple, done: float) -> None:
+    """After 10 s the controller has driven the 1.5 m first leg (from (-1, -1), heading +x)
+    on the odometry FMU's pose and is turning; odometry and truth agree."""
+    x, y = plant_xy
+    assert 0.45 < x < 0.52 and abs(y + 1.0) < 0.05, plant_xy
+    assert abs(odom_xy[0] - (x + 1.0)) < 0.005 and abs(odom_xy[1] - (y + 1.0)) < 0.005
+    assert done == 0.0
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_ecos_command_line_runs_the_square_ssp(square_ssp, fmi, tmp_path):
+    rows = _ecos_simulate(_ecos_cli(tmp_path), square_ssp[fmi], tmp_path / "run", 10.0)
+    end = rows[-1]
+    _first_leg((end[f"plant::{ROBOT}.x[REAL]"], end[f"plant::{ROBOT}.y[REAL]"]),
+               (end["odometry::x[REAL]"], end["odometry::y[REAL]"]), end["controller::done[REAL]"])
+    assert any(r["controller::w[REAL]"] > 0.1 for r in rows[-50:])       # the first corner
+
+
+def test_libcosim_runs_the_square_ssp(square_ssp):
+    pytest.importorskip("libcosimpy", reason="pip install libcosimpy (DNV libcosim, FMI 2 only)")
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+    log_output_level(CosimLogLevel.WARNING)
+    ex = CosimExecution.from_ssp_file(str(square_ssp[2]), step_size=int(TICK_S * 1e9))
+    observer = CosimObserver.create_last_value()
+    ex.add_observer(observer)
+    vr = {(s.index, v.name.decode()): v.reference for s in ex.slave_infos()
+          for v in ex.slave_variables(s.index)}
+    index = {s.name.decode(): s.index for s in ex.slave_infos()}
+    assert ex.simulate_until(int(10e9))
+
+    def last(slave: str, *names: str) -> list[float]:
+        i = index[slave]
+        return list(observer.last_real_values(i, [vr[(i, n)] for n in names]))
+    _first_leg(last("plant", f"{ROBOT}.x", f"{ROBOT}.y"), last("odometry", "x", "y"),
+               last("controller", "done")[0])
