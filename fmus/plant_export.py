@@ -40,6 +40,9 @@ LICENSE = "MIT"
 _HERE = Path(__file__).resolve().parent
 _SHIM_DIR = _HERE / "plant_wrapper"
 _UNITS = ("m", "rad", "m/s", "rad/s", "s")
+#: the declared type (and its quantity) of a variable of each unit
+_TYPES = {"m": ("Position", "Length"), "rad": ("Angle", "Angle"), "m/s": ("Velocity", "Velocity"),
+          "rad/s": ("AngularVelocity", "AngularVelocity"), "s": ("Time", "Time")}
 _BASE_UNITS = {"m": 'm="1"', "rad": 'rad="1"', "m/s": 'm="1" s="-1"',
                "rad/s": 's="-1" rad="1"', "s": 's="1"'}
 DESCRIPTION = ("The diffbot-cosim DART plant (robots, noise, lidar) as a tool-coupling "
@@ -123,6 +126,7 @@ def model_description(variables: list[Var], fmi: int, token: str, tick_s: float,
             + 'variableNamingConvention="structured"'
             + (' numberOfEventIndicators="0"' if fmi == 2 else "") + ">\n" + cs + "\n"
             f"  <UnitDefinitions>\n{units}\n  </UnitDefinitions>\n"
+            f"  <TypeDefinitions>\n{_type_definitions(fmi)}\n  </TypeDefinitions>\n"
             "  <LogCategories>\n"
             '    <Category name="logEvents" description="instantiation and mode changes"/>\n'
             '    <Category name="logStatusWarning" description="warnings"/>\n'
@@ -147,6 +151,17 @@ def model_description(variables: list[Var], fmi: int, token: str, tick_s: float,
             + "  </ModelStructure>\n</fmiModelDescription>\n")
 
 
+def _type_definitions(fmi: int) -> str:
+    return "\n".join(
+        f'    <Float64Type name="{t}" quantity="{q}" unit="{u}"/>' if fmi == 3 else
+        f'    <SimpleType name="{t}"><Real quantity="{q}" unit="{u}"/></SimpleType>'
+        for u, (t, q) in _TYPES.items())
+
+
+def _declared(v: Var) -> str:
+    return f' declaredType="{_TYPES[v.unit][0]}"' if v.unit in _TYPES else ""
+
+
 def _common(v: Var) -> str:
     return (f'name={quoteattr(v.name)} valueReference="{v.vr}" causality="{v.causality}" '
             f'variability="{v.variability}" description={quoteattr(v.description)}')
@@ -162,7 +177,7 @@ def _variable3(v: Var) -> str:
     if v.causality == "output":
         attrs += ' initial="calculated"'
     if v.unit:
-        attrs += f' unit="{v.unit}"'
+        attrs += f'{_declared(v)} unit="{v.unit}"'
     attrs += _range(v)
     start = _xml_start(v, 3)
     if v.type == "String":
@@ -177,7 +192,7 @@ def _variable3(v: Var) -> str:
 def _variable2(v: Var) -> str:
     attrs = _common(v) + (' initial="calculated"' if v.causality == "output" else "")
     kind = {"Float64": "Real", "Int32": "Integer", "Boolean": "Boolean", "String": "String"}[v.type]
-    inner = (f' unit="{v.unit}"' if v.unit else "") + _range(v)
+    inner = (f'{_declared(v)} unit="{v.unit}"' if v.unit else "") + _range(v)
     start = _xml_start(v, 2)
     if start:
         inner += f" start={quoteattr(start)}"

@@ -149,6 +149,8 @@ def test_the_model_description_says_what_a_master_needs(fmus):
             (-drive.max_linear_mps, drive.max_linear_mps)
         assert (float(by[f"{ROBOT}.w"].min), float(by[f"{ROBOT}.w"].max)) == \
             (-drive.max_angular_radps, drive.max_angular_radps)
+        assert by[f"{ROBOT}.v"].declaredType.quantity == "Velocity"
+        assert by[f"{ROBOT}.yaw"].declaredType.quantity == "Angle"
         assert md.author and md.license == "MIT" and md.version == "0.1.0"
         assert md.generationTool.startswith("diffbot-cosim 0.1.0") and md.generationDateAndTime
         cs = md.coSimulation
