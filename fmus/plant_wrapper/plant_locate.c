@@ -63,9 +63,7 @@ char *plant_run_query(const char *exe, const char *resources, int *exit_status) 
         close(fd[0]);
         close(fd[1]);
         execv(exe, argv);
-        printf("error=cannot run %s: %s\n", exe, strerror(errno));
-        fflush(stdout);
-        _exit(127);
+        _exit(127);                   /* (only async-signal-safe calls after fork) */
     }
     close(fd[1]);
     while ((got = read(fd[0], out + size, cap - size - 1)) != 0) {
