@@ -5,7 +5,7 @@ on its paths.
 
 The wheel is built from a copy of the clone's files (the build writes build/ and *.egg-info
 beside its sources), installed with the project's uv from uv's cache, which `make setup`
-has filled (no index is asked)."""
+has filled (the index is asked only if something is not in it)."""
 from __future__ import annotations
 
 import json
@@ -48,6 +48,16 @@ def clean_env(venv: Path) -> dict[str, str]:
     return env
 
 
+def _uv(*args: str) -> subprocess.CompletedProcess:
+    """uv from its cache only (what `make setup` put there), else asking the index too."""
+    at = 2 if args[0] == "pip" else 1                 # after the (sub)command's name
+    r = subprocess.run([str(UV), *args[:at], "--offline", *args[at:]], capture_output=True,
+                       text=True, timeout=600)
+    if r.returncode != 0:
+        r = subprocess.run([str(UV), *args], capture_output=True, text=True, timeout=600)
+    return r
+
+
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
     """{"wheel", "venv", "python", "env", "cwd"}: the wheel built from a copy of the clone and
@@ -57,16 +67,14 @@ def installed(tmp_path_factory):
     base = tmp_path_factory.mktemp("wheel")
     src = _source_copy(base / "src")
     dist = base / "dist"
-    r = subprocess.run([str(UV), "build", "--wheel", "--offline", "--out-dir", str(dist), str(src)],
-                       capture_output=True, text=True, timeout=300)
+    r = _uv("build", "--wheel", "--out-dir", str(dist), str(src))
     assert r.returncode == 0, r.stderr[-3000:]
     wheel, = dist.glob("*.whl")
     venv = base / "venv"
     subprocess.run([str(UV), "venv", "-q", "--python", sys._base_executable, str(venv)],
                    check=True, timeout=120)
     python = venv / "bin" / "python"
-    r = subprocess.run([str(UV), "pip", "install", "-q", "--offline", "--python", str(python),
-                        f"{wheel}[learn]"], capture_output=True, text=True, timeout=300)
+    r = _uv("pip", "install", "-q", "--python", str(python), f"{wheel}[learn]")
     assert r.returncode == 0, r.stderr[-3000:]
     cwd = base / "elsewhere"
     cwd.mkdir()
