@@ -42,7 +42,6 @@ static int py_ready = 0;
 static char *py_query = NULL;           /* what the chosen Python said about itself */
 static char py_where[4400];             /* which Python runs the FMU, and why that one */
 
-
 static const char *utf8(PyObject *s) {
     return s ? p_PyUnicode_AsUTF8AndSize(s, NULL) : NULL;
 }
@@ -168,9 +167,8 @@ static int load_python(PlantInstance *pi, const PlantConfig *cfg, const char *re
                  exit_status, py_query);
     snprintf(py_where, sizeof py_where, "the Python %s of %s (%s)", version, exe, why);
     if (errors[0]) {
-        plant_log(pi, PLANT_ERROR, "%s cannot run the plant FMU: %s (install diffbot-cosim "
-                  "in that Python, or name one that has it in $" PLANT_PYTHON_ENV ")",
-                  py_where, errors);
+        plant_log(pi, PLANT_ERROR, "%s cannot run the plant FMU: %s (mend that Python, or "
+                  "name one that has what is missing in $" PLANT_PYTHON_ENV ")", py_where, errors);
         return -1;
     }
     lib = dlopen(libpython, RTLD_NOW | RTLD_GLOBAL);
