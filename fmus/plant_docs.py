@@ -20,12 +20,14 @@ def page(variables: list[Var], fmi: int, world: str, tick_s: float, version: str
     for v in variables:
         if v.field == "scan" and v.index > 0:
             continue                       # scan[2] ... scan[n]: one row for them all
-        name = v.name if not (v.field == "scan" and v.index == 0) else \
-            f"{v.name[:-3]}[1] ... [{len([s for s in scans if s.robot == v.robot]) + 1}]"
+        name, what = v.name, v.description
+        if v.field == "scan" and v.index == 0:
+            n = len([s for s in scans if s.robot == v.robot]) + 1
+            name, what = f"{v.name[:-3]}[1] ... [{n}]", "last lidar scan's ray k's range"
         kind = v.type + (f"[{v.size}]" if v.size else "")
         rows.append(f"<tr><td><code>{escape(name)}</code></td><td>{v.causality}</td>"
                     f"<td>{kind}</td><td>{escape(v.unit)}</td><td>{_range(v)}</td>"
-                    f"<td>{escape(v.description)}</td></tr>")
+                    f"<td>{escape(what)}</td></tr>")
     ms = f"{tick_s * 1e3:g}"
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>diffbot-cosim plant FMU</title>
