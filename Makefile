@@ -100,4 +100,4 @@ bench: setup
 	$(BIN)/diffbot bench
 
 clean:
-	rm -rf out fmus/build plant/kernels/build .pytest_cache
+	rm -rf out fmus/build plant/kernels/build .pytest_cache build dist *.egg-info

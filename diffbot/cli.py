@@ -7,6 +7,7 @@
                                     class: python:MODULE:CLASS or PATH.py[:CLASS] (--arg K=V)
     diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
     diffbot fmu export-plant --out robot.fmu   the DART plant as a co-simulation FMU (FMI 3 or 2)
+    diffbot fmu export-ssp --out square.ssp    the square as an SSP: plant, odometry, controller
     diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
     diffbot bench ...               benchmarks
     diffbot experiment NAME ...     the study's sensor experiments, --out DIR (-h lists them)
@@ -94,9 +95,13 @@ def _dispatch(argv: list[str] | None) -> int:
         if rest[:1] == ["export-plant"]:
             from fmus.plant_export import main as export_main
             return export_main(rest[1:], prog="diffbot fmu export-plant")
+        if rest[:1] == ["export-ssp"]:
+            from fmus.plant_ssp import main as ssp_main
+            return ssp_main(rest[1:], prog="diffbot fmu export-ssp")
         print("usage: diffbot fmu build [--out DIR]\n"
               "       diffbot fmu export-plant [--world W] [--robots R ...] [--fmi 3|2] "
-              "--out robot.fmu", file=sys.stderr)
+              "--out robot.fmu\n"
+              "       diffbot fmu export-ssp [--fmi 2|3] --out square.ssp", file=sys.stderr)
         return 2
     if cmd == "fmu-node":
         from fmus.fmu_node_cli import main as fmu_node_main

@@ -59,7 +59,7 @@ _HERE = Path(__file__).resolve().parent
 _WRAPPER_DIR = _HERE / "wrapper"
 #: the test models: fmus/models/<name>/ (config.h, model.c, modelDescription<N>.xml)
 MODELS_DIR = _HERE / "models"
-TEST_MODELS = ("stairs", "bouncing", "gain", "signals")
+TEST_MODELS = ("stairs", "bouncing", "gain", "signals", "square")
 
 _WRAPPERS = {
     2: (_WRAPPER_DIR / "fmi2Functions.c", "fmi2Functions.c"),

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .plant_state import FmuStates
+
 OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
 #: value references: a robot's variables start at ROBOT_VR * (its index + 1)
 ROBOT_VR = 100_000
@@ -54,6 +56,8 @@ class Var:
     field: str = ""
     size: int = 0              # FMI 3 array length (0: scalar)
     index: int = -1            # FMI 2: which ray of the robot's scan
+    min: float | None = None   # declared range (the inputs: the world's drive limits)
+    max: float | None = None
 
 
 #: (field, unit, description) of a robot's Float64 outputs, in value-reference order
@@ -74,9 +78,11 @@ OUTPUTS = (
 )
 
 
-def layout(robots: list[tuple[str, int, tuple[float, float, float]]], fmi: int, world: str,
-           seed: int = 0) -> list[Var]:
-    """The FMU's variables: ``robots`` is [(name, lidar rays or 0, start pose)]."""
+def layout(robots: list, fmi: int, world: str, seed: int = 0,
+           scan_scalars: bool = False) -> list[Var]:
+    """The FMU's variables: ``robots`` is [(name, lidar rays or 0, start pose[, (max linear
+    m/s, max angular rad/s)])]; ``scan_scalars``: the scan as ``scan[1]`` ... ``scan[n]`` in
+    FMI 3 too (for masters that take no arrays), as it always is in FMI 2."""
     # FMI 3 needs its one independent variable; FMI 2 none (FMI Library then asks for a start)
     out = [Var("time", 0, "Float64", "independent", "continuous", "simulation time", "s")
            ] if fmi == 3 else []
@@ -86,13 +92,17 @@ def layout(robots: list[tuple[str, int, tuple[float, float, float]]], fmi: int, 
             Var("seed", 2, "Int32", "parameter", "fixed", "seed of every noise stream", start=seed),
             Var("noise", 3, "Boolean", "parameter", "fixed",
                 "false: every sensor and motion noise of the world is off", start=True)]
-    for i, (name, rays, pose) in enumerate(robots):
+    for i, (name, rays, pose, *limits) in enumerate(robots):
         base = ROBOT_VR * (i + 1)
         r = dict(robot=name)
+        v_max, w_max = limits[0] if limits else (None, None)
         out += [Var(f"{name}.v", base, "Float64", "input", "continuous",
-                    "commanded linear velocity", "m/s", 0.0, field="v", **r),
+                    "commanded linear velocity (the drive limits it to its range)", "m/s", 0.0,
+                    field="v", min=None if v_max is None else -v_max, max=v_max, **r),
                 Var(f"{name}.w", base + 1, "Float64", "input", "continuous",
-                    "commanded angular velocity, counter-clockwise", "rad/s", 0.0, field="w", **r)]
+                    "commanded angular velocity, counter-clockwise (the drive limits it to its "
+                    "range)", "rad/s", 0.0, field="w", min=None if w_max is None else -w_max,
+                    max=w_max, **r)]
         for j, (field, label) in enumerate((("x0", "start x"), ("y0", "start y"),
                                             ("yaw0", "start heading"))):
             out.append(Var(f"{name}.{field}", base + 2 + j, "Float64", "parameter", "fixed",
@@ -104,7 +114,11 @@ def layout(robots: list[tuple[str, int, tuple[float, float, float]]], fmi: int, 
         out.append(Var(f"{name}.contact", base + 5 + len(OUTPUTS), "Boolean", "output",
                        "discrete", "a robot solid touches anything but the floor",
                        field="contact", **r))
-        if rays and fmi == 3:
+        if rays:
+            out.append(Var(f"{name}.scan_count", base + 6 + len(OUTPUTS), "Int32", "output",
+                           "discrete", "lidar scans taken so far: changes when a new scan "
+                           "arrives", field="scan_count", **r))
+        if rays and fmi == 3 and not scan_scalars:
             out.append(Var(f"{name}.scan", base + SCAN_OFFSET, "Float64", "output", "discrete",
                            "last lidar scan's ranges (held between scans)", "m", field="scan",
                            size=rays, **r))
@@ -126,7 +140,7 @@ def _wanted(topic: str) -> bool:
     return topic in ("joint_states", "scan")
 
 
-class PlantInstance:
+class PlantInstance(FmuStates):
     """One FMI instance of the plant (states: instantiated, init, step, terminated)."""
 
     def __init__(self, fmi: int, resources: str, name: str, token: str) -> None:
@@ -136,14 +150,18 @@ class PlantInstance:
             raise ValueError(f"instantiation token {token!r} is not this FMU's "
                              f"({self.cfg['token']!r})")
         self.fmi, self.name = fmi, name
-        robots = [(r, n, tuple(p)) for r, n, p in self.cfg["robots"]]
-        self.robots = [r for r, _, _ in robots]
-        self.vars = layout(robots, fmi, self.cfg["world"], self.cfg["seed"])
+        robots = self.cfg["robots"]
+        self.robots = [row[0] for row in robots]
+        self.vars = layout(robots, fmi, self.cfg["world"], self.cfg["seed"],
+                           self.cfg.get("scan_scalars", False))
         self.by_vr = {v.vr: v for v in self.vars}
         self.by_name = {v.name: v.vr for v in self.vars}
         self.messages: list[str] = []
         self.tick = None
         self.touching = None
+        self.states: dict[int, dict] = {}    # FMU states taken (getFMUState), by id >= 1
+        self._last_state = 0
+        self._serialized: tuple[int, bytes] | None = None
         self._start_values()
 
     # -------------------------------------------------------------- FMI calls
@@ -226,6 +244,9 @@ class PlantInstance:
             return self.fail(f"value reference {vr} is not a String variable")
         return self._store(v, value.decode("utf-8"))
 
+    def contacts_now(self) -> set[str]:
+        return contacts(self.tick.sim.world, self.robots)
+
     # -------------------------------------------------------------- values
     def _var(self, vr: int, kind: str) -> Var:
         v = self.by_vr.get(vr)
@@ -287,6 +308,9 @@ class PlantInstance:
         if v.type == "Float64" and not math.isfinite(value):
             return self.fail(f"{v.name} = {value}: not a finite number")
         self.values[v.vr] = bool(value) if v.type == "Boolean" else value
+        if v.max is not None and not v.min <= value <= v.max:
+            return self.fail(f"{v.name} = {value!r} is outside its range [{v.min:g}, {v.max:g}]:"
+                             " the drive limits it", WARNING)
         if v.causality == "parameter":
             self._close_tick()             # built from older parameters in init mode
             self.out.clear()
@@ -307,7 +331,7 @@ class PlantInstance:
         from plant.world import load_world
         spec = load_world(self.param("world"), self.cfg.get("overrides", []))
         names = [r.name for r in spec.robots]
-        for name, rays, _ in self.cfg["robots"]:
+        for name, rays, *_ in self.cfg["robots"]:
             if name not in names:
                 raise ValueError(f"world {self.param('world')!r} has no robot {name!r} "
                                  f"(it has {', '.join(names)}): export the FMU from that world")
@@ -325,6 +349,7 @@ class PlantInstance:
             raise ValueError(f"the world's control tick is {spec.control_tick_s} s, the FMU's "
                              f"{self.cfg['tick_s']} s")
         self.tick = Tick(spec, disabled=("camera",))
+        self._built_from = self._params()
         self.ticks = 0
         self.odom = {name: None for name in self.robots}
         self._sense()
@@ -340,6 +365,7 @@ class PlantInstance:
                                    np.asarray(msg.velocity, dtype=float))
             elif topic == "scan":
                 self.scans[robot] = np.asarray(msg.ranges, dtype=np.float64)
+                self.out[(robot, "scan_count")] = self.out.get((robot, "scan_count"), 0) + 1
         self.touching = None               # found when asked for (get of a contact flag)
         for robot in self.robots:
             tf = self.tick.sim.robots[robot].transform()

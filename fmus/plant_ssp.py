@@ -8,6 +8,11 @@ tick, what the bus feeds the odometry FMU) connected to the odometry FMU's
 plant's ``v`` and ``w``, as ``diffbot run square`` does over the bus. Masters: libcosim
 (libcosimpy, FMI 2 FMUs) and Ecos (ecospy, FMI 2 or 3).
 
+``diffbot fmu export-ssp --out square.ssp [--fmi 2|3]`` writes the whole system, the
+controller an FMU too (fmus/models/square): plant FMU -> odometry FMU -> controller FMU ->
+plant FMU, which an SSP master runs from its own command line, e.g. Ecos's
+``ecos simulate --path square.ssp --stopTime 60 --stepSize 0.02`` (docs/fmu.md).
+
 Co-simulation timing: both masters step the FMUs side by side (Jacobi), so the odometry
 FMU's output at t_k+1 is the pose through the encoder readings of t_k (the bus's
 ``odom`` stamped t_k), and the controller's command of t_k acts from t_k on: the bus's
@@ -15,8 +20,11 @@ pipelined coupling, one tick of delay, as the square scenario runs by default.
 """
 from __future__ import annotations
 
+import argparse
 import math
 import os
+import sys
+import tempfile
 import zipfile
 from pathlib import Path
 from typing import Callable
@@ -35,11 +43,11 @@ _SSD = """<?xml version="1.0" encoding="UTF-8"?>
         <ssd:Connectors>
 {odometry_connectors}
         </ssd:Connectors>
-      </ssd:Component>
+      </ssd:Component>{controller}
     </ssd:Elements>
     <ssd:Connections>
       <ssd:Connection startElement="plant" startConnector="{robot}.wheel_rate_left" endElement="odometry" endConnector="omega_left"/>
-      <ssd:Connection startElement="plant" startConnector="{robot}.wheel_rate_right" endElement="odometry" endConnector="omega_right"/>
+      <ssd:Connection startElement="plant" startConnector="{robot}.wheel_rate_right" endElement="odometry" endConnector="omega_right"/>{controller_connections}
     </ssd:Connections>
   </ssd:System>
   <ssd:DefaultExperiment startTime="0" stopTime="{stop}"/>
@@ -52,12 +60,37 @@ def _connectors(names: list[tuple[str, str]]) -> str:
                      for n, k in names)
 
 
+_CONTROLLER = """
+      <ssd:Component name="controller" source="resources/{controller}">
+        <ssd:Connectors>
+{connectors}
+        </ssd:Connectors>
+      </ssd:Component>"""
+
+_CONTROLLER_CONNECTIONS = "".join(
+    f'\n      <ssd:Connection startElement="{a}" startConnector="{b}" endElement="{c}" '
+    f'endConnector="{d}"/>' for a, b, c, d in (
+        ("odometry", "x", "controller", "x"), ("odometry", "y", "controller", "y"),
+        ("odometry", "theta", "controller", "theta"),
+        ("controller", "v", "plant", "{robot}.v"), ("controller", "w", "plant", "{robot}.w")))
+
+
 def write_ssp(out: str | os.PathLike, plant_fmu: str | os.PathLike,
-              odometry_fmu: str | os.PathLike, robot: str = "robot1", stop_s: float = 120.0) -> Path:
-    """An .ssp archive (a zip: SystemStructure.ssd, resources/*.fmu) of the square."""
+              odometry_fmu: str | os.PathLike, robot: str = "robot1", stop_s: float = 120.0,
+              controller_fmu: str | os.PathLike | None = None) -> Path:
+    """An .ssp archive (a zip: SystemStructure.ssd, resources/*.fmu) of the square.
+    ``controller_fmu``: the square-path controller FMU (fmus/models/square), connected from
+    the odometry FMU's pose to the plant's v, w: a system any SSP master runs on its own;
+    without it the master's own logic drives the plant (:func:`run_square`)."""
     plant, odometry = Path(plant_fmu), Path(odometry_fmu)
+    controller = Path(controller_fmu) if controller_fmu else None
     ssd = _SSD.format(
         plant=plant.name, odometry=odometry.name, robot=robot, stop=stop_s,
+        controller=_CONTROLLER.format(controller=controller.name, connectors=_connectors(
+            [("x", "input"), ("y", "input"), ("theta", "input"), ("v", "output"),
+             ("w", "output"), ("done", "output")])) if controller else "",
+        controller_connections=_CONTROLLER_CONNECTIONS.replace("{robot}", robot)
+        if controller else "",
         plant_connectors=_connectors([(f"{robot}.v", "input"), (f"{robot}.w", "input"),
                                       (f"{robot}.wheel_rate_left", "output"),
                                       (f"{robot}.wheel_rate_right", "output"),
@@ -72,6 +105,8 @@ def write_ssp(out: str | os.PathLike, plant_fmu: str | os.PathLike,
         zf.writestr("SystemStructure.ssd", ssd)
         zf.write(plant, f"resources/{plant.name}")
         zf.write(odometry, f"resources/{odometry.name}")
+        if controller:
+            zf.write(controller, f"resources/{controller.name}")
     return target
 
 
@@ -186,3 +221,42 @@ def run_square(ssp: str | os.PathLike, controller_step: Callable[[float, tuple],
     return {"master": master, "final_odom_error_m": errors[-1] if errors else math.nan,
             "max_odom_error_m": max(errors, default=math.nan), "path_length_m": length,
             "duration_s": t}
+
+
+def export_ssp(out: str | os.PathLike, fmi: int = 2, world: str = "living_room",
+               robot: str = "robot1", stop_s: float = 60.0, overrides=()) -> Path:
+    """The square as a self-contained SSP (plant, odometry and controller FMUs of FMI
+    ``fmi``): the plant exported here, the odometry and controller FMUs built from their
+    sources (fmus/build.py) into a temporary folder."""
+    from .build import build_fmu
+    from .plant_export import export_plant
+    with tempfile.TemporaryDirectory(prefix="square_ssp_") as tmp:
+        # (FMI 3: the scan as scalars, which a master's CSV of every output can hold)
+        plant = export_plant(Path(tmp, f"plant_fmi{fmi}.fmu"), world, [robot], fmi, overrides,
+                             scan_scalars=True)
+        return write_ssp(out, plant, build_fmu(fmi, tmp), robot, stop_s,
+                         build_fmu(fmi, tmp, "square"))
+
+
+def main(argv: list[str] | None = None, prog: str = "diffbot fmu export-ssp") -> int:
+    p = argparse.ArgumentParser(prog=prog, description="Write the study's square as an SSP "
+                                "system: the plant FMU, the odometry FMU and the square-path "
+                                "controller FMU, connected (any SSP master runs it alone).")
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version of the "
+                   "three FMUs (default 2: libcosim takes FMI 2 only)")
+    p.add_argument("--world", default="living_room", help="world file or shipped name")
+    p.add_argument("--robot", default="robot1", help="the robot that drives the square")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="world file override (repeatable)")
+    p.add_argument("--stop", type=float, default=60.0, help="the SSP's default stop time, s")
+    p.add_argument("--out", required=True, help="the .ssp file to write")
+    args = p.parse_args(argv)
+    from plant.world import WorldError
+    from .build import FmuBuildError
+    try:
+        path = export_ssp(args.out, args.fmi, args.world, args.robot, args.stop, args.overrides)
+    except (FmuBuildError, WorldError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2 if isinstance(e, WorldError) else 1
+    print(path)
+    return 0

@@ -1,5 +1,5 @@
 /* FMI 2.0 co-simulation interface of the plant FMU (the work is in fmus/plant_fmu.py).
- * Every FMI 2 function is exported; model exchange, FMU state and derivatives return
+ * Every FMI 2 function is exported; model exchange and derivatives return
  * fmi2Error with a message. */
 #include <stdlib.h>
 #include <string.h>
@@ -124,15 +124,26 @@ static fmi2Status unsupported(fmi2Component c, const char *f) {
 }
 #define NO(f) { return unsupported(c, #f); }
 
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s) NO(fmi2GetFMUstate)
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s) NO(fmi2SetFMUstate)
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s) NO(fmi2FreeFMUstate)
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size)
-    NO(fmi2SerializedFMUstateSize)
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t size)
-    NO(fmi2SerializeFMUstate)
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s) {
+    return c ? (fmi2Status)plant_get_state(PI, s) : fmi2Error;
+}
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s) {
+    return c ? (fmi2Status)plant_set_state(PI, s) : fmi2Error;
+}
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s) {
+    return c ? (fmi2Status)plant_free_state(PI, s) : fmi2Error;
+}
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size) {
+    return c ? (fmi2Status)plant_state_size(PI, s, size) : fmi2Error;
+}
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t size) {
+    return c ? (fmi2Status)plant_serialize_state(PI, s, (unsigned char *)b, size) : fmi2Error;
+}
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t size,
-                                   fmi2FMUstate *s) NO(fmi2DeSerializeFMUstate)
+                                   fmi2FMUstate *s) {
+    return c ? (fmi2Status)plant_deserialize_state(PI, (const unsigned char *)b, size, s)
+             : fmi2Error;
+}
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[],
         size_t nu, const fmi2ValueReference k[], size_t nk, const fmi2Real dk[], fmi2Real du[])
     NO(fmi2GetDirectionalDerivative)

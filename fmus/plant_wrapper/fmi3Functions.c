@@ -1,6 +1,6 @@
 /* FMI 3.0 co-simulation interface of the plant FMU (the work is in fmus/plant_fmu.py).
  * Every FMI 3 function is exported (importers bind them all); what a co-simulation plant
- * has no use for (model exchange, scheduled execution, clocks, FMU state, derivatives)
+ * has no use for (model exchange, scheduled execution, clocks, derivatives)
  * returns fmi3Error with a message. */
 #include <stdlib.h>
 #include <string.h>
@@ -172,15 +172,29 @@ fmi3Status fmi3GetVariableDependencies(fmi3Instance instance, fmi3ValueReference
         size_t elementIndicesOfDependent[], fmi3ValueReference independents[],
         size_t elementIndicesOfIndependents[], fmi3DependencyKind dependencyKinds[],
         size_t nDependencies) NO(fmi3GetVariableDependencies)
-fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *FMUState) NO(fmi3GetFMUState)
-fmi3Status fmi3SetFMUState(fmi3Instance instance, fmi3FMUState FMUState) NO(fmi3SetFMUState)
-fmi3Status fmi3FreeFMUState(fmi3Instance instance, fmi3FMUState *FMUState) NO(fmi3FreeFMUState)
+fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
+    return instance ? (fmi3Status)plant_get_state(PI, FMUState) : fmi3Error;
+}
+fmi3Status fmi3SetFMUState(fmi3Instance instance, fmi3FMUState FMUState) {
+    return instance ? (fmi3Status)plant_set_state(PI, FMUState) : fmi3Error;
+}
+fmi3Status fmi3FreeFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
+    return instance ? (fmi3Status)plant_free_state(PI, FMUState) : fmi3Error;
+}
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance instance, fmi3FMUState FMUState,
-                                      size_t *size) NO(fmi3SerializedFMUStateSize)
+                                      size_t *size) {
+    return instance ? (fmi3Status)plant_state_size(PI, FMUState, size) : fmi3Error;
+}
 fmi3Status fmi3SerializeFMUState(fmi3Instance instance, fmi3FMUState FMUState,
-        fmi3Byte serializedState[], size_t size) NO(fmi3SerializeFMUState)
+        fmi3Byte serializedState[], size_t size) {
+    return instance ? (fmi3Status)plant_serialize_state(PI, FMUState, serializedState, size)
+                    : fmi3Error;
+}
 fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte serializedState[],
-        size_t size, fmi3FMUState *FMUState) NO(fmi3DeserializeFMUState)
+        size_t size, fmi3FMUState *FMUState) {
+    return instance ? (fmi3Status)plant_deserialize_state(PI, serializedState, size, FMUState)
+                    : fmi3Error;
+}
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[],
         size_t nUnknowns, const fmi3ValueReference knowns[], size_t nKnowns,
         const fmi3Float64 seed[], size_t nSeed, fmi3Float64 sensitivity[],

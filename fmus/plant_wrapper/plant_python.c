@@ -1,6 +1,9 @@
 /* The plant FMU's bridge to Python (see plant_python.h). */
 #define _GNU_SOURCE
+#define Py_LIMITED_API 0x030A0000
 #include <Python.h>
+
+#include <errno.h>
 
 #include <dlfcn.h>
 #include <pthread.h>
@@ -12,25 +15,36 @@
 
 #include "plant_python.h"
 
-/* ------------------------------------------------- the C-API, looked up at run time */
+/* ------------------------------------------------- the C-API, looked up at run time
+ * Only the limited C API of Python 3.10 (its stable ABI): one binary for Python >= 3.10. */
 #define PY_FUNCTIONS(X)                                                                 \
-    X(Py_IsInitialized) X(Py_GetVersion) X(PyConfig_InitPythonConfig)                   \
-    X(PyConfig_SetBytesString) X(PyConfig_Clear) X(Py_InitializeFromConfig)             \
-    X(PyStatus_Exception) X(PyEval_SaveThread) X(PyGILState_Ensure) X(PyGILState_Release) \
-    X(PyRun_SimpleString) X(PyImport_ImportModule) X(PyObject_GetAttrString)            \
+    X(Py_IsInitialized) X(Py_GetVersion) X(Py_InitializeEx) X(PyEval_SaveThread)        \
+    X(PyGILState_Ensure) X(PyGILState_Release) X(Py_CompileString) X(PyEval_EvalCode)   \
+    X(PyEval_GetBuiltins) X(PyDict_New) X(PyDict_SetItemString) X(PyDict_GetItemString) \
+    X(PyUnicode_FromString) X(PyObject_GetAttrString)                                   \
     X(PyObject_CallObject) X(Py_VaBuildValue) X(Py_DecRef) X(PyLong_AsLong)             \
-    X(PyErr_Fetch) X(PyErr_Clear) X(PyObject_Str) X(PyUnicode_AsUTF8)
+    X(PyErr_Fetch) X(PyErr_Clear) X(PyObject_Str) X(PyUnicode_AsUTF8AndSize)              \
+    X(PyImport_AddModule) X(PyModule_GetDict) X(Py_IncRef)
 
 #define DECLARE(f) static __typeof__(&f) p_##f;
 PY_FUNCTIONS(DECLARE)
 
+/* deprecated since 3.11/3.12 and outside the limited API, used when the library has them:
+ * where the embedded interpreter's standard library is, its sys.executable, and no site
+ * import (a .pth file of the environment may do anything at startup: one re-executes the
+ * interpreter, which would replace the host's process). Declared here, not taken from
+ * Python.h, which hides them from the limited API. */
+typedef void (*SetWideFn)(const wchar_t *);
+typedef wchar_t *(*DecodeLocaleFn)(const char *, size_t *);
+
 static pthread_mutex_t py_lock = PTHREAD_MUTEX_INITIALIZER;
 static int py_ready = 0;
-static PyObject *py_module = NULL;      /* fmus.plant_fmu, kept for the process's life */
+static char *py_query = NULL;           /* what the chosen Python said about itself */
+static char py_where[4400];             /* which Python runs the FMU, and why that one */
 
-typedef struct {
-    char python_version[32], libpython[4096], executable[4096], root[4096], bootstrap[16384];
-} Config;
+static const char *utf8(PyObject *s) {
+    return s ? p_PyUnicode_AsUTF8AndSize(s, NULL) : NULL;
+}
 
 void plant_log(PlantInstance *pi, int status, const char *fmt, ...) {
     char message[8192];
@@ -69,7 +83,7 @@ char *plant_resource_dir(const char *location) {
     return out;
 }
 
-static int read_config(PlantInstance *pi, const char *resources, Config *cfg) {
+static int read_config(PlantInstance *pi, const char *resources, PlantConfig *cfg) {
     char path[4096], line[16384];
     FILE *f;
     memset(cfg, 0, sizeof *cfg);
@@ -85,67 +99,100 @@ static int read_config(PlantInstance *pi, const char *resources, Config *cfg) {
         *eq = '\0';
         end = eq + 1 + strcspn(eq + 1, "\r\n");
         *end = '\0';
-#define KEY(k) if (strcmp(line, #k) == 0) snprintf(cfg->k, sizeof cfg->k, "%s", eq + 1);
-        KEY(python_version) KEY(libpython) KEY(executable) KEY(root) KEY(bootstrap)
-#undef KEY
+        if (strcmp(line, "python") == 0) snprintf(cfg->python, sizeof cfg->python, "%s", eq + 1);
     }
     fclose(f);
     return 0;
 }
 
-static const char *missing_environment(const Config *cfg) {
-    if (access(cfg->executable, X_OK) != 0) return cfg->executable;
-    if (access(cfg->root, R_OK) != 0) return cfg->root;
-    return NULL;
-}
-
-/* Find the C-API (the host's Python, or libpython loaded here) and initialise Python once. */
-static int load_python(PlantInstance *pi, const Config *cfg) {
-    void *lib = RTLD_DEFAULT;
-    if (!dlsym(RTLD_DEFAULT, "Py_IsInitialized")) {
-        lib = dlopen(cfg->libpython, RTLD_NOW | RTLD_GLOBAL);
-        if (!lib) {
-            plant_log(pi, PLANT_ERROR, "cannot load the Python library of the FMU's "
-                      "environment (%s): %s", cfg->libpython, dlerror());
-            return -1;
-        }
-    }
+static int resolve(PlantInstance *pi, void *lib, const char *from) {
 #define RESOLVE(f)                                                                        \
     if (!(p_##f = (__typeof__(&f))dlsym(lib, #f))) {                                      \
-        plant_log(pi, PLANT_ERROR, "the Python library has no %s: not Python %s?", #f,    \
-                  cfg->python_version);                                                   \
+        plant_log(pi, PLANT_ERROR, "%s has no %s: not Python >= 3.10?", from, #f);        \
         return -1;                                                                        \
     }
     PY_FUNCTIONS(RESOLVE)
 #undef RESOLVE
+    return 0;
+}
+
+/* Python >= 3.10 from its version string */
+static int recent_enough(const char *version) {
+    int major = 0, minor = 0;
+    return sscanf(version, "%d.%d", &major, &minor) == 2 && (major > 3 || (major == 3 && minor >= 10));
+}
+
+/* Find the C-API (the host's Python, or the chosen Python's libpython loaded here) and
+ * initialise Python once. */
+static int load_python(PlantInstance *pi, const PlantConfig *cfg, const char *resources) {
+    char exe[4096], why[128], libpython[4096], home[4096], version[64], errors[8192];
+    int (*initialized)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
+    int exit_status = 0;
+    void *lib;
+    if (initialized && initialized()) {         /* a Python host (fmpy, libcosimpy, ecospy) */
+        if (resolve(pi, RTLD_DEFAULT, "the host's Python") != 0) return -1;
+        snprintf(version, sizeof version, "%s", p_Py_GetVersion());
+        version[strcspn(version, " ")] = '\0';
+        if (!recent_enough(version)) {
+            plant_log(pi, PLANT_ERROR, "the host runs Python %s; the plant FMU needs "
+                      "Python >= 3.10 with diffbot-cosim installed", version);
+            return -1;
+        }
+        snprintf(py_where, sizeof py_where, "the host's own Python %s", version);
+        return 0;
+    }
+    if (plant_choose_python(cfg, exe, sizeof exe, why, sizeof why) != 0) {
+        plant_log(pi, PLANT_ERROR, "no Python to run the plant FMU: set " PLANT_PYTHON_ENV " to a "
+                  "python with diffbot-cosim installed, activate its virtual environment, or "
+                  "put python3 on PATH");
+        return -1;
+    }
+    if (access(exe, X_OK) != 0) {
+        plant_log(pi, PLANT_ERROR, "the Python chosen to run the plant FMU (%s: %s) is "
+                  "missing or not executable", why, exe);
+        return -1;
+    }
+    free(py_query);
+    py_query = plant_run_query(exe, resources, &exit_status);
+    if (!py_query) {
+        plant_log(pi, PLANT_ERROR, "cannot run %s (%s): %s", exe, why, strerror(errno));
+        return -1;
+    }
+    plant_query_value(py_query, "version", version, sizeof version);
+    plant_query_value(py_query, "libpython", libpython, sizeof libpython);
+    plant_query_value(py_query, "home", home, sizeof home);
+    plant_query_errors(py_query, errors, sizeof errors);
+    if (!version[0] && !errors[0])
+        snprintf(errors, sizeof errors, "it did not say what it is (exit status %d): %.2000s",
+                 exit_status, py_query);
+    snprintf(py_where, sizeof py_where, "the Python %s of %s (%s)", version, exe, why);
+    if (errors[0]) {
+        plant_log(pi, PLANT_ERROR, "%s cannot run the plant FMU: %s (mend that Python, or "
+                  "name one that has what is missing in $" PLANT_PYTHON_ENV ")", py_where, errors);
+        return -1;
+    }
+    lib = dlopen(libpython, RTLD_NOW | RTLD_GLOBAL);
+    if (!lib) {
+        plant_log(pi, PLANT_ERROR, "cannot load the Python library of %s (%s): %s", py_where,
+                  libpython, dlerror());
+        return -1;
+    }
+    if (resolve(pi, lib, libpython) != 0) return -1;
     if (!p_Py_IsInitialized()) {
-        PyConfig config;
-        PyStatus status;
-        p_PyConfig_InitPythonConfig(&config);
-        config.install_signal_handlers = 0;   /* the host's signals stay the host's */
-        config.parse_argv = 0;
-        /* no site import: a .pth file of the environment may do anything at startup (one
-         * here re-executes the interpreter, which would replace the host's process); the
-         * bootstrap line of plant.cfg puts site-packages and the package root on sys.path */
-        config.site_import = 0;
-        status = p_PyConfig_SetBytesString(&config, &config.program_name, cfg->executable);
-        if (!p_PyStatus_Exception(status)) status = p_Py_InitializeFromConfig(&config);
-        p_PyConfig_Clear(&config);
-        if (p_PyStatus_Exception(status)) {
-            plant_log(pi, PLANT_ERROR, "cannot start Python from %s: %s", cfg->executable,
-                      status.err_msg ? status.err_msg : "unknown error");
+        int *no_site = (int *)dlsym(lib, "Py_NoSiteFlag");
+        SetWideFn set_name = (SetWideFn)dlsym(lib, "Py_SetProgramName");
+        SetWideFn set_home = (SetWideFn)dlsym(lib, "Py_SetPythonHome");
+        DecodeLocaleFn decode = (DecodeLocaleFn)dlsym(lib, "Py_DecodeLocale");
+        if (no_site) *no_site = 1;
+        /* the strings stay allocated: Python keeps pointers to them */
+        if (set_name && decode) set_name(decode(exe, NULL));
+        if (set_home && decode && home[0]) set_home(decode(home, NULL));
+        p_Py_InitializeEx(0);               /* 0: the host's signals stay the host's */
+        if (!p_Py_IsInitialized()) {
+            plant_log(pi, PLANT_ERROR, "cannot start %s", py_where);
             return -1;
         }
-        p_PyEval_SaveThread();                /* the GIL is taken per call from now on */
-    } else {
-        const char *v = p_Py_GetVersion();
-        size_t n = strlen(cfg->python_version);
-        if (strncmp(v, cfg->python_version, n) != 0 || (v[n] >= '0' && v[n] <= '9')) {
-            plant_log(pi, PLANT_ERROR, "the host runs Python %.20s; this tool-coupling FMU "
-                      "needs the Python %s environment of %s", v, cfg->python_version,
-                      cfg->executable);
-            return -1;
-        }
+        p_PyEval_SaveThread();              /* the GIL is taken per call from now on */
     }
     return 0;
 }
@@ -157,7 +204,7 @@ static void exception_text(char *out, size_t n) {
     snprintf(out, n, "unknown Python error");
     s = value ? p_PyObject_Str(value) : NULL;
     if (s) {
-        const char *text = p_PyUnicode_AsUTF8(s);
+        const char *text = utf8(s);
         if (text) snprintf(out, n, "%s", text);
         p_Py_DecRef(s);
     }
@@ -192,7 +239,7 @@ static PyObject *call_v(PyObject *obj, const char *method, const char *fmt, ...)
 /* the instance's message for a status other than OK (the caller holds the GIL) */
 static void log_reason(PlantInstance *pi, int status, const char *method) {
     PyObject *m = call_v((PyObject *)pi->py, "pop_message", "");
-    const char *text = m ? p_PyUnicode_AsUTF8(m) : NULL;
+    const char *text = utf8(m);
     plant_log(pi, status, "%s: %s", method, text && *text ? text : "failed");
     if (m) p_Py_DecRef(m);
     else p_PyErr_Clear();
@@ -221,10 +268,69 @@ int plant_call(PlantInstance *pi, const char *method, const char *fmt, ...) {
     return status;
 }
 
+/* The guest through which every instance is made (NULL with the reason logged): the
+ * process's one, kept in the private module GUEST_MODULE (this library may be unloaded and
+ * loaded again between instances: its static variables do not last), else made by
+ * resources/plant_guest.py's load(), that file run as that module's code, in a namespace of
+ * its own. The caller holds the GIL. */
+#define GUEST_MODULE "_diffbot_plant_guest"
+static PyObject *load_guest(PlantInstance *pi, const char *resources) {
+    char path[4200], text[4096];
+    FILE *f;
+    long size;
+    char *source;
+    PyObject *module, *globals, *code = NULL, *done = NULL, *load, *guest = NULL;
+    module = p_PyImport_AddModule(GUEST_MODULE);                     /* borrowed */
+    globals = module ? p_PyModule_GetDict(module) : NULL;           /* borrowed */
+    guest = globals ? p_PyDict_GetItemString(globals, "guest") : NULL;
+    if (guest) {
+        p_Py_IncRef(guest);
+        return guest;
+    }
+    if (!globals) {
+        exception_text(text, sizeof text);
+        plant_log(pi, PLANT_ERROR, "%s: %s", py_where, text);
+        return NULL;
+    }
+    snprintf(path, sizeof path, "%s/plant_guest.py", resources);
+    f = fopen(path, "rb");
+    if (!f) {
+        plant_log(pi, PLANT_ERROR, "cannot read %s: the FMU's resources are incomplete", path);
+        return NULL;
+    }
+    fseek(f, 0, SEEK_END);
+    size = ftell(f);
+    rewind(f);
+    source = size >= 0 ? malloc((size_t)size + 1) : NULL;
+    if (source && fread(source, 1, (size_t)size, f) == (size_t)size) source[size] = '\0';
+    else { free(source); source = NULL; }
+    fclose(f);
+    if (!source) {
+        plant_log(pi, PLANT_ERROR, "cannot read %s", path);
+        return NULL;
+    }
+    code = p_Py_CompileString(source, path, Py_file_input);
+    free(source);
+    if (code && !p_PyDict_GetItemString(globals, "__builtins__"))
+        p_PyDict_SetItemString(globals, "__builtins__", p_PyEval_GetBuiltins());
+    done = code ? p_PyEval_EvalCode(code, globals, globals) : NULL;
+    load = done ? p_PyDict_GetItemString(globals, "load") : NULL;     /* borrowed */
+    if (load) guest = call_v(load, "__call__", "ss", resources, py_query ? py_query : "");
+    if (guest) p_PyDict_SetItemString(globals, "guest", guest);
+    else {
+        exception_text(text, sizeof text);
+        plant_log(pi, PLANT_ERROR, "%s: %s", py_where, text);
+    }
+    if (done) p_Py_DecRef(done);
+    if (code) p_Py_DecRef(code);
+    return guest;
+}
+
 PlantInstance *plant_instantiate(const PlantInstance *proto, const char *resources,
                                  const char *token) {
-    Config cfg;
+    PlantConfig cfg;
     PlantInstance *pi = calloc(1, sizeof *pi);
+    PyObject *guest;
     PyGILState_STATE gil;
     char text[4096];
     if (!pi) return NULL;
@@ -234,42 +340,31 @@ PlantInstance *plant_instantiate(const PlantInstance *proto, const char *resourc
     pi->strings = NULL;
     pi->nstrings = 0;
     if (!resources) {
-        plant_log(pi, PLANT_ERROR, "no resource location: the FMU needs resources/plant.cfg");
+        plant_log(pi, PLANT_ERROR, "no resource location: the FMU needs its resources/ folder");
         goto fail;
     }
     if (read_config(pi, resources, &cfg) != 0) goto fail;
-    if (missing_environment(&cfg)) {
-        plant_log(pi, PLANT_ERROR, "this tool-coupling FMU needs the Python environment it "
-                  "was exported from, and %s is missing: export it again with `diffbot fmu "
-                  "export-plant` in the environment that should run it",
-                  missing_environment(&cfg));
-        goto fail;
-    }
     pthread_mutex_lock(&py_lock);
-    if (!py_ready && load_python(pi, &cfg) != 0) {
+    if (!py_ready && load_python(pi, &cfg, resources) != 0) {
         pthread_mutex_unlock(&py_lock);
         goto fail;
     }
     py_ready = 1;
     gil = p_PyGILState_Ensure();
-    if (!py_module) {
-        if (p_PyRun_SimpleString(cfg.bootstrap) != 0)
-            plant_log(pi, PLANT_WARNING, "the FMU's sys.path bootstrap failed");
-        py_module = p_PyImport_ImportModule("fmus.plant_fmu");
-    }
-    if (py_module) {
-        pi->py = call_v(py_module, "instantiate", "isss", pi->fmi, resources, pi->name,
+    guest = load_guest(pi, resources);
+    if (guest) {
+        pi->py = call_v(guest, "instantiate", "isss", pi->fmi, resources, pi->name,
                         token ? token : "");
-    }
-    if (!pi->py) {
-        exception_text(text, sizeof text);
-        plant_log(pi, PLANT_ERROR, "%s (Python environment %s, package root %s)", text,
-                  cfg.executable, cfg.root);
+        p_Py_DecRef(guest);
+        if (!pi->py) {
+            exception_text(text, sizeof text);
+            plant_log(pi, PLANT_ERROR, "%s (in %s)", text, py_where);
+        }
     }
     p_PyGILState_Release(gil);
     pthread_mutex_unlock(&py_lock);
     if (!pi->py) goto fail;
-    plant_log(pi, PLANT_OK, "instantiated with the Python of %s", cfg.executable);
+    plant_log(pi, PLANT_OK, "instantiated in %s", py_where);
     return pi;
 fail:
     free(pi->name);
@@ -334,7 +429,7 @@ int plant_get_strings(PlantInstance *pi, const unsigned int *vr, size_t nvr, con
     gil = p_PyGILState_Ensure();
     for (i = 0; i < nvr; i++) {
         PyObject *s = call_v((PyObject *)pi->py, "get_string", "I", vr[i]);
-        const char *text = s ? p_PyUnicode_AsUTF8(s) : NULL;
+        const char *text = utf8(s);
         pi->strings[i] = strdup(text ? text : "");
         values[i] = pi->strings[i];
         if (s) p_Py_DecRef(s);

@@ -1,11 +1,13 @@
 /* The plant FMU's C shim: an FMI 2/3 co-simulation interface over fmus/plant_fmu.py.
  *
- * A tool-coupling FMU: the binary embeds the Python interpreter of the environment it was
- * exported from (resources/plant.cfg: its executable, libpython, the package root). In a
- * host that already runs that Python (fmpy, libcosimpy, ecospy) the host's interpreter is
- * used; elsewhere libpython is loaded and initialised once per process. Python is never
- * linked at build time: every C-API function is looked up at run time, so a missing
- * environment is an FMI error with a message, not a failure to load the binary. */
+ * A tool-coupling FMU: it needs a Python >= 3.10 with diffbot-cosim installed on the machine
+ * it runs on. In a host that runs Python (fmpy, libcosimpy, ecospy) the host's interpreter
+ * is used; elsewhere the shim chooses one (plant_choose_python), asks it where its libpython
+ * and diffbot-cosim are (resources/plant_guest.py run as a script), then loads and
+ * initialises that libpython once per process. Python is never linked at build time: every
+ * C-API function (the limited API of 3.10) is looked up at run time, so a missing Python
+ * or package is an FMI error with a message, not a failure to load the binary. The Python
+ * side is reached through resources/plant_guest.py's Guest, in a namespace of its own. */
 #ifndef PLANT_PYTHON_H
 #define PLANT_PYTHON_H
 
@@ -56,5 +58,32 @@ int plant_set_strings(PlantInstance *pi, const unsigned int *vr, size_t nvr,
                       const char *const *values);
 
 void plant_log(PlantInstance *pi, int status, const char *fmt, ...);
+
+/* ---- plant_state.c: FMU states (an id the Python instance keeps, as the FMUState pointer) */
+int plant_get_state(PlantInstance *pi, void **state);     /* *state NULL: a new one */
+int plant_set_state(PlantInstance *pi, void *state);
+int plant_free_state(PlantInstance *pi, void **state);
+int plant_state_size(PlantInstance *pi, void *state, size_t *size);
+int plant_serialize_state(PlantInstance *pi, void *state, unsigned char *bytes, size_t size);
+int plant_deserialize_state(PlantInstance *pi, const unsigned char *bytes, size_t size,
+                            void **state);
+
+/* ---- plant_locate.c: the Python that runs the FMU in a host without one */
+#define PLANT_PYTHON_ENV "DIFFBOT_FMU_PYTHON"
+
+typedef struct {
+    char python[4096];        /* resources/plant.cfg's python= (a bound export), else "" */
+} PlantConfig;
+
+/* $DIFFBOT_FMU_PYTHON, else cfg->python, else $VIRTUAL_ENV/bin/python, else python3 on
+ * PATH: 0 with exe and why (how it was chosen) filled, -1 if there is none */
+int plant_choose_python(const PlantConfig *cfg, char *exe, size_t n, char *why, size_t nwhy);
+/* what `exe resources/plant_guest.py resources` printed (stdout and stderr, malloc'ed; NULL
+ * if it could not be started); *exit_status its exit status */
+char *plant_run_query(const char *exe, const char *resources, int *exit_status);
+/* the value of the first "key=" line of text ("" if none) */
+void plant_query_value(const char *text, const char *key, char *out, size_t n);
+/* the "error=" lines of text joined with "; " ("" if none) */
+void plant_query_errors(const char *text, char *out, size_t n);
 
 #endif

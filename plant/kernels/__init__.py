@@ -1,4 +1,5 @@
-"""The plant's compiled kernels (C, built by ``make setup`` into plant/kernels/build/),
+"""The plant's compiled kernels (C, built into plant/kernels/build/ by ``make setup`` in a
+clone, or by the wheel's build),
 loaded with ctypes: the lidar's sweep (:func:`lidar_scan`), the camera's per-pixel work, the
 kinematic world's tick (:func:`kinematic_step`), and the ticks of one-robot worlds an
 environment steps (:func:`ticks`, :func:`tick_part`: drive limiters, command and encoder
@@ -32,6 +33,8 @@ TICKS_ABI = 2
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
+HOW_TO_BUILD = ("`make setup` in a clone, `python -m plant.kernels.build`, or reinstall "
+                "diffbot-cosim (its wheel's build compiles them)")
 
 
 class KernelsMissing(RuntimeError):
@@ -53,7 +56,7 @@ def load(path: Path) -> ctypes.CDLL:
     """Load the kernels' library at ``path`` and declare its functions."""
     if not path.is_file():
         raise KernelsMissing(f"the plant's C kernels are not built ({path} is missing): run "
-                             "`make setup` (or `python -m plant.kernels.build`)")
+                             f"{HOW_TO_BUILD}")
     lib = ctypes.CDLL(str(path))
     for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI),
                        ("plant_noise_abi", NOISE_ABI), ("plant_drive_abi", DRIVE_ABI),
@@ -61,7 +64,7 @@ def load(path: Path) -> ctypes.CDLL:
         abi = getattr(lib, name)() if hasattr(lib, name) else None
         if abi != want:
             raise KernelsMissing(f"{path} is out of date ({name} {abi}, expected {want}): "
-                                 "run `make setup` (or `python -m plant.kernels.build`)")
+                                 f"{HOW_TO_BUILD}")
     lib.plant_camera_render.restype = None
     lib.plant_camera_render.argtypes = ([_P] * 4 + [_I, _P, _I, _P, _P, _I, _I, _D, _D, _D, _P, _P,
                                          _D, _D] + [_P] * 5)
