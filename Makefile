@@ -18,22 +18,30 @@ setup: $(STAMP) $(FMUS) $(KERNELS) $(TF2MSGS)
 # would (the same versions), with .pyc compiled, in a third of pip's time (docs/install.md).
 # uv reads no pip.conf: INSTALLER=pip for an index or constraints set up for pip only.
 INSTALLER ?= uv
-# The sb3 extra (Stable-Baselines3) needs torch, installed first and by pip: pip takes the
-# CPU build this machine keeps on disk (~30 s, ~800 MB in the venv), where uv would download
-# a CUDA build of several GB; uv then finds it installed. `make setup TORCH=` leaves torch
-# and the sb3 extra out (their tests then skip, saying so).
+# The sb3 extra (Stable-Baselines3) needs torch, installed first: a CPU build, where an
+# index's plain torch is a CUDA build of several GB. A CPU wheel of that version in pip's
+# find-links folder ($PIP_FIND_LINKS: this machine keeps one) is installed by uv (~11 s, ~800
+# MB in the venv); otherwise pip installs $(TORCH) as its configuration finds it (~30 s
+# here). uv then finds torch installed. `make setup TORCH=` leaves torch and the sb3 extra
+# out (their tests then skip, saying so).
 TORCH     ?= torch==2.13.0
+TORCH_WHEEL = $(firstword $(wildcard $(PIP_FIND_LINKS)/$(subst ==,-,$(TORCH))+cpu-*.whl))
 comma     := ,
 EXTRAS    := .[test,view,ros2,cluster,learn$(if $(TORCH),$(comma)sb3)]
 $(STAMP): pyproject.toml tests/js/package-lock.json
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+ifeq ($(INSTALLER),uv)
+	$(BIN)/python -m pip install --quiet 'uv>=0.5'
+ifneq ($(TORCH),)
+	@w='$(TORCH_WHEEL)'; if [ -n "$$w" ] && $(BIN)/uv pip install --quiet --python $(BIN)/python \
+	   --compile-bytecode "$$w"; then echo "torch: $$w"; \
+	 else $(BIN)/python -m pip install --quiet '$(TORCH)'; fi
+endif
+	$(BIN)/uv pip install --quiet --python $(BIN)/python --compile-bytecode -e '$(EXTRAS)'
+else
 ifneq ($(TORCH),)
 	$(BIN)/python -m pip install --quiet '$(TORCH)'
 endif
-ifeq ($(INSTALLER),uv)
-	$(BIN)/python -m pip install --quiet 'uv>=0.5'
-	$(BIN)/uv pip install --quiet --python $(BIN)/python --compile-bytecode -e '$(EXTRAS)'
-else
 	$(BIN)/python -m pip install --quiet -e '$(EXTRAS)'
 endif
 	@touch $(STAMP)
