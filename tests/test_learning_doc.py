@@ -20,6 +20,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOC = os.path.join(ROOT, "docs", "learning.md")
 SKIP = ("vectorization_mode=\"async\"", "stable_baselines3")
 
+#: no wall-clock promise: runs beside the serial tests, at the lowest CPU priority (conftest.py)
+pytestmark = pytest.mark.background
+
 
 def _blocks() -> list[tuple[int, str]]:
     text = open(DOC, encoding="utf-8").read()

@@ -19,7 +19,7 @@ from tests.test_plant_fmu import (ROBOT, ROOT, TICK_S, Slave, _remove_extracted,
                                   _with_cfg)
 
 # slow: the module exports (compiles) the FMU and runs it
-pytestmark = [pytest.mark.slow]
+pytestmark = [pytest.mark.slow, pytest.mark.background]
 
 
 def _sets() -> list[str]:

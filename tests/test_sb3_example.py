@@ -18,6 +18,9 @@ pytest.importorskip("stable_baselines3",
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
+#: no wall-clock promise: runs beside the serial tests, at the lowest CPU priority (conftest.py)
+pytestmark = pytest.mark.background
+
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
