@@ -13,11 +13,7 @@ shut down with the env. The only module of :mod:`diffbot.envs` that imports Ray.
 from __future__ import annotations
 
 import importlib.util
-import logging
-import os
-import secrets
 import shutil
-import tempfile
 
 from .workers import _Episodes
 
@@ -50,27 +46,13 @@ class Session:
         if importlib.util.find_spec("ray") is None:
             raise ImportError("engine='ray' needs Ray: the cluster extra "
                               "(pip install -e '.[cluster]'; make setup installs it)")
-        if not address and not os.environ.get("RAY_AUTH_TOKEN"):
-            # a private instance: its own token, in the environment only (as RayEngine)
-            os.environ.setdefault("RAY_AUTH_MODE", "token")
-            os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
-        from diffbot.runner.ray_engine import _ray
-        self.ray = ray = _ray()
+        from diffbot.runner.ray_engine import init_ray, ray_for
+        self.ray = ray = ray_for(address)
         self._tmp: str | None = None
         self.owned = False
         if ray.is_initialized():
             return
-        quiet = dict(log_to_driver=False, logging_level=logging.WARNING)
-        if address:
-            ray.init(address=address, **quiet)
-        else:
-            self._tmp = tempfile.mkdtemp(prefix="diffbot-ray-")
-            try:
-                ray.init(num_cpus=os.cpu_count(), include_dashboard=False,
-                         _temp_dir=self._tmp, _node_ip_address="127.0.0.1", **quiet)
-            except BaseException:
-                shutil.rmtree(self._tmp, ignore_errors=True)
-                raise
+        self._tmp = init_ray(ray, address)
         self.owned = True
 
     def chunk(self, n: int, kw: dict) -> "RayChunk":

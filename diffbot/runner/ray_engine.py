@@ -45,6 +45,35 @@ def _ray():
     return ray
 
 
+def ray_for(address: str | None):
+    """The ``ray`` module, imported for ``address`` (a cluster's; None: a private instance
+    on this machine, which gets its own token, in the environment only: Ray would otherwise
+    write one into ~/.ray/auth_token for this user's later clusters; set before Ray reads
+    its configuration, at import)."""
+    if not address and not os.environ.get("RAY_AUTH_TOKEN"):
+        os.environ.setdefault("RAY_AUTH_MODE", "token")
+        os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
+    return _ray()
+
+
+def init_ray(ray, address: str | None) -> str | None:
+    """Connect ``ray`` to the cluster at ``address`` (with token auth, RAY_AUTH_MODE and
+    RAY_AUTH_TOKEN come from the environment), or start a private instance on this machine;
+    the private instance's temporary folder (to remove after ``ray.shutdown()``), or None."""
+    quiet = dict(log_to_driver=False, logging_level=logging.WARNING)
+    if address:
+        ray.init(address=address, **quiet)
+        return None
+    tmp = tempfile.mkdtemp(prefix="diffbot-ray-")
+    try:
+        ray.init(num_cpus=os.cpu_count(), include_dashboard=False,
+                 _temp_dir=tmp, _node_ip_address="127.0.0.1", **quiet)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return tmp
+
+
 def _on_node(argv, out, log_path, timeout_s, driver_host, env=None):
     """The task: :func:`execute` with the Ray node id as ``node``; the output folder comes
     back in the result when this node is not the driver's machine."""
@@ -68,25 +97,8 @@ class RayEngine:
     name = "ray"
 
     def __init__(self, address: str | None = None, max_parallel: int | None = None) -> None:
-        if not address and not os.environ.get("RAY_AUTH_TOKEN"):
-            # a private instance gets its own token, in the environment only (Ray would
-            # otherwise write one into ~/.ray/auth_token for this user's later clusters);
-            # set before Ray reads its configuration, at import
-            os.environ.setdefault("RAY_AUTH_MODE", "token")
-            os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
-        ray = self.ray = _ray()
-        self._tmp = None
-        quiet = dict(log_to_driver=False, logging_level=logging.WARNING)
-        if address:                            # (a cluster with token auth: RAY_AUTH_MODE
-            ray.init(address=address, **quiet)  # and RAY_AUTH_TOKEN come from the environment)
-        else:                                  # a private instance on this machine
-            self._tmp = tempfile.mkdtemp(prefix="diffbot-ray-")
-            try:
-                ray.init(num_cpus=os.cpu_count(), include_dashboard=False,
-                         _temp_dir=self._tmp, _node_ip_address="127.0.0.1", **quiet)
-            except BaseException:
-                shutil.rmtree(self._tmp, ignore_errors=True)
-                raise
+        ray = self.ray = ray_for(address)
+        self._tmp = init_ray(ray, address)
         self.address = address or "local"
         self._task = ray.remote(_on_node)
         self._host = socket.gethostname()
