@@ -6,6 +6,8 @@ against docs/PROTOCOL.md.
 """
 from __future__ import annotations
 
+from .codec import HOLD_MAX
+
 #: announced by the plant in ``sim/info`` as ``"protocol"``; a node of another version exits 2
 PROTOCOL_VERSION = 5
 #: additions within the version (``sim/info`` ``protocol_minor``; absent: 0): 1 ``sim/seen``,
@@ -77,21 +79,28 @@ def max_hold(tick_ns: int, cmd_timeout_s: float, actuation_delay_ticks: int) -> 
     """Section 4, "Holding": the longest hold whose command still acts on its last held
     tick: the command of t_k acts at t_{k+h+delay} at the latest, aged (h + delay) ticks,
     which must not be past ``cmd_timeout_s`` (:func:`command_expired`). So (h + delay) x
-    tick <= cmd_timeout_s, at most the 63 the trailer holds; 0 if even one tick is past it."""
+    tick <= cmd_timeout_s, at most the HOLD_MAX (63) the trailer holds; 0 if even one tick is
+    past it."""
     h = round(cmd_timeout_s * 1e9) // max(1, tick_ns) - actuation_delay_ticks
-    return max(0, min(63, h))
+    return max(0, min(HOLD_MAX, h))
+
+
+def world_max_hold(tick_ns: int, cmd_timeouts_s, actuation_delay_ticks: int) -> int:
+    """:func:`max_hold` of a world: for the smallest of its robots' ``cmd_timeouts_s`` (a
+    hold is the member's, whichever robots it drives); HOLD_MAX for a world without robots."""
+    timeouts = [t for t in cmd_timeouts_s if t is not None]
+    if not timeouts:
+        return HOLD_MAX
+    return max_hold(tick_ns, min(timeouts), actuation_delay_ticks)
 
 
 def info_max_hold(info: dict) -> int:
-    """:func:`max_hold` of a plant's ``sim/info`` (section 5): its control tick, its
-    coupling's actuation delay and the smallest ``cmd_timeout_s`` of its robots (a hold is
-    the member's, whichever robots it drives); 63 for a world without robots."""
-    timeouts = [r.get("drive", {}).get("cmd_timeout_s") for r in info.get("robots", {}).values()]
-    timeouts = [t for t in timeouts if t is not None]
-    if not timeouts:
-        return 63
-    return max_hold(round(info["control_tick_s"] * 1e9), min(timeouts),
-                    int(info.get("actuation_delay_ticks", 0)))
+    """:func:`world_max_hold` of a plant's ``sim/info`` (section 5): its control tick, its
+    coupling's actuation delay and its robots' ``drive.cmd_timeout_s``."""
+    return world_max_hold(round(info["control_tick_s"] * 1e9),
+                          (r.get("drive", {}).get("cmd_timeout_s")
+                           for r in info.get("robots", {}).values()),
+                          int(info.get("actuation_delay_ticks", 0)))
 
 
 def check_version(info: dict) -> None:

@@ -38,7 +38,7 @@ from bus.keys import Keys
 from bus.lockstep import HOLD_PAST, AckLedger
 from bus.log import RejectCounter
 from bus.protocol import (END_SEEN_S, PLANT_READS, PROTOCOL_MINOR, PROTOCOL_VERSION, decode_seen,
-                          max_hold)
+                          world_max_hold)
 
 from . import modes
 from .commands import STALE, Command, CommandBook, decode_command, stale_commands
@@ -102,9 +102,9 @@ class Plant:
         # counted per kind and said at most every 2 s
         self.protocol_errors = RejectCounter(log, verb="lockstep protocol:")
         self.ledger = AckLedger(self.tick_ns, self.protocol_errors.reject, end_with, expect)
-        self.ledger.max_hold = min((max_hold(self.tick_ns, r.spec.drive.cmd_timeout_s,
-                                             self.delays["actuation_delay_ticks"])
-                                    for r in self.sim.robots.values()), default=codec.HOLD_MAX)
+        self.ledger.max_hold = world_max_hold(
+            self.tick_ns, (r.spec.drive.cmd_timeout_s for r in self.sim.robots.values()),
+            self.delays["actuation_delay_ticks"])
         self.stop_event = threading.Event()
         self.reset_in_tick = False               # a sim/reset came during the current tick
         self.ticks = 0
