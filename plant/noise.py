@@ -301,6 +301,7 @@ class NoiseModel:
         self.key = None if self.rows else int(keys)
         self._by_law = config.std > 0 and config.resolution == 0
         self._ahead: tuple[int, tuple, np.ndarray] | None = None   # (tick, shape, noise)
+        self._call: tuple | None = None       # (n, buffer, its call's arguments): _drawn
 
     def select(self, idx) -> "NoiseModel":
         """The model of rows ``idx`` only (their own keys)."""
@@ -310,8 +311,14 @@ class NoiseModel:
 
     def normals(self, tick, shape: tuple[int, ...]) -> np.ndarray:
         """The standard normals ``apply`` adds (times std) to values of ``shape`` at
-        ``tick``, float64: :func:`normals` of the keys, shaped like the values."""
+        ``tick``, float64: :func:`normals` of the keys, shaped like the values (a new
+        array)."""
         shape = tuple(shape)
+        if not self.rows and (type(tick) is int or isinstance(tick, np.integer)):
+            return self._drawn(tick, shape).copy()
+        return self._rows(tick, shape)
+
+    def _rows(self, tick, shape: tuple[int, ...]) -> np.ndarray:
         if self.rows:
             if not shape or shape[0] != self.keys.size:
                 raise ValueError(f"{self.keys.size} rows of noise, values of shape {shape}")
@@ -319,6 +326,23 @@ class NoiseModel:
         else:
             n = int(np.prod(shape, dtype=np.int64))
         return normals(self.keys, tick, n).reshape(shape)
+
+    def _drawn(self, tick, shape: tuple[int, ...]) -> np.ndarray:
+        """:meth:`normals` into a buffer of this model's, reused call after call (read it
+        before the next): one kernel call with the addresses taken once, as a sensor
+        draws tick after tick (taking them costs more than drawing a few normals)."""
+        if self.rows or (type(tick) is not int and not isinstance(tick, np.integer)):
+            return self._rows(tick, shape)
+        n = 1
+        for d in shape:
+            n *= d
+        call = self._call
+        if call is None or call[0] != n:
+            buf, at = np.empty((1, n)), np.zeros(1, np.int64)
+            call = self._call = (n, buf, at, kernels.normals_call(self.keys, at, n, buf))
+        call[2][0] = tick
+        call[3]()
+        return call[1].reshape(shape)
 
     def prefetch_image(self, shape: tuple[int, ...], tick: int) -> None:
         """Draw the noise of an image of ``shape`` at ``tick`` now (e.g. while the plant
@@ -370,7 +394,7 @@ class NoiseModel:
             return out.astype(np.uint8)
         out = arr.astype(np.float64) + (c.bias + c.mean)
         if c.std > 0:
-            out = out + self.normals(tick, arr.shape) * c.std
+            out = out + self._drawn(tick, arr.shape) * c.std
         if c.resolution > 0:
             with np.errstate(invalid="ignore"):
                 out = np.where(np.isfinite(out), np.round(out / c.resolution) * c.resolution, out)
