@@ -225,10 +225,10 @@ def normals(keys, ticks, n: int, out: np.ndarray | None = None) -> np.ndarray:
     :func:`stream_key`); ``ticks``: one int for every row or an int64 (K,). Drawn in one
     call by plant/kernels/noise.c (:func:`normals_reference` is its arithmetic in Python).
     ``out``: a float64 (K, n) C-contiguous array to fill (returned)."""
-    keys = np.ascontiguousarray(keys, dtype=np.uint64)
+    keys = _integers(keys, np.uint64, "keys")
     if keys.ndim != 1:
         raise ValueError(f"keys must be one-dimensional, got shape {keys.shape}")
-    ticks = np.ascontiguousarray(ticks, dtype=np.int64).reshape(-1)
+    ticks = _integers(ticks, np.int64, "ticks").reshape(-1)
     if ticks.size not in (1, keys.size):
         raise ValueError(f"ticks must be one int or one per key ({keys.size}), got {ticks.size}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
@@ -239,6 +239,28 @@ def normals(keys, ticks, n: int, out: np.ndarray | None = None) -> np.ndarray:
     elif out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float64 array of shape {shape}")
     return kernels.normals(keys, ticks, int(n), out)
+
+
+def _integers(values, dtype, what: str) -> np.ndarray:
+    """``values`` (an array, a list or one number) as a C-contiguous array of ``dtype``,
+    every value an integer that fits it (ValueError naming ``what`` otherwise: numpy would
+    truncate a float, and reads a list holding 2**63 as floats)."""
+    if isinstance(values, np.ndarray):
+        if values.dtype == dtype:
+            return np.ascontiguousarray(values)
+        if values.dtype.kind in "iu":
+            info = np.iinfo(dtype)
+            if values.size == 0 or (values.min() >= info.min and values.max() <= info.max):
+                return np.ascontiguousarray(values, dtype=dtype)
+        raise ValueError(f"{what} must be integers within {np.dtype(dtype).name}, got "
+                         f"{values.dtype} values")
+    flat = list(values) if isinstance(values, (list, tuple)) else [values]
+    if any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in flat):
+        raise ValueError(f"{what} must be integers, got {values!r}")
+    try:
+        return np.array(values, dtype=dtype)
+    except OverflowError:
+        raise ValueError(f"{what} must fit {np.dtype(dtype).name}, got {values!r}") from None
 
 
 def normals_reference(key: int, tick: int, n: int) -> list[float]:
