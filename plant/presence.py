@@ -33,8 +33,8 @@ class Presence:
     def __init__(self, plant) -> None:
         self.plant = plant
         self.alive: set[str] = set()             # processes whose sim/alive token is here
-        self.vanished: set[str] = set()          # processes whose sim/alive token went
-        self.went: dict[str, float] = {}         # ... and when (monotonic s), while away
+        self.went: dict[str, float] = {}         # processes whose sim/alive token went, and
+                                                 # when (monotonic s), while away
         self.link_lost_at = -LINK_WINDOW_S       # when the plant last lost its router link
         self.settling: dict[str, float] = {}     # held process back -> when time goes on
 
@@ -46,7 +46,6 @@ class Presence:
         node = p.keys.node_of(ev.key)
         if not ev.alive:
             self.alive.discard(node)
-            self.vanished.add(node)
             self.settling.pop(node, None)
             now = self.went[node] = time.monotonic()
             if node == PLANT_TOKEN:      # its own token, seen through the router: gone
@@ -57,15 +56,14 @@ class Presence:
                 p.ledger.unseen(node)
             return
         self.alive.add(node)
-        self.went.pop(node, None)
+        was_away = self.went.pop(node, None) is not None
         held = node in p.ledger.away        # (time goes on SETTLE_S from now)
         if held:
             self.settling[node] = time.monotonic() + SETTLE_S
-        if node in self.vanished and p.strategy.lockstep:
+        if was_away and p.strategy.lockstep:
             # back after a blip (a recorder, say): what it missed of the last ticks,
             # tick 0 included (a blip before the first step: nothing stepped yet, but the
             # members' answers to t=0 went out while it was away)
-            self.vanished.discard(node)
             p.log.info("%s is back%s", node, f": time goes on in {SETTLE_S:g} s" if held else "")
             p.republish()
 
