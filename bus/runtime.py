@@ -25,7 +25,7 @@ import zenoh
 
 from . import codec
 from . import controller as hooks
-from .inbox import Inbox
+from .inbox import Event, Inbox
 from .inputs import stamp_of
 from .keys import TOPICS, Keys, check_name, check_names
 from .log import RejectCounter
@@ -217,7 +217,7 @@ class NodeRunner:
             inbox.close()
         return self.exit_code
 
-    def _time_is_up(self, run: "_Run", now: float) -> bool:
+    def _time_is_up(self, run: _Run, now: float) -> bool:
         """Before each event: note a stall of this process, and stop once the end's text
         is overdue or (--wait) a lost plant has been waited for long enough."""
         if now - run.last_loop > LEASE_S:      # this process was stopped (SIGSTOP) or starved
@@ -232,7 +232,7 @@ class NodeRunner:
             return True
         return False
 
-    def _on_end(self, ev, run: "_Run", now: float) -> bool:
+    def _on_end(self, ev: Event, run: _Run, now: float) -> bool:
         """``sim/end``: its token (the text follows) or its text (stop, or with --wait and
         no plant seen yet, wait for one)."""
         if not ev.alive or (not run.plant_here and not ev.payload):
@@ -249,7 +249,7 @@ class NodeRunner:
         self.log.info("the simulation ended (%s); stopping", reason)
         return True
 
-    def _on_plant(self, ev, run: "_Run", now: float) -> bool:
+    def _on_plant(self, ev: Event, run: _Run, now: float) -> bool:
         """The plant's ``sim/alive`` token came (again) or went."""
         if ev.alive:
             if run.plant_seen and not run.plant_here and not self._plant_back(run.tokens):
@@ -279,7 +279,7 @@ class NodeRunner:
         self.exit_code = EXIT_PLANT_GONE
         return True
 
-    def _on_member(self, ev, run: "_Run", now: float) -> bool:
+    def _on_member(self, ev: Event, run: _Run, now: float) -> bool:
         """A lockstep member's ``sim/sync`` token: who left, and when (_producer_gone)."""
         node = self.keys.node_of(ev.key)
         if not ev.alive and node != self.name:
@@ -288,7 +288,7 @@ class NodeRunner:
             run.left.pop(node, None)
         return False
 
-    def _on_clock(self, ev, run: "_Run", now: float) -> bool:
+    def _on_clock(self, ev: Event, run: _Run, now: float) -> bool:
         """``sim/clock``: free running, act on it; lockstep, answer a re-published tick again
         or act on every tick now due."""
         t_ns = self._clock(ev.payload)
@@ -305,12 +305,12 @@ class NodeRunner:
             return False
         return self._act_due(run)
 
-    def _on_input(self, ev, run: "_Run", now: float) -> bool:
+    def _on_input(self, ev: Event, run: _Run, now: float) -> bool:
         """An input sample: filed; lockstep, it may complete a tick."""
         self._input(ev.key, ev.payload, ev.attachment)
         return self.sync and self._act_due(run)
 
-    def _act_due(self, run: "_Run") -> bool:
+    def _act_due(self, run: _Run) -> bool:
         """Lockstep: act on every tick whose inputs are all in; True once finished."""
         while (t_ns := self.member.next_due()) is not None:
             if self._act(t_ns) or run.enough(self.ticks):
