@@ -74,13 +74,13 @@ from bus.cliargs import ArgumentParser, positive_float, positive_int
 from bus.keys import Keys
 from bus.log import RejectCounter
 from bus.plantwatch import EXIT_PLANT_GONE, PlantWatch
-from bus.protocol import SEEN_EVERY_TICKS, encode_seen
 from bus.process import EXIT_BAD_CONFIG as EXIT_BAD_INPUT, EXIT_FAILED as EXIT_WRITE_FAILED
 from bus.process import EXIT_OK, Exit, Process, process_main
 from bus.session import add_process_args, undeclare_all
 
 from . import scene, urdf
 from .mcapfile import INFO_METADATA, McapRecording, RecordError, recover
+from .seen import SeenReporter
 from .topics import FmuTypes
 
 #: stamps per key remembered to drop a message re-sent after a lockstep rejoin (more than
@@ -125,14 +125,8 @@ class Recorder:
         self._late_info_tried = False
         self._subs: list = []
         self._token = None
-        # what it has taken in, said on sim/seen/<name> (the module docstring): the latest
-        # clock stamp of the world's epoch, and the clocks taken in since it was last said
-        self._seen_pub = None
-        self._seen_queryable = None
-        self._clock_max = -1
-        self._clocks_unsaid = 0
-        self._seen_epoch = 0
-        self._received_ns: int | None = None     # the stamp of the latest clock received
+        # what it has taken in, said on sim/seen/<name> (the module docstring)
+        self.seen = SeenReporter(session, keys, name)
         self.records_clock = any(zenoh.KeyExpr(e).includes(zenoh.KeyExpr(keys.clock))
                                  for e in exprs)
         #: the plant's sim/alive token: a recorder whose plant is gone for longer than the
@@ -150,7 +144,7 @@ class Recorder:
             key = str(sample.key_expr)
             att = att.to_bytes() if att is not None else None
             if key == clock_key and att is not None:
-                self._took_in_clock(att)
+                self.seen.took_in_clock(att)
             q.put((key, sample.payload.to_bytes(), att, time.time_ns()))
 
         clock = [] if self.records_clock else [clock_key]     # (to keep up only)
@@ -207,10 +201,7 @@ class Recorder:
     def announce(self) -> None:
         """Liveliness ``sim/alive/<name>`` once subscribed: the launcher and the plant's
         ``--expect`` wait for it, so nothing is published before the recorder listens."""
-        self._seen_pub = self.session.declare_publisher(
-            self.keys.seen(self.name), congestion_control=zenoh.CongestionControl.BLOCK)
-        self._seen_queryable = self.session.declare_queryable(self.keys.seen(self.name),
-                                                              self._answer_seen)
+        self.seen.declare()
         self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
 
     def handle(self, item) -> None:
@@ -253,45 +244,6 @@ class Recorder:
         if epoch is not None and epoch != self._epoch:
             self._epoch = epoch
             self._recent.clear()
-
-    def _took_in_clock(self, att: bytes) -> None:
-        """Zenoh's receive thread: a clock has come, and what has come is taken in (queued,
-        it is written however far the writing lags). It is what the plant's get on
-        sim/seen/* is answered with, and said on sim/seen/<name> as it comes, not once
-        written: a run's first clocks are said while the writing thread may still be busy
-        with the first messages (a plant unpaced for those ~0.1 s ran 48 ticks past what
-        this recorder had, and a blip then lost what it had not re-published)."""
-        a = codec.parse_attachment(att)
-        self._received_ns = a.t_ns if a is not None else None
-        if a is None:
-            return
-        if a.epoch is not None and a.epoch != self._seen_epoch:     # a reset: a new world
-            self._seen_epoch = a.epoch
-            self._clock_max = -1
-        self._keep_up(a.t_ns)
-
-    def _keep_up(self, t_ns: int) -> None:
-        """Zenoh's receive thread: a clock taken in (docs/PROTOCOL.md section 4, "Watchers
-        that keep up"): say the latest stamp every SEEN_EVERY_TICKS new clocks, and at once
-        for the first of a world (the plant paces no one it has not heard from) and for one
-        seen before (re-published: the plant held time for this recorder and waits to hear
-        from it)."""
-        if t_ns > self._clock_max:
-            first = self._clock_max < 0
-            self._clock_max = t_ns
-            self._clocks_unsaid += 1
-            if self._clocks_unsaid < SEEN_EVERY_TICKS and not first:
-                return
-        if self._seen_pub is not None:
-            self._seen_pub.put(encode_seen(self._clock_max))
-            self._clocks_unsaid = 0
-
-    def _answer_seen(self, query: zenoh.Query) -> None:
-        """Zenoh's thread: the plant asks at a run's end what has come (docs/PROTOCOL.md
-        section 4, "End"): the latest clock received (queued is taken in: it is written)."""
-        t_ns = self._received_ns
-        if t_ns is not None:
-            query.reply(self.keys.seen(self.name), encode_seen(t_ns))
 
     def _repeated(self, key: str, t_ns: int, payload: bytes) -> bool:
         """A message already recorded: the same key, stamp and bytes again, as lockstep
@@ -363,8 +315,7 @@ class Recorder:
         """Stop listening, write what is still queued, close the file."""
         undeclare_all(self._subs)
         self._subs.clear()
-        undeclare_all([h for h in (self._seen_pub, self._seen_queryable) if h is not None])
-        self._seen_pub = self._seen_queryable = None
+        self.seen.undeclare()
         try:
             while True:
                 try:

@@ -3,7 +3,7 @@
 It opens nothing itself: given a session, it learns the simulation's mode from the plant
 (``sim/info``), subscribes to the controllers' inputs and ``sim/clock``, takes part in
 lockstep (liveliness token ``sim/sync/<node>``; the member's half of the handshake is
-:class:`bus.lockstep.MemberTick`), stamps and sends the outputs, and stops on a stop
+:class:`bus.member.MemberTick`), stamps and sends the outputs, and stops on a stop
 event, the controllers finishing, or the plant going away. :mod:`bus.node` is its
 command line. Threads: Zenoh callbacks only fill the :class:`bus.inbox.Inbox`; everything
 else runs on the thread that calls :meth:`NodeRunner.run`.
@@ -19,12 +19,13 @@ import logging
 import math
 import threading
 import time
+from dataclasses import dataclass, field
 
 import zenoh
 
 from . import codec
 from . import controller as hooks
-from .inbox import Inbox
+from .inbox import Event, Inbox
 from .inputs import stamp_of
 from .keys import TOPICS, Keys, check_name, check_names
 from .log import RejectCounter
@@ -44,6 +45,25 @@ PRODUCER_GRACE_S = 0.5
 #: after the sim/end token, how long the end's text is waited for (docs/PROTOCOL.md section 4,
 #: "End": data and liveliness take different paths)
 END_TEXT_WAIT_S = 1.0
+
+
+@dataclass
+class _Run:
+    """What one :meth:`NodeRunner.run` keeps between events."""
+    tokens: dict                 # this node's liveliness tokens ("alive", "sync")
+    max_ticks: int | None
+    plant_seen: bool = False
+    plant_here: bool = False
+    #: the sim/end token came (wall time): it may overtake the run's last data (liveliness
+    #: travels apart), so the end's text, which comes after that data, is waited for
+    end_token_at: float | None = None
+    left: dict[str, float] = field(default_factory=dict)   # lockstep members that left -> wall
+    last_loop: float = 0.0
+    stalled: float = -math.inf   # when this process was last found stopped or starved
+    stall_s: float = 0.0
+
+    def enough(self, ticks: int) -> bool:
+        return self.max_ticks is not None and ticks >= self.max_ticks
 
 
 class NodeRunner:
@@ -170,12 +190,10 @@ class NodeRunner:
         tokens = {"alive": liveliness.declare_token(self.keys.alive(self.name))}
         if self.sync:
             tokens["sync"] = liveliness.declare_token(self.keys.sync(self.name))
-        plant_seen = plant_here = False
-        # the sim/end token came (wall time): it may overtake the run's last data (liveliness
-        # travels apart), so the end's text, which comes after that data, is waited for
-        end_token_at: float | None = None
-        left: dict[str, float] = {}          # lockstep members that left -> wall time
-        last_loop, stalled, stall_s = time.monotonic(), -math.inf, 0.0
+        run = _Run(tokens, max_ticks, last_loop=time.monotonic())
+        # one handler per event tag (bus.inbox.Event.tag); each says whether to stop
+        handlers = {"end": self._on_end, "plant": self._on_plant, "member": self._on_member,
+                    "clock": self._on_clock, "input": self._on_input}
         self.log.info("%s on robot%s %s: mode %s, inputs %s%s", self.name,
                       "s" if len(self.slots) > 1 else "", ", ".join(self.robots), self.mode,
                       ", ".join(self.slots[0].inputs) or "none", ", lockstep member" if self.sync else "")
@@ -183,102 +201,13 @@ class NodeRunner:
             while not self.stop_event.is_set():
                 ev = inbox.get(timeout=0.2)
                 now = time.monotonic()
-                if now - last_loop > LEASE_S:      # this process was stopped (SIGSTOP) or starved
-                    stall_s, stalled = now - last_loop, now
-                last_loop = now
-                if end_token_at is not None and now - end_token_at >= END_TEXT_WAIT_S:
-                    self.log.info("the simulation ended (the plant ended it); stopping")
-                    break
-                if self.wait and self.watch.expired(now):      # --wait, not past a run's end
-                    self.log.error("%s; stopping", self.watch.why(now))
-                    self.exit_code = EXIT_PLANT_GONE
+                if self._time_is_up(run, now):
                     break
                 if ev is None:
-                    if self.sync and plant_here and self._producer_gone(left, now):
+                    if self.sync and run.plant_here and self._producer_gone(run.left, now):
                         break
                     continue
-                if ev.tag == "end":
-                    if not ev.alive or (not plant_here and not ev.payload):
-                        continue             # the end token withdrawn, or a repeat of the end
-                    if not ev.payload and not (self.wait and not plant_seen):
-                        end_token_at = end_token_at or now     # the token: the text follows
-                        continue
-                    reason = ev.payload.decode("utf-8", "replace") or "the plant ended it"
-                    if self.wait and not plant_seen:     # --wait: for a plant to start
-                        self.log.warning("the simulation ended (%s); waiting for a plant "
-                                         "(--wait)", reason)
-                        plant_here = False
-                        self.reset_inputs()
-                        continue
-                    self.log.info("the simulation ended (%s); stopping", reason)
-                    break
-                if ev.tag == "plant":
-                    if ev.alive:
-                        if plant_seen and not plant_here:
-                            if not self._plant_back(tokens):
-                                break
-                        plant_seen = plant_here = True
-                        self.watch.here()
-                    elif plant_here:
-                        plant_here = False
-                        if end_token_at is not None:     # gone after its end: the text may
-                            continue                     # still come, END_TEXT_WAIT_S at most
-                        if self.wait:       # inputs kept: the plant may be the same, back
-                            self.plant_lost += 1
-                            self.watch.gone(now)
-                            self.log.warning("the plant is gone; waiting for it to come back "
-                                             "(--wait), up to %g s (the run's rejoin timeout "
-                                             "+ %g s)", self.watch.limit_s,
-                                             self.watch.limit_s - self.watch.rejoin_timeout_s)
-                            continue
-                        if now - stalled < 5.0:
-                            self.log.error("the plant is gone: this process was stopped for "
-                                           "%.1f s, longer than the %.0f s bus lease, so the "
-                                           "simulation dropped it; stopping", stall_s, LEASE_S)
-                        else:
-                            self.log.error("the plant is gone; stopping")
-                        self.reset_inputs()
-                        self.exit_code = EXIT_PLANT_GONE
-                        break
-                    continue
-                if ev.tag == "member":
-                    node = self.keys.node_of(ev.key)
-                    if not ev.alive and node != self.name:
-                        left[node] = now
-                    elif ev.alive:
-                        left.pop(node, None)
-                    continue
-                if ev.tag == "clock":
-                    t_ns = self._clock(ev.payload)
-                    if t_ns is None:
-                        continue
-                    att = codec.parse_attachment(ev.attachment)
-                    resend, problem = self.member.clock(t_ns, now,
-                                                        att.epoch if att is not None else None)
-                    if problem:
-                        self.rejects.reject("clock", problem)
-                    if not self.sync:
-                        if self._act(t_ns):
-                            break
-                        if max_ticks is not None and self.ticks >= max_ticks:
-                            break
-                        continue
-                    if resend is not None:       # re-published after a rejoin
-                        self._send(resend, t_ns)
-                        continue
-                else:
-                    self._input(ev.key, ev.payload, ev.attachment)
-                    if not self.sync:
-                        continue
-                finished = False
-                while (t_ns := self.member.next_due()) is not None:
-                    if self._act(t_ns):
-                        finished = True
-                        break
-                    if max_ticks is not None and self.ticks >= max_ticks:
-                        finished = True
-                        break
-                if finished:
+                if handlers[ev.tag](ev, run, now):
                     break
             if self.final_tick is not None and self.sync:
                 self._linger(inbox, self.final_tick)
@@ -287,6 +216,106 @@ class NodeRunner:
                 tok.undeclare()
             inbox.close()
         return self.exit_code
+
+    def _time_is_up(self, run: _Run, now: float) -> bool:
+        """Before each event: note a stall of this process, and stop once the end's text
+        is overdue or (--wait) a lost plant has been waited for long enough."""
+        if now - run.last_loop > LEASE_S:      # this process was stopped (SIGSTOP) or starved
+            run.stall_s, run.stalled = now - run.last_loop, now
+        run.last_loop = now
+        if run.end_token_at is not None and now - run.end_token_at >= END_TEXT_WAIT_S:
+            self.log.info("the simulation ended (the plant ended it); stopping")
+            return True
+        if self.wait and self.watch.expired(now):      # --wait, not past a run's end
+            self.log.error("%s; stopping", self.watch.why(now))
+            self.exit_code = EXIT_PLANT_GONE
+            return True
+        return False
+
+    def _on_end(self, ev: Event, run: _Run, now: float) -> bool:
+        """``sim/end``: its token (the text follows) or its text (stop, or with --wait and
+        no plant seen yet, wait for one)."""
+        if not ev.alive or (not run.plant_here and not ev.payload):
+            return False             # the end token withdrawn, or a repeat of the end
+        if not ev.payload and not (self.wait and not run.plant_seen):
+            run.end_token_at = run.end_token_at or now     # the token: the text follows
+            return False
+        reason = ev.payload.decode("utf-8", "replace") or "the plant ended it"
+        if self.wait and not run.plant_seen:     # --wait: for a plant to start
+            self.log.warning("the simulation ended (%s); waiting for a plant (--wait)", reason)
+            run.plant_here = False
+            self.reset_inputs()
+            return False
+        self.log.info("the simulation ended (%s); stopping", reason)
+        return True
+
+    def _on_plant(self, ev: Event, run: _Run, now: float) -> bool:
+        """The plant's ``sim/alive`` token came (again) or went."""
+        if ev.alive:
+            if run.plant_seen and not run.plant_here and not self._plant_back(run.tokens):
+                return True
+            run.plant_seen = run.plant_here = True
+            self.watch.here()
+            return False
+        if not run.plant_here:
+            return False
+        run.plant_here = False
+        if run.end_token_at is not None:     # gone after its end: the text may still come,
+            return False                     # END_TEXT_WAIT_S at most
+        if self.wait:       # inputs kept: the plant may be the same, back
+            self.plant_lost += 1
+            self.watch.gone(now)
+            self.log.warning("the plant is gone; waiting for it to come back (--wait), up to "
+                             "%g s (the run's rejoin timeout + %g s)", self.watch.limit_s,
+                             self.watch.limit_s - self.watch.rejoin_timeout_s)
+            return False
+        if now - run.stalled < 5.0:
+            self.log.error("the plant is gone: this process was stopped for %.1f s, longer "
+                           "than the %.0f s bus lease, so the simulation dropped it; stopping",
+                           run.stall_s, LEASE_S)
+        else:
+            self.log.error("the plant is gone; stopping")
+        self.reset_inputs()
+        self.exit_code = EXIT_PLANT_GONE
+        return True
+
+    def _on_member(self, ev: Event, run: _Run, now: float) -> bool:
+        """A lockstep member's ``sim/sync`` token: who left, and when (_producer_gone)."""
+        node = self.keys.node_of(ev.key)
+        if not ev.alive and node != self.name:
+            run.left[node] = now
+        elif ev.alive:
+            run.left.pop(node, None)
+        return False
+
+    def _on_clock(self, ev: Event, run: _Run, now: float) -> bool:
+        """``sim/clock``: free running, act on it; lockstep, answer a re-published tick again
+        or act on every tick now due."""
+        t_ns = self._clock(ev.payload)
+        if t_ns is None:
+            return False
+        att = codec.parse_attachment(ev.attachment)
+        resend, problem = self.member.clock(t_ns, now, att.epoch if att is not None else None)
+        if problem:
+            self.rejects.reject("clock", problem)
+        if not self.sync:
+            return self._act(t_ns) or run.enough(self.ticks)
+        if resend is not None:       # re-published after a rejoin
+            self._send(resend, t_ns)
+            return False
+        return self._act_due(run)
+
+    def _on_input(self, ev: Event, run: _Run, now: float) -> bool:
+        """An input sample: filed; lockstep, it may complete a tick."""
+        self._input(ev.key, ev.payload, ev.attachment)
+        return self.sync and self._act_due(run)
+
+    def _act_due(self, run: _Run) -> bool:
+        """Lockstep: act on every tick whose inputs are all in; True once finished."""
+        while (t_ns := self.member.next_due()) is not None:
+            if self._act(t_ns) or run.enough(self.ticks):
+                return True
+        return False
 
     def _linger(self, inbox: Inbox, t_done: int, timeout_s: float = 2.0) -> None:
         """After the final ack, stay in the lockstep set until the plant has taken it: it

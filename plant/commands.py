@@ -6,7 +6,8 @@ reaches the physics (docs/PROTOCOL.md section 7). Which command acts at a tick f
 the mode: in lockstep the one computed for the latest tick at or before ``t_k -
 actuation delay`` (section 4, "Couplings"), otherwise the latest one received; in
 lockstep :func:`stale_commands` checks every tick that the older one acts only where the
-rule allows it (issue 40).
+rule allows it (a held tick stepped with the previous tick's command would be silent
+otherwise: a protocol error says it).
 """
 from __future__ import annotations
 

@@ -185,7 +185,8 @@ class Lockstep(Mode):
             self.await_final_of_leavers()
             # Stepped only if, as it looks now (events were handled since the ACKs came),
             # nobody is lost and nobody owes the tick: a member back within the grace
-            # for an --end-with member's FINAL owes it again (issue 40).
+            # for an --end-with member's FINAL owes it again, and stepping before its
+            # answer would act on the previous tick's command.
             if p.ledger.may_step(due):
                 break
             if not p.ledger.held_for():

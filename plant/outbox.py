@@ -46,9 +46,6 @@ class Outbox:
         self.skip_unread = skip_unread
         self.congestion = congestion
         self.seq = 0
-        #: the world's epoch in every attachment: +1 at each reset or rebuild (the plant's
-        #: restart_world; docs/PROTOCOL.md section 3)
-        self.epoch = 0
         self.published: dict[str, int] = {}
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._listeners: list = []
@@ -85,11 +82,11 @@ class Outbox:
                 self._ever.add(key)
         return known
 
-    def put(self, key: str, data: bytes, t_ns: int) -> None:
-        """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number."""
+    def put(self, key: str, data: bytes, t_ns: int, epoch: int) -> None:
+        """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number
+        and the plant's world ``epoch`` (docs/PROTOCOL.md section 3)."""
         self.seq += 1
-        self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns,
-                                                                  epoch=self.epoch))
+        self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns, epoch=epoch))
         self.published[key] = self.published.get(key, 0) + 1
         self._kept(t_ns, key, data, None)
 
@@ -105,16 +102,17 @@ class Outbox:
             while len(self.recent) > REPUBLISH_TICKS:
                 del self.recent[min(self.recent)]
 
-    def republish(self, upto_ns: int) -> list[int]:
-        """The kept messages of the ticks up to ``upto_ns`` again, as they were (new
-        sequence numbers; a composed member's with its attachment); the ticks."""
+    def republish(self, upto_ns: int, epoch: int) -> list[int]:
+        """The kept messages of the ticks up to ``upto_ns`` (of the world ``epoch``: the
+        plant clears :attr:`recent` at a new one) again, as they were (new sequence
+        numbers; a composed member's with its attachment); the ticks."""
         ticks = sorted(t for t in self.recent if t <= upto_ns)
         for t in ticks:
             for key, data, att in self.recent[t]:
                 if att is None:
                     self.seq += 1
                     self.publisher(key).put(data, attachment=codec.attachment(
-                        self.seq, t, epoch=self.epoch))
+                        self.seq, t, epoch=epoch))
                     self.published[key] = self.published.get(key, 0) + 1
                 else:
                     self.publisher(key).put(data, attachment=att)

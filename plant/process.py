@@ -35,14 +35,14 @@ from bus import codec, jsonio, packed
 from bus.composed import Composed
 from bus.inbox import Event, Inbox
 from bus.keys import Keys
-from bus.lockstep import HOLD_PAST, AckLedger
+from bus.lockstep import AckLedger
 from bus.log import RejectCounter
-from bus.protocol import (END_SEEN_S, PLANT_READS, PROTOCOL_MINOR, PROTOCOL_VERSION, decode_seen,
-                          world_max_hold)
+from bus.protocol import PLANT_READS, world_max_hold
 
-from . import modes
-from .commands import STALE, Command, CommandBook, decode_command, stale_commands
+from . import modes, report
+from .commands import Command, CommandBook, decode_command, stale_commands
 from .outbox import Outbox
+from .presence import PLANT_TOKEN, Presence
 from .reset import parse_reset
 from .routerwatch import RouterWatch
 from .tick import Tick
@@ -50,19 +50,11 @@ from .world import WorldSpec
 
 #: how long the sim/end text goes before the sim/end token (wall s)
 END_TEXT_HEAD_START_S = 0.1
-#: the name of the plant's own sim/alive token
-PLANT_TOKEN = "plant"
-#: a process whose sim/alive token went within this long (wall s) of the plant losing its
-#: link to its router went with it (its token and the plant's own vanish together)
-LINK_WINDOW_S = 1.0
-#: (wall s) how long time stays held after such a process is back: its token may reach the
-#: plant before its subscriptions reach the router (a CI run lost 41 ticks of a recorder
-#: that way); the plant re-publishes its last ticks again when this has passed
-SETTLE_S = 0.5
 
 
 class Plant:
-    """The plant's bus side around a :class:`Simulation`."""
+    """The plant's bus side around the world's tick (:class:`plant.tick.Tick`): it
+    publishes, waits at the mode's barrier, applies the commands and steps."""
 
     def __init__(self, spec: WorldSpec, session: zenoh.Session, keys: Keys, mode: str, log,
                  rate: float = 1.0, expect: tuple[str, ...] = (), duration_s: float | None = None,
@@ -92,6 +84,9 @@ class Plant:
         self.delays = self.strategy.delays
         lockstep = self.strategy.lockstep
         self.seed = spec.seed
+        #: the world's epoch, in every attachment the plant sends and in sim/info: +1 at
+        #: each reset or rebuild (restart_world; docs/PROTOCOL.md section 3)
+        self.epoch = 0
         # the world's tick (plant/tick.py); DART in a process of its own with physics_process
         self.tick = Tick(spec, disabled, physics_process, overlap=self.strategy.overlaps)
         self.commands = CommandBook(lockstep=lockstep)
@@ -122,33 +117,39 @@ class Plant:
         self._keys: dict[tuple[str, str], str] = {}
         self.inbox = Inbox(session)
         self._robot_of_key: dict[str, tuple[str, str]] = {}
+        self._ack_prefix = keys.ack("")
+        self._listen()
+        # who is here (sim/alive, sim/sync tokens) and what the plant does when one comes
+        # or goes; who time is held for is the ledger's
+        self.presence = Presence(self)
+        # sim/info is answered on Zenoh's thread, from what the main thread last put here
+        self._info = self.info()
+        self._info_queryable = session.declare_queryable(keys.info, self._answer_info)
+        self._token = session.liveliness().declare_token(keys.alive(PLANT_TOKEN))
+        self.router = RouterWatch(session, log, mode, on_lost=self.presence.link_lost)
+
+    def _listen(self) -> None:
+        """What the plant reads, as inbox events: its robots' commands and (lockstep) the
+        members' outputs and ACKs, the watchers' sim/seen, another process's outputs that a
+        composed member reads, the sim/sync and sim/alive tokens, sim/reset queries."""
+        keys, inbox, lockstep = self.keys, self.inbox, self.strategy.lockstep
         for name in self.sim.robots:
             for topic in PLANT_READS:
                 if topic == "odom" and not lockstep:
                     continue                     # read only for lockstep members' ACKs
                 key = keys.topic(name, topic)
                 self._robot_of_key[key] = (name, topic)
-                self.inbox.subscribe(key, "out", remote_only=True)
-        self.inbox.subscribe(keys.ack(), "out", remote_only=True)
+                inbox.subscribe(key, "out", remote_only=True)
+        inbox.subscribe(keys.ack(), "out", remote_only=True)
         if lockstep:                             # watchers that keep up (a recorder)
-            self.inbox.subscribe(keys.seen(), "seen", remote_only=True)
-        self._ack_prefix = keys.ack("")
+            inbox.subscribe(keys.seen(), "seen", remote_only=True)
+        composed = self.composed
         for key in sorted(composed.input_keys() if composed else ()):
             if key not in self._robot_of_key:    # another process member's output
-                self.inbox.subscribe(key, "input", remote_only=True)
-        self.inbox.watch_liveliness(keys.sync(), "member")
-        self.inbox.watch_liveliness(keys.alive(), "alive")
-        self.alive: set[str] = set()
-        self._vanished: set[str] = set()         # processes whose sim/alive token went
-        self._went: dict[str, float] = {}        # ... and when (monotonic s), while away
-        self._link_lost_at = -LINK_WINDOW_S      # when the plant last lost its router link
-        self._settling: dict[str, float] = {}    # held process back -> when time goes on
-        self.inbox.serve(keys.reset, "reset")
-        # sim/info is answered on Zenoh's thread, from what the main thread last put here
-        self._info = self.info()
-        self._info_queryable = session.declare_queryable(keys.info, self._answer_info)
-        self._token = session.liveliness().declare_token(keys.alive(PLANT_TOKEN))
-        self.router = RouterWatch(session, log, mode, on_lost=self._link_lost)
+                inbox.subscribe(key, "input", remote_only=True)
+        inbox.watch_liveliness(keys.sync(), "member")
+        inbox.watch_liveliness(keys.alive(), "alive")
+        inbox.serve(keys.reset, "reset")
 
     @property
     def sim(self):
@@ -166,7 +167,7 @@ class Plant:
             self.tick.build()
         self.commands.clear()
         self.outbox.recent.clear()     # the old world's ticks are never re-published
-        self.outbox.epoch += 1         # a new world: members tell it from a re-publish
+        self.epoch += 1                # a new world: members tell it from a re-publish
         self.ledger.restart()
         self.strategy.restarted()
         self._info = self.info()
@@ -174,17 +175,8 @@ class Plant:
 
     # ------------------------------------------------------------------ queryables
     def info(self) -> dict:
-        """What ``sim/info`` answers (docs/PROTOCOL.md section 5)."""
-        d = self.sim.describe()
-        for name, sensors in self.tick.sensors.items():
-            d["robots"][name]["topics"] = dict(sensors.periods)
-        d.update(protocol=PROTOCOL_VERSION, protocol_minor=PROTOCOL_MINOR, mode=self.mode,
-                 coupling=self.coupling,
-                 **self.delays, seed=self.seed, time_ns=self.sim.time_ns,
-                 namespace=self.keys.namespace, rate=self.rate,
-                 rejoin_timeout_s=self.rejoin_timeout_s,
-                 epoch=self.outbox.epoch)
-        return d
+        """What ``sim/info`` answers (docs/PROTOCOL.md section 5; :mod:`plant.report`)."""
+        return report.info(self)
 
     def _answer_info(self, query: zenoh.Query) -> None:
         """Zenoh's thread: the snapshot, with the time the main thread last published."""
@@ -209,7 +201,7 @@ class Plant:
         # from inside its step); the loop then starts over at the new world's t = 0.
         self.reset_in_tick = True
         query.reply(self.keys.reset, jsonio.dumps({"ok": True, "seed": self.seed, "time_ns": 0,
-                                                   "epoch": self.outbox.epoch}))
+                                                   "epoch": self.epoch}))
 
     # ------------------------------------------------------------------ publishing
     def republish(self) -> None:
@@ -217,7 +209,7 @@ class Plant:
         member answers the ones it has not, re-sends its answer to the others; section 4,
         "Lost members"); whatever of them the blip swallowed reaches everyone now. (A key
         once read is built from then on, :mod:`plant.outbox`: the member's keys are here.)"""
-        ticks = self.outbox.republish(self.sim.time_ns)
+        ticks = self.outbox.republish(self.sim.time_ns, self.epoch)
         self.ledger.resent_upto = max(ticks, default=-1)
         if ticks:
             self.log.info("re-published ticks t=%s s", ", ".join(f"{t * 1e-9:.3f}" for t in ticks))
@@ -235,17 +227,17 @@ class Plant:
                 continue
             key = self._key(name, topic)
             if composed is None:
-                self.outbox.put(key, data, t)
+                self.outbox.put(key, data, t, self.epoch)
                 continue
             if out.reads(key):                        # (else only a composed member reads it)
-                self.outbox.put(key, data, t)
+                self.outbox.put(key, data, t, self.epoch)
             else:
                 out.skip()
             composed.deliver(key, data, None)
         clock = packed.clock(t)
-        self.outbox.put(self.keys.clock, clock, t)
+        self.outbox.put(self.keys.clock, clock, t, self.epoch)
         if composed is not None:
-            composed.clock(t, self._emit, self.outbox.epoch)
+            composed.clock(t, self._emit, self.epoch)
             composed.run(self._emit)
         self.tick.prefetch()
 
@@ -275,38 +267,6 @@ class Plant:
         local = self.composed.reads
         return lambda topic: reads(key(robot, topic)) or local(key(robot, topic))
 
-    # ------------------------------------------------------------------ lost link
-    def _link_lost(self) -> None:
-        """The plant lost its link to its router (its own ``sim/alive`` token went from its
-        view, or the router is gone): the processes that went with it are held for."""
-        now = self._link_lost_at = time.monotonic()
-        for node, went in list(self._went.items()):
-            if now - went <= LINK_WINDOW_S:
-                self._hold_for(node)
-
-    def _settle(self) -> None:
-        """Held processes back for SETTLE_S: the last ticks once more (what went out before
-        their subscriptions were in place reaches them now), then time goes on."""
-        now = time.monotonic()
-        done = [n for n, t in self._settling.items() if t <= now]
-        for node in done:
-            del self._settling[node]
-            if self.ledger.back(node):
-                self.log.info("%s: time goes on", node)
-                self.republish()
-
-    def _hold_for(self, node: str) -> None:
-        """docs/PROTOCOL.md section 4, "Lost members": a process that is not a member (a
-        recorder, a view), gone with the plant's link, would miss what the plant publishes
-        before it is back; in lockstep with a rejoin timeout, time is held for it too (the
-        ledger leaves members to their own rules)."""
-        if (node == PLANT_TOKEN or node in self.alive or not self.strategy.lockstep
-                or self.rejoin_timeout_s <= 0 or not self.ledger.gone_with_link(node)):
-            return
-        self.log.warning("%s went with the router at t=%.3f s: time is held for it too, up to "
-                         "--rejoin-timeout %g s", node, self.sim.time_ns * 1e-9,
-                         self.rejoin_timeout_s)
-
     # ------------------------------------------------------------------ input
     def handle(self, ev: Event) -> None:
         if ev.tag == "reset":
@@ -319,68 +279,13 @@ class Plant:
                 self.composed.deliver(ev.key, ev.payload, ev.attachment)
             return
         if ev.tag == "seen":
-            self._on_seen(ev)
+            self.presence.on_seen(ev)
             return
         self.router.check(self.sim.time_ns, now=True)   # a token came or went: the router?
         if ev.tag == "alive":
-            self.outbox.changed()          # its subscribers are in the tables by now
-            node = self.keys.node_of(ev.key)
-            if not ev.alive:
-                self.alive.discard(node)
-                self._vanished.add(node)
-                self._settling.pop(node, None)
-                now = self._went[node] = time.monotonic()
-                if node == PLANT_TOKEN:      # its own token, seen through the router: gone
-                    self._link_lost()
-                elif self.router.gone or now - self._link_lost_at <= LINK_WINDOW_S:
-                    self._hold_for(node)
-                if node not in self.ledger.away:      # gone for good: not kept up with
-                    self.ledger.unseen(node)
-                return
-            self.alive.add(node)
-            self._went.pop(node, None)
-            held = node in self.ledger.away        # (time goes on SETTLE_S from now)
-            if held:
-                self._settling[node] = time.monotonic() + SETTLE_S
-            if node in self._vanished and self.strategy.lockstep:
-                # back after a blip (a recorder, say): what it missed of the last ticks,
-                # tick 0 included (a blip before the first step: nothing stepped yet, but the
-                # members' answers to t=0 went out while it was away)
-                self._vanished.discard(node)
-                self.log.info("%s is back%s", node,
-                              f": time goes on in {SETTLE_S:g} s" if held else "")
-                self.republish()
+            self.presence.on_alive(ev)
         elif ev.tag == "member":
-            self.outbox.changed()
-            node = self.keys.node_of(ev.key)
-            if ev.alive:
-                if self.ledger.join(node, self.sim.time_ns):
-                    self.log.warning("lockstep member rejoined: %s (at t=%.3f s)", node,
-                                     self.sim.time_ns * 1e-9)
-                    self.republish()
-                else:
-                    self.log.info("lockstep member joined: %s", node)
-                return
-            how = self.ledger.leave(node, self.router.lost())
-            if how == "finished":
-                self.log.info("lockstep member finished and left: %s", node)
-            else:
-                self.log.warning("lockstep member lost: %s (gone without its FINAL at "
-                                 "t=%.3f s; %s)", node, self.sim.time_ns * 1e-9,
-                                 lost_note(how, self.rejoin_timeout_s))
-
-    def _on_seen(self, ev: Event) -> None:
-        """docs/PROTOCOL.md section 4, "Watchers that keep up": a process that is not a
-        member says what it has taken in (only while its sim/alive token is here: a late
-        one of a process gone would hold time for nobody)."""
-        node = self.keys.node_of(ev.key)
-        try:
-            t_ns = decode_seen(ev.payload)
-        except ValueError as exc:
-            self.rejects.reject(f"sim/seen/{node}", str(exc))
-            return
-        if node in self.alive or node in self.ledger.away:
-            self.ledger.saw(node, t_ns)
+            self.presence.on_member(ev)
 
     def _on_output(self, ev: Event) -> None:
         """A message on a key the plant reads: a command to apply, and in lockstep a
@@ -415,7 +320,8 @@ class Plant:
         """Hand each robot the command that acts at this tick (the mode's), or zero if it
         has none or it timed out; in lockstep, any other than the rule's is a protocol error."""
         picked = {name: self.strategy.command(name) for name in self.sim.robots}
-        if self.strategy.lockstep and not self.stop_event.is_set():     # (issue 40)
+        # lockstep: an older command than the rule's acting here is a protocol error
+        if self.strategy.lockstep and not self.stop_event.is_set():
             keys = lambda r: (self._key(r, "cmd_vel"), self._key(r, "wheel_cmd"))  # noqa: E731
             stale_commands(self.ledger, self.commands, self.sim.time_ns - self.strategy.delay_ns,
                            picked, keys, self.protocol_errors.reject)
@@ -434,8 +340,7 @@ class Plant:
     def drain(self, timeout: float | None = 0.0) -> bool:
         """Handle queued events; wait up to ``timeout`` for the first. True if any came."""
         self.router.check(self.sim.time_ns)
-        if self._settling:
-            self._settle()
+        self.presence.settle()
         ev = self.inbox.get(timeout=timeout) if timeout else self.inbox.get_nowait()
         if ev is None:
             return False
@@ -458,12 +363,13 @@ class Plant:
             self.log.info("lockstep: waiting for a controller to join (or use --mode fast)")
         while not self.stop_event.is_set():
             self.drain(0.1)
-            present = self.ledger.members if self.strategy.lockstep else self.alive
-            watched = self.watchers <= self.alive
+            alive = self.presence.alive
+            present = self.ledger.members if self.strategy.lockstep else alive
+            watched = self.watchers <= alive
             if watched and ((want and want <= present) or (not want and present)):
                 return True
             if (want or self.watchers) and time.monotonic() > deadline:
-                missing = (want - present) | (self.watchers - self.alive)
+                missing = (want - present) | (self.watchers - alive)
                 self.log.error("nodes did not join within %.0f s: %s",
                                self.join_timeout_s, ", ".join(sorted(missing)))
                 return False
@@ -486,7 +392,7 @@ class Plant:
             return 1 if not self.stop_event.is_set() else 0
         self.wall_start = time.monotonic()
         self.strategy.start()
-        self._say_running()
+        report.say_running(self)
         try:
             while not self.stop_event.is_set():
                 t = self.sim.time_ns
@@ -512,47 +418,8 @@ class Plant:
         finally:
             self.wall_end = time.monotonic()
         if self.end_reason != "stopped":      # (an end of its own, not a stop signal)
-            self.last_tick_taken_in(self.sim.time_ns)
+            self.presence.last_tick_taken_in(self.sim.time_ns)
         return 0
-
-    def last_tick_taken_in(self, t_ns: int) -> None:
-        """docs/PROTOCOL.md section 4, "End": the run ended at tick ``t_ns``; the processes
-        that answer a get on ``sim/seen/*`` (a recorder, the launcher's observer) get up to
-        END_SEEN_S to have taken that tick in before the plant says sim/end and closes its
-        session: what is still on its way then is lost (a loaded machine's run summary once
-        lacked its last 20 ticks). The get also goes after the last messages, on the same
-        links."""
-        deadline = time.monotonic() + END_SEEN_S
-        while not self.stop_event.is_set():
-            left = deadline - time.monotonic()
-            short = {n: t for n, t in self._ask_seen(max(left, 0.05)).items() if t < t_ns}
-            if not short:
-                return
-            if left <= 0:
-                self.log.warning("%s had not taken in the last tick (t=%.3f s) %.0f s after "
-                                 "it; ending all the same", ", ".join(
-                                     f"{n} (t={t * 1e-9:.3f} s)" for n, t in sorted(short.items())),
-                                 t_ns * 1e-9, END_SEEN_S)
-                return
-            self.drain(0.02)
-
-    def _ask_seen(self, timeout_s: float) -> dict[str, int]:
-        """What each process answering ``sim/seen/*`` says it has taken in (a malformed
-        answer is counted and left out)."""
-        out = {}
-        try:
-            replies = self.session.get(self.keys.seen(), timeout=min(timeout_s, 1.0))
-            for reply in replies:
-                if reply.ok is None:
-                    continue
-                node = self.keys.node_of(str(reply.ok.key_expr))
-                try:
-                    out[node] = decode_seen(reply.ok.payload.to_bytes())
-                except ValueError as exc:
-                    self.rejects.reject(f"sim/seen/{node}", str(exc))
-        except Exception as exc:         # (the session closing under a stop signal)
-            self.log.debug("sim/seen: %s", exc)
-        return out
 
     def _duration_reached(self, t_ns: int) -> str | None:
         if self.duration_ns is None or t_ns < self.duration_ns:
@@ -561,32 +428,8 @@ class Plant:
         self.strategy.at_end(t_ns)
         return "duration reached"
 
-    def _say_running(self) -> None:
-        self.log.info("running %s (%s mode, tick %.0f ms, %d physics steps per tick%s)",
-                      self.spec.name, self.mode, self.tick_ns / 1e6, self.spec.substeps,
-                      "" if self.tick.physics is None else ", physics in its own process"
-                      + (", stepping while publishing" if self.tick.stepper.overlap else ""))
-
     def stats(self) -> dict:
-        wall = max(self.wall_end - self.wall_start, 1e-9) if self.wall_start else 0.0
-        sim_s = self.sim.time_ns * 1e-9
-        return {"node": "plant", "world": self.spec.name, "mode": self.mode, "seed": self.seed,
-                "end_reason": self.end_reason,
-                "sim_time_s": sim_s, "wall_time_s": wall, "ticks": self.ticks,
-                "real_time_factor": sim_s / wall if wall else None,
-                "published": self.published, "rejected": dict(self.rejects.counts),
-                "members_seen": sorted(self.ledger.members_seen),
-                "members_lost": sorted(self.ledger.lost), "exit_code": self.exit_code,
-                "stalls": self.strategy.stalls,
-                "paced_s": round(self.strategy.paced_s, 3),
-                "protocol": PROTOCOL_VERSION, "coupling": self.coupling, **self.delays,
-                "physics_process": self.tick.physics is not None,
-                "composed": self.composed.names if self.composed is not None else [],
-                "protocol_errors": dict(self.protocol_errors.counts),
-                "stale_commands": self.protocol_errors.counts.get(STALE, 0),
-                "holds_past_timeout": self.protocol_errors.counts.get(HOLD_PAST, 0),
-                "per_tick_ms": {k[:-2]: 1e3 * v / max(self.ticks, 1)
-                                for k, v in self.timing.items()}}
+        return report.stats(self)
 
     def close(self, reason: str = "stopped") -> None:
         """Tell the nodes the simulation ended (so they exit 0, not "plant gone"), then leave."""
@@ -613,12 +456,3 @@ class Plant:
             self.composed.close()
         self.tick.close()
 
-
-def lost_note(how: str, rejoin_timeout_s: float) -> str:
-    """What happens to a lockstep member that left without its FINAL (``AckLedger.leave``
-    said ``how``), as the plant's warning says it."""
-    if how != "lost":
-        return "the others go on without it"
-    if rejoin_timeout_s > 0:
-        return f"time is held for it, up to --rejoin-timeout {rejoin_timeout_s:g} s"
-    return "the run ends at this tick: --rejoin-timeout is 0, so time is not held for it"

@@ -223,6 +223,58 @@ def _slab(o, d, h):
     return np.fmin(t1, t2), np.fmax(t1, t2)
 
 
+def _clip_to_quadrics(quad, rr, d_local, o_local, tn, tf) -> np.ndarray:
+    """Narrow the slabs' entry ``tn`` and exit ``tf`` (S, N) by each round shape's quadric
+    a t^2 + 2 b t + c <= 0 (in place; only the rows of round shapes: boxes have none);
+    the quadric's entry per shape and ray (-inf where it has none)."""
+    dx, dy, dz = d_local
+    ox, oy, oz = o_local
+    q0 = np.full(tn.shape, -np.inf)
+    rnd = np.nonzero(quad[:, 0] > 0)[0]
+    if rnd.size:
+        qx, qy, qz = quad[rnd, 0:1], quad[rnd, 1:2], quad[rnd, 2:3]
+        rdx, rdy, rdz = dx[rnd], dy[rnd], dz[rnd]
+        rox, roy, roz = ox[rnd], oy[rnd], oz[rnd]
+        a = qx * rdx * rdx + qy * rdy * rdy + qz * rdz * rdz
+        b = qx * rox * rdx + qy * roy * rdy + qz * roz * rdz
+        c = qx * rox * rox + qy * roy * roy + qz * roz * roz - rr[rnd, None]
+        r0, r1 = quadratic_roots(a, b, c)
+        flat = a == 0.0                   # rays along a cylinder's axis
+        if flat.any():
+            inside = np.broadcast_to(c < 0.0, flat.shape)
+            r0 = np.where(flat, np.where(inside, -np.inf, np.nan), r0)
+            r1 = np.where(flat, np.where(inside, np.inf, np.nan), r1)
+        tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
+        tf[rnd] = np.minimum(tf[rnd], r1)
+        q0[rnd] = r0
+    return q0
+
+
+def _entry_normals(ks, rows, tr, d_local, o_local, entries, quad, rot) -> np.ndarray:
+    """World-frame unit normals (R, 3) where the rays ``rows`` enter their nearest shapes
+    ``ks`` at ``tr``: the quadric's if it set the entry, else the slab's that did."""
+    dx, dy, dz = d_local
+    ox, oy, oz = o_local
+    lo_x, lo_y, q0 = entries
+    orow = rows if ox.shape[1] > 1 else 0
+    ddx, ddy, ddz = dx[ks, rows], dy[ks, rows], dz[ks, rows]
+    px = ox[ks, orow] + tr * ddx
+    py = oy[ks, orow] + tr * ddy
+    pz = oz[ks, orow] + tr * ddz
+    on_q = tr == q0[ks, rows]
+    selx = ~on_q & (tr == lo_x[ks, rows])
+    sely = ~on_q & ~selx & (tr == lo_y[ks, rows])
+    selz = ~on_q & ~selx & ~sely
+    qk = quad[ks]
+    nx = np.where(on_q, qk[:, 0] * px, np.where(selx, -np.sign(ddx), 0.0))
+    ny = np.where(on_q, qk[:, 1] * py, np.where(sely, -np.sign(ddy), 0.0))
+    nz = np.where(on_q, qk[:, 2] * pz, np.where(selz, -np.sign(ddz), 0.0))
+    norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+    rk = rot[ks]                                                          # (R, 3, 3)
+    return (rk[:, :, 0] * (nx / norm)[:, None] + rk[:, :, 1] * (ny / norm)[:, None]
+            + rk[:, :, 2] * (nz / norm)[:, None])
+
+
 def cast_rays(origins, directions, shapes: "Sequence[Shape] | Scene",
               max_range: float = np.inf, *, min_range: float = 0.0,
               exclude_owner: str | None = None, include=None):
@@ -272,25 +324,7 @@ def cast_rays(origins, directions, shapes: "Sequence[Shape] | Scene",
         lo_z, hi = _slab(oz, dz, half[:, 2:3])
         np.minimum(tf, hi, out=tf)
         tn = np.maximum(np.maximum(lo_x, lo_y), lo_z)
-        # quadric a t^2 + 2 b t + c <= 0, only on the rows of round shapes (boxes have none)
-        q0 = np.full(tn.shape, -np.inf)
-        rnd = np.nonzero(quad[:, 0] > 0)[0]
-        if rnd.size:
-            qx, qy, qz = quad[rnd, 0:1], quad[rnd, 1:2], quad[rnd, 2:3]
-            rdx, rdy, rdz = dx[rnd], dy[rnd], dz[rnd]
-            rox, roy, roz = ox[rnd], oy[rnd], oz[rnd]
-            a = qx * rdx * rdx + qy * rdy * rdy + qz * rdz * rdz
-            b = qx * rox * rdx + qy * roy * rdy + qz * roz * rdz
-            c = qx * rox * rox + qy * roy * roy + qz * roz * roz - rr[rnd, None]
-            r0, r1 = quadratic_roots(a, b, c)
-            flat = a == 0.0                   # rays along a cylinder's axis
-            if flat.any():
-                inside = np.broadcast_to(c < 0.0, flat.shape)
-                r0 = np.where(flat, np.where(inside, -np.inf, np.nan), r0)
-                r1 = np.where(flat, np.where(inside, np.inf, np.nan), r1)
-            tn[rnd] = np.maximum(tn[rnd], r0)  # nan propagates: a miss
-            tf[rnd] = np.minimum(tf[rnd], r1)
-            q0[rnd] = r0
+        q0 = _clip_to_quadrics(quad, rr, (dx, dy, dz), (ox, oy, oz), tn, tf)
         hit = (tn <= tf) & (tn >= min_range) & (tn <= max_range)
         tn[~hit] = np.inf
         t = tn
@@ -302,24 +336,8 @@ def cast_rays(origins, directions, shapes: "Sequence[Shape] | Scene",
             return best_t, best_i, best_n
         ks = k[rows]
         tr = tk[rows]
-        orow = rows if ox.shape[1] > 1 else 0
-        ddx, ddy, ddz = dx[ks, rows], dy[ks, rows], dz[ks, rows]
-        px = ox[ks, orow] + tr * ddx
-        py = oy[ks, orow] + tr * ddy
-        pz = oz[ks, orow] + tr * ddz
-        # entry face: the quadric if it set t_enter, else the slab that did
-        on_q = tr == q0[ks, rows]
-        selx = ~on_q & (tr == lo_x[ks, rows])
-        sely = ~on_q & ~selx & (tr == lo_y[ks, rows])
-        selz = ~on_q & ~selx & ~sely
-        qk = quad[ks]
-        nx = np.where(on_q, qk[:, 0] * px, np.where(selx, -np.sign(ddx), 0.0))
-        ny = np.where(on_q, qk[:, 1] * py, np.where(sely, -np.sign(ddy), 0.0))
-        nz = np.where(on_q, qk[:, 2] * pz, np.where(selz, -np.sign(ddz), 0.0))
-        norm = np.sqrt(nx * nx + ny * ny + nz * nz)
-        rk = rot[ks]                                                          # (R, 3, 3)
-        nw = (rk[:, :, 0] * (nx / norm)[:, None] + rk[:, :, 1] * (ny / norm)[:, None]
-              + rk[:, :, 2] * (nz / norm)[:, None])
+        nw = _entry_normals(ks, rows, tr, (dx, dy, dz), (ox, oy, oz), (lo_x, lo_y, q0),
+                            quad, rot)
     best_t[rows] = tr
     best_i[rows] = idx[ks]
     best_n[rows] = nw

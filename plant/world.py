@@ -225,30 +225,7 @@ def _parse_drive(t: Table) -> DriveSpec:
 
 def parse_world(data: dict, path: str) -> WorldSpec:
     top = Table(path, "", data)
-    w = top.table("world")
-    spec = WorldSpec(path=path, name=w.string("name", os.path.splitext(os.path.basename(path))[0]))
-    spec.mode = w.string("mode", "dynamic", choices=("dynamic", "kinematic"))
-    spec.physics_step_s = w.number("physics_step_s", 0.001, positive=True)
-    spec.control_tick_s = w.number("control_tick_s", 0.02, positive=True)
-    if spec.control_tick_s > MAX_CONTROL_TICK_S:
-        w.fail("control_tick_s", f"{spec.control_tick_s:g} s is longer than a control tick can "
-                                 f"be (at most {MAX_CONTROL_TICK_S:g} s)")
-    ratio = spec.control_tick_s / spec.physics_step_s
-    if not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        w.fail("control_tick_s", f"must be a whole multiple of physics_step_s "
-                                 f"({spec.physics_step_s:g} s), got {spec.control_tick_s:g} s")
-    if round(ratio) > MAX_STEPS_PER_TICK:
-        w.fail("physics_step_s", f"{spec.physics_step_s:g} s makes {round(ratio)} physics "
-                                 f"steps a control tick (at most {MAX_STEPS_PER_TICK})")
-    if spec.physics_step_s > 0.01:
-        w.fail("physics_step_s", f"{spec.physics_step_s:g} s is too coarse for contact "
-                                 "(use at most 0.01 s)")
-    spec.gravity_mps2 = w.number("gravity_mps2", 9.81, nonneg=True)
-    spec.collision_detector = w.string("collision_detector", "bullet",
-                                       choices=("bullet", "fcl", "dart", "ode"))
-    spec.contact_solver = w.string("contact_solver", "pgs", choices=("pgs", "dantzig"))
-    spec.seed = w.integer("seed", 0)
-    w.done()
+    spec = _parse_world_table(top.table("world"), path)
 
     mats = top.table("materials")
     spec.materials = {"floor": Material("floor", 1.0), "rubber": Material("rubber", 1.0),
@@ -282,30 +259,63 @@ def parse_world(data: dict, path: str) -> WorldSpec:
         spec.objects.append(obj)
 
     for t in top.tables("robots"):
-        name = t.string("name")
-        try:
-            check_name(name, "robot name")
-        except BadName as exc:
-            t.fail("name", str(exc))
-        if any(r.name == name for r in spec.robots):
-            t.fail("name", f"duplicate robot {name!r}")
-        pose = t.vector("pose", 3, (0.0, 0.0, 0.0))
-        r = RobotSpec(name=name, pose=pose)
-        r.color = t.vector("color", 3, r.color, unit_range=True)
-        r.wheel_material = t.string("wheel_material", "rubber")
-        if r.wheel_material not in spec.materials:
-            t.fail("wheel_material", f"unknown material {r.wheel_material!r}")
-        r.chassis_mass_kg = t.number("chassis_mass_kg", r.chassis_mass_kg, positive=True)
-        r.wheel_mass_kg = t.number("wheel_mass_kg", r.wheel_mass_kg, positive=True)
-        r.drive = _parse_drive(t.table("drive"))
-        r.sensors = _parse_sensors(t)
-        for pt in t.tables("parts"):
-            r.parts.append(_parse_object(pt, spec.materials, "default"))
-        t.done()
-        spec.robots.append(r)
+        spec.robots.append(_parse_robot(t, spec))
     _check_robot_overlap(spec, top)
     top.done()
     return spec
+
+
+def _parse_world_table(w: Table, path: str) -> WorldSpec:
+    """The [world] table: name, mode, the physics step and control tick, the solver."""
+    spec = WorldSpec(path=path, name=w.string("name", os.path.splitext(os.path.basename(path))[0]))
+    spec.mode = w.string("mode", "dynamic", choices=("dynamic", "kinematic"))
+    spec.physics_step_s = w.number("physics_step_s", 0.001, positive=True)
+    spec.control_tick_s = w.number("control_tick_s", 0.02, positive=True)
+    if spec.control_tick_s > MAX_CONTROL_TICK_S:
+        w.fail("control_tick_s", f"{spec.control_tick_s:g} s is longer than a control tick can "
+                                 f"be (at most {MAX_CONTROL_TICK_S:g} s)")
+    ratio = spec.control_tick_s / spec.physics_step_s
+    if not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        w.fail("control_tick_s", f"must be a whole multiple of physics_step_s "
+                                 f"({spec.physics_step_s:g} s), got {spec.control_tick_s:g} s")
+    if round(ratio) > MAX_STEPS_PER_TICK:
+        w.fail("physics_step_s", f"{spec.physics_step_s:g} s makes {round(ratio)} physics "
+                                 f"steps a control tick (at most {MAX_STEPS_PER_TICK})")
+    if spec.physics_step_s > 0.01:
+        w.fail("physics_step_s", f"{spec.physics_step_s:g} s is too coarse for contact "
+                                 "(use at most 0.01 s)")
+    spec.gravity_mps2 = w.number("gravity_mps2", 9.81, nonneg=True)
+    spec.collision_detector = w.string("collision_detector", "bullet",
+                                       choices=("bullet", "fcl", "dart", "ode"))
+    spec.contact_solver = w.string("contact_solver", "pgs", choices=("pgs", "dantzig"))
+    spec.seed = w.integer("seed", 0)
+    w.done()
+    return spec
+
+
+def _parse_robot(t: Table, spec: WorldSpec) -> RobotSpec:
+    """One [[robots]] table (its name unique among ``spec``'s robots so far)."""
+    name = t.string("name")
+    try:
+        check_name(name, "robot name")
+    except BadName as exc:
+        t.fail("name", str(exc))
+    if any(r.name == name for r in spec.robots):
+        t.fail("name", f"duplicate robot {name!r}")
+    pose = t.vector("pose", 3, (0.0, 0.0, 0.0))
+    r = RobotSpec(name=name, pose=pose)
+    r.color = t.vector("color", 3, r.color, unit_range=True)
+    r.wheel_material = t.string("wheel_material", "rubber")
+    if r.wheel_material not in spec.materials:
+        t.fail("wheel_material", f"unknown material {r.wheel_material!r}")
+    r.chassis_mass_kg = t.number("chassis_mass_kg", r.chassis_mass_kg, positive=True)
+    r.wheel_mass_kg = t.number("wheel_mass_kg", r.wheel_mass_kg, positive=True)
+    r.drive = _parse_drive(t.table("drive"))
+    r.sensors = _parse_sensors(t)
+    for pt in t.tables("parts"):
+        r.parts.append(_parse_object(pt, spec.materials, "default"))
+    t.done()
+    return r
 
 
 ROBOT_RADIUS_M = 0.30  # conservative footprint radius of the default robot

@@ -187,3 +187,23 @@ def test_it_slows_down_when_unsure_and_stands_still_when_the_ball_stays_away():
         ctrl.step(observation(t, empty))
     assert (ctrl.command.linear, ctrl.command.angular) == (0.0, 0.0)   # standing still
     assert ctrl.stats()["ball_lost_episodes"] == 1
+
+
+@pytest.mark.parametrize("distance", [0.6, 0.7])
+def test_it_holds_the_ball_at_0_65_m_as_the_follow_scenario_runs_it(monkeypatch, distance):
+    """The follow scenario starts ``controller ball_follower`` without ``--target`` and judges
+    the run by a band around 0.65 m: from the command line's defaults the follower drives
+    at k_distance times (its distance estimate - 0.65 m), backing off at 0.6 m and closing
+    in at 0.7 m (a first frame: no integral yet)."""
+    import controllers.ball_follower as bf
+    made = []
+    monkeypatch.setattr(bf, "run_controller", lambda factory, args, name: made.append(factory))
+    bf.main(["--robot", "follower"])
+    ctrl = made[0]()
+    out = ctrl.step(observation(0.04, render(scene_with_ball(distance, 0.0))))
+    estimate = out["follower/debug"].data[4]
+    assert estimate == pytest.approx(distance, abs=0.02)
+    assert out["cmd"].linear == pytest.approx(ctrl.kp * (estimate - 0.65), abs=1e-9)
+    assert (out["cmd"].linear > 0.05) == (distance > 0.65)
+    frame = observation(0.04, render(scene_with_ball(distance, 0.0)))
+    assert BallFollower().step(frame)["cmd"].linear == out["cmd"].linear   # the class's default

@@ -51,3 +51,21 @@ def test_every_episode_carries_its_seed_and_world_and_replays(tmp_path):
         env.close()
         again.close()
     assert np.isfinite(ep.plant_seed)
+
+
+def test_max_steps_truncates_every_robot_still_out_at_the_last_step():
+    """The swarm env has no TimeLimit wrapper: its task's own step count ends the episode,
+    truncated (not terminated) for each robot still out at step ``max_steps``, counted from
+    each reset."""
+    env = swarm_v0.parallel_env(**KW, max_steps=3)
+    try:
+        for seed in (4, 5):
+            env.reset(seed=seed)
+            idle = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents}
+            for step in range(1, 4):
+                _, _, term, trunc, _ = env.step({a: idle[a] for a in env.agents})
+                assert not any(term.values()), (seed, step, term)
+                assert list(trunc.values()) == [step == 3] * 3, (seed, step, trunc)
+            assert env.agents == []
+    finally:
+        env.close()

@@ -331,7 +331,10 @@ def test_plant_killed_nodes_with_wait_carry_on_with_a_plant_back_within_the_rejo
              what="driving")
     p.send_signal(signal.SIGKILL)
     p.wait(10)
-    time.sleep(3.0)                      # longer than the grace alone (bus.plantwatch)
+    # each node says how long it waits, the run's rejoin timeout (30 s) + the grace, not
+    # the grace alone (bus.plantwatch): the deadline its exit would come from
+    wait_for(lambda: all("waiting for it to come back (--wait), up to 32 s" in procs.log(n)
+                         for n in nodes), 10, what="the nodes to wait for the plant")
     assert all(n.poll() is None for n in nodes), "--wait nodes wait for the plant"
     with tap.lock:
         seen = len(tap.gt)
@@ -384,7 +387,9 @@ def test_nodes_with_wait_end_with_the_run_they_took_part_in(end, procs, endpoint
 
 def test_node_with_wait_started_before_the_plant_waits_for_it(procs, endpoint, bus, tmp_path):
     ctrl = drive(procs, endpoint, tmp_path, "--wait")
-    time.sleep(3.0)
+    # its first try found no plant listening (without --wait it would exit): it says it waits
+    wait_for(lambda: "yet; waiting for one (--wait)" in procs.log(ctrl), 30,
+             what="the node to wait for a plant")
     assert ctrl.poll() is None
     start_plant(procs, endpoint, tmp_path, "lockstep", "--expect", "wheel_schedule_robot1")
     tap = Tap(bus())
@@ -416,7 +421,7 @@ def test_frozen_lockstep_member_is_dropped_within_the_lease_and_handled_on_resum
     if not wait:                # --rejoin-timeout 0: the run ends, naming it
         code, took = exits_within(p, 10)
         assert code == 1 and "lost lockstep member wheel_schedule_robot1" in procs.log(p)
-        # and the plant said what happens, not that it holds time (issue 35)
+        # and the plant said what happens, not that it holds time
         assert "time is held" not in procs.log(p)
         assert "the run ends at this tick: --rejoin-timeout is 0" in procs.log(p)
     else:                       # time is held for it

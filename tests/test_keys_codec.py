@@ -82,7 +82,7 @@ def test_summarize_shortens_large_arrays():
     assert "100" in s["position"] and len(s["name"]) == 7
 
 
-from hypothesis import given, settings, strategies as st  # noqa: E402
+from hypothesis import example, given, settings, strategies as st  # noqa: E402
 
 from .conftest import examples  # noqa: E402
 
@@ -114,6 +114,48 @@ def test_fast_point_and_odometry_bytes_equal_rosbags(t, xyz, frame, child, yaw):
     o = codec.odometry(t, xyz[0], xyz[1], yaw, xyz[2], -xyz[0], frame_id=frame,
                        child_frame_id=child, z=xyz[1])
     assert codec.encode(o) == _rosbags(o)
+
+
+def _odometry_full(t, frame, child, pose7, twist6, pose_cov, twist_cov):
+    """An Odometry with every field of its pose, twist and both covariances set."""
+    T = codec.T
+    V = T["geometry_msgs/msg/Vector3"]
+    return T["nav_msgs/msg/Odometry"](
+        header=codec.header(t, frame), child_frame_id=child,
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](
+            pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=pose7[0], y=pose7[1], z=pose7[2]),
+                orientation=T["geometry_msgs/msg/Quaternion"](
+                    x=pose7[3], y=pose7[4], z=pose7[5], w=pose7[6])),
+            covariance=np.array(pose_cov, dtype=np.float64)),
+        twist=T["geometry_msgs/msg/TwistWithCovariance"](
+            twist=T["geometry_msgs/msg/Twist"](linear=V(x=twist6[0], y=twist6[1], z=twist6[2]),
+                                               angular=V(x=twist6[3], y=twist6[4], z=twist6[5])),
+            covariance=np.array(twist_cov, dtype=np.float64)))
+
+
+_COV_STEPS = (np.arange(36, dtype=np.float64) + 1.0) / 64.0   # no zero: every slot is seen
+
+
+@settings(max_examples=examples(60), deadline=None)
+@given(t=stamps, frame=names, child=names, pose7=st.lists(finite, min_size=7, max_size=7),
+       twist6=st.lists(finite, min_size=6, max_size=6),
+       pose_cov=st.lists(finite, min_size=36, max_size=36),
+       twist_cov=st.lists(finite, min_size=36, max_size=36))
+@example(t=7, frame="odom", child="base_link", pose7=[1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.9],
+         twist6=[0.5, 0.6, 0.7, 0.8, 0.9, 1.25], pose_cov=list(_COV_STEPS),
+         twist_cov=list(-_COV_STEPS))
+def test_fast_odometry_with_covariances_bytes_equal_rosbags(t, frame, child, pose7, twist6,
+                                                            pose_cov, twist_cov):
+    """The fast encoder writes each covariance in its own 36 slots after its pose or twist
+    (a filter's odometry carries them; zero covariances alone would not show a misplaced one)."""
+    m = _odometry_full(t, frame, child, pose7, twist6, pose_cov, twist_cov)
+    data = codec.encode(m)
+    assert data == _rosbags(m)
+    back = codec.decode(data, "nav_msgs/msg/Odometry")
+    assert back.twist.twist.angular.z == twist6[5]
+    assert list(back.pose.covariance) == list(pose_cov)
+    assert list(back.twist.covariance) == list(twist_cov)
 
 
 @settings(max_examples=examples(150), deadline=None)

@@ -150,7 +150,7 @@ def test_the_ledger_remembers_a_bounded_number_of_ticks():
 
 
 def test_the_first_message_per_key_per_tick_wins_and_a_second_is_an_error():
-    """Issue 20: a second cmd_vel for the same tick was applied or not by timing."""
+    """A second cmd_vel for the same tick is an error, never applied or not by timing."""
     led, errors = ledger()
     led.join("a")
     led.begin_tick(0)
@@ -256,9 +256,9 @@ def test_a_member_that_finished_is_not_lost_and_the_run_ends_when_all_have():
 
 
 def test_a_rejoining_member_is_owed_every_tick_it_has_not_answered_none_it_has():
-    """Issue 27: after a blip the plant waited for a tick older than the member's last
-    ACK. Now a rejoin re-owes the ticks without its answer, and answers re-sent for ticks
-    the plant has are dropped silently."""
+    """After a blip the plant waits for no tick older than the member's last ACK: a
+    rejoin re-owes the ticks without its answer, and answers re-sent for ticks the plant
+    has are dropped silently."""
     led, errors = ledger(expect=("a",))
     led.join("a")
     led.begin_tick(0)

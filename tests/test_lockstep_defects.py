@@ -1,7 +1,7 @@
 """Defects that hid in the lockstep code, each pinned by what a user sees: a member joining
 between two pipelined ticks does not stall the plant; a node meeting a plant of another
 protocol version exits 2 also after --wait; a world rebuilt after the physics diverged
-waits for the new world's ACKs (these three from issue 28); a member whose next tick's
+waits for the new world's ACKs; a member whose next tick's
 inputs are late answers it before a later tick that is complete (a router blip)."""
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""Issue 20's fixed points, driven by the client written from docs/PROTOCOL.md alone
+"""Lockstep's fixed points, driven by the client written from docs/PROTOCOL.md alone
 (tests/conformance_client.py): the tick-0 command acts under pipelined coupling, a lost
 --end-with member ends the run at once, a duplicate output (its ACK included) never changes
-a run; and issue 35's: a reset in the first 26 ticks is told from a re-publish, a stamp for
+a run; a reset in the first 26 ticks is told from a re-publish, a stamp for
 a tick not due is a protocol error that changes nothing."""
 from __future__ import annotations
 

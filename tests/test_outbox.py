@@ -25,10 +25,9 @@ def test_a_key_is_read_while_a_client_subscribes_and_its_puts_carry_seq_and_stam
             (s.payload.to_bytes(), codec.parse_attachment(s.attachment.to_bytes()))))
         wait_for(lambda: out.reads("r/scan"), 5.0, what="the subscriber to be seen")
         assert not out.reads("r/gps")                      # another key: nobody
-        out.put("r/scan", b"one", 20_000_000)
+        out.put("r/scan", b"one", 20_000_000, 0)
         out.skip(2)                                        # two due messages nobody reads
-        out.epoch = 1                                      # a reset: the world's epoch
-        out.put("r/scan", b"two", 40_000_000)
+        out.put("r/scan", b"two", 40_000_000, 1)           # a reset: the world's epoch
         assert got.get(timeout=5) == (b"one", codec.Attachment(1, 20_000_000, epoch=0))
         assert got.get(timeout=5) == (b"two", codec.Attachment(4, 40_000_000, epoch=1))
         assert out.published == {"r/scan": 2}

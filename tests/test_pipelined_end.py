@@ -79,7 +79,7 @@ def test_a_member_that_leaves_at_the_next_tick_after_final_still_ends_the_run(pr
 @pytest.mark.slow
 def test_a_lost_member_holds_time_and_is_waited_for_where_it_left(procs, endpoint, bus,
                                                                  tmp_path):
-    """A lockstep plant never runs alone (issue 27): with --rejoin-timeout the plant holds
+    """A lockstep plant never runs alone: with --rejoin-timeout the plant holds
     the tick its lost member left at, re-publishes it when the member is back, and waits
     for its answer there, not a tick older than its last ACK."""
     from .conftest import wait_for

@@ -1,4 +1,4 @@
-"""bus.plantwatch: how long a member or recorder waits for a plant it lost (issue 35): the
+"""bus.plantwatch: how long a member or recorder waits for a plant it lost: the
 run's rejoin timeout from sim/info, plus a grace; never before it took part in a run."""
 from __future__ import annotations
 

@@ -131,6 +131,30 @@ def test_file_opens_in_mcap_and_rosbags_with_schemas_times_and_sequence(tmp_path
     assert codec.msg_stamp_ns(codec.decode(data, "geometry_msgs/msg/PointStamped")) == t
 
 
+def test_a_stop_mid_stream_still_writes_what_is_queued(tmp_path):
+    """A signal stops the recorder's loop while messages wait in its queue (Zenoh's thread
+    queued them, the writing thread had not taken them yet): ``close()`` writes them all,
+    in their order, before the footer."""
+    import logging
+
+    from bridges.record import Recorder
+    out = McapRecording(str(tmp_path / "stop.mcap"))
+    rec = Recorder(None, K, out, [K.all], logging.getLogger("test-recorder"))
+    rec.with_scene = False
+    gps = K.topic("robot1", "gps")
+    for i in range(40):
+        t = (i + 1) * 20_000_000
+        rec.queue.put((gps, codec.encode(codec.point_stamped(t, i, 0, 0)),
+                       codec.attachment(i, t, epoch=1), 1_700_000_000_000_000_000 + t))
+    rec.stop_event.set()                       # what SIGINT/SIGTERM do (proc.stop_on_signals)
+    rec.run()
+    rec.close()
+    msgs, _ = read_messages(tmp_path / "stop.mcap", gps)
+    assert [(t, seq) for _, t, seq, _ in msgs] == [((i + 1) * 20_000_000, i) for i in range(40)]
+    assert mcap_summary(tmp_path / "stop.mcap")[1] == {"/robot1/gps": 40}
+    assert rec.stats()["messages"] == 40
+
+
 def test_refuses_to_overwrite(tmp_path):
     (tmp_path / "a.mcap").write_bytes(b"x")
     with pytest.raises(RecordError, match="exists already"):

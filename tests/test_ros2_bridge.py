@@ -355,7 +355,10 @@ def test_a_lockstep_ros2_node_started_late_that_waits_for_its_first_scan_runs_to
     bridge_log = out / "logs" / "ros2_bridge.log"
     wait_for(lambda: bridge_log.exists() and "lockstep member" in bridge_log.read_text(), 60,
              what="the bridge in lockstep")
-    time.sleep(5.0)                   # the tick-0 sensors went out long before the node exists
+    # the node comes late: the bridge has handed tick 0's sensors over and waits for its
+    # answer (said after 2 s of waiting) before the node exists
+    wait = "waiting for a TwistStamped on /robot1/cmd_vel stamped t=0.000 s"
+    wait_for(lambda: wait in bridge_log.read_text(), 60, what="the bridge to wait for tick 0")
     node = subprocess.run([sys.executable, AVOIDER, "--seconds", "3"], env=dict(
         os.environ, PYTHONUNBUFFERED="1"), capture_output=True, text=True, timeout=180)
     assert node.returncode == 0, node.stdout + node.stderr

@@ -1,13 +1,13 @@
-"""Lockstep survives router blips (issues 27 and 40): a `diffbot router` SIGKILLed and
+"""Lockstep survives router blips: a `diffbot router` SIGKILLed and
 restarted 0-0.5 s later, again and again during one lockstep square run (--rejoin-timeout
 30, --end-with the square as docs/several-machines.md runs it, --wait nodes), leaves the
 recording identical, payloads and sim stamps, to an undisturbed run's (its members
 composed, no router), under both couplings, with no protocol error and no stale command (docs/PROTOCOL.md section 4, "Lost
-members"). A blip shorter than the plant's grace for the --end-with member's FINAL once made
-it step the held tick with the previous tick's command (issue 40; tests/test_stale_command.py
-has that window scripted).
+members"). A blip shorter than the plant's grace for the --end-with member's FINAL is the
+window where it could step the held tick with the previous tick's command
+(tests/test_stale_command.py has that window scripted).
 
-And every process ends with its run by itself (issue 35), with the codes of
+And every process ends with its run by itself, with the codes of
 docs/several-machines.md, none killed by the test: after a run with blips, plant, nodes
 and recorder all exit 0; when the router stays away longer than --rejoin-timeout, the plant
 exits 1 and the --wait nodes and the recorder, whom its sim/end cannot reach, exit 3."""
@@ -44,9 +44,9 @@ DURATION_S = "45"
 LOOPBACK_BLIPS, LOOPBACK_AFTER_S = 8, (0.02, 0.15)
 NETNS_BLIPS, NETNS_AFTER_S = 10, (0.02, 0.1)
 #: how long the router stays down (wall s), in turn: so short that the members are often
-#: back within the plant's 0.5 s grace for the --end-with member's FINAL (the issue-40
-#: window: before the fix, 20 such blips made 2-3 stale commands across namespaces), and
-#: as long as the issue's (0.1-0.5 s, the members back after the grace: a hold)
+#: back within the plant's 0.5 s grace for the --end-with member's FINAL (the stale-command
+#: window: without the barrier's wait, 20 such blips made 2-3 stale commands across
+#: namespaces), and longer (0.1-0.5 s, the members back after the grace: a hold)
 DOWN_S = ((0.0, 0.1), (0.1, 0.5))
 #: (wall s) how long after the members the recorder is back in one blip of the loopback
 #: runs: many more ticks than the plant re-publishes (25), had it not held time for it (a

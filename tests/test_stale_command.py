@@ -1,4 +1,4 @@
-"""Issue 40: a router blip made the plant step a held tick with the previous tick's command.
+"""A router blip must not make the plant step a held tick with the previous tick's command.
 
 The window, found by experiment: an ``--end-with`` member (the square controller) lost
 without its FINAL gets LEFT_FINAL_GRACE_S for its FINAL; if the router comes back within
@@ -164,7 +164,7 @@ def test_the_command_of_the_tick_or_the_documented_fallback_is_not_stale():
 
 def test_a_command_the_ledger_took_but_that_is_not_the_one_applied_is_counted():
     """The ACK counted from a message whose command was then lost on the way to the
-    commands (the other path issue 40 suspected): never silent."""
+    commands (the other path a stale command could take): never silent."""
     p = FakePlant([])
     up_to_the_blip(p)
     p.output(SQ, K, CMD)                    # taken by the ledger, never filed as a command

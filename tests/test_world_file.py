@@ -6,6 +6,7 @@ import sys
 
 import pytest
 
+from plant.noise import NoiseConfig, parse_noise, webots_gps
 from plant.world import WorldError, load_world
 
 from .conftest import ROOT
@@ -118,6 +119,14 @@ def test_overrides_set_values_by_robot_name_and_are_validated():
         load_world("living_room", ["world.mode=warp"])
     with pytest.raises(WorldError, match=r"robots\[0\]\.lidar\.noise\.stdev: unknown key"):
         load_world("living_room", ["robots.robot1.lidar.noise={stdev = 1}"])
+
+
+def test_gps_webots_noise_is_its_std_in_metres():
+    """Webots' GPS ``noise`` is an absolute std dev in metres (unlike the lidar's, relative to
+    its range, or the camera's, where 1.0 is 255): the world file's GPS takes it as is."""
+    w = load_world("living_room", ["robots.robot1.gps.noise={webots_noise = 0.2, bias = 0.05}"])
+    assert w.robots[0].sensors.gps_noise == NoiseConfig(std=0.2, bias=0.05)
+    assert parse_noise({"webots_noise": 0.35}, "gps") == webots_gps(0.35) == NoiseConfig(std=0.35)
 
 
 def test_sensor_sections_parse_with_webots_values():
