@@ -31,7 +31,7 @@ import sys
 
 from bus.cliargs import did_you_mean
 
-from .members import CONTROLLERS, compose_member, hosted
+from .launch.members import CONTROLLERS, compose_member, hosted
 
 USAGE = __doc__
 #: the sub-commands (for "did you mean")
@@ -81,10 +81,10 @@ def _dispatch(argv: list[str] | None) -> int:
         sys.argv[0] = f"diffbot controller {rest[0]}"
         return importlib.import_module(CONTROLLERS[rest[0]]).main(rest[1:])
     if cmd == "run":
-        from .launcher import main as run_main
+        from .launch.launcher import main as run_main
         return run_main(rest)
     if cmd == "scenarios":
-        from .scenario import list_scenarios
+        from .launch.scenario import list_scenarios
         for name, desc in list_scenarios():
             print(f"{name:14s} {desc}")
         return 0
@@ -119,10 +119,10 @@ def _dispatch(argv: list[str] | None) -> int:
         from .bench import main as bench_main
         return bench_main(rest)
     if cmd == "router":
-        from .router import main as router_main
+        from .launch.router import main as router_main
         return router_main(rest)
     if cmd == "certs":
-        from .certs import main as certs_main
+        from .launch.certs import main as certs_main
         return certs_main(rest)
     if cmd == "ros2":
         from bridges.ros2 import main as ros2_main

@@ -14,7 +14,7 @@ import shutil
 import socket
 import tempfile
 
-from diffbot import procs
+from diffbot.runner import procs
 
 from .common import spawn, stop, tail
 from .harness import ROOT, Context, Metric, Probe, Skip, suite

@@ -1,6 +1,6 @@
 """Scenario files: which world, which processes, which analysis.
 
-A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
+A scenario is a TOML file (shipped ones live in ``diffbot/launch/scenarios/``)::
 
     [scenario]
     world = "living_room"      # world name or path

@@ -1,4 +1,4 @@
-"""``diffbot run``: a scenario's run (:class:`diffbot.scenario_run.ScenarioRun`) from the
+"""``diffbot run``: a scenario's run (:class:`diffbot.launch.scenario_run.ScenarioRun`) from the
 command line: start its processes (placed on other machines with ``--place``), supervise
 them, analyse the run, write ``summary.json``.
 """
@@ -18,7 +18,8 @@ from bus.protocol import COUPLINGS
 from bus.session import BusConfigError
 from plant.world import WorldError, load_world
 
-from . import placement, procs
+from . import placement
+from ..runner import procs
 from .scenario import ProcessSpec, load_scenario
 from .scenario_run import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, VIEW, ScenarioRun,
                            published_counts, run_stats, summarize)
@@ -97,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="port of --view (default 8765)")
     p.add_argument("--view-host", default="127.0.0.1", metavar="HOST",
                    help="address --view binds (default 127.0.0.1)")
-    placement.add_args(p)                        # --place, --address, --tls: diffbot/placement.py
+    placement.add_args(p)                        # --place, --address, --tls: diffbot/launch/placement.py
     return p
 
 
@@ -145,8 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     except (WorldError, ValueError) as exc:
         print(f"diffbot run: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    from . import analysis_paths
-    from .analysis import ANALYSES, import_plots_meanwhile
+    from ..analysis import paths as analysis_paths
+    from ..analysis.runs import ANALYSES, import_plots_meanwhile
     os.makedirs(out, exist_ok=True)
     tmp = None
     endpoint = args.endpoint
@@ -162,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
                                else args.physics_process))
     if args.view:
         run.view_port, run.view_host = args.view_port, args.view_host
-    if placed:                         # processes on Ray nodes (diffbot/placement.py)
+    if placed:                         # processes on Ray nodes (diffbot/launch/placement.py)
         try:
             run.placement = placement.place(args, run.process_names(), run.endpoint,
                                             run.zenoh_config)
