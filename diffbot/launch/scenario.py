@@ -189,3 +189,10 @@ def list_scenarios() -> list[tuple[str, str]]:
                 desc = ""
             out.append((f[:-5], desc))
     return out
+
+
+def print_scenarios(argv: list[str]) -> int:
+    """``diffbot scenarios``: each shipped scenario's name and description, a line each."""
+    for name, desc in list_scenarios():
+        print(f"{name:14s} {desc}")
+    return 0
