@@ -178,6 +178,19 @@ def _shade(shape_list, sid: np.ndarray, lam: np.ndarray, bg: np.ndarray) -> np.n
 
 
 
+def _clipped_rects(halves, t_opt_shape, near: float, far: float, grid):
+    """Each shape's projected rectangle clipped to the image grid's bounds, and whether
+    anything of it is left to draw."""
+    rects, visible = _projected_rects(halves, t_opt_shape, near, far)
+    bx0, bx1, by0, by1 = grid.bounds
+    rects[:, 0] = np.maximum(rects[:, 0], bx0)
+    rects[:, 1] = np.minimum(rects[:, 1], bx1)
+    rects[:, 2] = np.maximum(rects[:, 2], by0)
+    rects[:, 3] = np.minimum(rects[:, 3], by1)
+    visible &= (rects[:, 0] <= rects[:, 1]) & (rects[:, 2] <= rects[:, 3])
+    return rects, visible
+
+
 def render_full_reference(config: CameraConfig, camera_pose: np.ndarray,
                 shapes: "Sequence[Shape] | Scene", exclude_owner: str | None = None,
                 background=DEFAULT_BACKGROUND, *, force_flat: bool = False):
@@ -210,13 +223,7 @@ def render_full_reference(config: CameraConfig, camera_pose: np.ndarray,
         t_opt_shape[:, :3, :3] = r_wo.T @ rots
         t_opt_shape[:, :3, 3] = (cens - o_w) @ r_wo
         t_opt_shape[:, 3, 3] = 1.0
-        rects, visible = _projected_rects(scene.halves[todo], t_opt_shape, near, far)
-        bx0, bx1, by0, by1 = grid.bounds
-        rects[:, 0] = np.maximum(rects[:, 0], bx0)
-        rects[:, 1] = np.minimum(rects[:, 1], bx1)
-        rects[:, 2] = np.maximum(rects[:, 2], by0)
-        rects[:, 3] = np.minimum(rects[:, 3], by1)
-        visible &= (rects[:, 0] <= rects[:, 1]) & (rects[:, 2] <= rects[:, 3])
+        rects, visible = _clipped_rects(scene.halves[todo], t_opt_shape, near, far, grid)
         flat = grid.distorted
         depth_f, sid_f, shade_f = depth.reshape(-1), sid.reshape(-1), shade.reshape(-1)
         for j in np.nonzero(visible)[0]:

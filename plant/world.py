@@ -227,28 +227,7 @@ def parse_world(data: dict, path: str) -> WorldSpec:
     top = Table(path, "", data)
     w = top.table("world")
     spec = WorldSpec(path=path, name=w.string("name", os.path.splitext(os.path.basename(path))[0]))
-    spec.mode = w.string("mode", "dynamic", choices=("dynamic", "kinematic"))
-    spec.physics_step_s = w.number("physics_step_s", 0.001, positive=True)
-    spec.control_tick_s = w.number("control_tick_s", 0.02, positive=True)
-    if spec.control_tick_s > MAX_CONTROL_TICK_S:
-        w.fail("control_tick_s", f"{spec.control_tick_s:g} s is longer than a control tick can "
-                                 f"be (at most {MAX_CONTROL_TICK_S:g} s)")
-    ratio = spec.control_tick_s / spec.physics_step_s
-    if not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        w.fail("control_tick_s", f"must be a whole multiple of physics_step_s "
-                                 f"({spec.physics_step_s:g} s), got {spec.control_tick_s:g} s")
-    if round(ratio) > MAX_STEPS_PER_TICK:
-        w.fail("physics_step_s", f"{spec.physics_step_s:g} s makes {round(ratio)} physics "
-                                 f"steps a control tick (at most {MAX_STEPS_PER_TICK})")
-    if spec.physics_step_s > 0.01:
-        w.fail("physics_step_s", f"{spec.physics_step_s:g} s is too coarse for contact "
-                                 "(use at most 0.01 s)")
-    spec.gravity_mps2 = w.number("gravity_mps2", 9.81, nonneg=True)
-    spec.collision_detector = w.string("collision_detector", "bullet",
-                                       choices=("bullet", "fcl", "dart", "ode"))
-    spec.contact_solver = w.string("contact_solver", "pgs", choices=("pgs", "dantzig"))
-    spec.seed = w.integer("seed", 0)
-    w.done()
+    _parse_world_table(w, spec)
 
     mats = top.table("materials")
     spec.materials = {"floor": Material("floor", 1.0), "rubber": Material("rubber", 1.0),
@@ -306,6 +285,32 @@ def parse_world(data: dict, path: str) -> WorldSpec:
     _check_robot_overlap(spec, top)
     top.done()
     return spec
+
+
+def _parse_world_table(w: Table, spec: WorldSpec) -> None:
+    """The ``[world]`` table into ``spec``: mode, steps, gravity, solvers, seed."""
+    spec.mode = w.string("mode", "dynamic", choices=("dynamic", "kinematic"))
+    spec.physics_step_s = w.number("physics_step_s", 0.001, positive=True)
+    spec.control_tick_s = w.number("control_tick_s", 0.02, positive=True)
+    if spec.control_tick_s > MAX_CONTROL_TICK_S:
+        w.fail("control_tick_s", f"{spec.control_tick_s:g} s is longer than a control tick can "
+                                 f"be (at most {MAX_CONTROL_TICK_S:g} s)")
+    ratio = spec.control_tick_s / spec.physics_step_s
+    if not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        w.fail("control_tick_s", f"must be a whole multiple of physics_step_s "
+                                 f"({spec.physics_step_s:g} s), got {spec.control_tick_s:g} s")
+    if round(ratio) > MAX_STEPS_PER_TICK:
+        w.fail("physics_step_s", f"{spec.physics_step_s:g} s makes {round(ratio)} physics "
+                                 f"steps a control tick (at most {MAX_STEPS_PER_TICK})")
+    if spec.physics_step_s > 0.01:
+        w.fail("physics_step_s", f"{spec.physics_step_s:g} s is too coarse for contact "
+                                 "(use at most 0.01 s)")
+    spec.gravity_mps2 = w.number("gravity_mps2", 9.81, nonneg=True)
+    spec.collision_detector = w.string("collision_detector", "bullet",
+                                       choices=("bullet", "fcl", "dart", "ode"))
+    spec.contact_solver = w.string("contact_solver", "pgs", choices=("pgs", "dantzig"))
+    spec.seed = w.integer("seed", 0)
+    w.done()
 
 
 ROBOT_RADIUS_M = 0.30  # conservative footprint radius of the default robot
