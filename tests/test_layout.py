@@ -241,12 +241,18 @@ def test_nothing_loose_at_diffbots_top_but_the_command_line():
     assert dirs == set(DIFFBOT_MAY_IMPORT) - {"cli"}, sorted(dirs)
 
 
-def test_no_module_over_500_lines_and_no_function_over_80_outside_tests():
-    files = {}
-    for name, path in modules().items():
+@functools.lru_cache(maxsize=1)
+def sources() -> dict[str, str]:
+    """repository path -> source, of every module of the packages."""
+    out = {}
+    for path in modules().values():
         with open(path, encoding="utf-8") as f:
-            files[os.path.relpath(path, ROOT)] = f.read()
-    wrong = size_problems(files)
+            out[os.path.relpath(path, ROOT)] = f.read()
+    return out
+
+
+def test_no_module_over_500_lines_and_no_function_over_80_outside_tests():
+    wrong = size_problems(sources())
     assert not wrong, "\n".join(wrong)
 
 
@@ -289,12 +295,7 @@ def test_diffbot_starts_its_children_one_way():
     """In diffbot/, a child that outlives the call is started by diffbot/runner/procs.py
     (Child, or popen for one that keeps this process's output): stop signals reset in the
     child, the kernel's SIGTERM when the parent dies, a stop by PID."""
-    files = {}
-    for name, path in modules().items():
-        if name.startswith("diffbot."):
-            with open(path, encoding="utf-8") as f:
-                files[os.path.relpath(path, ROOT)] = f.read()
-    wrong = popen_users(files)
+    wrong = popen_users({p: s for p, s in sources().items() if p.startswith("diffbot/")})
     assert not wrong, "\n".join(wrong)
     assert popen_users({"diffbot/envs/w.py": "import subprocess\nsubprocess.Popen(['x'])\n"}) \
         == ["diffbot/envs/w.py:2: Popen"]
