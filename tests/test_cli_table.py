@@ -42,3 +42,15 @@ def test_the_usage_and_the_dispatch_come_from_the_table(capsys, monkeypatch):
 def _probe(argv):
     _probe.calls.append(argv)
     return 7
+
+
+def test_a_group_without_its_sub_command_lists_them(capsys):
+    """``diffbot fmu`` alone: exit 2, each sub-command with its help line on stderr;
+    ``diffbot fmu --help``: the same on stdout, exit 0."""
+    subs = [c for c in cli.COMMANDS if c.name.startswith("fmu ")]
+    assert len(subs) == 3
+    assert cli._dispatch(["fmu"]) == 2
+    err = capsys.readouterr().err
+    assert all(f"diffbot {c.name} " in err and c.help in err for c in subs), err
+    assert cli._dispatch(["fmu", "--help"]) == 0
+    assert "diffbot fmu export-ssp" in capsys.readouterr().out
