@@ -189,7 +189,7 @@ def probe(conf: zenoh.Config, endpoint: str) -> str:
             return why
         if _speaks_tls(sock):
             return (f"{NOT_TLS_CLIENT}: connect to tls/{addr} with your role's TLS config "
-                    "(diffbot/configs/<role>_tls.json5, docs/several-machines.md)")
+                    "(diffbot/launch/configs/<role>_tls.json5, docs/several-machines.md)")
         return ("TCP connects, but no Zenoh session opened (the wrong port? refused by the "
                 "router?)")
     return "cannot probe this kind of endpoint"

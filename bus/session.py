@@ -255,7 +255,7 @@ def undeclare_all(handles) -> None:
 
 
 #: A process whose parent (``diffbot run``) was killed gets SIGTERM from the kernel
-#: (diffbot/procs.py) and stops cleanly; nobody is left to SIGKILL it if that hangs (a
+#: (diffbot/runner/procs.py) and stops cleanly; nobody is left to SIGKILL it if that hangs (a
 #: session closing towards a router that went at the same moment), so it ends itself this
 #: many seconds later (the launcher gives its recorder as long).
 ORPHAN_EXIT_S = 10.0

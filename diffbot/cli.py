@@ -1,43 +1,126 @@
 """The ``diffbot`` command: a thin layer over the library.
 
-    diffbot run SCENARIO ...        start a scenario's processes together and supervise them
-    diffbot plant ...               the DART plant alone
-    diffbot controller NAME ...     one controller (square_path, teleop, odometry, wheel_schedule,
-                                    wander, ball_follower, avoid, policy), or any controller
-                                    class: python:MODULE:CLASS or PATH.py[:CLASS] (--arg K=V)
-    diffbot fmu build [--out DIR]   build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build
-    diffbot fmu export-plant --out robot.fmu   the DART plant as a co-simulation FMU (FMI 3 or 2)
-    diffbot fmu export-ssp --out square.ssp    the square as an SSP: plant, odometry, controller
-    diffbot fmu-node FMU --robot R  run a co-simulation FMU as a bus node (--mapping FILE)
-    diffbot bench ...               benchmarks
-    diffbot experiment NAME ...     the study's sensor experiments, --out DIR (-h lists them)
-    diffbot figures --out DIR       all twelve figures of the study + index.html (--only 4,12)
-    diffbot sweep SCENARIO ...      a scenario over a grid of parameters x seeds, local or on Ray
-    diffbot record FILE.mcap [KEYS] record the bus into MCAP (Foxglove, ros2 bag, rosbags)
-    diffbot replay FILE.mcap        play a recording back onto the bus (--rate R | --fast)
-    diffbot view [--port 8765]      watch live in Foxglove (3D, lidar, camera, plots) + teleop
-    diffbot topics [--duration S]   live keys with message type and rate
-    diffbot echo KEY [--count N]    print a key's messages, decoded
-    diffbot ros2 [--lockstep]       bridge the bus to ROS 2 (rclpy; `pip install -e '.[ros2]'`)
-    diffbot router --listen E       a Zenoh router for several machines (--zenoh-config FILE)
-    diffbot certs --out DIR         a test CA and TLS certificates for router and clients
-    diffbot scenarios               list the scenarios
+Its commands are one table, :data:`COMMANDS`: a name, the arguments the usage shows, the
+function that runs it (``module:function``, imported only when that command runs), one help
+line and the manual's page. The usage (``diffbot --help``), the dispatch and the README's
+commands table (:func:`commands_table`, compared with the README by the docs' tests) are
+all made from it, so a command is added in one place.
 """
 from __future__ import annotations
 
 import importlib
 import signal
 import sys
+from typing import NamedTuple
 
 from bus.cliargs import did_you_mean
 
-from .members import CONTROLLERS, compose_member, hosted
 
-USAGE = __doc__
-#: the sub-commands (for "did you mean")
-COMMANDS = ("run", "plant", "controller", "fmu", "fmu-node", "bench", "experiment", "figures",
-            "sweep", "record", "replay", "topics", "echo", "router", "ros2", "scenarios",
-            "certs", "view")
+class Command(NamedTuple):
+    """One row of the command table. A name of two words is a sub-command of a group
+    (``fmu build``); its function is called with ``prog=`` the words a user typed."""
+    name: str
+    args: str           # after the name in the usage, e.g. "SCENARIO ..."
+    target: str         # "module:function"; the function takes the rest of argv
+    help: str           # one line; a "\n" breaks it in the usage only
+    docs: str = ""      # the manual's page for it, a Markdown link
+
+
+COMMANDS: tuple[Command, ...] = (
+    Command("run", "SCENARIO ...", "diffbot.launch.launcher:main",
+            "start a scenario's processes together and supervise them",
+            "[scenarios](docs/scenarios.md)"),
+    Command("plant", "...", "diffbot.launch.members:plant_main", "the DART plant alone",
+            "[scenarios](docs/scenarios.md#world-files), [topics](docs/topics.md)"),
+    Command("controller", "NAME ...", "diffbot.launch.members:controller_main",
+            "one controller (square_path, teleop, odometry, wheel_schedule,\n"
+            "wander, ball_follower, avoid, policy), or any controller\n"
+            "class: python:MODULE:CLASS or PATH.py[:CLASS] (--arg K=V)",
+            "[controllers](docs/controllers.md#starting-the-pieces-by-hand), "
+            "[learning](docs/learning.md)"),
+    Command("fmu build", "[--out DIR]", "fmus.build:main",
+            "build the odometry FMUs (FMI 2.0 and 3.0) into fmus/build",
+            "[fmu](docs/fmu.md#the-odometry-fmu)"),
+    Command("fmu export-plant", "--out robot.fmu", "fmus.plant_export:main",
+            "the DART plant as a co-simulation FMU (FMI 3 or 2)",
+            "[fmu](docs/fmu.md#the-robot-as-an-fmu-diffbot-fmu-export-plant)"),
+    Command("fmu export-ssp", "--out square.ssp", "fmus.plant_ssp:main",
+            "the square as an SSP: plant, odometry, controller",
+            "[fmu](docs/fmu.md#the-whole-square-as-an-ssp-run-from-a-masters-command-line)"),
+    Command("fmu-node", "FMU --robot R", "fmus.fmu_node_cli:main",
+            "run a co-simulation FMU as a bus node (--mapping FILE)", "[fmu](docs/fmu.md)"),
+    Command("bench", "...", "diffbot.bench:main", "benchmarks",
+            "[benchmarks](docs/benchmarks.md)"),
+    Command("experiment", "NAME ...", "diffbot.study.experiment_cli:main",
+            "the study's sensor experiments, --out DIR (-h lists them)",
+            "[study](docs/study.md#the-experiments-alone)"),
+    Command("figures", "--out DIR", "diffbot.study.figures_cli:main",
+            "all twelve figures of the study + index.html (--only 4,12)",
+            "[study](docs/study.md)"),
+    Command("sweep", "SCENARIO ...", "diffbot.sweep:main",
+            "a scenario over a grid of parameters x seeds, local or on Ray",
+            "[sweeps](docs/sweeps.md)"),
+    Command("record", "FILE.mcap [KEYS]", "bridges.record:main",
+            "record the bus into MCAP (Foxglove, ros2 bag, rosbags)",
+            "[recording](docs/recording.md)"),
+    Command("replay", "FILE.mcap", "bridges.replay:main",
+            "play a recording back onto the bus (--rate R | --fast)",
+            "[recording](docs/recording.md)"),
+    Command("view", "[--port 8765]", "bridges.view_cli:main",
+            "watch live in Foxglove (3D, lidar, camera, plots) + teleop",
+            "[live view](docs/live-view.md)"),
+    Command("topics", "[--duration S]", "bridges.topics:topics_main",
+            "live keys with message type and rate",
+            "[recording](docs/recording.md#looking-at-a-live-bus)"),
+    Command("echo", "KEY [--count N]", "bridges.topics:echo_main",
+            "print a key's messages, decoded",
+            "[recording](docs/recording.md#looking-at-a-live-bus)"),
+    Command("ros2", "[--lockstep]", "bridges.ros2:main",
+            "bridge the bus to ROS 2 (rclpy; `pip install -e '.[ros2]'`)",
+            "[ROS 2](docs/ros2.md)"),
+    Command("router", "--listen E", "diffbot.launch.router:main",
+            "a Zenoh router for several machines (--zenoh-config FILE)",
+            "[several machines](docs/several-machines.md)"),
+    Command("certs", "--out DIR", "diffbot.launch.certs:main",
+            "a test CA and TLS certificates for router and clients",
+            "[several machines](docs/several-machines.md)"),
+    Command("scenarios", "", "diffbot.launch.scenario:print_scenarios", "list the scenarios",
+            "[scenarios](docs/scenarios.md)"),
+)
+
+#: the usage's first column; the commands wider than it line their help up together
+_COLUMN = 32
+
+
+TITLE = "The ``diffbot`` command: a thin layer over the library."
+
+
+def usage(rows: tuple[Command, ...] | None = None, title: str = TITLE) -> str:
+    """The usage text of ``rows`` (every command): a line per command, its help beside it."""
+    rows = COMMANDS if rows is None else rows
+    lines = [title, ""] if title else []
+    lefts = [" ".join(w for w in ("diffbot", c.name, c.args) if w) for c in rows]
+    wide = max([len(left) + 3 for left in lefts if len(left) >= _COLUMN], default=0)
+    for c, left in zip(rows, lefts):
+        first, *more = c.help.split("\n")
+        lines.append(f"    {left.ljust(_COLUMN if len(left) < _COLUMN else wide)}{first}")
+        lines += [" " * (4 + _COLUMN) + m for m in more]
+    return "\n".join(lines)
+
+
+def commands_table() -> str:
+    """The README's commands table (Markdown), one row per command."""
+    out = ["| command | what it does | more |", "|---|---|---|"]
+    for c in COMMANDS:
+        words = " ".join(w for w in ("diffbot", c.name, c.args) if w)
+        said = " ".join(c.help.split()).replace("|", "\\|")     # a bar would end the cell
+        out.append(f"| `{words}` | {said} | {c.docs} |")
+    return "\n".join(out)
+
+
+def names() -> list[str]:
+    """The first words a user may type (a group once), in the table's order."""
+    return list(dict.fromkeys(c.name.split()[0] for c in COMMANDS))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,99 +135,34 @@ def main(argv: list[str] | None = None) -> int:
 def _dispatch(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help", "help"):
-        print(USAGE.strip())
+        print(usage())
         return 0
     cmd, rest = argv[0], argv[1:]
-    # Sub-commands' parsers take their program name from argv[0]: make `--help` and usage
-    # lines say `diffbot controller square_path`, not `cli.py` or `diffbot`.
-    sys.argv[0] = f"diffbot {cmd}"
-    if cmd == "plant":
-        from plant.process_cli import main as plant_main
-        return plant_main(rest, compose=compose_member)
-    if cmd == "controller":
-        if not rest or rest[0] in ("-h", "--help"):
-            print(f"usage: diffbot controller {{{','.join(CONTROLLERS)}}} [options]\n"
-                  "       diffbot controller python:MODULE:CLASS|PATH.py[:CLASS] [--arg K=V] "
-                  "[options]\n"
-                  "  (diffbot controller NAME --help for a controller's options)",
-                  file=sys.stderr if not rest else sys.stdout)
-            return 2 if not rest else 0
-        if hosted(rest[0]):
-            from controllers.hosted import main as hosted_main
-            sys.argv[0] = f"diffbot controller {rest[0]}"
-            return hosted_main(rest[0], rest[1:])
-        if rest[0] not in CONTROLLERS:
-            print(f"diffbot controller: unknown controller {rest[0]!r}"
-                  f"{did_you_mean(rest[0], CONTROLLERS)} (choose from "
-                  f"{', '.join(CONTROLLERS)})", file=sys.stderr)
-            return 2
-        sys.argv[0] = f"diffbot controller {rest[0]}"
-        return importlib.import_module(CONTROLLERS[rest[0]]).main(rest[1:])
-    if cmd == "run":
-        from .launcher import main as run_main
-        return run_main(rest)
-    if cmd == "scenarios":
-        from .scenario import list_scenarios
-        for name, desc in list_scenarios():
-            print(f"{name:14s} {desc}")
-        return 0
-    if cmd == "fmu":
-        if rest[:1] == ["build"]:
-            from fmus.build import main as build_main
-            return build_main(rest[1:], prog="diffbot fmu build")
-        if rest[:1] == ["export-plant"]:
-            from fmus.plant_export import main as export_main
-            return export_main(rest[1:], prog="diffbot fmu export-plant")
-        if rest[:1] == ["export-ssp"]:
-            from fmus.plant_ssp import main as ssp_main
-            return ssp_main(rest[1:], prog="diffbot fmu export-ssp")
-        print("usage: diffbot fmu build [--out DIR]\n"
-              "       diffbot fmu export-plant [--world W] [--robots R ...] [--fmi 3|2] "
-              "--out robot.fmu\n"
-              "       diffbot fmu export-ssp [--fmi 2|3] --out square.ssp", file=sys.stderr)
-        return 2
-    if cmd == "fmu-node":
-        from fmus.fmu_node_cli import main as fmu_node_main
-        return fmu_node_main(rest)
-    if cmd == "experiment":
-        from .study.experiment_cli import main as experiment_main
-        return experiment_main(rest)
-    if cmd == "figures":
-        from .study.figures_cli import main as figures_main
-        return figures_main(rest)
-    if cmd == "sweep":
-        from .sweep import main as sweep_main
-        return sweep_main(rest)
-    if cmd == "bench":
-        from .bench import main as bench_main
-        return bench_main(rest)
-    if cmd == "router":
-        from .router import main as router_main
-        return router_main(rest)
-    if cmd == "certs":
-        from .certs import main as certs_main
-        return certs_main(rest)
-    if cmd == "ros2":
-        from bridges.ros2 import main as ros2_main
-        return ros2_main(rest)
-    if cmd == "record":
-        from bridges.record import main as record_main
-        return record_main(rest)
-    if cmd == "replay":
-        from bridges.replay import main as replay_main
-        return replay_main(rest)
-    if cmd == "view":
-        from bridges.view_cli import main as view_main
-        return view_main(rest)
-    if cmd == "topics":
-        from bridges.topics import topics_main
-        return topics_main(rest)
-    if cmd == "echo":
-        from bridges.topics import echo_main
-        return echo_main(rest)
-    print(f"diffbot: unknown command {cmd!r}{did_you_mean(cmd, COMMANDS)}\n\n{USAGE.strip()}",
+    group = [c for c in COMMANDS if c.name.split()[0] == cmd and " " in c.name]
+    if group:
+        found = [c for c in group if c.name.split()[1:] == rest[:1]]
+        if not found:
+            asked = rest[:1] in (["-h"], ["--help"])
+            print(f"usage: diffbot {cmd} SUB ... (diffbot {cmd} SUB --help for its "
+                  f"options)\n\n{usage(group, title='')}",
+                  file=sys.stdout if asked else sys.stderr)
+            return 0 if asked else 2
+        return _call(found[0], rest[1:], prog=f"diffbot {found[0].name}")
+    for c in COMMANDS:
+        if c.name == cmd:
+            return _call(c, rest)
+    print(f"diffbot: unknown command {cmd!r}{did_you_mean(cmd, names())}\n\n{usage()}",
           file=sys.stderr)
     return 2
+
+
+def _call(command: Command, rest: list[str], **kw) -> int:
+    """Import the command's function and run it on ``rest``."""
+    # Sub-commands' parsers take their program name from argv[0]: make `--help` and usage
+    # lines say `diffbot controller square_path`, not `cli.py` or `diffbot`.
+    sys.argv[0] = f"diffbot {command.name}"
+    module, _, function = command.target.partition(":")
+    return getattr(importlib.import_module(module), function)(rest, **kw)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """TOML files read with a line per mistake: world files (:mod:`plant.world`), scenario
-files (diffbot/scenario.py) and FMU mapping files (fmus/mapping.py) alike. Every error is
+files (diffbot/launch/scenario.py) and FMU mapping files (fmus/mapping.py) alike. Every error is
 ``file:key: reason`` (:class:`WorldError`, or the error type the reader names), so the
 command line can print it as one line and exit 2."""
 from __future__ import annotations

@@ -22,7 +22,7 @@ import time
 import traceback
 
 #: the modules the commands' refusals run through (diffbot.cli imports them on demand)
-PRELOAD = ("diffbot.cli", "diffbot.launcher", "plant.process_cli", "fmus.fmu_node_cli",
+PRELOAD = ("diffbot.cli", "diffbot.launch.launcher", "plant.process_cli", "fmus.fmu_node_cli",
            "controllers.square_path", "controllers.odometry", "controllers.teleop")
 #: (s) how long a command may take
 TIMEOUT_S = 60.0

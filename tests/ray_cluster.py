@@ -15,7 +15,7 @@ import sys
 import tempfile
 import time
 
-from diffbot import procs
+from diffbot.runner import procs
 
 RAY = os.path.join(os.path.dirname(sys.executable), "ray")
 PORT_OPTIONS = ("--node-manager-port", "--object-manager-port", "--metrics-export-port",

@@ -15,7 +15,7 @@ import time
 import pytest
 
 from controllers import hosted
-from diffbot.scenario import load_scenario
+from diffbot.launch.scenario import load_scenario
 from plant.world import WorldError
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the

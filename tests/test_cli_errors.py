@@ -12,8 +12,8 @@ import pytest
 
 from bus.jsonio import strict_json, write_json
 from diffbot import cli
-from diffbot.launcher import main as run_main
-from diffbot.scenario import load_scenario
+from diffbot.launch.launcher import main as run_main
+from diffbot.launch.scenario import load_scenario
 from plant.process_cli import main as plant_main
 from plant.world import WorldError, load_world
 
@@ -126,10 +126,10 @@ def test_json_the_project_writes_is_strict(tmp_path):
 
 def test_drive_test_too_short_gives_null_with_a_reason(tmp_path):
     """A run that ends before the steady windows: null and why, never NaN."""
-    from diffbot.analysis import DriveTestAnalysis
+    from diffbot.analysis.runs import DriveTestAnalysis
     from bus import codec
     from bus.keys import Keys
-    from diffbot.scenario import load_scenario as ls
+    from diffbot.launch.scenario import load_scenario as ls
 
     class Obs:
         def __init__(self, msgs):

@@ -71,7 +71,7 @@ def test_a_process_member_and_a_composed_one_in_one_run_give_the_same_bytes(tmp_
     same(procs, mixed)
 
 
-ROOT_SCENARIO = __import__("pathlib").Path(ROOT) / "diffbot" / "scenarios" / "square.toml"
+ROOT_SCENARIO = __import__("pathlib").Path(ROOT) / "diffbot" / "launch" / "scenarios" / "square.toml"
 
 
 @pytest.mark.slow

@@ -18,7 +18,7 @@ pytest.importorskip("pettingzoo")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import diffbot.envs  # noqa: E402,F401
-from diffbot.procs import alive, descendants  # noqa: E402
+from diffbot.runner.procs import alive, descendants  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

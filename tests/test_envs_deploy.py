@@ -1,5 +1,5 @@
 """A policy for diffbot/Avoid-v0, deployed with `diffbot run` as `diffbot controller policy`
-(the one command `python -m diffbot.envs.deploy`, whose `--compare` checks it), or with a plant and the controller
+(the one command `python -m diffbot.launch.deploy`, whose `--compare` checks it), or with a plant and the controller
 started by hand from the values of the reset's ``info["plant"]``, drives the robot over the
 bus exactly as it did in the environment (the same path to the bit, noise on) and to the
 goal."""
@@ -68,7 +68,7 @@ def test_a_deployed_policy_drives_the_same_path_over_the_bus(tmp_path):
     assert ep.overrides == NOISE and ep.poses["robot1"] == tuple(path[0])
     pfile = str(tmp_path / "p.npz")
     policy.save(pfile)
-    argv = [sys.executable, "-m", "diffbot.envs.deploy", "--seed", str(seed), "--policy", pfile,
+    argv = [sys.executable, "-m", "diffbot.launch.deploy", "--seed", str(seed), "--policy", pfile,
             "--out", str(tmp_path / "run"), "--compare"]
     for o in NOISE:
         argv += ["--set", o]

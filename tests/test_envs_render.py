@@ -10,7 +10,7 @@ import pytest
 gym = pytest.importorskip("gymnasium")
 pytest.importorskip("pettingzoo")
 import diffbot.envs  # noqa: E402,F401
-from diffbot.analysis_swarm import FOOTPRINT_RADIUS_M  # noqa: E402
+from diffbot.analysis.swarm import FOOTPRINT_RADIUS_M  # noqa: E402
 from diffbot.envs.geometry import Footprints  # noqa: E402
 from diffbot.envs.render import GOAL, RAY, ROBOT_COLOURS  # noqa: E402
 

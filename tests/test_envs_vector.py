@@ -210,7 +210,7 @@ def test_workers_step_the_same_envs_to_the_bit_and_end_with_the_batch():
     stays in step); close() ends the worker."""
     import os
 
-    from diffbot import procs as dprocs
+    from diffbot.runner import procs as dprocs
     before = set(dprocs.descendants(os.getpid()))
     n, seed = 5, 3
     kw = dict(max_episode_steps=6, render_mode="rgb_array",
@@ -280,7 +280,7 @@ def test_a_worker_ends_with_a_killed_parent():
     import subprocess
     import sys
 
-    from diffbot import procs as dprocs
+    from diffbot.runner import procs as dprocs
 
     from .conftest import ROOT, wait_for
     script = ("import gymnasium as gym, diffbot.envs, sys, time\n"

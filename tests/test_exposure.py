@@ -24,7 +24,7 @@ from .test_scenarios import processes_mentioning
 
 #: serial: multicast memberships and the default port are the whole machine's (a second xdist worker would disturb it: tests/conftest.py)
 pytestmark = [pytest.mark.slow, pytest.mark.serial]
-CONFIGS = os.path.join(ROOT, "diffbot", "configs")
+CONFIGS = os.path.join(ROOT, "diffbot", "launch", "configs")
 LOOPBACK = {"127.0.0.1", "::1"}
 
 

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from diffbot.analysis_follow import ANIMATION_PERIOD_S, BALL_RGB
+from diffbot.analysis.follow import ANIMATION_PERIOD_S, BALL_RGB
 
 from .conftest import ROOT, check_real_time_factor, check_realtime_pace
 

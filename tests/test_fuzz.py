@@ -2,7 +2,7 @@
 
 * Loaders (in-process, hypothesis): random TOML-ish documents and random mutations of the
   shipped worlds through ``plant.world.parse_world`` / ``load_world`` and
-  ``diffbot.scenario.load_scenario``: only ``WorldError`` ever escapes; a world that loads
+  ``diffbot.launch.scenario.load_scenario``: only ``WorldError`` ever escapes; a world that loads
   also builds and steps with finite state.
 * Command lines: wrong types, unknown keys, missing files, negative radii, zero or negative
   time steps, overlapping robots, names that would change key expressions: exit 2, one
@@ -37,7 +37,7 @@ from hypothesis import strategies as st
 
 from bus import codec
 from bus.keys import Keys
-from diffbot.scenario import load_scenario
+from diffbot.launch.scenario import load_scenario
 from plant.world import WORLDS_DIR, WorldError, load_world, parse_world, tomllib
 
 from .conftest import ROOT, examples, wait_for

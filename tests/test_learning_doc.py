@@ -1,6 +1,6 @@
 """docs/learning.md's Python snippets run as written (each in a fresh interpreter): the
 conventions, the batched env with masked resets, a recorded video, deployment by seed, the
-swarm; and its deployment check, ``python -m diffbot.envs.deploy ... --compare``, runs as
+swarm; and its deployment check, ``python -m diffbot.launch.deploy ... --compare``, runs as
 written. Blocks that start worker processes (async make_vec) or train with
 Stable-Baselines3 (torch's import alone is seconds of CPU) are left to their own tests:
 tests/test_envs_sb3.py trains PPO through the adapter as the page does."""
@@ -70,7 +70,7 @@ def test_the_deployment_check_runs_as_written(tmp_path):
     # the page's `--compare` command, in a folder where its policy file is a hand-set policy
     text = open(DOC, encoding="utf-8").read()
     cmd = next(line.strip() for line in text.splitlines()
-               if "diffbot.envs.deploy" in line and line.rstrip().endswith("--compare"))
+               if "diffbot.launch.deploy" in line and line.rstrip().endswith("--compare"))
     argv = shlex.split(cmd)
     assert argv[0] == ".venv/bin/python"
     policy = argv[argv.index("--policy") + 1]

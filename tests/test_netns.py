@@ -2,7 +2,7 @@
 namespaces joined by veth pairs, over mutual TLS through the shipped access control, in
 lockstep; the recording must be byte for byte the one of the same run on loopback.
 The machines are set up as docs/several-machines.md says: certificates from
-``diffbot certs``, the shipped ``diffbot/configs/*_tls.json5`` used as they are, pointed at
+``diffbot certs``, the shipped ``diffbot/launch/configs/*_tls.json5`` used as they are, pointed at
 with ``DIFFBOT_CERTS`` and ``DIFFBOT_ROUTER``.
 
 Topology (made here, as root, with names unique to this test run; addresses from
@@ -47,7 +47,7 @@ DURATION_S = "4"
 SCHEDULE = "2:1,1;2:1,-1"
 #: the router's address, as every machine dials it (DIFFBOT_ROUTER)
 ROUTER = "198.51.100.1"
-CONFIGS = os.path.join(ROOT, "diffbot", "configs")
+CONFIGS = os.path.join(ROOT, "diffbot", "launch", "configs")
 
 
 def _why_no_netns() -> str | None:

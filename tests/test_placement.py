@@ -1,4 +1,4 @@
-"""`diffbot run SCENARIO --place ...` (diffbot/placement.py): a scenario's processes on the
+"""`diffbot run SCENARIO --place ...` (diffbot/launch/placement.py): a scenario's processes on the
 nodes of a real two-node Ray cluster on this machine (tests/ray_cluster.py), the plant on
 one node and the controllers on the other, give the local run's summary metrics to the
 bit (lockstep); Ctrl-C of a placed run leaves no process on either node. Plus the
@@ -11,10 +11,10 @@ import time
 
 import pytest
 
-from diffbot import procs as dprocs
-from diffbot.scenario_run import RECORDER, VIEW, ScenarioRun
-from diffbot.placement import CONFIGS, Placement, PlacementError, assign, parse_place, resolve
-from diffbot.scenario import load_scenario
+from diffbot.runner import procs as dprocs
+from diffbot.launch.scenario_run import RECORDER, VIEW, ScenarioRun
+from diffbot.launch.placement import CONFIGS, Placement, PlacementError, assign, parse_place, resolve
+from diffbot.launch.scenario import load_scenario
 
 from .conftest import wait_for
 from .test_exposure import cmdline

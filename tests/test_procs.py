@@ -1,4 +1,4 @@
-"""diffbot.procs: children are stopped by PID with a grace and an escalation, and leave
+"""diffbot.runner.procs: children are stopped by PID with a grace and an escalation, and leave
 nothing behind."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from diffbot import procs
+from diffbot.runner import procs
 
 from .conftest import wait_for
 
@@ -138,7 +138,7 @@ def test_an_orphan_whose_clean_stop_hangs_ends_itself(tmp_path, monkeypatch):
     c = procs.Child("launcher", _py(f"""
         import sys, time
         sys.path.insert(0, {root!r})
-        from diffbot import procs
+        from diffbot.runner import procs
         g = procs.Child("node", [sys.executable, "-c", {hang!r}], {str(tmp_path / 'node.log')!r},
                         die_with_parent=True).start()
         open({str(pidfile)!r}, "w").write(str(g.pid))

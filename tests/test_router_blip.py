@@ -33,7 +33,7 @@ from .test_netns import net, start_router, tls_machines  # noqa: F401  (net: a f
 #: plant's graces; the outage test's exits within a time are, and it is
 pytestmark = pytest.mark.slow
 
-CLIENT = os.path.join(ROOT, "diffbot", "configs", "client.json5")
+CLIENT = os.path.join(ROOT, "diffbot", "launch", "configs", "client.json5")
 #: long enough in simulated time for the blips below to come before the end on a quiet
 #: machine (time is held during a blip; between blips lockstep runs on: a fresh-clone CI
 #: run at 4.1x real time on loopback used up 30 s with its 8th blip still to come), short

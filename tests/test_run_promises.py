@@ -211,9 +211,9 @@ def test_at_the_plant_s_end_the_nodes_end_by_themselves_before_they_are_asked(tm
     and the launcher asks them to stop only if they have not within END_GRACE_S. Asked at
     once, a node still finishing raced the request: a placed node's Ray task cancelled as it
     returned lost the node's exit code (a summary.json said -2 for a node that ended 0)."""
-    from diffbot import procs
-    from diffbot.scenario import load_scenario
-    from diffbot.scenario_run import END_GRACE_S, ScenarioRun
+    from diffbot.runner import procs
+    from diffbot.launch.scenario import load_scenario
+    from diffbot.launch.scenario_run import END_GRACE_S, ScenarioRun
     run = ScenarioRun(load_scenario("square"), str(tmp_path), "lockstep", 0, "")
     plant = procs.Child("plant", [sys.executable, "-c", "pass"], str(tmp_path / "p.log"))
     plant.start().wait(30)
@@ -233,9 +233,9 @@ def test_on_ctrl_c_the_plant_gets_the_grace_its_nodes_did_not_use(tmp_path):
     STOP_GRACE_S in all is killed. The plant once got a fixed half of it (0.75 s); on a
     loaded machine a plant that needed more was SIGKILLed and its statistics lost
     (summary.json: sim_time_s null). Nodes that end at once leave it the rest."""
-    from diffbot import procs
-    from diffbot.scenario import load_scenario
-    from diffbot.scenario_run import STOP_GRACE_S, ScenarioRun
+    from diffbot.runner import procs
+    from diffbot.launch.scenario import load_scenario
+    from diffbot.launch.scenario_run import STOP_GRACE_S, ScenarioRun
     run = ScenarioRun(load_scenario("square"), str(tmp_path), "realtime", 0, "")
     slow = 0.7 * STOP_GRACE_S            # more than half the grace, less than all of it
     plant = procs.Child("plant", [sys.executable, "-c", (

@@ -34,7 +34,7 @@ def test_ppo_example_trains_saves_and_deploys_as_a_node(tmp_path):
     assert (out / "model.zip").exists() and (out / "curve.png").exists()
     # the saved model as `diffbot controller PATH.py:CLASS`, on an episode over the bus
     ctl = f"examples/learn/ppo_avoid.py:SB3Policy --arg model={out / 'model.zip'}"
-    dep = subprocess.run([sys.executable, "-m", "diffbot.envs.deploy", "--seed", "3",
+    dep = subprocess.run([sys.executable, "-m", "diffbot.launch.deploy", "--seed", "3",
                           "--controller", ctl, "--duration", "2", "--set", "world.mode=kinematic",
                           "--out", str(tmp_path / "run")],
                          cwd=ROOT, capture_output=True, text=True, timeout=180)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from diffbot.launcher import SOCKET_DIR_PREFIX
+from diffbot.launch.launcher import SOCKET_DIR_PREFIX
 
 from .conftest import ROOT, check_real_time_factor, wait_for
 

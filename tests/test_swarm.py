@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from controllers.avoid import Avoid
-from diffbot.analysis_swarm import FOOTPRINT_RADIUS_M, clearance_to_object, count_episodes
+from diffbot.analysis.swarm import FOOTPRINT_RADIUS_M, clearance_to_object, count_episodes
 from plant.swarm_world import swarm_layout, swarm_world_text, write_swarm_world
 from plant.world import load_world
 

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from diffbot import procs as dprocs
+from diffbot.runner import procs as dprocs
 from diffbot.sweep.grid import parse_axis, parse_seeds, points, split_values
 from diffbot.sweep.table import flatten
 

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from diffbot import procs as dprocs
+from diffbot.runner import procs as dprocs
 
 from .conftest import LOCAL_SWEEP, wait_for
 from .test_sweep import _cmdline, read_rows

@@ -17,8 +17,8 @@ import zenoh
 
 from bus.linkcheck import ConfigFileError, diagnose, load_config, probe
 from bus.session import BusConfigError, open_session
-from diffbot.certs import ROLES, _leaf, make_certs
-from diffbot.router import router_config
+from diffbot.launch.certs import ROLES, _leaf, make_certs
+from diffbot.launch.router import router_config
 
 from .conftest import CI, ROOT, Procs, wait_for
 from .test_exposure import free_port
@@ -29,7 +29,7 @@ from .test_netns import loopback, messages, run_drive, tls_machines
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(shutil.which("openssl") is None and not CI,
                                  reason="needs openssl")]
-CONFIGS = os.path.join(ROOT, "diffbot", "configs")
+CONFIGS = os.path.join(ROOT, "diffbot", "launch", "configs")
 CLIENTS = [f"{role}_tls.json5" for role in ROLES]
 
 

@@ -89,7 +89,7 @@ def test_wheel_holds_the_compiled_kernels_and_fmus(installed):
     names = set(zipfile.ZipFile(wheel).namelist())
     for name in ("plant/kernels/build/libplant_kernels.so", "fmus/build/odometry_fmi2.fmu",
                  "fmus/build/odometry_fmi3.fmu", "plant/worlds/living_room.toml",
-                 "diffbot/scenarios/square.toml", "diffbot/envs/__init__.py",
+                 "diffbot/launch/scenarios/square.toml", "diffbot/envs/__init__.py",
                  "fmus/plant_guest.py", "fmus/plant_wrapper/plant_python.c",
                  "fmus/models/square/model.c"):
         assert name in names, f"{name} not in {wheel.name}"

@@ -4,7 +4,8 @@ from __future__ import annotations
 from .common import sensor_scene
 from .harness import Case, Context, suite
 
-#: the peers' figures for a frame (quiet machine; neither peer is installable here)
+#: PyBullet's and MuJoCo's cost of a frame, measured on a quiet machine (docs/benchmarks.md;
+#: neither is installable here): the figures the kernel is compared with
 PEERS = {(160, 120): ("6.5 ms", "2.08 ms"), (320, 240): ("20.8 ms", "3.70 ms")}
 
 
@@ -20,14 +21,15 @@ def camera_suite(ctx: Context):
     pose = cam.camera_pose(base, st.tf)
     where = f"{len(scene)} shapes, the leader and its green ball in view"
     noise = NoiseModel(webots_camera(10.0 / 255.0), stream_key(0, "bench", "camera"))
-    # the targets (render and noise): 160x120 <= 0.7 ms, 320x240 <= 1.4 ms
+    # targets (render and noise), below the fastest peer's frame: 160x120 <= 0.7 ms,
+    # 320x240 <= 1.4 ms
     for (w, h), target in (((160, 120), 0.7e-3), ((320, 240), 1.4e-3)):
         cfg = replace(base, width=w, height=h)
         cam.render(cfg, pose, scene, exclude_owner="follower")    # rays cached per size
         yield Case(f"render {w}x{h} + noise", lambda cfg=cfg: noise.apply(
             cam.render(cfg, pose, scene, "follower"), 0), target=f"<= {target * 1e3:g} ms",
             notes=f"noise std 10 (follow's), drawn in the call (plant/kernels/noise.c); "
-                  f"peers (frame alone, quiet machine): PyBullet {PEERS[(w, h)][0]}, "
+                  f"peers (quiet machine, frame alone): PyBullet {PEERS[(w, h)][0]}, "
                   f"MuJoCo {PEERS[(w, h)][1]}")
         yield Case(f"render {w}x{h}", lambda cfg=cfg: cam.render(cfg, pose, scene, "follower"),
                    notes=f"{where}; plant/kernels/camera.c")

@@ -6,7 +6,7 @@ import os
 import sys
 import tempfile
 
-from diffbot import procs
+from diffbot.runner import procs
 
 from .harness import ROOT, Context
 

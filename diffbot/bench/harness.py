@@ -61,7 +61,7 @@ class Case:
     ``fn`` is ``fn(number) -> total seconds for number operations`` when ``timer`` is
     true, otherwise a plain callable (one call = one operation) timed with perf_counter.
     ``number`` fixes the operations per repeat (default: auto-picked). ``target``: the
-    figure an issue asks for (e.g. ``"<= 0.7 ms"``), printed beside the median.
+    figure the case must meet (e.g. ``"<= 0.7 ms"``), printed beside the median.
     """
     name: str
     fn: Callable

@@ -116,7 +116,8 @@ def _sb3_rate(num_envs: int, env_steps: int, rounds: int = 3) -> dict:
     return {"alone": n / wall[0], "adapter": n / wall[1], "ratio": cpu[0] / cpu[1]}
 
 
-#: issue 38's targets for the batched env at N = 64 (2 cores), env steps/s
+#: the batched env's targets at N = 64 (2 cores), env steps/s: training wants many steps
+#: per second, and the kinematic world has no physics to pay for
 VEC_TARGETS = {"kinematic": "target >= 20,000/s at N = 64", "dynamic": "target >= 1,000/s at N = 64"}
 #: and for one env (simulated s per wall s): (transport, world mode) -> target
 ONE_ENV_TARGETS = {("inproc", "dynamic"): "target >= 80x", ("inproc", "kinematic"): "target >= 1,000x",

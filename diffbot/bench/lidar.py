@@ -5,7 +5,8 @@ from __future__ import annotations
 from .common import sensor_scene
 from .harness import Case, Context, suite
 
-#: issue 36's target for one tick's sweep, scene snapshot included (MuJoCo's mj_multiRay: 59 us)
+#: the target for one tick's sweep, scene snapshot included: the fastest peer's cost
+#: (MuJoCo's mj_multiRay: 59 us)
 TARGET_US = 60
 
 
@@ -20,7 +21,7 @@ def lidar_suite(ctx: Context):
     yield Case("scene snapshot + sweep (a tick's lidar)",
                lambda: lidar.scan(cfg, st.tf, Scene(sim.shapes()), exclude_owner="robot1"),
                target=f"<= {TARGET_US} µs",
-               notes="Scene(sim.shapes()) then lidar.scan (C kernel); peers (issue 36): "
+               notes="Scene(sim.shapes()) then lidar.scan (C kernel); peers (quiet machine): "
                      "PyBullet 1.58 ms, MuJoCo 0.059 ms")
     yield Case("sweep 180 rays", lambda: lidar.scan(cfg, st.tf, scene, exclude_owner="robot1"),
                notes=where + "; plant/kernels/lidar.c")

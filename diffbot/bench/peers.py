@@ -1,6 +1,6 @@
 """Suite ``peers``: MuJoCo on the same living room, in the same window as this machine's
-``physics`` and ``lidar`` suites (issue 36 compares against the fastest peer's figures of
-one window; a figure from another machine or another hour says little on a shared VM).
+``physics`` and ``lidar`` suites (the targets are the fastest peer's figures of one
+window; a figure from another machine or another hour says little on a shared VM).
 
 The room is rebuilt from the world file (``plant/worlds/living_room.toml``): the floor, the
 walls, every static object as a MuJoCo geom; the robot as this project builds it for DART

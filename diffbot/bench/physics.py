@@ -30,7 +30,7 @@ def physics_suite(ctx: Context):
             return perf_counter() - t0
         room = world == "living_room"
         yield Case(f"{world}: physics step", step, timer=True, notes=what + (
-            "; peers (issue 36, 2 ms step): PyBullet 125 us, MuJoCo 9 us" if room else ""))
+            "; peers (quiet machine, 2 ms step): PyBullet 125 us, MuJoCo 9 us" if room else ""))
         yield Case(f"{world}: control tick ({spec.substeps} steps)", sim.step_tick,
                    target="<= 150 µs" if room else "", notes="Simulation.step_tick()")
         yield Case(f"{world}: build world", lambda spec=spec: Simulation(spec),

@@ -27,7 +27,7 @@ def batch(ctx: Context, engine_name: str, n: int, parallel: int | None,
           scenario: str = "drive-test", hosting: str = "--no-compose",
           sim_s: float = SIM_S) -> dict:
     from .. import runner
-    from ..procs import diffbot_argv
+    from ..runner.procs import diffbot_argv
     tmp = tempfile.mkdtemp(prefix="bench-sweep-", dir=ctx.tmpdir)
     t0 = time.monotonic()
     engine = runner.make_engine(engine_name, None, parallel)

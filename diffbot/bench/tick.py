@@ -19,7 +19,7 @@ import tempfile
 import time
 from collections import Counter
 
-from diffbot import procs
+from diffbot.runner import procs
 
 from .common import run_summary, spawn, stop, tail
 from .harness import Context, Metric, Probe, Skip, suite

@@ -3,7 +3,7 @@
 Each repeat runs ``diffbot run follow`` four times, one after the other: plain; with
 ``--view`` and no client; with a Foxglove client (tests/js/view_client.mjs under Node,
 decoding every message it gets) watching what the shipped layout shows; and with one
-watching every channel (the worst case). The issue's target: the view slows a lockstep
+watching every channel (the worst case). The target: the view slows a lockstep
 run by at most 10 %.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ import shutil
 import socket
 import tempfile
 
-from diffbot import procs
+from diffbot.runner import procs
 
 from .common import spawn, stop, tail
 from .harness import ROOT, Context, Metric, Probe, Skip, suite

@@ -36,8 +36,8 @@ from bus import codec
 from bus.node import Observation
 from controllers.ball_follower import detect_ball
 from controllers.wander import Wander
-from diffbot.analysis_follow import BAND_M, FOLLOWER, LEADER, ball_offset, pose_matrix_of
-from diffbot.analysis_swarm import CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M
+from diffbot.analysis.bands import BAND_M, FOLLOWER, LEADER, ball_offset, pose_matrix_of
+from plant.footprint import CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M
 from plant.world import load_world
 
 from .actions import Drive, check_repeat

@@ -399,7 +399,7 @@ class _Resources:
         self.tmpdir: str | None = None
 
     def close(self) -> None:
-        from diffbot.procs import stop
+        from diffbot.runner.procs import stop
         if self.member is not None:
             self.member.shut(self.thread)
         if self.plant is not None:
@@ -416,7 +416,7 @@ class _Resources:
 
 def _start_plant(world: str, overrides, disabled, endpoint: str, seed: int, namespace: str,
                  tmpdir: str):
-    from diffbot.procs import Child, diffbot_argv
+    from diffbot.runner.procs import Child, diffbot_argv
     argv = ["plant", "--world", world, "--mode", "lockstep", "--coupling", "sequential",
             "--seed", str(int(seed)), "--endpoint", endpoint, "--log-level", "WARNING"]
     for o in overrides:

@@ -19,7 +19,7 @@ def _serve(conn) -> None:
     """A worker process: envs of a batch (:class:`Worlds`, built from the first message,
     (n, kwargs)) answering its parent's calls ((method, args) -> ("ok", result) or
     ("error", exception, traceback)) until ``close``, or until the parent is gone (its end
-    of the connection closed; the kernel's SIGTERM too, :func:`diffbot.procs._preexec`).
+    of the connection closed; the kernel's SIGTERM too, :func:`diffbot.runner.procs.popen`).
     Ctrl-C is the parent's to handle: it closes the batch."""
     from .worlds import Worlds
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -97,16 +97,16 @@ class _Worker:
 
     def __init__(self, n: int, kw: dict) -> None:
         import diffbot
-        from diffbot import procs
+        from diffbot.runner import procs
         ours, theirs = socket.socketpair()
         root = os.path.dirname(os.path.dirname(os.path.abspath(diffbot.__file__)))
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(
             [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}
         try:
-            self.proc = subprocess.Popen(
+            self.proc = procs.popen(
                 [sys.executable, "-m", "diffbot.envs.workers", str(theirs.fileno())],
-                pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
-                preexec_fn=procs._preexec(die_with_parent=True))
+                die_with_parent=True, pass_fds=(theirs.fileno(),), env=env,
+                stdin=subprocess.DEVNULL)
         finally:
             theirs.close()
         self.conn = Connection(ours.detach())

@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from .. import procs
+from . import procs
 
 HEARTBEAT_S = 15.0             # a "still running" line this often (when no progress bar)
 

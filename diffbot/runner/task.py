@@ -20,7 +20,7 @@ import time
 
 from bus.jsonio import read_json
 
-from .. import procs
+from . import procs
 
 STOP_GRACE_S = 20.0            # a run's own shutdown (a scenario analyses its run on SIGINT too)
 LOG_TAIL_LINES = 15

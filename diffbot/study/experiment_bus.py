@@ -23,8 +23,8 @@ from bus.log import setup_logging
 from bus.runtime import NodeRunner
 from bus.session import BusConfigError, open_session
 
-from .. import procs
-from ..procs import diffbot_argv
+from ..runner import procs
+from ..runner.procs import diffbot_argv
 
 
 class ExperimentError(RuntimeError):

@@ -10,11 +10,11 @@ import math
 
 import numpy as np
 
-from ..plots import plt, save
+from ..analysis.plots import plt, save
 
 
 def save_with_suptitle(fig, path: str, title: str) -> str:
-    """Like :func:`diffbot.plots.save`, leaving room at the top for a figure title."""
+    """Like :func:`diffbot.analysis.plots.save`, leaving room at the top for a figure title."""
     fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, 0.94))
     fig.savefig(path, dpi=120)

@@ -267,8 +267,8 @@ def _toml_str(s: str) -> str:
 
 
 def noisy_odometry(args) -> dict:
-    from ..launcher import main as run_main
-    from ..scenario import load_scenario
+    from ..launch.launcher import main as run_main
+    from ..launch.scenario import load_scenario
     sc = load_scenario("square")
     robot = sc.robot
     noise_set = f"robots.{robot}.encoders.noise={{webots_noise = {args.encoder_noise!r}}}"
@@ -312,7 +312,7 @@ def noisy_odometry(args) -> dict:
     a = np.loadtxt(traj, delimiter=",", skiprows=1, ndmin=2)
     if a.size == 0:
         raise ExperimentError("the square run recorded no trajectory")
-    from ..analysis import plot_odometry_vs_gps
+    from ..analysis.runs import plot_odometry_vs_gps
     plot_odometry_vs_gps(a, os.path.join(args.out, "odometry_vs_gps.png"),
                          f"Noisy odometry (encoder noise {args.encoder_noise:g} rad per reading) "
                          f"vs GPS,\n{args.side:g} m square, seed {args.seed}")

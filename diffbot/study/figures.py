@@ -168,7 +168,7 @@ def _schedule(spec) -> list[tuple[float, float, float]]:
 def _drive_test(ctx: Context) -> tuple[dict, list, float, float, "object"]:
     from plant.world import load_world
 
-    from ..scenario import load_scenario
+    from ..launch.scenario import load_scenario
     s = ctx.summary("drive-test")
     spec = load_scenario("drive-test")
     drive = load_world(spec.world).robot(spec.robot).drive
@@ -184,7 +184,7 @@ def _velocity_plot(a, col: int, sched, expected: list[float], key: int, measured
                    dest: str) -> None:
     """One velocity against time, the schedule's phases shaded and labelled, the expected
     value of each phase dashed (phase ``key``'s value and formula written out)."""
-    from ..plots import plt, save
+    from ..analysis.plots import plt, save
     fig, ax = plt.subplots(figsize=(8, 4.4))
     t0 = 0.0
     for i, (dur, left, right) in enumerate(sched):
@@ -327,7 +327,7 @@ def fig_odometry(ctx: Context, dest: str) -> Made:
 
 
 def _camera_plot(ctx: Context, name: str, dest: str, title: str) -> None:
-    from ..plots import plt, save
+    from ..analysis.plots import plt, save
     img = plt.imread(ctx.file("camera", name))
     h, w = img.shape[:2]
     fig, ax = plt.subplots(figsize=(8, 8 * h / w + 0.6))

@@ -122,7 +122,7 @@ def colour_fraction(img: np.ndarray, rgb01, tol: float = 0.08) -> float:
 # ------------------------------------------------------------------ the figure files
 def robot_figure(views: list[tuple[str, np.ndarray]], path: str, title: str) -> str:
     """Figure 1: the views of :func:`robot_views` as a 2 x 2 sheet."""
-    from ..plots import plt, save
+    from ..analysis.plots import plt, save
     n = len(views)
     cols = 2 if n > 1 else 1
     rows = (n + cols - 1) // cols
@@ -140,7 +140,7 @@ def robot_figure(views: list[tuple[str, np.ndarray]], path: str, title: str) -> 
 def room_figure(img: np.ndarray, labels: list[tuple[str, float, float]], path: str,
                 title: str, robots: tuple[str, ...] = ()) -> str:
     """Figure 6: the overview with a label on each object (robots' labels in bold)."""
-    from ..plots import plt, save
+    from ..analysis.plots import plt, save
     h, w = img.shape[:2]
     fig, ax = plt.subplots(figsize=(w / 100, h / 100 + 0.4))
     ax.imshow(img)

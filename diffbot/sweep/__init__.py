@@ -28,9 +28,9 @@ import time
 from bus.cliargs import ArgumentParser, nonneg_int, positive_float
 
 from .. import runner
-from ..procs import diffbot_argv
+from ..runner.procs import diffbot_argv
 from .grid import Axis, Point, parse_axis, parse_seeds, points
-from .plots import plot_all
+from ..analysis.sweep_plots import plot_all
 from .table import (HEAD, LAST, TAIL, columns, finished_row, make_row, save_row,
                     write_table)
 
@@ -104,7 +104,7 @@ def check_points(spec, axes: list[Axis], pts: list[Point]) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from plant.world import WorldError
-    from ..scenario import load_scenario
+    from ..launch.scenario import load_scenario
     try:
         spec = load_scenario(args.scenario)
         axes = [parse_axis(g) for g in args.grid]

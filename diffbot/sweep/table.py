@@ -104,17 +104,3 @@ def _cell(v):
 
 def _plain(v):
     return json.dumps(v) if isinstance(v, (dict, list)) else v
-
-
-def read_table(path: str) -> list[dict]:
-    """``sweep.csv`` back as dicts (numbers as floats where they parse)."""
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    for r in rows:
-        for k, v in r.items():
-            try:
-                r[k] = float(v) if v not in ("",) and k not in ("run", "node", "host", "out",
-                                                                 "log_tail", "status") else v
-            except ValueError:
-                pass
-    return rows

@@ -18,7 +18,7 @@ would do)::
 
     diffbot controller examples/learn/ppo_avoid.py:SB3Policy --arg model=out/ppo/model.zip \\
         --arg 'goal=(1.2, -0.5)' --robot robot1
-    python -m diffbot.envs.deploy --seed 3 \\
+    python -m diffbot.launch.deploy --seed 3 \\
         --controller "examples/learn/ppo_avoid.py:SB3Policy --arg model=out/ppo/model.zip"
 """
 from __future__ import annotations

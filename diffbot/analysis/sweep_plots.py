@@ -10,7 +10,7 @@ import numpy as np
 
 def plot_all(rows: list[dict], params: list[str], metrics: list[str], out: str,
              title: str) -> list[str]:
-    from ..plots import plt, save
+    from .plots import plt, save
     ok = [r for r in rows if r.get("status") == "ok"]
     written = []
     for metric in metrics:

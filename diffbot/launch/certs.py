@@ -10,7 +10,7 @@ writes, with the ``openssl`` command:
     <role>.pem, <role>-key.pem    one client certificate per role, common name = role:
                                   plant, node, recorder, view, bridge (--roles to choose)
 
-The shipped configs (``diffbot/configs/*_tls.json5``) find them as
+The shipped configs (``diffbot/launch/configs/*_tls.json5``) find them as
 ``${DIFFBOT_CERTS}/<role>.pem``, and the shipped router's access control admits each role
 by that common name. Copy ``ca.pem`` and a role's two files to the machine that runs it.
 This is a test CA (EC P-256, valid ``--days``): fine for a lab, not a production PKI.

@@ -16,8 +16,8 @@ import numpy as np
 from bus.keys import Keys
 from plant.footprint import CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M, footprint_centres
 
-from .analysis_paths import ground_truth_tracks, plot_paths, write_csv
-from .analysis_paths import keys as paths_keys
+from .paths import ground_truth_tracks, plot_paths, write_csv
+from .paths import keys as paths_keys
 
 
 def clearance_to_object(p: np.ndarray, obj) -> np.ndarray:
@@ -76,7 +76,7 @@ def collisions(c: np.ndarray, world) -> dict:
 
 class SwarmAnalysis:
     draws = True
-    draws_paths = True      # its paths.png says the collisions too (diffbot.analysis_paths)
+    draws_paths = True      # its paths.png says the collisions too (diffbot.analysis.paths)
 
     @staticmethod
     def keys(keys: Keys, spec, world) -> dict[str, str]:

@@ -26,14 +26,14 @@ def _fmt(x: float) -> str:
 
 
 def import_plots_meanwhile() -> threading.Thread:
-    """Import matplotlib (:mod:`diffbot.plots`: ~0.5-0.9 s) on a thread of its own, started
+    """Import matplotlib (:mod:`diffbot.analysis.plots`: ~0.5-0.9 s) on a thread of its own, started
     while the run goes on: the launcher only waits then, and a lockstep run's processes take
     turns, so a core is mostly free. The analysis after the run then draws at once (its own
     import waits for this one if it is not done). A failed import here is left to the
     analysis to report."""
     def load() -> None:
         try:
-            importlib.import_module("diffbot.plots")
+            importlib.import_module("diffbot.analysis.plots")
         except Exception:      # (the analysis imports it again and says why)
             pass
     t = threading.Thread(target=load, name="import-plots")
@@ -42,7 +42,7 @@ def import_plots_meanwhile() -> threading.Thread:
 
 
 class NoAnalysis:
-    draws = False          # whether ``analyse`` plots (diffbot.plots)
+    draws = False          # whether ``analyse`` plots (diffbot.analysis.plots)
 
     @staticmethod
     def keys(keys: Keys, spec, world) -> dict[str, str]:
@@ -182,8 +182,8 @@ def plot_velocities(a: np.ndarray, t0: float, path: str) -> str:
     return save(fig, path)
 
 
-from .analysis_follow import FollowAnalysis  # noqa: E402
-from .analysis_swarm import SwarmAnalysis  # noqa: E402
+from .follow import FollowAnalysis  # noqa: E402
+from .swarm import SwarmAnalysis  # noqa: E402
 
 ANALYSES = {"square": SquareAnalysis, "drive-test": DriveTestAnalysis, "follow": FollowAnalysis,
             "swarm": SwarmAnalysis, "none": NoAnalysis}

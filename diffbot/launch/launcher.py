@@ -1,4 +1,4 @@
-"""``diffbot run``: a scenario's run (:class:`diffbot.scenario_run.ScenarioRun`) from the
+"""``diffbot run``: a scenario's run (:class:`diffbot.launch.scenario_run.ScenarioRun`) from the
 command line: start its processes (placed on other machines with ``--place``), supervise
 them, analyse the run, write ``summary.json``.
 """
@@ -18,8 +18,9 @@ from bus.protocol import COUPLINGS
 from bus.session import BusConfigError
 from plant.world import WorldError, load_world
 
-from . import placement, procs
-from .scenario import ProcessSpec, load_scenario
+from ..runner import procs
+from . import placement
+from .scenario import ProcessSpec, ScenarioSpec, load_scenario
 from .scenario_run import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, VIEW, ScenarioRun,
                            published_counts, run_stats, summarize)
 
@@ -97,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="port of --view (default 8765)")
     p.add_argument("--view-host", default="127.0.0.1", metavar="HOST",
                    help="address --view binds (default 127.0.0.1)")
-    placement.add_args(p)                        # --place, --address, --tls: diffbot/placement.py
+    placement.add_args(p)                        # --place, --address, --tls: diffbot/launch/placement.py
     return p
 
 
@@ -125,28 +126,11 @@ def generate(spec, args, out: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        spec = load_scenario(args.scenario)
-        if (args.robots is not None or args.controller_processes is not None
-                or args.physics is not None) and not spec.generate:
-            raise ValueError(f"--robots/--controller-processes/--physics: scenario "
-                             f"{spec.name!r} has a "
-                             "fixed world (only generated-world scenarios, e.g. swarm, take them)")
-        out = os.path.abspath(args.out or os.path.join("out", spec.name))
-        if spec.generate:
-            os.makedirs(out, exist_ok=True)
-            generate(spec, args, out)
-        for item in args.set:                  # after the scenario's own: they win
-            spec.plant_args += ["--set", item]
-        # the world as the plant will build it (its --set overrides: the start pose the
-        # analysis compares odometry through)
-        pa = spec.plant_args
-        world = load_world(spec.world, [v for k, v in zip(pa, pa[1:]) if k == "--set"])
-        keys = Keys(args.namespace)
+        spec, out, world, keys = _inputs(args)
     except (WorldError, ValueError) as exc:
         print(f"diffbot run: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    from . import analysis_paths
-    from .analysis import ANALYSES, import_plots_meanwhile
+    from ..analysis.runs import ANALYSES
     os.makedirs(out, exist_ok=True)
     tmp = None
     endpoint = args.endpoint
@@ -162,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
                                else args.physics_process))
     if args.view:
         run.view_port, run.view_host = args.view_port, args.view_host
-    if placed:                         # processes on Ray nodes (diffbot/placement.py)
+    if placed:                         # processes on Ray nodes (diffbot/launch/placement.py)
         try:
             run.placement = placement.place(args, run.process_names(), run.endpoint,
                                             run.zenoh_config)
@@ -171,84 +155,139 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_BAD_INPUT
         run.endpoint, run.zenoh_config = run.placement.endpoint, run.placement.zenoh_config
     run.build()
-    analysis = ANALYSES[spec.analysis]
-    # every run draws its robots' paths (paths.png, paths.csv) unless its analysis does
-    own_paths = getattr(analysis, "draws_paths", False)
-    env = dict(os.environ)
-    env["PYTHONUNBUFFERED"] = "1"
-    observer = session = watch = plots = stats = None
+    live = _Live(run, ANALYSES[spec.analysis], keys, spec, world, out, placed)
     wall0 = time.monotonic()
     code = EXIT_FAILED
     try:
+        code = live.supervise()
+    finally:
+        wall = time.monotonic() - wall0
+        live.close()
+        if tmp:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return live.report(code, wall)
+
+
+def _inputs(args) -> tuple:
+    """(scenario, output folder, world, keys) of ``diffbot run``'s arguments; WorldError or
+    ValueError if they do not make a run. A generated world is written to the folder."""
+    spec = load_scenario(args.scenario)
+    if (args.robots is not None or args.controller_processes is not None
+            or args.physics is not None) and not spec.generate:
+        raise ValueError(f"--robots/--controller-processes/--physics: scenario "
+                         f"{spec.name!r} has a "
+                         "fixed world (only generated-world scenarios, e.g. swarm, take them)")
+    out = os.path.abspath(args.out or os.path.join("out", spec.name))
+    if spec.generate:
+        os.makedirs(out, exist_ok=True)
+        generate(spec, args, out)
+    for item in args.set:                  # after the scenario's own: they win
+        spec.plant_args += ["--set", item]
+    # the world as the plant will build it (its --set overrides: the start pose the
+    # analysis compares odometry through)
+    pa = spec.plant_args
+    world = load_world(spec.world, [v for k, v in zip(pa, pa[1:]) if k == "--set"])
+    return spec, out, world, Keys(args.namespace)
+
+
+class _Live:
+    """A built run while it goes: its processes started and supervised, the launcher's own
+    bus session observing what the analysis needs, and after it the summary."""
+
+    def __init__(self, run: ScenarioRun, analysis, keys: Keys, spec: ScenarioSpec, world,
+                 out: str, placed: bool) -> None:
+        self.run, self.analysis, self.keys = run, analysis, keys
+        self.spec, self.world, self.out, self.placed = spec, world, out, placed
+        # every run draws its robots' paths (paths.png, paths.csv) unless its analysis does
+        self.own_paths = getattr(analysis, "draws_paths", False)
+        self.observer = self.session = self.watch = self.plots = self.stats = None
+
+    def supervise(self) -> int:
+        """Start the processes, supervise them until the run ends; the run's exit code."""
+        from ..analysis import paths as analysis_paths
+        from .observer import Observer
+        run, spec, keys = self.run, self.spec, self.keys
+        env = dict(os.environ)
+        env["PYTHONUNBUFFERED"] = "1"
+        code = EXIT_FAILED
         with procs.stop_requests() as stop_flag:   # Ctrl-C, SIGTERM: stop the run in order
             try:
                 run.children[0].start(env)
                 try:
-                    session = run.open_observer()
+                    self.session = run.open_observer()
                 except BusConfigError as exc:
                     run.reason = f"cannot connect to the plant: {exc}"
                     run.failed = run.children[0]
-                if session is not None:
-                    from .observer import Observer
-                    keep = analysis.keys(keys, spec, world)
-                    if not own_paths:
-                        keep = {**analysis_paths.keys(keys, world), **keep}
-                    observer = Observer(session, keys, keep)
-                    watch = session.liveliness().declare_subscriber(keys.alive(), run.on_alive,
-                                                                    history=True)
-                    if run.start_recorder(env, session, stop_flag):
-                        for c in run.children[1:]:
-                            if c is not run.recorder and c.name != VIEW:
-                                c.start(env)
-                        print(f"diffbot run {spec.name}: {run.mode} mode, seed {run.seed}, "
-                              f"{len(run.children)} processes, output in {out}", file=sys.stderr)
-                        if placed:
-                            print(f"diffbot run: {placement.describe(run)}", file=sys.stderr)
-                        if analysis.draws or not own_paths:
-                            plots = import_plots_meanwhile()
-                        code = run.supervise(stop_flag)
+                if self.session is not None:
+                    keep = self.analysis.keys(keys, spec, self.world)
+                    if not self.own_paths:
+                        keep = {**analysis_paths.keys(keys, self.world), **keep}
+                    self.observer = Observer(self.session, keys, keep)
+                    self.watch = self.session.liveliness().declare_subscriber(
+                        keys.alive(), run.on_alive, history=True)
+                    if run.start_recorder(env, self.session, stop_flag):
+                        code = self._start_the_rest(env, stop_flag)
                     elif stop_flag:
                         run.reason = f"interrupted ({stop_flag[0]})"
                         code = EXIT_INTERRUPTED
             finally:
                 run.stop_all()
-    finally:
-        wall = time.monotonic() - wall0
-        if watch is not None:
-            watch.undeclare()
+        return code
+
+    def _start_the_rest(self, env: dict, stop_flag: list) -> int:
+        from ..analysis.runs import import_plots_meanwhile
+        run = self.run
+        for c in run.children[1:]:
+            if c is not run.recorder and c.name != VIEW:
+                c.start(env)
+        print(f"diffbot run {self.spec.name}: {run.mode} mode, seed {run.seed}, "
+              f"{len(run.children)} processes, output in {self.out}", file=sys.stderr)
+        if self.placed:
+            print(f"diffbot run: {placement.describe(run)}", file=sys.stderr)
+        if self.analysis.draws or not self.own_paths:
+            self.plots = import_plots_meanwhile()
+        return run.supervise(stop_flag)
+
+    def close(self) -> None:
+        """The launcher's own bus session closed, once every process has ended."""
+        if self.watch is not None:
+            self.watch.undeclare()
+        if self.observer is not None:
+            self.stats = run_stats(self.run)   # every process has ended: its stats are final
+            self.observer.settle(published_counts(self.stats))
+            self.observer.close()
+        if self.session is not None:
+            self.session.close()
+
+    def report(self, code: int, wall: float) -> int:
+        """The failure said, the analysis run, summary.json written; the exit code."""
+        from ..analysis import paths as analysis_paths
+        run, observer = self.run, self.observer
+        if run.failed is not None:
+            code = EXIT_FAILED if code == 0 else code
+            print(f"diffbot run: {run.reason or run.failed.name + ' failed'}\n"
+                  f"--- last lines of {run.failed.name}'s log ({run.failed.log_path}):\n"
+                  f"{run.failed.tail()}", file=sys.stderr)
+        summary = summarize(run, wall, code, self.stats)
+        if self.placed:
+            summary["placement"] = placement.where_ran(run)
         if observer is not None:
-            stats = run_stats(run)        # every process has ended: its stats are final
-            observer.settle(published_counts(stats))
-            observer.close()
-        if session is not None:
-            session.close()
-        if tmp:
-            shutil.rmtree(tmp, ignore_errors=True)
-    if run.failed is not None:
-        code = EXIT_FAILED if code == 0 else code
-        print(f"diffbot run: {run.reason or run.failed.name + ' failed'}\n"
-              f"--- last lines of {run.failed.name}'s log ({run.failed.log_path}):\n"
-              f"{run.failed.tail()}", file=sys.stderr)
-    summary = summarize(run, wall, code, stats)
-    if placed:
-        summary["placement"] = placement.where_ran(run)
-    if observer is not None:
-        if plots is not None:
-            plots.join()
-        try:
-            summary["metrics"] = analysis.analyse(observer, keys, spec, world, out)
-        except Exception as exc:  # analysis must not lose the summary
-            summary["analysis_error"] = f"{type(exc).__name__}: {exc}"
-            code = code or EXIT_FAILED
-        if not own_paths:
+            if self.plots is not None:
+                self.plots.join()
+            args = (observer, self.keys, self.spec, self.world, self.out)
             try:
-                summary["paths"] = analysis_paths.write_paths(observer, keys, spec, world, out)
-            except Exception as exc:  # nor the paths
-                summary["paths_error"] = f"{type(exc).__name__}: {exc}"
+                summary["metrics"] = self.analysis.analyse(*args)
+            except Exception as exc:  # analysis must not lose the summary
+                summary["analysis_error"] = f"{type(exc).__name__}: {exc}"
                 code = code or EXIT_FAILED
-    write_json(os.path.join(out, "summary.json"), summary)
-    print(f"diffbot run {spec.name}: {summary['end_reason']}; summary in {os.path.join(out, 'summary.json')}",
-          file=sys.stderr)
-    return code
-
-
+            if not self.own_paths:
+                try:
+                    summary["paths"] = analysis_paths.write_paths(*args)
+                except Exception as exc:  # nor the paths
+                    summary["paths_error"] = f"{type(exc).__name__}: {exc}"
+                    code = code or EXIT_FAILED
+        path = os.path.join(self.out, "summary.json")
+        write_json(path, summary)
+        print(f"diffbot run {self.spec.name}: {summary['end_reason']}; summary in {path}",
+              file=sys.stderr)
+        return code

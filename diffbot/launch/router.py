@@ -1,10 +1,10 @@
 """``diffbot router``: a Zenoh router for a simulation spread over several machines.
 
     diffbot router --listen tcp/192.168.1.10:7447            # plain TCP, one interface
-    diffbot router --zenoh-config diffbot/configs/router_tls.json5   # TLS + access control
+    diffbot router --zenoh-config diffbot/launch/configs/router_tls.json5   # TLS + access control
 
 Every diffbot process (plant included) then runs as a client of the router, with
-``--zenoh-config`` pointing at its role's shipped config (``diffbot/configs/plant_tls.json5``,
+``--zenoh-config`` pointing at its role's shipped config (``diffbot/launch/configs/plant_tls.json5``,
 ``node_tls.json5``, ...; ``client.json5`` for plain TCP); docs/several-machines.md. It is a Python
 Zenoh session in router mode (no zenohd needed): it routes, it declares nothing. Without a
 config file, scouting (multicast, gossip) is off, the lease is diffbot's 1 s, and it listens

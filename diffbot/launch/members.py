@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import importlib
 import shlex
+import sys
+
+from bus.cliargs import did_you_mean
 
 #: controller name -> module with a main(argv) function (`diffbot controller NAME`)
 CONTROLLERS = {
@@ -54,3 +57,32 @@ def compose_member(command: str | list[str]):
     argv = shlex.split(command) if isinstance(command, str) else list(command)
     main, rest = member_main(argv)
     return capture_member(main, rest)
+
+
+def controller_main(argv: list[str]) -> int:
+    """``diffbot controller NAME ...``: a shipped controller by name, or a controller class
+    (:func:`hosted`), on its own command line."""
+    if not argv or argv[0] in ("-h", "--help"):
+        print(f"usage: diffbot controller {{{','.join(CONTROLLERS)}}} [options]\n"
+              "       diffbot controller python:MODULE:CLASS|PATH.py[:CLASS] [--arg K=V] "
+              "[options]\n"
+              "  (diffbot controller NAME --help for a controller's options)",
+              file=sys.stderr if not argv else sys.stdout)
+        return 2 if not argv else 0
+    if hosted(argv[0]):
+        from controllers.hosted import main as hosted_main
+        sys.argv[0] = f"diffbot controller {argv[0]}"
+        return hosted_main(argv[0], argv[1:])
+    if argv[0] not in CONTROLLERS:
+        print(f"diffbot controller: unknown controller {argv[0]!r}"
+              f"{did_you_mean(argv[0], CONTROLLERS)} (choose from "
+              f"{', '.join(CONTROLLERS)})", file=sys.stderr)
+        return 2
+    sys.argv[0] = f"diffbot controller {argv[0]}"
+    return importlib.import_module(CONTROLLERS[argv[0]]).main(argv[1:])
+
+
+def plant_main(argv: list[str]) -> int:
+    """``diffbot plant ...``: the plant process, its ``--compose`` members built here."""
+    from plant.process_cli import main
+    return main(argv, compose=compose_member)

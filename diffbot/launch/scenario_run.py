@@ -10,8 +10,8 @@ still there but has lost its bus lease (stopped with SIGSTOP, or wedged) counts 
 run watches ``sim/alive/*`` and /proc. When nodes exit 3 because the plant went away, the
 report names the plant. Lockstep members may instead be composed into the plant's process
 (``compose``). Where the processes run is data the run takes: a
-:class:`diffbot.placement.Placement` (``placement=``) names the processes that run as Ray
-tasks on other nodes; ``diffbot run`` (diffbot/launcher.py) is the command line.
+:class:`diffbot.launch.placement.Placement` (``placement=``) names the processes that run as Ray
+tasks on other nodes; ``diffbot run`` (diffbot/launch/launcher.py) is the command line.
 """
 from __future__ import annotations
 
@@ -30,10 +30,10 @@ from bus.keys import Keys
 from bus.runtime import EXIT_PLANT_GONE
 from bus.session import BusConfigError, open_session
 
-from . import procs
+from ..runner import procs
 from .observer import OBSERVER
 from .placement import Placement, set_option, tls_config
-from .procs import diffbot_argv
+from ..runner.procs import diffbot_argv
 from .scenario import ScenarioSpec, expand
 
 STOP_GRACE_S = 1.5
@@ -90,7 +90,7 @@ class ScenarioRun:
     ros2: bool = False              # --ros2: the ROS 2 bridge (bridges/ros2.py), free running
     view_port: int | None = None    # --view [--view-port P]: serve the run to Foxglove
     view_host: str = "127.0.0.1"
-    placement: Placement | None = None   # --place: processes on Ray nodes (diffbot/placement.py)
+    placement: Placement | None = None   # --place: processes on Ray nodes (diffbot/launch/placement.py)
     children: list[Child] = field(default_factory=list)
     reason: str = ""
     failed: Child | None = None
@@ -399,7 +399,7 @@ class ScenarioRun:
 
 
 def role(child: Child) -> str:
-    """The role a process's shipped TLS config is named for (diffbot/configs/<role>_tls.json5)."""
+    """The role a process's shipped TLS config is named for (diffbot/launch/configs/<role>_tls.json5)."""
     if child.name in ("plant", RECORDER, VIEW):
         return child.name
     if child.name == ROS2_BRIDGE or "ros2" in child.argv[3:4]:

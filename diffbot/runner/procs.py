@@ -60,6 +60,14 @@ def _preexec(die_with_parent: bool):
     return preexec
 
 
+def popen(argv: list[str], *, die_with_parent: bool = False, **kw) -> subprocess.Popen:
+    """Start a child as every child of ours starts (``subprocess.Popen(argv, **kw)``): stop
+    signals at their defaults in it, and with ``die_with_parent`` a SIGTERM from the kernel
+    when this process dies. For a child that needs what :class:`Child` does not give, e.g.
+    a descriptor passed on (``pass_fds``) and this process's own output."""
+    return subprocess.Popen(argv, preexec_fn=_preexec(die_with_parent), **kw)
+
+
 class Child:
     """One child process with a log file (see the module docstring).
 
@@ -91,13 +99,13 @@ class Child:
         self._log = open(self.log_path, "wb")
         kw = dict(env=env, cwd=self.cwd, stderr=self._log if self.interactive
                   else subprocess.STDOUT)
-        kw["preexec_fn"] = _preexec(self.die_with_parent)
+        kw["die_with_parent"] = self.die_with_parent
         try:
             if self.interactive:
-                self.proc = subprocess.Popen(self.argv, **kw)
+                self.proc = popen(self.argv, **kw)
             else:
-                self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL,
-                                             stdout=self._log, start_new_session=True, **kw)
+                self.proc = popen(self.argv, stdin=subprocess.DEVNULL, stdout=self._log,
+                                  start_new_session=True, **kw)
         except OSError:
             self.close_log()
             raise
@@ -216,16 +224,6 @@ def wait_all(children: list[Child], timeout_s: float) -> bool:
             return False
         time.sleep(0.02)
     return True
-
-
-def kill_tree(child: Child) -> None:
-    """SIGKILL a child and everything below it at once (a second Ctrl-C: no more grace)."""
-    if child.running():
-        for p in descendants(child.pid):
-            _kill(p, signal.SIGKILL)
-        _kill(child.pid, signal.SIGKILL)
-        if not child.interactive:
-            _killpg(child.pid, signal.SIGKILL)
 
 
 def tail(path: str, n: int = TAIL_LINES) -> str:

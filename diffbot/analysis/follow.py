@@ -4,7 +4,7 @@ The true distance is measured from ground truth: the follower's camera centre (i
 mount on the follower) to the centre of the leader's green ball (its part pose on
 the leader), both placed with the robots' full 3-D poses. Contacts between the two
 robots are judged on ground truth with the swarm's footprints
-(:mod:`diffbot.analysis_swarm`). Stretches of frames in which the follower believed no
+(:mod:`diffbot.analysis.swarm`). Stretches of frames in which the follower believed no
 ball (its ``follower/debug``) are reported with how far it drove during them once it had
 stopped for them.
 """
@@ -22,32 +22,11 @@ from bus.keys import TOPICS, Keys
 from controllers.ball_follower import LOST_AFTER_FRAMES
 from plant.footprint import footprint_centres
 
-from .analysis_swarm import footprint_gap, robot_contacts
+from .bands import BAND_M, FOLLOWER, LEADER, SETTLE_S, TARGET_M, ball_offset, pose_matrix_of
+from .swarm import footprint_gap, robot_contacts
 
-SETTLE_S = 5.0
-BAND_M = (0.60, 0.70)
-TARGET_M = 0.65
 ANIMATION_PERIOD_S = 0.4          # one animation frame per 0.4 s of simulated time (played 2x)
 BALL_RGB = (25, 215, 40)          # the ball in the animation's top-down view
-LEADER, FOLLOWER = "leader", "follower"
-
-
-def pose_matrix_of(odom) -> np.ndarray:
-    p, q = odom.pose.pose.position, odom.pose.pose.orientation
-    x, y, z, w = q.x, q.y, q.z, q.w
-    m = np.eye(4)
-    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    m[:3, 3] = (p.x, p.y, p.z)
-    return m
-
-
-def ball_offset(world) -> np.ndarray:
-    for part in world.robot(LEADER).parts:
-        if part.shape == "sphere":
-            return np.array([part.pose[0], part.pose[1], part.pose[2], 1.0])
-    raise ValueError(f"{world.path}: the leader carries no ball (a sphere part)")
 
 
 class FollowAnalysis:

@@ -2,7 +2,7 @@
 
 A :class:`Placement` is data: which process runs on which Ray node, the bus they share, and
 the engine that starts each placed process's command there. :func:`place` makes one from the
-command line; :class:`diffbot.scenario_run.ScenarioRun` takes it (``placement=``) and starts,
+command line; :class:`diffbot.launch.scenario_run.ScenarioRun` takes it (``placement=``) and starts,
 watches and stops every process the same way, local or placed (this module imports nothing
 of the run's).
 
@@ -15,7 +15,7 @@ the analysis reads) run on this machine. The bus:
   that node>``, every other process connects to it (the plant's node's address must be
   reachable from every node: a trusted network).
 - ``--tls``: every process is a client of your TLS router (docs/several-machines.md), with
-  the shipped config of its role (``diffbot/configs/<role>_tls.json5``); the ``DIFFBOT_*``
+  the shipped config of its role (``diffbot/launch/configs/<role>_tls.json5``); the ``DIFFBOT_*``
   variables of this environment are passed to every process.
 - ``--zenoh-config FILE``: every process uses that file, as in a local run.
 
@@ -43,8 +43,8 @@ from dataclasses import dataclass
 
 from bus.session import make_config
 
-from . import procs
-from . import runner
+from ..runner import procs
+from .. import runner
 
 CONFIGS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "configs")
 #: how long the observer keeps trying to reach a plant that a Ray worker is still starting
@@ -69,7 +69,7 @@ def add_args(p) -> None:
                         "belongs to; RAY_AUTH_MODE/RAY_AUTH_TOKEN from the environment)")
     g.add_argument("--tls", action="store_true",
                    help="with --place: every process connects to your TLS router with the "
-                        "shipped config of its role (diffbot/configs/*_tls.json5; "
+                        "shipped config of its role (diffbot/launch/configs/*_tls.json5; "
                         "DIFFBOT_CERTS, DIFFBOT_ROUTER, DIFFBOT_PORT from the environment)")
 
 
@@ -138,7 +138,7 @@ def free_port(address: str) -> int:
 
 def tls_config(role: str) -> str:
     """The shipped TLS config of a process of this role (plant, recorder, view, bridge,
-    node): diffbot/configs/<role>_tls.json5."""
+    node): diffbot/launch/configs/<role>_tls.json5."""
     return os.path.join(CONFIGS, f"{role}_tls.json5")
 
 
@@ -238,7 +238,7 @@ class RemoteChild(procs.Child):
 
 @dataclass
 class Placement:
-    """Where a run's processes go: the data :class:`diffbot.scenario_run.ScenarioRun` takes.
+    """Where a run's processes go: the data :class:`diffbot.launch.scenario_run.ScenarioRun` takes.
 
     ``where`` maps a process name to the Ray node it runs on (the others run here);
     ``engine`` starts, watches and stops the placed commands (the runner's Ray engine);
@@ -300,7 +300,7 @@ def place(args, names: list[str], endpoint: str, zenoh_config: str | None) -> Pl
     if args.tls:
         observer_config = tls_config("recorder")
         make_config("observer", "", observer_config)   # unset DIFFBOT_* -> an error now
-    from .runner.ray_engine import RayEngine
+    from ..runner.ray_engine import RayEngine
     address = args.address or "auto"
     try:
         engine = RayEngine(address)

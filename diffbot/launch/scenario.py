@@ -1,6 +1,6 @@
 """Scenario files: which world, which processes, which analysis.
 
-A scenario is a TOML file (shipped ones live in ``diffbot/scenarios/``)::
+A scenario is a TOML file (shipped ones live in ``diffbot/launch/scenarios/``)::
 
     [scenario]
     world = "living_room"      # world name or path
@@ -189,3 +189,10 @@ def list_scenarios() -> list[tuple[str, str]]:
                 desc = ""
             out.append((f[:-5], desc))
     return out
+
+
+def print_scenarios(argv: list[str]) -> int:
+    """``diffbot scenarios``: each shipped scenario's name and description, a line each."""
+    for name, desc in list_scenarios():
+        print(f"{name:14s} {desc}")
+    return 0
