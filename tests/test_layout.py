@@ -137,14 +137,9 @@ PLOTTING = ("matplotlib", "cv2")
 #: once the split lands
 LONG_MODULES = {
     "diffbot/envs/kinbatch.py",      # being split: the array core replaces it
-    "plant/process.py",              # being split: the plant process's parts
-    "bridges/record.py",             # being split: the recorder's parts
 }
 LONG_FUNCTIONS = {
     "diffbot/envs/kinbatch.py",      # being split: the array core replaces it
-    "plant/process.py:Plant.__init__",   # being split with plant/process.py
-    "plant/raycast.py:cast_rays",    # being split: the ray caster's stages
-    "bus/runtime.py:NodeRunner.run",     # being split: a dispatch on event types
 }
 MAX_MODULE_LINES = 500
 MAX_FUNCTION_LINES = 80
