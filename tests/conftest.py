@@ -22,6 +22,10 @@ SLACK_S = 0.5
 #: under CI (the variable CI set, as .ci/run and every CI service do) a missing tool or
 #: build fails its test instead of skipping it: a run must not pass with fewer checks
 CI = bool(os.environ.get("CI"))
+#: the runs the tests start draw no figures (`diffbot run --no-plots`: matplotlib's import
+#: and drawing are about a second of CPU a run, most of a short run's own); a test that
+#: checks a figure asks for it with `--plots`
+os.environ.setdefault("DIFFBOT_PLOTS", "0")
 
 # Hypothesis: under CI derandomised (a failure replays as it is) with a third of the
 # examples; on a developer's machine random, the full count, so the search goes on run
@@ -461,7 +465,7 @@ def square_seed0(tmp_path_factory):
     d = tmp_path_factory.mktemp("square_seed0")
     out, mcap = d / "out", d / "square.mcap"
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "square", "--seed", "0",
-                        "--out", str(out), "--record", str(mcap)],
+                        "--out", str(out), "--record", str(mcap), "--plots"],
                        cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     import json

@@ -152,7 +152,7 @@ def test_a_scenario_process_may_run_any_program(agent_dir):
                                 f'exec = ["{{python}}", "{script}", "--name", "{{name}}", '
                                 '"{bus}"]\nends_run = true\n')
     env = dict(os.environ, PYTHONPATH=ROOT)
-    summary = _run(agent_dir, scen, env=env)
+    summary = _run(agent_dir, scen, "--plots", env=env)
     assert "outsider finished" in summary["end_reason"]
     assert summary["sim_time_s"] == pytest.approx(15 * 0.02, abs=0.05)
     check_paths(agent_dir / "run", summary)

@@ -31,7 +31,7 @@ def band_runs(tmp_path_factory):
     def get(coupling: str):
         if coupling not in runs:
             out = tmp_path_factory.mktemp(f"follow_{coupling}")
-            runs[coupling] = (out, run_follow(out, "--coupling", coupling))
+            runs[coupling] = (out, run_follow(out, "--coupling", coupling, "--plots"))
         return runs[coupling]
     return get
 

@@ -54,7 +54,7 @@ def processes_mentioning(text: str) -> list[int]:
 
 
 def test_drive_test_matches_the_study(tmp_path):
-    r = diffbot_run("drive-test", "--out", str(tmp_path))
+    r = diffbot_run("drive-test", "--out", str(tmp_path), "--plots")
     assert r.returncode == 0, r.stderr
     s = json.load(open(tmp_path / "summary.json"))
     m = s["metrics"]
@@ -77,14 +77,17 @@ def test_square_closes_and_is_byte_identical_across_runs(tmp_path, coupling, req
     outs = [tmp_path / "a", tmp_path / "b"]
     if coupling == "pipelined":
         outs[0] = Path(request.getfixturevalue("square_seed0")["out"])
-    for out, compose in zip(outs, ((), ("--compose",))):
+    for out, compose in zip(outs, (("--plots",), ("--compose",))):
         if out.exists():
             continue
         r = diffbot_run("square", "--seed", "0", "--out", str(out), "--coupling", coupling,
                         *compose)
         assert r.returncode == 0, r.stderr
-    assert json.load(open(outs[1] / "summary.json"))["composed"] == [
-        "odometry_robot1", "square_path_robot1"]
+    second = json.load(open(outs[1] / "summary.json"))
+    assert second["composed"] == ["odometry_robot1", "square_path_robot1"]
+    # the second run drew no figures (DIFFBOT_PLOTS=0 here, as --no-plots): its data alone
+    assert not list(outs[1].glob("*.png")) and (outs[1] / "paths.csv").exists()
+    assert second["paths"]["files"] == ["paths.csv"]
     a, b = ((o / "trajectory.csv").read_bytes() for o in outs)
     assert len(a.splitlines()) > 1000
     assert a == b

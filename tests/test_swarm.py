@@ -84,7 +84,8 @@ def test_collision_episodes_count_rising_edges():
 @pytest.mark.slow
 def test_short_swarm_run_writes_summary_and_paths(tmp_path):
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "swarm", "--robots", "4",
-                        "--controller-processes", "2", "--duration", "6", "--out", str(tmp_path)],
+                        "--controller-processes", "2", "--duration", "6", "--out", str(tmp_path),
+                        "--plots"],
                        cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     s = json.load(open(tmp_path / "summary.json"))

@@ -40,7 +40,7 @@ class FollowAnalysis:
                 keys.topic(FOLLOWER, "camera/image_raw"): TOPICS["camera/image_raw"].msgtype}
 
     @staticmethod
-    def analyse(observer, keys, spec, world, out) -> dict:
+    def analyse(observer, keys, spec, world, out, plots: bool = True) -> dict:
         lead = {codec.msg_stamp_ns(m): m for m in observer.messages(keys.topic(LEADER, "ground_truth"))}
         fol = {codec.msg_stamp_ns(m): m for m in observer.messages(keys.topic(FOLLOWER, "ground_truth"))}
         debug = dict(observer.stamped(keys.topic(FOLLOWER, "follower/debug")))
@@ -68,8 +68,10 @@ class FollowAnalysis:
         # (ticks, [leader, follower], x y yaw)
         poses = np.stack([a[:, [4, 5, 8]], a[:, [6, 7, 9]]], axis=1)
         gap = footprint_gap(footprint_centres(poses[..., 0], poses[..., 1], poses[..., 2]), 0, 1)
-        plot_tracking(a, os.path.join(out, "tracking_distance.png"))
-        frames = write_animation(observer, keys, world, a, os.path.join(out, "follow.gif"))
+        frames = 0                      # the animation's frames (none without the figures)
+        if plots:
+            plot_tracking(a, os.path.join(out, "tracking_distance.png"))
+            frames = write_animation(observer, keys, world, a, os.path.join(out, "follow.gif"))
         in_band = settled[:, 1] if len(settled) else a[:, 1]
         return {
             "distance_min_m": float(in_band.min()), "distance_max_m": float(in_band.max()),

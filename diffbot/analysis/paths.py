@@ -55,8 +55,9 @@ def write_csv(path: str, tracks: dict[str, dict[int, tuple]]) -> str:
     return path
 
 
-def write_paths(observer, keys: Keys, spec, world, out: str) -> dict:
-    """``paths.csv`` and ``paths.png`` of a run; what the summary says of them."""
+def write_paths(observer, keys: Keys, spec, world, out: str, plots: bool = True) -> dict:
+    """``paths.csv`` and (with ``plots``) ``paths.png`` of a run; what the summary says of
+    them."""
     names = [r.name for r in world.robots]
     tracks = {r: rows for r, rows in ground_truth_tracks(observer, keys, names).items() if rows}
     if not tracks:
@@ -66,11 +67,12 @@ def write_paths(observer, keys: Keys, spec, world, out: str) -> dict:
     length = {r: float(np.sum(np.hypot(*np.diff(p[:, :2], axis=0).T))) for r, p in paths.items()}
     t0 = min(min(rows) for rows in tracks.values())
     t1 = max(max(rows) for rows in tracks.values())
-    plot_paths(paths, world, os.path.join(out, "paths.png"),
-               f"{spec.name}: {len(paths)} robot{'s' * (len(paths) > 1)}, "
-               f"{(t1 - t0) * 1e-9:.1f} s")
+    if plots:
+        plot_paths(paths, world, os.path.join(out, "paths.png"),
+                   f"{spec.name}: {len(paths)} robot{'s' * (len(paths) > 1)}, "
+                   f"{(t1 - t0) * 1e-9:.1f} s")
     return {"robots": len(paths), "duration_s": (t1 - t0) * 1e-9, "distance_m": length,
-            "files": ["paths.csv", "paths.png"]}
+            "files": ["paths.csv", "paths.png"] if plots else ["paths.csv"]}
 
 
 def plot_paths(paths: dict[str, np.ndarray], world, path: str, title: str) -> str:

@@ -49,7 +49,7 @@ class NoAnalysis:
         return {}
 
     @staticmethod
-    def analyse(observer, keys, spec, world, out) -> dict:
+    def analyse(observer, keys, spec, world, out, plots: bool = True) -> dict:
         return {}
 
 
@@ -65,7 +65,7 @@ class SquareAnalysis:
                 for t in ("odom", "gps", "cmd_vel", "joint_states")}
 
     @staticmethod
-    def analyse(observer, keys, spec, world, out) -> dict:
+    def analyse(observer, keys, spec, world, out, plots: bool = True) -> dict:
         r = spec.robot
         odom = {_stamp(m): m for m in observer.messages(keys.topic(r, "odom"))}
         gps = {_stamp(m): m for m in observer.messages(keys.topic(r, "gps"))}
@@ -97,8 +97,9 @@ class SquareAnalysis:
         err = float(np.hypot(a[-1, 1] - a[-1, 4], a[-1, 2] - a[-1, 5]))
         length = float(np.sum(np.hypot(np.diff(a[:, 4]), np.diff(a[:, 5]))))
         closure = float(np.hypot(a[-1, 4] - a[0, 4], a[-1, 5] - a[0, 5]))
-        plot_odometry_vs_gps(a, os.path.join(out, "odometry_vs_gps.png"),
-                             f"Odometry and GPS, {spec.name} ({len(rows)} samples)")
+        if plots:
+            plot_odometry_vs_gps(a, os.path.join(out, "odometry_vs_gps.png"),
+                                 f"Odometry and GPS, {spec.name} ({len(rows)} samples)")
         return {r: {"final_odom_error_m": err, "path_length_m": length,
                     "path_closure_m": closure, "duration_s": float(a[-1, 0] - a[0, 0]),
                     "max_odom_error_m": float(np.max(np.hypot(a[:, 1] - a[:, 4],
@@ -133,7 +134,7 @@ class DriveTestAnalysis:
                 keys.topic(r, "wheel_cmd"): TOPICS["wheel_cmd"].msgtype}
 
     @staticmethod
-    def analyse(observer, keys, spec, world, out) -> dict:
+    def analyse(observer, keys, spec, world, out, plots: bool = True) -> dict:
         r = spec.robot
         gt = observer.messages(keys.topic(r, "ground_truth"))
         cmds = observer.messages(keys.topic(r, "wheel_cmd"))
@@ -161,7 +162,8 @@ class DriveTestAnalysis:
 
         steady("steady_linear_velocity_mps", 1, 3.0, 5.0)
         steady("steady_angular_velocity_radps", 2, 8.0, 10.0)
-        plot_velocities(a, t0, os.path.join(out, "velocity.png"))
+        if plots:
+            plot_velocities(a, t0, os.path.join(out, "velocity.png"))
         return {**metrics, "expected_linear_velocity_mps": 0.12,
                 "expected_angular_velocity_radps": -0.12 / 0.18}
 

@@ -83,7 +83,7 @@ class SwarmAnalysis:
         return paths_keys(keys, world)
 
     @staticmethod
-    def analyse(observer, keys, spec, world, out) -> dict:
+    def analyse(observer, keys, spec, world, out, plots: bool = True) -> dict:
         names = [r.name for r in world.robots]
         tracks = ground_truth_tracks(observer, keys, names)
         stamps = sorted(set.intersection(*(set(t) for t in tracks.values()))) if tracks else []
@@ -94,10 +94,11 @@ class SwarmAnalysis:
                   {r: {t: tracks[r][t] for t in stamps} for r in names})
         dist = np.sum(np.hypot(np.diff(a[:, :, 0], axis=0), np.diff(a[:, :, 1], axis=0)), axis=0)
         col = collisions(footprint_centres(a[:, :, 0], a[:, :, 1], a[:, :, 2]), world)
-        plot_paths({r: a[:, i, :2] for i, r in enumerate(names)}, world,
-                   os.path.join(out, "paths.png"),
-                   f"swarm: {len(names)} robots, {(stamps[-1] - stamps[0]) * 1e-9:.0f} s, "
-                   f"{col['total']} collisions")
+        if plots:
+            plot_paths({r: a[:, i, :2] for i, r in enumerate(names)}, world,
+                       os.path.join(out, "paths.png"),
+                       f"swarm: {len(names)} robots, {(stamps[-1] - stamps[0]) * 1e-9:.0f} s, "
+                       f"{col['total']} collisions")
         return {"robots": len(names), "samples": len(stamps),
                 "duration_s": (stamps[-1] - stamps[0]) * 1e-9,
                 "distance_m": {r: float(d) for r, d in zip(names, dist)},

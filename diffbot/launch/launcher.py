@@ -73,6 +73,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every message into this MCAP file (Foxglove opens it; a path "
                         "without .mcap is a rosbag2 bag directory)")
+    p.add_argument("--plots", action=argparse.BooleanOptionalAction,
+                   default=os.environ.get("DIFFBOT_PLOTS", "1") != "0",
+                   help="draw the run's figures (PNG plots, the follow animation; default); "
+                        "--no-plots writes the data alone (CSV, summary.json), a second or "
+                        "so less a run, for batches of runs (DIFFBOT_PLOTS=0 sets the default)")
     p.add_argument("--robots", type=positive_int, default=None, metavar="N",
                    help="robot count of a generated-world scenario (swarm; default: the "
                         "scenario's)")
@@ -155,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_BAD_INPUT
         run.endpoint, run.zenoh_config = run.placement.endpoint, run.placement.zenoh_config
     run.build()
-    live = _Live(run, ANALYSES[spec.analysis], keys, spec, world, out, placed)
+    live = _Live(run, ANALYSES[spec.analysis], keys, spec, world, out, placed, args.plots)
     wall0 = time.monotonic()
     code = EXIT_FAILED
     try:
@@ -195,9 +200,10 @@ class _Live:
     bus session observing what the analysis needs, and after it the summary."""
 
     def __init__(self, run: ScenarioRun, analysis, keys: Keys, spec: ScenarioSpec, world,
-                 out: str, placed: bool) -> None:
+                 out: str, placed: bool, plots: bool = True) -> None:
         self.run, self.analysis, self.keys = run, analysis, keys
         self.spec, self.world, self.out, self.placed = spec, world, out, placed
+        self.draw = plots                   # the figures drawn, not only the data written
         # every run draws its robots' paths (paths.png, paths.csv) unless its analysis does
         self.own_paths = getattr(analysis, "draws_paths", False)
         self.observer = self.session = self.watch = self.plots = self.stats = None
@@ -244,7 +250,7 @@ class _Live:
               f"{len(run.children)} processes, output in {self.out}", file=sys.stderr)
         if self.placed:
             print(f"diffbot run: {placement.describe(run)}", file=sys.stderr)
-        if self.analysis.draws or not self.own_paths:
+        if self.draw and (self.analysis.draws or not self.own_paths):
             self.plots = import_plots_meanwhile()
         return run.supervise(stop_flag)
 
@@ -274,7 +280,7 @@ class _Live:
         if observer is not None:
             if self.plots is not None:
                 self.plots.join()
-            args = (observer, self.keys, self.spec, self.world, self.out)
+            args = (observer, self.keys, self.spec, self.world, self.out, self.draw)
             try:
                 summary["metrics"] = self.analysis.analyse(*args)
             except Exception as exc:  # analysis must not lose the summary
