@@ -84,7 +84,7 @@ test-random: setup netns-tools
 	CI=$${CI:-true} $(BIN)/python -m pytest -q -p randomly --randomly-seed=$(SEED) \
 	  -n $(TEST_WORKERS) --dist loadgroup
 
-# tests/test_netns.py needs `ip` (iproute2) and `openssl`, the Ecos runs of tests/test_plant_fmu.py
+# tests/network/test_netns.py needs `ip` (iproute2) and `openssl`, the Ecos runs of tests/fmus/test_plant_fmu.py
 # libtbb.so.12 (libtbb12). Installed only when missing,
 # only as root, only with apt-get (a fresh Debian CI machine); otherwise the test skips
 # and says why.
@@ -92,7 +92,7 @@ netns-tools:
 	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
 	    { ! command -v ip >/dev/null || ! command -v openssl >/dev/null || \
 	      ! ldconfig -p | grep -q libtbb.so.12; }; then \
-	  echo "installing iproute2 and openssl (tests/test_netns.py), libtbb12 (Ecos, tests/test_plant_fmu.py)"; \
+	  echo "installing iproute2 and openssl (tests/network/test_netns.py), libtbb12 (Ecos, tests/fmus/test_plant_fmu.py)"; \
 	  apt-get update -qq && apt-get install -y -qq iproute2 openssl >/dev/null; \
 	  apt-get install -y -qq libtbb12 >/dev/null || echo "no libtbb12: the Ecos tests will skip"; fi
 
@@ -102,7 +102,7 @@ test-fast: setup
 # One hour of simulated time in lockstep, sensors on (SOAK_SIM_S=600 for a shorter one):
 # memory, lost messages, /dev/shm. Writes out/soak/soak.json.
 soak: setup
-	$(BIN)/python -m pytest -q -s -m soak -p no:cacheprovider tests/test_soak.py
+	$(BIN)/python -m pytest -q -s -m soak -p no:cacheprovider tests/runs/test_soak.py
 
 bench: setup
 	$(BIN)/diffbot bench

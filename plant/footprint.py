@@ -88,7 +88,7 @@ class Footprints:
                           self.kernel_args())
 
     def reference_clearances(self, cs: np.ndarray) -> np.ndarray:
-        """:meth:`clearances` in numpy (the kernel's reference: tests/test_kernels.py
+        """:meth:`clearances` in numpy (the kernel's reference: tests/plant/test_kernels.py
         compares them to the bit)."""
         least = np.minimum.reduce          # (np.min without its wrapper: the same minimum)
         out = least(self.half - np.abs(cs), axis=1)

@@ -110,7 +110,7 @@ def kernel_state(k) -> tuple[tuple[int, ...], bool]:
 
 def reference_step(k, targets: np.ndarray) -> None:
     """:func:`step_arrays` in numpy, operation by operation (the kernel's reference:
-    tests/test_kernels.py compares them to the bit)."""
+    tests/plant/test_kernels.py compares them to the bit)."""
     T = k.tick_s
     wl, wr = targets[:, 0], targets[:, 1]
     r = k.radius

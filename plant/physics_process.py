@@ -7,7 +7,7 @@ puts take turns on one core; here they run side by side on two. The plant keeps 
 motion noise and commanded wheel speeds, the world's description) and reads the robots'
 states and the parts its sensors see from the snapshot the worker sends after each tick.
 The worker runs the same code on the same world, so the motion is the same bit for bit
-(tests/test_physics_process.py).
+(tests/plant/test_physics_process.py).
 
 Between the two, a socket pair carries pickles: ``("build", spec)``, ``("step",
 wheel_targets, with_parts)``, ``("close",)``; each build and step is answered with a

@@ -163,7 +163,7 @@ def floor_is_plane(world: WorldSpec) -> bool:
     """Whether the floor collides as the plane z = 0 rather than as its box: where walls
     keep everything on the floor (so its edges can never be reached) and the detector is
     Bullet, whose sphere-plane test is ~10 % of a swarm's step cheaper than sphere-box
-    (GJK) and moves the robots the same to a fraction of a millimetre (tests/test_physics.py)."""
+    (GJK) and moves the robots the same to a fraction of a millimetre (tests/plant/test_physics.py)."""
     return world.wall_height_m > 0 and world.collision_detector == "bullet"
 
 

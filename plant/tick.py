@@ -12,7 +12,7 @@ commands. Tick k is::
 
 A reading's noise is a function of (seed, robot, stream, tick, index) (:mod:`plant.noise`),
 so no order of calls changes it. Anything that changes the sensors due at a tick or a
-message's values changes every host at once; ``tests/test_envs_identity.py``
+message's values changes every host at once; ``tests/envs/test_envs_identity.py``
 checks that the in-process and bus transports still agree to the bit.
 """
 from __future__ import annotations

@@ -43,7 +43,7 @@ def examples(n: int) -> int:
 
 # ---------------------------------------------------------------- parallel runs (xdist)
 # `make test` runs the suite on two pytest-xdist workers (`-n 2 --dist loadgroup`; pytest
-# below 9.2, where that groups: tests/test_suite_contract.py). Three
+# below 9.2, where that groups: tests/house/test_suite_contract.py). Three
 # rules keep that as reliable as one worker:
 # - the tests of a file stay on one worker (their module and session fixtures run once), a
 #   file's ``xdist_group`` mark putting it with the other files of the same group (the
@@ -345,7 +345,7 @@ def procs(tmp_path):
     pr.cleanup()
 
 
-#: tests/test_sweep.py's table and tests/test_sweep_ray.py's reference (conftest.local_sweep)
+#: tests/runs/test_sweep.py's table and tests/runs/test_sweep_ray.py's reference (conftest.local_sweep)
 LOCAL_SWEEP = ("sweep", "drive-test", "--grid",
                "robots.robot1.motion.command_noise_std_radps=0,0.3", "--seeds", "0-1",
                "--duration", "10.5")
@@ -354,7 +354,7 @@ LOCAL_SWEEP = ("sweep", "drive-test", "--grid",
 @pytest.fixture(scope="session")
 def local_sweep(tmp_path_factory):
     """``diffbot sweep`` LOCAL_SWEEP on the local engine, run once for the files that read
-    it (tests/test_sweep.py: its table, plots and resume; tests/test_sweep_ray.py: the
+    it (tests/runs/test_sweep.py: its table, plots and resume; tests/runs/test_sweep_ray.py: the
     metrics the Ray engine must give), one xdist group ("ray"). {"out": its folder,
     "args": the command's arguments, "log": its output}."""
     out = tmp_path_factory.mktemp("local_sweep") / "sweep"
@@ -367,11 +367,11 @@ def local_sweep(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def ray_cluster():
-    """A real two-node Ray cluster on this machine (tests/ray_cluster.py), started once for
+    """A real two-node Ray cluster on this machine (tests/support/ray_cluster.py), started once for
     the tests that need one; a module takes it with ``ray_cluster.revive()`` first (a test
     may have killed the worker)."""
     pytest.importorskip("ray", reason="the [cluster] extra (make setup installs it)")
-    from .ray_cluster import two_nodes
+    from .support.ray_cluster import two_nodes
     with two_nodes() as c:
         yield c
 
@@ -457,8 +457,8 @@ def check_realtime_pace(stats: dict, rate: float = 1.0, tick_s: float = 0.02) ->
 @pytest.fixture(scope="session")
 def square_seed0(tmp_path_factory):
     """``diffbot run square --seed 0 --record`` (the scenario's whole square, lockstep),
-    run once for the files that compare against it (tests/test_netns.py: the recording;
-    tests/test_plant_fmu.py: the odometry error; tests/test_ros2_bridge.py: the trajectory
+    run once for the files that compare against it (tests/network/test_netns.py: the recording;
+    tests/fmus/test_plant_fmu.py: the odometry error; tests/bridges/test_ros2_bridge.py: the trajectory
     the rclpy square drives), and by whichever runs first: a test run
     alone runs it too. Those files are one xdist group, so one worker runs it.
     {"out": results folder, "mcap": recording, "summary": summary.json}."""

@@ -350,7 +350,7 @@ class AvoidEnv(gym.Env):
 
     def _step_arrays(self, task: AvoidTask, action):
         """:meth:`AvoidTask.step` of the one robot through the fast path: the same numbers
-        (``tests/test_envs_identity.py``: a plant over the bus beside it, every noise on)."""
+        (``tests/envs/test_envs_identity.py``: a plant over the bus beside it, every noise on)."""
         robot = self.robot
         cmd = task.drives[robot].command(action, robot)
         fresh = self._fresh

@@ -6,8 +6,8 @@ reads them; the tasks this module steps are :class:`~diffbot.envs.avoid.AvoidTas
 a hundred microseconds of Python per world and tick, most of it building and reading
 message objects. When every world of the batch is in this process (no physics process)
 with one robot and no camera, :class:`ArrayTicks` makes the same numbers for all of them
-at once, each to the bit what the message path gives (``tests/test_envs_vector.py`` runs
-both side by side, noise on, in both world modes; ``tests/test_envs_identity.py`` the
+at once, each to the bit what the message path gives (``tests/envs/test_envs_vector.py`` runs
+both side by side, noise on, in both world modes; ``tests/envs/test_envs_identity.py`` the
 single env against a plant over the bus). :class:`diffbot.envs.avoid.AvoidEnv` steps its
 one world the same way.
 

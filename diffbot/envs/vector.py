@@ -13,7 +13,7 @@ of each and the step of all (:func:`plant.tick.step_ticks`: a kinematic world's 
 then each env's observation. One-robot worlds (no camera: Avoid's) skip the messages:
 :mod:`diffbot.envs.kinbatch` makes their commands, ticks, observations, rewards and
 ``info`` as arrays, the same numbers to the bit (``Worlds.arrays = None`` takes the
-message path, the oracle ``tests/test_envs_vector.py`` compares them with).
+message path, the oracle ``tests/envs/test_envs_vector.py`` compares them with).
 
 Autoreset is Gymnasium 1.x's, ``autoreset_mode=`` (``metadata["autoreset_mode"]``), as
 ``gymnasium.vector.SyncVectorEnv`` over single envs gives it, to the bit:

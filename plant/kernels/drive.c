@@ -6,7 +6,7 @@
  * arithmetic, operation by operation and in the same order, in IEEE doubles: no fused
  * multiply-adds (-ffp-contract=off, plant/kernels/build.py) and libm's sin and cos, which
  * are what Python's math module calls, so every value is the Python code's to the bit
- * (tests/test_envs_vector.py compares them through a batch against the message path).
+ * (tests/envs/test_envs_vector.py compares them through a batch against the message path).
  */
 #include <math.h>
 #include <stdint.h>

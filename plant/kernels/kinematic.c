@@ -6,7 +6,7 @@
  * plant/kinematic.py's reference_step is the same arithmetic in numpy, element by element;
  * here it is operation by operation and in the same order, in IEEE doubles: no fused
  * multiply-adds (-ffp-contract=off, plant/kernels/build.py), libm's sin, cos and hypot
- * (numpy's ufuncs give the same values here: tests/test_kernels.py compares the two to the
+ * (numpy's ufuncs give the same values here: tests/plant/test_kernels.py compares the two to the
  * bit), and numpy's minimum and maximum, which keep a NaN.
  */
 #include <math.h>

@@ -5,8 +5,8 @@
  * (plant_drive_limit), the command noise of the robots that move, the kinematic step
  * (plant_kinematic_step), the encoders' noise, the dead reckoning (plant_odometry) and the
  * worlds' clocks. The same operations in the same order as its Python, so the same bits
- * (tests/test_envs_vector.py runs the message path beside it, every noise on;
- * tests/test_envs_identity.py a plant over the bus).
+ * (tests/envs/test_envs_vector.py runs the message path beside it, every noise on;
+ * tests/envs/test_envs_identity.py a plant over the bus).
  * The noise: each stream's readings for the ticks of the call, drawn by the caller
  * (plant/noise.py's normals, a function of the stream's key and the tick: the plant's own
  * values), one reading a tick, read here tick by tick; a robot that stands skips its

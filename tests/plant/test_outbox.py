@@ -1,0 +1,73 @@
+"""The plant's outbox: who reads a key (Zenoh's matching status through the plant's router
+session), bytes out with their attachment, sequence numbers that count skipped messages."""
+from __future__ import annotations
+
+import queue
+
+import zenoh
+
+from bus import codec
+from bus.session import open_session
+from plant.outbox import Outbox
+
+from ..conftest import wait_for
+
+
+def test_a_key_is_read_while_a_client_subscribes_and_its_puts_carry_seq_and_stamp(endpoint,
+                                                                                 bus):
+    plant = open_session("plant", endpoint)
+    try:
+        out = Outbox(plant, zenoh.CongestionControl.BLOCK)
+        assert not out.reads("r/scan") and not out.reads("r/gps")
+        got: queue.Queue = queue.Queue()
+        client = bus()
+        sub = client.declare_subscriber("r/scan", lambda s: got.put(
+            (s.payload.to_bytes(), codec.parse_attachment(s.attachment.to_bytes()))))
+        wait_for(lambda: out.reads("r/scan"), 5.0, what="the subscriber to be seen")
+        assert not out.reads("r/gps")                      # another key: nobody
+        out.put("r/scan", b"one", 20_000_000, 0)
+        out.skip(2)                                        # two due messages nobody reads
+        out.put("r/scan", b"two", 40_000_000, 1)           # a reset: the world's epoch
+        assert got.get(timeout=5) == (b"one", codec.Attachment(1, 20_000_000, epoch=0))
+        assert got.get(timeout=5) == (b"two", codec.Attachment(4, 40_000_000, epoch=1))
+        assert out.published == {"r/scan": 2}
+        out.undeclare()
+    finally:
+        plant.close()
+
+
+def test_without_skip_unread_every_key_counts_as_read(endpoint):
+    plant = open_session("plant", endpoint)
+    try:
+        out = Outbox(plant, zenoh.CongestionControl.BLOCK, skip_unread=False)
+        assert out.reads("r/scan")
+        out.undeclare()
+    finally:
+        plant.close()
+
+
+def test_what_is_read_is_asked_again_after_a_change_and_when_a_subscriber_comes(endpoint, bus):
+    plant = open_session("plant", endpoint)
+    try:
+        out = Outbox(plant, zenoh.CongestionControl.BLOCK)
+        assert not out.reads("r/gps") and not out.reads("r/odom")
+        client = bus()
+        sub = client.declare_subscriber("r/gps", lambda s: None)
+        # a subscriber that is no lockstep member: its matching listener says so, soon
+        wait_for(lambda: out.reads("r/gps"), 5.0, what="the listener to forget the answer")
+        # a node joining: declared, then the plant is told (as on its liveliness token)
+        client.declare_subscriber("r/odom", lambda s: None)
+        wait_for(lambda: bool(plant.declare_publisher("r/odom").matching_status.matching), 5.0,
+                 what="the tables to have it")
+        out.changed()
+        assert out.reads("r/odom")
+        # a reader that goes (a blip, a member lost): its keys are still built, so a
+        # re-publish after it comes back has every tick it missed
+        sub.undeclare()
+        probe = plant.declare_publisher("r/gps")
+        wait_for(lambda: not probe.matching_status.matching, 5.0, what="the reader to be gone")
+        out.changed()
+        assert out.reads("r/gps") and not out.reads("r/scan")
+        out.undeclare()
+    finally:
+        plant.close()

@@ -1,0 +1,131 @@
+"""DART in a process of its own (plant/physics_process.py): the same motion bit for bit,
+the same run on the bus, and no process left behind however the plant ends."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from plant.physics_process import PhysicsError, PhysicsProcess
+from plant.sim import Simulation
+from plant.swarm_world import write_swarm_world
+from plant.world import load_world
+
+from ..conftest import ROOT, wait_for
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1].startswith("Z")      # a zombie is gone too
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.slow
+def test_the_process_steps_and_reports_what_the_plant_would_itself(tmp_path):
+    spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, seed=3))
+    local, mirror = Simulation(spec), Simulation(spec)
+    physics = PhysicsProcess(spec)
+    try:
+        names = list(local.robots)
+        for k in range(40):
+            if k == 25:                       # a sim/reset: rebuilt, one robot moved
+                spec.robot("r1").pose = (1.0, -1.0, 0.5)
+                local, mirror = Simulation(spec), Simulation(spec)
+                physics.build(spec)
+            for i, name in enumerate(names):  # the plant's own copy turns commands into
+                mirror.command_twist(name, 0.3, 0.5 * math.sin(k / 7 + i))   # targets
+                local.command_twist(name, 0.3, 0.5 * math.sin(k / 7 + i))
+            physics.start_step([r.targets for r in mirror.robots.values()], k % 5 == 4)
+            local.step_tick()
+            physics.finish_step()
+            for i, name in enumerate(names):
+                want, got = local.state(name), physics.state(i)
+                assert np.array_equal(want.tf, got.tf) and want.yaw == got.yaw
+                assert np.array_equal(want.v_body, got.v_body)
+                assert np.array_equal(want.w_body, got.w_body)
+                assert np.array_equal(want.enc_pos, got.enc_pos)
+                assert np.array_equal(want.enc_vel, got.enc_vel)
+            if k % 5 == 4:
+                assert np.array_equal(physics.parts, local.part_transforms())
+                assert [s.pose.tolist() for s in local.shapes()] == \
+                    [s.pose.tolist() for s in mirror.shapes(physics.parts)]
+            else:
+                assert physics.parts is None
+            assert physics.finite
+    finally:
+        physics.close()
+    assert physics.proc.poll() == 0
+
+
+@pytest.mark.slow
+def test_a_dead_physics_process_is_an_error_naming_it(tmp_path):
+    physics = PhysicsProcess(load_world("empty"))
+    try:
+        physics.proc.kill()
+        physics.proc.wait(10)
+        with pytest.raises(PhysicsError, match="physics process is gone"):
+            physics.start_step([(0.0, 0.0)], False)
+            physics.finish_step()
+    finally:
+        physics.close()
+
+
+def _swarm(tmp_path, name: str, *extra: str) -> tuple[dict, str, dict]:
+    out = tmp_path / name
+    r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "swarm", "--robots", "3",
+                        "--controller-processes", "2", "--coupling", "pipelined",
+                        "--duration", "3", "--out", str(out), *extra],
+                       cwd=ROOT, capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr
+    with open(out / "summary.json") as f:
+        summary = json.load(f)
+    with open(out / "logs" / "plant.json") as f:
+        return summary, (out / "paths.csv").read_text(), json.load(f)
+
+
+@pytest.mark.slow
+def test_pipelined_lockstep_with_the_physics_process_gives_the_same_run(tmp_path):
+    """The plant publishes tick k while the physics steps to k+1: nothing on the bus
+    changes, only who does the work when. The robots' distances are sums over every
+    ground truth (scans steer them), so one different bit anywhere would show."""
+    here, paths_here, st_here = _swarm(tmp_path, "in-process", "--no-physics-process")
+    there, paths_there, st_there = _swarm(tmp_path, "own-process", "--physics-process")
+    assert not st_here["physics_process"] and st_there["physics_process"]
+    assert st_here["published"] == st_there["published"]
+    assert st_here["published"]["r2/scan"] == 31                # 3 s of 10 Hz, both ends
+    assert here["message_counts"] == there["message_counts"]
+    assert here["metrics"]["distance_m"] == there["metrics"]["distance_m"]
+    assert here["metrics"]["collisions"] == there["metrics"]["collisions"]
+    assert paths_here == paths_there
+    assert there["sim_time_s"] == pytest.approx(3.0)
+
+
+@pytest.mark.slow
+def test_the_physics_process_goes_with_a_killed_plant(procs, endpoint, tmp_path):
+    plant = procs.diffbot("plant", "--world", "empty", "--mode", "fast", "--physics-process",
+                          "--endpoint", endpoint, name="plant")
+
+    def worker():
+        for pid in os.listdir("/proc"):
+            if pid.isdigit():
+                try:
+                    with open(f"/proc/{pid}/cmdline", "rb") as f:
+                        cmd = f.read().split(b"\0")
+                except OSError:
+                    continue
+                if b"plant.physics_process" in cmd and str(plant.pid).encode() in cmd:
+                    return int(pid)
+        return None
+    pid = wait_for(worker, 30, what="the physics process")
+    wait_for(lambda: "running empty" in procs.log(plant), 30, what="the plant running")
+    plant.send_signal(signal.SIGKILL)
+    plant.wait(10)
+    wait_for(lambda: _gone(pid), 10, what="the physics process gone with the plant")
