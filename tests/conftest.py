@@ -1,6 +1,7 @@
 """Shared fixtures: a private bus endpoint per test and processes that are always cleaned up."""
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import resource
@@ -169,8 +170,10 @@ def pytest_runtest_protocol(item, nextitem):
     outermost wrapper, so waiting for the turn does not count in pytest-timeout's time."""
     timeline = os.environ.get("DIFFBOT_TEST_TIMELINE")
     t0, cpu0 = time.time(), _cpu_s()
-    if not os.environ.get(_LOCK_DIR) or not os.environ.get("PYTEST_XDIST_WORKER") \
-            or _background(item):
+    if _background(item):               # no turn taken: its processes yield the CPU
+        with _background_processes_yield():
+            yield
+    elif not os.environ.get(_LOCK_DIR) or not os.environ.get("PYTEST_XDIST_WORKER"):
         yield
     else:
         serial = _serial(item)
@@ -220,13 +223,12 @@ def lower_priority(pid: int, nice: int = BACKGROUND_NICE) -> None:
         pass
 
 
-@pytest.fixture(autouse=True)
-def _background_processes_yield(request, monkeypatch):
+@contextlib.contextmanager
+def _background_processes_yield():
     """Every process a ``background`` test starts runs in a session of its own (so its
-    children share its autogroup) at the lowest CPU priority, set from here as it starts."""
-    if not _background(request.node):
-        yield
-        return
+    children share its autogroup) at the lowest CPU priority, set from here as it starts.
+    Around the background tests only (:func:`pytest_runtest_protocol`): Popen's keyword
+    arguments can be changed nowhere else."""
     real_init = subprocess.Popen.__init__
 
     def init(self, args, *a, **kw):
@@ -234,28 +236,47 @@ def _background_processes_yield(request, monkeypatch):
             kw["start_new_session"] = True
         real_init(self, args, *a, **kw)
         lower_priority(self.pid)
-    monkeypatch.setattr(subprocess.Popen, "__init__", init)
-    yield
+    subprocess.Popen.__init__ = init
+    try:
+        yield
+    finally:
+        subprocess.Popen.__init__ = real_init
+
+
+class _Starts:
+    """What the running test starts, as Python's audit events say it (PEP 578: the
+    ``subprocess.Popen`` event, raised by every Popen, ours and libraries'): one hook for
+    the session, nothing patched."""
+
+    def __init__(self) -> None:
+        self.started: list[str] | None = None      # None: not watching
+
+    def audit(self, event: str, args) -> None:
+        if event != "subprocess.Popen" or self.started is None:
+            return
+        argv = args[1]
+        argv = [str(a) for a in argv] if isinstance(argv, (list, tuple)) else [str(argv)]
+        if argv and os.path.basename(argv[0].split()[0]) not in QUICK_LOOKUPS:
+            self.started.append(" ".join(argv))
+
+
+_STARTS = _Starts()
+sys.addaudithook(_STARTS.audit)
 
 
 @pytest.fixture(autouse=True)
-def _slow_mark_is_true(request, monkeypatch):
+def _slow_mark_is_true(request):
     """A test that starts a process (a plant, a compiler, openssl, a Ray node) must be
     marked ``slow``: ``make test-fast`` (``-m "not slow"``) is the in-process subset
     docs/install.md describes. Such a test fails here, naming what it started."""
     if request.node.get_closest_marker("slow"):
         yield
         return
-    started: list[str] = []
-    real_init = subprocess.Popen.__init__
-
-    def init(self, args, *a, **kw):
-        argv = [str(a) for a in args] if isinstance(args, (list, tuple)) else [str(args)]
-        if os.path.basename(argv[0].split()[0]) not in QUICK_LOOKUPS:
-            started.append(" ".join(argv))
-        real_init(self, args, *a, **kw)
-    monkeypatch.setattr(subprocess.Popen, "__init__", init)
-    yield
+    _STARTS.started = []
+    try:
+        yield
+    finally:
+        started, _STARTS.started = _STARTS.started, None
     if started:
         pytest.fail(f"{request.node.nodeid} starts processes but is not marked slow: "
                     + "; ".join(a[:120] for a in started[:3]), pytrace=False)
