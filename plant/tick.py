@@ -22,7 +22,7 @@ import numpy as np
 
 from bus.controller import Twist, WheelSpeeds
 
-from . import kinematic
+from . import core, kinematic
 from . import lidar as lid
 from .physics_process import PhysicsProcess
 from .raycast import Scene
@@ -48,6 +48,7 @@ class Tick:
         self.physics_process = physics_process
         self.overlap = overlap
         self.physics: PhysicsProcess | None = None
+        self.model: core.Model | None = None
         self.build()
 
     def build(self) -> None:
@@ -63,6 +64,10 @@ class Tick:
                 self.physics.build(self.spec)
         self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
                                overlap=self.overlap)
+        if self.model is None:            # (a reset moves the robots, not their sensors)
+            self.model = core.Model([self.spec])
+            self.data = core.Data(self.model)
+        self.data.streams[0] = self.sensors
 
     def reset(self, seed: int | None = None, poses: dict | None = None) -> None:
         """As ``sim/reset``: keep ``seed`` and the start ``poses`` ({robot: (x, y, yaw)}) in
@@ -80,7 +85,13 @@ class Tick:
     def messages(self, wanted: dict[str, Wanted] | None = None, encoded: bool = False
                  ) -> Iterator[tuple[str, str, object]]:
         """(robot, topic, message) of every sensor due now, in the plant's order
-        (:func:`tick_messages`: ``None`` for a topic nobody wants; ``encoded``: CDR bytes)."""
+        (:func:`tick_messages`: ``None`` for a topic nobody wants; ``encoded``: CDR bytes,
+        made by the core for every robot at once: :func:`plant.core.sense`)."""
+        if encoded:
+            t_ns = self.sim.time_ns
+            core.observe(self.model, self.data, 0, self.stepper)
+            return iter(core.sense(self.model, self.data, 0, t_ns, self.stepper.shapes,
+                                   settled(self.sensors, t_ns // self.tick_ns, wanted)))
         return tick_messages(self.sim.time_ns, self.tick_ns, self.sensors, self.stepper.state,
                              self.stepper.shapes, wanted, encoded)
 

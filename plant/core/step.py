@@ -1,0 +1,209 @@
+"""The core's step: one call a tick for every robot of a world.
+
+:func:`observe` reads every robot's true state into the :class:`~plant.core.data.Data`
+arrays (a kinematic world's straight from its arrays, with the arithmetic of
+:meth:`plant.sim.Simulation.kin_state`; a dynamic one's from DART). :func:`sense` makes the
+messages due at the tick: the per-tick values of all robots at once (encoders, GPS, ground
+truth), every due lidar of one configuration in one kernel call
+(:func:`plant.lidar.scan_many`), the sensor noise, and the per-tick messages' CDR bytes
+packed for all robots in one pass (:class:`bus.packed.Rows`). Cameras, where due, render
+robot by robot. The bytes equal the per-message path's (:func:`plant.tick.tick_messages`
+with :class:`plant.sensors.RobotSensors`), which the tests keep as the oracle.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+
+from bus import codec
+
+from .. import camera as cam
+from .. import lidar as lid
+from ..raycast import Scene
+from ..sim import rotation_to_quaternion
+from .data import Data
+from .model import EVERY_TICK, Model
+
+_F8 = np.dtype("<f8")
+_F4 = np.dtype("<f4")
+
+
+def observe(model: Model, data: Data, w: int, stepper) -> None:
+    """World ``w``'s robots' true state into ``data`` (``stepper``: its
+    :class:`plant.stepper.Stepper`), and its tick."""
+    sim = stepper.sim
+    data.tick[w] = sim.time_ns // model.tick_ns
+    if sim.kin is not None and stepper.physics is None:
+        _observe_kinematic(data, w, sim.kin)
+        return
+    for i, name in enumerate(model.robots):      # DART's state, robot by robot
+        st = stepper.state(name)
+        data.tf[w, i] = st.tf
+        data.yaw[w, i] = st.yaw
+        data.v[w, i] = st.v_body[0]
+        data.w[w, i] = st.w_body[2]
+        data.enc_pos[w, i] = st.enc_pos
+        data.enc_vel[w, i] = st.enc_vel
+        data.quaternion[w, i] = rotation_to_quaternion(st.tf)
+
+
+def _observe_kinematic(data: Data, w: int, kin) -> None:
+    """:meth:`Simulation.kin_state` of every robot at once: the sines and cosines from
+    Python's math (the per-robot path's, to the bit), the rest element by element."""
+    yaw = kin.pose[:, 2].tolist()
+    c = np.array(list(map(math.cos, yaw)))
+    s = np.array(list(map(math.sin, yaw)))
+    tf = data.tf[w]
+    tf[:, 0, 0], tf[:, 0, 1], tf[:, 0, 3] = c, -s, kin.pose[:, 0]
+    tf[:, 1, 0], tf[:, 1, 1], tf[:, 1, 3] = s, c, kin.pose[:, 1]
+    tf[:, 2, 3] = kin.radius
+    data.yaw[w] = list(map(math.atan2, s.tolist(), c.tolist()))
+    data.v[w] = kin.vel[:, 0]
+    data.w[w] = kin.vel[:, 1]
+    data.enc_pos[w] = kin.wheels
+    data.enc_vel[w] = kin.speeds
+    # plant.sim.rotation_to_quaternion of [[c, -s, 0], [s, c, 0], [0, 0, 1]], both branches
+    tr = (c + c) + 1.0
+    pos = tr > 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s1 = np.sqrt(np.where(pos, tr, 0.0) + 1.0) * 2      # trace > 0
+        s2 = np.sqrt(((1.0 + 1.0) - c) - c) * 2             # else the z axis leads
+        q = data.quaternion[w]
+        q[:, 0] = np.where(pos, 0.0 / s1, 0.0 / s2)
+        q[:, 1] = 0.0
+        q[:, 2] = np.where(pos, (s - -s) / s1, 0.25 * s2)
+        q[:, 3] = np.where(pos, 0.25 * s1, (s - -s) / s2)
+
+
+def wanted_masks(model: Model, tick: int, wanted) -> dict[str, np.ndarray]:
+    """topic -> (R,) bool: due at ``tick`` and read (``wanted``: robot -> settled
+    ``wanted(topic)``, :func:`plant.tick.settled`; None, or a robot it leaves out: every
+    due topic is read)."""
+    out = {}
+    for topic in model.periods:
+        due = model.due(topic, tick)
+        if wanted is not None and due.any():
+            due = due & np.array([(f := wanted.get(n)) is None or bool(f(topic))
+                                  for n in model.robots])
+        out[topic] = due
+    return out
+
+
+def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
+          wanted=None) -> list[tuple[str, str, bytes | None]]:
+    """(robot, topic, CDR bytes) of every sensor due at ``t_ns`` in world ``w``, in the
+    plant's order (robot by robot, each robot's topics in its order), ``None`` for a due
+    topic nobody reads (``wanted``, settled: not built, its noise still drawn). ``data``
+    holds the world's state (:func:`observe`); ``shapes()`` gives its solids or their
+    Scene (called only when a lidar or a camera is due and read)."""
+    tick = t_ns // model.tick_ns
+    streams = data.streams[w]
+    R = len(model.robots)
+    read = wanted_masks(model, tick, wanted)
+    out: dict[str, list] = {t: [None] * R for t in model.periods}
+    # encoders and GPS: the noise drawn for every robot, whoever reads them
+    pos = data.enc_pos[w].copy()
+    gps = data.xyz[w].copy()
+    for i, name in enumerate(model.robots):
+        s = streams[name]
+        if s.enc_noise is not None:
+            pos[i] = s.enc_noise.apply(pos[i])
+        if s.gps_noise is not None:
+            gps[i] = s.gps_noise.apply(gps[i])
+    _pack_every_tick(model, data, w, t_ns, read, out, pos, gps)
+    scene = None
+    looks = read["scan"] | read["camera/image_raw"]
+    if looks.any():
+        scene = Scene.from_shapes(shapes())
+    tfs = data.tf[w]
+    for cfg, group in model.lidar_groups.items():
+        due = model.due("scan", tick)[group]
+        if not due.any():
+            continue
+        rows = group[due]
+        reading = read["scan"][rows]
+        for i in rows[~reading]:                # due, nobody reads it: its noise drawn
+            s = streams[model.robots[i]]
+            if s.lidar_noise is not None:
+                s.lidar_noise.skip((cfg.num_rays,))
+        rows = rows[reading]
+        if not len(rows):
+            continue
+        exact = lid.scan_many(cfg, tfs[rows], scene, [model.robots[i] for i in rows])
+        ranges = np.empty(exact.shape, float)
+        plain = []
+        for k, i in enumerate(rows):
+            noise = streams[model.robots[i]].lidar_noise
+            if noise is None:
+                plain.append(k)
+            else:
+                ranges[k] = lid.apply_noise(cfg, exact[k], noise)
+        if plain:
+            ranges[plain] = lid.apply_noise(cfg, exact[plain])
+        at = np.searchsorted(group, rows)
+        msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges.astype(_F4)}, at)
+        for i, m in zip(rows.tolist(), msgs):
+            out["scan"][i] = m
+    for i in np.flatnonzero(model.due("camera/image_raw", tick)).tolist():
+        _camera(model, streams[model.robots[i]], i, t_ns, tfs[i], scene,
+                bool(read["camera/image_raw"][i]), bool(read["camera/camera_info"][i]), out)
+    order = []
+    for i, name in enumerate(model.robots):
+        for topic in model.topics[i]:
+            p = model.periods[topic][i]
+            if tick % p == 0:
+                order.append((name, topic, out[topic][i]))
+    return order
+
+
+def _pack_every_tick(model: Model, data: Data, w: int, t_ns: int, read: dict,
+                     out: dict, pos: np.ndarray, gps: np.ndarray) -> None:
+    """joint_states, gps and ground_truth of every robot that someone reads, packed."""
+    R = len(model.robots)
+    rows_of = {t: (None if read[t].all() else np.flatnonzero(read[t])) for t in EVERY_TICK}
+
+    def pick(a, rows):
+        return a if rows is None else a[rows]
+
+    def put(topic, msgs):
+        rows = rows_of[topic]
+        if rows is None:
+            out[topic] = msgs
+        else:
+            for i, m in zip(rows.tolist(), msgs):
+                out[topic][i] = m
+    if read["joint_states"].any():
+        r = rows_of["joint_states"]
+        put("joint_states", model.joint_rows.pack(t_ns, {
+            "position": pick(pos, r).astype(_F8), "velocity": pick(data.enc_vel[w], r).astype(_F8)},
+            r))
+    if read["gps"].any():
+        r = rows_of["gps"]
+        put("gps", model.gps_rows.pack(t_ns, {"point": pick(gps, r).astype(_F8)}, r))
+    if read["ground_truth"].any():
+        r = rows_of["ground_truth"]
+        pose = np.concatenate([data.xyz[w], data.quaternion[w]], axis=1)
+        twist = np.zeros((R, 6))
+        twist[:, 0], twist[:, 5] = data.v[w], data.w[w]
+        put("ground_truth", model.odom_rows.pack(t_ns, {
+            "pose": pick(pose, r).astype(_F8), "twist": pick(twist, r).astype(_F8)}, r))
+
+
+def _camera(model: Model, s, i: int, t_ns: int, tf: np.ndarray, scene, image: bool,
+            info: bool, out: dict) -> None:
+    """Robot ``i``'s camera messages (render, noise, encode), as RobotSensors makes them."""
+    c = model.cameras[i]
+    optical = model.frames["camera_optical"][i]
+    if not image:
+        if s.camera_noise is not None:
+            s.camera_noise.skip((c.height, c.width, 3))
+    else:
+        rgb = cam.render(c, cam.camera_pose(c, tf), scene, exclude_owner=model.robots[i])
+        if s.camera_noise is not None:
+            rgb = s.camera_noise.apply(rgb)
+        out["camera/image_raw"][i] = codec.encode(codec.image(t_ns, rgb, optical))
+    if info:
+        out["camera/camera_info"][i] = codec.encode(codec.camera_info(
+            t_ns, **cam.camera_info(c), frame_id=optical))

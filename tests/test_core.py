@@ -1,0 +1,111 @@
+"""The core (plant/core: model, data, step) against the per-message path, its oracle.
+
+``Tick.messages(encoded=True)`` makes every robot's messages at once (plant.core); the
+per-message path (plant.sensors.RobotSensors through plant.tick.tick_messages) makes them
+robot by robot. Two copies of a world, driven alike, must publish the same bytes, tick
+after tick: several robots, kinematic and dynamic, noise on every stream, readers that
+come and go (a due topic nobody reads is not built, its noise still drawn), lidars due and
+not, a camera robot.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bus import codec, packed
+from plant.camera import CameraConfig
+from plant.noise import NoiseConfig
+from plant.swarm_world import write_swarm_world
+from plant.tick import Tick, tick_messages
+from plant.world import load_world
+
+from bus.controller import Twist, WheelSpeeds
+
+
+def _noisy(spec, camera: bool):
+    for k, r in enumerate(spec.robots):
+        s = r.sensors
+        s.encoder_noise = NoiseConfig(std=0.01, bias=0.001 * k)
+        s.gps_noise = NoiseConfig(std=0.02, resolution=0.005 if k % 2 else 0.0)
+        if s.lidar is not None and k != 1:          # robot 1's lidar noise-free
+            s.lidar_noise = NoiseConfig(std=0.05, resolution=0.01 if k == 2 else 0.0)
+        s.command_noise_std_radps = 0.05
+    if camera:
+        cam = spec.robots[-1].sensors
+        cam.camera = CameraConfig(width=32, height=24, rate_hz=25.0)
+        cam.camera_noise = NoiseConfig(std=8.0)
+    return spec
+
+
+def _world(kind: str, tmp_path):
+    if kind == "follow":                       # dynamic, a lidar robot and a camera robot
+        return _noisy(load_world("living_room_follow"), camera=False)
+    path = write_swarm_world(str(tmp_path / f"{kind}.toml"), 5, seed=3, mode=kind)
+    return _noisy(load_world(path), camera=True)
+
+
+def _wanted(names, tick: int):
+    """Readers that come and go: a pure function of (robot, topic, tick); some ticks
+    every topic is read (None)."""
+    if tick % 7 == 3:
+        return None
+    return {n: (lambda topic, i=i: (len(topic) + i + tick) % 3 != 0 or (i + tick) % 5 == 4)
+            for i, n in enumerate(names)}
+
+
+def _drive(tick: Tick, k: int) -> None:
+    for i, name in enumerate(tick.sensors):
+        if (i + k) % 4 == 0:
+            tick.drive(name, WheelSpeeds(2.0 + 0.1 * i, 3.0 - 0.2 * k % 2))
+        elif (i + k) % 4 == 3:
+            tick.drive(name, None)
+        else:
+            tick.drive(name, Twist(0.4, 0.6 * ((i % 3) - 1) + 0.01 * k))
+
+
+@pytest.mark.parametrize("kind", ["kinematic", "dynamic", "follow"])
+def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
+    core_tick, oracle = Tick(_world(kind, tmp_path)), Tick(_world(kind, tmp_path))
+    names = list(core_tick.sensors)
+    seen: dict[str, int] = {}
+    for k in range(26):
+        want = _wanted(names, k)
+        got = list(core_tick.messages(want, encoded=True))
+        st = oracle.stepper
+        expect = list(tick_messages(oracle.t_ns, oracle.tick_ns, oracle.sensors, st.state,
+                                    st.shapes, want, encoded=True))
+        assert [m[:2] for m in got] == [m[:2] for m in expect], k
+        for (robot, topic, data), (_, _, ref) in zip(got, expect):
+            assert data == ref, (k, robot, topic)
+            if data is not None:
+                seen[topic] = seen.get(topic, 0) + 1
+        for t in (core_tick, oracle):
+            _drive(t, k)
+            t.step()
+    # every kind of message was made and compared, and some were not read
+    assert {"joint_states", "gps", "ground_truth", "scan"} <= set(seen)
+    if kind != "dynamic":
+        assert seen.get("camera/image_raw", 0) > 0 and seen.get("camera/camera_info", 0) > 0
+
+
+def test_rows_pack_equals_the_single_message_encoders():
+    """bus.packed.Rows: rows of different frame ids (different lengths and field places),
+    a subset of rows, the bytes of the per-message encoders."""
+    frames = ["a/base_link", "robot_long_name/base_link", "bb/base_link"]
+    rows = packed.odometry_rows(["world"] * 3, frames)
+    rng = np.random.default_rng(0)
+    pose, twist = rng.normal(size=(3, 7)), np.zeros((3, 6))
+    twist[:, [0, 5]] = rng.normal(size=(3, 2))
+    t_ns = 12_345_678_901
+    got = rows.pack(t_ns, {"pose": pose, "twist": twist})
+    sub = rows.pack(t_ns, {"pose": pose[[2, 0]], "twist": twist[[2, 0]]}, [2, 0])
+    for i, f in enumerate(frames):
+        want = packed.odometry(t_ns, *pose[i, :3], pose[i, 3:], twist[i, 0], twist[i, 5],
+                               frame_id="world", child_frame_id=f)
+        assert got[i] == want
+    assert sub == [got[2], got[0]]
+    scan = packed.laser_scan_rows(["x/laser", "yy/laser"], 5, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0)
+    ranges = np.array([[1, 2, np.inf, 4, 5], [0.5, 0.25, 3, 7.9, np.inf]], "<f4")
+    for i, f in enumerate(["x/laser", "yy/laser"]):
+        assert scan.pack(t_ns, {"ranges": ranges})[i] == codec.encode(codec.laser_scan(
+            t_ns, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0, ranges[i], frame_id=f))
