@@ -67,7 +67,7 @@ class Tick:
         if self.model is None:            # (a reset moves the robots, not their sensors)
             self.model = core.Model([self.spec])
             self.data = core.Data(self.model)
-        self.data.streams[0] = self.sensors
+        self.data.set_streams(0, self.sensors)
 
     def reset(self, seed: int | None = None, poses: dict | None = None) -> None:
         """As ``sim/reset``: keep ``seed`` and the start ``poses`` ({robot: (x, y, yaw)}) in
@@ -90,8 +90,7 @@ class Tick:
         if encoded:
             t_ns = self.sim.time_ns
             core.observe(self.model, self.data, 0, self.stepper)
-            return iter(core.sense(self.model, self.data, 0, t_ns, self.stepper.shapes,
-                                   settled(self.sensors, t_ns // self.tick_ns, wanted)))
+            return iter(core.sense(self.model, self.data, 0, t_ns, self.stepper.shapes, wanted))
         return tick_messages(self.sim.time_ns, self.tick_ns, self.sensors, self.stepper.state,
                              self.stepper.shapes, wanted, encoded)
 

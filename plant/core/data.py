@@ -28,8 +28,21 @@ class Data:
         self.enc_vel = np.zeros((W, R, 2))          # wheel speeds, rad/s
         self.tick = np.zeros(W, np.int64)           # the control tick each world is at
         #: each world's robots' noise streams ({robot: plant.sensors.RobotSensors}, whose
-        #: noise models draw them), set by the host that builds the world
+        #: noise models draw them: :meth:`set_streams`)
         self.streams: list[dict | None] = [None] * W
+        #: per world and stream ("encoders", "gps", "lidar", "camera"): {robot index: its
+        #: noise model} of the robots whose values that stream changes
+        self.noisy: list[dict[str, dict[int, object]]] = [{} for _ in range(W)]
+        self._names = model.robots
+
+    def set_streams(self, w: int, sensors: dict) -> None:
+        """World ``w``'s robots' noise streams (its freshly built sensors)."""
+        self.streams[w] = sensors
+        by = {"encoders": "enc_noise", "gps": "gps_noise", "lidar": "lidar_noise",
+              "camera": "camera_noise"}
+        self.noisy[w] = {k: {i: m for i, n in enumerate(self._names)
+                             if (m := getattr(sensors[n], attr)) is not None}
+                         for k, attr in by.items()}
 
     @property
     def xyz(self) -> np.ndarray:

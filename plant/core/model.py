@@ -70,6 +70,9 @@ class Model:
         self.periods["camera/camera_info"] = cam.copy()
         for p in self.periods.values():
             p.flags.writeable = False
+        #: (robot index, name, topic, period) of every robot's topics in publishing order
+        self.order = tuple((i, n, t, int(self.periods[t][i]))
+                           for i, n in enumerate(names) for t in self.topics[i])
         #: noise laws (std, mean, bias, resolution) per robot and stream, (R, 4)
         self.noise = {"encoders": np.array([_law(s.encoder_noise) for s in sens], float).reshape(R, 4),
                       "gps": np.array([_law(s.gps_noise) for s in sens], float).reshape(R, 4),

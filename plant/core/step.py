@@ -78,15 +78,18 @@ def _observe_kinematic(data: Data, w: int, kin) -> None:
 
 
 def wanted_masks(model: Model, tick: int, wanted) -> dict[str, np.ndarray]:
-    """topic -> (R,) bool: due at ``tick`` and read (``wanted``: robot -> settled
-    ``wanted(topic)``, :func:`plant.tick.settled`; None, or a robot it leaves out: every
-    due topic is read)."""
+    """topic -> (R,) bool: due at ``tick`` and read. ``wanted``: robot -> ``wanted(topic)``
+    (None, or a robot it leaves out: every due topic is read), asked once for each robot's
+    topic due at the tick, the answers kept for the tick (:func:`plant.tick.settled`)."""
     out = {}
+    names = model.robots
     for topic in model.periods:
         due = model.due(topic, tick)
-        if wanted is not None and due.any():
-            due = due & np.array([(f := wanted.get(n)) is None or bool(f(topic))
-                                  for n in model.robots])
+        if wanted is not None:
+            for i in np.flatnonzero(due).tolist():
+                f = wanted.get(names[i])
+                if f is not None and not f(topic):
+                    due[i] = False
         out[topic] = due
     return out
 
@@ -99,19 +102,17 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
     holds the world's state (:func:`observe`); ``shapes()`` gives its solids or their
     Scene (called only when a lidar or a camera is due and read)."""
     tick = t_ns // model.tick_ns
-    streams = data.streams[w]
+    noisy = data.noisy[w]
     R = len(model.robots)
     read = wanted_masks(model, tick, wanted)
     out: dict[str, list] = {t: [None] * R for t in model.periods}
     # encoders and GPS: the noise drawn for every robot, whoever reads them
     pos = data.enc_pos[w].copy()
     gps = data.xyz[w].copy()
-    for i, name in enumerate(model.robots):
-        s = streams[name]
-        if s.enc_noise is not None:
-            pos[i] = s.enc_noise.apply(pos[i])
-        if s.gps_noise is not None:
-            gps[i] = s.gps_noise.apply(gps[i])
+    for i, noise in noisy["encoders"].items():
+        pos[i] = noise.apply(pos[i])
+    for i, noise in noisy["gps"].items():
+        gps[i] = noise.apply(gps[i])
     _pack_every_tick(model, data, w, t_ns, read, out, pos, gps)
     scene = None
     looks = read["scan"] | read["camera/image_raw"]
@@ -124,38 +125,27 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
             continue
         rows = group[due]
         reading = read["scan"][rows]
-        for i in rows[~reading]:                # due, nobody reads it: its noise drawn
-            s = streams[model.robots[i]]
-            if s.lidar_noise is not None:
-                s.lidar_noise.skip((cfg.num_rays,))
+        lidar_noise = noisy["lidar"]
+        if lidar_noise:
+            for i in rows[~reading].tolist():     # due, nobody reads it: its noise drawn
+                if i in lidar_noise:
+                    lidar_noise[i].skip((cfg.num_rays,))
         rows = rows[reading]
         if not len(rows):
             continue
         exact = lid.scan_many(cfg, tfs[rows], scene, [model.robots[i] for i in rows])
-        ranges = np.empty(exact.shape, float)
-        plain = []
-        for k, i in enumerate(rows):
-            noise = streams[model.robots[i]].lidar_noise
-            if noise is None:
-                plain.append(k)
-            else:
-                ranges[k] = lid.apply_noise(cfg, exact[k], noise)
-        if plain:
-            ranges[plain] = lid.apply_noise(cfg, exact[plain])
+        ranges = lid.apply_noise(cfg, exact)       # (every row: the noise-free ones right)
+        for k, i in enumerate(rows.tolist()):
+            if i in lidar_noise:
+                ranges[k] = lid.apply_noise(cfg, exact[k], lidar_noise[i])
         at = np.searchsorted(group, rows)
         msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges.astype(_F4)}, at)
         for i, m in zip(rows.tolist(), msgs):
             out["scan"][i] = m
     for i in np.flatnonzero(model.due("camera/image_raw", tick)).tolist():
-        _camera(model, streams[model.robots[i]], i, t_ns, tfs[i], scene,
+        _camera(model, noisy["camera"].get(i), i, t_ns, tfs[i], scene,
                 bool(read["camera/image_raw"][i]), bool(read["camera/camera_info"][i]), out)
-    order = []
-    for i, name in enumerate(model.robots):
-        for topic in model.topics[i]:
-            p = model.periods[topic][i]
-            if tick % p == 0:
-                order.append((name, topic, out[topic][i]))
-    return order
+    return [(name, topic, out[topic][i]) for i, name, topic, p in model.order if tick % p == 0]
 
 
 def _pack_every_tick(model: Model, data: Data, w: int, t_ns: int, read: dict,
@@ -191,18 +181,18 @@ def _pack_every_tick(model: Model, data: Data, w: int, t_ns: int, read: dict,
             "pose": pick(pose, r).astype(_F8), "twist": pick(twist, r).astype(_F8)}, r))
 
 
-def _camera(model: Model, s, i: int, t_ns: int, tf: np.ndarray, scene, image: bool,
+def _camera(model: Model, noise, i: int, t_ns: int, tf: np.ndarray, scene, image: bool,
             info: bool, out: dict) -> None:
-    """Robot ``i``'s camera messages (render, noise, encode), as RobotSensors makes them."""
+    """Robot ``i``'s camera messages (render, ``noise``, encode), as RobotSensors makes them."""
     c = model.cameras[i]
     optical = model.frames["camera_optical"][i]
     if not image:
-        if s.camera_noise is not None:
-            s.camera_noise.skip((c.height, c.width, 3))
+        if noise is not None:
+            noise.skip((c.height, c.width, 3))
     else:
         rgb = cam.render(c, cam.camera_pose(c, tf), scene, exclude_owner=model.robots[i])
-        if s.camera_noise is not None:
-            rgb = s.camera_noise.apply(rgb)
+        if noise is not None:
+            rgb = noise.apply(rgb)
         out["camera/image_raw"][i] = codec.encode(codec.image(t_ns, rgb, optical))
     if info:
         out["camera/camera_info"][i] = codec.encode(codec.camera_info(
