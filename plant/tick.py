@@ -36,7 +36,9 @@ class Tick:
     """One world's tick: the sensors due at t_k (built only where wanted, noise always
     drawn), the robots' commands for t_k, the physics step to t_{k+1}, the rebuild of a
     diverged world, reset. ``disabled``: sensors taken off every robot ("lidar",
-    "camera"); ``physics_process``: DART in a process of its own (:mod:`plant.stepper`),
+    "camera"); ``physics_process``: DART in a process of its own (:mod:`plant.stepper`;
+    not for a kinematic world, whose step, one C call for every robot, costs less than
+    handing it to another process and reading every robot's state back),
     publishing overlapping the step where ``overlap`` (the mode's commands for the step do
     not wait for tick k's sensors)."""
 
@@ -45,7 +47,7 @@ class Tick:
         self.spec = spec
         self.disabled = tuple(disabled)
         self.tick_ns = spec.tick_ns
-        self.physics_process = physics_process
+        self.physics_process = physics_process and spec.mode != "kinematic"
         self.overlap = overlap
         self.physics: PhysicsProcess | None = None
         self.model: core.Model | None = None
