@@ -9,6 +9,8 @@ not, a camera robot.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -29,6 +31,8 @@ def _noisy(spec, camera: bool):
         s.gps_noise = NoiseConfig(std=0.02, resolution=0.005 if k % 2 else 0.0)
         if s.lidar is not None and k != 1:          # robot 1's lidar noise-free
             s.lidar_noise = NoiseConfig(std=0.05, resolution=0.01 if k == 2 else 0.0)
+        elif s.lidar is not None:                   # (its ranges quantised: a lidar of its own)
+            s.lidar = dataclasses.replace(s.lidar, resolution_m=0.02)
         s.command_noise_std_radps = 0.05
     if camera:
         cam = spec.robots[-1].sensors
