@@ -13,6 +13,11 @@ Webots' ``noise`` fields mean different things per device, so each has a constru
 * PositionSensor ``noise``: absolute std in rad, per reading -> :func:`webots_position`.
 * GPS ``noise``: absolute std in m -> :func:`webots_gps`.
 
+Counter-based draws: :func:`normals` gives standard normals as a pure function of a
+stream's key (:func:`stream_key` of the run seed, the robot and the stream), the tick and
+the index, drawn by plant/kernels/noise.c for any number of rows in one call;
+:func:`frame_seed` seeds a camera frame's noise the same way.
+
 Random streams: every noise stream (e.g. ``"robot1/scan"``, ``"robot1/left_wheel"``)
 gets its own generator from :func:`make_rng` (run seed + a stable hash of the stream
 name), so adding or removing one sensor never changes another sensor's noise and the
@@ -34,6 +39,10 @@ __all__ = [
     "NoiseConfig",
     "NoiseModel",
     "make_rng",
+    "stream_key",
+    "normals",
+    "normals_reference",
+    "frame_seed",
     "parse_noise",
     "webots_lidar",
     "webots_camera",
@@ -185,6 +194,103 @@ def make_rng(seed: int, stream_name: str) -> np.random.Generator:
 
 
 # ----------------------------------------------------------------------------------
+# Counter-based draws: a pure function of (key, tick, index)
+# ----------------------------------------------------------------------------------
+
+_M64 = (1 << 64) - 1
+_GOLDEN = 0x9E3779B97F4A7C15
+_TWO_PI = 2.0 * math.pi
+_TWO_M53 = 1.0 / 9007199254740992.0
+#: sets a frame's seed apart from the normals of the same key and tick
+_FRAME_DOMAIN = 0xD1B54A32D192ED03
+
+
+def _mix(z: int) -> int:
+    """SplitMix64's finaliser (Steele, Lea and Flood 2014), on a Python int < 2**64."""
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64
+    return z ^ (z >> 31)
+
+
+def _check_seed(seed: Any) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
+
+
+def stream_key(seed: int, robot: str, stream: str) -> int:
+    """The key (a uint64, as a Python int) of the noise stream ``stream`` of ``robot`` in a
+    run seeded ``seed``: SplitMix64's finaliser folded over the seed's 64-bit words and the
+    four 64-bit words of ``sha256(f"{robot}/{stream}")``. The same in every process and
+    Python version; another name or seed gives an unrelated key."""
+    seed = _check_seed(seed)
+    words = []
+    while True:
+        words.append(seed & _M64)
+        seed >>= 64
+        if not seed:
+            break
+    digest = hashlib.sha256(f"{robot}/{stream}".encode("utf-8")).digest()
+    words += [int.from_bytes(digest[i:i + 8], "little") for i in range(0, 32, 8)]
+    h = 0
+    for w in words:
+        h = _mix(((h ^ w) + _GOLDEN) & _M64)
+    return h
+
+
+def _row_seed(key: int, tick: int) -> int:
+    return _mix((key + _mix((tick + _GOLDEN) & _M64)) & _M64)
+
+
+def normals(keys, ticks, n: int, out: np.ndarray | None = None) -> np.ndarray:
+    """Standard normals, float64 (len(keys), n): element ``[r, i]`` a pure function of
+    ``(keys[r], ticks[r], i)``, so rows may be drawn together or apart, in any order, and
+    the first n of a row are the same whatever n. ``keys``: uint64 (K,) (e.g. from
+    :func:`stream_key`); ``ticks``: one int for every row or an int64 (K,). Drawn in one
+    call by plant/kernels/noise.c (:func:`normals_reference` is its arithmetic in Python).
+    ``out``: a float64 (K, n) C-contiguous array to fill (returned)."""
+    keys = np.ascontiguousarray(keys, dtype=np.uint64)
+    if keys.ndim != 1:
+        raise ValueError(f"keys must be one-dimensional, got shape {keys.shape}")
+    ticks = np.ascontiguousarray(ticks, dtype=np.int64).reshape(-1)
+    if ticks.size not in (1, keys.size):
+        raise ValueError(f"ticks must be one int or one per key ({keys.size}), got {ticks.size}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise ValueError(f"n must be an integer >= 0, got {n!r}")
+    shape = (keys.size, int(n))
+    if out is None:
+        out = np.empty(shape)
+    elif out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float64 array of shape {shape}")
+    return kernels.normals(keys, ticks, int(n), out)
+
+
+def normals_reference(key: int, tick: int, n: int) -> list[float]:
+    """The n normals of ``key`` at ``tick``, in Python (math's log, sqrt, cos and sin call
+    the same libm as the kernel; numpy's ufuncs may differ in the last bit): Box-Muller on
+    two 53-bit uniforms from SplitMix64 counters, as plant/kernels/noise.c states."""
+    s = _row_seed(int(key) & _M64, int(tick) & _M64)
+    out: list[float] = []
+    for i in range(0, n, 2):
+        a = _mix((s + (i + 1) * _GOLDEN) & _M64)
+        b = _mix((s + (i + 2) * _GOLDEN) & _M64)
+        u1 = float((a >> 11) + 1) * _TWO_M53
+        u2 = float(b >> 11) * _TWO_M53
+        rad, t = math.sqrt(-2.0 * math.log(u1)), _TWO_PI * u2
+        out.append(rad * math.cos(t))
+        if i + 1 < n:
+            out.append(rad * math.sin(t))
+    return out
+
+
+def frame_seed(key: int, tick: int) -> int:
+    """The seed of a camera frame's noise (:func:`plant.kernels.image_noise`, itself
+    counter-based given it) at ``tick`` for the camera stream's ``key``: a uint64 apart
+    from every normal of the same key."""
+    return _mix(_row_seed(int(key) & _M64, int(tick) & _M64) ^ _FRAME_DOMAIN)
+
+
+# ----------------------------------------------------------------------------------
 # Application
 # ----------------------------------------------------------------------------------
 
@@ -308,7 +414,6 @@ class NoiseModel:
 
 #: beyond this many std from the offset the law's tails (< 1e-32) are lumped into its ends
 _TAIL_SIGMAS = 12.0
-_GOLDEN = 0x9E3779B97F4A7C15
 
 
 def _phi(z: float) -> float:

@@ -20,13 +20,14 @@ from pathlib import Path
 import numpy as np
 
 
-__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "ptr",
+__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "normals",
+           "ptr",
            "kinematic_step", "clearances", "ticks",
            "tick_part"]
 
 ABI = 4
 CAMERA_ABI = 2
-NOISE_ABI = 1
+NOISE_ABI = 2
 DRIVE_ABI = 1
 KINEMATIC_ABI = 2
 TICKS_ABI = 2
@@ -70,6 +71,8 @@ def load(path: Path) -> ctypes.CDLL:
                                          _D, _D] + [_P] * 5)
     lib.plant_image_noise.restype = None
     lib.plant_image_noise.argtypes = [_P, _I, ctypes.c_uint64, _I, _P, _P, _P]
+    lib.plant_normals.restype = None
+    lib.plant_normals.argtypes = [_I, _P, _P, _I, _I, _P]
     lib.plant_kinematic_step.restype = ctypes.c_int
     lib.plant_kinematic_step.argtypes = ([_I, _D] + [_P] * 8 + [_I] + [_P] * 4 + [_I]
                                          + [_P] * 3 + [_D, _D, _I])
@@ -157,6 +160,19 @@ def image_noise(img: np.ndarray, seed: int, table: tuple[np.ndarray, np.ndarray]
     thr, vals = table
     library().plant_image_noise(ptr(img), img.size, seed, thr.size, ptr(thr), ptr(vals),
                                 ptr(out))
+
+
+def normals(keys: np.ndarray, ticks: np.ndarray, n: int, out: np.ndarray) -> np.ndarray:
+    """``out`` (K, n) float64, C-contiguous: row r the standard normals 0..n-1 of the key
+    ``keys[r]`` (uint64 (K,)) at the tick ``ticks[r]`` (int64 (K,), or (1,) for every row)
+    (plant/kernels/noise.c; :func:`plant.noise.normals` checks the arguments)."""
+    k = keys.shape[0]
+    assert keys.dtype == np.uint64 and ticks.dtype == np.int64 and ticks.size in (1, k)
+    assert out.shape == (k, n) and out.dtype == np.float64
+    if k and n:
+        library().plant_normals(k, ptr(keys), ptr(ticks), int(ticks.size == k), n,
+                                ptr(out))
+    return out
 
 
 Array = np.ndarray | int      # an array, or its address (:func:`ptr`)

@@ -1,4 +1,16 @@
-/* Camera image noise (plant/noise.py calls it): out = clip(img + D, 0, 255) per channel,
+/* The plant's noise, counter-based: every number a pure function of its stream's key, the
+ * tick and its index, so any number of rows is drawn in one call, in any order.
+ *
+ * Standard normals (plant_normals): row r's element i, for the row's key and tick:
+ *   s = mix(key + mix(tick + GOLDEN))                      the row's seed
+ *   a = mix(s + (2 j + 1) GOLDEN), b = mix(s + (2 j + 2) GOLDEN)  for the pair j = i / 2
+ *   u1 = ((a >> 11) + 1) 2^-53 in (0, 1], u2 = (b >> 11) 2^-53 in [0, 1)
+ *   element 2 j = sqrt(-2 log u1) cos(2 pi u2), element 2 j + 1 = sqrt(-2 log u1) sin(2 pi u2)
+ * (Box and Muller 1958), with libm's log, sqrt, cos and sin: plant/noise.py's
+ * normals_reference is the same arithmetic with Python's math module (which calls the same
+ * libm), the bits the tests compare.
+ *
+ * Camera image noise (plant/noise.py calls it): out = clip(img + D, 0, 255) per channel,
  * D drawn from the law of rint(offset + N(0, std)) (tails lumped at -255 and 255, past
  * which every pixel clips alike) by Walker's alias method, one 64-bit number a channel.
  *
@@ -8,22 +20,54 @@
  * law's alias table once per (std, offset).
  *
  * The numbers: SplitMix64 as a counter-based generator, the k-th number of a frame
- * mix(seed + (k + 1) * GOLDEN) (Steele, Lea and Flood 2014; the seed is one draw from the
- * sensor's numpy stream per frame), each giving two channels a 32-bit uniform. plant/noise.py's
+ * mix(seed + (k + 1) * GOLDEN) (Steele, Lea and Flood 2014; the frame's seed is
+ * plant/noise.py's frame_seed of the camera stream's key and the tick), each giving two
+ * channels a 32-bit uniform. plant/noise.py's
  * image_noise_reference is this arithmetic in numpy, the bytes the tests compare.
  */
+#include <math.h>
 #include <stdint.h>
 
 #define EXPORT __attribute__((visibility("default")))
 #define GOLDEN 0x9E3779B97F4A7C15ULL
 
-EXPORT int plant_noise_abi(void) { return 1; }
+EXPORT int plant_noise_abi(void) { return 2; }
 
 static inline uint64_t mix(uint64_t z)
 {
     z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
     z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
     return z ^ (z >> 31);
+}
+
+/* 2 pi, rounded to a double as Python's 2.0 * math.pi is */
+#define TWO_PI 6.283185307179586
+#define TWO_M53 (1.0 / 9007199254740992.0)
+
+static inline uint64_t row_seed(uint64_t key, uint64_t tick)
+{
+    return mix(key + mix(tick + GOLDEN));
+}
+
+/* out (k, n): row r's n normals for keys[r] and ticks[r * tick_stride] (tick_stride 0: one
+ * tick for every row). */
+EXPORT void plant_normals(int64_t k, const uint64_t *keys, const int64_t *ticks,
+                          int64_t tick_stride, int64_t n, double *out)
+{
+    for (int64_t r = 0; r < k; r++) {
+        const uint64_t s = row_seed(keys[r], (uint64_t)ticks[r * tick_stride]);
+        double *o = out + r * n;
+        for (int64_t i = 0; i < n; i += 2) {
+            const uint64_t j = (uint64_t)i;
+            const uint64_t a = mix(s + (j + 1) * GOLDEN), b = mix(s + (j + 2) * GOLDEN);
+            const double u1 = (double)((a >> 11) + 1) * TWO_M53;
+            const double u2 = (double)(b >> 11) * TWO_M53;
+            const double rad = sqrt(-2.0 * log(u1)), t = TWO_PI * u2;
+            o[i] = rad * cos(t);
+            if (i + 1 < n)
+                o[i + 1] = rad * sin(t);
+        }
+    }
 }
 
 /* clip(y, 0, 255) for y = x + D in [-255, 510], by table */
