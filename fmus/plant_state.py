@@ -5,10 +5,10 @@ A state holds, for a :class:`fmus.plant_fmu.PlantInstance`: its FMI state, start
 tick count, every variable's value (inputs and parameters), the last outputs (pose,
 odometry, encoder readings, scans, contact flags) and the dead reckoning's last pose; and of
 its world (:class:`plant.tick.Tick`), when one is built: the physics time (steps), each DART
-skeleton's positions, velocities and accelerations, each robot's wheel set-points, its
-drive limiter (the commanded v, w and wheel speeds it ramps from), the generators of its
-command noise and of every sensor's noise (numpy ``bit_generator.state``). The sensors'
-schedule follows from the tick count. Putting a state back and stepping again gives the
+skeleton's positions, velocities and accelerations, each robot's wheel set-points and its
+drive limiter (the commanded v, w and wheel speeds it ramps from). The sensors' schedule
+and all noise follow from the tick count (a noise value is a function of the seed, the
+stream, the tick and its index: :mod:`plant.noise`). Putting a state back and stepping again gives the
 same outputs to the bit (``tests/test_plant_fmu.py``).
 
 Serialized, a state is UTF-8 JSON (floats written as Python's shortest round-trip repr, so
@@ -23,21 +23,12 @@ import json
 
 import numpy as np
 
-FORMAT = "diffbot-plant-fmu-state/1"
+FORMAT = "diffbot-plant-fmu-state/2"
 OK = 0
 
 
 def _array(a) -> list:
     return np.asarray(a, dtype=np.float64).tolist()
-
-
-def _noise_models(tick) -> list:
-    """Every sensor noise model of the world, in a fixed order (None where there is none)."""
-    out = []
-    for name in sorted(tick.sensors):
-        s = tick.sensors[name]
-        out += [s.enc_noise, s.gps_noise, s.lidar_noise, s.camera_noise]
-    return out
 
 
 def world_state(tick, touching: set | None) -> dict:
@@ -46,11 +37,6 @@ def world_state(tick, touching: set | None) -> dict:
     if sim.kin is not None:
         raise ValueError("the FMU state of a kinematic world is not supported")
     world = sim.world
-    noise = []
-    for m in _noise_models(tick):
-        if m is not None and m._next_image_noise is not None:
-            raise ValueError("a camera image's noise is drawn ahead: no FMU state now")
-        noise.append(None if m is None else m.rng.bit_generator.state)
     return {
         "steps": sim.steps,
         "time": world.getTime(),
@@ -59,10 +45,8 @@ def world_state(tick, touching: set | None) -> dict:
                       for sk in (world.getSkeleton(i) for i in range(world.getNumSkeletons()))],
         "robots": {name: {"targets": list(r.targets),
                           "limiter": [sim.limiters[name].v, sim.limiters[name].w,
-                                      list(sim.limiters[name].wheels)],
-                          "motion_rng": sim.motion_rng[name].bit_generator.state}
+                                      list(sim.limiters[name].wheels)]}
                    for name, r in sim.robots.items()},
-        "noise": noise,
         "touching": sorted(touching) if touching is not None else None,
     }
 
@@ -88,15 +72,6 @@ def set_world_state(tick, state: dict) -> None:
         lim = sim.limiters[name]
         lim.v, lim.w = float(r["limiter"][0]), float(r["limiter"][1])
         lim.wheels = tuple(float(v) for v in r["limiter"][2])
-        sim.motion_rng[name].bit_generator.state = r["motion_rng"]
-    models = _noise_models(tick)
-    if len(models) != len(state["noise"]):
-        raise ValueError("the state's sensors are not the world's")
-    for m, s in zip(models, state["noise"]):
-        if (m is None) != (s is None):
-            raise ValueError("the state's sensor noise is not the world's")
-        if m is not None:
-            m.rng.bit_generator.state = s
 
 
 def to_bytes(token: str, state: dict) -> bytes:

@@ -21,8 +21,8 @@ Values (Webots and ROS REP 117 for "no return")
 * the robot's own parts are skipped (``exclude_owner``).
 
 :func:`scan` returns these exact ranges (float64). :func:`apply_noise` turns them
-into reported values: Gaussian noise (a :class:`plant.noise.NoiseModel`, drawn for
-every ray so the random stream does not depend on what the rays hit), then every
+into reported values: Gaussian noise (a :class:`plant.noise.NoiseModel`, ray i's the
+i-th normal of the lidar's stream at the tick, whatever the rays hit), then every
 finite value is clipped to ``[min_range_m, max_range_m]`` (a true return stays a
 return: noise never turns a hit into "no return" or vice versa), then quantised to
 ``resolution_m`` if > 0 (and clipped again). ``inf`` stays ``inf``.
@@ -295,15 +295,16 @@ def _cull(config: LidarConfig, poses: np.ndarray, scene: Scene,
     return fan, shape, lo, hi
 
 
-def apply_noise(config: LidarConfig, ranges: np.ndarray, noise=None) -> np.ndarray:
+def apply_noise(config: LidarConfig, ranges: np.ndarray, noise=None, tick=0) -> np.ndarray:
     """Reported ranges from exact ones: noise -> clip finite to [min, max] -> quantise.
 
-    ``noise``: a :class:`plant.noise.NoiseModel` (or None for none). Returns a new
-    float64 array; ``inf`` stays ``inf``.
+    ``noise``: a :class:`plant.noise.NoiseModel` (or None for none), drawn at ``tick``;
+    a model of several keys takes ``ranges`` (K, n), a scan a row, and ``tick`` one int or
+    one per row. Returns a new float64 array; ``inf`` stays ``inf``.
     """
     r = np.array(ranges, dtype=float)
     if noise is not None:
-        r = np.asarray(noise.apply(r), dtype=float)
+        r = np.asarray(noise.apply(r, tick), dtype=float)
     finite = np.isfinite(r)
     lo, hi = config.min_range_m, config.max_range_m
     r[finite] = np.clip(r[finite], lo, hi)
@@ -314,6 +315,6 @@ def apply_noise(config: LidarConfig, ranges: np.ndarray, noise=None) -> np.ndarr
 
 
 def measure(config: LidarConfig, robot_pose: np.ndarray, shapes: "Sequence[Shape] | Scene",
-            noise=None, exclude_owner: str | None = None) -> np.ndarray:
-    """``apply_noise(config, scan(...), noise)``: what the sensor reports."""
-    return apply_noise(config, scan(config, robot_pose, shapes, exclude_owner), noise)
+            noise=None, exclude_owner: str | None = None, tick: int = 0) -> np.ndarray:
+    """``apply_noise(config, scan(...), noise, tick)``: what the sensor reports."""
+    return apply_noise(config, scan(config, robot_pose, shapes, exclude_owner), noise, tick)

@@ -13,15 +13,13 @@ Webots' ``noise`` fields mean different things per device, so each has a constru
 * PositionSensor ``noise``: absolute std in rad, per reading -> :func:`webots_position`.
 * GPS ``noise``: absolute std in m -> :func:`webots_gps`.
 
-Counter-based draws: :func:`normals` gives standard normals as a pure function of a
-stream's key (:func:`stream_key` of the run seed, the robot and the stream), the tick and
-the index, drawn by plant/kernels/noise.c for any number of rows in one call;
-:func:`frame_seed` seeds a camera frame's noise the same way.
-
-Random streams: every noise stream (e.g. ``"robot1/scan"``, ``"robot1/left_wheel"``)
-gets its own generator from :func:`make_rng` (run seed + a stable hash of the stream
-name), so adding or removing one sensor never changes another sensor's noise and the
-same seed gives the same noise, run after run and across processes.
+The draws are counter-based: every noise value is a pure function of (run seed, robot,
+stream, tick, index). A stream (e.g. robot1's ``lidar``) has a key (:func:`stream_key`);
+:func:`normals` gives the standard normals of any number of (key, tick) rows in one call
+of plant/kernels/noise.c, and :func:`frame_seed` seeds a camera frame's noise the same
+way. So adding or removing a sensor, or a reader of a topic, never changes another value;
+the same seed gives the same noise, run after run, across processes and hosts; and a
+world's noise state is nothing but its tick.
 """
 from __future__ import annotations
 
@@ -38,7 +36,6 @@ from plant import kernels
 __all__ = [
     "NoiseConfig",
     "NoiseModel",
-    "make_rng",
     "stream_key",
     "normals",
     "normals_reference",
@@ -173,27 +170,6 @@ def parse_noise(table: Mapping[str, Any] | None, sensor: str, *,
 
 
 # ----------------------------------------------------------------------------------
-# Random streams
-# ----------------------------------------------------------------------------------
-
-def _name_words(name: str) -> list[int]:
-    digest = hashlib.sha256(name.encode("utf-8")).digest()
-    return [int.from_bytes(digest[i:i + 4], "little") for i in range(0, 16, 4)]
-
-
-def make_rng(seed: int, stream_name: str) -> np.random.Generator:
-    """Generator for one noise stream, from the run seed and the stream's name.
-
-    Seeded with ``SeedSequence([seed, *sha256(name)[:16] as 4 uint32])``: stable across
-    processes and Python versions (unlike ``hash()``), independent per name.
-    """
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    return np.random.Generator(np.random.PCG64(
-        np.random.SeedSequence([int(seed), *_name_words(str(stream_name))])))
-
-
-# ----------------------------------------------------------------------------------
 # Counter-based draws: a pure function of (key, tick, index)
 # ----------------------------------------------------------------------------------
 
@@ -295,96 +271,92 @@ def frame_seed(key: int, tick: int) -> int:
 # ----------------------------------------------------------------------------------
 
 class NoiseModel:
-    """Applies a :class:`NoiseConfig` using its own generator.
+    """Applies a :class:`NoiseConfig` to the values of one noise stream (``key``, from
+    :func:`stream_key`), or of several at once, one a row (``key`` a uint64 array (K,)).
 
-    ``apply(x)``:
-      * float input: returns float64 ``quantise(x + bias + N(mean, std))``; ``inf``/``nan``
-        stay as they are (noise is still drawn for them, so the stream advances by
-        exactly ``x.size`` normals per call whatever the values).
-      * uint8 input (camera images): the same per element (per channel), rounded and
-        clipped to 0..255, returned as uint8. Without quantisation (``resolution`` 0, the
-        usual case) the image is drawn by the C kernel plant/kernels/noise.c: one number
-        from the stream per image seeds the image's own generator, and each channel gets
-        ``clip(x + D, 0, 255)`` with D an integer drawn from the law of
-        ``rint(bias + mean + N(0, std))`` (:func:`alias_table`), which is the law of
-        ``clip(rint(x + bias + N(mean, std)))`` for a whole level x. With quantisation the
-        normals are drawn with numpy (float32, one per channel) and summed as stated.
+    ``apply(x, tick)``:
+      * float input: float64 ``quantise(x + (bias + mean) + Z std)``, Z the standard normals
+        of (key, tick) (:func:`normals`), element i of ``x`` (C order) taking the i-th;
+        ``inf``/``nan`` stay as they are. With several keys the first axis of ``x`` is the
+        rows, row r drawn from ``key[r]`` at ``tick`` (one int, or one per row).
+      * uint8 input (camera images, one key): the same per element (per channel), rounded
+        and clipped to 0..255, returned as uint8. Without quantisation (``resolution`` 0,
+        the usual case) the image is drawn by the C kernel plant/kernels/noise.c, seeded
+        with :func:`frame_seed` of (key, tick): each channel gets ``clip(x + D, 0, 255)``
+        with D an integer drawn from the law of ``rint(bias + mean + N(0, std))``
+        (:func:`alias_table`), which is the law of ``clip(rint(x + bias + N(mean, std)))``
+        for a whole level x. With quantisation the normals of (key, tick) are summed in
+        float32 as stated.
       * other integer input: treated as float (returns float64).
-    With ``std == 0`` no random numbers are drawn.
+    With ``std == 0`` nothing is drawn. The values depend on (key, tick) alone: applied
+    twice they are the same, and a tick whose value nobody reads draws nothing.
     """
 
-    def __init__(self, config: NoiseConfig, rng: np.random.Generator):
+    def __init__(self, config: NoiseConfig, key) -> None:
         self.config = config
-        self.rng = rng
-        self._next_image_noise: np.ndarray | None = None   # drawn ahead of its apply
-        self._spare: np.ndarray | None = None     # a buffer of the last image's shape
+        keys = np.asarray(_check_keys(key), dtype=np.uint64)
+        #: whether this model is several streams, one a row
+        self.rows = keys.ndim == 1
+        self.keys = np.ascontiguousarray(keys.reshape(-1))
+        self.key = None if self.rows else int(keys)
         self._by_law = config.std > 0 and config.resolution == 0
+        self._ahead: tuple[int, tuple, np.ndarray] | None = None   # (tick, shape, noise)
 
-    def prefetch_image(self, shape: tuple[int, ...]) -> None:
-        """Draw the next image's noise now (e.g. while the plant waits for its nodes); an
-        image drawn by the C kernel (no quantisation) has nothing to draw ahead.
+    def select(self, idx) -> "NoiseModel":
+        """The model of rows ``idx`` only (their own keys)."""
+        if not self.rows:
+            raise ValueError("select() takes rows of a model of several keys")
+        return NoiseModel(self.config, self.keys[np.asarray(idx)])
 
-        The stream is the same with or without prefetching: the next ``apply`` of an
-        image of this shape uses exactly these draws."""
-        if self.config.std > 0 and not self._by_law and self._next_image_noise is None:
-            self._next_image_noise = self._image_noise(shape)
-
-    def _image_noise(self, shape) -> np.ndarray:
-        buf, self._spare = self._spare, None
-        if buf is None or buf.shape != tuple(shape):
-            buf = np.empty(shape, dtype=np.float32)
-        noise = self.rng.standard_normal(dtype=np.float32, out=buf)
-        noise *= np.float32(self.config.std)
-        return noise
-
-    def _take_image_noise(self, shape) -> np.ndarray:
-        noise, self._next_image_noise = self._next_image_noise, None
-        if noise is None or noise.shape != shape:
-            noise = self._image_noise(shape)
-        return noise
-
-    def _image_seed(self) -> int:
-        """The one number an image drawn by the kernel takes from the stream."""
-        return int(self.rng.integers(0, 2 ** 64, dtype=np.uint64))
-
-    def skip(self, shape: tuple[int, ...]) -> None:
-        """Draw what ``apply`` of a float array (a 1-D ``shape``) or of an image (a 3-D
-        ``shape``, uint8) would, and drop it: the stream stays where it would be had the
-        value been made (a topic nobody reads)."""
-        if self.config.std <= 0:
-            return
-        if len(shape) == 3:
-            if self._by_law:
-                self._image_seed()
-            else:
-                self._spare = self._take_image_noise(tuple(shape))
+    def normals(self, tick, shape: tuple[int, ...]) -> np.ndarray:
+        """The standard normals ``apply`` adds (times std) to values of ``shape`` at
+        ``tick``, float64: :func:`normals` of the keys, shaped like the values."""
+        shape = tuple(shape)
+        if self.rows:
+            if not shape or shape[0] != self.keys.size:
+                raise ValueError(f"{self.keys.size} rows of noise, values of shape {shape}")
+            n = int(np.prod(shape[1:], dtype=np.int64))
         else:
-            self.rng.normal(0.0, self.config.std, size=shape)
+            n = int(np.prod(shape, dtype=np.int64))
+        return normals(self.keys, tick, n).reshape(shape)
 
-    def _noisy(self, x: np.ndarray) -> np.ndarray:
-        c = self.config
-        out = x + (c.bias + c.mean)
-        if c.std > 0:
-            out = out + self.rng.normal(0.0, c.std, size=x.shape)
-        return out
+    def prefetch_image(self, shape: tuple[int, ...], tick: int) -> None:
+        """Draw the noise of an image of ``shape`` at ``tick`` now (e.g. while the plant
+        waits for its nodes); an image drawn by the C kernel (no quantisation) has nothing
+        to draw ahead. The image is the same with or without it."""
+        if self.config.std > 0 and not self._by_law:
+            self._take_image_noise(tuple(shape), int(tick), keep=True)
 
-    def apply(self, x):
+    def _take_image_noise(self, shape: tuple, tick: int, keep: bool = False) -> np.ndarray:
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and ahead[0] == tick and ahead[1] == shape:
+            noise = ahead[2]
+        else:
+            noise = self.normals(tick, shape).astype(np.float32)
+            noise *= np.float32(self.config.std)
+        if keep:
+            self._ahead = (tick, shape, noise)
+        return noise
+
+    def apply(self, x, tick):
         arr = np.asarray(x)
         c = self.config
         if arr.dtype == np.uint8:
             if c.is_zero and c.resolution == 0:
                 return arr.copy()
+            if self.rows:
+                raise ValueError("an image's noise takes one key")
             # Images: single precision is plenty for 0..255 and several times faster.
             offset = np.float32(c.bias + c.mean)
             if self._by_law:
                 # x + D, D ~ rint(offset + N(0, std)), clipped: one pass of the C kernel
                 img = np.empty(arr.shape, dtype=np.uint8)
-                kernels.image_noise(np.ascontiguousarray(arr), self._image_seed(),
+                kernels.image_noise(np.ascontiguousarray(arr), frame_seed(self.key, tick),
                                     alias_table(float(c.std), float(c.bias + c.mean)), img)
                 return img
             if c.std > 0:
-                # (x + offset) + noise, summed into the noise's own buffer (then reused)
-                noise = self._take_image_noise(arr.shape)
+                # (x + offset) + noise, summed into the noise's own buffer
+                noise = self._take_image_noise(arr.shape, int(tick))
                 out = np.add(arr, offset, dtype=np.float32, out=np.empty_like(noise)) \
                     if offset else arr
                 out = np.add(noise, out, out=noise, dtype=np.float32)
@@ -395,17 +367,28 @@ class NoiseModel:
                 out = np.round(out / np.float32(c.resolution)) * np.float32(c.resolution)
             np.rint(out, out=out)
             np.clip(out, 0, 255, out=out)
-            img = out.astype(np.uint8)
-            if c.std > 0 and out.base is None:
-                self._spare = out                    # the next draw goes into it
-            return img
-        out = self._noisy(arr.astype(np.float64))
+            return out.astype(np.uint8)
+        out = arr.astype(np.float64) + (c.bias + c.mean)
+        if c.std > 0:
+            out = out + self.normals(tick, arr.shape) * c.std
         if c.resolution > 0:
             with np.errstate(invalid="ignore"):
                 out = np.where(np.isfinite(out), np.round(out / c.resolution) * c.resolution, out)
         return out
 
     __call__ = apply
+
+
+def _check_keys(key):
+    """``key`` as given, checked: an int in [0, 2**64) or a 1-D array of uint64."""
+    if isinstance(key, np.ndarray):
+        if key.ndim > 1 or (key.dtype != np.uint64 and not (
+                np.issubdtype(key.dtype, np.integer) and (key >= 0).all())):
+            raise ValueError(f"keys must be a 1-D array of uint64, got {key.dtype} {key.shape}")
+        return key
+    if isinstance(key, bool) or not isinstance(key, (int, np.integer)) or not 0 <= key <= _M64:
+        raise ValueError(f"a noise key is an integer in [0, 2**64), got {key!r}")
+    return int(key)
 
 
 # ----------------------------------------------------------------------------------

@@ -1,9 +1,10 @@
 """A robot's sensors as the plant publishes them: which are due at a tick, and their messages.
 
-Each sensor runs every ``period`` control ticks (its rate rounded to whole ticks),
-and every noise stream has a generator of its own seeded from (seed, robot/sensor),
-so adding a sensor never changes another sensor's noise. Encoder noise is added
-to each reading (not accumulated); wheel speeds are reported exact.
+Each sensor runs every ``period`` control ticks (its rate rounded to whole ticks). Every
+noise stream has a key of its own from (seed, robot, sensor) and a reading's noise is a
+function of that key and the tick (:mod:`plant.noise`), so adding a sensor or a reader
+never changes another value. Encoder noise is added to each reading (not accumulated);
+wheel speeds are reported exact.
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from bus.keys import WORLD_FRAME, frame
 
 from . import camera as cam
 from . import lidar as lid
-from .noise import NoiseModel, make_rng
+from .noise import NoiseModel, stream_key
 from .raycast import Scene
 from .sim import RobotState
 from .world import RobotSpec
@@ -43,7 +44,8 @@ class RobotSensors:
         self.frames = {f: frame(self.name, f) for f in ("base_link", "laser", "camera_optical")}
 
         def model(cfg, stream):
-            return None if cfg.is_zero and cfg.resolution == 0 else NoiseModel(cfg, make_rng(seed, f"{self.name}/{stream}"))
+            return (None if cfg.is_zero and cfg.resolution == 0
+                    else NoiseModel(cfg, stream_key(seed, self.name, stream)))
         self.enc_noise = model(s.encoder_noise, "encoders")
         self.gps_noise = model(s.gps_noise, "gps")
         self.lidar = s.lidar
@@ -59,11 +61,11 @@ class RobotSensors:
             self.periods["camera/camera_info"] = p
             self._info_fields = cam.camera_info(self.camera)
 
-    def prefetch(self) -> None:
-        """Work that does not depend on the state (the next image's noise), done while the
-        plant waits for its nodes."""
-        if self.camera_noise is not None:
-            self.camera_noise.prefetch_image((self.camera.height, self.camera.width, 3))
+    def prefetch(self, tick: int) -> None:
+        """Work that does not depend on the state (the noise of an image due at ``tick``,
+        when it is drawn in numpy), done while the plant waits for its nodes."""
+        if self.camera_noise is not None and tick % self.periods["camera/image_raw"] == 0:
+            self.camera_noise.prefetch_image((self.camera.height, self.camera.width, 3), tick)
 
     def due(self, tick: int) -> list[str]:
         return [t for t, p in self.periods.items() if tick % p == 0]
@@ -84,22 +86,23 @@ class RobotSensors:
         robot's noise-free lidar ranges when the caller cast them already (with
         :func:`scan_all`, for every robot at once). ``wanted(topic)``: whether anyone reads
         that topic (None: every topic is built). A topic nobody reads is not built (no
-        rays cast, no frame rendered, nothing encoded) but its noise is still drawn, so
-        every value of every topic is the same whoever listens, from whatever tick on.
+        rays cast, no frame rendered, no noise drawn, nothing encoded); the noise of a
+        reading is a function of the tick, so every value is the same whoever listens.
         ``encoded``: (topic, CDR bytes) pairs instead, the bytes of ``codec.encode`` of
         each message, the per-tick ones packed straight from the values
         (:mod:`bus.packed`), several times faster."""
         want = _every if wanted is None else wanted
         out = []
-        pos = st.enc_pos
-        if self.enc_noise is not None:
-            pos = self.enc_noise.apply(pos)
         if want("joint_states"):
+            pos = st.enc_pos
+            if self.enc_noise is not None:
+                pos = self.enc_noise.apply(pos, tick)
             out.append(("joint_states", packed.joint_state(t_ns, JOINTS, pos, st.enc_vel)
                          if encoded else codec.joint_state(t_ns, JOINTS, pos, st.enc_vel)))
         x, y, z = st.xyz
-        gx, gy, gz = self.gps_noise.apply(np.array([x, y, z])) if self.gps_noise else (x, y, z)
         if want("gps"):
+            gx, gy, gz = (self.gps_noise.apply(np.array([x, y, z]), tick) if self.gps_noise
+                          else (x, y, z))
             out.append(("gps", packed.point_stamped(t_ns, float(gx), float(gy), float(gz))
                         if encoded else codec.point_stamped(t_ns, gx, gy, gz)))
         if want("ground_truth"):
@@ -112,28 +115,21 @@ class RobotSensors:
                 t_ns, x, y, st.yaw, st.v_body[0], st.w_body[2], frame_id=WORLD_FRAME,
                 child_frame_id=base, z=z, quaternion=q)))
         enc = codec.encode if encoded else _same
-        if self.lidar_due(tick):
+        if self.lidar_due(tick) and want("scan"):
             c = self.lidar
-            if not want("scan"):
-                if self.lidar_noise is not None:
-                    self.lidar_noise.skip((c.num_rays,))
-            else:
-                if exact_scan is None:
-                    exact_scan = lid.scan(c, st.tf, scene, exclude_owner=self.name)
-                ranges = lid.apply_noise(c, exact_scan, self.lidar_noise)
-                out.append(("scan", enc(codec.laser_scan(
-                    t_ns, c.angle_min, c.angle_max, c.angle_increment, 1.0 / c.rate_hz,
-                    c.min_range_m, c.max_range_m, ranges, frame_id=self.frames["laser"]))))
+            if exact_scan is None:
+                exact_scan = lid.scan(c, st.tf, scene, exclude_owner=self.name)
+            ranges = lid.apply_noise(c, exact_scan, self.lidar_noise, tick)
+            out.append(("scan", enc(codec.laser_scan(
+                t_ns, c.angle_min, c.angle_max, c.angle_increment, 1.0 / c.rate_hz,
+                c.min_range_m, c.max_range_m, ranges, frame_id=self.frames["laser"]))))
         if self.camera and tick % self.periods["camera/image_raw"] == 0:
             optical = self.frames["camera_optical"]
-            if not want("camera/image_raw"):
-                if self.camera_noise is not None:
-                    self.camera_noise.skip((self.camera.height, self.camera.width, 3))
-            else:
+            if want("camera/image_raw"):
                 rgb = cam.render(self.camera, cam.camera_pose(self.camera, st.tf), scene,
                                  exclude_owner=self.name)
                 if self.camera_noise is not None:
-                    rgb = self.camera_noise.apply(rgb)
+                    rgb = self.camera_noise.apply(rgb, tick)
                 out.append(("camera/image_raw", enc(codec.image(t_ns, rgb, optical))))
             if want("camera/camera_info"):
                 out.append(("camera/camera_info", enc(codec.camera_info(

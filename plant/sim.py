@@ -14,7 +14,7 @@ from . import drive as dd
 from .kinematic import Kinematics
 from .robot import Robot, movable_object, room_skeleton
 from .shapes import Shape, pose_matrix
-from .noise import make_rng
+from .noise import normals, stream_key
 from .raycast import Scene, ShapeList
 from .world import ObjectSpec, WorldSpec
 
@@ -153,7 +153,7 @@ class Simulation:
         self._scene_template = Scene(list(self.shapes()))     # built once per world
         self._room: Scene | None = None                         # room_scene()
         self._set_contact_solver(spec.contact_solver)
-        self.motion_rng = {r.name: make_rng(spec.seed, f"{r.name}/motion") for r in spec.robots}
+        self._motion_keys()
 
     def _parts_on_base(self) -> tuple[np.ndarray, np.ndarray]:
         """A kinematic world's visible parts: each one's robot (index) and pose on its
@@ -178,8 +178,13 @@ class Simulation:
             r.targets = (0.0, 0.0)
             self.limiters[name].reset()
         self.steps = 0
-        self.motion_rng = {r.name: make_rng(self.spec.seed, f"{r.name}/motion")
-                           for r in self.spec.robots}
+        self._motion_keys()
+
+    def _motion_keys(self) -> None:
+        """Each robot's motion noise stream: its key (:func:`plant.noise.stream_key`), as a
+        uint64 array for :func:`plant.noise.normals`."""
+        self.motion_keys = {r.name: np.array([stream_key(self.spec.seed, r.name, "motion")],
+                                             np.uint64) for r in self.spec.robots}
 
     def _set_contact_solver(self, name: str) -> None:
         """PGS honours the Coulomb friction limit; DART's default Dantzig solver over-grips
@@ -225,11 +230,13 @@ class Simulation:
             wl, wr, self.spec.control_tick_s))
 
     def _set_targets(self, robot: str, wheels: tuple[float, float]) -> None:
-        """Wheel-speed set-points for the next tick, with the robot's motion noise."""
+        """Wheel-speed set-points for the next tick, with the robot's motion noise: the
+        normals of its motion stream at the tick the command acts from, times the std (a
+        robot commanded to stand, (0, 0), gets none)."""
         r = self.robots[robot]
         std = r.spec.sensors.command_noise_std_radps
         if std > 0.0 and wheels != (0.0, 0.0):
-            n = self.motion_rng[robot].normal(0.0, std, 2)
+            n = normals(self.motion_keys[robot], self.steps // self._substeps, 2)[0] * std
             wheels = (wheels[0] + n[0], wheels[1] + n[1])
         r.targets = wheels
 

@@ -5,13 +5,14 @@ process), the in-process Gymnasium environments (:mod:`diffbot.envs`) and the pl
 all drive it, so they produce the same messages, bit for bit, from the same seed and
 commands. Tick k is::
 
-    for robot, topic, msg in tick.messages():  # sensors due at t_k, noise drawn in order
+    for robot, topic, msg in tick.messages():  # sensors due at t_k, with their noise
         ...                                    # publish; sim/clock; the members answer t_k
     tick.drive(robot, command)                 # for every robot (None: stand still)
     tick.step()                                # to t_{k+1} (a diverged world is rebuilt)
 
-Anything that changes the order in which the noise streams are drawn, the sensors due at
-a tick, or a message's values changes every host at once; ``tests/test_envs_identity.py``
+A reading's noise is a function of (seed, robot, stream, tick, index) (:mod:`plant.noise`),
+so no order of calls changes it. Anything that changes the sensors due at a tick or a
+message's values changes every host at once; ``tests/test_envs_identity.py``
 checks that the in-process and bus transports still agree to the bit.
 """
 from __future__ import annotations
@@ -33,8 +34,8 @@ from .world import WorldSpec
 
 
 class Tick:
-    """One world's tick: the sensors due at t_k (built only where wanted, noise always
-    drawn), the robots' commands for t_k, the physics step to t_{k+1}, the rebuild of a
+    """One world's tick: the sensors due at t_k (built only where wanted), the robots'
+    commands for t_k, the physics step to t_{k+1}, the rebuild of a
     diverged world, reset. ``disabled``: sensors taken off every robot ("lidar",
     "camera"); ``physics_process``: DART in a process of its own (:mod:`plant.stepper`;
     not for a kinematic world, whose step, one C call for every robot, costs less than
@@ -97,9 +98,11 @@ class Tick:
                              self.stepper.shapes, wanted, encoded)
 
     def prefetch(self) -> None:
-        """Draw the next tick's sensor noise ahead (off a member's critical path)."""
+        """Draw the next tick's sensor noise ahead where it is drawn in numpy (off a
+        member's critical path): the same values as drawn when due."""
+        nxt = self.sim.time_ns // self.tick_ns + 1
         for sensors in self.sensors.values():
-            sensors.prefetch()
+            sensors.prefetch(nxt)
 
     def drive(self, robot: str, command: Twist | WheelSpeeds | None) -> None:
         """The command that acts on ``robot`` from now to the next tick (None: stand still)."""
@@ -233,7 +236,7 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
 
     ``wanted`` (robot -> ``wanted(topic)``, the plant's "does anyone read it"): a due topic
     nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
-    rendered) but its noise drawn, so every other value is what it would have been (None:
+    rendered, no noise drawn; every other value is what it would have been) (None:
     every topic is built; each asked once a tick, :func:`settled`). ``encoded``: the
     messages' CDR bytes instead of the messages (:meth:`RobotSensors.messages`).
     ``cast``: (scene, {robot: noise-free ranges}) of this tick, made already

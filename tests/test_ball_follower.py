@@ -12,7 +12,7 @@ from controllers.ball_follower import (LOST_AFTER_FRAMES, SEARCH_S, BallFollower
                                        detect_ball, distance_from_radius, image_noise_std,
                                        locate_ball)
 from plant import camera as cam
-from plant.noise import NoiseConfig, NoiseModel, make_rng
+from plant.noise import NoiseConfig, NoiseModel, stream_key
 from plant.shapes import Shape, pose_matrix
 from plant.world import load_world
 
@@ -36,7 +36,7 @@ def scene_with_ball(distance: float, bearing: float, height: float = 0.0, clutte
 def render(shapes, noise_std=0.0, seed=0):
     rgb = cam.render(CFG, np.eye(4), shapes)
     if noise_std:
-        rgb = NoiseModel(NoiseConfig(std=noise_std), make_rng(seed, "camera")).apply(rgb)
+        rgb = NoiseModel(NoiseConfig(std=noise_std), stream_key(seed, "test", "camera")).apply(rgb, 0)
     return rgb
 
 

@@ -156,8 +156,9 @@ def test_worlds_ticked_as_arrays_give_the_messages_numbers(mode, repeat, normali
     DART; the same batch through the plant's messages (arrays=None) is the oracle:
     observations, rewards, flags, poses, contacts and the rendered view to the bit, every
     noise on, through autoresets (an action_repeat of 3 puts the worlds' lidars out of
-    phase after their resets), the drive limiter's ramps and clamps, actions in the
-    robot's units and normalised, a movable object in the lidars' sight."""
+    phase after their resets), the drive limiter's ramps and clamps, robots standing (no
+    command noise) between runs, actions in the robot's units and normalised, a movable
+    object in the lidars' sight."""
     from diffbot.envs.kinbatch import ArrayTicks
     n = 6
     if world == "movable":
@@ -181,6 +182,8 @@ def test_worlds_ticked_as_arrays_give_the_messages_numbers(mode, repeat, normali
         for step in range(150):   # mostly ahead (walls and furniture get hit), over the box
             act = (rng.uniform([0.3, -0.7], [1.2, 0.7], (n, 2))
                    * fast.single_action_space.high).astype(np.float32)
+            if step % 20 >= 16:
+                act[::2] = 0.0       # half the robots brake to a stop: no command noise
             ra, rb = fast.step(act), slow.step(act)
             for key in ra[0]:
                 assert ra[0][key].tobytes() == rb[0][key].tobytes(), f"{key} at step {step}"
@@ -194,9 +197,6 @@ def test_worlds_ticked_as_arrays_give_the_messages_numbers(mode, repeat, normali
                 assert ([_objects(t) for t in fast.unwrapped.tasks]
                         == [_objects(t) for t in slow.unwrapped.tasks]), f"objects at {step}"
         assert contacts >= 2, "no episode ended on a contact"
-        # the noise drawn ahead is kept for the worlds' current streams only (three each:
-        # encoders, lidar, commands), not for every episode's since the start
-        assert len(fast.unwrapped.chunks[0].arrays._draws) <= 3 * n
     finally:
         fast.close()
         slow.close()

@@ -13,7 +13,7 @@ from plant import kernels
 from plant.camera import CameraConfig, render_full
 from plant.camera_reference import render_full_reference
 from plant.lidar import LidarConfig, scan, scan_many, scan_many_reference, scan_worlds
-from plant.noise import NoiseConfig, NoiseModel, image_noise_reference, make_rng
+from plant.noise import NoiseConfig, NoiseModel, frame_seed, image_noise_reference, stream_key
 from plant.raycast import Scene
 from plant.shapes import Shape, pose_matrix
 from plant.sim import Simulation
@@ -180,11 +180,12 @@ def test_camera_kernel_agrees_with_the_numpy_renderer():
 @pytest.mark.parametrize("shape", [(60, 80, 3), (7, 5, 3)])     # an odd number of channels
 def test_image_noise_kernel_gives_the_numpy_reference_bytes(cfg, shape):
     img = np.random.default_rng(3).integers(0, 256, size=shape, dtype=np.uint8)
-    model, rng = NoiseModel(cfg, make_rng(1, "cam")), make_rng(1, "cam")
-    for _ in range(3):
-        got = model.apply(img)
-        seed = int(rng.integers(0, 2 ** 64, dtype=np.uint64))
-        assert np.array_equal(got, image_noise_reference(img, seed, cfg.std, cfg.bias + cfg.mean))
+    key = stream_key(1, "robot1", "camera")
+    model = NoiseModel(cfg, key)
+    for tick in (0, 1, 2, 10 ** 12):
+        got = model.apply(img, tick)
+        want = image_noise_reference(img, frame_seed(key, tick), cfg.std, cfg.bias + cfg.mean)
+        assert np.array_equal(got, want)
 
 
 def test_a_missing_library_says_how_to_build_it(tmp_path):

@@ -1,14 +1,21 @@
-"""Noise models: statistics, Webots meanings, seeding and stream independence."""
+"""Noise models: statistics, Webots meanings, keys and stream independence (the draws
+themselves: tests/test_noise_counter.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from plant.lidar import LidarConfig, apply_noise
-from plant.noise import (NoiseConfig, NoiseModel, make_rng, parse_noise, webots_camera,
-                         webots_gps, webots_lidar, webots_position)
+from plant.noise import (NoiseConfig, NoiseModel, frame_seed, normals, parse_noise,
+                         stream_key, webots_camera, webots_gps, webots_lidar, webots_position)
 
 N = 10_000
+
+
+def key(seed: int, name: str) -> int:
+    """The key of stream ``name`` ("robot/stream", or a stream of robot1)."""
+    robot, _, stream = name.rpartition("/")
+    return stream_key(seed, robot or "robot1", stream)
 
 
 def _rel_err(sample_std, want):
@@ -20,21 +27,21 @@ def test_lidar_std_is_relative_to_max_range():
     nc = webots_lidar(0.01, cfg.max_range_m)
     assert nc.std == pytest.approx(0.8)
     true = np.full(N, 40.0)
-    out = apply_noise(cfg, true, NoiseModel(nc, make_rng(3, "robot1/scan")))
+    out = apply_noise(cfg, true, NoiseModel(nc, key(3, "robot1/scan")))
     assert _rel_err(out.std(), 0.8) < 0.05
     assert abs(out.mean() - 40.0) < 4 * 0.8 / np.sqrt(N)
 
 
 def test_encoder_std_absolute_rad():
     nc = webots_position(0.02)
-    out = NoiseModel(nc, make_rng(3, "robot1/left_wheel")).apply(np.full(N, 12.5))
+    out = NoiseModel(nc, key(3, "robot1/left_wheel")).apply(np.full(N, 12.5), 0)
     assert _rel_err(out.std(), 0.02) < 0.05
     assert abs(out.mean() - 12.5) < 4 * 0.02 / np.sqrt(N)
 
 
 def test_gps_std_absolute_m():
     nc = webots_gps(0.05)
-    out = NoiseModel(nc, make_rng(3, "robot1/gps")).apply(np.zeros((N, 2)) + [1.0, -2.0])
+    out = NoiseModel(nc, key(3, "robot1/gps")).apply(np.zeros((N, 2)) + [1.0, -2.0], 0)
     assert out.shape == (N, 2)
     assert _rel_err(out[:, 0].std(), 0.05) < 0.05 and _rel_err(out[:, 1].std(), 0.05) < 0.05
 
@@ -43,50 +50,50 @@ def test_camera_std_in_levels_keeps_uint8():
     nc = webots_camera(0.05)
     assert nc.std == pytest.approx(12.75)
     img = np.full((100, 100), 128, dtype=np.uint8)
-    out = NoiseModel(nc, make_rng(3, "robot1/camera")).apply(img)
+    out = NoiseModel(nc, key(3, "robot1/camera")).apply(img, 0)
     assert out.dtype == np.uint8 and out.shape == img.shape
     assert _rel_err(out.astype(float).std(), 12.75) < 0.05
     # per channel: each channel gets its own draw
     rgb = np.full((20, 20, 3), 100, dtype=np.uint8)
-    o = NoiseModel(webots_camera(0.1), make_rng(1, "c")).apply(rgb)
+    o = NoiseModel(webots_camera(0.1), key(1, "c")).apply(rgb, 0)
     assert not np.array_equal(o[..., 0], o[..., 1])
 
 
 def test_camera_clips_to_0_255():
     img = np.array([0, 5, 250, 255] * 1000, dtype=np.uint8)
-    out = NoiseModel(NoiseConfig(std=60.0), make_rng(0, "c")).apply(img)
+    out = NoiseModel(NoiseConfig(std=60.0), key(0, "c")).apply(img, 0)
     assert out.dtype == np.uint8
     assert out.min() == 0 and out.max() == 255
 
 
 def test_mean_bias_and_resolution():
     nc = NoiseConfig(std=0.01, mean=0.1, bias=0.2, resolution=0.05)
-    out = NoiseModel(nc, make_rng(5, "x")).apply(np.full(N, 1.0))
+    out = NoiseModel(nc, key(5, "x")).apply(np.full(N, 1.0), 0)
     assert abs(out.mean() - 1.3) < 0.005
     steps = out / 0.05
     assert np.allclose(steps, np.round(steps), atol=1e-9)
 
 
 def test_inf_and_nan_pass_through():
-    model = NoiseModel(NoiseConfig(std=0.1, resolution=0.01), make_rng(0, "s"))
-    out = model.apply(np.array([np.inf, 1.0, np.nan, -np.inf]))
+    model = NoiseModel(NoiseConfig(std=0.1, resolution=0.01), key(0, "s"))
+    out = model.apply(np.array([np.inf, 1.0, np.nan, -np.inf]), 0)
     assert out[0] == np.inf and np.isfinite(out[1]) and np.isnan(out[2]) and out[3] == -np.inf
 
 
 def test_zero_noise_is_identity():
     x = np.array([1.0, np.inf, 2.5])
-    out = NoiseModel(NoiseConfig(), make_rng(0, "z")).apply(x)
+    out = NoiseModel(NoiseConfig(), key(0, "z")).apply(x, 0)
     assert np.array_equal(out, x)
     img = np.arange(256, dtype=np.uint8)
-    assert np.array_equal(NoiseModel(NoiseConfig(), make_rng(0, "z")).apply(img), img)
+    assert np.array_equal(NoiseModel(NoiseConfig(), key(0, "z")).apply(img, 0), img)
 
 
 def test_same_seed_same_noise_different_seed_different():
     nc = NoiseConfig(std=1.0)
-    a = NoiseModel(nc, make_rng(42, "robot1/scan")).apply(np.zeros(100))
-    b = NoiseModel(nc, make_rng(42, "robot1/scan")).apply(np.zeros(100))
-    c = NoiseModel(nc, make_rng(43, "robot1/scan")).apply(np.zeros(100))
-    d = NoiseModel(nc, make_rng(42, "robot2/scan")).apply(np.zeros(100))
+    a = NoiseModel(nc, key(42, "robot1/scan")).apply(np.zeros(100), 0)
+    b = NoiseModel(nc, key(42, "robot1/scan")).apply(np.zeros(100), 0)
+    c = NoiseModel(nc, key(43, "robot1/scan")).apply(np.zeros(100), 0)
+    d = NoiseModel(nc, key(42, "robot2/scan")).apply(np.zeros(100), 0)
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)
     assert not np.array_equal(a, d)
@@ -94,33 +101,36 @@ def test_same_seed_same_noise_different_seed_different():
 
 def test_streams_are_independent():
     nc = NoiseConfig(std=1.0)
-    # run 1: only the scan stream
-    scan1 = NoiseModel(nc, make_rng(7, "robot1/scan"))
-    alone = [scan1.apply(np.zeros(180)) for _ in range(5)]
-    # run 2: a GPS stream is added and interleaved
-    scan2 = NoiseModel(nc, make_rng(7, "robot1/scan"))
-    gps = NoiseModel(nc, make_rng(7, "robot1/gps"))
-    mixed = []
-    for _ in range(5):
-        gps.apply(np.zeros(3))
-        mixed.append(scan2.apply(np.zeros(180)))
-        gps.apply(np.zeros(3))
-    for x, y in zip(alone, mixed):
-        assert np.array_equal(x, y)
+    # run 1: only the scan stream, every tick
+    scan1 = NoiseModel(nc, key(7, "robot1/scan"))
+    alone = [scan1.apply(np.zeros(180), t) for t in range(6)]
+    # run 2: a GPS stream is added and interleaved, and ticks 1 and 4 go unread
+    scan2 = NoiseModel(nc, key(7, "robot1/scan"))
+    gps = NoiseModel(nc, key(7, "robot1/gps"))
+    mixed = {}
+    for t in (5, 3, 2, 0):
+        gps.apply(np.zeros(3), t)
+        mixed[t] = scan2.apply(np.zeros(180), t)
+        gps.apply(np.zeros(3), t + 1)
+    for t, y in mixed.items():
+        assert np.array_equal(alone[t], y)
+    # a reading is element i of its stream's normals at its tick, times the std
+    np.testing.assert_array_equal(alone[3], normals([key(7, "robot1/scan")], 3, 180)[0])
+    assert not np.array_equal(alone[0], alone[1])
     # and the two streams are uncorrelated
-    a = NoiseModel(nc, make_rng(7, "a")).apply(np.zeros(N))
-    b = NoiseModel(nc, make_rng(7, "b")).apply(np.zeros(N))
+    a = NoiseModel(nc, key(7, "a")).apply(np.zeros(N), 0)
+    b = NoiseModel(nc, key(7, "b")).apply(np.zeros(N), 0)
     assert abs(np.corrcoef(a, b)[0, 1]) < 0.05
 
 
 @pytest.mark.slow
-def test_rng_stable_across_processes():
-    # sha256-based: a fixed value pins the derivation (Python's hash() would vary)
-    v = make_rng(1, "robot1/scan").random()
-    assert v == make_rng(1, "robot1/scan").random()
+def test_noise_stable_across_processes():
+    # sha256-based keys: Python's hash() would vary with PYTHONHASHSEED
+    v = NoiseModel(NoiseConfig(std=1.0), stream_key(1, "robot1", "scan")).apply([0.0], 9)[0]
     import subprocess
     import sys
-    code = ("from plant.noise import make_rng; print(repr(make_rng(1, 'robot1/scan').random()))")
+    code = ("from plant.noise import NoiseConfig, NoiseModel, stream_key; print(repr(NoiseModel("
+            "NoiseConfig(std=1.0), stream_key(1, 'robot1', 'scan')).apply([0.0], 9)[0].item()))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env={"PYTHONHASHSEED": "123", "PYTHONPATH": _repo_root()}, check=True)
     assert float(out.stdout) == v
@@ -175,51 +185,75 @@ def test_config_validation():
     with pytest.raises(ValueError, match="webots_noise"):
         webots_camera(-0.1)
     with pytest.raises(ValueError, match="seed"):
-        make_rng(-1, "x")
+        key(-1, "x")
+    for bad in (-1, 2 ** 64, 1.0, True):
+        with pytest.raises(ValueError, match="key"):
+            NoiseModel(NoiseConfig(std=1.0), bad)
+    rows = NoiseModel(NoiseConfig(std=1.0), np.arange(3, dtype=np.uint64))
+    with pytest.raises(ValueError, match="3 rows"):
+        rows.apply(np.zeros((2, 5)), 0)
+    with pytest.raises(ValueError, match="one key"):
+        rows.apply(np.zeros((3, 4, 3), np.uint8), 0)
 
 
-def test_prefetched_image_noise_is_the_same_stream():
-    from plant.noise import NoiseConfig, NoiseModel, make_rng
+def test_rows_are_their_streams_alone():
+    """A model of several keys (a batch's worlds) gives row r what the model of keys[r]
+    alone gives, at its own tick."""
+    cfg = NoiseConfig(std=0.3, bias=0.1, resolution=0.01)
+    keys = np.array([key(s, "robot1/lidar") for s in range(4)], np.uint64)
+    x = np.linspace(0.5, 4.0, 4 * 7).reshape(4, 7)
+    ticks = np.array([3, 0, 8, 3])
+    rows = NoiseModel(cfg, keys).apply(x, ticks)
+    for r in range(4):
+        np.testing.assert_array_equal(rows[r], NoiseModel(cfg, int(keys[r])).apply(x[r], ticks[r]))
+    sub = NoiseModel(cfg, keys).select([2, 0]).apply(x[[2, 0]], ticks[[2, 0]])
+    np.testing.assert_array_equal(sub, rows[[2, 0]])
+
+
+def test_prefetched_image_noise_is_the_same():
     img = np.full((12, 16, 3), 100, np.uint8)
-    a = NoiseModel(NoiseConfig(std=20.0), make_rng(4, "robot1/camera"))
-    b = NoiseModel(NoiseConfig(std=20.0), make_rng(4, "robot1/camera"))
-    out_a = [a.apply(img) for _ in range(3)]
+    cfg = NoiseConfig(std=20.0, resolution=2.0)                 # (drawn in numpy)
+    a = NoiseModel(cfg, key(4, "robot1/camera"))
+    b = NoiseModel(cfg, key(4, "robot1/camera"))
+    out_a = [a.apply(img, t) for t in range(3)]
     out_b = []
-    for _ in range(3):
-        b.prefetch_image(img.shape)
-        b.prefetch_image(img.shape)          # a second prefetch draws nothing more
-        out_b.append(b.apply(img))
-    assert all(np.array_equal(x, y) for x, y in zip(out_a, out_b))
+    for t in range(3):
+        b.prefetch_image(img.shape, t)
+        b.prefetch_image(img.shape, t)       # a second prefetch changes nothing
+        out_b.append(b.apply(img, t))
+    b.prefetch_image(img.shape, 7)           # one for another tick is not used for tick 1
+    out_b.append(b.apply(img, 1))
+    assert all(np.array_equal(x, y) for x, y in zip(out_a + [out_a[1]], out_b))
 
 
 @pytest.mark.parametrize("bias", [0.0, 3.5])
 @pytest.mark.parametrize("resolution", [0.0, 4.0])
 def test_image_noise_is_the_stated_sum_drawn_ahead_or_not(bias, resolution):
     """With quantisation: quantise(rint(clip((x + bias) + std * N(0, 1) float32))), the
-    normals drawn image after image from the stream's own generator. Without: the C
-    kernel's image (its numpy reference) for one seed a frame taken from that generator.
-    Either way whether the draws are fetched ahead or not."""
-    from plant.noise import NoiseConfig, NoiseModel, image_noise_reference, make_rng
+    normals those of the stream's key at the frame's tick. Without: the C kernel's image
+    (its numpy reference) for the frame seed of the key and the tick. Either way whether
+    the draws are fetched ahead or not."""
+    from plant.noise import image_noise_reference
     img = np.random.default_rng(1).integers(0, 256, (12, 16, 3), dtype=np.uint8)
     cfg = NoiseConfig(std=20.0, bias=bias, resolution=resolution)
-    ref_rng = make_rng(4, "robot1/camera")
+    k = key(4, "robot1/camera")
     want = []
-    for _ in range(4):
+    for t in range(4):
         if not resolution:
-            seed = int(ref_rng.integers(0, 2 ** 64, dtype=np.uint64))
-            want.append(image_noise_reference(img, seed, 20.0, bias))
+            want.append(image_noise_reference(img, frame_seed(k, t), 20.0, bias))
             continue
         x = img.astype(np.float32) + np.float32(bias)
-        x = x + ref_rng.standard_normal(img.shape, dtype=np.float32) * np.float32(20.0)
+        z = normals([k], t, img.size)[0].reshape(img.shape).astype(np.float32)
+        x = x + z * np.float32(20.0)
         x = np.round(x / np.float32(resolution)) * np.float32(resolution)
         want.append(np.clip(np.rint(x), 0, 255).astype(np.uint8))
     for how in ("none", "ahead"):
-        m = NoiseModel(cfg, make_rng(4, "robot1/camera"))
+        m = NoiseModel(cfg, k)
         got = []
-        for _ in range(4):
+        for t in range(4):
             if how != "none":
-                m.prefetch_image(img.shape)
-            got.append(m.apply(img))
+                m.prefetch_image(img.shape, t)
+            got.append(m.apply(img, t))
         assert all(np.array_equal(a, b) for a, b in zip(want, got)), how
         assert len({id(g) for g in got}) == 4 and not any(np.shares_memory(a, b) for a in got
                                                           for b in got if a is not b)
@@ -229,9 +263,9 @@ def test_image_noise_is_the_stated_sum_drawn_ahead_or_not(bias, resolution):
 
 def _levels(std, offset=0.0, x=128, shape=(240, 320, 3), seed=9, frames=1):
     """Frames of a flat grey image through the kernel, as level differences (int)."""
-    m = NoiseModel(NoiseConfig(std=std, bias=offset), make_rng(seed, "robot1/camera"))
+    m = NoiseModel(NoiseConfig(std=std, bias=offset), key(seed, "robot1/camera"))
     img = np.full(shape, x, np.uint8)
-    return np.stack([m.apply(img).astype(int) - x for _ in range(frames)])
+    return np.stack([m.apply(img, t).astype(int) - x for t in range(frames)])
 
 
 @pytest.mark.parametrize("std,offset", [(10.0, 0.0), (51.0, 0.0), (7.3, 2.25), (0.3, 0.4),
@@ -315,21 +349,21 @@ def test_image_noise_has_no_correlation_between_neighbours_frames_or_seeds():
     assert not np.array_equal(a, f[1]) and not np.array_equal(a, g)
 
 
-def test_image_noise_is_reproducible_by_seed_and_draws_one_number_a_frame():
+def test_image_noise_is_a_function_of_key_and_tick():
     assert np.array_equal(_levels(10.0, frames=3), _levels(10.0, frames=3))
-    rng = make_rng(9, "robot1/camera")
-    m = NoiseModel(NoiseConfig(std=10.0), make_rng(9, "robot1/camera"))
-    m.apply(np.zeros((4, 4, 3), np.uint8))
-    m.skip((4, 4, 3))
-    rng.integers(0, 2 ** 64, dtype=np.uint64, size=2)
-    assert m.rng.random() == rng.random()
+    m = NoiseModel(NoiseConfig(std=10.0), key(9, "robot1/camera"))
+    img = np.full((4, 5, 3), 100, np.uint8)
+    later = m.apply(img, 7)
+    m.apply(img, 3)
+    assert np.array_equal(m.apply(img, 7), later)           # whatever came between
+    assert not np.array_equal(m.apply(img, 8), later)
 
 
 def test_image_noise_clips_like_the_model_at_both_ends():
     """Levels 0 and 255 under std 10: half the channels stay at the end they start at (the
     law's mass on the far side of 0), the rest spread by the rounded Gaussian."""
     for x, end in ((0, 0), (255, 255)):
-        m = NoiseModel(NoiseConfig(std=10.0), make_rng(2, "c"))
-        out = m.apply(np.full((200, 300, 3), x, np.uint8))
+        m = NoiseModel(NoiseConfig(std=10.0), key(2, "c"))
+        out = m.apply(np.full((200, 300, 3), x, np.uint8), 0)
         frac = np.mean(out == end)
         assert abs(frac - (0.5 + 0.5 * 0.0398)) < 0.01     # P(rint(N) <= 0) = Phi(0.05)

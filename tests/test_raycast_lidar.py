@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from plant.lidar import LidarConfig, apply_noise, measure, scan, scan_many, sensor_pose
-from plant.noise import NoiseModel, make_rng, webots_lidar
+from plant.noise import NoiseModel, stream_key, webots_lidar
 from plant.raycast import Scene, cast_distances, cast_rays
 from plant.shapes import Shape, pose_matrix
 
@@ -256,7 +256,7 @@ def test_mount_yaw_and_ray_order():
 def test_apply_noise_keeps_inf_and_clips():
     cfg = LidarConfig(max_range_m=10.0, min_range_m=0.1)
     true = np.array([np.inf, 0.1, 5.0, 10.0, np.inf] * 2000)
-    model = NoiseModel(webots_lidar(0.05, cfg.max_range_m), make_rng(1, "lidar"))
+    model = NoiseModel(webots_lidar(0.05, cfg.max_range_m), stream_key(1, "robot1", "lidar"))
     out = apply_noise(cfg, true, model)
     assert np.array_equal(np.isinf(out), np.isinf(true))
     fin = np.isfinite(out)

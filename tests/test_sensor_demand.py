@@ -37,7 +37,7 @@ def _run(ticks: int, wanted, encoded: bool = False):
                                          encoded=encoded):
                 out[(tick, n, topic)] = msg if encoded else codec.encode(msg)
                 built[topic] = built.get(topic, 0) + 1
-            s.prefetch()
+            s.prefetch(tick + 1)
         for i, n in enumerate(sim.robots):
             sim.command_twist(n, 0.2, 0.8 * math.sin(0.1 * k + i))
         sim.step_tick()

@@ -14,18 +14,18 @@ def camera_suite(ctx: Context):
 
     from plant import camera as cam
     from plant.camera_reference import render_full_reference
-    from plant.noise import NoiseModel, make_rng, webots_camera
+    from plant.noise import NoiseModel, stream_key, webots_camera
     spec, sim, st, scene = sensor_scene("living_room_follow", "follower")
     base = spec.robot("follower").sensors.camera or cam.CameraConfig()
     pose = cam.camera_pose(base, st.tf)
     where = f"{len(scene)} shapes, the leader and its green ball in view"
-    noise = NoiseModel(webots_camera(10.0 / 255.0), make_rng(0, "bench/camera"))
-    # issue 36's targets (render and noise): 160x120 <= 0.7 ms, 320x240 <= 1.4 ms
+    noise = NoiseModel(webots_camera(10.0 / 255.0), stream_key(0, "bench", "camera"))
+    # the targets (render and noise): 160x120 <= 0.7 ms, 320x240 <= 1.4 ms
     for (w, h), target in (((160, 120), 0.7e-3), ((320, 240), 1.4e-3)):
         cfg = replace(base, width=w, height=h)
         cam.render(cfg, pose, scene, exclude_owner="follower")    # rays cached per size
         yield Case(f"render {w}x{h} + noise", lambda cfg=cfg: noise.apply(
-            cam.render(cfg, pose, scene, "follower")), target=f"<= {target * 1e3:g} ms",
+            cam.render(cfg, pose, scene, "follower"), 0), target=f"<= {target * 1e3:g} ms",
             notes=f"noise std 10 (follow's), drawn in the call (plant/kernels/noise.c); "
                   f"peers (issue 36, frame alone): PyBullet {PEERS[(w, h)][0]}, "
                   f"MuJoCo {PEERS[(w, h)][1]}")

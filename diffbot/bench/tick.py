@@ -28,8 +28,8 @@ from .harness import Context, Metric, Probe, Skip, suite
 #: is in one of its frames (frames are "function (file:line)"): the camera's ray maths in
 #: plant/raycast.py is the camera's, the lidar's noise is noise, not lidar
 PHASES: list[tuple[str, tuple[str, ...]]] = [
-    ("image noise", ("NoiseModel.prefetch_image", "NoiseModel._image_noise",
-                     "image_noise (plant/kernels/__init__.py", "NoiseModel._image_seed",
+    ("image noise", ("NoiseModel.prefetch_image", "NoiseModel._take_image_noise",
+                     "image_noise (plant/kernels/__init__.py", "frame_seed (plant/noise.py",
                      "prefetch (plant/sensors.py")),
     ("noise (other)", ("(plant/noise.py",)),
     ("camera render", ("(plant/camera.py", "(plant/lens.py")),

@@ -27,9 +27,11 @@ A tick is what the plant's tick does, in its order, to the bit:
   robot (a one-robot world's lidar skips its own parts, so that is what it sees), then
   noise, clip and quantisation as :func:`plant.lidar.apply_noise`, all rows at once.
 
-Each noise stream is each world's own, drawn in blocks ahead and read in order (a
-generator's block of draws is its draws one by one): :class:`_Gather` lays the command and
-encoder streams out for the kernel. After the ticks, in numpy for many worlds and in
+The noise is the plant's (:mod:`plant.noise`): each world's streams have their keys, a
+reading is a function of the key and the tick, and the readings of every world are drawn
+in one call of :func:`plant.noise.normals`: the command and encoder noise of a step's
+ticks before its kernel calls (:class:`_Noise`), the lidar noise of the rows due with
+:func:`plant.lidar.apply_noise` itself. After the ticks, in numpy for many worlds and in
 Python floats for one (what the message path computes with):
 
 - the observer: the scan as :meth:`controllers.learned.AvoidObserver.feed` keeps it, the
@@ -42,8 +44,7 @@ Python floats for one (what the message path computes with):
 
 A world that diverges (not finite) is an error here (FloatingPointError), where the
 message path rebuilds it at t = 0 and goes on. What the env never reads is not made (the
-GPS; the ground truth before a step's end); the GPS noise stream is not drawn either, as
-nobody reads it before the world is rebuilt at its next reset. Between steps the batch
+GPS and its noise; the ground truth before a step's end). Between steps the batch
 keeps each env's state as arrays (:class:`_Kept`: read from an env's objects once after
 its reset), and writes it back to the env's observer, odometry, limiter, world and task
 only when something is to read them (:meth:`ArrayTicks.flush`: a render, a reset, the
@@ -62,15 +63,11 @@ from bus.codec import yaw_of
 from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, in_frame, wrap
 from plant import kernels, kinematic
 from plant import lidar as lid
-from plant.noise import NoiseModel
+from plant.noise import NoiseModel, normals
 from plant.raycast import Scene
 from plant.sim import rotation_to_quaternion
 
 from .transport import InProc
-
-#: ticks of noise drawn at once per stream
-_BLOCK = 64
-
 
 class Made(NamedTuple):
     """A batch step's observations ({key: (W, ...)}, :meth:`AvoidObserver.observation`'s),
@@ -97,130 +94,37 @@ class _Scan:
         return float(cfg.max_range_m), float(cfg.angle_min), float(cfg.angle_increment)
 
 
-class _Draws:
-    """A stream's normals (``rng.normal(0, std, shape)`` a reading) drawn ``_BLOCK``
-    readings ahead, handed out reading by reading in the order the message path draws them:
-    ``buf[next:]`` are the readings drawn and not yet read."""
+class _Noise:
+    """A noise of every world of a batch laid out for plant/kernels/ticks.c, which reads it
+    in place: ``buf`` (W, ticks, 2) row j's readings of a step's ticks (the normals of its
+    key at each tick, :func:`plant.noise.normals`, times ``std``), ``next`` (W,) the next
+    tick's reading (the kernel advances it), ``live`` (W,) int64 the rows with a stream
+    (all). ``lag``: the first reading's tick after the step's first (the encoders are read
+    after each tick's step, at the next tick)."""
 
-    __slots__ = ("rng", "std", "shape", "buf", "next")
+    def __init__(self, keys: np.ndarray, std: float, lag: int, ticks: int) -> None:
+        w = len(keys)
+        self.std, self.lag = float(std), int(lag)
+        self.keys = np.repeat(keys, ticks)
+        self.offsets = np.arange(ticks, dtype=np.int64) + self.lag
+        self.buf = np.zeros((w, ticks, 2))
+        self.next = np.zeros(w, np.int64)
+        self.live = np.ones(w, np.int64)
 
-    def __init__(self, rng: np.random.Generator, std: float, shape: tuple[int, ...]) -> None:
-        self.rng, self.std, self.shape = rng, std, shape
-        self.buf = np.empty((0,) + shape)
-        self.next = 0
-
-    def take(self) -> np.ndarray:
-        if self.next == len(self.buf):
-            self.buf = self.rng.normal(0.0, self.std, size=(_BLOCK,) + self.shape)
-            self.next = 0
-        self.next += 1
-        return self.buf[self.next - 1]
-
-    def ahead(self, k: int) -> np.ndarray:
-        """At least ``k`` readings not yet read (a block more drawn after those left, if
-        fewer: a generator's block of draws is its draws one by one, so the readings are
-        the same), which become ``buf`` from ``next`` = 0: returned."""
-        if len(self.buf) - self.next < k:
-            self.buf = np.concatenate([self.buf[self.next:], self.rng.normal(
-                0.0, self.std, size=(_BLOCK,) + self.shape)])
-        else:
-            self.buf = self.buf[self.next:]
-        self.next = 0
-        return self.buf
+    def draw(self, tick: np.ndarray) -> None:
+        """The readings of the ticks from ``tick`` (W,) on, all rows in one call."""
+        normals(self.keys, (tick[:, None] + self.offsets).reshape(-1), 2,
+                out=self.buf.reshape(-1, 2))
+        self.buf *= self.std
+        self.next[:] = 0
 
 
-class _Gather:
-    """The streams of a batch's worlds (row j: world j's :class:`_Draws`, or None: no
-    stream, zeros) laid out for plant/kernels/ticks.c, which reads them in place: ``buf``
-    (W, cap, *shape), row j's readings not yet read ``buf[j, next[j]:end[j]]`` (the kernel
-    advances ``next``), ``live`` (W,) int64 the rows with a stream. :meth:`ahead` refills
-    the rows with too few readings left (those left first, then a new block, as
-    :meth:`_Draws.ahead`), so the readings are each stream's in order; :meth:`sync` leaves
-    the streams where the reads left them. ``most``: the most readings asked ahead."""
-
-    def __init__(self, draws: list, shape: tuple[int, ...], most: int = 1) -> None:
-        self.draws, self.shape = draws, shape
-        self.live = np.array([d is not None for d in draws], np.int64)
-        self.buf = np.zeros((len(draws), _BLOCK + most) + shape)
-        self.next = np.zeros(len(draws), np.int64)
-        self.end = np.zeros(len(draws), np.int64)
-        for j, d in enumerate(draws):
-            if d is not None:
-                self._put(j, d.ahead(0))        # (the readings left: none drawn yet)
-
-    def _put(self, j: int, readings: np.ndarray) -> None:
-        if len(readings) > self.buf.shape[1]:
-            raise ValueError("more readings asked ahead than the gather holds")
-        self.buf[j, :len(readings)] = readings
-        self.next[j], self.end[j] = 0, len(readings)
-
-    def ahead(self, k: int) -> None:
-        """At least ``k`` readings left in every live row."""
-        short = np.flatnonzero((self.end - self.next < k) & (self.live != 0))
-        for j in short.tolist():
-            d = self.draws[j]
-            d.next = int(self.next[j])
-            self._put(j, d.ahead(k))
-
-    def sync(self) -> None:
-        for d, k in zip(self.draws, self.next.tolist()):
-            if d is not None:
-                d.next = k
-
-
-class _Rows:
-    """The streams of a batch's worlds read stream by stream (:meth:`_Draws.take`): a
-    lidar's, taken once a scan."""
-
-    def __init__(self, draws: list, shape: tuple[int, ...]) -> None:
-        self.draws, self.shape = draws, shape
-
-    def take(self, rows: np.ndarray) -> np.ndarray:
-        zero = np.zeros(self.shape)
-        return np.array([d.take() if (d := self.draws[j]) is not None else zero
-                         for j in rows.tolist()]).reshape((len(rows),) + self.shape)
-
-    def sync(self) -> None:
-        pass
-
-
-class _RowNoise:
-    """One sensor's noise (:class:`plant.noise.NoiseModel`) of every world of a batch, row j
-    world j's, as :meth:`NoiseModel.apply` of a float array gives it: offset, the stream's
-    normals, quantisation; a world without a model reads its values as they are. None
-    (:meth:`of`) when no world has one."""
-
-    def __init__(self, models: list, draws: list, shape: tuple[int, ...]) -> None:
-        self.config = next(m for m in models if m is not None).config
-        self.have = np.array([m is not None for m in models])
-        self.streams = _Rows(draws, shape)
-        self.idx = np.arange(len(models))
-
-    @classmethod
-    def of(cls, models: list, draws: list, shape: tuple[int, ...]) -> "_RowNoise | None":
-        return cls(models, draws, shape) if any(m is not None for m in models) else None
-
-    def rows(self, idx: np.ndarray) -> "_RowNoise":
-        """The noise of worlds ``idx`` only (their own streams)."""
-        sub = object.__new__(_RowNoise)
-        sub.config, sub.have, sub.streams, sub.idx = self.config, self.have[idx], self.streams, idx
-        return sub
-
-    def apply(self, values: np.ndarray) -> np.ndarray:
-        c = self.config
-        out = values.astype(np.float64)
-        noisy = out + (c.bias + c.mean)
-        if c.std > 0:
-            noisy = noisy + self.streams.take(self.idx).reshape(noisy.shape)
-        if c.resolution > 0:
-            with np.errstate(invalid="ignore"):
-                noisy = np.where(np.isfinite(noisy),
-                                 np.round(noisy / c.resolution) * c.resolution, noisy)
-        return np.where(self.have.reshape((-1,) + (1,) * (out.ndim - 1)), noisy, out)
-
-
-def _noisy(values: np.ndarray, noise: _RowNoise | None) -> np.ndarray:
-    return values.astype(np.float64) if noise is None else noise.apply(values)
+def _keys(models: list) -> np.ndarray:
+    """The keys (W,) of one sensor's noise models, a world each (a batch's worlds share a
+    spec: all have one, or none)."""
+    if any(m is None for m in models):
+        raise ValueError("a batch's worlds differ in their sensor noise (one spec expected)")
+    return np.array([m.key for m in models], np.uint64)
 
 
 class ArrayTicks:
@@ -231,8 +135,6 @@ class ArrayTicks:
     def __init__(self, n: int, threads: int = 1) -> None:
         self.threads = int(threads)
         self._kept = _Kept(n)                   # advance's rows, from step to step
-        self._draws: dict[int, _Draws] = {}     # id(generator) -> its block of draws
-        self._last: dict[int, _Draws] = {}      # the last step's
         self._scene: Scene | None = None
         self._scene_of = None
         self._plan: _TickPlan | None = None     # the last step's calls, kept
@@ -253,20 +155,6 @@ class ArrayTicks:
             if s.camera is not None or s.lidar is None:
                 return False
         return True
-
-    def _draws_of(self, model: NoiseModel | None, shape: tuple[int, ...]) -> _Draws | None:
-        if model is None or model.config.std <= 0:
-            return None
-        return self._stream(model.rng, model.config.std, shape)
-
-    def _stream(self, rng: np.random.Generator, std: float, shape: tuple[int, ...]) -> _Draws:
-        """The blocks of ``rng``, kept from the last step (:meth:`advance` keeps only the
-        streams of its worlds: one not stepped is being reset, with new generators)."""
-        d = self._draws.get(id(rng)) or self._last.get(id(rng))
-        if d is None or d.rng is not rng:
-            d = _Draws(rng, std, shape)
-        self._draws[id(rng)] = d
-        return d
 
     def _static_scene(self, sim) -> Scene:
         """The room without its robot (:meth:`plant.sim.Simulation.room_scene`), one for
@@ -304,8 +192,6 @@ class ArrayTicks:
             k.read(at[stale], [tasks[j] for j in stale.tolist()])
         plan = self._plan
         if plan is None or stale.size or not plan.fits(at):
-            # the streams of the worlds stepped last time and now, kept (_stream)
-            self._last, self._draws = self._draws, {}
             self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
         return plan.step(self, cmds)
 
@@ -326,7 +212,7 @@ class _TickPlan:
     each tick, DART stepping it between them), the lidars cast where due between them,
     with everything the calls read laid out once: the rows' state (views of the
     :class:`_Kept` arrays when ``at`` is a run of rows, else copies written back each
-    step), the noise streams gathered (:class:`_Gather`), the addresses. Kept from step to
+    step), the noise's readings (:class:`_Noise`), the addresses. Kept from step to
     step while the same worlds step and none was reset since (:meth:`fits`)."""
 
     def __init__(self, owner: ArrayTicks, at: np.ndarray, repeat: int) -> None:
@@ -350,23 +236,25 @@ class _TickPlan:
         self.new_scan = np.zeros(w, bool)
         self.goal = np.array([o.goal for o in obs], float).reshape(w, 2)
         self.max_range = obs[0].max_range
-        # the noise: commands, encoders (gathered for the kernel), lidar (row by row)
+        # the noise: commands, encoders (each step's readings for the kernel), lidar
         spec = sims[0].limiters[names[0]].spec
         self.limits = (spec.max_linear_mps, spec.max_angular_radps)
         std = sims[0].robots[names[0]].spec.sensors.command_noise_std_radps
-        self.cmd = None if std <= 0.0 else _Gather(
-            [owner._stream(s.motion_rng[n], std, (2,)) for s, n in zip(sims, names)], (2,),
+        self.cmd = None if std <= 0.0 else _Noise(
+            np.concatenate([s.motion_keys[n] for s, n in zip(sims, names)]), std, 0,
             self.repeat)
         models = [s.enc_noise for s in sensors]
         have = [m is not None for m in models]
         enc_cfg = next((m.config for m in models if m is not None), None)
-        self.enc = None if enc_cfg is None or enc_cfg.std <= 0 else _Gather(
-            [owner._draws_of(m, (2,)) for m in models], (2,), self.repeat)
+        self.enc = None if enc_cfg is None or enc_cfg.std <= 0 else _Noise(
+            _keys(models), enc_cfg.std, 1, self.repeat)      # read after each tick's step
         self.enc_have = np.array(have, np.int64)
         models = [s.lidar_noise for s in sensors]
-        self.lid_noise = _RowNoise.of(
-            models, [owner._draws_of(m, (cfg.num_rays,)) for m in models], (cfg.num_rays,))
-        self.gathers = [g for g in (self.cmd, self.enc) if g is not None]
+        self.lid_noise = (None if models[0] is None
+                          else NoiseModel(models[0].config, _keys(models)))
+        self.noises = [g for g in (self.cmd, self.enc) if g is not None]
+        self.sub = sims[0].spec.substeps
+        self.tick_ns = ticks[0].tick_ns
         # the blocks
         dt = sims[0].spec.control_tick_s
         self.wheels = np.zeros((w, 2))        # a DART world's wheel angles, each tick
@@ -442,8 +330,9 @@ class _TickPlan:
         self.v_target[:] = _clamp(cmds[:, 0], self.limits[0])
         self.w_target[:] = _clamp(cmds[:, 1], self.limits[1])
         self.new_scan[:] = False
-        for g in self.gathers:          # (a tick reads at most one of each stream's)
-            g.ahead(self.repeat)
+        tick = st["steps"] // self.sub           # each world's tick now
+        for g in self.noises:                   # the readings of the step's ticks
+            g.draw(tick)
         if self.kinematic:
             done = 0
             while done < self.repeat:
@@ -466,8 +355,6 @@ class _TickPlan:
                 f"the world of env {', '.join(map(str, envs))} diverged (not finite) in this "
                 "step: reset() it (in-process a world that diverges ends the episode here; a "
                 "plant over the bus rebuilds it at t = 0 and goes on)") from None
-        for g in self.gathers:
-            g.sync()
         truth = self.worlds.truth()
         owner._kept.keep(self, truth)
         return Made(_observation(st["pose"], st["vel"], self.goal, st["scans"]), truth,
@@ -483,8 +370,10 @@ class _TickPlan:
         else:
             exact = lid.scan_many(cfg, self.worlds.transforms(due), self.fans.scene,
                                   [None] * due.size, owner.threads)
-        ranges = _lidar_noise(cfg, exact, None if self.lid_noise is None
-                              else self.lid_noise.rows(due))
+        noise = self.lid_noise
+        if noise is not None and due.size != len(self.at):
+            noise = noise.select(due)
+        ranges = lid.apply_noise(cfg, exact, noise, self.state["t_ns"][due] // self.tick_ns)
         r32 = ranges.astype(np.float32)
         scans = np.where(np.isfinite(r32), _clip(r32, 0.0, self.max_range),
                          np.float32(self.max_range)).astype(np.float32)
@@ -709,19 +598,6 @@ class _Kept:
 def _clamp(x: np.ndarray, lim: float) -> np.ndarray:
     """:func:`plant.drive._clamp` (``max(-lim, min(lim, x))``) element by element."""
     return np.maximum(-lim, np.minimum(lim, x))
-
-
-def _lidar_noise(cfg, exact: np.ndarray, noise: _RowNoise | None) -> np.ndarray:
-    """:func:`plant.lidar.apply_noise` of every row: noise, finite ranges clipped to
-    [min, max], quantised."""
-    r = _noisy(exact, noise)
-    finite = np.isfinite(r)
-    lo, hi = cfg.min_range_m, cfg.max_range_m
-    r = np.where(finite, _clip(r, lo, hi), r)
-    if cfg.resolution_m > 0.0:
-        q = cfg.resolution_m
-        r = np.where(finite, _clip(np.round(r / q) * q, lo, hi), r)
-    return r
 
 
 def _clip(a: np.ndarray, lo, hi) -> np.ndarray:

@@ -30,7 +30,7 @@ CAMERA_ABI = 2
 NOISE_ABI = 2
 DRIVE_ABI = 1
 KINEMATIC_ABI = 2
-TICKS_ABI = 2
+TICKS_ABI = 3
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")

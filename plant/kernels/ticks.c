@@ -7,8 +7,10 @@
  * worlds' clocks. The same operations in the same order as its Python, so the same bits
  * (tests/test_envs_vector.py runs the message path beside it, every noise on;
  * tests/test_envs_identity.py a plant over the bus).
- * The noise is numpy's: each stream's normals drawn ahead by the caller, at least one
- * reading per tick asked for left in every stream, read here in order.
+ * The noise: each stream's readings for the ticks of the call, drawn by the caller
+ * (plant/noise.py's normals, a function of the stream's key and the tick: the plant's own
+ * values), one reading a tick, read here tick by tick; a robot that stands skips its
+ * command noise's reading.
  *
  * The calls stop after a tick at which some world's lidar is due (its scan is cast in
  * Python before the next tick moves the robot): the number of ticks made is returned.
@@ -19,7 +21,7 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_ticks_abi(void) { return 2; }
+EXPORT int plant_ticks_abi(void) { return 3; }
 
 void plant_drive_limit(int64_t n, double *v, double *w, double *wheels,
                        const double *v_target, const double *w_target, double dv, double dw,
@@ -35,9 +37,9 @@ int plant_kinematic_step(int64_t n, double T, const double *targets, const doubl
                          double centre_x, int64_t pairs);
 
 /* The slots of the call's int64 block (addresses and counts; kinbatch._TickPlan fills it
- * in this order). A stream of noise: buf (n, len, 2) each row's readings, next (n) the
- * next reading of each row (advanced here), live (n, int64) whether the row has a stream
- * (a row without reads zeros). */
+ * in this order). A stream of noise: buf (n, len, 2) each row's readings, one a tick,
+ * next (n) the reading of each row's next tick (advanced here every tick), live (n,
+ * int64) whether the row has a stream (a row without reads zeros). */
 enum {
     A_V, A_W, A_LIM_WHEELS, A_V_TARGET, A_W_TARGET, A_TARGETS,   /* drive limiters */
     A_CMD_BUF, A_CMD_NEXT, A_CMD_LIVE, A_CMD_LEN,                  /* command noise (0: none) */
@@ -77,11 +79,12 @@ static void commands(int64_t n, const int64_t *a, const double *p)
         return;
     for (int64_t i = 0; i < n; i++) {
         double *o = targets + 2 * i;
+        const int64_t at = cmd_live[i] ? cmd_next[i]++ : -1;    /* this tick's reading */
         if (o[0] == 0.0 && o[1] == 0.0)
             continue;
         double n0 = 0.0, n1 = 0.0;
-        if (cmd_live[i]) {
-            const double *r = cmd_buf + 2 * (i * cmd_len + cmd_next[i]++);
+        if (at >= 0) {
+            const double *r = cmd_buf + 2 * (i * cmd_len + at);
             n0 = r[0];
             n1 = r[1];
         }
