@@ -4,13 +4,17 @@ The true state of every robot after a tick (pose as a transform, yaw, body veloc
 wheel angles and speeds, the base orientation as a quaternion), filled by
 :func:`plant.core.step.observe` from each world's stepper (a kinematic world's arrays, or
 DART's, which stays the owner of a dynamic world: :class:`plant.sim.Simulation`), and each
-robot's noise streams.
+robot's noise streams (a key and a law each: a reading's noise is a function of the key and
+the tick, :mod:`plant.noise`).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .model import Model
+
+#: the per-tick noise streams, and the attribute of a robot's sensors holding its model
+_STREAMS = {"encoders": "enc_noise", "gps": "gps_noise", "lidar": "lidar_noise"}
 
 
 class Data:
@@ -27,22 +31,21 @@ class Data:
         self.enc_pos = np.zeros((W, R, 2))          # wheel angles (left, right), rad
         self.enc_vel = np.zeros((W, R, 2))          # wheel speeds, rad/s
         self.tick = np.zeros(W, np.int64)           # the control tick each world is at
-        #: each world's robots' noise streams ({robot: plant.sensors.RobotSensors}, whose
-        #: noise models draw them: :meth:`set_streams`)
+        #: each world's robots' sensors (:class:`plant.sensors.RobotSensors`, the camera's
+        #: noise model among them), set by :meth:`set_streams`
         self.streams: list[dict | None] = [None] * W
-        #: per world and stream ("encoders", "gps", "lidar", "camera"): {robot index: its
-        #: noise model} of the robots whose values that stream changes
-        self.noisy: list[dict[str, dict[int, object]]] = [{} for _ in range(W)]
+        #: each per-tick noise stream's key per robot (:func:`plant.noise.stream_key` of the
+        #: world's seed, uint64 (W, R); its law is the model's), so a tick's draws of every
+        #: robot are one call
+        self.keys = {k: np.zeros((W, R), np.uint64) for k in _STREAMS}
         self._names = model.robots
 
     def set_streams(self, w: int, sensors: dict) -> None:
-        """World ``w``'s robots' noise streams (its freshly built sensors)."""
+        """World ``w``'s robots' sensors (freshly built: their noise keys follow the seed)."""
         self.streams[w] = sensors
-        by = {"encoders": "enc_noise", "gps": "gps_noise", "lidar": "lidar_noise",
-              "camera": "camera_noise"}
-        self.noisy[w] = {k: {i: m for i, n in enumerate(self._names)
-                             if (m := getattr(sensors[n], attr)) is not None}
-                         for k, attr in by.items()}
+        for k, attr in _STREAMS.items():
+            self.keys[k][w] = [0 if (m := getattr(sensors[n], attr)) is None else m.key
+                               for n in self._names]
 
     @property
     def xyz(self) -> np.ndarray:

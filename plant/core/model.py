@@ -74,10 +74,14 @@ class Model:
         self.order = tuple((i, n, t, int(self.periods[t][i]))
                            for i, n in enumerate(names) for t in self.topics[i])
         #: noise laws (std, mean, bias, resolution) per robot and stream, (R, 4)
-        self.noise = {"encoders": np.array([_law(s.encoder_noise) for s in sens], float).reshape(R, 4),
-                      "gps": np.array([_law(s.gps_noise) for s in sens], float).reshape(R, 4),
-                      "lidar": np.array([_law(s.lidar_noise) if s.lidar else (0, 0, 0, 0)
-                                         for s in sens], float).reshape(R, 4)}
+        laws = {"encoders": [_law(s.encoder_noise) for s in sens],
+                "gps": [_law(s.gps_noise) for s in sens],
+                "lidar": [_law(s.lidar_noise) if s.lidar else (0, 0, 0, 0) for s in sens]}
+        self.noise = {k: np.array(v, float).reshape(R, 4) for k, v in laws.items()}
+        #: which robots each stream changes (a noise model exists: not all zero)
+        self.noisy = {k: ~((v[:, 0] == 0) & (v[:, 1] == 0) & (v[:, 2] == 0) & (v[:, 3] == 0))
+                      for k, v in self.noise.items()}
+        self.noisy["lidar"] &= np.array([c is not None for c in self.lidars], bool)
         #: robots carrying the same lidar, cast together: {config: robot indices}
         groups: dict[LidarConfig, list[int]] = {}
         for i, c in enumerate(self.lidars):

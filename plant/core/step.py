@@ -5,10 +5,12 @@ arrays (a kinematic world's straight from its arrays, with the arithmetic of
 :meth:`plant.sim.Simulation.kin_state`; a dynamic one's from DART). :func:`sense` makes the
 messages due at the tick: the per-tick values of all robots at once (encoders, GPS, ground
 truth), every due lidar of one configuration in one kernel call
-(:func:`plant.lidar.scan_many`), the sensor noise, and the per-tick messages' CDR bytes
-packed for all robots in one pass (:class:`bus.packed.Rows`). Cameras, where due, render
-robot by robot. The bytes equal the per-message path's (:func:`plant.tick.tick_messages`
-with :class:`plant.sensors.RobotSensors`), which the tests keep as the oracle.
+(:func:`plant.lidar.scan_many`), the sensor noise (each stream's draws of every robot in
+one call of :func:`plant.noise.normals`: a draw is a function of the robot's stream key and
+the tick), and the per-tick messages' CDR bytes packed for all robots in one pass
+(:class:`bus.packed.Rows`). Cameras, where due, render robot by robot. The bytes equal the
+per-message path's (:func:`plant.tick.tick_messages` with
+:class:`plant.sensors.RobotSensors`), which the tests keep as the oracle.
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from bus import codec
 
 from .. import camera as cam
 from .. import lidar as lid
+from .. import noise
 from ..raycast import Scene
 from ..sim import rotation_to_quaternion
 from .data import Data
@@ -98,21 +101,18 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
           wanted=None) -> list[tuple[str, str, bytes | None]]:
     """(robot, topic, CDR bytes) of every sensor due at ``t_ns`` in world ``w``, in the
     plant's order (robot by robot, each robot's topics in its order), ``None`` for a due
-    topic nobody reads (``wanted``, settled: not built, its noise still drawn). ``data``
+    topic nobody reads (``wanted``: not built, no noise drawn). ``data``
     holds the world's state (:func:`observe`); ``shapes()`` gives its solids or their
     Scene (called only when a lidar or a camera is due and read)."""
     tick = t_ns // model.tick_ns
-    noisy = data.noisy[w]
-    R = len(model.robots)
     read = wanted_masks(model, tick, wanted)
+    R = len(model.robots)
     out: dict[str, list] = {t: [None] * R for t in model.periods}
-    # encoders and GPS: the noise drawn for every robot, whoever reads them
-    pos = data.enc_pos[w].copy()
-    gps = data.xyz[w].copy()
-    for i, noise in noisy["encoders"].items():
-        pos[i] = noise.apply(pos[i])
-    for i, noise in noisy["gps"].items():
-        gps[i] = noise.apply(gps[i])
+    # encoders and GPS of the robots whose topic someone reads, each stream's rows in one draw
+    pos, gps = data.enc_pos[w].copy(), data.xyz[w].copy()
+    for stream, topic, x in (("encoders", "joint_states", pos), ("gps", "gps", gps)):
+        rows = np.flatnonzero(read[topic])
+        x[rows] = _noisy(model, data, w, stream, rows, x[rows], tick)
     _pack_every_tick(model, data, w, t_ns, read, out, pos, gps)
     scene = None
     looks = read["scan"] | read["camera/image_raw"]
@@ -125,27 +125,46 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
             continue
         rows = group[due]
         reading = read["scan"][rows]
-        lidar_noise = noisy["lidar"]
-        if lidar_noise:
-            for i in rows[~reading].tolist():     # due, nobody reads it: its noise drawn
-                if i in lidar_noise:
-                    lidar_noise[i].skip((cfg.num_rays,))
         rows = rows[reading]
         if not len(rows):
             continue
         exact = lid.scan_many(cfg, tfs[rows], scene, [model.robots[i] for i in rows])
-        ranges = lid.apply_noise(cfg, exact)       # (every row: the noise-free ones right)
-        for k, i in enumerate(rows.tolist()):
-            if i in lidar_noise:
-                ranges[k] = lid.apply_noise(cfg, exact[k], lidar_noise[i])
+        ranges = lid.apply_noise(cfg, _noisy(model, data, w, "lidar", rows, exact, tick))
         at = np.searchsorted(group, rows)
         msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges.astype(_F4)}, at)
         for i, m in zip(rows.tolist(), msgs):
             out["scan"][i] = m
     for i in np.flatnonzero(model.due("camera/image_raw", tick)).tolist():
-        _camera(model, noisy["camera"].get(i), i, t_ns, tfs[i], scene,
-                bool(read["camera/image_raw"][i]), bool(read["camera/camera_info"][i]), out)
+        _camera(model, data.streams[w][model.robots[i]].camera_noise, i, t_ns, tick, tfs[i],
+                scene, bool(read["camera/image_raw"][i]), bool(read["camera/camera_info"][i]),
+                out)
     return [(name, topic, out[topic][i]) for i, name, topic, p in model.order if tick % p == 0]
+
+
+def _noisy(model: Model, data: Data, w: int, stream: str, rows: np.ndarray, x: np.ndarray,
+           tick: int) -> np.ndarray:
+    """``x`` (the values of robots ``rows``, one a row) with ``stream``'s noise where the
+    robot has it: ``quantise(x + (bias + mean) + Z std)``, Z the normals of each robot's key
+    at ``tick`` (:func:`plant.noise.normals`: every row in one call), with the arithmetic of
+    :meth:`plant.noise.NoiseModel.apply` row by row (the same bits); ``inf`` stays."""
+    out = np.array(x, dtype=float)
+    idx = np.flatnonzero(model.noisy[stream][rows])
+    if not len(idx):
+        return out
+    law = model.noise[stream][rows[idx]]
+    std, res = law[:, 0], law[:, 3]
+    sub = out[idx] + (law[:, 2] + law[:, 1])[:, None]
+    drawn = std > 0
+    if drawn.any():
+        z = noise.normals(data.keys[stream][w, rows[idx[drawn]]], tick, sub.shape[1])
+        sub[drawn] = sub[drawn] + z * std[drawn, None]
+    q = res > 0
+    if q.any():
+        r = res[q, None]
+        with np.errstate(invalid="ignore"):
+            sub[q] = np.where(np.isfinite(sub[q]), np.round(sub[q] / r) * r, sub[q])
+    out[idx] = sub
+    return out
 
 
 def _pack_every_tick(model: Model, data: Data, w: int, t_ns: int, read: dict,
@@ -181,18 +200,16 @@ def _pack_every_tick(model: Model, data: Data, w: int, t_ns: int, read: dict,
             "pose": pick(pose, r).astype(_F8), "twist": pick(twist, r).astype(_F8)}, r))
 
 
-def _camera(model: Model, noise, i: int, t_ns: int, tf: np.ndarray, scene, image: bool,
-            info: bool, out: dict) -> None:
-    """Robot ``i``'s camera messages (render, ``noise``, encode), as RobotSensors makes them."""
+def _camera(model: Model, image_noise, i: int, t_ns: int, tick: int, tf: np.ndarray, scene,
+            image: bool, info: bool, out: dict) -> None:
+    """Robot ``i``'s camera messages (render, ``image_noise`` at ``tick``, encode), as
+    RobotSensors makes them."""
     c = model.cameras[i]
     optical = model.frames["camera_optical"][i]
-    if not image:
-        if noise is not None:
-            noise.skip((c.height, c.width, 3))
-    else:
+    if image:
         rgb = cam.render(c, cam.camera_pose(c, tf), scene, exclude_owner=model.robots[i])
-        if noise is not None:
-            rgb = noise.apply(rgb)
+        if image_noise is not None:
+            rgb = image_noise.apply(rgb, tick)
         out["camera/image_raw"][i] = codec.encode(codec.image(t_ns, rgb, optical))
     if info:
         out["camera/camera_info"][i] = codec.encode(codec.camera_info(
