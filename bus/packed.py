@@ -230,7 +230,9 @@ class Rows:
         self.matrix = np.zeros((n, width), _U8)
         for i, t in enumerate(templates):
             self.matrix[i, :len(t)] = np.frombuffer(t, _U8)
+        self.templates = list(templates)
         self.fields = {k: np.asarray(v, np.int64) for k, v in fields.items()}
+        self._at = {k: [int(a) for a in v] for k, v in fields.items()}
         #: a field at the same place in every row is written as one slice
         self.same = {k: int(v[0]) if n and (v == v[0]).all() else None
                      for k, v in self.fields.items()}
@@ -243,19 +245,18 @@ class Rows:
         """The messages of ``rows`` (indices, None: every row) stamped ``t_ns``, each field
         of ``values`` (name -> (len(rows), k) array in the field's wire dtype) written at its
         place."""
+        n = len(self.lengths) if rows is None else len(rows)
+        if n <= _FEW:
+            return self._pack_few(t_ns, values, rows, n)
         if rows is None:
             buf = self.matrix.copy()
             lengths, fields = self.lengths, self.fields
-            same = self.same
         else:
             rows = np.asarray(rows, np.int64)
             buf = self.matrix[rows]
             lengths = self.lengths[rows]
             fields = {k: v[rows] for k, v in self.fields.items()}
-            same = self.same
-        n = len(buf)
-        if n == 0:
-            return []
+        same = self.same
         buf[:, _STAMP_AT:_STAMP_AT + 8] = np.frombuffer(_STAMP.pack(*_split(t_ns)), _U8)
         for name, vals in values.items():
             raw = np.ascontiguousarray(vals).reshape(n, -1).view(_U8)
@@ -270,6 +271,29 @@ class Rows:
         if rows is None and self.uniform:
             return [data[i:i + w] for i in range(0, n * w, w)]
         return [data[i * w:i * w + m] for i, m in enumerate(lengths.tolist())]
+
+    def _pack_few(self, t_ns: int, values: dict, rows, n: int) -> list[bytes]:
+        """:meth:`pack` of a few rows, each a copy of its template written in place (numpy's
+        cost per call outweighs the matrix below ``_FEW`` rows); the same bytes."""
+        if n == 0:
+            return []
+        stamp = _STAMP.pack(*_split(t_ns))
+        rows = range(n) if rows is None else [int(r) for r in rows]
+        fields = [(self._at[k], np.ascontiguousarray(v).reshape(n, -1).view(_U8).tobytes())
+                  for k, v in values.items()]
+        out = []
+        for i, r in enumerate(rows):
+            buf = bytearray(self.templates[r])
+            buf[_STAMP_AT:_STAMP_AT + 8] = stamp
+            for at, raw in fields:
+                w = len(raw) // n
+                buf[at[r]:at[r] + w] = raw[i * w:(i + 1) * w]
+            out.append(bytes(buf))
+        return out
+
+
+#: up to this many rows, :meth:`Rows.pack` writes each message's bytes on its own
+_FEW = 8
 
 
 def joint_state_rows(frame_ids: list[str], names: tuple[str, ...], n_pos: int,

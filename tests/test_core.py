@@ -44,7 +44,8 @@ def _noisy(spec, camera: bool):
 def _world(kind: str, tmp_path):
     if kind == "follow":                       # dynamic, a lidar robot and a camera robot
         return _noisy(load_world("living_room_follow"), camera=False)
-    path = write_swarm_world(str(tmp_path / f"{kind}.toml"), 5, seed=3, mode=kind)
+    n = 10 if kind == "kinematic" else 5          # (more than bus.packed's few rows)
+    path = write_swarm_world(str(tmp_path / f"{kind}.toml"), n, seed=3, mode=kind)
     return _noisy(load_world(path), camera=True)
 
 
@@ -92,24 +93,28 @@ def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
         assert seen.get("camera/image_raw", 0) > 0 and seen.get("camera/camera_info", 0) > 0
 
 
-def test_rows_pack_equals_the_single_message_encoders():
-    """bus.packed.Rows: rows of different frame ids (different lengths and field places),
-    a subset of rows, the bytes of the per-message encoders."""
-    frames = ["a/base_link", "robot_long_name/base_link", "bb/base_link"]
-    rows = packed.odometry_rows(["world"] * 3, frames)
+@pytest.mark.parametrize("n", [3, 12])
+def test_rows_pack_equals_the_single_message_encoders(n):
+    """bus.packed.Rows, a few rows (each written on its own) and many (one matrix): rows of
+    different frame ids (different lengths and field places), a subset of rows, the bytes
+    of the per-message encoders."""
+    frames = [f"{'r' * (1 + i % 5)}{i}/base_link" for i in range(n)]
+    rows = packed.odometry_rows(["world"] * n, frames)
     rng = np.random.default_rng(0)
-    pose, twist = rng.normal(size=(3, 7)), np.zeros((3, 6))
-    twist[:, [0, 5]] = rng.normal(size=(3, 2))
+    pose, twist = rng.normal(size=(n, 7)), np.zeros((n, 6))
+    twist[:, [0, 5]] = rng.normal(size=(n, 2))
     t_ns = 12_345_678_901
     got = rows.pack(t_ns, {"pose": pose, "twist": twist})
-    sub = rows.pack(t_ns, {"pose": pose[[2, 0]], "twist": twist[[2, 0]]}, [2, 0])
+    pick = list(range(n))[::-1][:n - 1]
+    sub = rows.pack(t_ns, {"pose": pose[pick], "twist": twist[pick]}, pick)
     for i, f in enumerate(frames):
-        want = packed.odometry(t_ns, *pose[i, :3], pose[i, 3:], twist[i, 0], twist[i, 5],
-                               frame_id="world", child_frame_id=f)
-        assert got[i] == want
-    assert sub == [got[2], got[0]]
-    scan = packed.laser_scan_rows(["x/laser", "yy/laser"], 5, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0)
-    ranges = np.array([[1, 2, np.inf, 4, 5], [0.5, 0.25, 3, 7.9, np.inf]], "<f4")
-    for i, f in enumerate(["x/laser", "yy/laser"]):
-        assert scan.pack(t_ns, {"ranges": ranges})[i] == codec.encode(codec.laser_scan(
-            t_ns, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0, ranges[i], frame_id=f))
+        assert got[i] == packed.odometry(t_ns, *pose[i, :3], pose[i, 3:], twist[i, 0],
+                                         twist[i, 5], frame_id="world", child_frame_id=f)
+    assert sub == [got[i] for i in pick]
+    lasers = [f"{'x' * (1 + i % 3)}/laser" for i in range(n)]
+    scan = packed.laser_scan_rows(lasers, 5, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0)
+    ranges = rng.uniform(0.01, 8.0, size=(n, 5)).astype("<f4")
+    ranges[0, 2] = np.inf
+    for i, (f, m) in enumerate(zip(lasers, scan.pack(t_ns, {"ranges": ranges}))):
+        assert m == codec.encode(codec.laser_scan(t_ns, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0,
+                                                  ranges[i], frame_id=f))

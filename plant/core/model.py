@@ -70,6 +70,8 @@ class Model:
         self.periods["camera/camera_info"] = cam.copy()
         for p in self.periods.values():
             p.flags.writeable = False
+        self._periods = sorted({int(p) for v in self.periods.values() for p in v if p > 0})
+        self._due: dict[tuple, dict[str, np.ndarray]] = {}
         #: (robot index, name, topic, period) of every robot's topics in publishing order
         self.order = tuple((i, n, t, int(self.periods[t][i]))
                            for i, n in enumerate(names) for t in self.topics[i])
@@ -82,6 +84,7 @@ class Model:
         self.noisy = {k: ~((v[:, 0] == 0) & (v[:, 1] == 0) & (v[:, 2] == 0) & (v[:, 3] == 0))
                       for k, v in self.noise.items()}
         self.noisy["lidar"] &= np.array([c is not None for c in self.lidars], bool)
+        self.any_noise = {k: bool(v.any()) for k, v in self.noisy.items()}
         #: robots carrying the same lidar, cast together: {config: robot indices}
         groups: dict[LidarConfig, list[int]] = {}
         for i, c in enumerate(self.lidars):
@@ -98,7 +101,22 @@ class Model:
             c.angle_increment, 1.0 / c.rate_hz, c.min_range_m, c.max_range_m)
             for c, ix in self.lidar_groups.items()}
 
-    def due(self, topic: str, tick: int) -> np.ndarray:
-        """(R,) bool: which robots' ``topic`` is due at ``tick``."""
-        p = self.periods[topic]
-        return (p > 0) & (tick % np.maximum(p, 1) == 0)
+    def due(self, tick: int) -> tuple[dict[str, np.ndarray], dict[str, list[int]]]:
+        """Which robots' topics are due at ``tick``: (topic -> (R,) bool, read-only; topic ->
+        the robots' indices, for the topics due somewhere). Kept for each phase of the
+        sensors' periods met (a tick's are those of an earlier tick with the same phases)."""
+        key = tuple(tick % p for p in self._periods)
+        got = self._due.get(key)
+        if got is None:
+            if len(self._due) >= 1024:
+                self._due.clear()
+            masks = {t: _frozen((p > 0) & (tick % np.maximum(p, 1) == 0))
+                     for t, p in self.periods.items()}
+            rows = {t: np.flatnonzero(m).tolist() for t, m in masks.items() if m.any()}
+            got = self._due[key] = (masks, rows)
+        return got
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a

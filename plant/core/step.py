@@ -30,6 +30,9 @@ from .data import Data
 from .model import EVERY_TICK, Model
 
 _F8 = np.dtype("<f8")
+#: up to this many robots a kinematic world's state is read robot by robot (numpy's cost
+#: per call outweighs the arrays' below it)
+_FEW = 8
 _F4 = np.dtype("<f4")
 
 
@@ -38,11 +41,12 @@ def observe(model: Model, data: Data, w: int, stepper) -> None:
     :class:`plant.stepper.Stepper`), and its tick."""
     sim = stepper.sim
     data.tick[w] = sim.time_ns // model.tick_ns
-    if sim.kin is not None and stepper.physics is None:
+    kin = sim.kin is not None and stepper.physics is None
+    if kin and len(model.robots) > _FEW:
         _observe_kinematic(data, w, sim.kin)
         return
-    for i, name in enumerate(model.robots):      # DART's state, robot by robot
-        st = stepper.state(name)
+    for i, name in enumerate(model.robots):      # DART's state (or a few), robot by robot
+        st = sim.kin_state(sim.kin, i) if kin else stepper.state(name)
         data.tf[w, i] = st.tf
         data.yaw[w, i] = st.yaw
         data.v[w, i] = st.v_body[0]
@@ -80,21 +84,27 @@ def _observe_kinematic(data: Data, w: int, kin) -> None:
         q[:, 3] = np.where(pos, 0.25 * s1, (s - -s) / s2)
 
 
-def wanted_masks(model: Model, tick: int, wanted) -> dict[str, np.ndarray]:
-    """topic -> (R,) bool: due at ``tick`` and read. ``wanted``: robot -> ``wanted(topic)``
-    (None, or a robot it leaves out: every due topic is read), asked once for each robot's
-    topic due at the tick, the answers kept for the tick (:func:`plant.tick.settled`)."""
-    out = {}
+def wanted_masks(model: Model, tick: int, wanted) -> tuple[dict[str, np.ndarray], set]:
+    """(topic -> (R,) bool: due at ``tick`` and read; the topics someone reads). ``wanted``:
+    robot -> ``wanted(topic)`` (None, or a robot it leaves out: every due topic is read),
+    asked once for each robot's topic due at the tick, the answers kept for the tick
+    (:func:`plant.tick.settled`)."""
+    masks, rows = model.due(tick)
+    if wanted is None:
+        return masks, set(rows)
+    out, some = dict(masks), set()
     names = model.robots
-    for topic in model.periods:
-        due = model.due(topic, tick)
-        if wanted is not None:
-            for i in np.flatnonzero(due).tolist():
-                f = wanted.get(names[i])
-                if f is not None and not f(topic):
-                    due[i] = False
-        out[topic] = due
-    return out
+    for topic, due in rows.items():
+        mask = None
+        for i in due:
+            f = wanted.get(names[i])
+            if f is not None and not f(topic):
+                if mask is None:
+                    mask = out[topic] = masks[topic].copy()
+                mask[i] = False
+        if mask is None or mask.any():
+            some.add(topic)
+    return out, some
 
 
 def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
@@ -105,36 +115,32 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
     holds the world's state (:func:`observe`); ``shapes()`` gives its solids or their
     Scene (called only when a lidar or a camera is due and read)."""
     tick = t_ns // model.tick_ns
-    read = wanted_masks(model, tick, wanted)
+    read, some = wanted_masks(model, tick, wanted)
     R = len(model.robots)
     out: dict[str, list] = {t: [None] * R for t in model.periods}
     # encoders and GPS of the robots whose topic someone reads, each stream's rows in one draw
     pos, gps = data.enc_pos[w].copy(), data.xyz[w].copy()
     for stream, topic, x in (("encoders", "joint_states", pos), ("gps", "gps", gps)):
-        rows = np.flatnonzero(read[topic])
-        x[rows] = _noisy(model, data, w, stream, rows, x[rows], tick)
-    _pack_every_tick(model, data, w, t_ns, read, out, pos, gps)
+        if topic in some and model.any_noise[stream]:
+            rows = np.flatnonzero(read[topic])
+            x[rows] = _noisy(model, data, w, stream, rows, x[rows], tick)
+    _pack_every_tick(model, data, w, t_ns, read, some, out, pos, gps)
     scene = None
-    looks = read["scan"] | read["camera/image_raw"]
-    if looks.any():
+    if "scan" in some or "camera/image_raw" in some:
         scene = Scene.from_shapes(shapes())
     tfs = data.tf[w]
-    for cfg, group in model.lidar_groups.items():
-        due = model.due("scan", tick)[group]
+    for cfg, group in (model.lidar_groups.items() if "scan" in some else ()):
+        due = read["scan"][group]
         if not due.any():
             continue
         rows = group[due]
-        reading = read["scan"][rows]
-        rows = rows[reading]
-        if not len(rows):
-            continue
         exact = lid.scan_many(cfg, tfs[rows], scene, [model.robots[i] for i in rows])
         ranges = lid.apply_noise(cfg, _noisy(model, data, w, "lidar", rows, exact, tick))
         at = np.searchsorted(group, rows)
         msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges.astype(_F4)}, at)
         for i, m in zip(rows.tolist(), msgs):
             out["scan"][i] = m
-    for i in np.flatnonzero(model.due("camera/image_raw", tick)).tolist():
+    for i in model.due(tick)[1].get("camera/image_raw", ()):
         _camera(model, data.streams[w][model.robots[i]].camera_noise, i, t_ns, tick, tfs[i],
                 scene, bool(read["camera/image_raw"][i]), bool(read["camera/camera_info"][i]),
                 out)
@@ -167,11 +173,12 @@ def _noisy(model: Model, data: Data, w: int, stream: str, rows: np.ndarray, x: n
     return out
 
 
-def _pack_every_tick(model: Model, data: Data, w: int, t_ns: int, read: dict,
+def _pack_every_tick(model: Model, data: Data, w: int, t_ns: int, read: dict, some: set,
                      out: dict, pos: np.ndarray, gps: np.ndarray) -> None:
     """joint_states, gps and ground_truth of every robot that someone reads, packed."""
     R = len(model.robots)
-    rows_of = {t: (None if read[t].all() else np.flatnonzero(read[t])) for t in EVERY_TICK}
+    rows_of = {t: (None if read[t].all() else np.flatnonzero(read[t])) for t in EVERY_TICK
+               if t in some}
 
     def pick(a, rows):
         return a if rows is None else a[rows]
@@ -183,15 +190,15 @@ def _pack_every_tick(model: Model, data: Data, w: int, t_ns: int, read: dict,
         else:
             for i, m in zip(rows.tolist(), msgs):
                 out[topic][i] = m
-    if read["joint_states"].any():
+    if "joint_states" in some:
         r = rows_of["joint_states"]
         put("joint_states", model.joint_rows.pack(t_ns, {
             "position": pick(pos, r).astype(_F8), "velocity": pick(data.enc_vel[w], r).astype(_F8)},
             r))
-    if read["gps"].any():
+    if "gps" in some:
         r = rows_of["gps"]
         put("gps", model.gps_rows.pack(t_ns, {"point": pick(gps, r).astype(_F8)}, r))
-    if read["ground_truth"].any():
+    if "ground_truth" in some:
         r = rows_of["ground_truth"]
         pose = np.concatenate([data.xyz[w], data.quaternion[w]], axis=1)
         twist = np.zeros((R, 6))
