@@ -15,6 +15,7 @@ import numpy as np
 from bus import packed
 from bus.keys import WORLD_FRAME, frame
 
+from ..camera import camera_info
 from ..lidar import LidarConfig
 from ..noise import NoiseConfig
 from ..sensors import JOINTS, period_ticks
@@ -91,6 +92,9 @@ class Model:
             if c is not None:
                 groups.setdefault(c, []).append(i)
         self.lidar_groups = {c: np.array(ix, np.int64) for c, ix in groups.items()}
+        #: each camera's CameraInfo fields (plant.camera.camera_info), None without one
+        self.camera_info = tuple(camera_info(c) if c is not None else None
+                                 for c in self.cameras)
         self.frames = {f: [frame(n, f) for n in names]
                        for f in ("base_link", "laser", "camera_optical")}
         self.joint_rows = packed.joint_state_rows([""] * R, JOINTS, 2, 2)

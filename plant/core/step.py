@@ -220,4 +220,4 @@ def _camera(model: Model, image_noise, i: int, t_ns: int, tick: int, tf: np.ndar
         out["camera/image_raw"][i] = codec.encode(codec.image(t_ns, rgb, optical))
     if info:
         out["camera/camera_info"][i] = codec.encode(codec.camera_info(
-            t_ns, **cam.camera_info(c), frame_id=optical))
+            t_ns, **model.camera_info[i], frame_id=optical))
