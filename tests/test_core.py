@@ -83,13 +83,13 @@ def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
         assert [m[:2] for m in got] == [m[:2] for m in expect], k
         for (robot, topic, data), (_, _, ref) in zip(got, expect):
             assert data == ref, (k, robot, topic)
-            if data is not None:
-                seen[topic] = seen.get(topic, 0) + 1
+            key = topic if data is not None else "unread"
+            seen[key] = seen.get(key, 0) + 1
         for t in (core_tick, oracle):
             _drive(t, k)
             t.step()
     # every kind of message was made and compared, and some were not read
-    assert {"joint_states", "gps", "ground_truth", "scan"} <= set(seen)
+    assert {"joint_states", "gps", "ground_truth", "scan", "unread"} <= set(seen)
     if kind != "dynamic":
         assert seen.get("camera/image_raw", 0) > 0 and seen.get("camera/camera_info", 0) > 0
 
