@@ -18,6 +18,7 @@ from bus import codec, packed
 from plant.camera import CameraConfig
 from plant.noise import NoiseConfig
 from plant.swarm_world import write_swarm_world
+from plant import core
 from plant.tick import Tick, tick_messages
 from plant.world import load_world
 
@@ -119,3 +120,31 @@ def test_rows_pack_equals_the_single_message_encoders(n):
     for i, (f, m) in enumerate(zip(lasers, scan.pack(t_ns, {"ranges": ranges}))):
         assert m == codec.encode(codec.laser_scan(t_ns, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0,
                                                   ranges[i], frame_id=f))
+
+
+def test_a_model_of_several_worlds_senses_each_as_alone(tmp_path):
+    """One Model and Data for W copies of a world (other seeds, other commands): world w's
+    messages from the shared arrays are its own per-message path's, to the bit."""
+    ticks = []
+    for seed in (1, 2, 3):
+        spec = _world("kinematic", tmp_path)
+        spec.seed = seed
+        ticks.append(Tick(spec))
+    model = core.Model([t.spec for t in ticks])
+    data = core.Data(model)
+    assert data.tf.shape == (3, len(model.robots), 4, 4)
+    for w, t in enumerate(ticks):
+        data.set_streams(w, t.sensors)
+    names = list(ticks[0].sensors)
+    for k in range(12):
+        for w, t in enumerate(ticks):
+            core.observe(model, data, w, t.stepper)
+        for w, t in enumerate(ticks):
+            want = _wanted(names, k + w)
+            got = core.sense(model, data, w, t.t_ns, t.stepper.shapes, want)
+            expect = list(tick_messages(t.t_ns, t.tick_ns, t.sensors, t.stepper.state,
+                                        t.stepper.shapes, want, encoded=True))
+            assert got == expect, (k, w)
+            _drive(t, k + 2 * w)
+            t.step()
+    assert ticks[0].sim.kin.pose.tolist() != ticks[1].sim.kin.pose.tolist()
