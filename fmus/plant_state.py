@@ -8,8 +8,8 @@ its world (:class:`plant.tick.Tick`), when one is built: the physics time (steps
 skeleton's positions, velocities and accelerations, each robot's wheel set-points and its
 drive limiter (the commanded v, w and wheel speeds it ramps from). The sensors' schedule
 and all noise follow from the tick count (a noise value is a function of the seed, the
-stream, the tick and its index: :mod:`plant.noise`). Putting a state back and stepping again gives the
-same outputs to the bit (``tests/test_plant_fmu.py``).
+stream, the tick and its index: :mod:`plant.noise`). Putting a state back and stepping
+again gives the same outputs to the bit (``tests/test_plant_fmu.py``).
 
 Serialized, a state is UTF-8 JSON (floats written as Python's shortest round-trip repr, so
 they come back to the bit; no pickle: deserializing runs no code), tagged with the FMU's

@@ -26,12 +26,12 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Any, Mapping
 
 import numpy as np
 
 from plant import kernels
+from plant.image_law import alias_table, image_noise_law, image_noise_reference
 
 __all__ = [
     "NoiseConfig",
@@ -225,10 +225,10 @@ def normals(keys, ticks, n: int, out: np.ndarray | None = None) -> np.ndarray:
     :func:`stream_key`); ``ticks``: one int for every row or an int64 (K,). Drawn in one
     call by plant/kernels/noise.c (:func:`normals_reference` is its arithmetic in Python).
     ``out``: a float64 (K, n) C-contiguous array to fill (returned)."""
-    keys = np.ascontiguousarray(keys, dtype=np.uint64)
+    keys = _integers(keys, np.uint64, "keys")
     if keys.ndim != 1:
         raise ValueError(f"keys must be one-dimensional, got shape {keys.shape}")
-    ticks = np.ascontiguousarray(ticks, dtype=np.int64).reshape(-1)
+    ticks = _integers(ticks, np.int64, "ticks").reshape(-1)
     if ticks.size not in (1, keys.size):
         raise ValueError(f"ticks must be one int or one per key ({keys.size}), got {ticks.size}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
@@ -239,6 +239,28 @@ def normals(keys, ticks, n: int, out: np.ndarray | None = None) -> np.ndarray:
     elif out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float64 array of shape {shape}")
     return kernels.normals(keys, ticks, int(n), out)
+
+
+def _integers(values, dtype, what: str) -> np.ndarray:
+    """``values`` (an array, a list or one number) as a C-contiguous array of ``dtype``,
+    every value an integer that fits it (ValueError naming ``what`` otherwise: numpy would
+    truncate a float, and reads a list holding 2**63 as floats)."""
+    if isinstance(values, np.ndarray):
+        if values.dtype == dtype:
+            return np.ascontiguousarray(values)
+        if values.dtype.kind in "iu":
+            info = np.iinfo(dtype)
+            if values.size == 0 or (values.min() >= info.min and values.max() <= info.max):
+                return np.ascontiguousarray(values, dtype=dtype)
+        raise ValueError(f"{what} must be integers within {np.dtype(dtype).name}, got "
+                         f"{values.dtype} values")
+    flat = list(values) if isinstance(values, (list, tuple)) else [values]
+    if any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in flat):
+        raise ValueError(f"{what} must be integers, got {values!r}")
+    try:
+        return np.array(values, dtype=dtype)
+    except OverflowError:
+        raise ValueError(f"{what} must fit {np.dtype(dtype).name}, got {values!r}") from None
 
 
 def normals_reference(key: int, tick: int, n: int) -> list[float]:
@@ -301,6 +323,7 @@ class NoiseModel:
         self.key = None if self.rows else int(keys)
         self._by_law = config.std > 0 and config.resolution == 0
         self._ahead: tuple[int, tuple, np.ndarray] | None = None   # (tick, shape, noise)
+        self._call: tuple | None = None       # (n, buffer, its call's arguments): _drawn
 
     def select(self, idx) -> "NoiseModel":
         """The model of rows ``idx`` only (their own keys)."""
@@ -310,8 +333,14 @@ class NoiseModel:
 
     def normals(self, tick, shape: tuple[int, ...]) -> np.ndarray:
         """The standard normals ``apply`` adds (times std) to values of ``shape`` at
-        ``tick``, float64: :func:`normals` of the keys, shaped like the values."""
+        ``tick``, float64: :func:`normals` of the keys, shaped like the values (a new
+        array)."""
         shape = tuple(shape)
+        if not self.rows and (type(tick) is int or isinstance(tick, np.integer)):
+            return self._drawn(tick, shape).copy()
+        return self._rows(tick, shape)
+
+    def _rows(self, tick, shape: tuple[int, ...]) -> np.ndarray:
         if self.rows:
             if not shape or shape[0] != self.keys.size:
                 raise ValueError(f"{self.keys.size} rows of noise, values of shape {shape}")
@@ -319,6 +348,23 @@ class NoiseModel:
         else:
             n = int(np.prod(shape, dtype=np.int64))
         return normals(self.keys, tick, n).reshape(shape)
+
+    def _drawn(self, tick, shape: tuple[int, ...]) -> np.ndarray:
+        """:meth:`normals` into a buffer of this model's, reused call after call (read it
+        before the next): one kernel call with the addresses taken once, as a sensor
+        draws tick after tick (taking them costs more than drawing a few normals)."""
+        if self.rows or (type(tick) is not int and not isinstance(tick, np.integer)):
+            return self._rows(tick, shape)
+        n = 1
+        for d in shape:
+            n *= d
+        call = self._call
+        if call is None or call[0] != n:
+            buf, at = np.empty((1, n)), np.zeros(1, np.int64)
+            call = self._call = (n, buf, at, kernels.normals_call(self.keys, at, n, buf))
+        call[2][0] = tick
+        call[3]()
+        return call[1].reshape(shape)
 
     def prefetch_image(self, shape: tuple[int, ...], tick: int) -> None:
         """Draw the noise of an image of ``shape`` at ``tick`` now (e.g. while the plant
@@ -370,7 +416,7 @@ class NoiseModel:
             return out.astype(np.uint8)
         out = arr.astype(np.float64) + (c.bias + c.mean)
         if c.std > 0:
-            out = out + self.normals(tick, arr.shape) * c.std
+            out = out + self._drawn(tick, arr.shape) * c.std
         if c.resolution > 0:
             with np.errstate(invalid="ignore"):
                 out = np.where(np.isfinite(out), np.round(out / c.resolution) * c.resolution, out)
@@ -389,74 +435,3 @@ def _check_keys(key):
     if isinstance(key, bool) or not isinstance(key, (int, np.integer)) or not 0 <= key <= _M64:
         raise ValueError(f"a noise key is an integer in [0, 2**64), got {key!r}")
     return int(key)
-
-
-# ----------------------------------------------------------------------------------
-# The image noise's integer law (plant/kernels/noise.c draws from it)
-# ----------------------------------------------------------------------------------
-
-#: beyond this many std from the offset the law's tails (< 1e-32) are lumped into its ends
-_TAIL_SIGMAS = 12.0
-
-
-def _phi(z: float) -> float:
-    return 0.5 * math.erfc(-z / math.sqrt(2.0))
-
-
-def image_noise_law(std: float, offset: float) -> tuple[int, np.ndarray]:
-    """``(lo, p)``: P(D = lo + i) = p[i] for D = rint(offset + N(0, std)) clamped to
-    [-255, 255] (past which every level clips alike), its tails beyond 12 std lumped
-    into its first and last values."""
-    lo = int(min(255, max(-255, math.floor(offset - _TAIL_SIGMAS * std))))
-    hi = int(min(255, max(-255, math.ceil(offset + _TAIL_SIGMAS * std))))
-    edges = [_phi((k + 0.5 - offset) / std) for k in range(lo, hi)]
-    p = np.diff(np.array([0.0, *edges, 1.0]))
-    return lo, np.clip(p, 0.0, None) / np.clip(p, 0.0, None).sum()
-
-
-@lru_cache(maxsize=32)
-def alias_table(std: float, offset: float) -> tuple[np.ndarray, np.ndarray]:
-    """Walker's alias table of :func:`image_noise_law` (Vose's construction): ``(thresholds
-    uint32 (K,), values uint16 (K, 2))``, values holding (alias, own) + 255. A 32-bit
-    uniform u with u K = j 2**32 + f gives values[j, 1] - 255 if f < thresholds[j], else
-    values[j, 0] - 255."""
-    lo, p = image_noise_law(std, offset)
-    k = p.size
-    q = list(p * k)
-    prob, alias = [1.0] * k, list(range(lo, lo + k))
-    small = [j for j in range(k) if q[j] < 1.0]
-    large = [j for j in range(k) if q[j] >= 1.0]
-    while small and large:
-        a, b = small.pop(), large.pop()
-        prob[a], alias[a] = q[a], lo + b
-        q[b] = (q[b] + q[a]) - 1.0
-        (small if q[b] < 1.0 else large).append(b)
-    thr = np.empty(k, dtype=np.uint32)
-    for j in range(k):
-        if prob[j] >= 1.0:                  # the whole column (the last 2**-32 included)
-            thr[j], alias[j] = 0xFFFFFFFF, lo + j
-        else:
-            thr[j] = min(0xFFFFFFFF, max(0, round(prob[j] * 2.0 ** 32)))
-    vals = np.stack([np.array(alias), np.arange(lo, lo + k)], axis=1) + 255
-    vals = np.ascontiguousarray(vals, dtype=np.uint16)
-    thr.flags.writeable = vals.flags.writeable = False
-    return thr, vals
-
-
-def image_noise_reference(img: np.ndarray, seed: int, std: float, offset: float) -> np.ndarray:
-    """plant/kernels/noise.c in numpy (the tests compare the bytes): the noisy image of
-    ``img`` (uint8) for the frame seed ``seed``."""
-    thr, vals = alias_table(float(std), float(offset))
-    x = np.ascontiguousarray(img).ravel()
-    i = np.arange(1, (x.size + 1) // 2 + 1, dtype=np.uint64)
-    with np.errstate(over="ignore"):
-        z = np.uint64(seed) + i * np.uint64(_GOLDEN)
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        z = z ^ (z >> np.uint64(31))
-    u = np.ascontiguousarray(z).view(np.uint32)[:x.size].astype(np.uint64)  # low, high halves
-    uk = u * np.uint64(thr.size)
-    j = (uk >> np.uint64(32)).astype(np.intp)
-    own = (uk & np.uint64(0xFFFFFFFF)).astype(np.uint32) < thr[j]
-    d = vals[j, own.astype(np.intp)].astype(np.intp) - 255
-    return np.clip(x.astype(np.intp) + d, 0, 255).astype(np.uint8).reshape(img.shape)

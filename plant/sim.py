@@ -14,7 +14,7 @@ from . import drive as dd
 from .kinematic import Kinematics
 from .robot import Robot, movable_object, room_skeleton
 from .shapes import Shape, pose_matrix
-from .noise import normals, stream_key
+from .noise import NoiseConfig, NoiseModel, stream_key
 from .raycast import Scene, ShapeList
 from .world import ObjectSpec, WorldSpec
 
@@ -153,7 +153,7 @@ class Simulation:
         self._scene_template = Scene(list(self.shapes()))     # built once per world
         self._room: Scene | None = None                         # room_scene()
         self._set_contact_solver(spec.contact_solver)
-        self._motion_keys()
+        self._motion_streams()
 
     def _parts_on_base(self) -> tuple[np.ndarray, np.ndarray]:
         """A kinematic world's visible parts: each one's robot (index) and pose on its
@@ -178,13 +178,14 @@ class Simulation:
             r.targets = (0.0, 0.0)
             self.limiters[name].reset()
         self.steps = 0
-        self._motion_keys()
+        self._motion_streams()
 
-    def _motion_keys(self) -> None:
-        """Each robot's motion noise stream: its key (:func:`plant.noise.stream_key`), as a
-        uint64 array for :func:`plant.noise.normals`."""
-        self.motion_keys = {r.name: np.array([stream_key(self.spec.seed, r.name, "motion")],
-                                             np.uint64) for r in self.spec.robots}
+    def _motion_streams(self) -> None:
+        """Each robot's motion noise stream (:func:`plant.noise.stream_key` of the seed,
+        the robot and "motion"), drawn through a model of std 1 (the normals)."""
+        self.motion_noise = {r.name: NoiseModel(NoiseConfig(std=1.0),
+                                                stream_key(self.spec.seed, r.name, "motion"))
+                             for r in self.spec.robots}
 
     def _set_contact_solver(self, name: str) -> None:
         """PGS honours the Coulomb friction limit; DART's default Dantzig solver over-grips
@@ -236,7 +237,7 @@ class Simulation:
         r = self.robots[robot]
         std = r.spec.sensors.command_noise_std_radps
         if std > 0.0 and wheels != (0.0, 0.0):
-            n = normals(self.motion_keys[robot], self.steps // self._substeps, 2)[0] * std
+            n = self.motion_noise[robot].normals(self.steps // self._substeps, (2,)) * std
             wheels = (wheels[0] + n[0], wheels[1] + n[1])
         r.targets = wheels
 

@@ -36,7 +36,8 @@ def scene_with_ball(distance: float, bearing: float, height: float = 0.0, clutte
 def render(shapes, noise_std=0.0, seed=0):
     rgb = cam.render(CFG, np.eye(4), shapes)
     if noise_std:
-        rgb = NoiseModel(NoiseConfig(std=noise_std), stream_key(seed, "test", "camera")).apply(rgb, 0)
+        key = stream_key(seed, "test", "camera")
+        rgb = NoiseModel(NoiseConfig(std=noise_std), key).apply(rgb, 0)
     return rgb
 
 

@@ -45,6 +45,11 @@ def test_values_do_not_depend_on_grouping_order_or_length():
     np.testing.assert_array_equal(out, together)
     assert normals(keys, ticks, 0).shape == (len(keys), 0)
     assert normals(keys[:0], 0, 5).shape == (0, 5)
+    # keys as Python ints (past 2**63 too) and numpy integers
+    big = [int(k) for k in keys[:3]] + [2 ** 64 - 1]
+    np.testing.assert_array_equal(normals(big, 4, 3), normals(np.array(big, np.uint64), 4, 3))
+    np.testing.assert_array_equal(normals([5], np.int32(4), 3),
+                                  normals(np.array([5], np.int16), [4], 3))
 
 
 def _phi(x: np.ndarray) -> np.ndarray:
@@ -64,7 +69,8 @@ def test_draws_are_standard_normal():
     # Kolmogorov-Smirnov against the normal's CDF on a subsample (the 1 % critical value)
     s = np.sort(z[::50])
     cdf = _phi(s)
-    d = max(np.max(np.arange(1, s.size + 1) / s.size - cdf), np.max(cdf - np.arange(s.size) / s.size))
+    i = np.arange(s.size)
+    d = max(np.max((i + 1) / s.size - cdf), np.max(cdf - i / s.size))
     assert d < 1.63 / math.sqrt(s.size)
     assert np.isfinite(z).all() and np.abs(z).max() < 8.0
 
@@ -122,6 +128,13 @@ def test_frame_seed_is_a_function_of_key_and_tick():
     (lambda: normals(np.zeros(3, np.uint64), 0, 2.0), "n must"),
     (lambda: normals(np.zeros(3, np.uint64), 0, 4, out=np.empty((3, 5))), "out must"),
     (lambda: normals(np.zeros(3, np.uint64), 0, 4, out=np.empty((3, 4), np.float32)), "out must"),
+    (lambda: normals([-1], 0, 2), "keys must fit"),
+    (lambda: normals([2 ** 64], 0, 2), "keys must fit"),
+    (lambda: normals([1.5], 0, 2), "keys must be integers"),
+    (lambda: normals(np.array([-1, 2]), 0, 2), "keys must be integers within"),
+    (lambda: normals(np.array([0.5]), 0, 2), "keys must be integers within"),
+    (lambda: normals([1], 2 ** 63, 2), "ticks must fit"),
+    (lambda: normals([1], 0.5, 2), "ticks must be integers"),
 ])
 def test_bad_arguments_are_clear_errors(call, match):
     with pytest.raises(ValueError, match=match):

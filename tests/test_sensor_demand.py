@@ -11,13 +11,19 @@ from plant.sim import Simulation
 from plant.world import load_world
 
 NOISY = ["robots.leader.lidar.noise={std = 0.05}", "robots.follower.camera.noise={std = 10.0}",
-         "robots.leader.encoders.noise={std = 0.01}", "robots.follower.gps.noise={std = 0.02}"]
+         "robots.leader.encoders.noise={std = 0.01}", "robots.follower.gps.noise={std = 0.02}",
+         "robots.follower.encoders.noise={std = 0.01}",
+         "robots.follower.motion.command_noise_std_radps=0.1"]
 
 
-def _run(ticks: int, wanted, encoded: bool = False):
+def _run(ticks: int, wanted, encoded: bool = False, without: str = ""):
     """{(tick, robot, topic): CDR bytes} of a follow-world run, building only what
-    ``wanted(tick, robot, topic)`` asks for (None: everything)."""
+    ``wanted(tick, robot, topic)`` asks for (None: everything); ``without``: a sensor
+    ("camera", "lidar") taken off every robot."""
     spec = load_world("living_room_follow", NOISY)
+    for r in spec.robots:
+        if without:
+            setattr(r.sensors, without, None)
     sim = Simulation(spec)
     sensors = {r.name: RobotSensors(r, spec.control_tick_s, 3) for r in spec.robots}
     tick_ns = int(round(spec.control_tick_s * 1e9))
@@ -61,6 +67,17 @@ def test_unread_topics_are_not_built_and_change_no_value_of_the_others():
     assert built["scan"] == sum(1 for tick, _, topic in full if topic == "scan" and tick >= 17)
     assert built["camera/image_raw"] == sum(1 for tick, _, topic in full
                                             if topic == "camera/image_raw" and tick >= 17)
+
+
+def test_a_sensor_taken_off_changes_no_value_of_the_others():
+    """Noise is drawn per (seed, robot, stream, tick): without the follower's camera, every
+    other topic (its encoders, GPS, the motion its noisy commands make) has the same
+    bytes."""
+    full, _ = _run(30, None)
+    part, _ = _run(30, None, without="camera")
+    assert not any(topic.startswith("camera/") for _, _, topic in part)
+    assert set(part) == {k for k in full if not k[2].startswith("camera/")}
+    assert all(full[k] == v for k, v in part.items())
 
 
 def test_encoded_messages_are_the_bytes_of_the_messages():

@@ -4,7 +4,7 @@ from __future__ import annotations
 from .common import sensor_scene
 from .harness import Case, Context, suite
 
-#: issue 36's peer figures for a frame (quiet machine; neither peer is installable here)
+#: the peers' figures for a frame (quiet machine; neither peer is installable here)
 PEERS = {(160, 120): ("6.5 ms", "2.08 ms"), (320, 240): ("20.8 ms", "3.70 ms")}
 
 
@@ -27,7 +27,7 @@ def camera_suite(ctx: Context):
         yield Case(f"render {w}x{h} + noise", lambda cfg=cfg: noise.apply(
             cam.render(cfg, pose, scene, "follower"), 0), target=f"<= {target * 1e3:g} ms",
             notes=f"noise std 10 (follow's), drawn in the call (plant/kernels/noise.c); "
-                  f"peers (issue 36, frame alone): PyBullet {PEERS[(w, h)][0]}, "
+                  f"peers (frame alone, quiet machine): PyBullet {PEERS[(w, h)][0]}, "
                   f"MuJoCo {PEERS[(w, h)][1]}")
         yield Case(f"render {w}x{h}", lambda cfg=cfg: cam.render(cfg, pose, scene, "follower"),
                    notes=f"{where}; plant/kernels/camera.c")

@@ -241,7 +241,7 @@ class _TickPlan:
         self.limits = (spec.max_linear_mps, spec.max_angular_radps)
         std = sims[0].robots[names[0]].spec.sensors.command_noise_std_radps
         self.cmd = None if std <= 0.0 else _Noise(
-            np.concatenate([s.motion_keys[n] for s, n in zip(sims, names)]), std, 0,
+            _keys([s.motion_noise[n] for s, n in zip(sims, names)]), std, 0,
             self.repeat)
         models = [s.enc_noise for s in sensors]
         have = [m is not None for m in models]

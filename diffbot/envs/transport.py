@@ -98,7 +98,8 @@ class InProc:
         self.tick_ns = spec.tick_ns
         self.tick: Tick | None = None
         # only what the env reads is built (a plant builds only what someone subscribes
-        # to); the others' noise is still drawn, so every value is the same (plant/tick.py)
+        # to); a value's noise is a function of its tick, so every value is the same
+        # (plant/noise.py)
         self.wanted = None if inputs is None else {
             r.name: frozenset(inputs.get(r.name, ())).__contains__ for r in spec.robots}
 

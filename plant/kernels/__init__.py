@@ -175,6 +175,17 @@ def normals(keys: np.ndarray, ticks: np.ndarray, n: int, out: np.ndarray) -> np.
     return out
 
 
+def normals_call(keys: np.ndarray, ticks: np.ndarray, n: int, out: np.ndarray):
+    """:func:`normals` of these arrays as a function of no arguments, their addresses taken
+    once (the caller keeps the arrays alive and changes their values in place)."""
+    k = keys.shape[0]
+    assert keys.dtype == np.uint64 and ticks.dtype == np.int64 and ticks.size in (1, k)
+    assert out.shape == (k, n) and out.dtype == np.float64
+    fn = library().plant_normals
+    args = (k, ptr(keys), ptr(ticks), int(ticks.size == k), n, ptr(out))
+    return lambda: fn(*args)
+
+
 Array = np.ndarray | int      # an array, or its address (:func:`ptr`)
 
 

@@ -16,14 +16,14 @@
  *
  * Why this gives the model's image: for a whole grey level x, rint(x + offset + n) =
  * x + rint(offset + n) except on ties (probability 0), so the noisy image is x plus an
- * integer whose law depends on the offset and the std only. plant/noise.py builds that
- * law's alias table once per (std, offset).
+ * integer whose law depends on the offset and the std only. plant/image_law.py builds
+ * that law's alias table once per (std, offset).
  *
  * The numbers: SplitMix64 as a counter-based generator, the k-th number of a frame
  * mix(seed + (k + 1) * GOLDEN) (Steele, Lea and Flood 2014; the frame's seed is
  * plant/noise.py's frame_seed of the camera stream's key and the tick), each giving two
- * channels a 32-bit uniform. plant/noise.py's
- * image_noise_reference is this arithmetic in numpy, the bytes the tests compare.
+ * channels a 32-bit uniform. plant/image_law.py's image_noise_reference is this
+ * arithmetic in numpy, the bytes the tests compare.
  */
 #include <math.h>
 #include <stdint.h>
