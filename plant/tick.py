@@ -77,10 +77,8 @@ class Tick:
                 self.physics.build(self.spec)
         self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
                                overlap=self.overlap)
-        if self.model is None:            # (a reset moves the robots, not their sensors)
-            self.model = core.Model([self.spec])
-            self.data = core.Data(self.model)
-        self.data.set_streams(0, self.sensors)
+        if self.model is not None:        # (a reset moves the robots, not their sensors)
+            self.data.set_streams(0, self.sensors)
 
     def reset(self, seed: int | None = None, poses: dict | None = None) -> None:
         """As ``sim/reset``: keep ``seed`` and the start ``poses`` ({robot: (x, y, yaw)}) in
@@ -101,6 +99,10 @@ class Tick:
         (:func:`tick_messages`: ``None`` for a topic nobody wants; ``encoded``: CDR bytes,
         made by the core for every robot at once where :attr:`batched`)."""
         if encoded and self.batched:
+            if self.model is None:        # (built the first time it is asked for)
+                self.model = core.Model([self.spec])
+                self.data = core.Data(self.model)
+                self.data.set_streams(0, self.sensors)
             t_ns = self.sim.time_ns
             core.observe(self.model, self.data, 0, self.stepper)
             return iter(core.sense(self.model, self.data, 0, t_ns, self.stepper.shapes, wanted))
