@@ -34,8 +34,8 @@ from .world import WorldSpec
 
 
 #: the robots from which a world's encoded messages come from the core: one tick's
-#: messages (no lidar due, load ~7) cost 17 us for one kinematic robot message by message,
-#: 32 us from the core; 187 and 125 us for eight
+#: messages (no lidar due, load ~7) cost 16 us for one kinematic robot message by message,
+#: 32 us from the core; 133 and 112 us for eight
 CORE_MIN_ROBOTS = 6
 
 

@@ -30,10 +30,10 @@ from .data import Data
 from .model import EVERY_TICK, Model
 
 _F8 = np.dtype("<f8")
+_F4 = np.dtype("<f4")
 #: up to this many robots a kinematic world's state is read robot by robot (numpy's cost
 #: per call outweighs the arrays' below it)
 _FEW = 8
-_F4 = np.dtype("<f4")
 
 
 def observe(model: Model, data: Data, w: int, stepper) -> None:
