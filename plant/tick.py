@@ -23,7 +23,7 @@ import numpy as np
 
 from bus.controller import Twist, WheelSpeeds
 
-from . import kinematic
+from . import core, kinematic
 from . import lidar as lid
 from .physics_process import PhysicsProcess
 from .raycast import Scene
@@ -33,11 +33,19 @@ from .stepper import Stepper
 from .world import WorldSpec
 
 
+#: the robots from which a world's encoded messages come from the core: one tick's
+#: messages (no lidar due, load ~7) cost 16 us for one kinematic robot message by message,
+#: 32 us from the core; 133 and 112 us for eight
+CORE_MIN_ROBOTS = 6
+
+
 class Tick:
     """One world's tick: the sensors due at t_k (built only where wanted), the robots'
     commands for t_k, the physics step to t_{k+1}, the rebuild of a
     diverged world, reset. ``disabled``: sensors taken off every robot ("lidar",
-    "camera"); ``physics_process``: DART in a process of its own (:mod:`plant.stepper`),
+    "camera"); ``physics_process``: DART in a process of its own (:mod:`plant.stepper`;
+    not for a kinematic world, whose step, one C call for every robot, costs less than
+    handing it to another process and reading every robot's state back),
     publishing overlapping the step where ``overlap`` (the mode's commands for the step do
     not wait for tick k's sensors)."""
 
@@ -46,9 +54,14 @@ class Tick:
         self.spec = spec
         self.disabled = tuple(disabled)
         self.tick_ns = spec.tick_ns
-        self.physics_process = physics_process
+        self.physics_process = physics_process and spec.mode != "kinematic"
         self.overlap = overlap
         self.physics: PhysicsProcess | None = None
+        self.model: core.Model | None = None
+        #: whether the encoded messages come from the core (:func:`plant.core.sense`, every
+        #: robot at once) or robot by robot (:func:`tick_messages`): the same bytes; the
+        #: arrays pay from a few robots on (below, numpy's cost per call outweighs them)
+        self.batched = len(spec.robots) >= CORE_MIN_ROBOTS
         self.build()
 
     def build(self) -> None:
@@ -64,6 +77,8 @@ class Tick:
                 self.physics.build(self.spec)
         self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
                                overlap=self.overlap)
+        if self.model is not None:        # (a reset moves the robots, not their sensors)
+            self.data.set_streams(0, self.sensors)
 
     def reset(self, seed: int | None = None, poses: dict | None = None) -> None:
         """As ``sim/reset``: keep ``seed`` and the start ``poses`` ({robot: (x, y, yaw)}) in
@@ -81,7 +96,16 @@ class Tick:
     def messages(self, wanted: dict[str, Wanted] | None = None, encoded: bool = False
                  ) -> Iterator[tuple[str, str, object]]:
         """(robot, topic, message) of every sensor due now, in the plant's order
-        (:func:`tick_messages`: ``None`` for a topic nobody wants; ``encoded``: CDR bytes)."""
+        (:func:`tick_messages`: ``None`` for a topic nobody wants; ``encoded``: CDR bytes,
+        made by the core for every robot at once where :attr:`batched`)."""
+        if encoded and self.batched:
+            if self.model is None:        # (built the first time it is asked for)
+                self.model = core.Model([self.spec])
+                self.data = core.Data(self.model)
+                self.data.set_streams(0, self.sensors)
+            t_ns = self.sim.time_ns
+            core.observe(self.model, self.data, 0, self.stepper)
+            return iter(core.sense(self.model, self.data, 0, t_ns, self.stepper.shapes, wanted))
         return tick_messages(self.sim.time_ns, self.tick_ns, self.sensors, self.stepper.state,
                              self.stepper.shapes, wanted, encoded)
 

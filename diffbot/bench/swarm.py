@@ -1,6 +1,8 @@
 """Suite ``swarm``: many robots. Physics alone (dynamic and kinematic), the swarm's lidar
-per robot and for all robots in one pass, and ``diffbot run swarm`` in lockstep with
-8/16/24 robots from 3 controller processes and from one process per robot, under both
+per robot and for all robots in one pass, ``diffbot run swarm`` with its avoid controllers
+composed into the plant (24/96/256 kinematic robots with lidars, 24 dynamic ones, each
+beside DART alone stepping as many robots: the cost of a robot's tick), and in lockstep
+with 8/16/24 robots from 3 controller processes and from one process per robot, under both
 couplings (physics in a process of its own, the scenario's default; and once without)."""
 from __future__ import annotations
 
@@ -77,6 +79,7 @@ def swarm_suite(ctx: Context):
     yield Case("swarm scene snapshot (24 robots)", lambda: Scene(sim.shapes()),
                notes="once per tick a lidar is due, shared by every robot")
     duration = "5" if ctx.quick else "20"
+    yield from composed_swarm(ctx)
 
     def per_robot(summary: dict, n: int) -> dict:
         ms = summary.get("plant_per_tick_ms") or {}
@@ -121,3 +124,47 @@ def swarm_suite(ctx: Context):
         Metric("real_time_factor", f"{what}: real-time factor", "x",
                notes=f"summary.json real_time_factor, {duration} s simulated")],
         repeats=1, warmup=0)
+
+
+#: the issue's targets for composed swarms (x real time, or a share of DART alone)
+COMPOSED_TARGETS = {("kinematic", 96): ">= 15x", ("kinematic", 24): ">= 40x",
+                    ("dynamic", 24): ">= 0.8 of DART alone"}
+
+
+def composed_run(ctx: Context, n: int, mode: str, duration: str) -> dict:
+    """``diffbot run swarm`` with ``n`` robots, their avoid controllers composed into the
+    plant, pipelined: its real-time factor and the wall, CPU and plant-phase cost of one
+    robot's tick."""
+    summary = run_scenario(ctx, "swarm", 900.0, "--robots", str(n), "--physics", mode,
+                           "--compose", "--coupling", "pipelined", "--duration", duration)
+    rtf = summary.get("real_time_factor") or 0.0
+    tick_s = 0.02                                   # the swarm world's control tick
+    out = {**summary, "us_per_robot_tick": tick_s / rtf / n * 1e6 if rtf else float("nan")}
+    for k, v in (summary.get("plant_per_tick_ms") or {}).items():
+        out[f"{k}_us_per_robot"] = v * 1e3 / n
+    return out
+
+
+def composed_swarm(ctx: Context):
+    """Composed swarms, each beside DART (or the kinematic step) alone with as many robots."""
+    duration = "2" if ctx.quick else "6"
+    for mode, sizes in (("kinematic", (24, 96, 256)), ("dynamic", (24,))):
+        for n in sizes:
+            if ctx.quick and n > 96:
+                continue
+            alone = f"physics alone, {n} {mode} robots"
+            yield Probe(alone, lambda n=n, mode=mode: physics_rtf(n, mode, ctx.tmpdir), [
+                Metric("real_time_factor", f"{alone}: real-time factor", "x",
+                       notes="beside the composed run below: what the physics allows")],
+                repeats=1, warmup=0)
+            what = f"swarm composed, {n} {mode} robots with lidars and avoid controllers"
+            target = COMPOSED_TARGETS.get((mode, n), "")
+            yield Probe(what, lambda n=n, mode=mode: composed_run(ctx, n, mode, duration), [
+                Metric("real_time_factor", f"{what}: real-time factor", "x", target=target,
+                       notes=f"summary.json, {duration} s simulated, pipelined"),
+                Metric("us_per_robot_tick", f"{what}: wall per robot per tick", "us",
+                       notes="control tick / real-time factor / robots"),
+                Metric("publish_us_per_robot", f"{what}: plant publishing per robot", "us",
+                       notes="sensors, messages, the composed members, puts (a tick / robots)"),
+                Metric("physics_us_per_robot", f"{what}: physics per robot", "us")],
+                repeats=1, warmup=0)

@@ -1,0 +1,11 @@
+"""The plant's core, laid out as MuJoCo's is: a :class:`~plant.core.model.Model` (what does
+not change during a run: the robots' drive parameters, their sensors' layout, rates and
+noise laws, the messages' layouts), its :class:`~plant.core.data.Data` (what a tick changes,
+as arrays shaped (worlds, robots, ...)), and :mod:`plant.core.step` (one call a tick for every
+robot: the state read into the arrays, the lidars cast in one kernel call, the noise drawn,
+the per-tick messages' bytes packed in one pass)."""
+from .data import Data
+from .model import Model
+from .step import observe, sense
+
+__all__ = ["Data", "Model", "observe", "sense"]

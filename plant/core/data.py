@@ -1,0 +1,53 @@
+"""The core's data: what a tick changes, as arrays shaped (worlds, robots, ...).
+
+The true state of every robot after a tick (pose as a transform, yaw, body velocities,
+wheel angles and speeds, the base orientation as a quaternion), filled by
+:func:`plant.core.step.observe` from each world's stepper (a kinematic world's arrays, or
+DART's, which stays the owner of a dynamic world: :class:`plant.sim.Simulation`), and each
+robot's noise streams (a key and a law each: a reading's noise is a function of the key and
+the tick, :mod:`plant.noise`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .model import Model
+
+#: the per-tick noise streams, and the attribute of a robot's sensors holding its model
+_STREAMS = {"encoders": "enc_noise", "gps": "gps_noise", "lidar": "lidar_noise"}
+
+
+class Data:
+    def __init__(self, model: Model) -> None:
+        W, R = model.worlds, len(model.robots)
+        #: base_link -> world, (W, R, 4, 4)
+        self.tf = np.zeros((W, R, 4, 4))
+        self.tf[..., [0, 1, 2, 3], [0, 1, 2, 3]] = 1.0
+        self.yaw = np.zeros((W, R))                 # rad
+        self.quaternion = np.zeros((W, R, 4))       # x, y, z, w
+        self.quaternion[..., 3] = 1.0
+        self.v = np.zeros((W, R))                   # forward speed in base_link, m/s
+        self.w = np.zeros((W, R))                   # yaw rate in base_link, rad/s
+        self.enc_pos = np.zeros((W, R, 2))          # wheel angles (left, right), rad
+        self.enc_vel = np.zeros((W, R, 2))          # wheel speeds, rad/s
+        self.tick = np.zeros(W, np.int64)           # the control tick each world is at
+        #: each world's robots' sensors (:class:`plant.sensors.RobotSensors`, the camera's
+        #: noise model among them), set by :meth:`set_streams`
+        self.streams: list[dict | None] = [None] * W
+        #: each per-tick noise stream's key per robot (:func:`plant.noise.stream_key` of the
+        #: world's seed, uint64 (W, R); its law is the model's), so a tick's draws of every
+        #: robot are one call
+        self.keys = {k: np.zeros((W, R), np.uint64) for k in _STREAMS}
+        self._names = model.robots
+
+    def set_streams(self, w: int, sensors: dict) -> None:
+        """World ``w``'s robots' sensors (freshly built: their noise keys follow the seed)."""
+        self.streams[w] = sensors
+        for k, attr in _STREAMS.items():
+            self.keys[k][w] = [0 if (m := getattr(sensors[n], attr)) is None else m.key
+                               for n in self._names]
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """(W, R, 3) base_link positions, m (a view of :attr:`tf`)."""
+        return self.tf[..., :3, 3]

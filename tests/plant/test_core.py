@@ -1,0 +1,152 @@
+"""The core (plant/core: model, data, step) against the per-message path, its oracle.
+
+``Tick.messages(encoded=True)`` makes every robot's messages at once (plant.core); the
+per-message path (plant.sensors.RobotSensors through plant.tick.tick_messages) makes them
+robot by robot. Two copies of a world, driven alike, must publish the same bytes, tick
+after tick: several robots, kinematic and dynamic, noise on every stream, readers that
+come and go (a due topic nobody reads is not built, its noise still drawn), lidars due and
+not, a camera robot.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from bus import codec, packed
+from plant.camera import CameraConfig
+from plant.noise import NoiseConfig
+from plant.swarm_world import write_swarm_world
+from plant import core
+from plant.tick import Tick, tick_messages
+from plant.world import load_world
+
+from bus.controller import Twist, WheelSpeeds
+
+
+def _noisy(spec, camera: bool):
+    for k, r in enumerate(spec.robots):
+        s = r.sensors
+        s.encoder_noise = NoiseConfig(std=0.01, bias=0.001 * k)
+        s.gps_noise = NoiseConfig(std=0.02, resolution=0.005 if k % 2 else 0.0)
+        if s.lidar is not None and k != 1:          # robot 1's lidar noise-free
+            s.lidar_noise = NoiseConfig(std=0.05, resolution=0.01 if k == 2 else 0.0)
+        elif s.lidar is not None:                   # (its ranges quantised: a lidar of its own)
+            s.lidar = dataclasses.replace(s.lidar, resolution_m=0.02)
+        s.command_noise_std_radps = 0.05
+    if camera:
+        cam = spec.robots[-1].sensors
+        cam.camera = CameraConfig(width=32, height=24, rate_hz=25.0)
+        cam.camera_noise = NoiseConfig(std=8.0)
+    return spec
+
+
+def _world(kind: str, tmp_path):
+    if kind == "follow":                       # dynamic, a lidar robot and a camera robot
+        return _noisy(load_world("living_room_follow"), camera=False)
+    n = 10 if kind == "kinematic" else 5          # (more than bus.packed's few rows)
+    path = write_swarm_world(str(tmp_path / f"{kind}.toml"), n, seed=3, mode=kind)
+    return _noisy(load_world(path), camera=True)
+
+
+def _wanted(names, tick: int):
+    """Readers that come and go: a pure function of (robot, topic, tick); some ticks
+    every topic is read (None)."""
+    if tick % 7 == 3:
+        return None
+    return {n: (lambda topic, i=i: (len(topic) + i + tick) % 3 != 0 or (i + tick) % 5 == 4)
+            for i, n in enumerate(names)}
+
+
+def _drive(tick: Tick, k: int) -> None:
+    for i, name in enumerate(tick.sensors):
+        if (i + k) % 4 == 0:
+            tick.drive(name, WheelSpeeds(2.0 + 0.1 * i, 3.0 - 0.2 * k % 2))
+        elif (i + k) % 4 == 3:
+            tick.drive(name, None)
+        else:
+            tick.drive(name, Twist(0.4, 0.6 * ((i % 3) - 1) + 0.01 * k))
+
+
+@pytest.mark.parametrize("kind", ["kinematic", "dynamic", "follow"])
+def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
+    core_tick, oracle = Tick(_world(kind, tmp_path)), Tick(_world(kind, tmp_path))
+    core_tick.batched = True                    # (however few its robots)
+    names = list(core_tick.sensors)
+    seen: dict[str, int] = {}
+    for k in range(26):
+        want = _wanted(names, k)
+        got = list(core_tick.messages(want, encoded=True))
+        st = oracle.stepper
+        expect = list(tick_messages(oracle.t_ns, oracle.tick_ns, oracle.sensors, st.state,
+                                    st.shapes, want, encoded=True))
+        assert [m[:2] for m in got] == [m[:2] for m in expect], k
+        for (robot, topic, data), (_, _, ref) in zip(got, expect):
+            assert data == ref, (k, robot, topic)
+            key = topic if data is not None else "unread"
+            seen[key] = seen.get(key, 0) + 1
+        for t in (core_tick, oracle):
+            _drive(t, k)
+            t.step()
+            if k == 13:                         # a reset: another seed, the noise keys too
+                t.reset(seed=11)
+    # every kind of message was made and compared, and some were not read
+    assert {"joint_states", "gps", "ground_truth", "scan", "unread"} <= set(seen)
+    if kind != "dynamic":
+        assert seen.get("camera/image_raw", 0) > 0 and seen.get("camera/camera_info", 0) > 0
+
+
+@pytest.mark.parametrize("n", [3, 12])
+def test_rows_pack_equals_the_single_message_encoders(n):
+    """bus.packed.Rows, a few rows (each written on its own) and many (one matrix): rows of
+    different frame ids (different lengths and field places), a subset of rows, the bytes
+    of the per-message encoders."""
+    frames = [f"{'r' * (1 + i % 5)}{i}/base_link" for i in range(n)]
+    rows = packed.odometry_rows(["world"] * n, frames)
+    rng = np.random.default_rng(0)
+    pose, twist = rng.normal(size=(n, 7)), np.zeros((n, 6))
+    twist[:, [0, 5]] = rng.normal(size=(n, 2))
+    t_ns = 12_345_678_901
+    got = rows.pack(t_ns, {"pose": pose, "twist": twist})
+    pick = list(range(n))[::-1][:n - 1]
+    sub = rows.pack(t_ns, {"pose": pose[pick], "twist": twist[pick]}, pick)
+    for i, f in enumerate(frames):
+        assert got[i] == packed.odometry(t_ns, *pose[i, :3], pose[i, 3:], twist[i, 0],
+                                         twist[i, 5], frame_id="world", child_frame_id=f)
+    assert sub == [got[i] for i in pick]
+    lasers = [f"{'x' * (1 + i % 3)}/laser" for i in range(n)]
+    scan = packed.laser_scan_rows(lasers, 5, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0)
+    ranges = rng.uniform(0.01, 8.0, size=(n, 5)).astype("<f4")
+    ranges[0, 2] = np.inf
+    for i, (f, m) in enumerate(zip(lasers, scan.pack(t_ns, {"ranges": ranges}))):
+        assert m == codec.encode(codec.laser_scan(t_ns, -1.0, 1.0, 0.5, 0.1, 0.01, 8.0,
+                                                  ranges[i], frame_id=f))
+
+
+def test_a_model_of_several_worlds_senses_each_as_alone(tmp_path):
+    """One Model and Data for W copies of a world (other seeds, other commands): world w's
+    messages from the shared arrays are its own per-message path's, to the bit."""
+    ticks = []
+    for seed in (1, 2, 3):
+        spec = _world("kinematic", tmp_path)
+        spec.seed = seed
+        ticks.append(Tick(spec))
+    model = core.Model([t.spec for t in ticks])
+    data = core.Data(model)
+    assert data.tf.shape == (3, len(model.robots), 4, 4)
+    for w, t in enumerate(ticks):
+        data.set_streams(w, t.sensors)
+    names = list(ticks[0].sensors)
+    for k in range(12):
+        for w, t in enumerate(ticks):
+            core.observe(model, data, w, t.stepper)
+        for w, t in enumerate(ticks):
+            want = _wanted(names, k + w)
+            got = core.sense(model, data, w, t.t_ns, t.stepper.shapes, want)
+            expect = list(tick_messages(t.t_ns, t.tick_ns, t.sensors, t.stepper.state,
+                                        t.stepper.shapes, want, encoded=True))
+            assert got == expect, (k, w)
+            _drive(t, k + 2 * w)
+            t.step()
+    assert ticks[0].sim.kin.pose.tolist() != ticks[1].sim.kin.pose.tolist()
