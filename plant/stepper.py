@@ -83,5 +83,5 @@ class Stepper:
                                     any(s.needs_scene(tick) for s in self.sensors.values()))
             publish_s = self.publish_pending(publish)     # while the physics process steps
             self.physics.finish_step()
-            self.sim.steps += self.spec.substeps          # the clock of the plant's own copy
+            self.sim.advance()                            # the clock of the plant's own copy
         return publish_s, time.perf_counter() - c0 - publish_s

@@ -165,7 +165,7 @@ def step_ticks(ticks: Sequence[Tick]) -> None:
         batch.step(np.array([r.targets for t in kin for r in t.sim.robots.values()], float))
         finite = batch.finite()
         for t in kin:
-            t.sim.steps += t.spec.substeps
+            t.sim.advance()
             if not (finite or t.stepper.finite()):
                 t.build()
     stepped = {id(t) for t in kin}

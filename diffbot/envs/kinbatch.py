@@ -579,7 +579,7 @@ class _Kept:
             od.v, od.w = u
             od._last = (e[0], e[1])
             od._last_t = te
-            sim.steps = n
+            sim.advance((n - sim.steps) // sim.spec.substeps)   # the ticks the arrays ran
             lim.v, lim.w = v, w
             lim.wheels = (wh[0], wh[1])
             robot.targets = (tg[0], tg[1])
