@@ -32,6 +32,7 @@ from .kept import Kept
 from .obsmath import clamp, clip, observation, truths
 from .transport import InProc
 
+
 class Made(NamedTuple):
     """A batch step's observations ({key: (W, ...)}, :meth:`AvoidObserver.observation`'s),
     the robots' true (x, y, yaw) (W, 3) and the worlds' times (W,) ns at its end."""
@@ -356,7 +357,8 @@ class _Kinematic:
         return self.batch.transforms()[idx]
 
     def finish(self) -> None:
-        """The step's end (the worlds' clocks, Simulation.steps: :meth:`ArrayTicks.flush`)."""
+        """The step's end: a world no longer finite is an error (the worlds' clocks move
+        when their state is written back: :meth:`ArrayTicks.flush`)."""
         b = self.batch
         if not b.finite():              # (not a number stays one: checked once a step)
             raise Diverged(np.flatnonzero(~(np.isfinite(b.pose).all(1)
@@ -377,8 +379,8 @@ class _Dart:
         self._tfs: dict[int, np.ndarray] = {}    # the robots' poses since the last tick
 
     def step(self, targets: np.ndarray) -> None:
-        """One tick of every world (:meth:`plant.tick.Tick.step` without its timing and
-        its check, which :meth:`finish` makes once a step: not a number stays one)."""
+        """One tick of every world (:meth:`plant.tick.Tick.step` without its check, which
+        :meth:`finish` makes once a step: not a number stays one)."""
         self._tfs.clear()
         for sim, robot, (wl, wr) in zip(self.sims, self.robots, targets.tolist()):
             robot.targets = (wl, wr)                 # as Simulation.command_twist sets them
