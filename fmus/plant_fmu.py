@@ -411,7 +411,7 @@ class PlantInstance(FmuStates):
             for name in self.robots:
                 self.tick.drive(name, Twist(float(self.param(f"{name}.v")),
                                             float(self.param(f"{name}.w"))))
-            _, _, finite = self.tick.step()
+            finite = self.tick.step()
             if not finite:
                 self.state = "terminated"
                 return self.fail(f"the physics diverged at t = {self.time:.3f} s",

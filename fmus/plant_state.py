@@ -66,7 +66,7 @@ def set_world_state(tick, state: dict) -> None:
         sk.setVelocities(np.array(dq, dtype=np.float64))
         sk.setAccelerations(np.array(ddq, dtype=np.float64))
     world.setTime(float(state["time"]))
-    sim.steps = int(state["steps"])
+    sim.restore_clock(state["steps"])
     for name, r in state["robots"].items():
         sim.robots[name].targets = tuple(float(v) for v in r["targets"])
         lim = sim.limiters[name]

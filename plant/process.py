@@ -242,8 +242,13 @@ class Plant:
         self.tick.prefetch()
 
     def publish_pending(self) -> None:
-        """This tick's sensors, if the stepper has not published them yet (the run ends)."""
-        self.timing["publish_s"] += self.tick.publish_pending(self.publish_sensors)
+        """This tick's sensors, if they have not gone out yet (the run ends)."""
+        if self.tick.publish_due():
+            self._publish()
+
+    def _publish(self) -> None:
+        with self._timed("publish_s"):
+            self.publish_sensors()
 
     def _emit(self, key: str, payload: bytes, att: bytes) -> None:
         """A composed member's message (bus/composed.py): on the bus for whoever listens,
@@ -397,7 +402,8 @@ class Plant:
             while not self.stop_event.is_set():
                 t = self.sim.time_ns
                 self.ledger.begin_tick(t)
-                self.timing["publish_s"] += self.tick.begin(self.publish_sensors)
+                if self.tick.begin():           # (else the step publishes them: overlap)
+                    self._publish()
                 with self._timed("wait_s"):
                     ended = self._duration_reached(t) or self.strategy.barrier(t)
                 if ended:
@@ -407,9 +413,12 @@ class Plant:
                     self.reset_in_tick = False
                     continue
                 self.apply_commands()
-                publish_s, physics_s, finite = self.tick.step(self.publish_sensors)
-                self.timing["publish_s"] += publish_s
-                self.timing["physics_s"] += physics_s
+                with self._timed("physics_s"):
+                    overlap = self.tick.start_step()
+                if overlap:                     # this tick's, while the physics process steps
+                    self._publish()
+                with self._timed("physics_s"):
+                    finite = self.tick.finish_step()
                 self.ticks += 1
                 self._info = dict(self._info, time_ns=self.sim.time_ns)
                 if not finite:

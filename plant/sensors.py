@@ -39,7 +39,6 @@ class RobotSensors:
         self.spec = spec
         self.name = spec.name
         s = spec.sensors
-        self.tick_s = tick_s
         #: the frames this robot's messages carry (docs/PROTOCOL.md: one name everywhere)
         self.frames = {f: frame(self.name, f) for f in ("base_link", "laser", "camera_optical")}
 

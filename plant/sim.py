@@ -140,7 +140,7 @@ class Simulation:
             w.addSkeleton(robot.skeleton)
             self.robots[rs.name] = robot
             self.limiters[rs.name] = dd.DriveLimiter(rs.drive)
-        self.steps = 0
+        self._steps = 0
         self._static_shapes = [self._shape_of(o) for o in self.objects if o.static]
         self._robot_parts = [part for name, r in self.robots.items()
                              for part in _visible_parts(r, name)]
@@ -177,7 +177,7 @@ class Simulation:
         for name, r in self.robots.items():
             r.targets = (0.0, 0.0)
             self.limiters[name].reset()
-        self.steps = 0
+        self._steps = 0
         self._motion_streams()
 
     def _motion_streams(self) -> None:
@@ -200,9 +200,24 @@ class Simulation:
 
     # ------------------------------------------------------------------ time
     @property
+    def steps(self) -> int:
+        """Physics steps since t = 0: the world's clock. Only the world moves it
+        (:meth:`advance`, :meth:`restore_clock`, a restart); everyone else reads it."""
+        return self._steps
+
+    @property
     def time_ns(self) -> int:
         """Simulated time in integer ns (counted in steps, so it never drifts)."""
-        return self.steps * int(round(self.spec.physics_step_s * 1e9))
+        return self._steps * int(round(self.spec.physics_step_s * 1e9))
+
+    def advance(self, ticks: int = 1) -> None:
+        """The clock ``ticks`` control ticks on: the world was stepped elsewhere (a physics
+        process, a batch's kernel) or is stepped here (:meth:`step_tick`)."""
+        self._steps += int(ticks) * self._substeps
+
+    def restore_clock(self, steps: int) -> None:
+        """The clock set back to a saved state's (an FMU's restored state)."""
+        self._steps = int(steps)
 
     def step_tick(self) -> None:
         """Advance one control tick (``substeps`` physics steps) with the current targets.
@@ -219,7 +234,7 @@ class Simulation:
                 r.apply()
             for _ in range(self._substeps):
                 self.world.step(False)
-        self.steps += self._substeps
+        self.advance()
 
     # ------------------------------------------------------------------ commands
     def command_twist(self, robot: str, v_mps: float, w_radps: float) -> None:
@@ -237,7 +252,7 @@ class Simulation:
         r = self.robots[robot]
         std = r.spec.sensors.command_noise_std_radps
         if std > 0.0 and wheels != (0.0, 0.0):
-            n = self.motion_noise[robot].normals(self.steps // self._substeps, (2,)) * std
+            n = self.motion_noise[robot].normals(self._steps // self._substeps, (2,)) * std
             wheels = (wheels[0] + n[0], wheels[1] + n[1])
         r.targets = wheels
 

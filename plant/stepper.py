@@ -1,15 +1,12 @@
 """Steps the world one control tick, in this process or in a physics process of its own.
 
 With a physics process (``--physics-process``) and a mode whose commands for the step do
-not wait for tick k's sensors (pipelined lockstep, fast), the stepper *overlaps*: it
-publishes tick k while the physics process steps to k + 1. Either way the bytes are the
-same; the plant's loop only asks "publish this tick's sensors" and "step", and the stepper
-decides when the publishing happens.
+not wait for tick k's sensors (pipelined lockstep, fast), the step *overlaps* the
+publishing: the plant publishes tick k between :meth:`Stepper.start` and
+:meth:`Stepper.finish`, while the physics process steps to k + 1 (:class:`plant.tick.Tick`
+tells its host when). Either way the bytes are the same.
 """
 from __future__ import annotations
-
-import time
-from typing import Callable
 
 from .physics_process import PhysicsProcess
 from .sensors import RobotSensors
@@ -30,7 +27,6 @@ class Stepper:
         #: one robot: its sensors see the room alone (:meth:`shapes`), so a physics
         #: process need not send its parts' poses
         self._room_only = len(sim.robots) == 1
-        self._published = False           # this tick's sensors went out
 
     # ------------------------------------------------------------ the world's state
     def state(self, robot: str):
@@ -54,34 +50,20 @@ class Stepper:
         return self.sim.is_finite() if self.physics is None else self.physics.finite
 
     # ------------------------------------------------------------ a tick
-    def begin_tick(self, publish: Callable[[], None]) -> float:
-        """A new tick: publish its sensors now unless the step will (overlap). Seconds spent."""
-        self._published = False
-        return 0.0 if self.overlap else self.publish_pending(publish)
-
-    def publish_pending(self, publish: Callable[[], None]) -> float:
-        """Publish this tick's sensors if they have not gone out yet (the run ends at a tick
-        whose sensors an overlapping step would have published). Seconds spent."""
-        if self._published:
-            return 0.0
-        c0 = time.perf_counter()
-        publish()
-        self._published = True
-        return time.perf_counter() - c0
-
-    def step(self, publish: Callable[[], None]) -> tuple[float, float]:
-        """Step to the next tick with the targets the commands set, publishing this tick's
-        sensors meanwhile if they are still due. (publish s, physics s not hidden by it)."""
-        c0 = time.perf_counter()
-        if self.physics is None:                          # (never overlaps: published)
+    def start(self) -> None:
+        """Start the step to the next tick with the targets the commands set: in this
+        process, the whole step; in a physics process, its start (:meth:`finish` waits for
+        it), the plant free to publish meanwhile."""
+        if self.physics is None:
             self.sim.step_tick()
-            publish_s = 0.0
-        else:
-            tick = self.sim.time_ns // self.tick_ns + 1
-            self.physics.start_step([r.targets for r in self.sim.robots.values()],
-                                    not self._room_only and
-                                    any(s.needs_scene(tick) for s in self.sensors.values()))
-            publish_s = self.publish_pending(publish)     # while the physics process steps
+            return
+        tick = self.sim.time_ns // self.tick_ns + 1
+        self.physics.start_step([r.targets for r in self.sim.robots.values()],
+                                not self._room_only and
+                                any(s.needs_scene(tick) for s in self.sensors.values()))
+
+    def finish(self) -> None:
+        """The step started by :meth:`start` done: the world at the next tick."""
+        if self.physics is not None:
             self.physics.finish_step()
-            self.sim.steps += self.spec.substeps          # the clock of the plant's own copy
-        return publish_s, time.perf_counter() - c0 - publish_s
+            self.sim.advance()                            # the clock of the plant's own copy

@@ -10,6 +10,10 @@ commands. Tick k is::
     tick.drive(robot, command)                 # for every robot (None: stand still)
     tick.step()                                # to t_{k+1} (a diverged world is rebuilt)
 
+A host that publishes the messages asks the tick when: :meth:`Tick.begin` says whether to
+publish now, :meth:`Tick.start_step` whether to publish while the physics process steps
+(overlap), :meth:`Tick.finish_step` ends the step; the sensors of a tick go out once.
+
 A reading's noise is a function of (seed, robot, stream, tick, index) (:mod:`plant.noise`),
 so no order of calls changes it. Anything that changes the sensors due at a tick or a
 message's values changes every host at once; ``tests/envs/test_envs_identity.py``
@@ -57,6 +61,7 @@ class Tick:
         self.physics_process = physics_process and spec.mode != "kinematic"
         self.overlap = overlap
         self.physics: PhysicsProcess | None = None
+        self._owed = False                # this tick's sensors are still to be published
         self.model: core.Model | None = None
         #: whether the encoded messages come from the core (:func:`plant.core.sense`, every
         #: robot at once) or robot by robot (:func:`tick_messages`): the same bytes; the
@@ -77,6 +82,7 @@ class Tick:
                 self.physics.build(self.spec)
         self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
                                overlap=self.overlap)
+        self._owed = True                 # (the new world's t = 0)
         if self.model is not None:        # (a reset moves the robots, not their sensors)
             self.data.set_streams(0, self.sensors)
 
@@ -125,33 +131,44 @@ class Tick:
         else:
             self.sim.command_wheels(robot, command.left, command.right)
 
-    def begin(self, publish: Callable[[], None]) -> float:
-        """A new tick: ``publish()`` its sensors now, unless the step will (overlap).
-        Seconds spent publishing."""
-        return self.stepper.begin_tick(publish)
+    def begin(self) -> bool:
+        """A new tick: whether the host publishes its sensors now (not if the step will,
+        overlapping: :meth:`start_step` says so then)."""
+        self._owed = True
+        return not self.stepper.overlap and self.publish_due()
 
-    def publish_pending(self, publish: Callable[[], None]) -> float:
-        """This tick's sensors, if they have not gone out yet (the run ends here)."""
-        return self.stepper.publish_pending(publish)
+    def publish_due(self) -> bool:
+        """Whether this tick's sensors are still to be published (the run ends at a tick
+        whose sensors an overlapping step would have published). True once a tick: the
+        host publishes them when told."""
+        owed, self._owed = self._owed, False
+        return owed
 
-    def step(self, publish: Callable[[], None] | None = None) -> tuple[float, float, bool]:
-        """Step to the next tick with the commands driven (publishing this tick's sensors
-        meanwhile if an overlapping step still owes them); a diverged world is rebuilt at
-        t = 0. (publish s, physics s, False if it diverged)."""
-        publish_s, physics_s = self.stepper.step(publish or _nothing)
+    def start_step(self) -> bool:
+        """Start the step to the next tick with the commands driven; whether the host
+        publishes this tick's sensors now, while the physics process steps. Then
+        :meth:`finish_step`."""
+        self.stepper.start()
+        return self.stepper.overlap and self.publish_due()
+
+    def finish_step(self) -> bool:
+        """The step done; a diverged world is rebuilt at t = 0 (False)."""
+        self.stepper.finish()
         if self.stepper.finite():
-            return publish_s, physics_s, True
+            return True
         self.build()
-        return publish_s, physics_s, False
+        return False
+
+    def step(self) -> bool:
+        """Step to the next tick with the commands driven, for a host that publishes
+        nothing while it steps; a diverged world is rebuilt at t = 0 (False)."""
+        self.start_step()
+        return self.finish_step()
 
     def close(self) -> None:
         if self.physics is not None:
             self.physics.close()
             self.physics = None
-
-
-def _nothing() -> None:
-    pass
 
 
 def step_ticks(ticks: Sequence[Tick]) -> None:
@@ -165,7 +182,7 @@ def step_ticks(ticks: Sequence[Tick]) -> None:
         batch.step(np.array([r.targets for t in kin for r in t.sim.robots.values()], float))
         finite = batch.finite()
         for t in kin:
-            t.sim.steps += t.spec.substeps
+            t.sim.advance()
             if not (finite or t.stepper.finite()):
                 t.build()
     stepped = {id(t) for t in kin}

@@ -305,14 +305,14 @@ def test_a_worker_ends_with_a_killed_parent():
 
 
 def test_batch_truths_are_the_ground_truth_messages_poses():
-    """kinbatch.truths (all robots at once) gives each robot's (x, y, yaw) as its
+    """obsmath.truths (all robots at once) gives each robot's (x, y, yaw) as its
     ground_truth message read back does (plant.sim.Simulation.kin_state, the quaternion,
     bus.codec.pose_2d), to the bit, both branches of the quaternion and the signed zeros."""
     import math
     from types import SimpleNamespace
 
     from bus import codec
-    from diffbot.envs.kinbatch import truths
+    from diffbot.envs.obsmath import truths
     from plant.sim import Simulation
     rng = np.random.default_rng(3)
     edge = [0.0, -0.0, math.pi, -math.pi, 2 * math.pi / 3, -2 * math.pi / 3,

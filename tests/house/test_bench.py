@@ -214,14 +214,14 @@ def test_tick_profile_puts_each_main_thread_sample_in_its_innermost_phase():
     from diffbot.bench import tick
     root = ("_run_module_as_main (<frozen runpy>:198);main (plant/process.py:795);"
             "Plant.run (plant/process.py:590)")
-    pub = "Stepper.begin_tick (plant/stepper.py:9);Plant.publish_sensors (plant/process.py:279)"
+    pub = "Plant._publish (plant/process.py:252);Plant.publish_sensors (plant/process.py:224)"
     raw = "\n".join([
         f"{root};{pub};RobotSensors.messages (plant/sensors.py:9);"
         "render (plant/camera.py:1);render_full (plant/camera.py:2) 6",
         f"{root};{pub};Outbox.put (plant/outbox.py:76);"
         "encode (bus/codec.py:53);_fast_image (bus/codec.py:99) 3",
         f"{root};{pub};Outbox.put (plant/outbox.py:76) 2",
-        f"{root};Stepper.step (plant/stepper.py:1);Simulation.step_tick (plant/sim.py:2) 4",
+        f"{root};Stepper.start (plant/stepper.py:1);Simulation.step_tick (plant/sim.py:2) 4",
         f"{root};Plant.run (plant/process.py:600) 1",
         "Thread-1 (zenoh);Inbox._on_sample (bus/inbox.py:40) 50",      # not the main thread
         "garbage line",

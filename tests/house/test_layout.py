@@ -2,13 +2,15 @@
 between modules, and no import from a lower floor to a higher one or across rooms that
 must not see each other (a controller never imports the plant, a bridge never imports
 the plant, nothing imports the command line's package); inside diffbot/, its packages by
-concern on floors of their own, and children started one way; and no module over 500
-lines nor function over 80 outside tests."""
+concern on floors of their own, and children started one way; no module over 500
+lines nor function over 80 outside tests; and no issue numbers in code, tests or docs."""
 from __future__ import annotations
 
 import ast
 import functools
 import os
+import re
+import subprocess
 
 from ..conftest import ROOT
 
@@ -135,12 +137,8 @@ DIFFBOT_MAY_IMPORT = {
 PLOTTING = ("matplotlib", "cv2")
 #: what may be over the size limits below, each while its owner splits it: drop a line
 #: once the split lands
-LONG_MODULES = {
-    "diffbot/envs/kinbatch.py",      # being split: the array core replaces it
-}
-LONG_FUNCTIONS = {
-    "diffbot/envs/kinbatch.py",      # being split: the array core replaces it
-}
+LONG_MODULES: set[str] = set()
+LONG_FUNCTIONS: set[str] = set()
 MAX_MODULE_LINES = 500
 MAX_FUNCTION_LINES = 80
 
@@ -294,3 +292,29 @@ def test_diffbot_starts_its_children_one_way():
     assert not wrong, "\n".join(wrong)
     assert popen_users({"diffbot/envs/w.py": "import subprocess\nsubprocess.Popen(['x'])\n"}) \
         == ["diffbot/envs/w.py:2: Popen"]
+
+
+#: the one page that tells a change's history (the benchmarks' log): everywhere else a
+#: comment or a doc says the rule and why, and the history stays in the commits
+HISTORY_PAGES = {"docs/benchmarks.md"}
+ISSUE_NUMBER = re.compile(r"[Ii]ssues? ?#?[0-9]+|issue-[0-9]")
+
+
+def test_code_tests_and_docs_cite_no_issue_numbers():
+    files = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+                           cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    wrong = []
+    for rel in files:
+        name = os.path.basename(rel)
+        if rel in HISTORY_PAGES or not (name == "Makefile" or name.endswith(
+                (".py", ".md", ".c", ".h", ".toml"))):
+            continue
+        path = os.path.join(ROOT, rel)
+        if not os.path.isfile(path):
+            continue
+        with open(path, encoding="utf-8", errors="replace") as f:
+            for n, line in enumerate(f, 1):
+                if ISSUE_NUMBER.search(line):
+                    wrong.append(f"{rel}:{n}: {line.strip()}")
+    assert not wrong, "say the rule and why instead (the commit keeps the history):\n" \
+        + "\n".join(wrong)

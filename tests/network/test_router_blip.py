@@ -280,7 +280,7 @@ def test_a_router_lost_past_the_rejoin_timeout_ends_every_process_by_itself(tmp_
 
 @pytest.mark.parametrize("coupling", COUPLINGS)
 def test_router_blips_across_namespaces_over_tls(tmp_path, net, coupling, undisturbed):
-    """The issue's version: three namespaces, the shipped TLS configs and the docs' steps
+    """The full case: three namespaces, the shipped TLS configs and the docs' steps
     (tests/network/test_netns.py); NETNS_BLIPS short blips per coupling in one run each, compared
     with the undisturbed run on loopback."""
     remote = tls_machines(str(tmp_path))

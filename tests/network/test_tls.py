@@ -201,7 +201,7 @@ def test_a_failed_connection_names_the_endpoint_and_the_cause(tmp_path, certs, o
     assert str(path) in msg and time.monotonic() - t0 < 15
 
 
-#: the issue's contract: a refusal is reported within this long (a generous bound: it takes
+#: the contract: a refusal is reported within this long (a generous bound: it takes
 #: one connect attempt, bus.session.ATTEMPT_MS, and a probe, about 1.5 s)
 REFUSED_WITHIN_S = 5.0
 

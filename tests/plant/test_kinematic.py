@@ -37,6 +37,22 @@ def test_a_robot_follows_the_exact_arc_of_its_wheel_speeds():
     assert k.vel[0, 1] == 0.0 and k.vel[0, 0] == pytest.approx(r)
 
 
+def test_the_world_alone_moves_its_clock():
+    """Simulated time has one owner: the Simulation counts its steps (a tick, ticks run
+    elsewhere, a restored state, a restart); nobody else may write the count."""
+    sim = Simulation(kin_world())
+    sub, step_ns = sim.spec.substeps, round(sim.spec.physics_step_s * 1e9)
+    sim.step_tick()
+    sim.advance(3)
+    assert sim.steps == 4 * sub and sim.time_ns == 4 * sub * step_ns
+    with pytest.raises(AttributeError):
+        sim.steps = 0
+    sim.restore_clock(sub)
+    assert sim.time_ns == sub * step_ns
+    sim.restart()
+    assert sim.steps == 0
+
+
 def test_a_wall_stops_the_footprint_and_the_robot_can_leave():
     spec = kin_world()
     half = spec.floor_size_m[0] / 2

@@ -15,6 +15,7 @@ import pytest
 from plant.physics_process import PhysicsError, PhysicsProcess
 from plant.sim import Simulation
 from plant.swarm_world import write_swarm_world
+from plant.tick import Tick
 from plant.world import load_world
 
 from ..conftest import ROOT, wait_for
@@ -63,6 +64,29 @@ def test_the_process_steps_and_reports_what_the_plant_would_itself(tmp_path):
     finally:
         physics.close()
     assert physics.proc.poll() == 0
+
+
+@pytest.mark.slow
+def test_the_tick_tells_its_host_when_to_publish():
+    """The host asks the tick when to publish a tick's sensors: at its start, or, where the
+    step overlaps the publishing, between start_step and finish_step (the physics process
+    stepping, the world still at tick k); once a tick, and still owed where the run ends."""
+    here = Tick(load_world("empty"))                  # in this process: never overlaps
+    assert here.begin() and not here.publish_due()
+    assert not here.start_step() and here.finish_step()
+    tick = Tick(load_world("empty"), physics_process=True, overlap=True)
+    try:
+        t0 = tick.t_ns
+        assert not tick.begin()
+        assert tick.start_step() and tick.t_ns == t0  # publish tick k while it steps
+        assert not tick.publish_due()
+        assert tick.finish_step() and tick.t_ns == t0 + tick.tick_ns
+        assert not tick.begin()
+        assert tick.publish_due() and not tick.publish_due()   # the run ends here
+        assert not tick.start_step()                  # published already
+        tick.finish_step()
+    finally:
+        tick.close()
 
 
 @pytest.mark.slow
