@@ -69,15 +69,28 @@ def examples(n: int) -> int:
 _LOCK_DIR = "DIFFBOT_TEST_LOCK_DIR"
 
 
+#: Stable-Baselines3 makes a log folder for every model it trains (SB3-<time> in the
+#: system's temporary folder unless SB3_LOGDIR names one): the suite's go into one folder
+#: of its own, removed at the end
+_SB3_LOGDIR = "SB3_LOGDIR"
+
+
 def pytest_configure(config):
-    if not hasattr(config, "workerinput") and getattr(config.option, "numprocesses", None):
-        os.environ[_LOCK_DIR] = tempfile.mkdtemp(prefix="dbt-lock-")   # the workers inherit it
+    if hasattr(config, "workerinput"):
+        return                                  # (the workers inherit what is set here)
+    if getattr(config.option, "numprocesses", None):
+        os.environ[_LOCK_DIR] = tempfile.mkdtemp(prefix="dbt-lock-")
+    if _SB3_LOGDIR not in os.environ:
+        os.environ[_SB3_LOGDIR] = tempfile.mkdtemp(prefix="dbt-sb3-")
+        config._diffbot_sb3_logdir = os.environ[_SB3_LOGDIR]
 
 
 def pytest_unconfigure(config):
-    d = os.environ.get(_LOCK_DIR)
-    if d and not hasattr(config, "workerinput"):
-        shutil.rmtree(d, ignore_errors=True)
+    if hasattr(config, "workerinput"):
+        return
+    for d in (os.environ.get(_LOCK_DIR), getattr(config, "_diffbot_sb3_logdir", None)):
+        if d:
+            shutil.rmtree(d, ignore_errors=True)
 
 
 #: a test's expected share of a run, to hand out the longest groups first (seconds, rough:
