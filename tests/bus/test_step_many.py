@@ -95,3 +95,28 @@ def test_step_many_must_answer_a_dict():
             return [Twist()]
     with pytest.raises(TypeError, match="step_many"):
         _member(Bad).act(0)
+
+
+def test_the_manual_s_controller_for_many_robots_runs_as_a_member():
+    """docs/controllers.md, "A controller for many robots": its example, run by a member over
+    three robots' scans, gives each robot its speed from one step_many call."""
+    import re
+    from ..conftest import ROOT
+    text = open(f"{ROOT}/docs/controllers.md").read()
+    section = text.split("## A controller for many robots", 1)[1]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    space: dict = {}
+    exec(compile(code, "docs/controllers.md", "exec"), space)
+    topics = dict(TOPICS)
+    m = MemberTick("m", 20_000_000, slots=make_slots(space["Cruise"](), ROBOTS, topics),
+                   topics=topics, key=K.topic, ack_key=K.ack("m"))
+    m.configure({"control_tick_s": 0.02,
+                 "robots": {r: {"topics": {"scan": 1}} for r in ROBOTS}})
+    for near, r in zip([0.4, 1.0, float("inf")], ROBOTS):
+        scan = codec.laser_scan(0, -1.0, 1.0, 1.0, 0.1, 0.1, 5.0, [2.0, near, 3.0])
+        m.receive(K.topic(r, "scan"), codec.encode(scan), None)
+    assert m.clock(0) == (None, None) and m.next_due() == 0
+    sent, _ = m.act(0)
+    assert _commands(sent) == pytest.approx(
+        {K.topic("a", "cmd_vel"): 0.0, K.topic("b", "cmd_vel"): 0.15,
+         K.topic("c", "cmd_vel"): 0.3})
