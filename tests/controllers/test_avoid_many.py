@@ -31,6 +31,10 @@ def test_masked_row_sums_equal_numpy_sums_of_each_row():
         got = masked_row_sums(v, mask)
         want = [np.sum(v[i][mask[i]]) for i in range(rows)]
         assert [_bits(g) for g in got] == [_bits(w) for w in want], trial
+    # numpy starts from +0.0: a run of -0.0 values sums to +0.0, an empty one too
+    zeros = np.full((4, 200), -0.0)
+    mask = np.arange(200)[None, :] < np.array([[0], [3], [9], [200]])
+    assert [_bits(g) for g in masked_row_sums(zeros, mask)] == [_bits(0.0)] * 4
 
 
 def _scans(rng, robots: int, ticks: int, rays: int):
