@@ -2,9 +2,11 @@
 
 ``np.sum(x[mask])`` of one robot's values and a sum over a batch of robots in one call
 round differently unless they add the same numbers in the same order: numpy sums a
-contiguous run of floats pairwise (blocks of eight partial sums, halves past 128 values;
-numpy/_core/src/umath/loops_utils.h.src, ``pairwise_sum``). :func:`masked_row_sums`
-follows that order for every row at once, so a controller stepping many robots with numpy
+contiguous run of floats pairwise (eight partial sums over blocks of eight, combined as a
+tree, the rest added one by one; a run longer than 128 values is split in halves whose
+length is a multiple of eight; numpy/_core/src/umath/loops_utils.h.src, ``pairwise_sum``).
+:func:`masked_row_sums` follows that order for every row at once, in a fixed number of
+numpy calls whatever the number of rows, so a controller stepping many robots with numpy
 gives the commands its per-robot step gives, byte for byte.
 """
 from __future__ import annotations
@@ -13,6 +15,8 @@ import numpy as np
 
 #: numpy's pairwise-summation block (PW_BLOCKSIZE): longer runs are split in halves
 _BLOCK = 128
+#: padding: x + (-0.0) == x for every x (-0.0 included): it never changes a partial sum
+_NOTHING = -0.0
 
 
 def masked_row_sums(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -23,49 +27,57 @@ def masked_row_sums(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
         raise ValueError(f"values {values.shape} and mask {mask.shape}: need the same 2-D shape")
     rows, width = values.shape
     n = mask.sum(axis=1)
-    # each row's selected values moved to its front, in order (the rest: zeros, never added)
-    packed = np.zeros((rows, width + 8), dtype=np.float64)
-    packed[:, :width][np.arange(width)[None, :] < n[:, None]] = values[mask]
-    # numpy starts a sum from its identity, 0.0 (so a sum of -0.0 values is +0.0)
-    return 0.0 + _pairwise(packed, np.zeros(rows, dtype=np.intp), n)
-
-
-def _pairwise(a: np.ndarray, start: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """The pairwise sum of ``a[i, start[i]:start[i] + n[i]]`` for every row ``i``."""
-    out = np.empty(len(n), dtype=np.float64)
-    big = n > _BLOCK
-    if big.any():
-        half = n[big] // 2
+    # each row's selected values moved to its front, in order, the rest padding
+    packed = np.full((rows, width + 1), _NOTHING)
+    packed[np.arange(width + 1)[None, :] < n[:, None]] = values[mask]
+    # runs over _BLOCK values split in halves as numpy does, level by level: segments
+    # (row, start, length); the first `rows` are the whole rows
+    seg_row, seg_start, seg_n = np.arange(rows), np.zeros(rows, dtype=np.intp), n.copy()
+    levels = []
+    split = np.flatnonzero(seg_n > _BLOCK)
+    while split.size:
+        half = seg_n[split] // 2
         half -= half % 8
-        out[big] = (_pairwise(a[big], start[big], half)
-                    + _pairwise(a[big], start[big] + half, n[big] - half))
-    small = ~big
-    if small.any():
-        out[small] = _leaf(a[small], start[small], n[small])
-    return out
+        left = len(seg_row) + np.arange(split.size)
+        right = left + split.size
+        seg_row = np.concatenate([seg_row, seg_row[split], seg_row[split]])
+        seg_start = np.concatenate([seg_start, seg_start[split], seg_start[split] + half])
+        seg_n = np.concatenate([seg_n, half, seg_n[split] - half])
+        levels.append((split, left, right))
+        halves = np.concatenate([left, right])
+        split = halves[seg_n[halves] > _BLOCK]
+    total = np.empty(len(seg_row))
+    leaves = np.flatnonzero(seg_n <= _BLOCK)
+    total[leaves] = _runs(packed, seg_row[leaves], seg_start[leaves], seg_n[leaves])
+    for split, left, right in reversed(levels):
+        total[split] = total[left] + total[right]
+    # numpy starts a sum from its identity, +0.0 (a run of -0.0 sums to +0.0)
+    return 0.0 + total[:rows]
 
 
-def _leaf(a: np.ndarray, start: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Runs of at most 128 values: a plain loop under 8 values, else eight partial sums over
-    whole blocks of eight, combined as a tree, then the rest added one by one."""
+def _runs(packed: np.ndarray, row: np.ndarray, start: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """numpy's sum of runs of at most 128 values, ``packed[row, start:start + n]`` each:
+    under 8 values a plain loop from 0.0, else eight partial sums over the whole blocks of
+    eight, combined as a tree, then the rest added one by one."""
+    if not len(n):
+        return np.zeros(0)
+    width = packed.shape[1]
+    span = 8 * (int(n.max()) // 8 + 2)
+    cols = np.arange(span)
+    run = packed[row[:, None], np.minimum(start[:, None] + cols, width - 1)]
+    run[cols[None, :] >= n[:, None]] = _NOTHING
+    short = 0.0
+    for j in range(7):
+        short = short + run[:, j]
+    rest = n % 8
+    whole = n - rest
+    blocks = np.where(cols[None, :] < whole[:, None], run, _NOTHING)
+    part = blocks[:, :8]
+    for b in range(8, span, 8):
+        part = part + blocks[:, b:b + 8]
+    tot = (((part[:, 0] + part[:, 1]) + (part[:, 2] + part[:, 3]))
+           + ((part[:, 4] + part[:, 5]) + (part[:, 6] + part[:, 7])))
     rows = np.arange(len(n))
-    res = np.zeros(len(n), dtype=np.float64)
-    short = n < 8
-    for j in range(7):                        # under 8 values: res += a[i], in order
-        take = short & (j < n)
-        res[take] = res[take] + a[rows[take], start[take] + j]
-    long_ = ~short
-    if long_.any():
-        r_, s, m = rows[long_], start[long_], n[long_]
-        whole = m - m % 8
-        part = a[r_[:, None], s[:, None] + np.arange(8)]
-        for i in range(8, int(whole.max()), 8):
-            more = i < whole
-            part[more] = part[more] + a[r_[more, None], s[more, None] + i + np.arange(8)]
-        tot = (((part[:, 0] + part[:, 1]) + (part[:, 2] + part[:, 3]))
-               + ((part[:, 4] + part[:, 5]) + (part[:, 6] + part[:, 7])))
-        for j in range(7):                    # the rest past the last whole block
-            more = j < m % 8
-            tot[more] = tot[more] + a[r_[more], s[more] + whole[more] + j]
-        res[long_] = tot
-    return res
+    for j in range(7):
+        tot = tot + np.where(j < rest, run[rows, np.minimum(whole + j, span - 1)], _NOTHING)
+    return np.where(n < 8, short, tot)
