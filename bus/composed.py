@@ -99,7 +99,8 @@ class Composed:
             h.member.configure(info)
             for slot in h.member.slots:
                 hooks.configure(slot.controller, info, slot.robot)
-                hooks.on_session(slot.controller, self.session, self.keys)
+            for ctrl in hooks.distinct(s.controller for s in h.member.slots):
+                hooks.on_session(ctrl, self.session, self.keys)
             h.tokens.append(liveliness.declare_token(self.keys.alive(h.name)))
             if h.member.sync:
                 h.tokens.append(liveliness.declare_token(self.keys.sync(h.name)))
@@ -185,7 +186,7 @@ class Composed:
         ``--stats`` written."""
         for h in self.hosted:
             h.leave()
-            controllers = [s.controller for s in h.member.slots]
+            controllers = hooks.distinct(s.controller for s in h.member.slots)
             stats = h.stats()
             for ctrl in controllers:
                 try:

@@ -70,9 +70,29 @@ class Controller(Protocol):
     * ``step(obs)`` returns a :class:`Twist` (``cmd_vel``), :class:`WheelSpeeds`
       (``wheel_cmd``), a dict ``{topic: message}`` of outputs (a Twist or WheelSpeeds value
       in it, under any key, is the command), or None.
+    * ``step_many(observations)`` — a controller for many robots: one object drives every
+      robot of its node (never copied per robot; a factory is called once, with no
+      argument), and each tick the node calls ``step_many({robot: Observation})`` once with
+      every robot it still drives instead of ``step`` per robot; it returns ``{robot:
+      command}`` (each what ``step`` may return; a robot left out gets nothing that tick).
+      ``configure`` is called once per robot, the other hooks once; ``done`` stops them all.
     """
 
     def step(self, obs: Observation) -> Twist | WheelSpeeds | dict | None: ...
+
+
+def steps_many(ctrl) -> bool:
+    """Whether ``ctrl`` (an object or a factory) drives many robots in one call."""
+    return callable(getattr(ctrl, "step_many", None))
+
+
+def distinct(ctrls) -> list:
+    """Each controller object once, in order (a controller for many robots stands in
+    several slots: its ``close``, ``stats`` and ``on_session`` run once)."""
+    seen: dict[int, Any] = {}
+    for ctrl in ctrls:
+        seen.setdefault(id(ctrl), ctrl)
+    return list(seen.values())
 
 
 def inputs_of(ctrl) -> list[str]:
@@ -136,7 +156,11 @@ def make_controllers(controller, robots: list[str]) -> list:
     """One controller object per robot. ``controller`` is either an object with ``step``
     (one robot: used as it is; several: one deep copy per robot, made before any runs) or
     a factory: a class or callable, called once per robot with the robot name if it takes
-    a parameter, else with none."""
+    a parameter, else with none. A controller for many robots (``step_many``) is one
+    object for all of them: the object itself, or its factory called once with no argument."""
+    if steps_many(controller):
+        one = controller() if isinstance(controller, type) else controller
+        return [one] * len(robots)
     if hasattr(controller, "step") and not isinstance(controller, type):
         if len(robots) == 1:
             return [controller]

@@ -77,12 +77,19 @@ def make_slots(controller, robots: list[str], topics: dict) -> list[Slot]:
 
 def with_own_stats(stats: dict, controllers) -> dict:
     """A node's ``--stats`` with its controllers' own (:func:`bus.controller.own_stats`)."""
-    for ctrl in controllers:
+    for ctrl in hooks.distinct(controllers):
         own = hooks.own_stats(ctrl)
         for reason, n in own.pop("rejected", {}).items():
             stats.setdefault("rejected", {})[reason] = stats["rejected"].get(reason, 0) + n
         stats.update(own)
     return stats
+
+
+def _commands_of(ctrl, out) -> dict:
+    if not isinstance(out, dict):
+        raise TypeError(f"{type(ctrl).__name__}.step_many() returned {type(out).__name__}; "
+                        "expected a dict {robot: command}")
+    return out
 
 
 class MemberTick:
@@ -337,13 +344,25 @@ class MemberTick:
     def act(self, t_ns: int) -> tuple[Sent, bool]:
         """Section 4, step 3: step every robot's controller at tick ``t_ns``; (what to send,
         whether every controller is done: then it is the FINAL). A robot whose controller
-        is done is sent its stop command every tick until the others are."""
+        is done is sent its stop command every tick until the others are. A controller for
+        many robots (``step_many``) is called once with all the robots it still drives."""
+        many: dict[int, dict] = {}          # controller id -> {robot: command}
+        for slot in self.slots:
+            if not slot.done and id(slot.controller) not in many \
+                    and hooks.steps_many(slot.controller):
+                ctrl = slot.controller
+                obs = {s.robot: self.take_observation(s, t_ns) for s in self.slots
+                       if s.controller is ctrl and not s.done}
+                many[id(ctrl)] = _commands_of(ctrl, ctrl.step_many(obs))
         for slot in self.slots:
             if slot.done:
                 self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
                 continue
-            self.queue_output(slot.controller.step(self.take_observation(slot, t_ns)), t_ns,
-                              slot.robot)
+            if id(slot.controller) in many:
+                out = many[id(slot.controller)].get(slot.robot)
+            else:
+                out = slot.controller.step(self.take_observation(slot, t_ns))
+            self.queue_output(out, t_ns, slot.robot)
             if hooks.is_done(slot.controller):
                 slot.done = True
                 self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)

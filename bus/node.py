@@ -183,7 +183,7 @@ def _run(proc: Process, controller, robots: list[str]) -> int:
 
     def closed_stats() -> dict | None:
         """After the session closed: the controllers closed, the stats with their own."""
-        made = ([s.controller for s in runner.slots] if runner is not None
+        made = (hooks.distinct(s.controller for s in runner.slots) if runner is not None
                 else [controller] if hasattr(controller, "step")
                 and not isinstance(controller, type) else [])
         for ctrl in made:

@@ -103,7 +103,8 @@ class NodeRunner:
         self._apply_info(query_info(session, keys, wait_for_plant_s, log))
         for slot in self.slots:
             hooks.configure(slot.controller, self.info, slot.robot)
-            hooks.on_session(slot.controller, session, keys)   # e.g. to declare a queryable
+        for ctrl in hooks.distinct(s.controller for s in self.slots):
+            hooks.on_session(ctrl, session, keys)   # e.g. to declare a queryable
 
     def _apply_info(self, info: dict) -> None:
         """Take the simulation's protocol, mode, coupling, tick and sensor periods from the

@@ -69,6 +69,11 @@ class Outbox:
         """Subscribers may have come or gone (a node joined or left): ask again."""
         self._reads = {}
 
+    def readers(self) -> object:
+        """What :meth:`reads` answers from: a new object whenever subscribers may have come
+        or gone, so an answer kept beside the same object is still the answer."""
+        return self._reads
+
     def reads(self, key: str) -> bool:
         """Whether anyone subscribes to ``key`` (Zenoh's matching status) or has since the
         run began; always True without ``skip_unread``."""

@@ -52,6 +52,19 @@ from .world import WorldSpec
 END_TEXT_HEAD_START_S = 0.1
 
 
+class _Reads(dict):
+    """topic -> whether anyone reads it (``ask(topic)``), asked once per topic."""
+    __slots__ = ("ask",)
+
+    def __init__(self, ask) -> None:
+        super().__init__()
+        self.ask = ask
+
+    def __missing__(self, topic: str) -> bool:
+        answer = self[topic] = bool(self.ask(topic))
+        return answer
+
+
 class Plant:
     """The plant's bus side around the world's tick (:class:`plant.tick.Tick`): it
     publishes, waits at the mode's barrier, applies the commands and steps."""
@@ -264,13 +277,25 @@ class Plant:
             key = self._keys[(robot, topic)] = self.keys.topic(robot, topic)
         return key
 
+    _wanted_by: object = None        # the outbox's readers the answers below were asked of
+    _wanted_of: dict | None = None   # robot -> its _Reads' lookup
+
     def _wanted(self, robot: str):
-        """``wanted(topic)`` of ``robot``'s sensors: whether anyone reads it now."""
-        reads, key = self.outbox.reads, self._key
-        if self.composed is None:
-            return lambda topic: reads(key(robot, topic))
-        local = self.composed.reads
-        return lambda topic: reads(key(robot, topic)) or local(key(robot, topic))
+        """``wanted(topic)`` of ``robot``'s sensors: whether anyone reads it now (a
+        subscriber on the bus, a composed member). Each topic is asked once and the answer
+        kept until the bus's subscribers change (:meth:`plant.outbox.Outbox.readers`), so a
+        tick asks a dict, not the bus, for every robot's topics."""
+        readers = self.outbox.readers()
+        if readers is not self._wanted_by or self._wanted_of is None:
+            self._wanted_by, self._wanted_of = readers, {}
+        known = self._wanted_of.get(robot)
+        if known is None:
+            reads, key = self.outbox.reads, self._key
+            local = self.composed.reads if self.composed is not None else None
+            ask = ((lambda topic: reads(key(robot, topic))) if local is None else
+                   (lambda topic: reads(key(robot, topic)) or local(key(robot, topic))))
+            known = self._wanted_of[robot] = _Reads(ask).__getitem__
+        return known
 
     # ------------------------------------------------------------------ input
     def handle(self, ev: Event) -> None:

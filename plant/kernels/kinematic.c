@@ -66,11 +66,74 @@ EXPORT void plant_clearances(int64_t n, const double *pts, int64_t nbox, const d
         out[i] = clearance(&s, pts[2 * i], pts[2 * i + 1]);
 }
 
+/* A robot of the sort below: its world, its new footprint centre's x, its index. */
+typedef struct {
+    int64_t world;
+    double x;
+    int64_t i;
+} Near;
+
+static int near_order(const void *pa, const void *pb)
+{
+    const Near *a = pa, *b = pb;
+    if (a->world != b->world)
+        return a->world < b->world ? -1 : 1;
+    if (a->x != b->x)
+        return a->x < b->x ? -1 : 1;
+    return a->i < b->i ? -1 : (a->i > b->i);
+}
+
+/* The robot-robot test: robot i (not already blocked, m[10 i + 9]) is blocked if another
+ * robot of its world has a new footprint centre closer than two_r to i's new one, and closer
+ * than their old centres were. Whether it is blocked is an OR over the others, so the order
+ * they are tried in is free; and only robots whose new centres' x differ by less than two_r
+ * can be that close (hypot(dx, dy) >= |dx| in IEEE arithmetic, and x_j - x_i grows with
+ * x_j). So the robots are sorted by world and new centre x, and each tries its neighbours
+ * in that order until the x gap reaches two_r: the answer of testing every pair, in
+ * O(n log n + close pairs). A centre whose x is NaN is never that close (its distances are
+ * NaN or inf) and is left out. Returns 0, or -1 if out of memory. */
+static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
+{
+    Near *e = malloc((size_t)n * sizeof(Near));
+    if (!e)
+        return -1;
+    int64_t k = 0;
+    for (int64_t i = 0; i < n; i++) {
+        if (isnan(m[10 * i + 7]))
+            continue;
+        e[k].world = world[i];
+        e[k].x = m[10 * i + 7];
+        e[k].i = i;
+        k++;
+    }
+    qsort(e, (size_t)k, sizeof(Near), near_order);
+    for (int64_t p = 0; p < k; p++) {
+        double *a = m + 10 * e[p].i;
+        if (a[9] != 0.0)
+            continue;
+        for (int dir = -1; dir <= 1 && a[9] == 0.0; dir += 2) {
+            for (int64_t q = p + dir; q >= 0 && q < k && e[q].world == e[p].world; q += dir) {
+                if (!((dir > 0 ? e[q].x - e[p].x : e[p].x - e[q].x) < two_r))
+                    break;
+                double *b = m + 10 * e[q].i;
+                double d_old = hypot(a[5] - b[5], a[6] - b[6]);
+                double d_new = hypot(a[7] - b[7], a[8] - b[8]);
+                if (d_new < two_r && d_new < d_old) {
+                    a[9] = 1.0;
+                    break;
+                }
+            }
+        }
+    }
+    free(e);
+    return 0;
+}
+
 /* One tick of n robots. targets (n, 2) wheel-speed targets (rad/s, left, right); radius,
  * separation (n); world (n) each robot's world (robots of one world next to each other);
  * pose (n, 3), wheels (n, 2), speeds (n, 2), vel (n, 2) updated in place; T the tick (s);
  * foot_r the footprint's radius, centre_x its centre along the heading; pairs: 0 when no
- * world has two robots (no robot-robot test). Returns 0, or -1 if out of memory. */
+ * world has two robots (no robot-robot test: robot_pairs). Returns 0, or -1 if out of memory. */
 EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
                                 const double *radius, const double *separation,
                                 const int64_t *world, double *pose, double *wheels,
@@ -110,24 +173,9 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
         double c_new = clearance(&s, q[7], q[8]);
         q[9] = (c_new < foot_r) && (c_new < c_old);
     }
-    if (pairs && n > 1) {
-        double two_r = 2 * foot_r;
-        for (int64_t i = 0; i < n; i++) {
-            double *a = m + 10 * i;
-            if (a[9] != 0.0)
-                continue;
-            for (int64_t j = 0; j < n; j++) {
-                if (j == i || world[j] != world[i])
-                    continue;
-                double *b = m + 10 * j;
-                double d_old = hypot(a[5] - b[5], a[6] - b[6]);
-                double d_new = hypot(a[7] - b[7], a[8] - b[8]);
-                if (d_new < two_r && d_new < d_old) {
-                    a[9] = 1.0;
-                    break;
-                }
-            }
-        }
+    if (pairs && n > 1 && robot_pairs(n, m, world, 2 * foot_r) != 0) {
+        free(m);
+        return -1;
     }
     for (int64_t i = 0; i < n; i++) {
         double *q = m + 10 * i;

@@ -233,6 +233,48 @@ def test_kinematic_kernel_gives_the_numpy_reference_to_the_bit():
     assert min(seen.values()) > 20, seen
 
 
+def test_kinematic_kernel_in_a_crowd_gives_the_numpy_reference_to_the_bit(tmp_path):
+    """The robot-robot test over crowds: three copies of a 40-robot swarm room in one batch,
+    the robots dropped in tight clusters (equal x centres, robots on top of each other, a
+    NaN or infinite pose now and then), random wheel speeds: every array equals
+    plant.kinematic.reference_step's, which tests every pair, to the bit."""
+    from types import SimpleNamespace
+
+    from plant import kinematic
+    from plant.swarm_world import write_swarm_world
+    spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 40, seed=1, mode="kinematic"))
+    batch = kinematic.join([kinematic.Kinematics(spec) for _ in range(3)])
+    n = len(batch.pose)
+    side = spec.floor_size_m[0] / 2
+    rng = np.random.default_rng(5)
+    fields = ("pose", "wheels", "speeds", "vel", "radius", "separation", "world")
+    by_robot = 0
+    for trial in range(120):
+        spots = rng.uniform(-side, side, (6, 2))
+        xy = spots[rng.integers(0, 6, n)] + rng.normal(0.0, 0.15 + 0.1 * (trial % 4), (n, 2))
+        if trial % 5 == 0:
+            xy[rng.integers(0, n, 10), 0] = xy[0, 0]             # equal x, any y
+            xy[1] = xy[2]                                        # one on top of another
+        batch.pose[:] = np.column_stack([xy, rng.uniform(-math.pi, math.pi, n)])
+        if trial % 7 == 0:
+            batch.pose[rng.integers(0, n), rng.integers(0, 3)] = [np.nan, np.inf][trial % 2]
+        targets = rng.uniform(-12.0, 12.0, (n, 2))
+        ref = SimpleNamespace(**{f: getattr(batch, f).copy() for f in fields},
+                              tick_s=batch.tick_s, foot=batch.foot)
+        alone = SimpleNamespace(**{f: getattr(batch, f).copy() for f in fields},
+                                tick_s=batch.tick_s, foot=batch.foot)
+        alone.world = np.arange(n)                               # no other robots
+        with np.errstate(invalid="ignore"):                      # (the NaN and inf poses)
+            kinematic.reference_step(ref, targets)
+            kinematic.reference_step(alone, targets)
+        batch.step(targets)
+        for f in fields:
+            assert getattr(batch, f).tobytes() == getattr(ref, f).tobytes(), (trial, f)
+        by_robot += int((np.isfinite(ref.pose).all(axis=1)
+                         & (ref.pose != alone.pose).any(axis=1)).sum())
+    assert by_robot > 500, by_robot
+
+
 @pytest.mark.parametrize("world", ["living_room", "living_room_follow", "empty"])
 def test_footprint_clearances_kernel_gives_the_numpy_reference_to_the_bit(world):
     """plant/kernels/kinematic.c's clearances (Footprints.clearances: the environments'

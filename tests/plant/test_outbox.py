@@ -71,3 +71,33 @@ def test_what_is_read_is_asked_again_after_a_change_and_when_a_subscriber_comes(
         out.undeclare()
     finally:
         plant.close()
+
+
+def test_the_plant_s_wanted_keeps_each_answer_until_the_subscribers_change(endpoint, bus):
+    """Plant._wanted answers a robot's topics from a dict kept while the outbox's readers
+    stay the same, asks the bus again once they change (a subscriber came), and counts a
+    composed member's keys as read."""
+    from types import SimpleNamespace
+    from plant.process import Plant
+    plant = open_session("plant", endpoint)
+    try:
+        out = Outbox(plant, zenoh.CongestionControl.BLOCK)
+        asked: list[str] = []
+
+        def reads(key):
+            asked.append(key)
+            return Outbox.reads(out, key)
+        host = SimpleNamespace(outbox=SimpleNamespace(reads=reads, readers=out.readers),
+                               composed=SimpleNamespace(reads=lambda key: key == "r/odom"),
+                               _key=lambda robot, topic: f"{robot}/{topic}",
+                               _wanted_by=None, _wanted_of=None)
+        wanted = Plant._wanted(host, "r")
+        assert (wanted("gps"), wanted("odom"), wanted("gps")) == (False, True, False)
+        assert Plant._wanted(host, "r")("gps") is False and asked.count("r/gps") == 1
+        client = bus()
+        client.declare_subscriber("r/gps", lambda s: None)
+        wait_for(lambda: Plant._wanted(host, "r")("gps"), 5.0, what="the answer asked again")
+        assert asked.count("r/gps") >= 2
+        out.undeclare()
+    finally:
+        plant.close()

@@ -1,0 +1,83 @@
+"""Masked row sums equal to the bit to numpy's sum of each row's selected values.
+
+``np.sum(x[mask])`` of one robot's values and a sum over a batch of robots in one call
+round differently unless they add the same numbers in the same order: numpy sums a
+contiguous run of floats pairwise (eight partial sums over blocks of eight, combined as a
+tree, the rest added one by one; a run longer than 128 values is split in halves whose
+length is a multiple of eight; numpy/_core/src/umath/loops_utils.h.src, ``pairwise_sum``).
+:func:`masked_row_sums` follows that order for every row at once, in a fixed number of
+numpy calls whatever the number of rows, so a controller stepping many robots with numpy
+gives the commands its per-robot step gives, byte for byte.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: numpy's pairwise-summation block (PW_BLOCKSIZE): longer runs are split in halves
+_BLOCK = 128
+#: padding: x + (-0.0) == x for every x (-0.0 included): it never changes a partial sum
+_NOTHING = -0.0
+
+
+def masked_row_sums(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per row ``i``: ``np.sum(values[i][mask[i]])``, bit for bit (float64)."""
+    values = np.asarray(values, dtype=np.float64)
+    mask = np.asarray(mask, dtype=bool)
+    if values.ndim != 2 or values.shape != mask.shape:
+        raise ValueError(f"values {values.shape} and mask {mask.shape}: need the same 2-D shape")
+    rows, width = values.shape
+    n = mask.sum(axis=1)
+    # each row's selected values moved to its front, in order, the rest padding
+    packed = np.full((rows, width + 1), _NOTHING)
+    packed[np.arange(width + 1)[None, :] < n[:, None]] = values[mask]
+    # runs over _BLOCK values split in halves as numpy does, level by level: segments
+    # (row, start, length); the first `rows` are the whole rows
+    seg_row, seg_start, seg_n = np.arange(rows), np.zeros(rows, dtype=np.intp), n.copy()
+    levels = []
+    split = np.flatnonzero(seg_n > _BLOCK)
+    while split.size:
+        half = seg_n[split] // 2
+        half -= half % 8
+        left = len(seg_row) + np.arange(split.size)
+        right = left + split.size
+        seg_row = np.concatenate([seg_row, seg_row[split], seg_row[split]])
+        seg_start = np.concatenate([seg_start, seg_start[split], seg_start[split] + half])
+        seg_n = np.concatenate([seg_n, half, seg_n[split] - half])
+        levels.append((split, left, right))
+        halves = np.concatenate([left, right])
+        split = halves[seg_n[halves] > _BLOCK]
+    total = np.empty(len(seg_row))
+    leaves = np.flatnonzero(seg_n <= _BLOCK)
+    total[leaves] = _runs(packed, seg_row[leaves], seg_start[leaves], seg_n[leaves])
+    for split, left, right in reversed(levels):
+        total[split] = total[left] + total[right]
+    # numpy starts a sum from its identity, +0.0 (a run of -0.0 sums to +0.0)
+    return 0.0 + total[:rows]
+
+
+def _runs(packed: np.ndarray, row: np.ndarray, start: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """numpy's sum of runs of at most 128 values, ``packed[row, start:start + n]`` each:
+    under 8 values a plain loop from 0.0, else eight partial sums over the whole blocks of
+    eight, combined as a tree, then the rest added one by one."""
+    if not len(n):
+        return np.zeros(0)
+    width = packed.shape[1]
+    span = 8 * (int(n.max()) // 8 + 2)
+    cols = np.arange(span)
+    run = packed[row[:, None], np.minimum(start[:, None] + cols, width - 1)]
+    run[cols[None, :] >= n[:, None]] = _NOTHING
+    short = 0.0
+    for j in range(7):
+        short = short + run[:, j]
+    rest = n % 8
+    whole = n - rest
+    blocks = np.where(cols[None, :] < whole[:, None], run, _NOTHING)
+    part = blocks[:, :8]
+    for b in range(8, span, 8):
+        part = part + blocks[:, b:b + 8]
+    tot = (((part[:, 0] + part[:, 1]) + (part[:, 2] + part[:, 3]))
+           + ((part[:, 4] + part[:, 5]) + (part[:, 6] + part[:, 7])))
+    rows = np.arange(len(n))
+    for j in range(7):
+        tot = tot + np.where(j < rest, run[rows, np.minimum(whole + j, span - 1)], _NOTHING)
+    return np.where(n < 8, short, tot)
