@@ -39,6 +39,10 @@ class Data:
         #: robot are one call
         self.keys = {k: np.zeros((W, R), np.uint64) for k in _STREAMS}
         self._names = model.robots
+        #: each world's message buffer and kernel calls (:mod:`plant.core.outgoing`), made
+        #: when first sensed, and their layout (the same for every world)
+        self.outgoing: list = [None] * W
+        self.layout = None
 
     def set_streams(self, w: int, sensors: dict) -> None:
         """World ``w``'s robots' sensors (freshly built: their noise keys follow the seed)."""

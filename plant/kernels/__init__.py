@@ -23,7 +23,7 @@ import numpy as np
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
-           "tick_part"]
+           "tick_part", "sense_call", "observe_kinematic_call", "quaternions", "lidar_noise"]
 
 ABI = 4
 CAMERA_ABI = 2
@@ -31,6 +31,7 @@ NOISE_ABI = 2
 DRIVE_ABI = 1
 KINEMATIC_ABI = 2
 TICKS_ABI = 3
+SENSE_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -61,7 +62,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib = ctypes.CDLL(str(path))
     for name, want in (("plant_lidar_abi", ABI), ("plant_camera_abi", CAMERA_ABI),
                        ("plant_noise_abi", NOISE_ABI), ("plant_drive_abi", DRIVE_ABI),
-                       ("plant_kinematic_abi", KINEMATIC_ABI), ("plant_ticks_abi", TICKS_ABI)):
+                       ("plant_kinematic_abi", KINEMATIC_ABI), ("plant_ticks_abi", TICKS_ABI),
+                       ("plant_sense_abi", SENSE_ABI)):
         abi = getattr(lib, name)() if hasattr(lib, name) else None
         if abi != want:
             raise KernelsMissing(f"{path} is out of date ({name} {abi}, expected {want}): "
@@ -84,6 +86,14 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_ticks_count.argtypes = []
     lib.plant_clearances.restype = None
     lib.plant_clearances.argtypes = [_I, _P, _I] + [_P] * 4 + [_I] + [_P] * 4
+    lib.plant_sense.restype = None
+    lib.plant_sense.argtypes = [_I] + [_P] * 12 + [_I, _I, _P]
+    lib.plant_observe_kinematic.restype = None
+    lib.plant_observe_kinematic.argtypes = [_I] + [_P] * 12
+    lib.plant_quaternions.restype = None
+    lib.plant_quaternions.argtypes = [_I, _P, _P]
+    lib.plant_lidar_noise.restype = None
+    lib.plant_lidar_noise.argtypes = [_I, _I, _P, _P, _P, _I, _D, _D, _D, _P, _P]
     lib.plant_lidar_scan.restype = None
     lib.plant_lidar_scan.argtypes = ([_P] * 7 + [_I, _I, _I] + [_P] * 5 + [_D] * 4
                                      + [_P, _P, _I])
@@ -230,6 +240,67 @@ def clearances(pts: np.ndarray, statics: tuple) -> np.ndarray:
     assert pts.ndim == 2 and pts.shape[1] == 2 and pts.dtype == np.float64
     out = np.empty(len(pts))
     library().plant_clearances(len(pts), ptr(pts), *statics, ptr(out))
+    return out
+
+
+def sense_call(n: int, arrays: tuple[int, ...], at: np.ndarray, read: np.ndarray,
+               out: np.ndarray):
+    """``f(tick, t_ns)``: plant/kernels/sense.c's plant_sense of ``n`` robots, writing the
+    stamps and values of their read joint_states, gps and ground_truth (``read`` uint8
+    (n, 3)) into ``out`` (uint8, its templates written in) at the places ``at`` (int64
+    (n, 8)). ``arrays``: the addresses of tf, quaternion, v, w, enc_pos, enc_vel, the
+    encoders' keys and laws, the GPS's keys and laws (as sense.c orders them), taken once;
+    the caller keeps every array alive and changes their values in place."""
+    assert at.shape == (n, 8) and at.dtype == np.int64 and read.shape == (n, 3)
+    assert read.dtype == np.uint8 and out.dtype == np.uint8 and len(arrays) == 10
+    # the bytes each place starts: a stamp (after the 4-byte header), 2 + 2, 1 stamp, 3, a
+    # stamp, 7, 6 doubles
+    ends = at + np.array([12, 16, 16, 12, 24, 12, 56, 48], np.int64)
+    if n and (int(at.min()) < 0 or int(ends.max()) > out.size):
+        raise ValueError("plant_sense: the places lie outside the buffer")
+    fn = library().plant_sense
+    head = (n, *arrays, ptr(at), ptr(read))
+    tail = ptr(out)
+    return lambda tick, t_ns: fn(*head, tick, t_ns, tail)
+
+
+def observe_kinematic_call(n: int, kin: tuple[np.ndarray, ...], data: tuple[np.ndarray, ...]):
+    """``f()``: plant/kernels/sense.c's plant_observe_kinematic of ``n`` robots: ``kin`` their
+    (pose, vel, wheels, speeds, radius), ``data`` the core's (tf, yaw, quaternion, v, w,
+    enc_pos, enc_vel) of one world, float64, C-contiguous (addresses taken once)."""
+    shapes = ((n, 3), (n, 2), (n, 2), (n, 2), (n,), (n, 4, 4), (n,), (n, 4), (n,), (n,),
+              (n, 2), (n, 2))
+    for a, shape in zip((*kin, *data), shapes):
+        assert a.shape == shape and a.dtype == np.float64, (a.shape, shape)
+    fn = library().plant_observe_kinematic
+    args = (n, *(ptr(a) for a in (*kin, *data)))
+    return lambda: fn(*args)
+
+
+def quaternions(tf: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (n, 4) = :func:`plant.sim.rotation_to_quaternion` of each of ``tf`` (n, 4, 4),
+    float64, C-contiguous (plant/kernels/sense.c)."""
+    n = tf.shape[0]
+    assert tf.shape == (n, 4, 4) and out.shape == (n, 4)
+    assert tf.dtype == out.dtype == np.float64
+    library().plant_quaternions(n, ptr(tf), ptr(out))
+
+
+def lidar_noise(exact: np.ndarray, keys: np.ndarray, laws: np.ndarray, tick: int, lo: float,
+                hi: float, q: float) -> np.ndarray:
+    """The reported ranges, a new (g, n) float32 array, of ``exact`` (g, n) float64: row r
+    with the noise of ``keys[r]`` (uint64) and ``laws[r]`` (std, mean, bias, resolution) at
+    ``tick``, clipped to [lo, hi] and quantised by ``q`` (plant/kernels/sense.c; the
+    arithmetic of :func:`plant.lidar.apply_noise`)."""
+    g, n = exact.shape
+    assert exact.dtype == np.float64 and exact.flags.c_contiguous
+    assert keys.shape == (g,) and keys.dtype == np.uint64 and keys.flags.c_contiguous
+    assert laws.shape == (g, 4) and laws.dtype == np.float64 and laws.flags.c_contiguous
+    out = np.empty((g, n), np.float32)
+    if g and n:
+        work = np.empty(n)
+        library().plant_lidar_noise(g, n, ptr(exact), ptr(keys), ptr(laws), int(tick), lo, hi,
+                                    q, ptr(work), ptr(out))
     return out
 
 

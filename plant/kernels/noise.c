@@ -28,46 +28,19 @@
 #include <math.h>
 #include <stdint.h>
 
+#include "normals.h"
+
 #define EXPORT __attribute__((visibility("default")))
-#define GOLDEN 0x9E3779B97F4A7C15ULL
 
 EXPORT int plant_noise_abi(void) { return 2; }
-
-static inline uint64_t mix(uint64_t z)
-{
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
-    return z ^ (z >> 31);
-}
-
-/* 2 pi, rounded to a double as Python's 2.0 * math.pi is */
-#define TWO_PI 6.283185307179586
-#define TWO_M53 (1.0 / 9007199254740992.0)
-
-static inline uint64_t row_seed(uint64_t key, uint64_t tick)
-{
-    return mix(key + mix(tick + GOLDEN));
-}
 
 /* out (k, n): row r's n normals for keys[r] and ticks[r * tick_stride] (tick_stride 0: one
  * tick for every row). */
 EXPORT void plant_normals(int64_t k, const uint64_t *keys, const int64_t *ticks,
                           int64_t tick_stride, int64_t n, double *out)
 {
-    for (int64_t r = 0; r < k; r++) {
-        const uint64_t s = row_seed(keys[r], (uint64_t)ticks[r * tick_stride]);
-        double *o = out + r * n;
-        for (int64_t i = 0; i < n; i += 2) {
-            const uint64_t j = (uint64_t)i;
-            const uint64_t a = mix(s + (j + 1) * GOLDEN), b = mix(s + (j + 2) * GOLDEN);
-            const double u1 = (double)((a >> 11) + 1) * TWO_M53;
-            const double u2 = (double)(b >> 11) * TWO_M53;
-            const double rad = sqrt(-2.0 * log(u1)), t = TWO_PI * u2;
-            o[i] = rad * cos(t);
-            if (i + 1 < n)
-                o[i + 1] = rad * sin(t);
-        }
-    }
+    for (int64_t r = 0; r < k; r++)
+        row_normals(row_seed(keys[r], (uint64_t)ticks[r * tick_stride]), n, out + r * n);
 }
 
 /* clip(y, 0, 255) for y = x + D in [-255, 510], by table */
