@@ -14,8 +14,11 @@ A host that publishes the messages asks the tick when: :meth:`Tick.begin` says w
 publish now, :meth:`Tick.start_step` whether to publish while the physics process steps
 (overlap), :meth:`Tick.finish_step` ends the step; the sensors of a tick go out once.
 
-A reading's noise is a function of (seed, robot, stream, tick, index) (:mod:`plant.noise`),
-so no order of calls changes it. Anything that changes the sensors due at a tick or a
+Every host's messages come from the world's core (:mod:`plant.core`: every robot's
+per-tick messages in one kernel call); :func:`tick_messages` and
+:class:`plant.sensors.RobotSensors` make the same messages robot by robot, the oracle the
+tests compare the core with. A reading's noise is a function of (seed, robot, stream,
+tick, index) (:mod:`plant.noise`), so no order of calls changes it. Anything that changes the sensors due at a tick or a
 message's values changes every host at once; ``tests/envs/test_envs_identity.py``
 checks that the in-process and bus transports still agree to the bit.
 """
@@ -37,11 +40,6 @@ from .stepper import Stepper
 from .world import WorldSpec
 
 
-#: the robots from which a world's encoded messages come from the core: one tick's
-#: messages (no lidar due, load ~7) cost 16 us for one kinematic robot message by message,
-#: 32 us from the core; 133 and 112 us for eight
-CORE_MIN_ROBOTS = 6
-
 
 class Tick:
     """One world's tick: the sensors due at t_k (built only where wanted), the robots'
@@ -62,11 +60,8 @@ class Tick:
         self.overlap = overlap
         self.physics: PhysicsProcess | None = None
         self._owed = False                # this tick's sensors are still to be published
+        #: the world's core (:mod:`plant.core`), made when the sensors are first asked for
         self.model: core.Model | None = None
-        #: whether the encoded messages come from the core (:func:`plant.core.sense`, every
-        #: robot at once) or robot by robot (:func:`tick_messages`): the same bytes; the
-        #: arrays pay from a few robots on (below, numpy's cost per call outweighs them)
-        self.batched = len(spec.robots) >= CORE_MIN_ROBOTS
         self.build()
 
     def build(self) -> None:
@@ -99,21 +94,20 @@ class Tick:
     def t_ns(self) -> int:
         return self.sim.time_ns
 
-    def messages(self, wanted: dict[str, Wanted] | None = None, encoded: bool = False
-                 ) -> Iterator[tuple[str, str, object]]:
-        """(robot, topic, message) of every sensor due now, in the plant's order
-        (:func:`tick_messages`: ``None`` for a topic nobody wants; ``encoded``: CDR bytes,
-        made by the core for every robot at once where :attr:`batched`)."""
-        if encoded and self.batched:
-            if self.model is None:        # (built the first time it is asked for)
-                self.model = core.Model([self.spec])
-                self.data = core.Data(self.model)
-                self.data.set_streams(0, self.sensors)
-            t_ns = self.sim.time_ns
-            core.observe(self.model, self.data, 0, self.stepper)
-            return iter(core.sense(self.model, self.data, 0, t_ns, self.stepper.shapes, wanted))
-        return tick_messages(self.sim.time_ns, self.tick_ns, self.sensors, self.stepper.state,
-                             self.stepper.shapes, wanted, encoded)
+    def messages(self, wanted: dict[str, Wanted] | None = None, encoded: bool = False,
+                 cast: tuple | None = None) -> Iterator[tuple[str, str, object]]:
+        """(robot, topic, message) of every sensor due now, in the plant's order, made by
+        the core for every robot at once (:func:`plant.core.sense`; ``None`` for a topic
+        nobody wants). ``encoded``: CDR bytes (the plant publishes them), else the
+        messages (:mod:`bus.codec`'s: the in-process environments and the plant FMU read
+        them). ``cast``: the tick's lidars cast already (:func:`messages_of`)."""
+        if self.model is None:            # (built the first time it is asked for)
+            self.model = core.Model([self.spec])
+            self.data = core.Data(self.model)
+            self.data.set_streams(0, self.sensors)
+        core.observe(self.model, self.data, 0, self.stepper)
+        return iter(core.sense(self.model, self.data, 0, self.sim.time_ns, self.stepper.shapes,
+                               wanted, encoded, cast))
 
     def prefetch(self) -> None:
         """Draw the next tick's sensor noise ahead where it is drawn in numpy (off a
@@ -206,19 +200,18 @@ def messages_of(ticks: Sequence[Tick], wanted: Sequence[dict[str, Wanted] | None
         scenes.append(scene)
         if scene is None:
             continue
-        for name, s in t.sensors.items():
+        for i, (name, s) in enumerate(t.sensors.items()):
             if s.lidar_due(tick) and (want is None or want[name]("scan")):
-                groups.setdefault(s.lidar, []).append((k, name, t.stepper.state(name).tf))
+                groups.setdefault(s.lidar, []).append((k, i, name, t.stepper.state(name).tf))
     scans: list[dict] = [{} for _ in ticks]
     for cfg, rows in groups.items():
-        idx = sorted({k for k, _, _ in rows})
+        idx = sorted({k for k, *_ in rows})
         at = {k: i for i, k in enumerate(idx)}
-        ranges = lid.scan_worlds(cfg, [scenes[k] for k in idx], [tf for _, _, tf in rows],
-                                 [name for _, name, _ in rows], [at[k] for k, _, _ in rows])
-        for (k, name, _), r in zip(rows, ranges):
-            scans[k][name] = r
-    return [list(tick_messages(t.t_ns, t.tick_ns, t.sensors, t.stepper.state, t.stepper.shapes,
-                               want, False, (scene, sc)))
+        ranges = lid.scan_worlds(cfg, [scenes[k] for k in idx], [tf for *_, tf in rows],
+                                 [name for _, _, name, _ in rows], [at[k] for k, *_ in rows])
+        for (k, i, _, _), r in zip(rows, ranges):
+            scans[k][i] = r
+    return [list(t.messages(want, False, (scene, sc)))
             for t, want, scene, sc in zip(ticks, wanted, scenes, scans)]
 
 
@@ -259,7 +252,9 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
                   wanted: dict[str, Wanted] | None = None, encoded: bool = False,
                   cast: tuple | None = None) -> Iterator[tuple[str, str, object]]:
     """(robot, topic, message) of every sensor due at time ``t_ns``, robot by robot in a
-    fixed order (the order the plant publishes them in). ``state(robot)`` gives a robot's
+    fixed order (the order the plant publishes them in): the per-message path, kept as the
+    oracle of the core (:func:`plant.core.sense`), which the hosts use; the tests compare
+    the two message by message. ``state(robot)`` gives a robot's
     true state, ``shapes()`` the world's solids or their Scene (called only when a lidar or
     a camera is due).
 

@@ -56,8 +56,10 @@ class Outgoing:
         self.buffer = layout.buffer.copy()
         #: whether each robot's joint_states, gps, ground_truth is made this tick
         self.read = np.ones((R, 3), np.uint8)
-        self.data = data
-        self.w = w
+        #: the arrays of world w that a kinematic world's state goes into (views: no
+        #: reference back to ``data``, which holds this object)
+        self._state = (data.tf[w], data.yaw[w], data.quaternion[w], data.v[w], data.w[w],
+                       data.enc_pos[w], data.enc_vel[w])
         self._keep = (data.tf[w], data.quaternion[w], data.v[w], data.w[w], data.enc_pos[w],
                       data.enc_vel[w], data.keys["encoders"][w], model.noise["encoders"],
                       data.keys["gps"][w], model.noise["gps"])
@@ -74,9 +76,6 @@ class Outgoing:
         arrays = (kin.pose, kin.vel, kin.wheels, kin.speeds, kin.radius)
         got = self._kin
         if got is None or any(a is not b for a, b in zip(arrays, got[0])):
-            d, w = self.data, self.w
-            call = kernels.observe_kinematic_call(
-                len(kin.pose), arrays, (d.tf[w], d.yaw[w], d.quaternion[w], d.v[w], d.w[w],
-                                        d.enc_pos[w], d.enc_vel[w]))
+            call = kernels.observe_kinematic_call(len(kin.pose), arrays, self._state)
             got = self._kin = (arrays, call)     # (the arrays kept alive with their call)
         got[1]()

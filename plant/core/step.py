@@ -14,16 +14,19 @@ per-message path's (:func:`plant.tick.tick_messages` with
 """
 from __future__ import annotations
 
+import struct
 from typing import Callable
 
 import numpy as np
 
 from bus import codec
+from bus.keys import WORLD_FRAME
 
 from .. import camera as cam
 from .. import kernels
 from .. import lidar as lid
 from ..raycast import Scene
+from ..sensors import JOINTS
 from .data import Data
 from .model import EVERY_TICK, Model
 from .outgoing import Layout, Outgoing
@@ -83,13 +86,16 @@ def wanted_masks(model: Model, tick: int, wanted) -> tuple[dict[str, np.ndarray]
     return out, some
 
 
-def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
-          wanted=None) -> list[tuple[str, str, bytes | None]]:
+def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=None,
+          encoded: bool = True, cast: tuple | None = None) -> list[tuple[str, str, object]]:
     """(robot, topic, CDR bytes) of every sensor due at ``t_ns`` in world ``w``, in the
     plant's order (robot by robot, each robot's topics in its order), ``None`` for a due
     topic nobody reads (``wanted``: not built, no noise drawn). ``data``
     holds the world's state (:func:`observe`); ``shapes()`` gives its solids or their
-    Scene (called only when a lidar or a camera is due and read)."""
+    Scene (called only when a lidar or a camera is due and read). ``encoded`` False: the
+    messages (:mod:`bus.codec`'s) of the same values instead of their bytes. ``cast``:
+    (scene, {robot index: noise-free ranges}) of the tick's lidars, cast already
+    (:func:`plant.tick.messages_of`, several worlds' at once)."""
     tick = t_ns // model.tick_ns
     out = outgoing(model, data, w)
     read = out.read
@@ -106,50 +112,90 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable,
     out.sense(tick, t_ns)                  # every per-tick message in one call
     raw = out.buffer.tobytes()
     order = out.layout.order
+    if not encoded:
+        made = _objects(model, data, w, out, raw, t_ns)
+    elif wanted is None:
+        made = [raw[a:b] for _, _, a, b in order]
+    else:
+        made = [raw[a:b] if r else None for (_, _, a, b), r in zip(order, read.ravel().tolist())]
     if len(due) == len(EVERY_TICK):        # (no lidar nor camera due anywhere)
-        if wanted is None:
-            return [(name, topic, raw[a:b]) for name, topic, a, b in order]
-        return [(name, topic, raw[a:b] if r else None)
-                for (name, topic, a, b), r in zip(order, read.ravel().tolist())]
+        return [(name, topic, m) for (name, topic, _, _), m in zip(order, made)]
     R = len(model.robots)
     got: dict[str, list] = {t: [None] * R for t in model.periods}
-    for (name, topic, a, b), r in zip(order, read.ravel().tolist()):
-        if r:
-            got[topic][model.index[name]] = raw[a:b]
-    scene = None
-    if "scan" in some or "camera/image_raw" in some:
+    for (name, topic, _, _), m in zip(order, made):
+        got[topic][model.index[name]] = m
+    scene, exact = cast if cast is not None else (None, None)
+    if cast is None and ("scan" in some or "camera/image_raw" in some):
         scene = Scene.from_shapes(shapes())
     tfs = data.tf[w]
     for cfg, group in (model.lidar_groups.items() if "scan" in some else ()):
         rows = group[masks["scan"][group]]
         if not len(rows):
             continue
-        exact = lid.scan_many(cfg, tfs[rows], scene, [model.robots[i] for i in rows])
-        ranges = kernels.lidar_noise(np.ascontiguousarray(exact, float),
+        if exact is None:
+            cast_rows = lid.scan_many(cfg, tfs[rows], scene, [model.robots[i] for i in rows])
+        else:
+            cast_rows = np.array([exact[i] for i in rows.tolist()], float)
+        ranges = kernels.lidar_noise(np.ascontiguousarray(cast_rows, float),
                                      data.keys["lidar"][w, rows], model.noise["lidar"][rows],
                                      tick, cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
-        at = np.searchsorted(group, rows)
-        msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges}, at)
+        if encoded:
+            at = np.searchsorted(group, rows)
+            msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges}, at)
+        else:
+            msgs = [codec.laser_scan(t_ns, cfg.angle_min, cfg.angle_max, cfg.angle_increment,
+                                     1.0 / cfg.rate_hz, cfg.min_range_m, cfg.max_range_m, r,
+                                     frame_id=model.frames["laser"][i])
+                    for i, r in zip(rows.tolist(), ranges)]
         for i, m in zip(rows.tolist(), msgs):
             got["scan"][i] = m
     for i in due.get("camera/image_raw", ()):
         _camera(model, data.streams[w][model.robots[i]].camera_noise, i, t_ns, tick, tfs[i],
                 scene, bool(masks["camera/image_raw"][i]), bool(masks["camera/camera_info"][i]),
-                got)
+                got, encoded)
     return [(name, topic, got[topic][i]) for i, name, topic, p in model.order if tick % p == 0]
 
 
+_D2, _D3, _D7, _D6 = (struct.Struct(f"<{n}d") for n in (2, 3, 7, 6))
+
+
+def _objects(model: Model, data: Data, w: int, out, raw: bytes, t_ns: int) -> list:
+    """The per-tick messages (:mod:`bus.codec`'s, as the per-message path builds them) of
+    the values the kernel wrote into ``raw`` (``None`` where unread), in ``out``'s order."""
+    made = []
+    yaw = data.yaw[w].tolist()
+    base = model.frames["base_link"]
+    for i, (r, at) in enumerate(zip(out.read.tolist(), out.layout.at.tolist())):
+        made.append(codec.joint_state(t_ns, JOINTS, _D2.unpack_from(raw, at[1]),
+                                      _D2.unpack_from(raw, at[2])) if r[0] else None)
+        made.append(codec.point_stamped(t_ns, *_D3.unpack_from(raw, at[4])) if r[1] else None)
+        if r[2]:
+            x, y, z, *q = _D7.unpack_from(raw, at[6])
+            twist = _D6.unpack_from(raw, at[7])
+            made.append(codec.odometry(t_ns, x, y, yaw[i], twist[0], twist[5],
+                                       frame_id=WORLD_FRAME, child_frame_id=base[i], z=z,
+                                       quaternion=q))
+        else:
+            made.append(None)
+    return made
+
+
 def _camera(model: Model, image_noise, i: int, t_ns: int, tick: int, tf: np.ndarray, scene,
-            image: bool, info: bool, out: dict) -> None:
-    """Robot ``i``'s camera messages (render, ``image_noise`` at ``tick``, encode), as
-    RobotSensors makes them."""
+            image: bool, info: bool, out: dict, encoded: bool) -> None:
+    """Robot ``i``'s camera messages (render, ``image_noise`` at ``tick``, encode where
+    ``encoded``), as RobotSensors makes them."""
+    enc = codec.encode if encoded else _same
     c = model.cameras[i]
     optical = model.frames["camera_optical"][i]
     if image:
         rgb = cam.render(c, cam.camera_pose(c, tf), scene, exclude_owner=model.robots[i])
         if image_noise is not None:
             rgb = image_noise.apply(rgb, tick)
-        out["camera/image_raw"][i] = codec.encode(codec.image(t_ns, rgb, optical))
+        out["camera/image_raw"][i] = enc(codec.image(t_ns, rgb, optical))
     if info:
-        out["camera/camera_info"][i] = codec.encode(codec.camera_info(
+        out["camera/camera_info"][i] = enc(codec.camera_info(
             t_ns, **model.camera_info[i], frame_id=optical))
+
+
+def _same(msg):
+    return msg

@@ -72,7 +72,6 @@ def _drive(tick: Tick, k: int) -> None:
 @pytest.mark.parametrize("kind", ["kinematic", "dynamic", "follow"])
 def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
     core_tick, oracle = Tick(_world(kind, tmp_path)), Tick(_world(kind, tmp_path))
-    core_tick.batched = True                    # (however few its robots)
     names = list(core_tick.sensors)
     seen: dict[str, int] = {}
     for k in range(26):
