@@ -34,6 +34,12 @@
 
 EXPORT int plant_sense_abi(void) { return 1; }
 
+/* a + b as numpy's float64 scalars sum them (measured): of two NaNs, b's (its sign) */
+static inline double np_sum(double a, double b)
+{
+    return (a != a && b != b) ? b : a + b;
+}
+
 /* plant/sim.py's rotation_to_quaternion of the rotation in the 4x4 row-major m: (x, y, z, w) */
 static void quaternion(const double *m, double *q)
 {
@@ -62,8 +68,8 @@ static void quaternion(const double *m, double *q)
 #define M(r, c) m[4 * (r) + (c)]
     const double s = sqrt(1.0 + M(i, i) - M(j, j) - M(k, k)) * 2;
     q[i] = 0.25 * s;
-    q[j] = (M(j, i) + M(i, j)) / s;
-    q[k] = (M(k, i) + M(i, k)) / s;
+    q[j] = np_sum(M(j, i), M(i, j)) / s;      /* (numpy scalars there) */
+    q[k] = np_sum(M(k, i), M(i, k)) / s;
     q[3] = (M(k, j) - M(j, k)) / s;
 #undef M
 }
@@ -91,7 +97,7 @@ EXPORT void plant_observe_kinematic(int64_t n, const double *pose, const double 
         const double rows[16] = {c, -s, 0.0, x, s, c, 0.0, y, 0.0, 0.0, 1.0, radius[r],
                                  0.0, 0.0, 0.0, 1.0};
         memcpy(m, rows, sizeof rows);
-        yaw[r] = atan2(s, c);
+        yaw[r] = (s != s || c != c) ? NAN : atan2(s, c);   /* (Python's math.atan2) */
         v[r] = vel[2 * r];
         w[r] = vel[2 * r + 1];
         enc_pos[2 * r] = wheels[2 * r];
@@ -183,11 +189,11 @@ EXPORT void plant_sense(int64_t n, const double *tf, const double *quat, const d
     }
 }
 
-/* np.clip of a finite x to [lo, hi] (numpy's order of tests) */
+/* np.clip of a finite x to [lo, hi]: x stays where it equals a bound (-0.0 at 0.0) */
 static inline double clip(double x, double lo, double hi)
 {
-    x = x > lo ? x : lo;
-    return x < hi ? x : hi;
+    x = x < lo ? lo : x;
+    return x > hi ? hi : x;
 }
 
 /* Reported ranges (g, n) float32 from exact ones (g, n) float64: row r with the noise of

@@ -1,6 +1,7 @@
 """The core (plant/core: model, data, step) against the per-message path, its oracle.
 
-``Tick.messages(encoded=True)`` makes every robot's messages at once (plant.core); the
+``Tick.messages`` makes every robot's messages at once (plant.core: the bytes, or the
+messages of the same values for in-process hosts); the
 per-message path (plant.sensors.RobotSensors through plant.tick.tick_messages) makes them
 robot by robot. Two copies of a world, driven alike, must publish the same bytes, tick
 after tick: several robots, kinematic and dynamic, noise on every stream, readers that
@@ -77,12 +78,15 @@ def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
     for k in range(26):
         want = _wanted(names, k)
         got = list(core_tick.messages(want, encoded=True))
+        objects = list(core_tick.messages(want))          # (what in-process hosts read)
         st = oracle.stepper
         expect = list(tick_messages(oracle.t_ns, oracle.tick_ns, oracle.sensors, st.state,
                                     st.shapes, want, encoded=True))
-        assert [m[:2] for m in got] == [m[:2] for m in expect], k
-        for (robot, topic, data), (_, _, ref) in zip(got, expect):
+        assert [m[:2] for m in got] == [m[:2] for m in expect] == [m[:2] for m in objects], k
+        for (robot, topic, data), (_, _, ref), (_, _, msg) in zip(got, expect, objects):
             assert data == ref, (k, robot, topic)
+            assert (msg is None) == (ref is None), (k, robot, topic)
+            assert msg is None or codec.encode(msg) == ref, (k, robot, topic)
             key = topic if data is not None else "unread"
             seen[key] = seen.get(key, 0) + 1
         for t in (core_tick, oracle):
