@@ -5,6 +5,11 @@ noise stream has a key of its own from (seed, robot, sensor) and a reading's noi
 function of that key and the tick (:mod:`plant.noise`), so adding a sensor or a reader
 never changes another value. Encoder noise is added to each reading (not accumulated);
 wheel speeds are reported exact.
+
+The hosts publish the messages the world's core makes (:mod:`plant.core`, every robot at
+once); :meth:`RobotSensors.messages` makes the same ones robot by robot and is kept as the
+reference the tests compare the core with. :class:`RobotSensors` also stays each robot's
+description of its sensors (which are due at a tick, the camera's noise model).
 """
 from __future__ import annotations
 
@@ -81,7 +86,8 @@ class RobotSensors:
     def messages(self, tick: int, t_ns: int, st: RobotState, scene: Scene | None,
                  exact_scan: np.ndarray | None = None, wanted: Wanted | None = None,
                  encoded: bool = False):
-        """(topic, message) pairs due at ``tick``, in a fixed order. ``exact_scan``: this
+        """(topic, message) pairs due at ``tick``, in a fixed order (the reference the
+        core's messages are tested against: :func:`plant.core.sense`). ``exact_scan``: this
         robot's noise-free lidar ranges when the caller cast them already (with
         :func:`scan_all`, for every robot at once). ``wanted(topic)``: whether anyone reads
         that topic (None: every topic is built). A topic nobody reads is not built (no

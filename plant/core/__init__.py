@@ -2,8 +2,9 @@
 not change during a run: the robots' drive parameters, their sensors' layout, rates and
 noise laws, the messages' layouts), its :class:`~plant.core.data.Data` (what a tick changes,
 as arrays shaped (worlds, robots, ...)), and :mod:`plant.core.step` (one call a tick for every
-robot: the state read into the arrays, the lidars cast in one kernel call, the noise drawn,
-the per-tick messages' bytes packed in one pass)."""
+robot: the state read into the arrays, every robot's per-tick messages drawn and written in
+one kernel call (plant/kernels/sense.c, :mod:`plant.core.outgoing`), the lidars cast in one
+kernel call per configuration)."""
 from .data import Data
 from .model import Model
 from .step import observe, sense

@@ -1,14 +1,13 @@
 """The core's step: one call a tick for every robot of a world.
 
 :func:`observe` reads every robot's true state into the :class:`~plant.core.data.Data`
-arrays (a kinematic world's straight from its arrays, with the arithmetic of
+arrays (a kinematic world's in one kernel call from its arrays, with the arithmetic of
 :meth:`plant.sim.Simulation.kin_state`; a dynamic one's from DART). :func:`sense` makes the
-messages due at the tick: the per-tick values of all robots at once (encoders, GPS, ground
-truth), every due lidar of one configuration in one kernel call
-(:func:`plant.lidar.scan_many`), the sensor noise (each stream's draws of every robot in
-one call of :func:`plant.noise.normals`: a draw is a function of the robot's stream key and
-the tick), and the per-tick messages' CDR bytes packed for all robots in one pass
-(:class:`bus.packed.Rows`). Cameras, where due, render robot by robot. The bytes equal the
+messages due at the tick: every robot's encoders, GPS and ground truth in one call of
+plant/kernels/sense.c (their noise drawn, a draw a function of the robot's stream key and
+the tick, and their CDR bytes written into one buffer: :mod:`plant.core.outgoing`), every
+due lidar of one configuration cast in one kernel call (:func:`plant.lidar.scan_many`) and
+its ranges' noise in another. Cameras, where due, render robot by robot. The bytes equal the
 per-message path's (:func:`plant.tick.tick_messages` with
 :class:`plant.sensors.RobotSensors`), which the tests keep as the oracle.
 """
