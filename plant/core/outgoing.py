@@ -40,6 +40,7 @@ class Layout:
             at.append(places)
         self.buffer = np.frombuffer(b"".join(parts), np.uint8).copy()
         self.at = np.array(at, np.int64).reshape(len(model.robots), 8)
+        self.places = self.at.tolist()
         self.spans = spans
         #: (robot, topic, start, end) of every per-tick message, in the plant's order
         self.order = [(name, topic, a, b) for (name, topic), (a, b) in zip(
@@ -68,6 +69,8 @@ class Outgoing:
         self.sense = kernels.sense_call(R, tuple(a.ctypes.data for a in self._keep),
                                         layout.at, self.read, self.buffer)
         self._kin: tuple | None = None         # (the kinematic arrays, their call)
+        #: a dynamic world's orientations as quaternions (from ``tf``), in one call
+        self.quaternions = kernels.quaternions_call(data.tf[w], data.quaternion[w])
 
     def observe_kinematic(self, kin) -> None:
         """The true state of a kinematic world's robots (``kin``:

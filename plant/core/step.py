@@ -49,17 +49,22 @@ def observe(model: Model, data: Data, w: int, stepper) -> None:
     quaternions in one call)."""
     sim = stepper.sim
     data.tick[w] = sim.time_ns // model.tick_ns
+    out = outgoing(model, data, w)
     if sim.kin is not None and stepper.physics is None:
-        outgoing(model, data, w).observe_kinematic(sim.kin)
+        out.observe_kinematic(sim.kin)
         return
-    states = [stepper.state(name) for name in model.robots]
-    data.tf[w] = [st.tf for st in states]
-    data.yaw[w] = [st.yaw for st in states]
-    data.v[w] = [st.v_body[0] for st in states]
-    data.w[w] = [st.w_body[2] for st in states]
-    data.enc_pos[w] = [st.enc_pos for st in states]
-    data.enc_vel[w] = [st.enc_vel for st in states]
-    kernels.quaternions(data.tf[w], data.quaternion[w])
+    tf, enc_pos, enc_vel = data.tf[w], data.enc_pos[w], data.enc_vel[w]
+    yaw, v, w_ = [], [], []
+    for i, name in enumerate(model.robots):           # DART's state, robot by robot
+        st = stepper.state(name)
+        tf[i] = st.tf
+        enc_pos[i] = st.enc_pos
+        enc_vel[i] = st.enc_vel
+        yaw.append(st.yaw)
+        v.append(st.v_body[0])
+        w_.append(st.w_body[2])
+    data.yaw[w], data.v[w], data.w[w] = yaw, v, w_
+    out.quaternions()
 
 
 def wanted_masks(model: Model, tick: int, wanted) -> tuple[dict[str, np.ndarray], set]:
@@ -135,9 +140,11 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
             cast_rows = lid.scan_many(cfg, tfs[rows], scene, [model.robots[i] for i in rows])
         else:
             cast_rows = np.array([exact[i] for i in rows.tolist()], float)
-        ranges = kernels.lidar_noise(np.ascontiguousarray(cast_rows, float),
-                                     data.keys["lidar"][w, rows], model.noise["lidar"][rows],
-                                     tick, cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
+        keys, laws = data.keys["lidar"][w], model.noise["lidar"]
+        if len(rows) < R:                      # (every robot's: the arrays as they are)
+            keys, laws = keys[rows], laws[rows]
+        ranges = kernels.lidar_noise(np.ascontiguousarray(cast_rows, float), keys, laws, tick,
+                                     cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
         if encoded:
             at = np.searchsorted(group, rows)
             msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges}, at)
@@ -164,7 +171,7 @@ def _objects(model: Model, data: Data, w: int, out, raw: bytes, t_ns: int) -> li
     made = []
     yaw = data.yaw[w].tolist()
     base = model.frames["base_link"]
-    for i, (r, at) in enumerate(zip(out.read.tolist(), out.layout.at.tolist())):
+    for i, (r, at) in enumerate(zip(out.read.tolist(), out.layout.places)):
         made.append(codec.joint_state(t_ns, JOINTS, _D2.unpack_from(raw, at[1]),
                                       _D2.unpack_from(raw, at[2])) if r[0] else None)
         made.append(codec.point_stamped(t_ns, *_D3.unpack_from(raw, at[4])) if r[1] else None)

@@ -23,7 +23,8 @@ import numpy as np
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
-           "tick_part", "sense_call", "observe_kinematic_call", "quaternions", "lidar_noise"]
+           "tick_part", "sense_call", "observe_kinematic_call", "quaternions",
+           "quaternions_call", "lidar_noise"]
 
 ABI = 4
 CAMERA_ABI = 2
@@ -284,6 +285,16 @@ def quaternions(tf: np.ndarray, out: np.ndarray) -> None:
     assert tf.shape == (n, 4, 4) and out.shape == (n, 4)
     assert tf.dtype == out.dtype == np.float64
     library().plant_quaternions(n, ptr(tf), ptr(out))
+
+
+def quaternions_call(tf: np.ndarray, out: np.ndarray):
+    """:func:`quaternions` of these arrays as a function of no arguments, their addresses
+    taken once (the caller keeps them alive and changes their values in place)."""
+    n = tf.shape[0]
+    assert tf.shape == (n, 4, 4) and out.shape == (n, 4)
+    assert tf.dtype == out.dtype == np.float64 and tf.flags.c_contiguous and out.flags.c_contiguous
+    fn, args = library().plant_quaternions, (n, ptr(tf), ptr(out))
+    return lambda: fn(*args)
 
 
 def lidar_noise(exact: np.ndarray, keys: np.ndarray, laws: np.ndarray, tick: int, lo: float,
