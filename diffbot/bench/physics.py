@@ -1,9 +1,11 @@
-"""Suite ``physics``: one DART physics step, a control tick, a world build."""
+"""Suite ``physics``: one DART physics step, a control tick, a world build, a tick's sensor
+messages."""
 from __future__ import annotations
 
 from .harness import Case, Context, suite
 
-@suite("physics", "one DART physics step and one control tick of the robot")
+@suite("physics", "one DART physics step and one control tick of the robot, and a tick's sensor "
+       "messages from the plant's core and message by message")
 def physics_suite(ctx: Context):
     from plant.sim import Simulation
     from plant.world import load_world
@@ -35,3 +37,36 @@ def physics_suite(ctx: Context):
                    target="<= 150 µs" if room else "", notes="Simulation.step_tick()")
         yield Case(f"{world}: build world", lambda spec=spec: Simulation(spec),
                    notes="Simulation(spec): what a reset costs")
+    yield from tick_messages(ctx)
+
+
+def tick_messages(ctx: Context):
+    """One tick's sensor messages (encoded, every topic read, no lidar due) of the swarm
+    world with encoder and GPS noise, from the plant's core (what every host uses) and
+    message by message (the reference the tests compare it with)."""
+    import os
+    import tempfile
+    from plant.noise import NoiseConfig
+    from plant.swarm_world import write_swarm_world
+    from plant.tick import Tick, tick_messages as one_by_one
+    from plant.world import load_world
+    sizes = ((1, "kinematic"), (1, "dynamic"), (96, "kinematic")) if ctx.quick else (
+        (1, "kinematic"), (8, "kinematic"), (96, "kinematic"), (1, "dynamic"), (8, "dynamic"))
+    for n, mode in sizes:
+        fd, path = tempfile.mkstemp(suffix=".toml", dir=ctx.tmpdir)
+        os.close(fd)
+        try:
+            spec = load_world(write_swarm_world(path, n, seed=3, mode=mode))
+        finally:
+            os.unlink(path)
+        for r in spec.robots:
+            r.sensors.encoder_noise = NoiseConfig(std=0.01)
+            r.sensors.gps_noise = NoiseConfig(std=0.02)
+        t = Tick(spec)
+        t.step()                                          # (tick 1: no lidar due)
+        what = f"a tick's sensor messages, {n} {mode} robot{'s' if n > 1 else ''}"
+        yield Case(f"{what}: the core", lambda t=t: list(t.messages(None, encoded=True)),
+                   notes="Tick.messages: one kernel call for every robot's per-tick messages")
+        yield Case(f"{what}: message by message", lambda t=t: list(one_by_one(
+            t.t_ns, t.tick_ns, t.sensors, t.stepper.state, t.stepper.shapes, None, True)),
+                   notes="plant.tick.tick_messages, the reference the core is tested against")
