@@ -18,9 +18,10 @@ Every host's messages come from the world's core (:mod:`plant.core`: every robot
 per-tick messages in one kernel call); :func:`tick_messages` and
 :class:`plant.sensors.RobotSensors` make the same messages robot by robot, the oracle the
 tests compare the core with. A reading's noise is a function of (seed, robot, stream,
-tick, index) (:mod:`plant.noise`), so no order of calls changes it. Anything that changes the sensors due at a tick or a
-message's values changes every host at once; ``tests/envs/test_envs_identity.py``
-checks that the in-process and bus transports still agree to the bit.
+tick, index) (:mod:`plant.noise`), so no order of calls changes it. Anything that changes
+the sensors due at a tick or a message's values changes every host at once;
+``tests/envs/test_envs_identity.py`` checks that the in-process and bus transports still
+agree to the bit.
 """
 from __future__ import annotations
 
@@ -38,7 +39,6 @@ from .sensors import RobotSensors, Wanted, scan_all
 from .sim import RobotState, Simulation
 from .stepper import Stepper
 from .world import WorldSpec
-
 
 
 class Tick:
@@ -254,9 +254,8 @@ def tick_messages(t_ns: int, tick_ns: int, sensors: dict[str, RobotSensors],
     """(robot, topic, message) of every sensor due at time ``t_ns``, robot by robot in a
     fixed order (the order the plant publishes them in): the per-message path, kept as the
     oracle of the core (:func:`plant.core.sense`), which the hosts use; the tests compare
-    the two message by message. ``state(robot)`` gives a robot's
-    true state, ``shapes()`` the world's solids or their Scene (called only when a lidar or
-    a camera is due).
+    the two message by message. ``state(robot)`` gives a robot's true state, ``shapes()``
+    the world's solids or their Scene (called only when a lidar or a camera is due).
 
     ``wanted`` (robot -> ``wanted(topic)``, the plant's "does anyone read it"): a due topic
     nobody reads comes as ``(robot, topic, None)``, not built (no ray cast, no frame
