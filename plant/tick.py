@@ -101,13 +101,22 @@ class Tick:
         nobody wants). ``encoded``: CDR bytes (the plant publishes them), else the
         messages (:mod:`bus.codec`'s: the in-process environments and the plant FMU read
         them). ``cast``: the tick's lidars cast already (:func:`messages_of`)."""
-        if self.model is None:            # (built the first time it is asked for)
+        self.observe()
+        return iter(self._sense(wanted, encoded, cast))
+
+    def observe(self) -> None:
+        """Every robot's true state now into the core's arrays (:func:`plant.core.observe`;
+        the core is made the first time)."""
+        if self.model is None:
             self.model = core.Model([self.spec])
             self.data = core.Data(self.model)
             self.data.set_streams(0, self.sensors)
         core.observe(self.model, self.data, 0, self.stepper)
-        return iter(core.sense(self.model, self.data, 0, self.sim.time_ns, self.stepper.shapes,
-                               wanted, encoded, cast))
+
+    def _sense(self, wanted, encoded: bool, cast: tuple | None) -> list:
+        """:meth:`messages` of the state :meth:`observe` read."""
+        return core.sense(self.model, self.data, 0, self.sim.time_ns, self.stepper.shapes,
+                          wanted, encoded, cast)
 
     def prefetch(self) -> None:
         """Draw the next tick's sensor noise ahead where it is drawn in numpy (off a
@@ -189,9 +198,11 @@ def messages_of(ticks: Sequence[Tick], wanted: Sequence[dict[str, Wanted] | None
                 ) -> list[list[tuple[str, str, object]]]:
     """``list(tick.messages(wanted))`` of several worlds, the same messages, with every
     world's lidars due now cast in one call (:func:`plant.lidar.scan_worlds`, robots
-    carrying the same lidar together)."""
+    carrying the same lidar together, at the poses each world's core read)."""
     scenes, groups = [], {}
     wanted = [settled(t.sensors, t.t_ns // t.tick_ns, want) for t, want in zip(ticks, wanted)]
+    for t in ticks:
+        t.observe()
     for k, (t, want) in enumerate(zip(ticks, wanted)):
         tick, w = t.t_ns // t.tick_ns, want or {}
         scene = None
@@ -202,7 +213,7 @@ def messages_of(ticks: Sequence[Tick], wanted: Sequence[dict[str, Wanted] | None
             continue
         for i, (name, s) in enumerate(t.sensors.items()):
             if s.lidar_due(tick) and (want is None or want[name]("scan")):
-                groups.setdefault(s.lidar, []).append((k, i, name, t.stepper.state(name).tf))
+                groups.setdefault(s.lidar, []).append((k, i, name, t.data.tf[0, i]))
     scans: list[dict] = [{} for _ in ticks]
     for cfg, rows in groups.items():
         idx = sorted({k for k, *_ in rows})
@@ -211,7 +222,7 @@ def messages_of(ticks: Sequence[Tick], wanted: Sequence[dict[str, Wanted] | None
                                  [name for _, _, name, _ in rows], [at[k] for k, *_ in rows])
         for (k, i, _, _), r in zip(rows, ranges):
             scans[k][i] = r
-    return [list(t.messages(want, False, (scene, sc)))
+    return [t._sense(want, False, (scene, sc))
             for t, want, scene, sc in zip(ticks, wanted, scenes, scans)]
 
 
