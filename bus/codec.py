@@ -15,6 +15,7 @@ import numpy as np
 from rosbags.typesys.store import Typestore
 
 from . import msgtypes
+from .cdrfast import Decoders
 from .keys import NAME_MAX
 from .packed import (_CDR_LE, _U32, _doubles, _f64_seq, _header, _pad, _string,
                      encode_clock, encode_joint_state, encode_odometry, encode_point_stamped)
@@ -234,11 +235,18 @@ _FAST = {
 
 
 def decode(data: bytes, msgtype: str):
-    """Decode CDR bytes as ``msgtype``; raise :class:`CodecError` on any malformed input."""
+    """Decode CDR bytes as ``msgtype``; raise :class:`CodecError` on any malformed input.
+    The types read every tick take hand-written decoders (:mod:`bus.cdrfast`, the same
+    objects); rosbags decodes the rest, and whatever those leave to it."""
+    if (msg := _FAST_DECODE.decode(data, msgtype)) is not None:
+        return msg
     try:
         return TYPESTORE.deserialize_cdr(memoryview(data), msgtype)
     except Exception as exc:  # rosbags raises SerdeError, struct.error, UnicodeDecodeError...
         raise CodecError(f"not a valid {msgtype}: {exc}") from None
+
+
+_FAST_DECODE = Decoders(T)
 
 
 class Attachment(NamedTuple):

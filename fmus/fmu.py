@@ -17,7 +17,7 @@ import shutil
 import tempfile
 import zipfile
 from collections import deque
-from ctypes import byref
+from ctypes import byref, c_double, c_uint
 from pathlib import Path
 
 from .mapping import FmuNodeError
@@ -139,6 +139,10 @@ class Fmu:
         self.step_size = float(experiment.stepSize) if experiment is not None and \
             experiment.stepSize not in (None, "") and float(experiment.stepSize) > 0 else None
         self._snapshot = None
+        #: variables -> their FMI calls (:meth:`_calls`); float64 access -> its C setter
+        self._plans: dict = {}
+        self._setter = {"Real": "fmi2SetReal"} if self.version == 2 else \
+            {"Float64": "fmi3SetFloat64"}
         self.unzipdir = extraction_dir()
         self.instance_name = instance_name
         try:
@@ -211,31 +215,67 @@ class Fmu:
     # ------------------------------------------------------------------ calls
     def _call(self, what: str, method: str, *args):
         """Call fmpy's ``method`` of the instance; FMI errors become FmuCallError."""
-        from fmpy.fmi1 import FMICallException
         if self.fmu is None:
             raise FmuCallError(f"{what}: the FMU has no instance (it could not be created again)")
         try:
             return getattr(self.fmu, method)(*args)
-        except FMICallException as exc:
-            raise FmuCallError(f"{what} failed with status {exc.status}{self._why()}") from None
-        except Exception as exc:  # ctypes errors
-            raise FmuCallError(f"{what} failed: {_one_line(exc)}") from None
+        except Exception as exc:
+            from fmpy.fmi1 import FMICallException      # (imported once fmpy failed a call)
+            if isinstance(exc, FMICallException):
+                raise FmuCallError(f"{what} failed with status {exc.status}{self._why()}") \
+                    from None
+            raise FmuCallError(f"{what} failed: {_one_line(exc)}") from None  # ctypes errors
 
     def read(self, variables: list[Variable]) -> list[list]:
         """The values of ``variables`` (a list of values per variable), one FMI call per type."""
         out: list[list] = [[] for _ in variables]
-        for access, vrs, n, spans in _plan(tuple(variables)):
-            flat = self._call(f"get{access}", f"get{access}", vrs) if self.version == 2 \
-                else self._call(f"get{access}", f"get{access}", vrs, n)
+        for access, vrs, n, spans, arrays in self._calls(tuple(variables)):
+            if arrays is not None:          # float64: straight into the arrays built once
+                c_vrs, c_vals, fn = arrays
+                self._call(f"get{access}", fn, *self._args(c_vrs, len(vrs), c_vals, n))
+                flat = c_vals[:]
+            else:
+                flat = self._call(f"get{access}", f"get{access}", vrs) if self.version == 2 \
+                    else self._call(f"get{access}", f"get{access}", vrs, n)
             for i, a, b in spans:
                 out[i] = flat[a:b]
         return out
 
     def write(self, variables: list[Variable], values: list[list], what: str = "set") -> None:
         """Set ``variables`` to ``values`` (a list of values per variable)."""
-        for access, vrs, _, spans in _plan(tuple(variables)):
-            self._call(f"{what} ({access})", f"set{access}", vrs,
-                       [x for i, _, _ in spans for x in values[i]])
+        for access, vrs, n, spans, arrays in self._calls(tuple(variables)):
+            flat = [x for i, _, _ in spans for x in values[i]]
+            if arrays is not None and len(flat) == n:
+                c_vrs, c_vals, _ = arrays
+                c_vals[:] = flat
+                self._call(f"{what} ({access})", self._setter[access],
+                           *self._args(c_vrs, len(vrs), c_vals, n))
+            else:
+                self._call(f"{what} ({access})", f"set{access}", vrs, flat)
+
+    def _args(self, c_vrs, nvr: int, c_vals, n: int) -> tuple:
+        """The arguments of fmi2Get/SetReal, fmi3Get/SetFloat64 on the instance."""
+        if self.version == 2:
+            return (self.fmu.component, c_vrs, nvr, c_vals)
+        return (self.fmu.component, c_vrs, nvr, c_vals, n)
+
+    def _calls(self, variables: tuple[Variable, ...]) -> list:
+        """:func:`_plan` of ``variables``, each float64 group with its value references and
+        a value buffer as C arrays, built once per set of variables (fmpy's getReal/setReal
+        build both at every call, a tick's largest share of an FMU node's time)."""
+        calls = self._plans.get(variables)
+        if calls is None:
+            calls = []
+            for access, vrs, n, spans in _plan(variables):
+                arrays = None
+                if access in self._setter and n:
+                    arrays = ((c_uint * len(vrs))(*vrs), (c_double * n)(),
+                              "fmi2GetReal" if self.version == 2 else "fmi3GetFloat64")
+                calls.append((access, vrs, n, spans, arrays))
+            if len(self._plans) >= 64:
+                self._plans.clear()
+            self._plans[variables] = calls
+        return calls
 
     def initialize(self, t: float, start: list[tuple[Variable, list]]) -> None:
         """Set parameters and inputs (``start``: variable, values), initialise at time t; the

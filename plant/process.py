@@ -266,9 +266,10 @@ class Plant:
     def _emit(self, key: str, payload: bytes, att: bytes) -> None:
         """A composed member's message (bus/composed.py): on the bus for whoever listens,
         to the plant as if it came from Zenoh, and to the other composed members."""
-        self.outbox.relay(key, payload, codec.parse_attachment(att).t_ns, att)
+        parsed = codec.parse_attachment(att)      # (once, for the outbox and the ledger)
+        self.outbox.relay(key, payload, parsed.t_ns, att)
         if key in self._robot_of_key or key.startswith(self._ack_prefix):
-            self._on_output(Event("out", key, payload, att))
+            self._on_output(Event("out", key, payload, att), parsed)
         self.composed.deliver(key, payload, att)
 
     def _key(self, robot: str, topic: str) -> str:
@@ -317,11 +318,13 @@ class Plant:
         elif ev.tag == "member":
             self.presence.on_member(ev)
 
-    def _on_output(self, ev: Event) -> None:
+    def _on_output(self, ev: Event, att: codec.Attachment | None = None) -> None:
         """A message on a key the plant reads: a command to apply, and in lockstep a
-        member's output, filed in the ledger for its tick."""
+        member's output, filed in the ledger for its tick (``att``: its attachment, parsed
+        already by a composed member's emit)."""
         robot, topic = self._robot_of_key.get(ev.key, (None, "ack"))
-        att = codec.parse_attachment(ev.attachment)
+        if att is None:
+            att = codec.parse_attachment(ev.attachment)
         lockstep = self.strategy.lockstep
         if lockstep and not self.ledger.file(ev.key, topic, att, ev.attachment,
                                                             self.sim.time_ns):

@@ -132,6 +132,33 @@ def test_node_gives_the_reference_odometry(fmus, version):
         node.close()
 
 
+@pytest.mark.parametrize("version", (2, 3))
+def test_float_reads_and_writes_equal_fmpys_own_calls(fmus, version):
+    """Fmu.read/write (C arrays built once per set of variables) give what fmpy's getReal /
+    getFloat64 give, for sets read in turn; a refused call is an FmuCallError."""
+    from fmpy.fmi1 import FMICallException
+    f = fmu_mod.Fmu(fmus[version], "calls")
+    try:
+        ins = [f.bus_variable(n) for n in ("omega_left", "omega_right")]
+        outs = [f.bus_variable(n) for n in ("x", "y", "theta", "v", "omega")]
+        f.initialize(0.0, [])
+        get = f.fmu.getReal if version == 2 else f.fmu.getFloat64
+        for k in range(3):
+            f.write(ins, [[0.5 + k], [1.5 - 2 * k]])
+            f.do_step(0.02)
+            assert f.read(outs) == [[x] for x in get([v.vr for v in outs])]
+            assert f.read(outs[::-2]) == [[x] for x in get([v.vr for v in outs[::-2]])]
+            assert f.read(ins) == [[0.5 + k], [1.5 - 2 * k]]
+
+        def refuse(*args):
+            raise FMICallException("fmi2SetReal", 3)
+        setattr(f.fmu, "fmi2SetReal" if version == 2 else "fmi3SetFloat64", refuse)
+        with pytest.raises(fmu_mod.FmuCallError, match="set \\((Real|Float64)\\) failed with status 3"):
+            f.write(ins, [[0.0], [0.0]])
+    finally:
+        f.close()
+
+
 def test_first_sample_publishes_the_start_pose_and_speed_zero(fmus):
     node = make_node(fmus[2])
     try:

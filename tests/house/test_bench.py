@@ -236,3 +236,44 @@ def test_tick_profile_puts_each_main_thread_sample_in_its_innermost_phase():
     assert sum(p["phases"].values()) == pytest.approx(1.0)
     assert p["self"][0] == ("render_full (plant/camera.py)", pytest.approx(6 / 16))
     assert ("Outbox.put (plant/outbox.py)", pytest.approx(5 / 16)) in p["inclusive"]
+
+
+def test_scenario_suite_sets_each_run_beside_dart_alone_in_its_world(monkeypatch):
+    """Every scenario run reports its share of DART alone, timed in the scenario's world
+    right after it; the targets stand in the pipelined rows (the scenarios' coupling)."""
+    from diffbot.bench import scenario as sc
+    worlds, runs = [], []
+
+    def alone(world, ticks=sc.ALONE_TICKS, chunks=sc.ALONE_CHUNKS):
+        worlds.append(world)
+        return {"real_time_factor": 80.0 if world == "living_room" else 40.0,
+                "cpu_real_time_factor": 90.0, "tick_s": 2.5e-4}
+
+    def run(ctx, name, timeout_s, *extra):
+        runs.append((name, extra))
+        return {"real_time_factor": 20.0, "wall_time_s": 3.0, "sim_time_s": 50.0}
+    monkeypatch.setattr(sc, "dart_alone", alone)
+    monkeypatch.setattr(sc, "run_scenario", run)
+    results, status = bench.run_suite(bench.Context(quick=True), "scenario")
+    assert status["status"] == "ok", status
+    assert len(runs) == 8 and worlds.count("living_room") == 5     # 1 row + 4 runs each
+    assert worlds.count("living_room_follow") == 5
+    by = {r.name: r for r in results}
+    assert by["square: DART alone (living_room): control-tick rate"].samples == [80.0]
+    assert by["square, pipelined, composed: share of DART alone"].samples == [0.25]
+    assert by["square, pipelined, composed: share of DART alone"].target == ">= 0.5"
+    assert by["follow, sequential, composed: share of DART alone"].samples == [0.5]
+    assert by["follow, sequential, composed: share of DART alone"].target == ""
+    assert by["follow, pipelined, composed: real-time factor"].target == ">= 18x"
+    assert by["square, pipelined, processes: real-time factor"].target == ">= 16x"
+    assert by["follow, pipelined, processes: real-time factor"].target == ">= 8.5x"
+    assert by["square, sequential, composed: DART alone beside it"].samples == [80.0]
+
+
+def test_dart_alone_steps_the_worlds_control_tick():
+    from diffbot.bench.scenario import dart_alone
+    from plant.world import load_world
+    got = dart_alone("living_room", ticks=3, chunks=1)
+    tick_s = load_world("living_room").control_tick_s
+    assert got["tick_s"] > 0
+    assert got["real_time_factor"] == pytest.approx(tick_s / got["tick_s"])

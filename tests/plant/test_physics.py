@@ -158,3 +158,22 @@ def test_a_tick_moves_the_robots_as_commands_set_before_every_step_do_bit_for_bi
         for a, b in zip(fast.robots.values(), ref.robots.values()):
             assert a.skeleton.getPositions().tobytes() == b.skeleton.getPositions().tobytes()
             assert a.skeleton.getVelocities().tobytes() == b.skeleton.getVelocities().tobytes()
+
+
+def test_is_finite_finds_any_non_finite_position_or_velocity():
+    sim = Simulation(load_world("living_room"))
+    sk = sim.robots["robot1"].skeleton
+    assert sim.is_finite()
+    q0, dq0 = sk.getPositions(), sk.getVelocities()
+    for i in range(len(q0)):
+        for bad in (math.nan, math.inf, -math.inf):
+            for setter, base in ((sk.setPositions, q0), (sk.setVelocities, dq0)):
+                v = base.copy()
+                v[i] = bad
+                setter(v)
+                assert not sim.is_finite(), (i, bad)
+                setter(base)
+    q = q0.copy()
+    q[:] = 1e308                  # finite, though their sum overflows
+    sk.setPositions(q)
+    assert sim.is_finite()

@@ -1,0 +1,116 @@
+"""check_input's quick pass (bus/inputs.py, _Plan) answers as the field-by-field walk does:
+the same problem text, or None, on messages with bad values anywhere, hand-built values of
+other types, and types it cannot lay out."""
+from __future__ import annotations
+
+import copy
+import random
+
+import numpy as np
+import pytest
+
+from bus import codec
+from bus.inputs import ABSURD_INPUT, check_input, numbers_problem
+
+T = codec.T
+BAD = [float("nan"), float("inf"), -float("inf"), ABSURD_INPUT * 1.0000001, -2e9, 1e308]
+EDGE = [ABSURD_INPUT, -ABSURD_INPUT, 0.0, -0.0, 5e-324]
+
+
+def decoded(msg):
+    return codec.decode(codec.encode(msg), msg.__msgtype__)
+
+
+def samples():
+    odom = codec.odometry(40_000_000, 1.0, -2.0, 0.5, 0.3, -0.1)
+    js = codec.joint_state(40_000_000, ["left_wheel_joint", "right_wheel_joint"],
+                           position=(1.0, 2.0), velocity=(0.5, -0.5))
+    v3 = T["geometry_msgs/msg/Vector3"]
+    imu = decoded(T["sensor_msgs/msg/Imu"](
+        codec.header(40_000_000, "imu"), T["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0),
+        np.full(9, 0.01), v3(0.1, 0.2, 0.3), np.zeros(9), v3(0.0, 0.0, 9.8), np.zeros(9)))
+    scan = codec.laser_scan(40_000_000, -1.0, 1.0, 0.5, 0.1, 0.05, 5.0,
+                            [1.0, float("inf"), 2.0, 3.0, 4.0])
+    out = [("odom", decoded(odom)), ("joint_states", decoded(js)), ("imu", imu),
+           ("cmd_vel", decoded(codec.twist_stamped(40_000_000, 0.2, 0.1))),
+           ("gps", decoded(codec.point_stamped(40_000_000, 1.0, 2.0, 0.0)))]
+    return out + [("scan", decoded(scan))]
+
+
+def float_leaves(msg, path=""):
+    """(owner, field name, path) of every float field and float array of a message."""
+    for name in msg.__dataclass_fields__:
+        v = getattr(msg, name)
+        if isinstance(v, float):
+            yield msg, name, None
+        elif isinstance(v, np.ndarray) and v.dtype.kind == "f" and v.size:
+            for i in range(v.size):
+                yield msg, name, i
+        elif hasattr(v, "__dataclass_fields__"):
+            yield from float_leaves(v)
+
+
+def reference(topic, msg):
+    """check_input's answer by the walk alone."""
+    if topic == "joint_states":
+        names = list(msg.name)
+        if names != ["left_wheel_joint", "right_wheel_joint"] or len(msg.position) != 2 \
+                or len(msg.velocity) not in (0, 2):
+            return "names"
+    return numbers_problem(msg, "")
+
+
+@pytest.mark.parametrize("k", range(6))
+def test_the_quick_pass_answers_as_the_walk_on_every_value_of_every_field(k):
+    topic, base = samples()[k]
+    assert check_input(topic, base) is None
+    rng = random.Random(k)
+    n = len(list(float_leaves(base)))
+    assert n > 0
+    for j in range(n):
+        for value in BAD + EDGE + [rng.uniform(-1e3, 1e3)]:
+            msg = copy.deepcopy(base)
+            owner, name, i = list(float_leaves(msg))[j]
+            if i is None:
+                setattr(owner, name, value)
+            else:
+                arr = np.array(getattr(owner, name))
+                with np.errstate(over="ignore"):
+                    arr[i] = value
+                setattr(owner, name, arr)
+            want = reference(topic, msg)
+            assert check_input(topic, msg) == want, (name, i, value)
+
+
+def test_hand_built_values_of_other_types_get_the_walks_answer():
+    odom = decoded(codec.odometry(40_000_000, 1.0, -2.0, 0.5, 0.3, -0.1))
+    for value in (np.float64("nan"), np.float64(3e9), np.float32(1.0), 7, True, "x"):
+        m = copy.deepcopy(odom)
+        m.pose.pose.position.x = value
+        assert check_input("odom", m) == numbers_problem(m, "")
+    m = copy.deepcopy(odom)
+    m.pose.covariance = [float("nan")] * 36          # a list, not an array: not checked
+    assert check_input("odom", m) == numbers_problem(m, "") is None
+    m = copy.deepcopy(odom)
+    m.pose.covariance = np.full(36, 1e308)            # finite, though the sum overflows
+    assert check_input("odom", m) is None
+    m.pose.covariance = np.full(36, np.nan)
+    assert check_input("odom", m) == "pose.covariance is not finite"
+    big = np.zeros(100)                               # past the small-array path
+    big[99] = -np.inf
+    js = decoded(codec.joint_state(40_000_000, ["left_wheel_joint", "right_wheel_joint"],
+                                   position=(1.0, 2.0)))
+    m = copy.deepcopy(js)
+    m.effort = big
+    assert check_input("joint_states", m) == "effort is not finite"
+    big[99] = 2e9
+    assert check_input("joint_states", m).startswith("effort has absurd values")
+
+
+def test_a_message_with_a_list_of_messages_is_walked():
+    v3 = T["geometry_msgs/msg/Vector3"]
+    tf = T["geometry_msgs/msg/TransformStamped"](
+        codec.header(0, "world"), "robot1", T["geometry_msgs/msg/Transform"](
+            v3(float("nan"), 0.0, 0.0), T["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0)))
+    msg = T["tf2_msgs/msg/TFMessage"](transforms=[tf])
+    assert check_input("tf", msg) == numbers_problem(msg, "") is not None
