@@ -281,10 +281,7 @@ def observe_kinematic_call(n: int, kin: tuple[np.ndarray, ...], data: tuple[np.n
 def quaternions(tf: np.ndarray, out: np.ndarray) -> None:
     """``out`` (n, 4) = :func:`plant.sim.rotation_to_quaternion` of each of ``tf`` (n, 4, 4),
     float64, C-contiguous (plant/kernels/sense.c)."""
-    n = tf.shape[0]
-    assert tf.shape == (n, 4, 4) and out.shape == (n, 4)
-    assert tf.dtype == out.dtype == np.float64
-    library().plant_quaternions(n, ptr(tf), ptr(out))
+    quaternions_call(tf, out)()
 
 
 def quaternions_call(tf: np.ndarray, out: np.ndarray):
