@@ -95,7 +95,14 @@ class SwarmEnv(ParallelEnv):
 
     def step(self, actions: dict):
         live = list(self.agents)
-        obs, rew, term, trunc, infos = self.task.step(actions)
+        return self.ended(live, *self.task.step(actions))
+
+    def ended(self, live: list[str], obs: dict, rew: dict, term: dict, trunc: dict,
+              infos: dict) -> tuple:
+        """A step's results as :meth:`step` returns them, from the task's (``live``: the
+        agents at the step's start), the agents it ended out of ``agents``; a batch of
+        worlds (:mod:`diffbot.envs.swarm_vector`) steps their tasks together and ends each
+        step here."""
         self.agents = [a for a in live if not (term[a] or trunc[a])]
         return ({a: obs[a] for a in live}, rew, term, trunc, infos)
 
@@ -121,6 +128,14 @@ class SwarmEnv(ParallelEnv):
 
 def parallel_env(**kwargs) -> SwarmEnv:
     return SwarmEnv(**kwargs)
+
+
+def vector_env(num_worlds: int = 1, **kwargs):
+    """``num_worlds`` swarm worlds stepped together, arrays shaped (worlds, robots, ...):
+    :class:`diffbot.envs.swarm_vector.SwarmVectorEnv` (``kwargs``: :func:`parallel_env`'s,
+    and ``autoreset_mode``)."""
+    from .swarm_vector import SwarmVectorEnv
+    return SwarmVectorEnv(num_worlds, **kwargs)
 
 
 def env(**kwargs):
