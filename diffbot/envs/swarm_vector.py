@@ -87,14 +87,9 @@ class _Rows:
     def put(self, i: int, agents: list[str], obs: dict, infos: dict, rew: dict | None = None,
             term: dict | None = None, trunc: dict | None = None) -> None:
         """World ``i``'s values from the single env's dicts (agent -> value), rows of the
-        agents in ``obs``; ``rew``/``term``/``trunc`` None: a reset (0, False)."""
-        self.rew[i], self.term[i], self.trunc[i] = 0.0, False, False
-        self.infos["active"][i] = False
-        for k, a in self.obs.items():
-            a[i] = 0
-        for key, col in self.infos.items():
-            if key not in ("active", "plant"):
-                col[i] = 0
+        agents in ``obs`` (the others keep theirs: zeros, in a fresh instance; a world put
+        again is a reset, every agent in it); ``rew``/``term``/``trunc`` None: a reset
+        (0, False)."""
         for j, agent in enumerate(agents):
             if agent not in obs:
                 continue
@@ -103,6 +98,8 @@ class _Rows:
             if rew is not None:
                 self.rew[i, j], self.term[i, j], self.trunc[i, j] = \
                     rew[agent], term[agent], trunc[agent]
+            else:
+                self.rew[i, j], self.term[i, j], self.trunc[i, j] = 0.0, False, False
             self.infos["active"][i, j] = True
             for key, value in infos[agent].items():
                 col = self._column(key, value)
