@@ -15,8 +15,10 @@ fixed for the env's life; ``reset(seed=)`` draws the poses, goals and noise. Eve
 ``info[agent]["plant"]`` is the episode's :class:`diffbot.envs.episode.Episode` with the
 reset seed (drawn from the env's stream when none is given) and the world's own text, so
 two envs made alike play the same episodes (PettingZoo's ``parallel_seed_test``) and
-``reset(seed=ep.seed)`` plays one again. Same two transports as the Gymnasium
-environments::
+``reset(seed=ep.seed)`` plays one again. :func:`vector_env` steps W such worlds together,
+arrays shaped (worlds, robots, ...) (:mod:`diffbot.envs.swarm_vector`;
+:mod:`diffbot.envs.swarm_sb3`: as a Stable-Baselines3 VecEnv of W x N agents). Same two
+transports as the Gymnasium environments::
 
     from diffbot.envs import swarm_v0
     env = swarm_v0.parallel_env(n_robots=4)               # or transport="bus"
