@@ -9,7 +9,7 @@ PettingZoo has no vector API; multi-agent RL libraries take a batch of worlds as
 shaped (worlds, agents, ...), and that is what :class:`SwarmVectorEnv` gives: every
 observation key a (W, N, ...) array, rewards (W, N) float64, terminations and truncations
 (W, N) bool, actions (W, N, 2), robots in ``possible_agents`` order. World i is a
-:class:`diffbot.envs.swarm_v0.SwarmEnv` made with the same arguments: after
+:class:`diffbot.envs.swarm.SwarmEnv` made with the same arguments: after
 ``reset(seed=s)`` it plays what ``swarm_v0.parallel_env(...)`` plays after
 ``reset(seed=s + i)`` (a list of seeds: one each), step for step, to the bit. Each step
 drives every world's robots tick by tick, all worlds at once
@@ -52,7 +52,7 @@ from gymnasium.vector import AutoresetMode
 from .actions import check_action
 from .results import autoreset_mode as autoreset_mode_of
 from .results import reset_mask
-from .swarm_v0 import SwarmEnv
+from .swarm import SwarmEnv
 from .worlds import advance_together
 
 
