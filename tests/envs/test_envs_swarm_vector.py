@@ -130,7 +130,8 @@ def test_same_step_autoreset_gives_the_last_observation_and_the_next_episode_at_
 
 
 def test_bad_actions_are_refused_before_any_world_moves_and_disabled_waits_for_a_reset():
-    vec = swarm_v0.vector_env(num_worlds=W, autoreset_mode="disabled", **KW)
+    vec = swarm_v0.vector_env(num_worlds=W, autoreset_mode="disabled", render_mode="rgb_array",
+                              **KW)
     try:
         n = vec.n_robots
         with pytest.raises(RuntimeError, match="reset"):
@@ -162,6 +163,9 @@ def test_bad_actions_are_refused_before_any_world_moves_and_disabled_waits_for_a
         assert infos["plant"][1].seed == 40 and infos["plant"][0] is None
         with pytest.raises(RuntimeError, match="world 0 "):
             vec.step(np.zeros((W, n, 2)))
+        frames = vec.render()                     # a frame per world, each its own
+        assert len(frames) == W and frames[0].tobytes() != frames[1].tobytes()
+        assert all(f.tobytes() == e.render().tobytes() for f, e in zip(frames, vec.envs))
     finally:
         vec.close()
     with pytest.raises(ValueError, match="inproc"):
