@@ -5,8 +5,10 @@ steps per second and simulated seconds per wall second (each step is ``dt`` = 0.
 plant's physics alone is measured beside them, as the bound. Then the batched env
 (``vectorization_mode="vector_entry_point"``: N worlds in one process) with N = 1, 16, 64
 in the kinematic and the dynamic world, N = 64 on 2 workers, and (kinematic) N = 256 on 2
-workers, where a second process pays off on two cores; and 32 kinematic envs through the
-Stable-Baselines3 adapter against the batched env alone (the sb3 extra)."""
+workers, where a second process pays off on two cores; the swarm's PettingZoo env batched
+(``swarm_v0.vector_env``: 1 and 8 worlds of 4 robots) against 8 ``parallel_env`` looped,
+in agent steps per second; and 32 kinematic envs through the Stable-Baselines3 adapter
+against the batched env alone (the sb3 extra)."""
 from __future__ import annotations
 
 import time
@@ -116,6 +118,52 @@ def _sb3_rate(num_envs: int, env_steps: int, rounds: int = 3) -> dict:
     return {"alone": n / wall[0], "adapter": n / wall[1], "ratio": cpu[0] / cpu[1]}
 
 
+#: robots in each world of the swarm's cases
+SWARM_ROBOTS = 4
+
+
+def _swarm_rate(mode: str, num_worlds: int, env_steps: int, looped: bool = False) -> dict:
+    """``swarm_v0.vector_env`` with ``num_worlds`` worlds of :data:`SWARM_ROBOTS` Avoid
+    robots (``looped``: as many ``parallel_env`` stepped one after the other, the same
+    actions), random actions drawn beforehand: agent steps (a live robot's step) per
+    second."""
+    import numpy as np
+    from diffbot.envs import swarm_v0
+    kw = dict(n_robots=SWARM_ROBOTS, mode=mode, robot="avoid")
+    if looped:
+        envs = [swarm_v0.parallel_env(**kw) for _ in range(num_worlds)]
+        for i, e in enumerate(envs):
+            e.reset(seed=i)
+        agents = envs[0].possible_agents
+    else:
+        venv = swarm_v0.vector_env(num_worlds=num_worlds, **kw)
+        venv.reset(seed=0)
+        envs, agents = venv.envs, venv.possible_agents
+    try:
+        steps = max(2, env_steps // num_worlds)
+        high = envs[0].action_space(agents[0]).high
+        rng = np.random.default_rng(0)
+        actions = (rng.uniform(-1, 1, (steps, num_worlds, len(agents), 2))
+                   * high).astype(np.float32)
+        n = 0
+        t0, c0 = time.perf_counter(), time.process_time()
+        for act in actions:
+            n += sum(len(e.agents) for e in envs)
+            if not looped:
+                venv.step(act)
+                continue
+            for e, a in zip(envs, act):
+                if not e.agents:
+                    e.reset()
+                    continue
+                e.step({name: a[j] for j, name in enumerate(agents) if name in e.agents})
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    finally:
+        for e in envs:
+            e.close()
+    return {"agent_steps_per_s": n / wall, "cpu_agent_steps_per_s": n / cpu}
+
+
 #: the batched env's targets at N = 64 (2 cores), env steps/s: training wants many steps
 #: per second, and the kinematic world has no physics to pay for
 VEC_TARGETS = {"kinematic": "target >= 20,000/s at N = 64", "dynamic": "target >= 1,000/s at N = 64"}
@@ -131,7 +179,8 @@ DANTZIG = ("world.contact_solver=dantzig",)
 
 @suite("gym", "diffbot/Avoid-v0 steps per second, in-process and over the bus, one env "
               "and make_vec with 2 and 4, batched (vector_entry_point) with 1, 16, 64, "
-              "64 on 2 workers and (kinematic) 256 on 2 workers, and through the SB3 adapter")
+              "64 on 2 workers and (kinematic) 256 on 2 workers, the swarm's vector env with "
+              "1 and 8 worlds against its parallel_env looped, and through the SB3 adapter")
 def gym_suite(ctx):
     try:
         import gymnasium  # noqa: F401
@@ -162,6 +211,23 @@ def gym_suite(ctx):
                        notes="this process's CPU time (workers=1: all of it)"),
                 Metric("real_time_factor", f"{what}: simulated s per wall s", "x",
                        notes="all envs together, dt = 0.1 s per step")],
+                repeats=repeats, warmup=0)
+    for mode in ("kinematic", "dynamic"):
+        # agent steps a repeat: ~0.5 s of kinematic ones, a few s of dynamic ones
+        agent_steps = (256 if ctx.quick else 2560) if mode == "kinematic" else \
+            (128 if ctx.quick else 640)
+        for w, looped in ((1, False), (8, False), (8, True)):
+            what = (f"swarm_v0 {mode}, {SWARM_ROBOTS} robots x {w} world"
+                    + ("s" if w > 1 else "") + (", parallel_env looped" if looped
+                                                 else ", vector_env"))
+            yield Probe(what, lambda m=mode, w=w, x=looped, e=agent_steps // SWARM_ROBOTS:
+                        _swarm_rate(m, w, e, x), [
+                Metric("agent_steps_per_s", f"{what}: agent steps per second", "1/s",
+                       notes=("one parallel_env per world, stepped one after the other"
+                              if looped else "swarm_v0.vector_env: the worlds' ticks together")
+                             + "; robot='avoid', random actions"),
+                Metric("cpu_agent_steps_per_s", f"{what}: agent steps per CPU second", "1/s",
+                       notes="this process's CPU time")],
                 repeats=repeats, warmup=0)
     what = "Avoid-v0 SB3 adapter, kinematic, 32 envs"
     yield Probe(what, lambda: _sb3_rate(32, 640 if ctx.quick else 3200), [

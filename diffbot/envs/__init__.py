@@ -11,6 +11,7 @@ Importing this package registers them::
 
     from diffbot.envs import swarm_v0
     penv = swarm_v0.parallel_env(n_robots=4)                   # PettingZoo ParallelEnv
+    venv = swarm_v0.vector_env(num_worlds=8, n_robots=4)       # 8 of them: (8, 4, ...) arrays
 
     from diffbot.envs.sb3 import AvoidVecEnv                   # the batch as an SB3 VecEnv
     venv = AvoidVecEnv(16, normalize_actions=True)

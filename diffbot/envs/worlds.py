@@ -186,33 +186,8 @@ class Worlds:
             "plant": [t.episode for t in tasks]})
 
     def _advance(self, live: list[int], cmds: dict) -> None:
-        """Every live env's ``action_repeat`` ticks, tick by tick across the worlds; per
-        world exactly :meth:`diffbot.envs.transport.InProc.advance`."""
-        if not live:
-            return
-        transports = [self.tasks[i].transport for i in live]
-        ticks = [tr.tick for tr in transports]
-        for _ in range(self.tasks[0].action_repeat):
-            for i, tick in zip(live, ticks):
-                c = cmds[i]
-                for name in tick.sim.robots:
-                    tick.drive(name, Twist(*c.get(name, (0.0, 0.0))))
-            step_ticks(ticks)
-            wanted = [tr.wanted for tr in transports]
-            ended = []
-            for i, tr, msgs in zip(live, transports, messages_of(ticks, wanted)):
-                tr.take(msgs)
-                if self.tasks[i]._observe(tr.tick.t_ns, tr.latest, judge=False):
-                    ended.append(self.tasks[i])
-            self._judge(ended)
-
-    @staticmethod
-    def _judge(ended: list[AvoidTask]) -> None:
-        """The contacts of the worlds whose step ended, all in one call."""
-        if ended:
-            geo = ended[0].geo
-            for task, touched in zip(ended, geo.contacts_of([t.centres() for t in ended])):
-                task.touched = touched
+        """Every live env's ``action_repeat`` ticks (:func:`advance_together`)."""
+        advance_together([self.tasks[i] for i in live], [cmds[i] for i in live])
 
     def sync(self) -> list[AvoidTask]:
         """The tasks, their objects brought up to date with the array steps' state (which
@@ -228,3 +203,31 @@ class Worlds:
         for t in self.tasks:
             t.close()
         self.tasks = []
+
+
+def advance_together(tasks: list[AvoidTask], cmds: list[dict]) -> None:
+    """In-process tasks' ``action_repeat`` ticks (their :meth:`AvoidTask.begin_step` done,
+    ``cmds[k]`` task k's commands, {robot: (v, w)}: a robot without one stands still), tick
+    by tick across their worlds: each world's commands, the step of all
+    (:func:`plant.tick.step_ticks`), every world's messages (:func:`plant.tick.messages_of`)
+    and each task's observation of them; at the last tick the contacts of every world in
+    one call. Per world exactly :meth:`diffbot.envs.transport.InProc.advance`."""
+    if not tasks:
+        return
+    transports = [t.transport for t in tasks]
+    ticks = [tr.tick for tr in transports]
+    for _ in range(tasks[0].action_repeat):
+        for c, tick in zip(cmds, ticks):
+            for name in tick.sim.robots:
+                tick.drive(name, Twist(*c.get(name, (0.0, 0.0))))
+        step_ticks(ticks)
+        wanted = [tr.wanted for tr in transports]
+        ended = []
+        for task, tr, msgs in zip(tasks, transports, messages_of(ticks, wanted)):
+            tr.take(msgs)
+            if task._observe(tr.tick.t_ns, tr.latest, judge=False):
+                ended.append(task)
+        if ended:                    # the contacts of the worlds whose step ended
+            geo = ended[0].geo
+            for task, touched in zip(ended, geo.contacts_of([t.centres() for t in ended])):
+                task.touched = touched

@@ -39,7 +39,7 @@ BLOCKS = [(line, code) for line, code in _blocks() if not any(s in code for s in
 def test_the_page_has_the_snippets():
     joined = "\n".join(code for _, code in BLOCKS)
     for what in ("normalize_actions=True", "vector_entry_point", "render_mode=\"rgb_array\"",
-                 "plant_args()", "reset_mask", "RecordVideo", "swarm_v0"):
+                 "plant_args()", "reset_mask", "RecordVideo", "swarm_v0", "vector_env("):
         assert what in joined, f"no runnable snippet shows {what}"
 
 
