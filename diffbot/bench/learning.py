@@ -164,9 +164,10 @@ def _swarm_rate(mode: str, num_worlds: int, env_steps: int, looped: bool = False
     return {"agent_steps_per_s": n / wall, "cpu_agent_steps_per_s": n / cpu}
 
 
-#: the batched env's targets at N = 64 (2 cores), env steps/s: training wants many steps
-#: per second, and the kinematic world has no physics to pay for
-VEC_TARGETS = {"kinematic": "target >= 20,000/s at N = 64", "dynamic": "target >= 1,000/s at N = 64"}
+#: the batched env's targets at N = 64 on one process (2 cores), env steps/s: training
+#: wants many steps per second, and the kinematic world has no physics to pay for (its
+#: target keeps the rate its array path reached)
+VEC_TARGETS = {"kinematic": ">= 50,000/s", "dynamic": ">= 1,000/s"}
 #: and for one env (simulated s per wall s): (transport, world mode) -> target
 ONE_ENV_TARGETS = {("inproc", "dynamic"): "target >= 80x", ("inproc", "kinematic"): "target >= 1,000x",
                    ("bus", "dynamic"): "target >= 20x", ("bus", "kinematic"): "target >= 20x"}
@@ -203,10 +204,10 @@ def gym_suite(ctx):
                 (f", {k} workers" if k > 1 else "")
             yield Probe(what, lambda m=mode, n=n, k=k, e=env_steps: _vec_rate(m, n, e, k), [
                 Metric("steps_per_s", f"{what}: env steps per second", "1/s",
+                       target=VEC_TARGETS[mode] if (n, k) == (64, 1) else "",
                        notes=("vector_entry_point, one process (lidars on a thread a CPU)"
                               if k == 1 else f"vector_entry_point, workers={k}: {k} processes")
-                             + "; random actions"
-                             + (f"; {VEC_TARGETS[mode]}" if n == 64 else "")),
+                             + "; random actions"),
                 Metric("cpu_steps_per_s", f"{what}: env steps per CPU second", "1/s",
                        notes="this process's CPU time (workers=1: all of it)"),
                 Metric("real_time_factor", f"{what}: simulated s per wall s", "x",
