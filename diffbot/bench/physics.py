@@ -17,17 +17,18 @@ def physics_suite(ctx: Context):
         for _ in range(10):  # let the drive limiter ramp the targets up to the command
             sim.command_wheels(robot, 1.0, -1.0)
         robots, w = list(sim.robots.values()), sim.world
+        targets = sim.command_targets().tolist()
         detector = type(w.getConstraintSolver().getCollisionDetector()).__name__
         n = len(sim.objects)
         what = (f"{n} static object{'' if n == 1 else 's'}, {detector}, dt {spec.physics_step_s * 1e3:g} ms,"
                 f" robot spinning in place (wheels -/+1 rad/s)")
 
-        def step(number, robots=robots, w=w):
+        def step(number, robots=robots, w=w, targets=targets):
             it = range(number)
             t0 = perf_counter()
             for _ in it:
-                for r in robots:
-                    r.apply()
+                for r, (wl, wr) in zip(robots, targets):
+                    r.apply(wl, wr)
                 w.step()
             return perf_counter() - t0
         room = world == "living_room"

@@ -182,7 +182,7 @@ class _TickPlan:
         self.new_scan = np.zeros(w, bool)
         self.goal = np.array([o.goal for o in obs], float).reshape(w, 2)
         self.max_range = obs[0].max_range
-        spec = sims[0].limiters[names[0]].spec
+        spec = sims[0].spec.robot(names[0]).drive
         self.limits = (spec.max_linear_mps, spec.max_angular_radps)
         self.sub = sims[0].spec.substeps
         self.tick_ns = ticks[0].tick_ns
@@ -376,14 +376,15 @@ class _Dart:
     def __init__(self, sims: list, names: list[str]) -> None:
         self.sims = sims
         self.robots = [s.robots[n] for s, n in zip(sims, names)]
+        self._targets = [s.drive.targets[s.drive.index[n]] for s, n in zip(sims, names)]
         self._tfs: dict[int, np.ndarray] = {}    # the robots' poses since the last tick
 
     def step(self, targets: np.ndarray) -> None:
         """One tick of every world (:meth:`plant.tick.Tick.step` without its check, which
         :meth:`finish` makes once a step: not a number stays one)."""
         self._tfs.clear()
-        for sim, robot, (wl, wr) in zip(self.sims, self.robots, targets.tolist()):
-            robot.targets = (wl, wr)                 # as Simulation.command_twist sets them
+        for sim, mine, row in zip(self.sims, self._targets, targets):
+            mine[:] = row                            # as Simulation.command_twist sets them
             sim.step_tick()
 
     def _tf(self, j: int) -> np.ndarray:
