@@ -84,6 +84,10 @@ class WorldDrive:
             1, R, self._tick, limits, std, self.keys, self.kind, self.cmd, self.v, self.w,
             self.wheels, self.targets)
         self._filed = False                 # some command filed since the last run
+        #: the commands' arrays as flat memoryviews: a value filed costs a third of
+        #: numpy's item assignment
+        self._kinds = memoryview(self.kind)
+        self._cmds = memoryview(self.cmd).cast("B").cast("d")
 
     @classmethod
     def alone(cls, robots: Sequence[RobotSpec], dt: float) -> "WorldDrive":
@@ -94,14 +98,14 @@ class WorldDrive:
     # ------------------------------------------------------------ a tick's commands
     def twist(self, i: int, v: float, w: float) -> None:
         """Robot ``i``'s command this tick: the body speeds (v m/s, w rad/s)."""
-        self.kind[i] = TWIST
-        self.cmd[i] = (v, w)
+        self._kinds[i] = TWIST
+        self._cmds[2 * i], self._cmds[2 * i + 1] = float(v), float(w)
         self._filed = True
 
     def wheels_to(self, i: int, left: float, right: float) -> None:
         """Robot ``i``'s command this tick: the wheel speeds (rad/s)."""
-        self.kind[i] = WHEELS
-        self.cmd[i] = (left, right)
+        self._kinds[i] = WHEELS
+        self._cmds[2 * i], self._cmds[2 * i + 1] = float(left), float(right)
         self._filed = True
 
     def run(self, tick: int) -> np.ndarray:
