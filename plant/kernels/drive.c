@@ -1,6 +1,7 @@
-/* A batch of robots' drive limiters and dead reckoning, one control tick each call: a
- * world's commands (plant_drive_commands: plant/core/drive.py, every host's tick) and the
- * worlds an environment steps (plant/kernels/ticks.c).
+/* A batch of robots' drive limiters and dead reckoning, one control tick each call: the
+ * commands of a world's robots (plant_drive_commands: plant/core/drive.py, every host's
+ * tick) or of the worlds an environment steps (plant/kernels/ticks.c, which also calls
+ * plant_odometry).
  *
  * Both are Python code elsewhere, run with Python floats: plant/drive.py's DriveLimiter
  * (from_twist, from_wheels), plant/sim.py's motion noise (plant/core/drive.py's
@@ -26,9 +27,6 @@ static inline double clamp(double x, double lim)
     return (m > -lim) ? m : -lim;
 }
 
-/* DriveLimiter.from_twist for n robots of one drive: v, w (n) the ramped body speeds and
- * wheels (n, 2) the ramped wheel speeds, updated in place; v_target, w_target (n) the
- * commands clamped to the speed limits already; out (n, 2) the wheel-speed targets. */
 /* DriveLimiter._wheel_limits: the wheel speeds (wl, wr) scaled together to the speed
  * limit m (the path's curvature kept), then each ramped from wh (2, updated) by at most a */
 static inline void wheel_limits(double wl, double wr, double m, double a, double *wh)
@@ -51,22 +49,6 @@ static inline void twist_row(double *v, double *w, double *wh, double vt, double
     *v = *v + clamp(vt - *v, dv);                                /* _ramp */
     *w = *w + clamp(wt - *w, dw);
     wheel_limits((*v - *w * d / 2.0) / r, (*v + *w * d / 2.0) / r, m, a, wh);   /* inverse */
-}
-
-/* DriveLimiter.from_twist for n robots of one drive: v, w (n) the ramped body speeds and
- * wheels (n, 2) the ramped wheel speeds, updated in place; v_target, w_target (n) the
- * commands clamped to the speed limits already; out (n, 2) the wheel-speed targets. */
-EXPORT void plant_drive_limit(int64_t n, double *v, double *w, double *wheels,
-                              const double *v_target, const double *w_target,
-                              double dv, double dw, double r, double d, double m, double a,
-                              double *out)
-{
-    for (int64_t i = 0; i < n; i++) {
-        double *wh = wheels + 2 * i;
-        twist_row(v + i, w + i, wh, v_target[i], w_target[i], dv, dw, r, d, m, a);
-        out[2 * i] = wh[0];
-        out[2 * i + 1] = wh[1];
-    }
 }
 
 /* The columns of plant_drive_commands' limits (n, DRIVE_COLUMNS), a robot a row
