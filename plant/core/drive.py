@@ -87,7 +87,7 @@ class WorldDrive:
         #: the commands' arrays as flat memoryviews: a value filed costs a third of
         #: numpy's item assignment
         self._kinds = memoryview(self.kind)
-        self._cmds = memoryview(self.cmd).cast("B").cast("d")
+        self._cmds = memoryview(self.cmd.reshape(-1))     # (a view: the rows are contiguous)
 
     @classmethod
     def alone(cls, robots: Sequence[RobotSpec], dt: float) -> "WorldDrive":

@@ -131,3 +131,8 @@ def test_every_host_files_commands_into_the_core_and_the_step_runs_them(tmp_path
             assert np.array_equal(_bits(d.targets), _bits(want)), (mode, k)
             assert [d.limiter(i) for i in range(len(names))] == \
                 [(lim.v, lim.w, lim.wheels) for lim in oracle], (mode, k)
+
+
+def test_a_world_without_robots_has_an_empty_front_half():
+    d = cd.WorldDrive.alone([], DT)                 # (a world file may list no robot)
+    assert d.run(0).shape == (0, 2)
