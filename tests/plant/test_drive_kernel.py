@@ -117,6 +117,7 @@ def test_every_host_files_commands_into_the_core_and_the_step_runs_them(tmp_path
             d = tick.sim.drive
             for a in ("v", "w", "wheels", "targets", "keys"):
                 assert np.shares_memory(getattr(d, a), tick.data.drive[a]), a
+            assert d.keys.tolist() == [stream_key(spec.seed, n, "motion") for n in names]
             kind, cmd = np.zeros(len(names), np.int64), np.zeros((len(names), 2))
             for i, name in enumerate(names):
                 c = [None, Twist(0.3, 0.9 * math.sin(k + i)), WheelSpeeds(9.0, 2.0 - i)][(k + i) % 3]
