@@ -43,10 +43,10 @@ def world_state(tick, touching: set | None) -> dict:
         "skeletons": [[sk.getName(), _array(sk.getPositions()), _array(sk.getVelocities()),
                        _array(sk.getAccelerations())]
                       for sk in (world.getSkeleton(i) for i in range(world.getNumSkeletons()))],
-        "robots": {name: {"targets": list(r.targets),
-                          "limiter": [sim.limiters[name].v, sim.limiters[name].w,
-                                      list(sim.limiters[name].wheels)]}
-                   for name, r in sim.robots.items()},
+        "robots": {name: {"targets": sim.drive.targets[i].tolist(),
+                          "limiter": [v, w, list(wheels)]}
+                   for i, name in enumerate(sim.drive.names)
+                   for v, w, wheels in [sim.drive.limiter(i)]},
         "touching": sorted(touching) if touching is not None else None,
     }
 
@@ -67,11 +67,12 @@ def set_world_state(tick, state: dict) -> None:
         sk.setAccelerations(np.array(ddq, dtype=np.float64))
     world.setTime(float(state["time"]))
     sim.restore_clock(state["steps"])
+    drive = sim.drive
     for name, r in state["robots"].items():
-        sim.robots[name].targets = tuple(float(v) for v in r["targets"])
-        lim = sim.limiters[name]
-        lim.v, lim.w = float(r["limiter"][0]), float(r["limiter"][1])
-        lim.wheels = tuple(float(v) for v in r["limiter"][2])
+        i = drive.index[name]
+        drive.targets[i] = [float(v) for v in r["targets"]]
+        drive.set_limiter(i, float(r["limiter"][0]), float(r["limiter"][1]),
+                          [float(v) for v in r["limiter"][2]])
 
 
 def to_bytes(token: str, state: dict) -> bytes:

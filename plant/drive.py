@@ -38,6 +38,10 @@ class DriveLimiter:
     acceleration limits; wheel commands are clamped and ramped per wheel. Either
     way the result is clamped to ``max_wheel_speed_radps``. Non-finite inputs
     never reach here (the plant rejects them first).
+
+    The hosts' ticks run every robot's limiter at once as arrays
+    (:mod:`plant.core.drive`, a C kernel); this class is its reference, robot by robot,
+    which the tests compare it with to the bit.
     """
 
     def __init__(self, spec: DriveSpec) -> None:

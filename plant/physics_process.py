@@ -160,8 +160,7 @@ def serve(conn: Connection) -> int:
                 conn.send(snapshot(sim, True))
             elif msg[0] == "step":
                 _, targets, with_parts = msg
-                for robot, wheels in zip(sim.robots.values(), targets):
-                    robot.targets = wheels
+                sim.drive.targets[:] = targets
                 sim.step_tick()
                 conn.send(snapshot(sim, with_parts))
             else:

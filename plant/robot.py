@@ -135,11 +135,10 @@ class Robot:
             joint.setForceUpperLimit(0, tau)
             self.wheels.append(joint)
         self.skeleton = sk
-        self.targets = (0.0, 0.0)
 
-    def apply(self) -> None:
-        """Set this physics step's motor commands (DART zeroes them after every step)."""
-        wl, wr = self.targets
+    def apply(self, wl: float, wr: float) -> None:
+        """Set the wheels' speed commands (rad/s; DART's ``step()`` zeroes them after every
+        step, ``step(False)`` keeps them)."""
         self.wheels[0].setCommand(0, wl)
         self.wheels[1].setCommand(0, wr)
 

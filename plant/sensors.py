@@ -13,7 +13,7 @@ description of its sensors (which are due at a tick, the camera's noise model).
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -24,8 +24,10 @@ from . import camera as cam
 from . import lidar as lid
 from .noise import NoiseModel, stream_key
 from .raycast import Scene
-from .sim import RobotState
 from .world import RobotSpec
+
+if TYPE_CHECKING:                      # (plant.sim imports the core, which imports this)
+    from .sim import RobotState
 
 JOINTS = ("left_wheel_joint", "right_wheel_joint")
 

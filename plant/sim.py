@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import dartpy as dart
 import numpy as np
 
-from . import drive as dd
+from .core.drive import WorldDrive
 from .kinematic import Kinematics
 from .robot import Robot, movable_object, room_skeleton
 from .shapes import Shape, pose_matrix
@@ -134,12 +134,13 @@ class Simulation:
             if not obj.static:
                 w.addSkeleton(movable_object(obj, spec))
         self.robots: dict[str, Robot] = {}
-        self.limiters: dict[str, dd.DriveLimiter] = {}
         for rs in spec.robots:
             robot = Robot(rs, spec)
             w.addSkeleton(robot.skeleton)
             self.robots[rs.name] = robot
-            self.limiters[rs.name] = dd.DriveLimiter(rs.drive)
+        #: the robots' drive limiters, commands and wheel-speed targets, as arrays (its own
+        #: until a Tick binds its core's: :meth:`use_drive`)
+        self.drive = WorldDrive.alone(spec.robots, spec.control_tick_s)
         self._steps = 0
         self._static_shapes = [self._shape_of(o) for o in self.objects if o.static]
         self._robot_parts = [part for name, r in self.robots.items()
@@ -174,9 +175,7 @@ class Simulation:
         environment's resets cost most)."""
         assert self.kin is not None, "only a kinematic world restarts in place"
         self.kin.restart(self.spec)
-        for name, r in self.robots.items():
-            r.targets = (0.0, 0.0)
-            self.limiters[name].reset()
+        self.drive.reset()
         self._steps = 0
         self._motion_streams()
 
@@ -186,6 +185,7 @@ class Simulation:
         self.motion_noise = {r.name: NoiseModel(NoiseConfig(std=1.0),
                                                 stream_key(self.spec.seed, r.name, "motion"))
                              for r in self.spec.robots}
+        self.drive.keys[:] = [self.motion_noise[n].key for n in self.drive.names]
 
     def _set_contact_solver(self, name: str) -> None:
         """PGS honours the Coulomb friction limit; DART's default Dantzig solver over-grips
@@ -220,41 +220,50 @@ class Simulation:
         self._steps = int(steps)
 
     def step_tick(self) -> None:
-        """Advance one control tick (``substeps`` physics steps) with the current targets.
+        """Advance one control tick (``substeps`` physics steps) with the commands filed
+        (:meth:`command_targets`) or, for a robot given none, its targets as they were.
 
         ``world.step(False)`` keeps the motor commands (``step()`` zeroes them), so a
         dynamic robot's wheel commands are set once a tick, not once a step: the same
         values, the same motion bit for bit, a tenth of the dartpy calls. A kinematic
         world is not DART's to step: its robots move by :mod:`plant.kinematic`."""
-        robots = list(self.robots.values())
+        targets = self.command_targets()
         if self.kin is not None:
-            self.kin.step(np.array([r.targets for r in robots], float))
+            self.kin.step(targets)
         else:
-            for r in robots:
-                r.apply()
+            for r, (wl, wr) in zip(self.robots.values(), targets.tolist()):
+                r.apply(wl, wr)
             for _ in range(self._substeps):
                 self.world.step(False)
         self.advance()
 
     # ------------------------------------------------------------------ commands
     def command_twist(self, robot: str, v_mps: float, w_radps: float) -> None:
-        self._set_targets(robot, self.limiters[robot].from_twist(
-            v_mps, w_radps, self.spec.control_tick_s))
+        """Drive ``robot`` at (v m/s, w rad/s) from now: through its limiter and motion
+        noise into its targets at once (:meth:`plant.tick.Tick.drive` files every robot's
+        command and runs them together when the step starts)."""
+        self.drive.twist(self.drive.index[robot], v_mps, w_radps)
+        self.command_targets()
 
     def command_wheels(self, robot: str, wl: float, wr: float) -> None:
-        self._set_targets(robot, self.limiters[robot].from_wheels(
-            wl, wr, self.spec.control_tick_s))
+        """Drive ``robot``'s wheels at (left, right) rad/s from now, as :meth:`command_twist`."""
+        self.drive.wheels_to(self.drive.index[robot], wl, wr)
+        self.command_targets()
 
-    def _set_targets(self, robot: str, wheels: tuple[float, float]) -> None:
-        """Wheel-speed set-points for the next tick, with the robot's motion noise: the
-        normals of its motion stream at the tick the command acts from, times the std (a
-        robot commanded to stand, (0, 0), gets none)."""
-        r = self.robots[robot]
-        std = r.spec.sensors.command_noise_std_radps
-        if std > 0.0 and wheels != (0.0, 0.0):
-            n = self.motion_noise[robot].normals(self._steps // self._substeps, (2,)) * std
-            wheels = (wheels[0] + n[0], wheels[1] + n[1])
-        r.targets = wheels
+    def command_targets(self) -> np.ndarray:
+        """The commands filed (:attr:`drive`) through each robot's drive limiter and its
+        motion noise (the normals of its motion stream at this tick, the tick the commands
+        act from, times its std; none for a robot commanded to stand, wheels (0, 0)) into
+        the wheel-speed targets, every robot in one kernel call
+        (:meth:`plant.core.drive.WorldDrive.run`): the (R, 2) targets, the arrays' own."""
+        return self.drive.run(self._steps // self._substeps)
+
+    def use_drive(self, drive: WorldDrive) -> None:
+        """Keep the robots' drive state in ``drive`` (a core's rows for this world), its
+        present state copied in: the arrays' one owner from now on."""
+        if drive is not self.drive:
+            drive.load(self.drive)
+            self.drive = drive
 
     # ------------------------------------------------------------------ state
     def state(self, robot: str) -> RobotState:

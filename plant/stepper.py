@@ -58,7 +58,7 @@ class Stepper:
             self.sim.step_tick()
             return
         tick = self.sim.time_ns // self.tick_ns + 1
-        self.physics.start_step([r.targets for r in self.sim.robots.values()],
+        self.physics.start_step(self.sim.command_targets().tolist(),
                                 not self._room_only and
                                 any(s.needs_scene(tick) for s in self.sensors.values()))
 

@@ -60,7 +60,7 @@ class Tick:
         self.overlap = overlap
         self.physics: PhysicsProcess | None = None
         self._owed = False                # this tick's sensors are still to be published
-        #: the world's core (:mod:`plant.core`), made when the sensors are first asked for
+        #: the world's core (:mod:`plant.core`), made with the world
         self.model: core.Model | None = None
         self.build()
 
@@ -78,8 +78,11 @@ class Tick:
         self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
                                overlap=self.overlap)
         self._owed = True                 # (the new world's t = 0)
-        if self.model is not None:        # (a reset moves the robots, not their sensors)
-            self.data.set_streams(0, self.sensors)
+        if self.model is None:            # (a reset moves the robots, not their sensors)
+            self.model = core.Model([self.spec])
+            self.data = core.Data(self.model)
+        self.data.set_streams(0, self.sensors)
+        self.sim.use_drive(core.world_drive(self.model, self.data, 0))
 
     def reset(self, seed: int | None = None, poses: dict | None = None) -> None:
         """As ``sim/reset``: keep ``seed`` and the start ``poses`` ({robot: (x, y, yaw)}) in
@@ -105,12 +108,7 @@ class Tick:
         return iter(self._sense(wanted, encoded, cast))
 
     def observe(self) -> None:
-        """Every robot's true state now into the core's arrays (:func:`plant.core.observe`;
-        the core is made the first time)."""
-        if self.model is None:
-            self.model = core.Model([self.spec])
-            self.data = core.Data(self.model)
-            self.data.set_streams(0, self.sensors)
+        """Every robot's true state now into the core's arrays (:func:`plant.core.observe`)."""
         core.observe(self.model, self.data, 0, self.stepper)
 
     def _sense(self, wanted, encoded: bool, cast: tuple | None) -> list:
@@ -126,13 +124,18 @@ class Tick:
             sensors.prefetch(nxt)
 
     def drive(self, robot: str, command: Twist | WheelSpeeds | None) -> None:
-        """The command that acts on ``robot`` from now to the next tick (None: stand still)."""
+        """The command that acts on ``robot`` from now to the next tick (None: stand still),
+        filed into the core's arrays: the step's start runs every robot's through its drive
+        limiter and motion noise in one call (:meth:`plant.sim.Simulation.command_targets`).
+        A robot given no command keeps its wheel targets; the last command filed for a
+        robot in a tick is the one that acts."""
+        d = self.sim.drive
         if command is None:
-            self.sim.command_twist(robot, 0.0, 0.0)
+            d.twist(d.index[robot], 0.0, 0.0)
         elif isinstance(command, Twist):
-            self.sim.command_twist(robot, command.linear, command.angular)
+            d.twist(d.index[robot], command.linear, command.angular)
         else:
-            self.sim.command_wheels(robot, command.left, command.right)
+            d.wheels_to(d.index[robot], command.left, command.right)
 
     def begin(self) -> bool:
         """A new tick: whether the host publishes its sensors now (not if the step will,
@@ -182,7 +185,7 @@ def step_ticks(ticks: Sequence[Tick]) -> None:
         kin = []
     else:
         batch = kinematic.join([t.sim.kin for t in kin])
-        batch.step(np.array([r.targets for t in kin for r in t.sim.robots.values()], float))
+        batch.step(np.concatenate([t.sim.command_targets() for t in kin]))
         finite = batch.finite()
         for t in kin:
             t.sim.advance()

@@ -28,7 +28,8 @@ class Scan:
 class Kept:
     """A batch's tasks by index, as :meth:`diffbot.envs.kinbatch.ArrayTicks.advance` left
     them: each one's objects (``roster``: tick, robot name, sensors, simulation, observer,
-    its odometry, drive limiter, robot, task) and its state (the odometry's pose, velocity, last encoder angles
+    its odometry, its world's drive arrays (:class:`plant.core.drive.WorldDrive`: the
+    limiter, the wheel targets), the robot's index there, task) and its state (the odometry's pose, velocity, last encoder angles
     and their time, wheel radius and separation, the observer's scan, the world's step
     count, the limiter's v, w and wheel speeds; the robot's wheel targets, the task's time
     and ground truth, its last scan as sent), so a step reads the arrays, not every task's
@@ -60,7 +61,7 @@ class Kept:
             tick = t.transport.tick
             sim, o = tick.sim, t.observers[name]
             self.roster[i] = (tick, name, tick.sensors[name], sim, o, o.odom,
-                              sim.limiters[name], sim.robots[name], t)
+                              sim.drive, sim.drive.index[name], t)
         objs = [self.roster[i] for i in at.tolist()]
         odo = [r[5] for r in objs]
         self.pose[at] = [(o.x, o.y, o.theta) for o in odo]
@@ -76,10 +77,10 @@ class Kept:
             self.scan_fields = Scan.fields(objs[0][2].lidar)
         self.scans[at] = scans
         self.steps[at] = [r[3].steps for r in objs]
-        lims = [r[6] for r in objs]
-        self.lim_v[at] = [lim.v for lim in lims]
-        self.lim_w[at] = [lim.w for lim in lims]
-        self.wheels[at] = [lim.wheels for lim in lims]
+        lims = [r[6].limiter(r[7]) for r in objs]
+        self.lim_v[at] = [v for v, _, _ in lims]
+        self.lim_w[at] = [w for _, w, _ in lims]
+        self.wheels[at] = [wh for _, _, wh in lims]
 
     def keep(self, plan, truth: np.ndarray) -> None:
         """What a step's plan (:class:`diffbot.envs.kinbatch._TickPlan`) left of its rows
@@ -113,20 +114,19 @@ class Kept:
                 self.lim_w[rows].tolist(), self.wheels[rows].tolist(),
                 self.targets[rows].tolist(), self.t_ns[rows].tolist(),
                 self.truth[rows].tolist()):
-            _tick, name, _s, sim, _o, od, lim, robot, task = self.roster[i]
+            _tick, name, _s, sim, _o, od, drive, j, task = self.roster[i]
             od.x, od.y, od.theta = p
             od.v, od.w = u
             od._last = (e[0], e[1])
             od._last_t = te
             sim.advance((n - sim.steps) // sim.spec.substeps)   # the ticks the arrays ran
-            lim.v, lim.w = v, w
-            lim.wheels = (wh[0], wh[1])
-            robot.targets = (tg[0], tg[1])
+            drive.set_limiter(j, v, w, wh)
+            drive.targets[j] = tg
             task.t_ns = t
             task._ticks_left = 0
             task.truth = {name: tuple(tr)}
         for i in rows[self.new_scan[rows]].tolist():
-            _tick, name, _s, _sim, o, _od, _lim, _robot, task = self.roster[i]
+            _tick, name, _s, _sim, o, _od, _drive, _j, task = self.roster[i]
             o.scan = self.scans[i].copy()
             o._scan_msg = None
             task.scans[name] = Scan(self.raw[i].copy(), *self.scan_fields)

@@ -5,7 +5,8 @@ physics process) with one robot, a lidar and no camera, each to the bit what the
 path gives (:func:`plant.tick.messages_of`, then :meth:`diffbot.envs.avoid.AvoidTask._observe`;
 ``tests/envs/test_envs_vector.py`` runs both side by side). A step's ticks are calls of
 plant/kernels/ticks.c (:class:`_TickPlan`), which does what the plant's tick does, in its
-order: the commands through the drive limiter with the motion noise, the step, the
+order: the commands through the drive limiter with the motion noise (the plant's own kernel,
+plant/kernels/drive.c's plant_drive_commands), the step, the
 encoders and the dead reckoning; a kinematic world's ticks in one call up to where a lidar
 comes due, a DART world's in two halves, DART stepping between them. The lidars due are
 cast together, their noise is the plant's (:mod:`plant.noise`: a reading is a function of
@@ -24,12 +25,13 @@ import numpy as np
 from bus.codec import yaw_of
 from plant import kernels, kinematic
 from plant import lidar as lid
+from plant.core.drive import limits_of, motion_std
 from plant.noise import NoiseModel, normals
 from plant.raycast import Scene
 from plant.sim import rotation_to_quaternion
 
 from .kept import Kept
-from .obsmath import clamp, clip, observation, truths
+from .obsmath import clip, observation, truths
 from .transport import InProc
 
 
@@ -144,13 +146,13 @@ class ArrayTicks:
 
 
 #: plant/kernels/ticks.c's slots (its enums), in order
-_SLOTS = ("v w lim_wheels v_target w_target targets cmd_buf cmd_next cmd_live cmd_len "
+_SLOTS = ("v w lim_wheels kind cmd targets limits std keys tick "
           "radius separation world pose wheels speeds vel pairs "
           "nbox box_c box_cos box_sin box_half ncirc circ_c circ_r half "
           "enc_have enc_buf enc_next enc_live enc_len "
           "odo_pose odo_vel last last_t odo_r odo_d pos t "
           "steps t_ns due sub step_ns tick_ns period").split()
-_PARAMS = "dv dw r d m a tick_s foot_r centre_x enc_offset enc_res".split()
+_PARAMS = "tick_s foot_r centre_x enc_offset enc_res".split()
 
 
 class _TickPlan:
@@ -175,19 +177,20 @@ class _TickPlan:
         self.run = bool(np.array_equal(at, np.arange(lo, lo + w)))
         self.rows = slice(lo, lo + w) if self.run else at      # (a slice: views)
         self.state = {f: getattr(k, f)[self.rows] for f in Kept.STATE}
-        self.v_target, self.w_target = np.zeros(w), np.zeros(w)
+        #: the commands as plant_drive_commands reads them: each world's twist, its kind
+        #: and tick (set by ticks.c each tick)
+        self.cmd_in = np.zeros((w, 2))
+        self.kind, self.tick_at = np.zeros(w, np.int64), np.zeros(w, np.int64)
         self.pos, self.t, self.due = np.zeros((w, 2)), np.zeros(w), np.zeros(w, np.int64)
         self.cfg = cfg = sensors[0].lidar
         self.raw = np.zeros((w, cfg.num_rays), np.float32)
         self.new_scan = np.zeros(w, bool)
         self.goal = np.array([o.goal for o in obs], float).reshape(w, 2)
         self.max_range = obs[0].max_range
-        spec = sims[0].limiters[names[0]].spec
-        self.limits = (spec.max_linear_mps, spec.max_angular_radps)
         self.sub = sims[0].spec.substeps
         self.tick_ns = ticks[0].tick_ns
         self.wheels = np.zeros((w, 2))        # a DART world's wheel angles, each tick
-        self._lay_out(spec, sims[0].spec, sensors[0], self._noises(sims, names, sensors))
+        self._lay_out(sims[0].spec, sensors[0], self._noises(sims, names, sensors))
         self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
         self._key = self.at.tobytes()
         self._first_kin = sims[0].kin
@@ -198,12 +201,13 @@ class _TickPlan:
             self._base[0, 2, 3] = float(self.worlds.batch.radius[0])
 
     def _noises(self, sims: list, names: list[str], sensors: list):
-        """The noise: the commands' and the encoders' (each step's readings for the kernel,
-        :class:`_Noise`), the lidar's; the encoders' config (None: no encoder noise)."""
-        std = sims[0].robots[names[0]].spec.sensors.command_noise_std_radps
-        self.cmd = None if std <= 0.0 else _Noise(
-            _keys([s.motion_noise[n] for s, n in zip(sims, names)]), std, 0,
-            self.repeat)
+        """The noise: the motion noise's keys (the kernel draws it), the encoders' (each
+        step's readings for the kernel, :class:`_Noise`), the lidar's; the encoders' config
+        (None: no encoder noise)."""
+        robot = sims[0].spec.robot(names[0])
+        dt = sims[0].spec.control_tick_s
+        self.drive_limits, self.motion_std = limits_of([robot], dt), motion_std([robot])
+        self.motion_keys = _keys([s.motion_noise[n] for s, n in zip(sims, names)])
         models = [s.enc_noise for s in sensors]
         enc_cfg = next((m.config for m in models if m is not None), None)
         self.enc = None if enc_cfg is None or enc_cfg.std <= 0 else _Noise(
@@ -212,13 +216,13 @@ class _TickPlan:
         models = [s.lidar_noise for s in sensors]
         self.lid_noise = (None if models[0] is None
                           else NoiseModel(models[0].config, _keys(models)))
-        self.noises = [g for g in (self.cmd, self.enc) if g is not None]
+        self.noises = [g for g in (self.enc,) if g is not None]
         return enc_cfg
 
-    def _lay_out(self, spec, sim_spec, sensors, enc_cfg) -> None:
+    def _lay_out(self, sim_spec, sensors, enc_cfg) -> None:
         """The addresses of every block plant/kernels/ticks.c reads (its slots, in
-        :data:`_SLOTS`' order) and its parameters (:data:`_PARAMS`): ``spec`` the drive's,
-        ``sim_spec`` the world's, ``sensors`` a robot's (the batch's share them)."""
+        :data:`_SLOTS`' order) and its parameters (:data:`_PARAMS`): ``sim_spec`` the
+        world's, ``sensors`` a robot's (the batch's share them)."""
         st = self.state
         dt = sim_spec.control_tick_s
         if self.kinematic:
@@ -230,7 +234,9 @@ class _TickPlan:
             statics, pairs, tick_s = (0,) * 9, False, dt
         slots = {
             "v": st["lim_v"], "w": st["lim_w"], "lim_wheels": st["wheels"],
-            "v_target": self.v_target, "w_target": self.w_target, "targets": st["targets"],
+            "kind": self.kind, "cmd": self.cmd_in, "targets": st["targets"],
+            "limits": self.drive_limits, "std": self.motion_std, "keys": self.motion_keys,
+            "tick": self.tick_at,
             "pairs": int(pairs), "enc_have": self.enc_have if self.enc_have.any() else 0,
             "odo_pose": st["pose"], "odo_vel": st["vel"], "last": st["last"],
             "last_t": st["last_t"], "odo_r": st["r"], "odo_d": st["d"], "pos": self.pos,
@@ -239,15 +245,12 @@ class _TickPlan:
             "tick_ns": self.tick_ns, "period": sensors.periods["scan"]}
         slots.update(zip(_SLOTS[_SLOTS.index("radius"):], robots))
         slots.update(zip(_SLOTS[_SLOTS.index("nbox"):], statics))
-        for name, g in (("cmd", self.cmd), ("enc", self.enc)):
-            slots.update({f"{name}_buf": g.buf, f"{name}_next": g.next, f"{name}_live": g.live,
-                          f"{name}_len": g.buf.shape[1]} if g is not None else
-                         {f"{name}_{x}": 0 for x in ("buf", "next", "live", "len")})
+        g = self.enc
+        slots.update({"enc_buf": g.buf, "enc_next": g.next, "enc_live": g.live,
+                      "enc_len": g.buf.shape[1]} if g is not None else
+                     {f"enc_{x}": 0 for x in ("buf", "next", "live", "len")})
         self.slots = np.array([kernels.ptr(slots[n]) for n in _SLOTS], np.int64)
-        params = {"dv": spec.max_linear_accel_mps2 * dt, "dw": spec.max_angular_accel_radps2 * dt,
-                  "r": spec.wheel_radius_m, "d": spec.wheel_separation_m,
-                  "m": spec.max_wheel_speed_radps, "a": spec.max_wheel_accel_radps2 * dt,
-                  "tick_s": tick_s, "foot_r": kinematic.FOOTPRINT_RADIUS_M,
+        params = {"tick_s": tick_s, "foot_r": kinematic.FOOTPRINT_RADIUS_M,
                   "centre_x": kinematic.CHASSIS_CENTRE_X_M,
                   "enc_offset": 0.0 if enc_cfg is None else enc_cfg.bias + enc_cfg.mean,
                   "enc_res": 0.0 if enc_cfg is None else float(enc_cfg.resolution)}
@@ -281,8 +284,7 @@ class _TickPlan:
     def step(self, owner: ArrayTicks, cmds: np.ndarray) -> Made:
         """:meth:`ArrayTicks.advance` of the plan's rows with ``cmds`` (W, 2)."""
         st, w = self.state, len(self.at)
-        self.v_target[:] = clamp(cmds[:, 0], self.limits[0])
-        self.w_target[:] = clamp(cmds[:, 1], self.limits[1])
+        self.cmd_in[:] = cmds                   # (clamped to the limits by the kernel)
         self.new_scan[:] = False
         tick = st["steps"] // self.sub           # each world's tick now
         for g in self.noises:                   # the readings of the step's ticks
@@ -376,14 +378,15 @@ class _Dart:
     def __init__(self, sims: list, names: list[str]) -> None:
         self.sims = sims
         self.robots = [s.robots[n] for s, n in zip(sims, names)]
+        self._targets = [s.drive.targets[s.drive.index[n]] for s, n in zip(sims, names)]
         self._tfs: dict[int, np.ndarray] = {}    # the robots' poses since the last tick
 
     def step(self, targets: np.ndarray) -> None:
         """One tick of every world (:meth:`plant.tick.Tick.step` without its check, which
         :meth:`finish` makes once a step: not a number stays one)."""
         self._tfs.clear()
-        for sim, robot, (wl, wr) in zip(self.sims, self.robots, targets.tolist()):
-            robot.targets = (wl, wr)                 # as Simulation.command_twist sets them
+        for sim, mine, row in zip(self.sims, self._targets, targets):
+            mine[:] = row                            # as Simulation.command_twist sets them
             sim.step_tick()
 
     def _tf(self, j: int) -> np.ndarray:

@@ -4,9 +4,11 @@ noise laws, the messages' layouts), its :class:`~plant.core.data.Data` (what a t
 as arrays shaped (worlds, robots, ...)), and :mod:`plant.core.step` (one call a tick for every
 robot: the state read into the arrays, every robot's per-tick messages drawn and written in
 one kernel call (plant/kernels/sense.c, :mod:`plant.core.outgoing`), the lidars cast in one
-kernel call per configuration)."""
+kernel call per configuration), and the front half of a tick: every robot's command
+through its drive limiter and motion noise in one kernel call (:mod:`plant.core.drive`)."""
 from .data import Data
+from .drive import WorldDrive, world_drive
 from .model import Model
 from .step import observe, sense
 
-__all__ = ["Data", "Model", "observe", "sense"]
+__all__ = ["Data", "Model", "WorldDrive", "observe", "sense", "world_drive"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .drive import state_arrays
 from .model import Model
 
 #: the per-tick noise streams, and the attribute of a robot's sensors holding its model
@@ -39,6 +40,11 @@ class Data:
         #: robot are one call
         self.keys = {k: np.zeros((W, R), np.uint64) for k in _STREAMS}
         self._names = model.robots
+        #: the front half's state (:func:`plant.core.drive.state_arrays`: the limiters' v, w
+        #: and wheels, the commands' kind and values, the targets, the motion noise's keys),
+        #: and each world's view of its rows (:func:`plant.core.drive.world_drive`)
+        self.drive = state_arrays(W, R)
+        self.drives: list = [None] * W
         #: each world's message buffer and kernel calls (:mod:`plant.core.outgoing`), made
         #: when first sensed, and their layout (the same for every world)
         self.outgoing: list = [None] * W

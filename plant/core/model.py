@@ -1,7 +1,7 @@
 """The core's model: what does not change during a run, built once from the world files.
 
 W worlds with the same robots (one world for the plant; a batched environment's copies),
-each robot's drive parameters, its sensors (which topics, their periods in control ticks,
+each robot's drive parameters (its limits and motion noise: :mod:`plant.core.drive`), its sensors (which topics, their periods in control ticks,
 the lidar and camera configurations, the noise laws as arrays) and the byte layouts of its
 per-tick messages (:class:`bus.packed.Rows`: the frame ids are fixed, so each message is a
 template with its values' places known).
@@ -20,6 +20,7 @@ from ..lidar import LidarConfig
 from ..noise import NoiseConfig
 from ..sensors import JOINTS, period_ticks
 from ..world import WorldSpec
+from .drive import limits_of, motion_std
 
 #: the per-tick topics every robot publishes, in the plant's order
 EVERY_TICK = ("joint_states", "gps", "ground_truth")
@@ -53,6 +54,9 @@ class Model:
         robots = first.robots
         self.wheel_radius_m = np.array([r.drive.wheel_radius_m for r in robots], float)
         self.wheel_separation_m = np.array([r.drive.wheel_separation_m for r in robots], float)
+        #: each robot's drive limits (R, 8) and motion noise std (R,) (plant.core.drive)
+        self.drive_limits = limits_of(robots, self.tick_s)
+        self.motion_std = motion_std(robots)
         sens = [r.sensors for r in robots]
         self.lidars: tuple[LidarConfig | None, ...] = tuple(s.lidar for s in sens)
         self.cameras = tuple(s.camera for s in sens)

@@ -1,7 +1,8 @@
 """The plant's compiled kernels (C, built into plant/kernels/build/ by ``make setup`` in a
 clone, or by the wheel's build),
 loaded with ctypes: the lidar's sweep (:func:`lidar_scan`), the camera's per-pixel work, the
-kinematic world's tick (:func:`kinematic_step`), and the ticks of one-robot worlds an
+kinematic world's tick (:func:`kinematic_step`), a world's commands through its drive
+limiters and motion noise (:func:`drive_commands_call`), and the ticks of one-robot worlds an
 environment steps (:func:`ticks`, :func:`tick_part`: drive limiters, command and encoder
 noise, kinematic step, dead reckoning; plant/kernels/drive.c and ticks.c).
 
@@ -24,14 +25,14 @@ __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_no
            "ptr",
            "kinematic_step", "clearances", "ticks",
            "tick_part", "sense_call", "observe_kinematic_call", "quaternions",
-           "quaternions_call", "lidar_noise"]
+           "quaternions_call", "lidar_noise", "drive_commands_call"]
 
 ABI = 4
 CAMERA_ABI = 2
 NOISE_ABI = 2
-DRIVE_ABI = 1
+DRIVE_ABI = 2
 KINEMATIC_ABI = 2
-TICKS_ABI = 3
+TICKS_ABI = 4
 SENSE_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
@@ -93,6 +94,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_observe_kinematic.argtypes = [_I] + [_P] * 12
     lib.plant_quaternions.restype = None
     lib.plant_quaternions.argtypes = [_I, _P, _P]
+    lib.plant_drive_commands.restype = None
+    lib.plant_drive_commands.argtypes = [_I, _I] + [_P] * 10
     lib.plant_lidar_noise.restype = None
     lib.plant_lidar_noise.argtypes = [_I, _I, _P, _P, _P, _I, _D, _D, _D, _P, _P]
     lib.plant_lidar_scan.restype = None
@@ -291,6 +294,31 @@ def quaternions_call(tf: np.ndarray, out: np.ndarray):
     assert tf.shape == (n, 4, 4) and out.shape == (n, 4)
     assert tf.dtype == out.dtype == np.float64 and tf.flags.c_contiguous and out.flags.c_contiguous
     fn, args = library().plant_quaternions, (n, ptr(tf), ptr(out))
+    return lambda: fn(*args)
+
+
+def drive_commands_call(worlds: int, n: int, tick: np.ndarray, limits: np.ndarray,
+                        std: np.ndarray, keys: np.ndarray, kind: np.ndarray, cmd: np.ndarray,
+                        v: np.ndarray, w: np.ndarray, wheels: np.ndarray,
+                        targets: np.ndarray):
+    """``f()``: plant/kernels/drive.c's plant_drive_commands of ``n`` robots in each of
+    ``worlds`` worlds: the commands filed (``kind`` int64 (W, n): 0 none, 1 a twist, 2
+    wheel speeds; ``cmd`` (W, n, 2) their values) through the limiters (``limits`` (n, 8),
+    :func:`plant.core.drive.limits_of`; their state ``v``, ``w`` (W, n), ``wheels``
+    (W, n, 2), updated) and the motion noise (``std`` (n,), ``keys`` uint64 (W, n), at
+    ``tick`` int64 (W,): each world's tick, set before each call) into ``targets``
+    (W, n, 2). Float64 unless said, C-contiguous; the addresses are taken once: the caller
+    keeps the arrays alive and changes their values in place."""
+    shapes = ((tick, (worlds,), np.int64), (limits, (n, 8), np.float64),
+              (std, (n,), np.float64), (keys, (worlds, n), np.uint64),
+              (kind, (worlds, n), np.int64), (cmd, (worlds, n, 2), np.float64),
+              (v, (worlds, n), np.float64), (w, (worlds, n), np.float64),
+              (wheels, (worlds, n, 2), np.float64), (targets, (worlds, n, 2), np.float64))
+    for a, shape, dtype in shapes:              # (one world's rows: (n, ...) for (1, n, ...))
+        ok = a.size == int(np.prod(shape)) and a.shape[-1:] == shape[-1:]
+        assert ok and a.dtype == dtype and a.flags.c_contiguous, (a.shape, a.dtype, shape, dtype)
+    fn = library().plant_drive_commands
+    args = (worlds, n, *(ptr(a) for a, _, _ in shapes))
     return lambda: fn(*args)
 
 

@@ -1,16 +1,17 @@
 /* Control ticks of one-robot worlds, a batch of them per call (diffbot/envs/kinbatch.py:
  * an Avoid step's ticks, the batched env's and the single env's).
  *
- * Each tick is what the plant's tick does for such a world: the drive limiters
- * (plant_drive_limit), the command noise of the robots that move, the kinematic step
+ * Each tick is what the plant's tick does for such a world: the commands through the drive
+ * limiters and the motion noise of the robots that move (plant_drive_commands, as a
+ * plant's tick runs them), the kinematic step
  * (plant_kinematic_step), the encoders' noise, the dead reckoning (plant_odometry) and the
  * worlds' clocks. The same operations in the same order as its Python, so the same bits
  * (tests/envs/test_envs_vector.py runs the message path beside it, every noise on;
  * tests/envs/test_envs_identity.py a plant over the bus).
- * The noise: each stream's readings for the ticks of the call, drawn by the caller
+ * The encoders' noise: its readings for the ticks of the call, drawn by the caller
  * (plant/noise.py's normals, a function of the stream's key and the tick: the plant's own
- * values), one reading a tick, read here tick by tick; a robot that stands skips its
- * command noise's reading.
+ * values), one reading a tick, read here tick by tick. The motion noise is drawn by
+ * plant_drive_commands from each world's key and tick.
  *
  * The calls stop after a tick at which some world's lidar is due (its scan is cast in
  * Python before the next tick moves the robot): the number of ticks made is returned.
@@ -21,11 +22,12 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_ticks_abi(void) { return 3; }
+EXPORT int plant_ticks_abi(void) { return 4; }
 
-void plant_drive_limit(int64_t n, double *v, double *w, double *wheels,
-                       const double *v_target, const double *w_target, double dv, double dw,
-                       double r, double d, double m, double a, double *out);
+void plant_drive_commands(int64_t worlds, int64_t n, const int64_t *tick,
+                          const double *limits, const double *std, const uint64_t *keys,
+                          int64_t *kind, const double *cmd, double *v, double *w,
+                          double *wheels, double *targets);
 void plant_odometry(int64_t n, const double *pos, const double *t, double *pose, double *vel,
                     double *last, double *last_t, const double *r, const double *d);
 int plant_kinematic_step(int64_t n, double T, const double *targets, const double *radius,
@@ -37,12 +39,15 @@ int plant_kinematic_step(int64_t n, double T, const double *targets, const doubl
                          double centre_x, int64_t pairs);
 
 /* The slots of the call's int64 block (addresses and counts; kinbatch._TickPlan fills it
- * in this order). A stream of noise: buf (n, len, 2) each row's readings, one a tick,
- * next (n) the reading of each row's next tick (advanced here every tick), live (n,
- * int64) whether the row has a stream (a row without reads zeros). */
+ * in this order). The commands: plant_drive_commands' arrays for n worlds of one robot
+ * (cmd (n, 2) each world's twist; limits (1, 8) and std (1) the robot's; keys (n) its
+ * motion noise's; kind and tick (n) set here each tick). The encoders' noise: buf (n, len,
+ * 2) each row's readings, one a tick, next (n) the reading of each row's next tick
+ * (advanced here every tick), live (n, int64) whether the row has a stream (a row without
+ * reads zeros). */
 enum {
-    A_V, A_W, A_LIM_WHEELS, A_V_TARGET, A_W_TARGET, A_TARGETS,   /* drive limiters */
-    A_CMD_BUF, A_CMD_NEXT, A_CMD_LIVE, A_CMD_LEN,                  /* command noise (0: none) */
+    A_V, A_W, A_LIM_WHEELS, A_KIND, A_CMD, A_TARGETS,            /* drive limiters */
+    A_LIMITS, A_STD, A_KEYS, A_TICK,                               /* and motion noise */
     A_RADIUS, A_SEPARATION, A_WORLD, A_POSE, A_WHEELS, A_SPEEDS, A_VEL, A_PAIRS, /* robots */
     A_NBOX, A_BOX_C, A_BOX_COS, A_BOX_SIN, A_BOX_HALF, A_NCIRC, A_CIRC_C, A_CIRC_R, A_HALF,
     A_ENC_HAVE, A_ENC_BUF, A_ENC_NEXT, A_ENC_LIVE, A_ENC_LEN,     /* encoder noise (0: none) */
@@ -52,7 +57,6 @@ enum {
 };
 /* ... and of its double block */
 enum {
-    P_DV, P_DW, P_R, P_D, P_M, P_A,                /* the limiter's (plant_drive_limit) */
     P_TICK_S, P_FOOT_R, P_CENTRE_X,                /* the kinematic step's */
     P_ENC_OFFSET, P_ENC_RES,                       /* encoders: bias + mean, resolution */
     P_COUNT
@@ -63,34 +67,22 @@ EXPORT int64_t plant_ticks_count(void) { return A_COUNT * 1000 + P_COUNT; }
 
 #define PTR(type, slot) ((type *)(intptr_t)a[slot])
 
-/* A tick's commands: Simulation.command_twist of every world (the limiter, then the noise
- * of a robot that moves) into targets (n, 2). */
-static void commands(int64_t n, const int64_t *a, const double *p)
+/* A tick's commands: Tick.drive's twist of every world, run as a plant's tick runs them
+ * (plant_drive_commands: the limiter, then the motion noise of a robot that moves, at the
+ * world's tick) into targets (n, 2). */
+static void commands(int64_t n, const int64_t *a)
 {
-    double *targets = PTR(double, A_TARGETS);
-    const double *cmd_buf = PTR(const double, A_CMD_BUF);
-    int64_t *cmd_next = PTR(int64_t, A_CMD_NEXT);
-    const int64_t *cmd_live = PTR(const int64_t, A_CMD_LIVE);
-    const int64_t cmd_len = a[A_CMD_LEN];
-    plant_drive_limit(n, PTR(double, A_V), PTR(double, A_W), PTR(double, A_LIM_WHEELS),
-                      PTR(const double, A_V_TARGET), PTR(const double, A_W_TARGET),
-                      p[P_DV], p[P_DW], p[P_R], p[P_D], p[P_M], p[P_A], targets);
-    if (!cmd_buf)
-        return;
+    int64_t *kind = PTR(int64_t, A_KIND), *tick = PTR(int64_t, A_TICK);
+    const int64_t *steps = PTR(const int64_t, A_STEPS);
+    const int64_t sub = a[A_SUB];
     for (int64_t i = 0; i < n; i++) {
-        double *o = targets + 2 * i;
-        const int64_t at = cmd_live[i] ? cmd_next[i]++ : -1;    /* this tick's reading */
-        if (o[0] == 0.0 && o[1] == 0.0)
-            continue;
-        double n0 = 0.0, n1 = 0.0;
-        if (at >= 0) {
-            const double *r = cmd_buf + 2 * (i * cmd_len + at);
-            n0 = r[0];
-            n1 = r[1];
-        }
-        o[0] = o[0] + n0;
-        o[1] = o[1] + n1;
+        kind[i] = 1;                                            /* a twist */
+        tick[i] = steps[i] / sub;
     }
+    plant_drive_commands(n, 1, tick, PTR(const double, A_LIMITS), PTR(const double, A_STD),
+                         PTR(const uint64_t, A_KEYS), kind, PTR(const double, A_CMD),
+                         PTR(double, A_V), PTR(double, A_W), PTR(double, A_LIM_WHEELS),
+                         PTR(double, A_TARGETS));
 }
 
 /* What follows a tick's step: the worlds' clocks, their encoders (the wheel angles in
@@ -142,7 +134,7 @@ static int after(int64_t n, const int64_t *a, const double *p)
 EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const double *p)
 {
     for (int64_t k = 0; k < ticks; k++) {
-        commands(n, a, p);
+        commands(n, a);
         if (plant_kinematic_step(n, p[P_TICK_S], PTR(const double, A_TARGETS),
                                  PTR(const double, A_RADIUS), PTR(const double, A_SEPARATION),
                                  PTR(const int64_t, A_WORLD), PTR(double, A_POSE),
@@ -166,7 +158,7 @@ EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const dou
 EXPORT int64_t plant_tick_part(int64_t n, int64_t part, const int64_t *a, const double *p)
 {
     if (part == 0) {
-        commands(n, a, p);
+        commands(n, a);
         return 0;
     }
     return after(n, a, p);

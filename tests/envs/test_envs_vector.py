@@ -41,10 +41,10 @@ def _objects(task) -> tuple:
     the task's time, truth and last scan (what its render draws)."""
     name = task.robots[0]
     sim, obs = task.transport.tick.sim, task.observers[name]
-    od, lim = obs.odom, sim.limiters[name]
+    od, i = obs.odom, sim.drive.index[name]
     scan = task.scans.get(name)
-    return (od.x, od.y, od.theta, od.v, od.w, tuple(od._last), od._last_t, lim.v, lim.w,
-            tuple(lim.wheels), tuple(sim.robots[name].targets), sim.steps, task.t_ns,
+    return (od.x, od.y, od.theta, od.v, od.w, tuple(od._last), od._last_t,
+            sim.drive.limiter(i), tuple(sim.drive.targets[i].tolist()), sim.steps, task.t_ns,
             task._ticks_left, task.truth, np.asarray(obs.scan).tobytes(),
             None if scan is None else np.asarray(scan.ranges, np.float32).tobytes())
 

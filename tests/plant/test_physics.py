@@ -152,8 +152,8 @@ def test_a_tick_moves_the_robots_as_commands_set_before_every_step_do_bit_for_bi
                 sim.command_twist(name, 0.4 * math.sin(0.1 * k + i), 1.5 * math.cos(0.1 * k))
         fast.step_tick()
         for _ in range(ref.spec.substeps):
-            for r in ref.robots.values():
-                r.apply()
+            for r, (wl, wr) in zip(ref.robots.values(), ref.drive.targets.tolist()):
+                r.apply(wl, wr)
             ref.world.step()
         for a, b in zip(fast.robots.values(), ref.robots.values()):
             assert a.skeleton.getPositions().tobytes() == b.skeleton.getPositions().tobytes()

@@ -44,7 +44,7 @@ def test_the_process_steps_and_reports_what_the_plant_would_itself(tmp_path):
             for i, name in enumerate(names):  # the plant's own copy turns commands into
                 mirror.command_twist(name, 0.3, 0.5 * math.sin(k / 7 + i))   # targets
                 local.command_twist(name, 0.3, 0.5 * math.sin(k / 7 + i))
-            physics.start_step([r.targets for r in mirror.robots.values()], k % 5 == 4)
+            physics.start_step(mirror.command_targets().tolist(), k % 5 == 4)
             local.step_tick()
             physics.finish_step()
             for i, name in enumerate(names):
