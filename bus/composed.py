@@ -31,8 +31,9 @@ from .log import RejectCounter
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 
-#: emit(key, payload, attachment): a composed member's message, handed to the plant
-Emit = Callable[[str, bytes, bytes], None]
+#: emit(key, payload, attachment, the attachment as parse_attachment reads it): a composed
+#: member's message, handed to the plant
+Emit = Callable[[str, bytes, bytes, codec.Attachment | None], None]
 
 
 class _Hosted:
@@ -176,10 +177,13 @@ class Composed:
 
     def _send(self, h: _Hosted, sent: Sent, t_ns: int, emit: Emit) -> None:
         name = h.name if h.member.sync else None
+        published, make = h.published, codec.attachment_parsed
+        seq = h.seq
         for key, payload, flags, n_plant in sent:
-            h.seq += 1
-            emit(key, payload, codec.attachment(h.seq, t_ns, flags, n_plant, name))
-            h.published[key] = h.published.get(key, 0) + 1
+            seq += 1
+            emit(key, payload, *make(seq, t_ns, flags, n_plant, name))
+            published[key] = published.get(key, 0) + 1
+        h.seq = seq
 
     def close(self) -> None:
         """The run ended: every member leaves, its controllers are closed and its

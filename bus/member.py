@@ -40,8 +40,21 @@ Sent = list[tuple[str, bytes, int, int]]
 class Output:
     """One message a member queued for the current tick."""
     key: str
-    msg: Any
+    msg: Any               # a message, or its CDR bytes already (:class:`Encoded`)
     plant_read: bool       # on a key the plant reads (PLANT_READS): counted in n_plant
+
+
+class Encoded:
+    """A queued message's CDR bytes, encoded as it was queued (a command built from the
+    Twist a controller returned)."""
+    __slots__ = ("data",)
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+
+def _wire(msg) -> bytes:
+    return msg.data if type(msg) is Encoded else codec.encode(msg)
 
 
 @dataclass
@@ -377,8 +390,8 @@ class MemberTick:
         if out is None:
             return
         if isinstance(out, Twist):
-            self._out.append(Output(self.key(robot, "cmd_vel"),
-                                    codec.twist_stamped(t_ns, out.linear, out.angular), True))
+            self._out.append(Output(self.key(robot, "cmd_vel"), Encoded(
+                codec.twist_stamped_bytes(t_ns, out.linear, out.angular)), True))
         elif isinstance(out, WheelSpeeds):
             self._out.append(Output(self.key(robot, "wheel_cmd"),
                                     codec.joint_state(t_ns, WHEEL_JOINTS,
@@ -403,10 +416,10 @@ class MemberTick:
         if final:
             self.final_tick = t_ns
         if not self.sync:
-            return [(o.key, codec.encode(o.msg), 0, 0) for o in out]
+            return [(o.key, _wire(o.msg), 0, 0) for o in out]
         if final and hold:
             raise ValueError("a FINAL tick holds no tick after it (docs/PROTOCOL.md)")
-        sent = [(key, b"" if msg is None else codec.encode(msg), flags, n_plant)
+        sent = [(key, b"" if msg is None else _wire(msg), flags, n_plant)
                 for key, msg, flags, n_plant in self.owed(out, self.ack_key, final, hold)]
         # (the old world's last tick, answered after a reset from inside step: no hold)
         self.hold_until = t_ns + hold * self.tick_ns if self._keep_sent else None

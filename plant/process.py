@@ -263,10 +263,9 @@ class Plant:
         with self._timed("publish_s"):
             self.publish_sensors()
 
-    def _emit(self, key: str, payload: bytes, att: bytes) -> None:
+    def _emit(self, key: str, payload: bytes, att: bytes, parsed: codec.Attachment) -> None:
         """A composed member's message (bus/composed.py): on the bus for whoever listens,
         to the plant as if it came from Zenoh, and to the other composed members."""
-        parsed = codec.parse_attachment(att)      # (once, for the outbox and the ledger)
         self.outbox.relay(key, payload, parsed.t_ns, att)
         if key in self._robot_of_key or key.startswith(self._ack_prefix):
             self._on_output(Event("out", key, payload, att), parsed)
