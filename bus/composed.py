@@ -110,9 +110,12 @@ class Composed:
                        ", ".join(h.member.slots[0].inputs) or "none",
                        ", lockstep member" if h.member.sync else "")
 
-    def input_keys(self) -> set[str]:
-        """Every key a composed member reads."""
-        return set(self._readers)
+    def foreign_input_keys(self) -> set[str]:
+        """The keys a composed member reads that the plant does not publish itself (another
+        node's outputs): the plant's own sensors reach its members directly, and a
+        subscription of the plant's on one would count as a reader of its bytes on the bus."""
+        return {key for h in self.hosted for key, (_, topic) in h.member.slot_of.items()
+                if h.topics[topic].source != "plant"}
 
     def reads(self, key: str) -> bool:
         """Whether a composed member reads ``key``."""

@@ -67,6 +67,7 @@ class Slot:
     periods: dict[str, int] = field(default_factory=dict)
     awaited: list[str] = field(default_factory=list)
     done: bool = False
+    keys: list[tuple[str, str]] | None = None     # (input, its key), once asked
 
 
 def make_slots(controller, robots: list[str], topics: dict) -> list[Slot]:
@@ -331,12 +332,24 @@ class MemberTick:
         input. Takes: the samples older than the one shown, and held marks, are dropped,
         and the tick's stamps are marked used."""
         msgs = {}
-        for topic in slot.inputs:
-            key = self.key(slot.robot, topic)
+        keys = slot.keys
+        if keys is None:
+            keys = slot.keys = [(t, self.key(slot.robot, t)) for t in slot.inputs]
+        for topic, key in keys:
             buf = self.buf.get(key)
             if not buf:
                 continue
             upto = t_ns - self.lag_ns[topic]       # a lagged input never shows a newer sample
+            if len(buf) == 1:                      # (the usual case, shortly)
+                (s, m), = buf.items()
+                if s <= upto:
+                    if m is _HELD:                 # a held mark alone: dropped
+                        del buf[s]
+                    elif upto - s <= max(STALE_S * 1e9,
+                                         3 * slot.periods.get(topic, 1) * self.tick_ns):
+                        msgs[topic] = m
+                self.used.add((key, upto))
+                continue
             good = [s for s, m in buf.items() if s <= upto and m is not _HELD]
             if good:
                 best = max(good)

@@ -157,7 +157,7 @@ class Plant:
         if lockstep:                             # watchers that keep up (a recorder)
             inbox.subscribe(keys.seen(), "seen", remote_only=True)
         composed = self.composed
-        for key in sorted(composed.input_keys() if composed else ()):
+        for key in sorted(composed.foreign_input_keys() if composed else ()):
             if key not in self._robot_of_key:    # another process member's output
                 inbox.subscribe(key, "input", remote_only=True)
         inbox.watch_liveliness(keys.sync(), "member")
