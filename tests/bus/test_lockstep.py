@@ -429,3 +429,39 @@ def test_a_reader_takes_a_holding_producer_s_sample_for_the_ticks_it_holds():
     for k in (0, 1, 2):
         assert m.take_observation(m.slots[0], k * T).msgs["odom"] is odom
     assert m.missing(3 * T) == ["odom"]
+
+
+def test_an_observation_shows_the_latest_good_fresh_sample_and_drops_what_it_passed():
+    """take_observation against the rule written out (docs/PROTOCOL.md section 4, step 2),
+    over every buffer of one or two samples, good or held, older, at or newer than the tick,
+    fresh or stale: what it shows, what it keeps, and the stamp it marks used."""
+    import itertools
+    from bus.keys import TOPICS
+    from bus.member import _HELD, STALE_S, Slot
+
+    class Reads:
+        inputs = ["odom"]
+
+        def step(self, obs):
+            return None
+    m = MemberTick("reader", T, slots=[Slot("robot1", Reads(), ["odom"], False)],
+                   topics=dict(TOPICS), ack_key="sim/ack/reader")
+    m.configure({"mode": "lockstep", "control_tick_s": T * 1e-9,
+                 "robots": {"robot1": {"topics": {}}}})
+    stale = STALE_S * 1e9
+    stamps = [0, T, 5 * T, 30 * T, 60 * T]
+    entries = [(s, v) for s in stamps for v in ("msg", _HELD)]
+    for n, t in itertools.product((1, 2), stamps):
+        for picked in itertools.combinations(entries, n):
+            if len({s for s, _ in picked}) < n:
+                continue
+            buf = {s: (f"m{s}" if v == "msg" else v) for s, v in picked}
+            good = [s for s, v in buf.items() if s <= t and v is not _HELD]
+            best = max(good, default=None)
+            shown = buf[best] if best is not None and t - best <= stale else None
+            kept = {s: v for s, v in buf.items() if s > t or s == best}
+            m.buf = {"robot1/odom": dict(buf)}
+            m.used = set()
+            obs = m.take_observation(m.slots[0], t)
+            assert (obs["odom"], m.buf["robot1/odom"]) == (shown, kept), (buf, t)
+            assert m.used == {("robot1/odom", t)}
