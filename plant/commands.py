@@ -173,6 +173,12 @@ class CommandBook:
         by_tick = self.by_tick.get(robot)
         if not by_tick:
             return None
+        cmd = by_tick.get(upto_ns)
+        if cmd is not None:                # (the usual case: that very tick's command)
+            if len(by_tick) > 1:
+                for t in [t for t in by_tick if t < upto_ns]:
+                    del by_tick[t]
+            return cmd
         ticks = [t for t in by_tick if t <= upto_ns]
         if not ticks:
             return None

@@ -295,6 +295,23 @@ def test_one_command_per_robot_per_tick_whatever_the_arrival_order():
         assert book.for_tick("robot1", T).value == order[0][1]     # b's first stays
 
 
+def test_the_command_for_a_tick_is_the_latest_at_or_before_it_and_older_ones_go():
+    """for_tick: the command of the latest tick at or before the one asked (that very
+    tick's, or an earlier one where none came for it); every older one is dropped, a later
+    one waits for its turn."""
+    from plant.commands import Command, CommandBook
+    book = CommandBook(lockstep=True)
+    for k in (0, 1, 2, 4, 5):
+        book.file("robot1", Command(float(k), k * T, 0.0, "m"))
+    assert book.for_tick("robot1", 2 * T).value == 2.0                  # its own tick's
+    assert sorted(book.by_tick["robot1"]) == [2 * T, 4 * T, 5 * T]
+    assert book.for_tick("robot1", 3 * T).value == 2.0                  # none for 3T: 2T's
+    assert sorted(book.by_tick["robot1"]) == [2 * T, 4 * T, 5 * T]
+    assert book.for_tick("robot1", 5 * T).value == 5.0
+    assert sorted(book.by_tick["robot1"]) == [5 * T]
+    assert book.for_tick("robot1", -T) is None and book.for_tick("robot2", T) is None
+
+
 # ---------------------------------------------------------------- the member's tick
 def test_a_member_sends_plant_read_outputs_last_and_acks_on_the_very_last():
     m = MemberTick("n", T)
