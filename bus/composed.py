@@ -31,9 +31,10 @@ from .log import RejectCounter
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 
-#: emit(key, payload, attachment, the attachment as parse_attachment reads it): a composed
-#: member's message, handed to the plant
-Emit = Callable[[str, bytes, bytes, codec.Attachment | None], None]
+#: emit(key, payload, attachment, the attachment as parse_attachment reads it, a command's
+#: (stamp, linear, angular) the payload was packed from or None): a composed member's
+#: message, handed to the plant
+Emit = Callable[[str, bytes, bytes, codec.Attachment | None, tuple | None], None]
 
 
 class _Hosted:
@@ -180,11 +181,13 @@ class Composed:
 
     def _send(self, h: _Hosted, sent: Sent, t_ns: int, emit: Emit) -> None:
         name = h.name if h.member.sync else None
-        published, make = h.published, codec.attachment_parsed
+        published, make, twists = h.published, codec.attachment_parsed, h.member.twists
         seq = h.seq
         for key, payload, flags, n_plant in sent:
             seq += 1
-            emit(key, payload, *make(seq, t_ns, flags, n_plant, name))
+            tw = twists.get(key)            # (the values of these very bytes, if a Twist's)
+            emit(key, payload, *make(seq, t_ns, flags, n_plant, name),
+                 tw[1:] if tw is not None and tw[0] is payload else None)
             published[key] = published.get(key, 0) + 1
         h.seq = seq
 

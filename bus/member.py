@@ -137,6 +137,9 @@ class MemberTick:
         self.mode = "lockstep"
         self.coupling = "sequential"
         self._out: list[Output] = []
+        #: cmd_vel key -> (the bytes last queued on it, the stamp, linear, angular they were
+        #: packed from): a composed member's plant takes the values, not the bytes
+        self.twists: dict[str, tuple[bytes, int, float, float]] = {}
         self.reset()
         self._keep_sent = True
 
@@ -403,8 +406,11 @@ class MemberTick:
         if out is None:
             return
         if isinstance(out, Twist):
-            self._out.append(Output(self.key(robot, "cmd_vel"), Encoded(
-                codec.twist_stamped_bytes(t_ns, out.linear, out.angular)), True))
+            key = self.key(robot, "cmd_vel")
+            linear, angular = float(out.linear), float(out.angular)
+            data = codec.twist_stamped_bytes(t_ns, linear, angular)
+            self.twists[key] = (data, t_ns, linear, angular)
+            self._out.append(Output(key, Encoded(data), True))
         elif isinstance(out, WheelSpeeds):
             self._out.append(Output(self.key(robot, "wheel_cmd"),
                                     codec.joint_state(t_ns, WHEEL_JOINTS,
