@@ -18,6 +18,7 @@ of its own; one whose ``step`` raises is stopped and leaves as a crashed process
 """
 from __future__ import annotations
 
+import functools
 import logging
 from typing import Callable
 
@@ -47,7 +48,9 @@ class _Hosted:
         self.log.setLevel(getattr(logging, spec.log_level.upper(), logging.INFO))
         self.topics = dict(TOPICS)
         slots = make_slots(spec.controller, spec.robots, self.topics)
-        self.member = MemberTick(spec.name, 0, slots=slots, topics=self.topics, key=keys.topic,
+        # (a topic's key asked once: a member asks for its robots' keys every tick)
+        self.member = MemberTick(spec.name, 0, slots=slots, topics=self.topics,
+                                 key=functools.lru_cache(maxsize=None)(keys.topic),
                                  ack_key=keys.ack(spec.name), log=self.log)
         self.rejects = RejectCounter(self.log)
         self.published: dict[str, int] = {}

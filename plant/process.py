@@ -315,18 +315,17 @@ class Plant:
         robot, topic = self._robot_of_key.get(ev.key, (None, "ack"))
         if att is None:
             att = codec.parse_attachment(ev.attachment)
-        lockstep = self.strategy.lockstep
-        if lockstep and not self.ledger.file(ev.key, topic, att, ev.attachment,
-                                                            self.sim.time_ns):
+        lockstep, sim = self.strategy.lockstep, self.tick.sim
+        now = sim.time_ns
+        if lockstep and not self.ledger.file(ev.key, topic, att, ev.attachment, now):
             return
         if topic in ("cmd_vel", "wheel_cmd"):
-            drive = self.sim.robots[robot].spec.drive
+            drive = sim.robots[robot].spec.drive
             try:
-                value, t = (twist_command(*twist, drive, self.sim.time_ns, self.tick_ns,
+                value, t = (twist_command(*twist, drive, now, self.tick_ns,
                                           self.strategy.check_age) if twist is not None else
-                            decode_command(ev.payload, topic, drive, self.sim.time_ns,
-                                           self.tick_ns, check_age=self.strategy.check_age,
-                                           robot=robot))
+                            decode_command(ev.payload, topic, drive, now, self.tick_ns,
+                                           check_age=self.strategy.check_age, robot=robot))
             except (codec.CodecError, ValueError) as exc:
                 self.rejects.reject(f"{robot}/{topic}", str(exc))
                 if att is not None:
@@ -335,7 +334,7 @@ class Plant:
             if lockstep and att is not None:
                 t_cmd = att.t_ns       # the tick it was computed for (0: tick 0, not "now")
             else:
-                t_cmd = t or self.sim.time_ns
+                t_cmd = t or now
             member = att.node if att is not None else None
             problem = self.commands.file(robot, Command(value, t_cmd, time.monotonic(), member))
             if problem:
