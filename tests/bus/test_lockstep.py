@@ -322,6 +322,25 @@ def test_a_member_sends_plant_read_outputs_last_and_acks_on_the_very_last():
                                                   ("robot2/cmd_vel", codec.ACK, 2)]
 
 
+def test_a_member_keeps_the_values_each_command_it_sends_was_packed_from():
+    """What a composed member's plant takes instead of parsing the command back: for each
+    cmd_vel sent, the values of those very bytes (the later of two queued on one key)."""
+    from bus.controller import Twist
+    m = MemberTick("n", T)
+    m.queue_output(Twist(0.2, -0.1), 3 * T, "robot1")
+    m.queue_output(Twist(0.0, 0.0), 3 * T, "robot1")           # a stop after the step's
+    m.queue_output({"cmd_vel": Twist(1, 2)}, 3 * T, "robot2")  # ints, as a controller may
+    sent = m.send_tick(3 * T)
+    assert [k for k, *_ in sent] == ["robot1/cmd_vel", "robot2/cmd_vel"]
+    for key, payload, _, _ in sent:
+        data, *values = m.twists[key]
+        assert data is payload and payload == codec.twist_stamped_bytes(*values)
+        msg = codec.decode(payload, "geometry_msgs/msg/TwistStamped")
+        assert values == [3 * T, msg.twist.linear.x, msg.twist.angular.z]
+    assert m.twists["robot1/cmd_vel"][2:] == (0.0, 0.0)
+    assert [type(v) for v in m.twists["robot2/cmd_vel"][2:]] == [float, float]
+
+
 def test_a_member_sends_one_message_per_key_per_tick_the_last_queued():
     m = MemberTick("n", T)
     sent = m.owed([Output("robot1/cmd_vel", "go", True), Output("robot1/cmd_vel", "stop", True)],
