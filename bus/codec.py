@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import struct
 import threading
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -271,6 +272,19 @@ def attachment(seq: int, t_ns: int, flags: int = 0, n_plant: int = 0,
     return head + TRAILER.pack(flags, n_plant, len(name)) + name
 
 
+def attachment_parsed(seq: int, t_ns: int, flags: int = 0, n_plant: int = 0,
+                      node: str | None = None) -> tuple[bytes, Attachment | None]:
+    """A member's :func:`attachment` bytes and the :class:`Attachment`
+    :func:`parse_attachment` reads from them, built from the values rather than parsed back
+    (a composed member hands both to the plant)."""
+    att = attachment(seq, t_ns, flags, n_plant, node)
+    if node is None:
+        return att, Attachment(seq & 0xFFFFFFFFFFFFFFFF, t_ns)
+    if (flags & FINAL and hold_of(flags)) or not 0 < len(att) - 20 <= NAME_MAX:
+        return att, parse_attachment(att)            # (what parsing makes of a bad one)
+    return att, Attachment(seq & 0xFFFFFFFFFFFFFFFF, t_ns, flags, n_plant, node)
+
+
 def parse_attachment(data: bytes | None) -> Attachment | None:
     """The :class:`Attachment` in ``data`` (plain: 16 bytes; the plant's: 20, with the epoch;
     a member's: 21 and more, with the trailer), or None if absent or malformed (wrong length,
@@ -336,6 +350,24 @@ def twist_stamped(t_ns: int, linear_mps: float, angular_radps: float, frame_id: 
         header=header(t_ns, frame_id),
         twist=_Twist(linear=_Vector3(x=float(linear_mps), y=0.0, z=0.0),
                      angular=_Vector3(x=0.0, y=0.0, z=float(angular_radps))))
+
+
+@lru_cache(maxsize=64)
+def _twist_layout(frame_id: str) -> tuple[struct.Struct, bytes]:
+    buf = bytearray(_CDR_LE + bytes(8))
+    _string(buf, frame_id)
+    _pad(buf, 8)
+    frame = bytes(buf[12:])        # the frame id's length, text, NUL and padding
+    return struct.Struct(f"<4siI{len(frame)}s6d"), frame
+
+
+def twist_stamped_bytes(t_ns: int, linear_mps: float, angular_radps: float,
+                        frame_id: str = "base_link") -> bytes:
+    """``encode(twist_stamped(...))``'s bytes in one pack (a member sends one per robot
+    per tick)."""
+    layout, frame = _twist_layout(frame_id)
+    return layout.pack(_CDR_LE, int(t_ns // 1_000_000_000), int(t_ns % 1_000_000_000), frame,
+                       float(linear_mps), 0.0, 0.0, 0.0, 0.0, float(angular_radps))
 
 
 def joint_state(t_ns: int, names, position=(), velocity=(), effort=()):

@@ -18,6 +18,7 @@ of its own; one whose ``step`` raises is stopped and leaves as a crashed process
 """
 from __future__ import annotations
 
+import functools
 import logging
 from typing import Callable
 
@@ -31,8 +32,10 @@ from .log import RejectCounter
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 
-#: emit(key, payload, attachment): a composed member's message, handed to the plant
-Emit = Callable[[str, bytes, bytes], None]
+#: emit(key, payload, attachment, the attachment as parse_attachment reads it, a command's
+#: (stamp, linear, angular) the payload was packed from or None): a composed member's
+#: message, handed to the plant
+Emit = Callable[[str, bytes, bytes, codec.Attachment | None, tuple | None], None]
 
 
 class _Hosted:
@@ -45,7 +48,9 @@ class _Hosted:
         self.log.setLevel(getattr(logging, spec.log_level.upper(), logging.INFO))
         self.topics = dict(TOPICS)
         slots = make_slots(spec.controller, spec.robots, self.topics)
-        self.member = MemberTick(spec.name, 0, slots=slots, topics=self.topics, key=keys.topic,
+        # (a topic's key asked once: a member asks for its robots' keys every tick)
+        self.member = MemberTick(spec.name, 0, slots=slots, topics=self.topics,
+                                 key=functools.lru_cache(maxsize=None)(keys.topic),
                                  ack_key=keys.ack(spec.name), log=self.log)
         self.rejects = RejectCounter(self.log)
         self.published: dict[str, int] = {}
@@ -109,9 +114,12 @@ class Composed:
                        ", ".join(h.member.slots[0].inputs) or "none",
                        ", lockstep member" if h.member.sync else "")
 
-    def input_keys(self) -> set[str]:
-        """Every key a composed member reads."""
-        return set(self._readers)
+    def foreign_input_keys(self) -> set[str]:
+        """The keys a composed member reads that the plant does not publish itself (another
+        node's outputs): the plant's own sensors reach its members directly, and a
+        subscription of the plant's on one would count as a reader of its bytes on the bus."""
+        return {key for h in self.hosted for key, (_, topic) in h.member.slot_of.items()
+                if h.topics[topic].source != "plant"}
 
     def reads(self, key: str) -> bool:
         """Whether a composed member reads ``key``."""
@@ -176,10 +184,15 @@ class Composed:
 
     def _send(self, h: _Hosted, sent: Sent, t_ns: int, emit: Emit) -> None:
         name = h.name if h.member.sync else None
+        published, make, twists = h.published, codec.attachment_parsed, h.member.twists
+        seq = h.seq
         for key, payload, flags, n_plant in sent:
-            h.seq += 1
-            emit(key, payload, codec.attachment(h.seq, t_ns, flags, n_plant, name))
-            h.published[key] = h.published.get(key, 0) + 1
+            seq += 1
+            tw = twists.get(key)            # (the values of these very bytes, if a Twist's)
+            emit(key, payload, *make(seq, t_ns, flags, n_plant, name),
+                 tw[1:] if tw is not None and tw[0] is payload else None)
+            published[key] = published.get(key, 0) + 1
+        h.seq = seq
 
     def close(self) -> None:
         """The run ended: every member leaves, its controllers are closed and its

@@ -40,8 +40,21 @@ Sent = list[tuple[str, bytes, int, int]]
 class Output:
     """One message a member queued for the current tick."""
     key: str
-    msg: Any
+    msg: Any               # a message, or its CDR bytes already (:class:`Encoded`)
     plant_read: bool       # on a key the plant reads (PLANT_READS): counted in n_plant
+
+
+class Encoded:
+    """A queued message's CDR bytes, encoded as it was queued (a command built from the
+    Twist a controller returned)."""
+    __slots__ = ("data",)
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+
+def _wire(msg) -> bytes:
+    return msg.data if type(msg) is Encoded else codec.encode(msg)
 
 
 @dataclass
@@ -54,6 +67,7 @@ class Slot:
     periods: dict[str, int] = field(default_factory=dict)
     awaited: list[str] = field(default_factory=list)
     done: bool = False
+    keys: list[tuple[str, str]] | None = None     # (input, its key), once asked
 
 
 def make_slots(controller, robots: list[str], topics: dict) -> list[Slot]:
@@ -123,6 +137,9 @@ class MemberTick:
         self.mode = "lockstep"
         self.coupling = "sequential"
         self._out: list[Output] = []
+        #: cmd_vel key -> (the bytes last queued on it, the stamp, linear, angular they were
+        #: packed from): a composed member's plant takes the values, not the bytes
+        self.twists: dict[str, tuple[bytes, int, float, float]] = {}
         self.reset()
         self._keep_sent = True
 
@@ -318,12 +335,24 @@ class MemberTick:
         input. Takes: the samples older than the one shown, and held marks, are dropped,
         and the tick's stamps are marked used."""
         msgs = {}
-        for topic in slot.inputs:
-            key = self.key(slot.robot, topic)
+        keys = slot.keys
+        if keys is None:
+            keys = slot.keys = [(t, self.key(slot.robot, t)) for t in slot.inputs]
+        for topic, key in keys:
             buf = self.buf.get(key)
             if not buf:
                 continue
             upto = t_ns - self.lag_ns[topic]       # a lagged input never shows a newer sample
+            if len(buf) == 1:                      # (the usual case, shortly)
+                (s, m), = buf.items()
+                if s <= upto:
+                    if m is _HELD:                 # a held mark alone: dropped
+                        del buf[s]
+                    elif upto - s <= max(STALE_S * 1e9,
+                                         3 * slot.periods.get(topic, 1) * self.tick_ns):
+                        msgs[topic] = m
+                self.used.add((key, upto))
+                continue
             good = [s for s, m in buf.items() if s <= upto and m is not _HELD]
             if good:
                 best = max(good)
@@ -377,8 +406,11 @@ class MemberTick:
         if out is None:
             return
         if isinstance(out, Twist):
-            self._out.append(Output(self.key(robot, "cmd_vel"),
-                                    codec.twist_stamped(t_ns, out.linear, out.angular), True))
+            key = self.key(robot, "cmd_vel")
+            linear, angular = float(out.linear), float(out.angular)
+            data = codec.twist_stamped_bytes(t_ns, linear, angular)
+            self.twists[key] = (data, t_ns, linear, angular)
+            self._out.append(Output(key, Encoded(data), True))
         elif isinstance(out, WheelSpeeds):
             self._out.append(Output(self.key(robot, "wheel_cmd"),
                                     codec.joint_state(t_ns, WHEEL_JOINTS,
@@ -403,10 +435,10 @@ class MemberTick:
         if final:
             self.final_tick = t_ns
         if not self.sync:
-            return [(o.key, codec.encode(o.msg), 0, 0) for o in out]
+            return [(o.key, _wire(o.msg), 0, 0) for o in out]
         if final and hold:
             raise ValueError("a FINAL tick holds no tick after it (docs/PROTOCOL.md)")
-        sent = [(key, b"" if msg is None else codec.encode(msg), flags, n_plant)
+        sent = [(key, b"" if msg is None else _wire(msg), flags, n_plant)
                 for key, msg, flags, n_plant in self.owed(out, self.ack_key, final, hold)]
         # (the old world's last tick, answered after a reset from inside step: no hold)
         self.hold_until = t_ns + hold * self.tick_ns if self._keep_sent else None

@@ -68,11 +68,13 @@ class Avoid:
             bad = ~np.isfinite(ranges) | (ranges < rmin)
             ranges = np.where(bad, rmax, np.minimum(ranges, rmax))
             angles = a0 + da * np.arange(n)
-            turning = np.array([self.turning_of.get(r, 0.0) for r in robots])
+            turning_of = self.turning_of
+            turning = np.array([turning_of.get(r, 0.0) for r in robots])
             v, w, turning = self.commands(angles, ranges, turning)
-            for i, r in enumerate(robots):
-                self.turning_of[r] = float(turning[i])
-                out[r] = Twist(float(v[i]), float(w[i]))
+            # (tolist: the same Python floats as float() of each element, in one call)
+            for r, vi, wi, ti in zip(robots, v.tolist(), w.tolist(), turning.tolist()):
+                turning_of[r] = ti
+                out[r] = Twist(vi, wi)
         return {r: out[r] for r in observations}
 
     def commands(self, angles: np.ndarray, ranges: np.ndarray, turning: np.ndarray):

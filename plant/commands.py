@@ -112,6 +112,25 @@ def decode_command(payload: bytes, topic: str, drive, now_ns: int, tick_ns: int,
         a, b = value.left, value.right
         lim_a = lim_b = drive.max_wheel_speed_radps
         stamp = msg.header.stamp
+    return _checked(value, a, b, lim_a, lim_b, stamp, drive, now_ns, tick_ns, check_age)
+
+
+def twist_command(stamp_ns: int, linear: float, angular: float, drive, now_ns: int,
+                  tick_ns: int, check_age: bool) -> tuple[Twist, int]:
+    """What :func:`decode_command` gives, or raises, for the bytes
+    ``codec.twist_stamped_bytes(stamp_ns, linear, angular)`` (a composed member's command,
+    handed over with the values it was packed from), without parsing them back: the same
+    checks on the same values (float64 on the wire, in ``base_link``)."""
+    a, b = float(linear), float(angular)
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ValueError("non-finite twist")
+    stamp = _Stamp(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
+    return _checked(Twist(a, b), a, b, drive.max_linear_mps, drive.max_angular_radps, stamp,
+                    drive, now_ns, tick_ns, check_age)
+
+
+def _checked(value, a: float, b: float, lim_a: float, lim_b: float, stamp, drive, now_ns: int,
+             tick_ns: int, check_age: bool) -> tuple[Twist | WheelSpeeds, int]:
     check_stamp(stamp, now_ns, tick_ns, drive.cmd_timeout_s if check_age else None)
     if not (math.isfinite(a) and math.isfinite(b)):
         raise ValueError(f"non-finite command ({a}, {b})")
@@ -173,6 +192,12 @@ class CommandBook:
         by_tick = self.by_tick.get(robot)
         if not by_tick:
             return None
+        cmd = by_tick.get(upto_ns)
+        if cmd is not None:                # (the usual case: that very tick's command)
+            if len(by_tick) > 1:
+                for t in [t for t in by_tick if t < upto_ns]:
+                    del by_tick[t]
+            return cmd
         ticks = [t for t in by_tick if t <= upto_ns]
         if not ticks:
             return None

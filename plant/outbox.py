@@ -32,6 +32,19 @@ from bus import codec
 from bus.protocol import REPUBLISH_TICKS
 
 
+class Reads(dict):
+    """topic -> whether anyone reads it (``ask(topic)``), asked once per topic."""
+    __slots__ = ("ask",)
+
+    def __init__(self, ask) -> None:
+        super().__init__()
+        self.ask = ask
+
+    def __missing__(self, topic: str) -> bool:
+        answer = self[topic] = bool(self.ask(topic))
+        return answer
+
+
 class Outbox:
     """``keep``: the messages of the last REPUBLISH_TICKS ticks are kept to re-publish
     (lockstep, docs/PROTOCOL.md section 4, "Lost members")."""

@@ -40,8 +40,8 @@ from bus.log import RejectCounter
 from bus.protocol import PLANT_READS, world_max_hold
 
 from . import modes, report
-from .commands import Command, CommandBook, decode_command, stale_commands
-from .outbox import Outbox
+from .commands import Command, CommandBook, decode_command, stale_commands, twist_command
+from .outbox import Outbox, Reads
 from .presence import PLANT_TOKEN, Presence
 from .reset import parse_reset
 from .routerwatch import RouterWatch
@@ -50,19 +50,6 @@ from .world import WorldSpec
 
 #: how long the sim/end text goes before the sim/end token (wall s)
 END_TEXT_HEAD_START_S = 0.1
-
-
-class _Reads(dict):
-    """topic -> whether anyone reads it (``ask(topic)``), asked once per topic."""
-    __slots__ = ("ask",)
-
-    def __init__(self, ask) -> None:
-        super().__init__()
-        self.ask = ask
-
-    def __missing__(self, topic: str) -> bool:
-        answer = self[topic] = bool(self.ask(topic))
-        return answer
 
 
 class Plant:
@@ -157,7 +144,7 @@ class Plant:
         if lockstep:                             # watchers that keep up (a recorder)
             inbox.subscribe(keys.seen(), "seen", remote_only=True)
         composed = self.composed
-        for key in sorted(composed.input_keys() if composed else ()):
+        for key in sorted(composed.foreign_input_keys() if composed else ()):
             if key not in self._robot_of_key:    # another process member's output
                 inbox.subscribe(key, "input", remote_only=True)
         inbox.watch_liveliness(keys.sync(), "member")
@@ -263,13 +250,14 @@ class Plant:
         with self._timed("publish_s"):
             self.publish_sensors()
 
-    def _emit(self, key: str, payload: bytes, att: bytes) -> None:
+    def _emit(self, key: str, payload: bytes, att: bytes, parsed: codec.Attachment,
+              twist: tuple | None) -> None:
         """A composed member's message (bus/composed.py): on the bus for whoever listens,
-        to the plant as if it came from Zenoh, and to the other composed members."""
-        parsed = codec.parse_attachment(att)      # (once, for the outbox and the ledger)
+        to the plant as if it came from Zenoh (a command as the values it was packed from),
+        and to the other composed members."""
         self.outbox.relay(key, payload, parsed.t_ns, att)
         if key in self._robot_of_key or key.startswith(self._ack_prefix):
-            self._on_output(Event("out", key, payload, att), parsed)
+            self._on_output(Event("out", key, payload, att), parsed, twist)
         self.composed.deliver(key, payload, att)
 
     def _key(self, robot: str, topic: str) -> str:
@@ -279,7 +267,7 @@ class Plant:
         return key
 
     _wanted_by: object = None        # the outbox's readers the answers below were asked of
-    _wanted_of: dict | None = None   # robot -> its _Reads' lookup
+    _wanted_of: dict | None = None   # robot -> its Reads' lookup
 
     def _wanted(self, robot: str):
         """``wanted(topic)`` of ``robot``'s sensors: whether anyone reads it now (a
@@ -295,7 +283,7 @@ class Plant:
             local = self.composed.reads if self.composed is not None else None
             ask = ((lambda topic: reads(key(robot, topic))) if local is None else
                    (lambda topic: reads(key(robot, topic)) or local(key(robot, topic))))
-            known = self._wanted_of[robot] = _Reads(ask).__getitem__
+            known = self._wanted_of[robot] = Reads(ask).__getitem__
         return known
 
     # ------------------------------------------------------------------ input
@@ -318,23 +306,26 @@ class Plant:
         elif ev.tag == "member":
             self.presence.on_member(ev)
 
-    def _on_output(self, ev: Event, att: codec.Attachment | None = None) -> None:
+    def _on_output(self, ev: Event, att: codec.Attachment | None = None,
+                   twist: tuple | None = None) -> None:
         """A message on a key the plant reads: a command to apply, and in lockstep a
         member's output, filed in the ledger for its tick (``att``: its attachment, parsed
-        already by a composed member's emit)."""
+        already by a composed member's emit; ``twist``: the values its cmd_vel was packed
+        from, :func:`plant.commands.twist_command`)."""
         robot, topic = self._robot_of_key.get(ev.key, (None, "ack"))
         if att is None:
             att = codec.parse_attachment(ev.attachment)
-        lockstep = self.strategy.lockstep
-        if lockstep and not self.ledger.file(ev.key, topic, att, ev.attachment,
-                                                            self.sim.time_ns):
+        lockstep, sim = self.strategy.lockstep, self.tick.sim
+        now = sim.time_ns
+        if lockstep and not self.ledger.file(ev.key, topic, att, ev.attachment, now):
             return
         if topic in ("cmd_vel", "wheel_cmd"):
-            drive = self.sim.robots[robot].spec.drive
+            drive = sim.robots[robot].spec.drive
             try:
-                value, t = decode_command(ev.payload, topic, drive, self.sim.time_ns,
-                                          self.tick_ns, check_age=self.strategy.check_age,
-                                          robot=robot)
+                value, t = (twist_command(*twist, drive, now, self.tick_ns,
+                                          self.strategy.check_age) if twist is not None else
+                            decode_command(ev.payload, topic, drive, now, self.tick_ns,
+                                           check_age=self.strategy.check_age, robot=robot))
             except (codec.CodecError, ValueError) as exc:
                 self.rejects.reject(f"{robot}/{topic}", str(exc))
                 if att is not None:
@@ -343,7 +334,7 @@ class Plant:
             if lockstep and att is not None:
                 t_cmd = att.t_ns       # the tick it was computed for (0: tick 0, not "now")
             else:
-                t_cmd = t or self.sim.time_ns
+                t_cmd = t or now
             member = att.node if att is not None else None
             problem = self.commands.file(robot, Command(value, t_cmd, time.monotonic(), member))
             if problem:

@@ -121,3 +121,30 @@ def test_the_twist_fast_path_reads_what_the_generic_decoder_reads():
            twist=Twist(linear=V3(0, 0, 0), angular=V3(0, 0, 0))), "geometry_msgs/msg/TwistStamped"))
     bad[16] = 0xFF                                      # not UTF-8
     assert _twist_stamped(bytes(bad)) is None
+
+
+def test_a_composed_member_s_command_taken_from_its_values_is_what_its_bytes_decode_to():
+    """twist_command (the plant takes a composed member's command from the values it packed)
+    against decode_command of those bytes: the same command and stamp, or the same error,
+    over finite, non-finite and absurd speeds and stamps now, ahead, in the future and
+    older than cmd_timeout_s, with the age checked or not."""
+    import itertools
+    import math
+
+    from plant.commands import twist_command
+    drive = DriveSpec()
+    speeds = [0.0, -0.0, 0.3, -1.25, 1e-300, 9.99, 1e3, -1e300, math.nan, math.inf, -math.inf]
+    stamps = [0, NOW, NOW + TICK, NOW + TICK + 1, NOW - TICK, NOW - 10**9, 1]
+    for v, w, t, age in itertools.product(speeds, speeds, stamps, (True, False)):
+        data = codec.twist_stamped_bytes(t, v, w)
+        try:
+            want = decode_command(data, "cmd_vel", drive, NOW, TICK, age, robot="r1")
+        except ValueError as exc:
+            with pytest.raises(ValueError) as got:
+                twist_command(t, v, w, drive, NOW, TICK, age)
+            assert str(got.value) == str(exc), (v, w, t, age)
+        else:
+            got = twist_command(t, v, w, drive, NOW, TICK, age)
+            assert got == want and [math.copysign(1, x) for x in (got[0].linear,
+                                                                 got[0].angular)] == \
+                [math.copysign(1, x) for x in (want[0].linear, want[0].angular)], (v, w, t)

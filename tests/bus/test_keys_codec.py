@@ -101,6 +101,8 @@ def _rosbags(msg) -> bytes:
 def test_fast_twist_and_clock_bytes_equal_rosbags(t, v, w, frame):
     m = codec.twist_stamped(t, v, w, frame_id=frame)
     assert codec.encode(m) == _rosbags(m)
+    # a member's command, packed straight from its values
+    assert codec.twist_stamped_bytes(t, v, w, frame) == _rosbags(m)
     c = codec.clock(t)
     assert codec.encode(c) == _rosbags(c)
 
@@ -258,3 +260,17 @@ def test_the_bus_s_own_types_are_rosbags_jazzy_types_and_the_rest_load_on_first_
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          check=True, timeout=60).stdout.split("\n")
     assert out[:4] == ["False", "False", "7 True", "True True"], out
+
+
+@settings(max_examples=examples(150), deadline=None)
+@given(seq=st.integers(0, 2**65), t=st.integers(0, 2**64 - 1), flags=st.integers(0, 255),
+       n_plant=st.integers(0, 2**16 - 1),
+       node=st.one_of(st.none(), st.text(max_size=90).filter(lambda s: len(s.encode()) < 256)))
+@example(seq=1, t=0, flags=codec.FINAL | 4, n_plant=1, node="m")      # FINAL with a hold
+@example(seq=1, t=0, flags=0, n_plant=0, node="")                      # no name
+def test_a_member_s_attachment_comes_with_what_parsing_it_gives(seq, t, flags, n_plant, node):
+    """A composed member hands the plant its attachment and its parsed form, built from the
+    values: always what parse_attachment reads from the bytes, bad ones included."""
+    att, parsed = codec.attachment_parsed(seq, t, flags, n_plant, node)
+    assert att == codec.attachment(seq, t, flags, n_plant, node)
+    assert parsed == codec.parse_attachment(att)

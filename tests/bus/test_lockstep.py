@@ -295,6 +295,23 @@ def test_one_command_per_robot_per_tick_whatever_the_arrival_order():
         assert book.for_tick("robot1", T).value == order[0][1]     # b's first stays
 
 
+def test_the_command_for_a_tick_is_the_latest_at_or_before_it_and_older_ones_go():
+    """for_tick: the command of the latest tick at or before the one asked (that very
+    tick's, or an earlier one where none came for it); every older one is dropped, a later
+    one waits for its turn."""
+    from plant.commands import Command, CommandBook
+    book = CommandBook(lockstep=True)
+    for k in (0, 1, 2, 4, 5):
+        book.file("robot1", Command(float(k), k * T, 0.0, "m"))
+    assert book.for_tick("robot1", 2 * T).value == 2.0                  # its own tick's
+    assert sorted(book.by_tick["robot1"]) == [2 * T, 4 * T, 5 * T]
+    assert book.for_tick("robot1", 3 * T).value == 2.0                  # none for 3T: 2T's
+    assert sorted(book.by_tick["robot1"]) == [2 * T, 4 * T, 5 * T]
+    assert book.for_tick("robot1", 5 * T).value == 5.0
+    assert sorted(book.by_tick["robot1"]) == [5 * T]
+    assert book.for_tick("robot1", -T) is None and book.for_tick("robot2", T) is None
+
+
 # ---------------------------------------------------------------- the member's tick
 def test_a_member_sends_plant_read_outputs_last_and_acks_on_the_very_last():
     m = MemberTick("n", T)
@@ -303,6 +320,25 @@ def test_a_member_sends_plant_read_outputs_last_and_acks_on_the_very_last():
     assert [(k, f, n) for k, _, f, n in sent] == [("robot1/debug", 0, 0),
                                                   ("robot1/cmd_vel", 0, 0),
                                                   ("robot2/cmd_vel", codec.ACK, 2)]
+
+
+def test_a_member_keeps_the_values_each_command_it_sends_was_packed_from():
+    """What a composed member's plant takes instead of parsing the command back: for each
+    cmd_vel sent, the values of those very bytes (the later of two queued on one key)."""
+    from bus.controller import Twist
+    m = MemberTick("n", T)
+    m.queue_output(Twist(0.2, -0.1), 3 * T, "robot1")
+    m.queue_output(Twist(0.0, 0.0), 3 * T, "robot1")           # a stop after the step's
+    m.queue_output({"cmd_vel": Twist(1, 2)}, 3 * T, "robot2")  # ints, as a controller may
+    sent = m.send_tick(3 * T)
+    assert [k for k, *_ in sent] == ["robot1/cmd_vel", "robot2/cmd_vel"]
+    for key, payload, _, _ in sent:
+        data, *values = m.twists[key]
+        assert data is payload and payload == codec.twist_stamped_bytes(*values)
+        msg = codec.decode(payload, "geometry_msgs/msg/TwistStamped")
+        assert values == [3 * T, msg.twist.linear.x, msg.twist.angular.z]
+    assert m.twists["robot1/cmd_vel"][2:] == (0.0, 0.0)
+    assert [type(v) for v in m.twists["robot2/cmd_vel"][2:]] == [float, float]
 
 
 def test_a_member_sends_one_message_per_key_per_tick_the_last_queued():
@@ -429,3 +465,39 @@ def test_a_reader_takes_a_holding_producer_s_sample_for_the_ticks_it_holds():
     for k in (0, 1, 2):
         assert m.take_observation(m.slots[0], k * T).msgs["odom"] is odom
     assert m.missing(3 * T) == ["odom"]
+
+
+def test_an_observation_shows_the_latest_good_fresh_sample_and_drops_what_it_passed():
+    """take_observation against the rule written out (docs/PROTOCOL.md section 4, step 2),
+    over every buffer of one or two samples, good or held, older, at or newer than the tick,
+    fresh or stale: what it shows, what it keeps, and the stamp it marks used."""
+    import itertools
+    from bus.keys import TOPICS
+    from bus.member import _HELD, STALE_S, Slot
+
+    class Reads:
+        inputs = ["odom"]
+
+        def step(self, obs):
+            return None
+    m = MemberTick("reader", T, slots=[Slot("robot1", Reads(), ["odom"], False)],
+                   topics=dict(TOPICS), ack_key="sim/ack/reader")
+    m.configure({"mode": "lockstep", "control_tick_s": T * 1e-9,
+                 "robots": {"robot1": {"topics": {}}}})
+    stale = STALE_S * 1e9
+    stamps = [0, T, 5 * T, 30 * T, 60 * T]
+    entries = [(s, v) for s in stamps for v in ("msg", _HELD)]
+    for n, t in itertools.product((1, 2), stamps):
+        for picked in itertools.combinations(entries, n):
+            if len({s for s, _ in picked}) < n:
+                continue
+            buf = {s: (f"m{s}" if v == "msg" else v) for s, v in picked}
+            good = [s for s, v in buf.items() if s <= t and v is not _HELD]
+            best = max(good, default=None)
+            shown = buf[best] if best is not None and t - best <= stale else None
+            kept = {s: v for s, v in buf.items() if s > t or s == best}
+            m.buf = {"robot1/odom": dict(buf)}
+            m.used = set()
+            obs = m.take_observation(m.slots[0], t)
+            assert (obs["odom"], m.buf["robot1/odom"]) == (shown, kept), (buf, t)
+            assert m.used == {("robot1/odom", t)}

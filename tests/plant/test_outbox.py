@@ -101,3 +101,34 @@ def test_the_plant_s_wanted_keeps_each_answer_until_the_subscribers_change(endpo
         out.undeclare()
     finally:
         plant.close()
+
+
+def test_a_plant_hosting_members_subscribes_to_their_inputs_but_none_of_its_own_sensors():
+    """A composed member's sensor inputs reach it from the plant's tick: a subscription of
+    the plant's own on them would count on the bus as a reader (Zenoh's matching status sees
+    the plant's session), and every scan or image a composed member reads would be put for
+    nobody. Another node's output a composed member reads is still subscribed to."""
+    from types import SimpleNamespace
+    from bus.composed import Composed
+    from bus.keys import Keys
+    from bus.node import MemberSpec
+    from plant.process import Plant
+
+    class Reads:
+        inputs = ["scan", "joint_states", "follower/debug"]
+
+        def step(self, obs):
+            return None
+    keys = Keys("ns")
+    composed = Composed([MemberSpec(Reads(), ["r1", "r2"], "reader")], keys, session=None)
+    subs: list[tuple[str, str]] = []
+    none = lambda *a: None        # noqa: E731
+    host = SimpleNamespace(
+        keys=keys, composed=composed, _robot_of_key={},
+        inbox=SimpleNamespace(subscribe=lambda key, tag, remote_only=False: subs.append(
+            (key, tag)), watch_liveliness=none, serve=none),
+        strategy=SimpleNamespace(lockstep=True), sim=SimpleNamespace(robots={"r1": 0, "r2": 0}))
+    Plant._listen(host)
+    assert {k for k, tag in subs if tag == "input"} == {"ns/r1/follower/debug",
+                                                        "ns/r2/follower/debug"}
+    assert not [k for k, _ in subs if k.endswith(("/scan", "/joint_states"))], subs
