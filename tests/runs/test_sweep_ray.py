@@ -3,6 +3,8 @@
 bit, and a worker node killed mid-sweep loses no row."""
 from __future__ import annotations
 
+import json
+import os
 import time
 
 import pytest
@@ -53,7 +55,13 @@ def test_ctrl_c_stops_the_runs_on_every_node(cluster, procs, tmp_path):
     p.send_signal(2)
     assert p.wait(120) == 130, procs.log(p)
     assert not [pid for pid in tree if dprocs.alive(pid)]
-    assert [r["status"] for r in read_rows(out)] == ["interrupted", "interrupted"]
+    rows = read_rows(out)
+    assert [r["status"] for r in rows] == ["interrupted", "interrupted"]
+    # each run stopped itself on the SIGINT and summed up what it ran (not killed after
+    # the stop grace, which leaves no summary)
+    for r in rows:
+        with open(os.path.join(out, r["out"], "summary.json")) as f:
+            assert json.load(f)["end_reason"] == "interrupted (SIGINT)", r
 
 
 def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster, procs,
