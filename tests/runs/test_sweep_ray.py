@@ -73,6 +73,8 @@ def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster
     p = sweep(procs, on_ray, "--engine", "ray", "--address", cluster.address, env=env)
     assert p.wait(150) == 0, procs.log(p)
     rows, ref = read_rows(on_ray), read_rows(local)
+    # DIFFBOT_PLOTS=0 (the suite's): the table alone, no figure of the sweep or of a run
+    assert not [f for _, _, fs in os.walk(on_ray) for f in fs if f.endswith(".png")]
     assert len({r["node"] for r in rows}) == 2, [r["node"] for r in rows]
     for a, b in zip(rows, ref):
         assert a["status"] == "ok"
