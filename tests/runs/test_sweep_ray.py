@@ -3,6 +3,7 @@
 bit, and a worker node killed mid-sweep loses no row."""
 from __future__ import annotations
 
+import glob
 import json
 import os
 import time
@@ -49,7 +50,9 @@ def test_ctrl_c_stops_the_runs_on_every_node(cluster, procs, tmp_path):
     def runs_on(node) -> list[int]:
         return [pid for pid in dprocs.descendants(node.pid) if out in _cmdline(pid)]
     wait_for(lambda: all(runs_on(n) for n in cluster.nodes), 120, 0.1, "a run on each node")
-    time.sleep(1.0)
+    # each run's plant started: its launcher takes SIGINT as a stop request by then
+    wait_for(lambda: len(glob.glob(os.path.join(out, "runs", "*", "logs", "plant.log"))) == 2,
+             60, 0.05, "both runs' plants")
     tree = [pid for n in cluster.nodes for pid in dprocs.descendants(n.pid)
             if "diffbot.cli" in _cmdline(pid)]
     p.send_signal(2)
