@@ -392,7 +392,7 @@ def local_sweep(tmp_path_factory):
     metrics the Ray engine must give), one xdist group ("ray"). {"out": its folder,
     "args": the command's arguments, "log": its output}."""
     out = tmp_path_factory.mktemp("local_sweep") / "sweep"
-    args = (*LOCAL_SWEEP, "--out", str(out))
+    args = (*LOCAL_SWEEP, "--plots", "--out", str(out))      # (the suite's default: none)
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", *args], cwd=ROOT,
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, (r.stdout + r.stderr)[-2000:]

@@ -36,8 +36,9 @@ def diffbot_argv(*args: str) -> list[str]:
 
 def _preexec(die_with_parent: bool):
     """What runs in the child before it execs: SIGINT and SIGTERM back to their defaults
-    (a parent that ignores them, e.g. while it shuts down, must not pass that on: the child
-    would then ignore the stop request), and on Linux, if asked, SIGTERM from the kernel
+    and unblocked (a parent that ignores them, e.g. while it shuts down, or a thread that
+    blocks them, as a Ray task's does, must not pass that on: ignored and blocked signals
+    survive exec, and the child would never see the stop request), and on Linux, if asked, SIGTERM from the kernel
     when this process dies, so a child never outlives a parent that was SIGKILLed. The
     libc function is looked up here, in the parent; the child only calls it."""
     prctl = None
@@ -53,6 +54,7 @@ def _preexec(die_with_parent: bool):
     def preexec() -> None:
         signal.signal(signal.SIGINT, signal.SIG_DFL)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, (signal.SIGINT, signal.SIGTERM))
         if prctl is not None:
             prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
             if os.getppid() != parent:       # the parent died before prctl: no signal comes

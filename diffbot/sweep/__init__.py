@@ -11,7 +11,7 @@ Each point of the grid is a normal ``diffbot run SCENARIO --seed S [--set K=V | 
     sweep.csv, sweep.parquet   one row per run: parameters, seed, status, exit code,
                                attempts, wall time, real-time factor, node, host, every
                                scalar metric of its summary.json, and a failed run's log tail
-    plots/<metric>_vs_<param>.png   median over seeds, spread as bands
+    plots/<metric>_vs_<param>.png   median over seeds, spread as bands (not with --no-plots)
     runs/<run>/                the run's own output (summary.json, plots, logs, run.log)
 
 A run that failed is retried (``--retries``); Ctrl-C cancels the queued runs and stops the
@@ -63,6 +63,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="host each run's lockstep members in its plant's process (default: "
                         "the same bytes, no process hop per tick); --no-compose: a process "
                         "each, as `diffbot run` without --compose")
+    p.add_argument("--plots", action=argparse.BooleanOptionalAction,
+                   default=os.environ.get("DIFFBOT_PLOTS", "1") != "0",
+                   help="draw the sweep's plots (default); --no-plots writes the table alone "
+                        "and runs each point with `diffbot run --no-plots`: the data, no "
+                        "figures (DIFFBOT_PLOTS=0 sets the default)")
     p.add_argument("--fresh", action="store_true",
                    help="run everything again, even runs a previous sweep into --out finished")
     p.add_argument("--progress", choices=("auto", "bar", "lines"), default="auto",
@@ -130,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         cmd = diffbot_argv("run", scenario_arg, *extra, "--out", run_out,
                            "--timeout", f"{args.timeout:g}",
                            "--compose" if args.compose else "--no-compose",
-                           *(["--duration", f"{args.duration:g}"] if args.duration else []))
+                           *(["--duration", f"{args.duration:g}"] if args.duration else []),
+                           *([] if args.plots else ["--no-plots"]))
         run = runner.Run(rid, cmd, run_out, os.path.join(run_out, "run.log"),
                          cpus=args.cpus_per_run or cpus_for(spec, extra, args.compose),
                          timeout_s=args.timeout + 60, params=dict(zip(params, pt.values)),
@@ -170,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
                if c not in (*HEAD, *TAIL, *LAST, *params)] + ["real_time_factor"]
     plots_dir = os.path.join(out, "plots")
     os.makedirs(plots_dir, exist_ok=True)
-    pngs = plot_all(all_rows, params, metrics, plots_dir, spec.name) if params else []
+    pngs = plot_all(all_rows, params, metrics, plots_dir, spec.name) \
+        if params and args.plots else []
     bad = [r for r in all_rows if r["status"] != "ok"]
     say(f"{len(all_rows) - len(bad)}/{len(pts)} run(s) ok in {wall:.1f} s; "
         f"{', '.join(os.path.relpath(w, out) for w in written)} and {len(pngs)} plot(s) in {out}")

@@ -104,9 +104,11 @@ def test_same_seed_gives_a_byte_identical_tracking_csv(band_runs, tmp_path):
 
 @pytest.mark.serial                  # a wall-clock promise: runs alone under xdist
 def test_realtime_follower_keeps_up(tmp_path):
-    s = run_follow(tmp_path, "--mode", "realtime", "--duration", "15")
+    # 8 s: the follower's widest swing is its closing in from the start (t < 4 s; steady
+    # at 0.65-0.68 m after), then 4 s (100 camera frames) of steady following
+    s = run_follow(tmp_path, "--mode", "realtime", "--duration", "8")
     m = s["metrics"]
-    assert s["sim_time_s"] == pytest.approx(15.0)
+    assert s["sim_time_s"] == pytest.approx(8.0)
     check_real_time_factor(s)
     # paced to the wall clock: never ahead, behind only by the documented slack or a stall
     check_realtime_pace(json.load(open(tmp_path / "logs" / "plant.json")))

@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import pytest
@@ -69,6 +70,35 @@ def test_a_child_that_obeys_sigint_ends_cleanly_within_the_grace(tmp_path):
     procs.stop([c], grace_s=10.0)
     assert c.exit_code == 0
     assert c.tail(1) == "bye"
+
+
+@pytest.mark.slow
+def test_a_child_started_where_stop_signals_are_blocked_still_obeys_sigint(tmp_path):
+    """A blocked signal mask survives fork and exec (a Ray task's thread blocks SIGINT):
+    the child starts with SIGINT and SIGTERM unblocked, so a stop ends it cleanly instead
+    of waiting out the grace for a SIGKILL."""
+    started = []
+
+    def start_blocked() -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, (signal.SIGINT, signal.SIGTERM))
+        started.append(procs.Child("polite", _py("""
+            import signal, sys, time
+            print("mask", sorted(int(s) for s in signal.pthread_sigmask(signal.SIG_BLOCK, [])),
+                  flush=True)
+            try:
+                time.sleep(60)
+            except KeyboardInterrupt:
+                print("bye", flush=True)
+                sys.exit(0)
+        """), str(tmp_path / "polite.log")).start())
+    t = threading.Thread(target=start_blocked)
+    t.start()
+    t.join()
+    c = started[0]
+    wait_for(lambda: "mask" in procs.tail(c.log_path), 20, what="the child to start")
+    procs.stop([c], grace_s=10.0)
+    assert c.exit_code == 0, c.tail()
+    assert c.tail(2).splitlines() == ["mask []", "bye"]
 
 
 @pytest.mark.slow

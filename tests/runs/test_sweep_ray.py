@@ -3,6 +3,9 @@
 bit, and a worker node killed mid-sweep loses no row."""
 from __future__ import annotations
 
+import glob
+import json
+import os
 import time
 
 import pytest
@@ -47,13 +50,21 @@ def test_ctrl_c_stops_the_runs_on_every_node(cluster, procs, tmp_path):
     def runs_on(node) -> list[int]:
         return [pid for pid in dprocs.descendants(node.pid) if out in _cmdline(pid)]
     wait_for(lambda: all(runs_on(n) for n in cluster.nodes), 120, 0.1, "a run on each node")
-    time.sleep(1.0)
+    # each run's plant started: its launcher takes SIGINT as a stop request by then
+    wait_for(lambda: len(glob.glob(os.path.join(out, "runs", "*", "logs", "plant.log"))) == 2,
+             60, 0.05, "both runs' plants")
     tree = [pid for n in cluster.nodes for pid in dprocs.descendants(n.pid)
             if "diffbot.cli" in _cmdline(pid)]
     p.send_signal(2)
     assert p.wait(120) == 130, procs.log(p)
     assert not [pid for pid in tree if dprocs.alive(pid)]
-    assert [r["status"] for r in read_rows(out)] == ["interrupted", "interrupted"]
+    rows = read_rows(out)
+    assert [r["status"] for r in rows] == ["interrupted", "interrupted"]
+    # each run stopped itself on the SIGINT and summed up what it ran (not killed after
+    # the stop grace, which leaves no summary)
+    for r in rows:
+        with open(os.path.join(out, r["out"], "summary.json")) as f:
+            assert json.load(f)["end_reason"] == "interrupted (SIGINT)", r
 
 
 def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster, procs,
@@ -65,6 +76,8 @@ def test_two_nodes_same_metrics_as_local_and_a_dead_worker_loses_nothing(cluster
     p = sweep(procs, on_ray, "--engine", "ray", "--address", cluster.address, env=env)
     assert p.wait(150) == 0, procs.log(p)
     rows, ref = read_rows(on_ray), read_rows(local)
+    # DIFFBOT_PLOTS=0 (the suite's): the table alone, no figure of the sweep or of a run
+    assert not [f for _, _, fs in os.walk(on_ray) for f in fs if f.endswith(".png")]
     assert len({r["node"] for r in rows}) == 2, [r["node"] for r in rows]
     for a, b in zip(rows, ref):
         assert a["status"] == "ok"

@@ -71,6 +71,16 @@ class Cluster:
         self.nodes.append(node)
         return node
 
+    def wait_started(self, node: procs.Child, timeout_s: float = 60.0) -> None:
+        """Wait until ``ray start`` says the node's runtime started (its log; polling that
+        file costs nothing, where each ``ray status`` is a second or two of CPU that the
+        starting node would want)."""
+        deadline = time.monotonic() + timeout_s
+        while "Ray runtime started" not in node.tail(10_000) and time.monotonic() < deadline:
+            if node.poll() is not None:
+                raise RuntimeError(f"{node.name} exited {node.exit_code}:\n{node.tail(30)}")
+            time.sleep(0.05)
+
     def wait_nodes(self, n: int, timeout_s: float = 60.0, exactly: bool = False) -> None:
         """Wait until ``ray status`` shows ``n`` live nodes (at least, or ``exactly``)."""
         deadline = time.monotonic() + timeout_s
@@ -100,7 +110,7 @@ class Cluster:
             self.dead.append(node)
         self.wait_nodes(len(self.nodes), exactly=True)   # Ray has seen them die
         for node in dead:
-            self.start_node(*node.spec)
+            self.wait_started(self.start_node(*node.spec))
         self.wait_nodes(len(self.nodes), exactly=True)
 
     def stop(self) -> None:
@@ -115,9 +125,9 @@ def two_nodes(cpus: int = 1):
     one (conftest's ``ray_cluster``, for the session): starting one takes tens of seconds."""
     c = Cluster()
     try:
-        c.start_node(cpus, head=True, resources={"head": 1})
-        c.wait_nodes(1)
-        c.start_node(cpus, resources={"worker": 1})
+        # the worker joins once the head's runtime is up; `ray status` is asked only then
+        c.wait_started(c.start_node(cpus, head=True, resources={"head": 1}))
+        c.wait_started(c.start_node(cpus, resources={"worker": 1}))
         c.wait_nodes(2)
         yield c
     finally:
