@@ -117,6 +117,8 @@ def frame(robot: str, name: str) -> str:
 
 
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
+#: ``sim/poses``: a TransformStamped per robot, ``world`` -> ``<robot>/base_link``
+POSES_TYPE = "tf2_msgs/msg/TFMessage"
 
 # ---------------------------------------------------------------- FMU variables
 #: FMU nodes publish their variables on ``fmu/<instance>/<variable>`` (bus-wide, not per
@@ -185,6 +187,11 @@ class Keys:
     @property
     def clock(self) -> str:
         return self._k("sim/clock")
+
+    @property
+    def poses(self) -> str:
+        """Every robot's true pose at a tick, one message (:data:`POSES_TYPE`)."""
+        return self._k("sim/poses")
 
     @property
     def reset(self) -> str:
