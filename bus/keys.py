@@ -266,5 +266,7 @@ class Keys:
         """The ROS 2 message type carried on a concrete key, if it is one of ours."""
         if key == self.clock:
             return CLOCK_TYPE
+        if key == self.poses:
+            return POSES_TYPE
         rt = self.robot_topic_of(key)
         return TOPICS[rt[1]].msgtype if rt else None
