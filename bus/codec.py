@@ -444,10 +444,14 @@ def camera_info(t_ns: int, width: int, height: int, distortion_model: str, d, k,
 
 
 def msg_stamp_ns(msg) -> int | None:
-    """Sim-time stamp of a message in ns (header stamp, or the clock of a Clock)."""
+    """Sim-time stamp of a message in ns (header stamp, the clock of a Clock, or the first
+    transform's of a TFMessage: ``sim/poses`` stamps them all with the tick)."""
     h = getattr(msg, "header", None)
     if h is not None:
         return stamp_ns(h.stamp)
+    transforms = getattr(msg, "transforms", None)
+    if transforms:
+        return stamp_ns(transforms[0].header.stamp)
     c = getattr(msg, "clock", None)
     return stamp_ns(c) if c is not None else None
 

@@ -117,6 +117,8 @@ def frame(robot: str, name: str) -> str:
 
 
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
+#: ``sim/poses``: a TransformStamped per robot, ``world`` -> ``<robot>/base_link``
+POSES_TYPE = "tf2_msgs/msg/TFMessage"
 
 # ---------------------------------------------------------------- FMU variables
 #: FMU nodes publish their variables on ``fmu/<instance>/<variable>`` (bus-wide, not per
@@ -185,6 +187,11 @@ class Keys:
     @property
     def clock(self) -> str:
         return self._k("sim/clock")
+
+    @property
+    def poses(self) -> str:
+        """Every robot's true pose at a tick, one message (:data:`POSES_TYPE`)."""
+        return self._k("sim/poses")
 
     @property
     def reset(self) -> str:
@@ -259,5 +266,7 @@ class Keys:
         """The ROS 2 message type carried on a concrete key, if it is one of ours."""
         if key == self.clock:
             return CLOCK_TYPE
+        if key == self.poses:
+            return POSES_TYPE
         rt = self.robot_topic_of(key)
         return TOPICS[rt[1]].msgtype if rt else None

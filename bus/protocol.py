@@ -11,8 +11,9 @@ from .codec import HOLD_MAX
 #: announced by the plant in ``sim/info`` as ``"protocol"``; a node of another version exits 2
 PROTOCOL_VERSION = 5
 #: additions within the version (``sim/info`` ``protocol_minor``; absent: 0): 1 ``sim/seen``,
-#: 2 the hold's bound enforced and counted, the reset reply's ``epoch`` (docs/PROTOCOL.md 8)
-PROTOCOL_MINOR = 2
+#: 2 the hold's bound enforced and counted, the reset reply's ``epoch``; 3 ``sim/poses``
+#: (docs/PROTOCOL.md 8)
+PROTOCOL_MINOR = 3
 
 #: how the plant and the lockstep members are coupled (co-simulation master algorithm)
 COUPLINGS = ("sequential", "pipelined")

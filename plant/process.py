@@ -39,7 +39,7 @@ from bus.lockstep import AckLedger
 from bus.log import RejectCounter
 from bus.protocol import PLANT_READS, world_max_hold
 
-from . import modes, report
+from . import core, modes, report
 from .commands import Command, CommandBook, decode_command, stale_commands, twist_command
 from .outbox import Outbox, Reads
 from .presence import PLANT_TOKEN, Presence
@@ -216,8 +216,8 @@ class Plant:
 
     def publish_sensors(self) -> None:
         """The sensors due at this tick that someone reads (:mod:`plant.outbox`), robot by
-        robot, then ``sim/clock``; then the next tick's sensor noise is drawn ahead
-        (prefetch), off the members' critical path."""
+        robot, ``sim/poses`` if read, then ``sim/clock``; then the next tick's sensor noise
+        is drawn ahead (prefetch), off the members' critical path."""
         t = self.sim.time_ns
         out, composed = self.outbox, self.composed
         wanted = {name: self._wanted(name) for name in self.tick.sensors}
@@ -234,6 +234,11 @@ class Plant:
             else:
                 out.skip()
             composed.deliver(key, data, None)
+        key = self.keys.poses                         # every robot's pose, one message
+        if out.reads(key):
+            out.put(key, core.poses(self.tick.model, self.tick.data, 0, t), t, self.epoch)
+        else:
+            out.skip()
         clock = packed.clock(t)
         self.outbox.put(self.keys.clock, clock, t, self.epoch)
         if composed is not None:

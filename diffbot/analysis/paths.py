@@ -1,8 +1,9 @@
 """Every run's robot paths on the room's map: ``paths.csv`` and ``paths.png``.
 
 Whatever a scenario's own analysis does (a user's own scenario, with ``exec`` processes,
-has none), the run keeps each robot's ground truth (the plant's ``<robot>/ground_truth``,
-nav_msgs/Odometry in the world frame, every tick) and afterwards writes:
+has none), the run keeps every robot's true pose (the plant's ``sim/poses``: one
+tf2_msgs/TFMessage a tick, a transform per robot in the world frame, the poses of the
+robots' ``<robot>/ground_truth``) and afterwards writes:
 
 * ``paths.csv``: ``t_s, robot, x_m, y_m, yaw_rad`` for every tick every robot reported;
 * ``paths.png``: the room from its world file (the floor's edge or its walls, each piece of
@@ -19,26 +20,27 @@ import os
 import numpy as np
 
 from bus import codec
-from bus.keys import TOPICS, Keys
+from bus.keys import POSES_TYPE, Keys, frame
 from plant.footprint import ROBOT_TOP_M, bottom
 
 
 def keys(keys: Keys, world) -> dict[str, str]:
-    """The observer's keys for the paths: every robot's ground truth."""
-    return {keys.topic(r.name, "ground_truth"): TOPICS["ground_truth"].msgtype
-            for r in world.robots}
+    """The observer's keys for the paths: every robot's pose, one message a tick (the plant
+    then builds no robot's ``ground_truth`` for the paths alone)."""
+    return {keys.poses: POSES_TYPE}
 
 
 def ground_truth_tracks(observer, keys: Keys, names: list[str]) -> dict[str, dict[int, tuple]]:
-    """robot -> {stamp ns: (x, y, yaw)} from the observed ground truth."""
-    tracks = {}
-    for r in names:
-        rows = {}
-        for m in observer.messages(keys.topic(r, "ground_truth")):
-            p = m.pose.pose
-            rows[codec.msg_stamp_ns(m)] = (p.position.x, p.position.y,
-                                           codec.quaternion_to_yaw(p.orientation))
-        tracks[r] = rows
+    """robot -> {stamp ns: (x, y, yaw)} from the observed ``sim/poses`` (each transform's
+    child frame says its robot: ``<robot>/base_link``)."""
+    tracks: dict[str, dict[int, tuple]] = {r: {} for r in names}
+    robot_of = {frame(r, "base_link"): tracks[r] for r in names}
+    for m in observer.messages(keys.poses):
+        for tf in m.transforms:
+            rows = robot_of.get(tf.child_frame_id)
+            if rows is not None:
+                p, q = tf.transform.translation, tf.transform.rotation
+                rows[codec.stamp_ns(tf.header.stamp)] = (p.x, p.y, codec.quaternion_to_yaw(q))
     return tracks
 
 

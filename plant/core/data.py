@@ -49,6 +49,8 @@ class Data:
         #: when first sensed, and their layout (the same for every world)
         self.outgoing: list = [None] * W
         self.layout = None
+        #: ``sim/poses``' encoder (:class:`plant.core.outgoing.Poses`), made when first asked
+        self.poses = None
 
     def set_streams(self, w: int, sensors: dict) -> None:
         """World ``w``'s robots' sensors (freshly built: their noise keys follow the seed)."""

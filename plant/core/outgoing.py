@@ -7,10 +7,15 @@ known once). A tick's call of plant/kernels/sense.c (:func:`plant.kernels.sense_
 draws the encoders' and GPS's noise and writes the stamps and values of the messages
 someone reads; each message is then a slice of the buffer's bytes. A kinematic world's
 state comes into the core's arrays by one call too (:meth:`Outgoing.observe_kinematic`).
+:class:`Poses` writes every robot's true pose at a tick into one tf2_msgs/msg/TFMessage
+(``sim/poses``, docs/PROTOCOL.md section 2) from the same arrays.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from bus.keys import WORLD_FRAME
+from bus.packed import _CDR_LE, _STAMP, _U32, _Stamp, _header, _pad, _split, _string
 
 from .. import kernels
 from .data import Data
@@ -82,3 +87,41 @@ class Outgoing:
             call = kernels.observe_kinematic_call(len(kin.pose), arrays, self._state)
             got = self._kin = (arrays, call)     # (the arrays kept alive with their call)
         got[1]()
+
+
+class Poses:
+    """Every robot's true pose at a tick as one tf2_msgs/msg/TFMessage: a TransformStamped
+    per robot in the model's robot order, ``world`` -> ``<robot>/base_link``, each stamped
+    with the tick. The message's template (frame ids fixed, so every field's place is known
+    once) is written by two array assignments a tick: the stamps, and each robot's
+    translation and rotation (x, y, z, qx, qy, qz, qw: :class:`Data`'s ``tf`` position and
+    ``quaternion``, the very doubles of its ``ground_truth`` pose)."""
+
+    def __init__(self, model: Model) -> None:
+        buf = bytearray(_CDR_LE)
+        buf += _U32.pack(len(model.robots))
+        stamps, values = [], []
+        for child in model.frames["base_link"]:
+            _pad(buf, 4)                       # (header.stamp: two 4-byte integers)
+            stamps.append(len(buf))
+            _header(buf, _Stamp(WORLD_FRAME))
+            _string(buf, child)
+            _pad(buf, 8)                       # transform: translation, rotation (7 <f8)
+            values.append(len(buf))
+            buf += bytes(7 * 8)
+        self.template = np.frombuffer(bytes(buf), np.uint8)
+        self._stamps = (np.array(stamps, np.int64)[:, None] + np.arange(8)).ravel()
+        self._values = (np.array(values, np.int64)[:, None] + np.arange(56)).ravel()
+        self._pose = np.empty((len(model.robots), 7))
+
+    def encode(self, data: Data, w: int, t_ns: int) -> bytes:
+        """World ``w``'s message at ``t_ns`` of the state in ``data`` (observed already:
+        :func:`plant.core.step.observe`)."""
+        buf = self.template.copy()
+        stamp = np.frombuffer(_STAMP.pack(*_split(t_ns)), np.uint8)
+        buf[self._stamps] = np.tile(stamp, len(self._pose))
+        pose = self._pose
+        pose[:, :3] = data.tf[w, :, :3, 3]
+        pose[:, 3:] = data.quaternion[w]
+        buf[self._values] = pose.view(np.uint8).ravel()
+        return buf.tobytes()

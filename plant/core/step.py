@@ -28,7 +28,7 @@ from ..raycast import Scene
 from ..sensors import JOINTS
 from .data import Data
 from .model import EVERY_TICK, Model
-from .outgoing import Layout, Outgoing
+from .outgoing import Layout, Outgoing, Poses
 
 
 def outgoing(model: Model, data: Data, w: int) -> Outgoing:
@@ -40,6 +40,16 @@ def outgoing(model: Model, data: Data, w: int) -> Outgoing:
             layout = data.layout = Layout(model)
         got = data.outgoing[w] = Outgoing(model, data, w, layout)
     return got
+
+
+def poses(model: Model, data: Data, w: int, t_ns: int) -> bytes:
+    """World ``w``'s ``sim/poses`` at ``t_ns``: every robot's true pose in one
+    tf2_msgs/msg/TFMessage (:class:`~plant.core.outgoing.Poses`), of the state
+    :func:`observe` read (the poses its ``ground_truth`` messages carry, to the bit)."""
+    enc = data.poses
+    if enc is None:
+        enc = data.poses = Poses(model)
+    return enc.encode(data, w, t_ns)
 
 
 def observe(model: Model, data: Data, w: int, stepper) -> None:

@@ -7,6 +7,7 @@ import os
 import queue
 import re
 import signal
+import struct
 import subprocess
 import sys
 import textwrap
@@ -58,7 +59,7 @@ def test_every_key_is_in_the_document():
     text = doc()
     table = {m.group(1) for m in re.finditer(r"^\| `([^`]+)` \|", text, re.M)}
     wanted = {f"<robot>/{t.suffix}" for t in TOPICS.values()}
-    wanted |= {"sim/clock", "sim/end", "sim/info", "sim/reset", "sim/alive/<node>",
+    wanted |= {"sim/clock", "sim/poses", "sim/end", "sim/info", "sim/reset", "sim/alive/<node>",
                "sim/sync/<node>", "sim/ack/<node>", "sim/seen/<node>"}
     assert wanted <= table, f"missing from PROTOCOL.md: {sorted(wanted - table)}"
     for name, t in TOPICS.items():
@@ -207,6 +208,74 @@ def test_a_client_written_from_the_document_drives_like_bus_node(procs, endpoint
     assert xs[-1] - xs[0] >= 1.0
     assert sorted(ours) == sorted(theirs)
     assert ours == theirs                        # byte for byte, every tick
+
+
+def _poses_from_the_page(data: bytes) -> list[tuple[int, str, str, tuple]]:
+    """sim/poses read as section 2 and the CDR rules give it (struct only): (stamp ns,
+    frame_id, child_frame_id, (x, y, z, qx, qy, qz, qw)) per transform."""
+    assert data[:4] == b"\x00\x01\x00\x00"           # CDR, little endian
+    at = 4
+
+    def take(fmt: str, align: int):
+        nonlocal at
+        at += -(at - 4) % align                          # alignment after the header
+        got = struct.unpack_from(fmt, data, at)
+        at += struct.calcsize(fmt)
+        return got
+
+    def string() -> str:
+        (n,) = take("<I", 4)
+        (raw,) = take(f"{n}s", 1)
+        return raw[:-1].decode()
+
+    out = []
+    for _ in range(take("<I", 4)[0]):
+        sec, nanosec = take("<iI", 4)
+        frame_id, child = string(), string()
+        out.append((sec * 1_000_000_000 + nanosec, frame_id, child, take("<7d", 8)))
+    assert at == len(data)
+    return out
+
+
+@pytest.mark.slow
+def test_a_client_written_from_the_document_reads_sim_poses(procs, endpoint, tmp_path):
+    """sim/poses, read by a subscriber with the page's rules alone: every tick, a transform
+    per robot in the world's order, world -> <robot>/base_link stamped with the tick, the
+    doubles of the robot's ground_truth pose at that tick."""
+    from bus.session import open_session
+    from plant.swarm_world import write_swarm_world
+    world = write_swarm_world(str(tmp_path / "w.toml"), 3, seed=1, mode="kinematic")
+    names = ["r0", "r1", "r2"]
+    got: dict[str, list] = {}
+
+    def keep(smp):
+        got.setdefault(str(smp.key_expr), []).append(smp.payload.to_bytes())
+    plant = procs.diffbot("plant", "--world", world, "--mode", "fast", "--duration", "0.2",
+                          "--wait-for", "reader", "--endpoint", endpoint, name="plant")
+    s = open_session("test", endpoint)
+    try:
+        subs = [s.declare_subscriber(k, keep)
+                for k in [K.poses, *(K.topic(r, "ground_truth") for r in names)]]
+        token = s.liveliness().declare_token(K.alive("reader"))
+        assert plant.wait(60) == 0, procs.log(plant)
+        token.undeclare()
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        s.close()
+    poses = [_poses_from_the_page(m) for m in got[K.poses]]
+    assert [p[0][0] for p in poses] == [k * 20_000_000 for k in range(11)]
+    for msg in poses:
+        assert [(f, c) for _, f, c, _ in msg] == [("world", f"{r}/base_link") for r in names]
+        assert len({t for t, *_ in msg}) == 1
+    for r, i in zip(names, range(3)):
+        truth = [codec.decode(m, "nav_msgs/msg/Odometry") for m in got[K.topic(r, "ground_truth")]]
+        assert [codec.msg_stamp_ns(m) for m in truth] == [p[0][0] for p in poses]
+        for m, msg in zip(truth, poses):
+            p, q = m.pose.pose.position, m.pose.pose.orientation
+            assert struct.pack("<7d", p.x, p.y, p.z, q.x, q.y, q.z, q.w) == \
+                struct.pack("<7d", *msg[i][3])
+    assert len({t[3] for t in poses[-1]}) == 3            # (each robot its own pose)
 
 
 # ---------------------------------------------------------------- versions and errors

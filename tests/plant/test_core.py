@@ -83,6 +83,7 @@ def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
         expect = list(tick_messages(oracle.t_ns, oracle.tick_ns, oracle.sensors, st.state,
                                     st.shapes, want, encoded=True))
         assert [m[:2] for m in got] == [m[:2] for m in expect] == [m[:2] for m in objects], k
+        _check_poses(core_tick, oracle, got, k)
         for (robot, topic, data), (_, _, ref), (_, _, msg) in zip(got, expect, objects):
             assert data == ref, (k, robot, topic)
             assert (msg is None) == (ref is None), (k, robot, topic)
@@ -98,6 +99,34 @@ def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
     assert {"joint_states", "gps", "ground_truth", "scan", "unread"} <= set(seen)
     if kind != "dynamic":
         assert seen.get("camera/image_raw", 0) > 0 and seen.get("camera/camera_info", 0) > 0
+
+
+def _check_poses(core_tick: Tick, oracle: Tick, got: list, k: int) -> None:
+    """``sim/poses`` of the tick the core sensed: rosbags' bytes of the TFMessage built from
+    the per-message path's states (robot by robot, in the world's order), and each
+    transform's doubles those of the robot's ground_truth pose where it was made."""
+    T, t_ns = codec.T, oracle.t_ns
+    data = core.poses(core_tick.model, core_tick.data, 0, core_tick.t_ns)
+    transforms = []
+    for name in oracle.sensors:
+        st = oracle.stepper.state(name)
+        (x, y, z), (qx, qy, qz, qw) = st.xyz, st.quaternion
+        transforms.append(T["geometry_msgs/msg/TransformStamped"](
+            header=codec.header(t_ns, "world"), child_frame_id=f"{name}/base_link",
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                rotation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))))
+    assert data == codec.encode(T["tf2_msgs/msg/TFMessage"](transforms=transforms)), k
+    tfs = {tf.child_frame_id: tf.transform
+           for tf in codec.decode(data, "tf2_msgs/msg/TFMessage").transforms}
+    for robot, topic, msg in got:
+        if topic == "ground_truth" and msg is not None:
+            p, tr = codec.decode(msg, "nav_msgs/msg/Odometry").pose.pose, tfs[f"{robot}/base_link"]
+            pose = [p.position.x, p.position.y, p.position.z, p.orientation.x,
+                    p.orientation.y, p.orientation.z, p.orientation.w]
+            same = [tr.translation.x, tr.translation.y, tr.translation.z, tr.rotation.x,
+                    tr.rotation.y, tr.rotation.z, tr.rotation.w]
+            assert np.array(pose).tobytes() == np.array(same).tobytes(), (k, robot)
 
 
 @pytest.mark.parametrize("n", [3, 12])

@@ -1,0 +1,50 @@
+"""``sim/poses`` as the launcher reads it: the paths' tracks (diffbot.analysis.paths, the
+swarm's analysis) from the one message a tick equal those from every robot's ground truth,
+which the analyses read before, to the bit."""
+from __future__ import annotations
+
+from bus import codec
+from bus.controller import Twist
+from bus.keys import POSES_TYPE, Keys
+from diffbot.analysis.paths import ground_truth_tracks
+from plant import core
+from plant.swarm_world import write_swarm_world
+from plant.tick import Tick
+from plant.world import load_world
+
+
+class _Observed:
+    """The observer's reading side: decoded messages by key, in stamp order."""
+
+    def __init__(self) -> None:
+        self.kept: dict[str, list] = {}
+
+    def add(self, key: str, data: bytes, msgtype: str) -> None:
+        self.kept.setdefault(key, []).append(codec.decode(data, msgtype))
+
+    def messages(self, key: str) -> list:
+        return list(self.kept.get(key, ()))
+
+
+def test_tracks_from_sim_poses_are_the_ground_truth_s(tmp_path):
+    keys = Keys("ns")
+    tick = Tick(load_world(write_swarm_world(str(tmp_path / "w.toml"), 6, seed=4,
+                                             mode="kinematic")))
+    names = list(tick.sensors)
+    seen = _Observed()
+    truth: dict[str, dict[int, tuple]] = {r: {} for r in names}
+    for k in range(15):
+        for robot, topic, data in tick.messages(encoded=True):
+            if topic == "ground_truth":
+                m = codec.decode(data, "nav_msgs/msg/Odometry")
+                p = m.pose.pose
+                truth[robot][codec.msg_stamp_ns(m)] = (
+                    p.position.x, p.position.y, codec.quaternion_to_yaw(p.orientation))
+        seen.add(keys.poses, core.poses(tick.model, tick.data, 0, tick.t_ns), POSES_TYPE)
+        for i, r in enumerate(names):
+            tick.drive(r, Twist(0.3, 0.5 * (i - 2)))
+        tick.step()
+    got = ground_truth_tracks(seen, keys, names)
+    assert list(got) == names and got == truth
+    assert len({rows[14 * 20_000_000] for rows in got.values()}) == len(names)
+    assert got[names[0]][0] != got[names[0]][14 * 20_000_000]      # (they moved)
