@@ -29,8 +29,11 @@ def test_two_runs_of_one_seed_record_the_same_bytes_and_another_coupling_does_no
     a = record(tmp_path, "a", "--seed", "5", "--coupling", "pipelined", "--physics-process")
     b = record(tmp_path, "b", "--seed", "5", "--coupling", "pipelined")
     lines = compare(a, b)
-    assert len(lines) == 8 and all(ln.startswith("same") for ln in lines), lines
+    # the robot's 7 topics, sim/clock and sim/poses (every robot's pose a tick)
+    assert len(lines) == 9 and all(ln.startswith("same") for ln in lines), lines
+    assert any(ln.split()[1] == "/sim/poses:" for ln in lines), lines
     # sequential: the commands act a tick earlier, so the robot's path differs, not the clock
     c = record(tmp_path, "c", "--seed", "5", "--coupling", "sequential")
     differ = [ln.split()[1] for ln in compare(a, c) if ln.startswith("DIFF")]
     assert "/robot1/ground_truth:" in differ and "/sim/clock:" not in differ, differ
+    assert "/sim/poses:" in differ, differ
