@@ -3,7 +3,8 @@
 Whatever a scenario's own analysis does (a user's own scenario, with ``exec`` processes,
 has none), the run keeps every robot's true pose (the plant's ``sim/poses``: one
 tf2_msgs/TFMessage a tick, a transform per robot in the world frame, the poses of the
-robots' ``<robot>/ground_truth``) and afterwards writes:
+robots' ``<robot>/ground_truth``, which it reads instead where the analysis keeps them
+already) and afterwards writes:
 
 * ``paths.csv``: ``t_s, robot, x_m, y_m, yaw_rad`` for every tick every robot reported;
 * ``paths.png``: the room from its world file (the floor's edge or its walls, each piece of
@@ -24,16 +25,34 @@ from bus.keys import POSES_TYPE, Keys, frame
 from plant.footprint import ROBOT_TOP_M, bottom
 
 
-def keys(keys: Keys, world) -> dict[str, str]:
-    """The observer's keys for the paths: every robot's pose, one message a tick (the plant
-    then builds no robot's ``ground_truth`` for the paths alone)."""
+def keys(keys: Keys, world, kept: dict[str, str] | None = None) -> dict[str, str]:
+    """The observer's keys for the paths: none more where the run keeps every robot's
+    ``ground_truth`` already (``kept``: the analysis's keys; one robot's square, the follow),
+    else every robot's pose in one message a tick, ``sim/poses`` (the plant then builds no
+    robot's ``ground_truth`` for the paths alone, and puts one message a tick, not one a
+    robot). Either gives the same poses, to the bit."""
+    if kept is not None and all(_truth(keys, r.name) in kept for r in world.robots):
+        return {}
     return {keys.poses: POSES_TYPE}
+
+
+def _truth(keys: Keys, robot: str) -> str:
+    return keys.topic(robot, "ground_truth")
 
 
 def ground_truth_tracks(observer, keys: Keys, names: list[str]) -> dict[str, dict[int, tuple]]:
     """robot -> {stamp ns: (x, y, yaw)} from the observed ``sim/poses`` (each transform's
-    child frame says its robot: ``<robot>/base_link``)."""
+    child frame says its robot: ``<robot>/base_link``), or from every robot's
+    ``ground_truth`` where the observer keeps those instead (:func:`keys`)."""
     tracks: dict[str, dict[int, tuple]] = {r: {} for r in names}
+    if keys.poses not in observer.keep:
+        for r in names:
+            rows = tracks[r]
+            for m in observer.messages(_truth(keys, r)):
+                p = m.pose.pose
+                rows[codec.msg_stamp_ns(m)] = (p.position.x, p.position.y,
+                                               codec.quaternion_to_yaw(p.orientation))
+        return tracks
     robot_of = {frame(r, "base_link"): tracks[r] for r in names}
     for m in observer.messages(keys.poses):
         for tf in m.transforms:

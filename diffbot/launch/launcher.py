@@ -227,7 +227,7 @@ class _Live:
                 if self.session is not None:
                     keep = self.analysis.keys(keys, spec, self.world)
                     if not self.own_paths:
-                        keep = {**analysis_paths.keys(keys, self.world), **keep}
+                        keep = {**analysis_paths.keys(keys, self.world, keep), **keep}
                     self.observer = Observer(self.session, keys, keep)
                     self.watch = self.session.liveliness().declare_subscriber(
                         keys.alive(), run.on_alive, history=True)

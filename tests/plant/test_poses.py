@@ -6,7 +6,7 @@ from __future__ import annotations
 from bus import codec
 from bus.controller import Twist
 from bus.keys import POSES_TYPE, Keys
-from diffbot.analysis.paths import ground_truth_tracks
+from diffbot.analysis.paths import ground_truth_tracks, keys as path_keys
 from plant import core
 from plant.swarm_world import write_swarm_world
 from plant.tick import Tick
@@ -18,8 +18,10 @@ class _Observed:
 
     def __init__(self) -> None:
         self.kept: dict[str, list] = {}
+        self.keep: dict[str, str] = {}
 
     def add(self, key: str, data: bytes, msgtype: str) -> None:
+        self.keep[key] = msgtype
         self.kept.setdefault(key, []).append(codec.decode(data, msgtype))
 
     def messages(self, key: str) -> list:
@@ -31,11 +33,12 @@ def test_tracks_from_sim_poses_are_the_ground_truth_s(tmp_path):
     tick = Tick(load_world(write_swarm_world(str(tmp_path / "w.toml"), 6, seed=4,
                                              mode="kinematic")))
     names = list(tick.sensors)
-    seen = _Observed()
+    seen, truths = _Observed(), _Observed()
     truth: dict[str, dict[int, tuple]] = {r: {} for r in names}
     for k in range(15):
         for robot, topic, data in tick.messages(encoded=True):
             if topic == "ground_truth":
+                truths.add(keys.topic(robot, topic), data, "nav_msgs/msg/Odometry")
                 m = codec.decode(data, "nav_msgs/msg/Odometry")
                 p = m.pose.pose
                 truth[robot][codec.msg_stamp_ns(m)] = (
@@ -48,3 +51,10 @@ def test_tracks_from_sim_poses_are_the_ground_truth_s(tmp_path):
     assert list(got) == names and got == truth
     assert len({rows[14 * 20_000_000] for rows in got.values()}) == len(names)
     assert got[names[0]][0] != got[names[0]][14 * 20_000_000]      # (they moved)
+    # a run whose analysis keeps every robot's ground_truth reads the paths from those
+    # (sim/poses would be one more message a tick), with the same tracks
+    assert path_keys(keys, tick.spec, truths.keep) == {}
+    assert ground_truth_tracks(truths, keys, names) == truth
+    fewer = dict(list(truths.keep.items())[1:])                  # (one robot's missing)
+    assert path_keys(keys, tick.spec, fewer) == {keys.poses: POSES_TYPE}
+    assert path_keys(keys, tick.spec) == {keys.poses: POSES_TYPE}
