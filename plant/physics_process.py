@@ -43,12 +43,7 @@ class PhysicsError(RuntimeError):
 
 def snapshot(sim: Simulation, with_parts: bool):
     """(state rows (R, STATE_COLS), part poses (P, 4, 4) or None, all finite) of ``sim``."""
-    rows = np.empty((len(sim.robots), STATE_COLS))
-    for i, name in enumerate(sim.robots):
-        st = sim.state(name)
-        rows[i, :16] = st.tf.ravel()
-        rows[i, 16:19], rows[i, 19:22] = st.v_body, st.w_body
-        rows[i, 22:24], rows[i, 24:26] = st.enc_pos, st.enc_vel
+    rows = sim.state_rows()
     # every position and velocity of a robot's skeleton shows in its row (pose, body
     # velocities, wheels), so a finite check of the rows is Simulation.is_finite's, cheaper
     return rows, (sim.part_transforms() if with_parts else None), bool(np.isfinite(rows).all())

@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from plant.physics_process import PhysicsError, PhysicsProcess
+from plant.physics_process import STATE_COLS, PhysicsError, PhysicsProcess, state_from_row
 from plant.sim import Simulation
 from plant.swarm_world import write_swarm_world
 from plant.tick import Tick
@@ -64,6 +64,27 @@ def test_the_process_steps_and_reports_what_the_plant_would_itself(tmp_path):
     finally:
         physics.close()
     assert physics.proc.poll() == 0
+
+
+@pytest.mark.parametrize("mode", ["dynamic", "kinematic"])
+def test_the_snapshot_holds_each_robots_state_and_parts_to_the_bit(tmp_path, mode):
+    """What the physics process sends, read all robots at once (Simulation.state_rows,
+    part_transforms), is what Simulation.state and DART's world transforms give."""
+    sim = Simulation(load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, 5, mode)))
+    for k in range(30):
+        for i, name in enumerate(sim.robots):
+            sim.command_twist(name, 0.4, 1.5 * math.sin(k / 5 + i))
+        sim.step_tick()
+    rows = sim.state_rows()
+    assert rows.shape == (4, STATE_COLS)
+    for row, name in zip(rows, sim.robots):
+        st = sim.state(name)
+        assert row.tolist() == np.concatenate([st.tf.ravel(), st.v_body, st.w_body,
+                                               st.enc_pos, st.enc_vel]).tolist()
+        assert np.array_equal(state_from_row(row).tf, st.tf)
+    if mode == "dynamic":
+        assert sim.part_transforms().tolist() == \
+            [sn.getWorldTransform().matrix().tolist() for sn, *_ in sim._robot_parts]
 
 
 @pytest.mark.slow
