@@ -34,18 +34,26 @@ def _swarm_sim(n: int, mode: str, tmpdir: str):
 
 
 def physics_rtf(n: int, mode: str, tmpdir: str, sim_s: float = 2.0) -> dict:
-    """Physics only (Simulation.step_tick, no sensors, no bus): real-time factor and the
-    cost per robot per physics step."""
+    """Physics only (Simulation.step_tick, no sensors, no bus): real-time factor, the cost
+    per robot per physics step and (DART) the contacts of the last step of each tick, on
+    average: the robots drive open-loop in circles, touching the floor alone, where a
+    controlled swarm presses on walls and each other too, and DART's step costs more with
+    every contact."""
     spec, sim = _swarm_sim(n, mode, tmpdir)
     ticks = max(1, int(round(sim_s / spec.control_tick_s)))
+    contacts = 0
+    dart = sim.kin is None
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(ticks):
         sim.step_tick()
+        if dart:
+            contacts += sim.world.getLastCollisionResult().getNumContacts()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     steps = ticks * spec.substeps
     return {"real_time_factor": ticks * spec.control_tick_s / wall,
             "us_per_robot_step": wall / steps / n * 1e6,
-            "cpu_us_per_robot_step": cpu / steps / n * 1e6}
+            "cpu_us_per_robot_step": cpu / steps / n * 1e6,
+            **({"contacts": contacts / ticks} if dart else {})}
 
 
 @suite("swarm", "many robots: physics alone (dynamic, kinematic), the swarm lidar, and "
@@ -155,7 +163,11 @@ def composed_swarm(ctx: Context):
             alone = f"physics alone, {n} {mode} robots"
             yield Probe(alone, lambda n=n, mode=mode: physics_rtf(n, mode, ctx.tmpdir), [
                 Metric("real_time_factor", f"{alone}: real-time factor", "x",
-                       notes="beside the composed run below: what the physics allows")],
+                       notes="beside the composed run below: what the physics allows")]
+                + ([Metric("contacts", f"{alone}: contacts a tick", "",
+                           notes="the floor's alone (3 a robot); the composed swarm's "
+                                 "robots touch walls and each other too, and DART's step "
+                                 "costs more with each contact")] if mode == "dynamic" else []),
                 repeats=1, warmup=0)
             what = f"swarm composed, {n} {mode} robots with lidars and avoid controllers"
             target = COMPOSED_TARGETS.get((mode, n), "")
