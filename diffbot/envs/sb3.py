@@ -41,11 +41,91 @@ from .results import autoreset_mode
 from .vector import AvoidVectorEnv
 
 
-class AvoidVecEnv(VecEnv):
+class BatchVecEnv(VecEnv):
+    """What an SB3 VecEnv over one of the project's batched envs (``self.venv``, whose
+    envs share their settings) does the same whatever the batch: the episode tallies that
+    ``Monitor`` would keep, ``step_async``, attributes set and read for the whole batch,
+    ``env_method("render")``. A subclass says what its envs are (``_unit``, ``_what``: the
+    error messages' words) and steps them."""
+
+    _unit = "env"
+    _what = "the batch"
+
+    def _start(self, num_envs: int, observation_space, action_space) -> None:
+        """VecEnv's own set-up (the batch closed if it fails) and the tallies at zero."""
+        try:
+            super().__init__(num_envs, observation_space, action_space)
+        except BaseException:
+            self.venv.close()
+            raise
+        self._returns = np.zeros(self.num_envs)
+        self._lengths = np.zeros(self.num_envs, np.int64)
+        self._t0 = time.time()
+        self._actions: np.ndarray | None = None
+
+    def _restart_tallies(self) -> None:
+        self._returns[:] = 0.0
+        self._lengths[:] = 0
+
+    def _take_actions(self) -> np.ndarray:
+        """The actions ``step_async`` was given, once."""
+        if self._actions is None:
+            raise RuntimeError("step_wait() without step_async()")
+        actions, self._actions = self._actions, None
+        return actions
+
+    def _now(self) -> float:
+        """Seconds since the env was made, as ``Monitor`` writes an episode's ``"t"``."""
+        return round(time.time() - self._t0, 6)
+
+    def _end_episode(self, info: dict, i: int, truncated: bool, now: float) -> None:
+        """Env ``i``'s episode ended at this step: ``info`` gets ``"TimeLimit.truncated"``
+        (PPO bootstraps from it) and, with ``episode_stats``, ``Monitor``'s ``"episode"``
+        (return, length, ``now``); the env's tallies start again."""
+        info["TimeLimit.truncated"] = truncated
+        if self.episode_stats:
+            info["episode"] = {"r": round(float(self._returns[i]), 6),
+                               "l": int(self._lengths[i]), "t": now}
+        self._returns[i], self._lengths[i] = 0.0, 0
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        """The batch's attribute, once per env asked (the envs share their settings)."""
+        value = getattr(self.venv, attr_name)
+        return [value for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        if list(self._get_indices(indices)) != list(range(self.num_envs)):
+            raise ValueError(f"the batch's {self._unit}s share their attributes: set one for all")
+        setattr(self.venv, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs
+                   ) -> list[Any]:
+        idx = list(self._get_indices(indices))
+        if method_name == "render":
+            frames = self.get_images()
+            return [frames[i] for i in idx]
+        raise AttributeError(f"{self._what} has no per-{self._unit} method {method_name!r} "
+                             "(only 'render')")
+
+    def env_is_wrapped(self, wrapper_class: type, indices=None) -> list[bool]:
+        """``Monitor``: whether the infos carry its ``"episode"`` statistics."""
+        wrapped = self.episode_stats and issubclass(Monitor, wrapper_class)
+        return [wrapped for _ in self._get_indices(indices)]
+
+
+class AvoidVecEnv(BatchVecEnv):
     """``num_envs`` Avoid worlds as an SB3 VecEnv (module docstring); ``kwargs`` are the
     batched env's (``normalize_actions``, ``overrides``, ``workers``, ``max_episode_steps``,
     ...; ``autoreset_mode`` is SAME_STEP, SB3's). ``episode_stats=False`` leaves out the
     ``"episode"`` infos (for a ``VecMonitor`` of your own)."""
+
+    _what = "the batched Avoid env"
 
     def __init__(self, num_envs: int = 8, episode_stats: bool = True, **kwargs) -> None:
         mode = autoreset_mode(kwargs.pop("autoreset_mode", AutoresetMode.SAME_STEP))
@@ -57,16 +137,8 @@ class AvoidVecEnv(VecEnv):
         #: the single env's spec with these settings (``gymnasium.make(spec)`` makes one of
         #: the envs; ``spec.to_json()`` keeps it beside a model: SB3Policy reads it)
         self.spec = _spec(kwargs, self.venv.max_episode_steps)
-        try:
-            super().__init__(self.venv.num_envs, self.venv.single_observation_space,
-                             self.venv.single_action_space)
-        except BaseException:
-            self.venv.close()
-            raise
-        self._returns = np.zeros(self.num_envs)
-        self._lengths = np.zeros(self.num_envs, np.int64)
-        self._t0 = time.time()
-        self._actions: np.ndarray | None = None
+        self._start(self.venv.num_envs, self.venv.single_observation_space,
+                    self.venv.single_action_space)
 
     # ------------------------------------------------------------------ stepping
     def reset(self):
@@ -77,18 +149,11 @@ class AvoidVecEnv(VecEnv):
         self.reset_infos = _rows(infos, self.num_envs)
         self._reset_seeds()
         self._reset_options()
-        self._returns[:] = 0.0
-        self._lengths[:] = 0
+        self._restart_tallies()
         return obs
 
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = actions
-
     def step_wait(self):
-        if self._actions is None:
-            raise RuntimeError("step_wait() without step_async()")
-        actions, self._actions = self._actions, None
-        obs, rew, term, trunc, infos = self.venv.step(actions)
+        obs, rew, term, trunc, infos = self.venv.step(self._take_actions())
         dones = term | trunc
         ended = np.flatnonzero(dones).tolist()
         out = _rows(infos, self.num_envs)
@@ -97,54 +162,22 @@ class AvoidVecEnv(VecEnv):
         if ended:
             final = _rows(infos["final_info"], self.num_envs, ended)
             final_obs = infos["final_obs"]
-            now = round(time.time() - self._t0, 6)
+            now = self._now()
             for i in ended:
                 self.reset_infos[i] = out[i]
                 info = final[i]
                 info["terminal_observation"] = final_obs[i]
-                info["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
-                if self.episode_stats:
-                    info["episode"] = {"r": round(float(self._returns[i]), 6),
-                                       "l": int(self._lengths[i]), "t": now}
+                self._end_episode(info, i, bool(trunc[i] and not term[i]), now)
                 out[i] = info
-            self._returns[ended] = 0.0
-            self._lengths[ended] = 0
         for i in np.flatnonzero(~dones).tolist():
             out[i]["TimeLimit.truncated"] = False
         return obs, rew.astype(np.float32), dones, out
 
     # ------------------------------------------------------------------ the rest
-    def close(self) -> None:
-        self.venv.close()
-
     def get_images(self) -> Sequence[np.ndarray | None]:
         if self.venv.render_mode != "rgb_array":
             return [None] * self.num_envs
         return list(self.venv.render())
-
-    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        """The batch's attribute, once per env asked (the envs share their settings)."""
-        value = getattr(self.venv, attr_name)
-        return [value for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-        if list(self._get_indices(indices)) != list(range(self.num_envs)):
-            raise ValueError("the batch's envs share their attributes: set one for all")
-        setattr(self.venv, attr_name, value)
-
-    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs
-                   ) -> list[Any]:
-        idx = list(self._get_indices(indices))
-        if method_name == "render":
-            frames = self.get_images()
-            return [frames[i] for i in idx]
-        raise AttributeError(f"the batched Avoid env has no per-env method {method_name!r} "
-                             "(only 'render')")
-
-    def env_is_wrapped(self, wrapper_class: type, indices=None) -> list[bool]:
-        """``Monitor``: whether the infos carry its ``"episode"`` statistics."""
-        wrapped = self.episode_stats and issubclass(Monitor, wrapper_class)
-        return [wrapped for _ in self._get_indices(indices)]
 
 
 #: the batched env's arguments that are not the single env's

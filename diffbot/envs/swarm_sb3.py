@@ -29,24 +29,25 @@ is then ``swarm_v0.parallel_env`` after ``reset(seed=s + i)``, to the bit), used
 """
 from __future__ import annotations
 
-import time
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
-from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
+from .sb3 import BatchVecEnv
 from .swarm_vector import SwarmVectorEnv
 
 #: the per-robot info keys a step gives (``infos`` arrays (W, N, ...) of the batch)
 _SKIP = ("active", "plant", "final_obs", "_final_obs", "final_info", "_final_info")
 
 
-class SwarmVecEnv(VecEnv):
+class SwarmVecEnv(BatchVecEnv):
     """``num_worlds`` swarm worlds as an SB3 VecEnv of ``num_worlds * n_robots`` agents
     (module docstring); ``kwargs`` are :func:`diffbot.envs.swarm_v0.parallel_env`'s.
     ``episode_stats=False`` leaves out the ``"episode"`` infos."""
+
+    _unit = "agent"
+    _what = "the swarm's VecEnv"
 
     def __init__(self, num_worlds: int = 8, episode_stats: bool = True, **kwargs) -> None:
         if "autoreset_mode" in kwargs:
@@ -55,17 +56,9 @@ class SwarmVecEnv(VecEnv):
         self.venv = SwarmVectorEnv(num_worlds, AutoresetMode.SAME_STEP, **kwargs)
         self.num_worlds, self.n_robots = self.venv.num_worlds, self.venv.n_robots
         self.episode_stats = bool(episode_stats)
-        try:
-            super().__init__(self.venv.num_agents, self.venv.single_observation_space,
-                             self.venv.single_action_space)
-        except BaseException:
-            self.venv.close()
-            raise
+        self._start(self.venv.num_agents, self.venv.single_observation_space,
+                    self.venv.single_action_space)
         self._world_seeds: list[int | None] = [None] * self.num_worlds
-        self._returns = np.zeros(self.num_envs)
-        self._lengths = np.zeros(self.num_envs, np.int64)
-        self._t0 = time.time()
-        self._actions: np.ndarray | None = None
 
     def _flat(self, obs: dict) -> dict:
         return {k: a.reshape(self.num_envs, *a.shape[2:]) for k, a in obs.items()}
@@ -102,17 +95,11 @@ class SwarmVecEnv(VecEnv):
         self._world_seeds = [None] * self.num_worlds
         self._reset_seeds()
         self._reset_options()
-        self._returns[:] = 0.0
-        self._lengths[:] = 0
+        self._restart_tallies()
         return self._flat(obs)
 
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = actions
-
     def step_wait(self):
-        if self._actions is None:
-            raise RuntimeError("step_wait() without step_async()")
-        actions, self._actions = self._actions, None
+        actions = self._take_actions()
         w, n = self.num_worlds, self.n_robots
         obs, rew, term, trunc, infos = self.venv.step(
             np.asarray(actions).reshape(w, n, *np.shape(actions)[1:]))
@@ -130,7 +117,7 @@ class SwarmVecEnv(VecEnv):
             final = self._infos(infos["final_info"])
             for k in np.flatnonzero(world_ended).tolist():
                 self.reset_infos[k], out[k] = out[k], final[k]
-        now = round(time.time() - self._t0, 6)
+        now = self._now()
         for k in np.flatnonzero(dones).tolist():
             i, j = divmod(k, n)
             info = out[k]
@@ -141,46 +128,15 @@ class SwarmVecEnv(VecEnv):
                 info["terminal_observation"] = {key: a[k].copy() for key, a in obs.items()}
                 for a in obs.values():
                     a[k] = 0
-            info["TimeLimit.truncated"] = bool(trunc[k] and not term[k])
-            if self.episode_stats:
-                info["episode"] = {"r": round(float(self._returns[k]), 6),
-                                   "l": int(self._lengths[k]), "t": now}
-            self._returns[k], self._lengths[k] = 0.0, 0
+            self._end_episode(info, k, bool(trunc[k] and not term[k]), now)
         for k in np.flatnonzero(~dones).tolist():
             out[k]["TimeLimit.truncated"] = False
         return obs, rew.astype(np.float32), dones, out
 
     # ------------------------------------------------------------------ the rest
-    def close(self) -> None:
-        self.venv.close()
-
     def get_images(self) -> Sequence[np.ndarray | None]:
         """A world's frame for each of its agents."""
         frames = self.venv.render()
         if frames is None:
             return [None] * self.num_envs
         return [frames[k // self.n_robots] for k in range(self.num_envs)]
-
-    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        """The batch's attribute, once per agent asked (the worlds share their settings)."""
-        value = getattr(self.venv, attr_name)
-        return [value for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-        if list(self._get_indices(indices)) != list(range(self.num_envs)):
-            raise ValueError("the batch's agents share their attributes: set one for all")
-        setattr(self.venv, attr_name, value)
-
-    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs
-                   ) -> list[Any]:
-        idx = list(self._get_indices(indices))
-        if method_name == "render":
-            frames = self.get_images()
-            return [frames[k] for k in idx]
-        raise AttributeError(f"the swarm's VecEnv has no per-agent method {method_name!r} "
-                             "(only 'render')")
-
-    def env_is_wrapped(self, wrapper_class: type, indices=None) -> list[bool]:
-        """``Monitor``: whether the infos carry its ``"episode"`` statistics."""
-        wrapped = self.episode_stats and issubclass(Monitor, wrapper_class)
-        return [wrapped for _ in self._get_indices(indices)]
