@@ -443,7 +443,8 @@ def test_a_member_that_holds_marks_every_message_and_passes_the_held_ticks_sendi
         m.send_tick(3 * T, final=True, hold=1)
 
 
-def test_a_reader_takes_a_holding_producer_s_sample_for_the_ticks_it_holds():
+def _odom_reader() -> MemberTick:
+    """A lockstep member that reads robot1's odom and commands nothing, configured."""
     from bus.keys import TOPICS
     from bus.member import Slot
 
@@ -456,6 +457,11 @@ def test_a_reader_takes_a_holding_producer_s_sample_for_the_ticks_it_holds():
                    topics=dict(TOPICS), ack_key="sim/ack/reader")
     m.configure({"mode": "lockstep", "control_tick_s": T * 1e-9,
                  "robots": {"robot1": {"topics": {}}}})
+    return m
+
+
+def test_a_reader_takes_a_holding_producer_s_sample_for_the_ticks_it_holds():
+    m = _odom_reader()
     odom = codec.odometry(0, 1.0, 2.0, 0.0, 0.0, 0.0, "robot1/odom", "robot1/base_link")
     m.file_input("robot1/odom", odom, codec.attachment(1, 0, codec.with_hold(codec.ACK, 2), 1,
                                                        "odometry"))
@@ -472,18 +478,9 @@ def test_an_observation_shows_the_latest_good_fresh_sample_and_drops_what_it_pas
     over every buffer of one or two samples, good or held, older, at or newer than the tick,
     fresh or stale: what it shows, what it keeps, and the stamp it marks used."""
     import itertools
-    from bus.keys import TOPICS
-    from bus.member import _HELD, STALE_S, Slot
+    from bus.member import _HELD, STALE_S
 
-    class Reads:
-        inputs = ["odom"]
-
-        def step(self, obs):
-            return None
-    m = MemberTick("reader", T, slots=[Slot("robot1", Reads(), ["odom"], False)],
-                   topics=dict(TOPICS), ack_key="sim/ack/reader")
-    m.configure({"mode": "lockstep", "control_tick_s": T * 1e-9,
-                 "robots": {"robot1": {"topics": {}}}})
+    m = _odom_reader()
     stale = STALE_S * 1e9
     stamps = [0, T, 5 * T, 30 * T, 60 * T]
     entries = [(s, v) for s in stamps for v in ("msg", _HELD)]
