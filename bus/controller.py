@@ -63,7 +63,9 @@ class Controller(Protocol):
       (``{"fmu/<instance>/<variable>": bus.keys.Topic}``; messages without a header are
       stamped by their attachment).
     * ``on_session(session, keys)`` — called once with the open Zenoh session, e.g. to
-      declare a queryable (default: none).
+      declare a queryable (default: none). A composed controller gets the plant's
+      session: what it subscribes to there comes from other processes, while other
+      composed members' outputs reach it only as its inputs.
     * ``stop_command()`` — what stops the robot (default ``Twist(0, 0)``).
     * ``close()`` — called once when the node stops (default: none).
     * ``stats()`` — its own counters, added to the node's ``--stats`` JSON (default: none).

@@ -65,12 +65,15 @@ class Outbox:
         self._reads: dict[str, bool] = {}      # matching status, asked since the last change
         self._ever: set[str] = set()            # keys someone has read: read from then on
 
-    def publisher(self, key: str) -> zenoh.Publisher:
+    def publisher(self, key: str, remote: bool = False) -> zenoh.Publisher:
+        """``key``'s publisher, declared on first use: ``remote`` (asked first for the key) to
+        other sessions only, so its matching status leaves out this session's subscribers."""
         pub = self._pubs.get(key)
         if pub is None:
             pub = self._pubs[key] = self.session.declare_publisher(
                 key, encoding=zenoh.Encoding.APPLICATION_CDR,
-                congestion_control=self.congestion)
+                congestion_control=self.congestion,
+                allowed_destination=zenoh.Locality.REMOTE if remote else None)
             if self.skip_unread:
                 self._listeners.append(pub.declare_matching_listener(self._on_matching))
         return pub
@@ -87,15 +90,16 @@ class Outbox:
         or gone, so an answer kept beside the same object is still the answer."""
         return self._reads
 
-    def reads(self, key: str) -> bool:
+    def reads(self, key: str, remote: bool = False) -> bool:
         """Whether anyone subscribes to ``key`` (Zenoh's matching status) or has since the
-        run began; always True without ``skip_unread``."""
+        run began; always True without ``skip_unread``. ``remote``: anyone but this
+        session (:meth:`relay`'s keys)."""
         if not self.skip_unread or key in self._ever:
             return True
         reads = self._reads
         known = reads.get(key)
         if known is None:
-            known = reads[key] = self.publisher(key).matching_status.matching
+            known = reads[key] = self.publisher(key, remote).matching_status.matching
             if known:
                 self._ever.add(key)
         return known
@@ -110,8 +114,13 @@ class Outbox:
 
     def relay(self, key: str, data: bytes, t_ns: int, att: bytes) -> None:
         """A composed member's message stamped ``t_ns`` on the bus, with its own attachment
-        (its counts are the member's, not the plant's)."""
-        self.publisher(key).put(data, attachment=att)
+        (its counts are the member's, not the plant's), if another session reads it. The
+        plant's own subscription to members' outputs (a process member's command) is not
+        a reader of it: the plant and its other composed members have it already
+        (bus/composed.py), so a composed member's command nobody else reads stays off the
+        bus, as a due sensor nobody reads does. It is kept to re-publish either way."""
+        if self.reads(key, remote=True):
+            self.publisher(key, remote=True).put(data, attachment=att)
         self._kept(t_ns, key, data, att)
 
     def _kept(self, t_ns: int, key: str, data: bytes, att: bytes | None) -> None:

@@ -132,3 +132,34 @@ def test_a_plant_hosting_members_subscribes_to_their_inputs_but_none_of_its_own_
     assert {k for k, tag in subs if tag == "input"} == {"ns/r1/follower/debug",
                                                         "ns/r2/follower/debug"}
     assert not [k for k, _ in subs if k.endswith(("/scan", "/joint_states"))], subs
+
+
+def test_a_relayed_member_output_goes_on_the_bus_only_for_another_session(endpoint, bus):
+    """A composed member's message is relayed only if a subscriber outside the plant's
+    session reads it: the plant's own subscription to members' outputs (there for process
+    members' commands) is no reader of it, so a command nobody else reads is not put at all;
+    a recorder subscribing then gets every one with the member's attachment, and it is kept
+    to re-publish either way."""
+    plant = open_session("plant", endpoint)
+    try:
+        own: queue.Queue = queue.Queue()
+        plant.declare_subscriber("r/cmd_vel", lambda s: own.put(s.payload.to_bytes()),
+                                 allowed_origin=zenoh.Locality.REMOTE)
+        out = Outbox(plant, zenoh.CongestionControl.BLOCK, keep=True)
+        att = codec.attachment(7, 20_000_000, node="m")
+        out.relay("r/cmd_vel", b"one", 20_000_000, att)
+        assert not out.reads("r/cmd_vel", remote=True)   # the plant's own: not a reader
+        got: queue.Queue = queue.Queue()
+        client = bus()
+        client.declare_subscriber("r/cmd_vel", lambda s: got.put(
+            (s.payload.to_bytes(), s.attachment.to_bytes())))
+        wait_for(lambda: out.reads("r/cmd_vel", remote=True), 5.0,
+                 what="the recorder to be seen")
+        out.relay("r/cmd_vel", b"two", 40_000_000, att)
+        assert got.get(timeout=5) == (b"two", att)
+        assert got.empty() and own.empty()
+        assert [m for t in sorted(out.recent) for m in out.recent[t]] == [
+            ("r/cmd_vel", b"one", att), ("r/cmd_vel", b"two", att)]
+        out.undeclare()
+    finally:
+        plant.close()
