@@ -26,7 +26,8 @@ from bus.codec import yaw_of
 from plant import kernels, kinematic
 from plant import lidar as lid
 from plant.core.drive import limits_of, motion_std
-from plant.noise import NoiseModel, normals
+from plant.core.model import noise_law
+from plant.noise import NoiseModel
 from plant.raycast import Scene
 from plant.sim import rotation_to_quaternion
 
@@ -41,31 +42,6 @@ class Made(NamedTuple):
     obs: dict
     truth: np.ndarray
     t_ns: np.ndarray
-
-
-class _Noise:
-    """A noise of every world of a batch laid out for plant/kernels/ticks.c, which reads it
-    in place: ``buf`` (W, ticks, 2) row j's readings of a step's ticks (the normals of its
-    key at each tick, :func:`plant.noise.normals`, times ``std``), ``next`` (W,) the next
-    tick's reading (the kernel advances it), ``live`` (W,) int64 the rows with a stream
-    (all). ``lag``: the first reading's tick after the step's first (the encoders are read
-    after each tick's step, at the next tick)."""
-
-    def __init__(self, keys: np.ndarray, std: float, lag: int, ticks: int) -> None:
-        w = len(keys)
-        self.std, self.lag = float(std), int(lag)
-        self.keys = np.repeat(keys, ticks)
-        self.offsets = np.arange(ticks, dtype=np.int64) + self.lag
-        self.buf = np.zeros((w, ticks, 2))
-        self.next = np.zeros(w, np.int64)
-        self.live = np.ones(w, np.int64)
-
-    def draw(self, tick: np.ndarray) -> None:
-        """The readings of the ticks from ``tick`` (W,) on, all rows in one call."""
-        normals(self.keys, (tick[:, None] + self.offsets).reshape(-1), 2,
-                out=self.buf.reshape(-1, 2))
-        self.buf *= self.std
-        self.next[:] = 0
 
 
 def _keys(models: list) -> np.ndarray:
@@ -149,10 +125,10 @@ class ArrayTicks:
 _SLOTS = ("v w lim_wheels kind cmd targets limits std keys tick "
           "radius separation world pose wheels speeds vel pairs "
           "nbox box_c box_cos box_sin box_half ncirc circ_c circ_r half "
-          "enc_have enc_buf enc_next enc_live enc_len "
+          "enc_keys enc_laws "
           "odo_pose odo_vel last last_t odo_r odo_d pos t "
           "steps t_ns due sub step_ns tick_ns period").split()
-_PARAMS = "tick_s foot_r centre_x enc_offset enc_res".split()
+_PARAMS = "tick_s foot_r centre_x".split()
 
 
 class _TickPlan:
@@ -161,7 +137,7 @@ class _TickPlan:
     each tick, DART stepping it between them), the lidars cast where due between them,
     with everything the calls read laid out once: the rows' state (views of the
     :class:`~.kept.Kept` arrays when ``at`` is a run of rows, else copies written back each
-    step), the noise's readings (:class:`_Noise`), the addresses. Kept from step to
+    step), the noises' keys and laws, the addresses. Kept from step to
     step while the same worlds step and none was reset since (:meth:`fits`)."""
 
     def __init__(self, owner: ArrayTicks, at: np.ndarray, repeat: int) -> None:
@@ -190,7 +166,8 @@ class _TickPlan:
         self.sub = sims[0].spec.substeps
         self.tick_ns = ticks[0].tick_ns
         self.wheels = np.zeros((w, 2))        # a DART world's wheel angles, each tick
-        self._lay_out(sims[0].spec, sensors[0], self._noises(sims, names, sensors))
+        self._noises(sims, names, sensors)
+        self._lay_out(sims[0].spec, sensors[0])
         self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
         self._key = self.at.tobytes()
         self._first_kin = sims[0].kin
@@ -200,26 +177,25 @@ class _TickPlan:
         if self.kinematic:
             self._base[0, 2, 3] = float(self.worlds.batch.radius[0])
 
-    def _noises(self, sims: list, names: list[str], sensors: list):
-        """The noise: the motion noise's keys (the kernel draws it), the encoders' (each
-        step's readings for the kernel, :class:`_Noise`), the lidar's; the encoders' config
-        (None: no encoder noise)."""
+    def _noises(self, sims: list, names: list[str], sensors: list) -> None:
+        """The noises' keys and laws, each drawn in the kernels from its key and the tick:
+        the motion noise's (plant_drive_commands), the encoders' (ticks.c, as the plant's
+        sensors draw it), the lidar's."""
         robot = sims[0].spec.robot(names[0])
         dt = sims[0].spec.control_tick_s
         self.drive_limits, self.motion_std = limits_of([robot], dt), motion_std([robot])
         self.motion_keys = _keys([s.motion_noise[n] for s, n in zip(sims, names)])
         models = [s.enc_noise for s in sensors]
-        enc_cfg = next((m.config for m in models if m is not None), None)
-        self.enc = None if enc_cfg is None or enc_cfg.std <= 0 else _Noise(
-            _keys(models), enc_cfg.std, 1, self.repeat)      # read after each tick's step
-        self.enc_have = np.array([m is not None for m in models], np.int64)
+        if models[0] is None:
+            self.enc_keys = self.enc_laws = None
+        else:
+            self.enc_keys = _keys(models)
+            self.enc_laws = np.array([noise_law(m.config) for m in models], float).reshape(-1, 4)
         models = [s.lidar_noise for s in sensors]
         self.lid_noise = (None if models[0] is None
                           else NoiseModel(models[0].config, _keys(models)))
-        self.noises = [g for g in (self.enc,) if g is not None]
-        return enc_cfg
 
-    def _lay_out(self, sim_spec, sensors, enc_cfg) -> None:
+    def _lay_out(self, sim_spec, sensors) -> None:
         """The addresses of every block plant/kernels/ticks.c reads (its slots, in
         :data:`_SLOTS`' order) and its parameters (:data:`_PARAMS`): ``sim_spec`` the
         world's, ``sensors`` a robot's (the batch's share them)."""
@@ -237,7 +213,8 @@ class _TickPlan:
             "kind": self.kind, "cmd": self.cmd_in, "targets": st["targets"],
             "limits": self.drive_limits, "std": self.motion_std, "keys": self.motion_keys,
             "tick": self.tick_at,
-            "pairs": int(pairs), "enc_have": self.enc_have if self.enc_have.any() else 0,
+            "pairs": int(pairs), "enc_keys": 0 if self.enc_keys is None else self.enc_keys,
+            "enc_laws": 0 if self.enc_laws is None else self.enc_laws,
             "odo_pose": st["pose"], "odo_vel": st["vel"], "last": st["last"],
             "last_t": st["last_t"], "odo_r": st["r"], "odo_d": st["d"], "pos": self.pos,
             "t": self.t, "steps": st["steps"], "t_ns": st["t_ns"], "due": self.due,
@@ -245,15 +222,9 @@ class _TickPlan:
             "tick_ns": self.tick_ns, "period": sensors.periods["scan"]}
         slots.update(zip(_SLOTS[_SLOTS.index("radius"):], robots))
         slots.update(zip(_SLOTS[_SLOTS.index("nbox"):], statics))
-        g = self.enc
-        slots.update({"enc_buf": g.buf, "enc_next": g.next, "enc_live": g.live,
-                      "enc_len": g.buf.shape[1]} if g is not None else
-                     {f"enc_{x}": 0 for x in ("buf", "next", "live", "len")})
         self.slots = np.array([kernels.ptr(slots[n]) for n in _SLOTS], np.int64)
         params = {"tick_s": tick_s, "foot_r": kinematic.FOOTPRINT_RADIUS_M,
-                  "centre_x": kinematic.CHASSIS_CENTRE_X_M,
-                  "enc_offset": 0.0 if enc_cfg is None else enc_cfg.bias + enc_cfg.mean,
-                  "enc_res": 0.0 if enc_cfg is None else float(enc_cfg.resolution)}
+                  "centre_x": kinematic.CHASSIS_CENTRE_X_M}
         self.params = np.array([params[n] for n in _PARAMS], float)
         if kernels.library().plant_ticks_count() != len(_SLOTS) * 1000 + len(_PARAMS):
             raise kernels.KernelsMissing("plant/kernels/ticks.c's blocks are not the ones "
@@ -286,9 +257,6 @@ class _TickPlan:
         st, w = self.state, len(self.at)
         self.cmd_in[:] = cmds                   # (clamped to the limits by the kernel)
         self.new_scan[:] = False
-        tick = st["steps"] // self.sub           # each world's tick now
-        for g in self.noises:                   # the readings of the step's ticks
-            g.draw(tick)
         if self.kinematic:
             done = 0
             while done < self.repeat:

@@ -28,7 +28,8 @@ EVERY_TICK = ("joint_states", "gps", "ground_truth")
 NOISE_STREAMS = ("encoders", "gps", "lidar")
 
 
-def _law(cfg: NoiseConfig) -> tuple[float, float, float, float]:
+def noise_law(cfg: NoiseConfig) -> tuple[float, float, float, float]:
+    """A stream's noise law as the kernels read it: (std, mean, bias, resolution)."""
     return (cfg.std, cfg.mean, cfg.bias, cfg.resolution)
 
 
@@ -81,9 +82,9 @@ class Model:
         self.order = tuple((i, n, t, int(self.periods[t][i]))
                            for i, n in enumerate(names) for t in self.topics[i])
         #: noise laws (std, mean, bias, resolution) per robot and stream, (R, 4)
-        laws = {"encoders": [_law(s.encoder_noise) for s in sens],
-                "gps": [_law(s.gps_noise) for s in sens],
-                "lidar": [_law(s.lidar_noise) if s.lidar else (0, 0, 0, 0) for s in sens]}
+        laws = {"encoders": [noise_law(s.encoder_noise) for s in sens],
+                "gps": [noise_law(s.gps_noise) for s in sens],
+                "lidar": [noise_law(s.lidar_noise) if s.lidar else (0, 0, 0, 0) for s in sens]}
         self.noise = {k: np.array(v, float).reshape(R, 4) for k, v in laws.items()}
         #: which robots each stream changes (a noise model exists: not all zero)
         self.noisy = {k: ~((v[:, 0] == 0) & (v[:, 1] == 0) & (v[:, 2] == 0) & (v[:, 3] == 0))

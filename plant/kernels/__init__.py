@@ -32,7 +32,7 @@ CAMERA_ABI = 2
 NOISE_ABI = 2
 DRIVE_ABI = 2
 KINEMATIC_ABI = 2
-TICKS_ABI = 4
+TICKS_ABI = 5
 SENSE_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"

@@ -109,9 +109,10 @@ EXPORT void plant_observe_kinematic(int64_t n, const double *pose, const double 
 }
 
 /* y (n) = x with the noise of the law (std, mean, bias, resolution) of the stream keyed
- * `key` at `tick` (x and y may be one array) */
-static void noisy(const double *law, uint64_t key, int64_t tick, int64_t n, const double *x,
-                  double *y)
+ * `key` at `tick` (x and y may be one array). The one implementation of a stream's noise
+ * law: ticks.c reads the batched envs' encoders with it too. */
+void plant_noise_values(const double *law, uint64_t key, int64_t tick, int64_t n,
+                        const double *x, double *y)
 {
     const double std = law[0], res = law[3];
     if (std == 0 && law[1] == 0 && law[2] == 0 && res == 0) {
@@ -169,14 +170,14 @@ EXPORT void plant_sense(int64_t n, const double *tf, const double *quat, const d
             }
         if (read[3 * r]) {
             double pos[2];
-            noisy(enc_laws + 4 * r, enc_keys[r], tick, 2, enc_pos + 2 * r, pos);
+            plant_noise_values(enc_laws + 4 * r, enc_keys[r], tick, 2, enc_pos + 2 * r, pos);
             put_doubles(out, p[1], pos, 2);
             put_doubles(out, p[2], enc_vel + 2 * r, 2);
         }
         const double xyz[3] = {m[3], m[7], m[11]};
         if (read[3 * r + 1]) {
             double g[3];
-            noisy(gps_laws + 4 * r, gps_keys[r], tick, 3, xyz, g);
+            plant_noise_values(gps_laws + 4 * r, gps_keys[r], tick, 3, xyz, g);
             put_doubles(out, p[4], g, 3);
         }
         if (read[3 * r + 2]) {
@@ -204,7 +205,7 @@ EXPORT void plant_lidar_noise(int64_t g, int64_t n, const double *exact, const u
                               double *work, float *out)
 {
     for (int64_t r = 0; r < g; r++) {
-        noisy(laws + 4 * r, keys[r], tick, n, exact + r * n, work);
+        plant_noise_values(laws + 4 * r, keys[r], tick, n, exact + r * n, work);
         float *o = out + r * n;
         for (int64_t i = 0; i < n; i++) {
             double y = work[i];

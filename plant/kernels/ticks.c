@@ -4,14 +4,13 @@
  * Each tick is what the plant's tick does for such a world: the commands through the drive
  * limiters and the motion noise of the robots that move (plant_drive_commands, as a
  * plant's tick runs them), the kinematic step
- * (plant_kinematic_step), the encoders' noise, the dead reckoning (plant_odometry) and the
- * worlds' clocks. The same operations in the same order as its Python, so the same bits
+ * (plant_kinematic_step), the encoders' noise (plant_noise_values, as the plant's sensors
+ * draw it: sense.c), the dead reckoning (plant_odometry) and the worlds' clocks. The same
+ * operations in the same order as its Python, so the same bits
  * (tests/envs/test_envs_vector.py runs the message path beside it, every noise on;
- * tests/envs/test_envs_identity.py a plant over the bus).
- * The encoders' noise: its readings for the ticks of the call, drawn by the caller
- * (plant/noise.py's normals, a function of the stream's key and the tick: the plant's own
- * values), one reading a tick, read here tick by tick. The motion noise is drawn by
- * plant_drive_commands from each world's key and tick.
+ * tests/envs/test_envs_identity.py a plant over the bus). Every noise is drawn here from
+ * its stream's key and the world's tick: the motion noise by plant_drive_commands, the
+ * encoders' by plant_noise_values.
  *
  * The calls stop after a tick at which some world's lidar is due (its scan is cast in
  * Python before the next tick moves the robot): the number of ticks made is returned.
@@ -22,12 +21,14 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_ticks_abi(void) { return 4; }
+EXPORT int plant_ticks_abi(void) { return 5; }
 
 void plant_drive_commands(int64_t worlds, int64_t n, const int64_t *tick,
                           const double *limits, const double *std, const uint64_t *keys,
                           int64_t *kind, const double *cmd, double *v, double *w,
                           double *wheels, double *targets);
+void plant_noise_values(const double *law, uint64_t key, int64_t tick, int64_t n,
+                        const double *x, double *y);
 void plant_odometry(int64_t n, const double *pos, const double *t, double *pose, double *vel,
                     double *last, double *last_t, const double *r, const double *d);
 int plant_kinematic_step(int64_t n, double T, const double *targets, const double *radius,
@@ -41,16 +42,14 @@ int plant_kinematic_step(int64_t n, double T, const double *targets, const doubl
 /* The slots of the call's int64 block (addresses and counts; kinbatch._TickPlan fills it
  * in this order). The commands: plant_drive_commands' arrays for n worlds of one robot
  * (cmd (n, 2) each world's twist; limits (1, 8) and std (1) the robot's; keys (n) its
- * motion noise's; kind and tick (n) set here each tick). The encoders' noise: buf (n, len,
- * 2) each row's readings, one a tick, next (n) the reading of each row's next tick
- * (advanced here every tick), live (n, int64) whether the row has a stream (a row without
- * reads zeros). */
+ * motion noise's; kind and tick (n) set here each tick). The encoders' noise: keys (n)
+ * each world's stream, laws (n, 4) its (std, mean, bias, resolution), or 0 for none. */
 enum {
     A_V, A_W, A_LIM_WHEELS, A_KIND, A_CMD, A_TARGETS,            /* drive limiters */
     A_LIMITS, A_STD, A_KEYS, A_TICK,                               /* and motion noise */
     A_RADIUS, A_SEPARATION, A_WORLD, A_POSE, A_WHEELS, A_SPEEDS, A_VEL, A_PAIRS, /* robots */
     A_NBOX, A_BOX_C, A_BOX_COS, A_BOX_SIN, A_BOX_HALF, A_NCIRC, A_CIRC_C, A_CIRC_R, A_HALF,
-    A_ENC_HAVE, A_ENC_BUF, A_ENC_NEXT, A_ENC_LIVE, A_ENC_LEN,     /* encoder noise (0: none) */
+    A_ENC_KEYS, A_ENC_LAWS,                                        /* encoder noise (0: none) */
     A_ODO_POSE, A_ODO_VEL, A_LAST, A_LAST_T, A_ODO_R, A_ODO_D, A_POS, A_T, /* dead reckoning */
     A_STEPS, A_T_NS, A_DUE, A_SUB, A_STEP_NS, A_TICK_NS, A_PERIOD, /* clocks, lidar due */
     A_COUNT
@@ -58,7 +57,6 @@ enum {
 /* ... and of its double block */
 enum {
     P_TICK_S, P_FOOT_R, P_CENTRE_X,                /* the kinematic step's */
-    P_ENC_OFFSET, P_ENC_RES,                       /* encoders: bias + mean, resolution */
     P_COUNT
 };
 
@@ -86,21 +84,18 @@ static void commands(int64_t n, const int64_t *a)
 }
 
 /* What follows a tick's step: the worlds' clocks, their encoders (the wheel angles in
- * wheels (n, 2) with NoiseModel.apply's offset, normal and quantisation), the dead
- * reckoning, and due (n): whose lidar is due now. Whether any is. */
-static int after(int64_t n, const int64_t *a, const double *p)
+ * wheels (n, 2), with the encoders' noise at the new tick), the dead reckoning, and due
+ * (n): whose lidar is due now. Whether any is. */
+static int after(int64_t n, const int64_t *a)
 {
     const double *wheels = PTR(const double, A_WHEELS);
-    const int64_t *enc_have = PTR(const int64_t, A_ENC_HAVE);
-    const double *enc_buf = PTR(const double, A_ENC_BUF);
-    int64_t *enc_next = PTR(int64_t, A_ENC_NEXT);
-    const int64_t *enc_live = PTR(const int64_t, A_ENC_LIVE);
+    const uint64_t *enc_keys = PTR(const uint64_t, A_ENC_KEYS);
+    const double *enc_laws = PTR(const double, A_ENC_LAWS);
     double *pos = PTR(double, A_POS), *t = PTR(double, A_T);
     int64_t *steps = PTR(int64_t, A_STEPS), *t_ns = PTR(int64_t, A_T_NS);
     int64_t *due = PTR(int64_t, A_DUE);
-    const int64_t enc_len = a[A_ENC_LEN], sub = a[A_SUB], step_ns = a[A_STEP_NS];
+    const int64_t sub = a[A_SUB], step_ns = a[A_STEP_NS];
     const int64_t tick_ns = a[A_TICK_NS], period = a[A_PERIOD];
-    const double offset = p[P_ENC_OFFSET], res = p[P_ENC_RES];
     int any_due = 0;
     for (int64_t i = 0; i < n; i++) {
         steps[i] += sub;
@@ -108,19 +103,13 @@ static int after(int64_t n, const int64_t *a, const double *p)
         t[i] = (double)t_ns[i] * 1e-9;
         due[i] = (t_ns[i] / tick_ns) % period == 0;
         any_due |= (int)due[i];
-        for (int c = 0; c < 2; c++) {
-            double x = wheels[2 * i + c];
-            if (enc_have && enc_have[i]) {
-                x = x + offset;
-                if (enc_buf)
-                    x = x + (enc_live[i] ? enc_buf[2 * (i * enc_len + enc_next[i]) + c] : 0.0);
-                if (res > 0.0 && isfinite(x))
-                    x = rint(x / res) * res;
-            }
-            pos[2 * i + c] = x;
+        if (enc_laws)
+            plant_noise_values(enc_laws + 4 * i, enc_keys[i], steps[i] / sub, 2,
+                               wheels + 2 * i, pos + 2 * i);
+        else {
+            pos[2 * i] = wheels[2 * i];
+            pos[2 * i + 1] = wheels[2 * i + 1];
         }
-        if (enc_buf && enc_have && enc_live[i])
-            enc_next[i]++;
     }
     plant_odometry(n, pos, t, PTR(double, A_ODO_POSE), PTR(double, A_ODO_VEL),
                    PTR(double, A_LAST), PTR(double, A_LAST_T), PTR(const double, A_ODO_R),
@@ -146,7 +135,7 @@ EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const dou
                                  PTR(const double, A_HALF), p[P_FOOT_R], p[P_CENTRE_X],
                                  a[A_PAIRS]))
             return -1;
-        if (after(n, a, p))
+        if (after(n, a))
             return k + 1;
     }
     return ticks;
@@ -157,9 +146,10 @@ EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const dou
  * Part 1 returns whether some world's lidar is due. */
 EXPORT int64_t plant_tick_part(int64_t n, int64_t part, const int64_t *a, const double *p)
 {
+    (void)p;                                  /* (its parameters: the step's own) */
     if (part == 0) {
         commands(n, a);
         return 0;
     }
-    return after(n, a, p);
+    return after(n, a);
 }
