@@ -7,10 +7,11 @@ path gives (:func:`plant.tick.messages_of`, then :meth:`diffbot.envs.avoid.Avoid
 plant/kernels/ticks.c (:class:`_TickPlan`), which does what the plant's tick does, in its
 order: the commands through the drive limiter with the motion noise (the plant's own kernel,
 plant/kernels/drive.c's plant_drive_commands), the step, the
-encoders and the dead reckoning; a kinematic world's ticks in one call up to where a lidar
-comes due, a DART world's in two halves, DART stepping between them. The lidars due are
-cast together, their noise is the plant's (:mod:`plant.noise`: a reading is a function of
-its key and tick, every world's drawn in one call). Between steps each env's state stays
+encoders with their noise (sense.c's noise law) and the dead reckoning; a kinematic world's
+ticks in one call up to where a lidar comes due, a DART world's in two halves, DART stepping
+between them. The lidars due are cast together, and their noise is the plant's kernel's
+(:func:`plant.kernels.lidar_noise`: a reading is a function of its key and tick, every
+world's drawn in one call). Every noise here is the core's code, drawn in C. Between steps each env's state stays
 in arrays (:mod:`diffbot.envs.kept`); the observation and the ground truth are
 :mod:`diffbot.envs.obsmath`'s. A world that diverges is an error here (FloatingPointError),
 where the message path rebuilds it at t = 0.
@@ -27,7 +28,6 @@ from plant import kernels, kinematic
 from plant import lidar as lid
 from plant.core.drive import limits_of, motion_std
 from plant.core.model import noise_law
-from plant.noise import NoiseModel
 from plant.raycast import Scene
 from plant.sim import rotation_to_quaternion
 
@@ -192,8 +192,10 @@ class _TickPlan:
             self.enc_keys = _keys(models)
             self.enc_laws = np.array([noise_law(m.config) for m in models], float).reshape(-1, 4)
         models = [s.lidar_noise for s in sensors]
-        self.lid_noise = (None if models[0] is None
-                          else NoiseModel(models[0].config, _keys(models)))
+        self.lid_keys = (np.zeros(len(models), np.uint64) if models[0] is None
+                         else _keys(models))
+        self.lid_laws = np.array([(0.0,) * 4 if m is None else noise_law(m.config)
+                                  for m in models], float).reshape(-1, 4)
 
     def _lay_out(self, sim_spec, sensors) -> None:
         """The addresses of every block plant/kernels/ticks.c reads (its slots, in
@@ -294,17 +296,30 @@ class _TickPlan:
         else:
             exact = lid.scan_many(cfg, self.worlds.transforms(due), self.fans.scene,
                                   [None] * due.size, owner.threads)
-        noise = self.lid_noise
-        if noise is not None and due.size != len(self.at):
-            noise = noise.select(due)
-        ranges = lid.apply_noise(cfg, exact, noise, self.state["t_ns"][due] // self.tick_ns)
-        r32 = ranges.astype(np.float32)
+        r32 = self._lidar_noise(cfg, np.ascontiguousarray(exact, float), due)
         scans = np.where(np.isfinite(r32), clip(r32, 0.0, self.max_range),
                          np.float32(self.max_range)).astype(np.float32)
         if due.size == len(self.at):
             self.raw[:], self.state["scans"][:], self.new_scan[:] = r32, scans, True
         else:
             self.raw[due], self.state["scans"][due], self.new_scan[due] = r32, scans, True
+
+    def _lidar_noise(self, cfg, exact: np.ndarray, due: np.ndarray) -> np.ndarray:
+        """The reported ranges (float32) of rows ``due``'s exact ones: the plant's lidar
+        noise kernel (:func:`plant.kernels.lidar_noise`, as the core's tick draws it), one
+        call for the rows at the same tick (all of them, unless some world was reset)."""
+        ticks = self.state["t_ns"][due] // self.tick_ns
+        keys, laws = self.lid_keys[due], self.lid_laws[due]
+        args = (cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
+        first = int(ticks[0])
+        if (ticks == first).all():
+            return kernels.lidar_noise(exact, keys, laws, first, *args)
+        out = np.empty(exact.shape, np.float32)
+        for t in np.unique(ticks).tolist():
+            rows = ticks == t
+            out[rows] = kernels.lidar_noise(np.ascontiguousarray(exact[rows]), keys[rows],
+                                            laws[rows], int(t), *args)
+        return out
 
 
 class Diverged(Exception):
