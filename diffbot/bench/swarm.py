@@ -1,7 +1,8 @@
 """Suite ``swarm``: many robots. Physics alone (dynamic and kinematic), the swarm's lidar
 per robot and for all robots in one pass, ``diffbot run swarm`` with its avoid controllers
 composed into the plant (24/96/256 kinematic robots with lidars, 24 dynamic ones, each
-beside DART alone stepping as many robots: the cost of a robot's tick), and in lockstep
+beside DART alone stepping as many robots: the cost of a robot's tick; the dynamic one also
+beside DART stepping robots their avoid steers, as loaded as the run's), and in lockstep
 with 8/16/24 robots from 3 controller processes and from one process per robot, under both
 couplings (physics in a process of its own, the scenario's default; and once without)."""
 from __future__ import annotations
@@ -9,6 +10,8 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+
+import numpy as np
 
 from bus.protocol import COUPLINGS
 
@@ -54,6 +57,57 @@ def physics_rtf(n: int, mode: str, tmpdir: str, sim_s: float = 2.0) -> dict:
             "us_per_robot_step": wall / steps / n * 1e6,
             "cpu_us_per_robot_step": cpu / steps / n * 1e6,
             **({"contacts": contacts / ticks} if dart else {})}
+
+
+def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
+    """DART alone as the composed swarm loads it: the robots steered by the swarm's own
+    avoid controller (:class:`controllers.avoid.Avoid`, every robot in one object, on the
+    lidar's scans as the tick makes them, in this process, no bus), and only their steps
+    (:meth:`plant.tick.Tick.step`) timed. They press on walls and each other as the composed
+    run's do, so this is the bound the composed run can reach, where :func:`physics_rtf`'s
+    open-loop circles touch the floor alone. Its real-time factor, the physics' share of
+    the loop, the contacts a tick on average and how far a robot got, on average (m)."""
+    from bus.controller import Observation
+    from controllers.avoid import Avoid
+    from plant.tick import Tick
+    from plant.swarm_world import write_swarm_world
+    from plant.world import load_world
+    fd, path = tempfile.mkstemp(suffix=".toml", dir=tmpdir)
+    os.close(fd)
+    try:
+        spec = load_world(write_swarm_world(path, n, seed=0, mode="dynamic"))
+    finally:
+        os.unlink(path)
+    tick, ctrl = Tick(spec), Avoid()
+    try:
+        robots = list(tick.sim.robots)
+        only_scans = {r: (lambda topic: topic == "scan") for r in robots}
+        latest: dict[str, object] = dict.fromkeys(robots)
+        ticks = max(1, int(round(sim_s / spec.control_tick_s)))
+        start = {r: tick.sim.state(r).tf[:2, 3].copy() for r in robots}
+        stepping = contacts = 0.0
+        t_loop = time.perf_counter()
+        for _ in range(ticks):
+            t_ns = tick.t_ns
+            for robot, topic, msg in tick.messages(only_scans):
+                if topic == "scan" and msg is not None:
+                    latest[robot] = msg
+            cmds = ctrl.step_many({r: Observation(t_ns, r, {"scan": latest[r]})
+                                   for r in robots})
+            for r in robots:
+                tick.drive(r, cmds.get(r))
+            t0 = time.perf_counter()
+            tick.step()
+            stepping += time.perf_counter() - t0
+            contacts += tick.sim.world.getLastCollisionResult().getNumContacts()
+        loop = time.perf_counter() - t_loop
+        travel = sum(float(np.hypot(*(tick.sim.state(r).tf[:2, 3] - start[r])))
+                     for r in robots) / len(robots)
+    finally:
+        tick.close()
+    return {"real_time_factor": ticks * spec.control_tick_s / stepping,
+            "physics_share": stepping / loop, "contacts": contacts / ticks,
+            "travel_m": travel}
 
 
 @suite("swarm", "many robots: physics alone (dynamic, kinematic), the swarm lidar, and "
@@ -169,6 +223,16 @@ def composed_swarm(ctx: Context):
                                  "robots touch walls and each other too, and DART's step "
                                  "costs more with each contact")] if mode == "dynamic" else []),
                 repeats=1, warmup=0)
+            if mode == "dynamic":
+                steered = f"physics alone, {n} dynamic robots steered by their avoid controllers"
+                yield Probe(steered, lambda n=n: steered_physics_rtf(n, ctx.tmpdir,
+                                                                     float(duration)), [
+                    Metric("real_time_factor", f"{steered}: real-time factor", "x",
+                           notes="only DART's steps timed, the robots driven by the swarm's "
+                                 "avoid on their scans in this process: the composed run's "
+                                 "contacts, so its bound"),
+                    Metric("contacts", f"{steered}: contacts a tick", "")],
+                    repeats=1, warmup=0)
             what = f"swarm composed, {n} {mode} robots with lidars and avoid controllers"
             target = COMPOSED_TARGETS.get((mode, n), "")
             yield Probe(what, lambda n=n, mode=mode: composed_run(ctx, n, mode, duration), [

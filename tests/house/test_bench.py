@@ -277,3 +277,14 @@ def test_dart_alone_steps_the_worlds_control_tick():
     tick_s = load_world("living_room").control_tick_s
     assert got["tick_s"] > 0
     assert got["real_time_factor"] == pytest.approx(tick_s / got["tick_s"])
+
+
+def test_the_steered_swarm_bound_steps_robots_their_avoid_drives(tmp_path):
+    """The dynamic swarm's bound in `diffbot bench --suite swarm`: DART stepping robots that
+    the swarm's avoid controller steers on their scans (they move, and every robot stands on
+    the floor: 3 contacts each at least), only the steps timed."""
+    from diffbot.bench.swarm import steered_physics_rtf
+    got = steered_physics_rtf(3, str(tmp_path), 2.0)
+    assert 0 < got["physics_share"] <= 1, got
+    assert got["contacts"] >= 9, got
+    assert got["travel_m"] > 0.2, got
