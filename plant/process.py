@@ -220,20 +220,23 @@ class Plant:
         is drawn ahead (prefetch), off the members' critical path."""
         t = self.sim.time_ns
         out, composed = self.outbox, self.composed
-        wanted = {name: self._wanted(name) for name in self.tick.sensors}
-        for name, topic, data in self.tick.messages(wanted, encoded=True):
-            if data is None:
-                out.skip()                            # due, but nobody reads it
-                continue
+        due, msgs = self.tick.messages_read(self._wanted_all())
+        at = 0                                        # the due messages numbered so far
+        for k, name, topic, data in msgs:
+            if k > at:
+                out.skip(k - at)                      # due, but nobody reads them
+            at = k + 1
             key = self._key(name, topic)
             if composed is None:
-                self.outbox.put(key, data, t, self.epoch)
+                out.put(key, data, t, self.epoch)
                 continue
             if out.reads(key):                        # (else only a composed member reads it)
-                self.outbox.put(key, data, t, self.epoch)
+                out.put(key, data, t, self.epoch)
             else:
                 out.skip()
             composed.deliver(key, data, None)
+        if due > at:
+            out.skip(due - at)
         key = self.keys.poses                         # every robot's pose, one message
         if out.reads(key):
             out.put(key, core.poses(self.tick.model, self.tick.data, 0, t), t, self.epoch)
@@ -273,6 +276,16 @@ class Plant:
 
     _wanted_by: object = None        # the outbox's readers the answers below were asked of
     _wanted_of: dict | None = None   # robot -> its Reads' lookup
+    _all_by: object = None           # the readers _all_wanted was made for
+    _all_wanted: dict | None = None
+
+    def _wanted_all(self) -> dict:
+        """Every robot's :meth:`_wanted`, as one dict kept while the bus's readers stay."""
+        readers = self.outbox.readers()
+        if readers is not self._all_by or self._all_wanted is None:
+            self._all_wanted = {name: self._wanted(name) for name in self.tick.sensors}
+            self._all_by = readers          # (changed meanwhile: made again next tick)
+        return self._all_wanted
 
     def _wanted(self, robot: str):
         """``wanted(topic)`` of ``robot``'s sensors: whether anyone reads it now (a

@@ -107,6 +107,14 @@ class Tick:
         self.observe()
         return iter(self._sense(wanted, encoded, cast))
 
+    def messages_read(self, wanted: dict[str, Wanted]) -> tuple[int, list]:
+        """The encoded messages due now that someone reads, each with its place among the
+        due ones, and how many were due (:func:`plant.core.sense_read`): a host that
+        publishes skips no message one by one."""
+        self.observe()
+        return core.sense_read(self.model, self.data, 0, self.sim.time_ns,
+                               self.stepper.shapes, wanted)
+
     def observe(self) -> None:
         """Every robot's true state now into the core's arrays (:func:`plant.core.observe`)."""
         core.observe(self.model, self.data, 0, self.stepper)

@@ -100,8 +100,17 @@ def wanted_masks(model: Model, tick: int, wanted) -> tuple[dict[str, np.ndarray]
     return out, some
 
 
+def sense_read(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted,
+               cast: tuple | None = None) -> tuple[int, list[tuple[int, str, str, bytes]]]:
+    """:func:`sense`'s encoded messages that someone reads (``wanted``), without a place for
+    each one nobody reads: (how many were due, [(its place among the due ones, robot,
+    topic, CDR bytes)]). A host that numbers every due message (the plant's sequence
+    numbers count them, read or not) numbers these by their place."""
+    return sense(model, data, w, t_ns, shapes, wanted, True, cast, read_only=True)
+
+
 def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=None,
-          encoded: bool = True, cast: tuple | None = None) -> list[tuple[str, str, object]]:
+          encoded: bool = True, cast: tuple | None = None, read_only: bool = False):
     """(robot, topic, CDR bytes) of every sensor due at ``t_ns`` in world ``w``, in the
     plant's order (robot by robot, each robot's topics in its order), ``None`` for a due
     topic nobody reads (``wanted``: not built, no noise drawn). ``data``
@@ -109,7 +118,8 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
     Scene (called only when a lidar or a camera is due and read). ``encoded`` False: the
     messages (:mod:`bus.codec`'s) of the same values instead of their bytes. ``cast``:
     (scene, {robot index: noise-free ranges}) of the tick's lidars, cast already
-    (:func:`plant.tick.messages_of`, several worlds' at once)."""
+    (:func:`plant.tick.messages_of`, several worlds' at once). ``read_only``: what
+    :func:`sense_read` returns."""
     tick = t_ns // model.tick_ns
     out = outgoing(model, data, w)
     read = out.read
@@ -126,6 +136,9 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
     out.sense(tick, t_ns)                  # every per-tick message in one call
     raw = out.buffer.tobytes()
     order = out.layout.order
+    if read_only and len(due) == len(EVERY_TICK):     # (the per-tick ones alone: their places)
+        return len(order), [(k, order[k][0], order[k][1], raw[order[k][2]:order[k][3]])
+                            for k in np.flatnonzero(read.ravel()).tolist()]
     if not encoded:
         made = _objects(model, data, w, out, raw, t_ns)
     elif wanted is None:
@@ -169,7 +182,10 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
         _camera(model, data.streams[w][model.robots[i]].camera_noise, i, t_ns, tick, tfs[i],
                 scene, bool(masks["camera/image_raw"][i]), bool(masks["camera/camera_info"][i]),
                 got, encoded)
-    return [(name, topic, got[topic][i]) for i, name, topic, p in model.order if tick % p == 0]
+    made = [(name, topic, got[topic][i]) for i, name, topic, p in model.order if tick % p == 0]
+    if read_only:
+        return len(made), [(k, *m) for k, m in enumerate(made) if m[2] is not None]
+    return made
 
 
 _D2, _D3, _D7, _D6 = (struct.Struct(f"<{n}d") for n in (2, 3, 7, 6))

@@ -79,6 +79,9 @@ def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
         want = _wanted(names, k)
         got = list(core_tick.messages(want, encoded=True))
         objects = list(core_tick.messages(want))          # (what in-process hosts read)
+        # the plant's: only the read ones, each with its place among the due ones
+        assert core_tick.messages_read(want or {}) == (
+            len(got), [(i, *m) for i, m in enumerate(got) if m[2] is not None]), k
         st = oracle.stepper
         expect = list(tick_messages(oracle.t_ns, oracle.tick_ns, oracle.sensors, st.state,
                                     st.shapes, want, encoded=True))

@@ -8,6 +8,7 @@ import zenoh
 
 from bus import codec
 from bus.session import open_session
+from bus.keys import Keys
 from plant.outbox import Outbox
 
 from ..conftest import wait_for
@@ -163,3 +164,70 @@ def test_a_relayed_member_output_goes_on_the_bus_only_for_another_session(endpoi
         out.undeclare()
     finally:
         plant.close()
+
+
+class _Pub:
+    """A publisher that keeps what was put (the matching status: whether its key is read)."""
+
+    def __init__(self, key: str, read: set[str], puts: list) -> None:
+        self.key, self.read, self.puts = key, read, puts
+
+    @property
+    def matching_status(self):
+        from types import SimpleNamespace
+        return SimpleNamespace(matching=self.key in self.read)
+
+    def put(self, data: bytes, attachment: bytes) -> None:
+        self.puts.append((self.key, data, attachment))
+
+
+class _KeptOutbox(Outbox):
+    """The outbox's own numbering, its puts kept instead of sent; ``read``: the keys read."""
+
+    def __init__(self, read: set[str]) -> None:
+        super().__init__(None, zenoh.CongestionControl.BLOCK)
+        self.read, self.puts = read, []
+
+    def publisher(self, key: str, remote: bool = False):
+        return _Pub(key, self.read, self.puts)
+
+
+def _published(tmp_path, read: set[str], ticks: int = 12) -> list:
+    """Every message the plant's publish_sensors puts over ``ticks`` ticks of a 4-robot
+    kinematic swarm whose readers are ``read`` (keys), lidars due every few ticks."""
+    from types import SimpleNamespace
+    from bus.controller import Twist
+    from bus.keys import Keys
+    from plant.process import Plant
+    from plant.swarm_world import write_swarm_world
+    from plant.tick import Tick
+    from plant.world import load_world
+    spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, seed=1, mode="kinematic"))
+    tick, out = Tick(spec), _KeptOutbox(read)
+    host = SimpleNamespace(outbox=out, composed=None, tick=tick, sim=tick.sim, epoch=0,
+                           keys=Keys(""), _key=lambda robot, topic: f"{robot}/{topic}",
+                           _wanted_by=None, _wanted_of=None, _all_by=None, _all_wanted=None)
+    host._wanted = lambda robot: Plant._wanted(host, robot)
+    host._wanted_all = lambda: Plant._wanted_all(host)
+    for k in range(ticks):
+        Plant.publish_sensors(host)
+        for i, name in enumerate(tick.sensors):
+            tick.drive(name, Twist(0.2, 0.3 * (i - 1.5)))
+        tick.step()
+    return out.puts
+
+
+def test_a_message_s_sequence_number_is_the_same_whoever_listens(tmp_path):
+    """docs/PROTOCOL.md: the plant's sequence numbers count every due message, put or not,
+    so a message's attachment does not depend on who reads which topics: the clock's and a
+    robot's GPS's are the same with nobody else reading, with the last robot's topics read,
+    and with every topic read."""
+    keys = Keys("")
+    few = {keys.clock, "r0/gps"}
+    tail = few | {f"r3/{t}" for t in ("joint_states", "gps", "ground_truth", "scan")}
+    every = tail | {f"r{i}/{t}" for i in range(4)
+                    for t in ("joint_states", "gps", "ground_truth", "scan")} | {keys.poses}
+    runs = [_published(tmp_path, r) for r in (few, tail, every)]
+    common = [[(k, d, a) for k, d, a in run if k in few] for run in runs]
+    assert len(common[0]) == 2 * 12 and common[0] == common[1] == common[2]
+    assert {k for k, _, _ in runs[2]} == every        # (the lidars came due)
