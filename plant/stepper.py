@@ -42,9 +42,9 @@ class Stepper:
         if self._room_only:
             return self.sim.room_scene()
         if self.physics is None:
-            return self.sim.shapes()
+            return self.sim.scene()
         assert self.physics.parts is not None, "a scene is due but the snapshot has no parts"
-        return self.sim.shapes(self.physics.parts)
+        return self.sim.scene(self.physics.parts)
 
     def finite(self) -> bool:
         return self.sim.is_finite() if self.physics is None else self.physics.finite
