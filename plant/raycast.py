@@ -114,12 +114,12 @@ class Scene:
 
     A :class:`ShapeList` (what :meth:`plant.sim.Simulation.shapes` returns) carries the
     world's scene as it was built once (its ``template``): then only the poses of its
-    moving shapes are stacked anew, the rest is shared, the same values.
+    moving shapes are stacked anew, the rest is shared, the same values; :meth:`placed` does
+    so from the poses' (D, 4, 4) array alone (a tick's scene: :meth:`plant.sim.Simulation.scene`).
     """
 
     def __init__(self, shapes: Sequence[Shape]):
         self._shapes = list(shapes)
-        self._lazy = None
         tpl = getattr(shapes, "template", None)
         if tpl is not None and len(tpl) == len(self._shapes):
             self._place(tpl, shapes.first_moving, shapes.moving_poses)
@@ -143,22 +143,19 @@ class Scene:
 
     @classmethod
     def placed(cls, template: "Scene", first: int, poses: np.ndarray) -> "Scene":
-        """``template`` with its shapes ``first`` .. ``first + D - 1`` at ``poses`` ((D, 4, 4)
-        float64) and the others where they are in it: a tick's scene from the arrays of
-        where its moving shapes are, no :class:`Shape` made (its :attr:`shapes` are made
-        only if asked for). Everything but the centres and rotations is the template's."""
+        """``template`` with its shapes ``first`` .. ``first + D - 1`` at ``poses`` ((D, 4, 4)),
+        the others where they are in it, no :class:`Shape` made (:attr:`shapes` makes them
+        if asked). All but the centres and rotations is the template's, shared."""
         scene = cls.__new__(cls)
         scene._shapes = None
         scene._place(template, first, poses)
         return scene
 
     def _place(self, tpl: "Scene", first: int, poses: np.ndarray) -> None:
-        """This scene is ``tpl`` with the shapes from ``first`` on at ``poses`` (D, 4, 4)."""
         d = len(poses)
         if not 0 <= first <= first + d <= len(tpl.centers):
-            raise ValueError(f"{d} poses from shape {first} do not fit a scene of "
-                             f"{len(tpl.centers)} shapes")
-        self._lazy = (tpl, first, poses)
+            raise ValueError(f"{d} poses from shape {first} do not fit {len(tpl.centers)} shapes")
+        self._lazy = (tpl, first, d)
         self.owners, self._owner_ids, self.owner_ids = tpl.owners, tpl._owner_ids, tpl.owner_ids
         self.halves, self.radii, self.quad, self.rr = tpl.halves, tpl.radii, tpl.quad, tpl.rr
         self._const_ptrs = tpl.const_ptrs()
@@ -170,13 +167,15 @@ class Scene:
 
     @property
     def shapes(self) -> list[Shape]:
-        """The scene's shapes as objects (of a :meth:`placed` scene: made on the first call)."""
+        """The scene's shapes as objects (a :meth:`placed` scene's made on the first call)."""
         if self._shapes is None:
-            tpl, first, poses = self._lazy
-            moved = [Shape.placed(s.kind, s.size, np.array(pose, dtype=float), s.color, s.name,
-                                  s.owner)
-                     for s, pose in zip(tpl.shapes[first:first + len(poses)], poses)]
-            self._shapes = tpl.shapes[:first] + moved + tpl.shapes[first + len(poses):]
+            tpl, first, d = self._lazy
+            poses = np.zeros((d, 4, 4))
+            poses[:, :3, :3], poses[:, 3, 3] = self.rotations[first:first + d], 1.0
+            poses[:, :3, 3] = self.centers[first:first + d]
+            self._shapes = tpl.shapes[:first] + [
+                Shape.placed(s.kind, s.size, pose, s.color, s.name, s.owner)
+                for s, pose in zip(tpl.shapes[first:first + d], poses)] + tpl.shapes[first + d:]
         return self._shapes
 
     def __getstate__(self) -> dict:
