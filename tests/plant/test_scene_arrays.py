@@ -1,6 +1,8 @@
 """The tick's scene built from arrays (Simulation.scene: the parts' (P, 4, 4) poses written
 into the world's scene stacked once) holds what the scene of the world's Shape objects
 holds, every array the ray casters read, to the bit; and the tick makes no Shape."""
+import pickle
+
 import numpy as np
 import pytest
 
@@ -113,6 +115,7 @@ def test_scene_from_arrays_is_the_scene_of_the_objects(moved):
     assert [(s.kind, s.size, s.color, s.name, s.owner) for s in lazy] == \
         [(s.kind, s.size, s.color, s.name, s.owner) for s in objects]
     assert all(np.array_equal(s.pose, o.pose) for s, o in zip(lazy, objects))
+    _same(pickle.loads(pickle.dumps(sim.scene())), plain)    # (a worker's copy)
     with pytest.raises(ValueError, match="part poses"):
         sim.scene(tfs[1:])
 
