@@ -114,40 +114,69 @@ class Scene:
 
     A :class:`ShapeList` (what :meth:`plant.sim.Simulation.shapes` returns) carries the
     world's scene as it was built once (its ``template``): then only the poses of its
-    moving shapes are stacked anew, the rest is shared, the same values.
+    moving shapes are stacked anew, the rest is shared, the same values; :meth:`placed` does
+    so from the poses' (D, 4, 4) array alone (a tick's scene: :meth:`plant.sim.Simulation.scene`).
     """
 
     def __init__(self, shapes: Sequence[Shape]):
-        self.shapes = list(shapes)
+        self._shapes = list(shapes)
         tpl = getattr(shapes, "template", None)
-        if tpl is not None and len(tpl) == len(self.shapes):
-            self._moved(tpl, shapes.first_moving, shapes.moving_poses)
+        if tpl is not None and len(tpl) == len(self._shapes):
+            self._place(tpl, shapes.first_moving, shapes.moving_poses)
             return
-        n = len(self.shapes)
-        self.owners = np.array([s.owner for s in self.shapes], dtype=object)
+        n = len(self._shapes)
+        self.owners = np.array([s.owner for s in self._shapes], dtype=object)
         self._owner_ids: dict[str, int] = {}
         self.owner_ids = np.array([self._owner_ids.setdefault(s.owner, len(self._owner_ids))
-                                   for s in self.shapes], dtype=np.int64).reshape(n)
-        poses = np.array([s.pose for s in self.shapes], dtype=float).reshape(n, 4, 4)
+                                   for s in self._shapes], dtype=np.int64).reshape(n)
+        poses = np.array([s.pose for s in self._shapes], dtype=float).reshape(n, 4, 4)
         self.centers = np.ascontiguousarray(poses[:, :3, 3])
         self.rotations = np.ascontiguousarray(poses[:, :3, :3])
-        self.halves = np.array([_half_tuple(s) for s in self.shapes], dtype=float).reshape(n, 3)
+        self.halves = np.array([_half_tuple(s) for s in self._shapes], dtype=float).reshape(n, 3)
         self.radii = np.sqrt((self.halves * self.halves).sum(axis=1))
-        self.quad = np.array([_QUADRIC[s.kind] for s in self.shapes], dtype=float).reshape(n, 3)
+        self.quad = np.array([_QUADRIC[s.kind] for s in self._shapes], dtype=float).reshape(n, 3)
         # box: 0 <= 1 always holds (the quadric never bounds it); else radius^2
         self.rr = np.where(self.quad[:, 0] > 0, self.halves[:, 0] ** 2, 1.0)
         self._const_ptrs = None
         #: the shapes' colours, as a key (the camera's colour table is cached on it)
-        self.colors = tuple(tuple(float(c) for c in s.color) for s in self.shapes)
+        self.colors = tuple(tuple(float(c) for c in s.color) for s in self._shapes)
 
-    def _moved(self, tpl: "Scene", first: int, poses: np.ndarray) -> None:
-        """This scene is ``tpl`` with the shapes from ``first`` on at ``poses`` (D, 4, 4)."""
+    @classmethod
+    def placed(cls, template: "Scene", first: int, poses: np.ndarray) -> "Scene":
+        """``template`` with its shapes ``first`` .. ``first + D - 1`` at ``poses`` ((D, 4, 4)),
+        the others where they are in it, no :class:`Shape` made (:attr:`shapes` makes them
+        if asked). All but the centres and rotations is the template's, shared."""
+        scene = cls.__new__(cls)
+        scene._shapes = None
+        scene._place(template, first, poses)
+        return scene
+
+    def _place(self, tpl: "Scene", first: int, poses: np.ndarray) -> None:
+        d = len(poses)
+        if not 0 <= first <= first + d <= len(tpl.centers):
+            raise ValueError(f"{d} poses from shape {first} do not fit {len(tpl.centers)} shapes")
+        self._lazy = (tpl, first, d)
         self.owners, self._owner_ids, self.owner_ids = tpl.owners, tpl._owner_ids, tpl.owner_ids
         self.halves, self.radii, self.quad, self.rr = tpl.halves, tpl.radii, tpl.quad, tpl.rr
         self._const_ptrs = tpl.const_ptrs()
         self.colors = tpl.colors
-        self.centers = np.concatenate([tpl.centers[:first], poses[:, :3, 3]])
-        self.rotations = np.concatenate([tpl.rotations[:first], poses[:, :3, :3]])
+        self.centers = tpl.centers.copy()
+        self.centers[first:first + d] = poses[:, :3, 3]
+        self.rotations = tpl.rotations.copy()
+        self.rotations[first:first + d] = poses[:, :3, :3]
+
+    @property
+    def shapes(self) -> list[Shape]:
+        """The scene's shapes as objects (a :meth:`placed` scene's made on the first call)."""
+        if self._shapes is None:
+            tpl, first, d = self._lazy
+            poses = np.zeros((d, 4, 4))
+            poses[:, :3, :3], poses[:, 3, 3] = self.rotations[first:first + d], 1.0
+            poses[:, :3, 3] = self.centers[first:first + d]
+            self._shapes = tpl.shapes[:first] + [
+                Shape.placed(s.kind, s.size, pose, s.color, s.name, s.owner)
+                for s, pose in zip(tpl.shapes[first:first + d], poses)] + tpl.shapes[first + d:]
+        return self._shapes
 
     def __getstate__(self) -> dict:
         """Pickled without the arrays' addresses (they mean nothing in another process)."""
@@ -187,7 +216,7 @@ class Scene:
         return shapes if isinstance(shapes, Scene) else cls(shapes)
 
     def __len__(self) -> int:
-        return len(self.shapes)
+        return len(self.centers)
 
     def owner_id(self, owner: str) -> int:
         """The number ``owner_ids`` holds for the shapes of ``owner`` (-2 if it has none)."""
@@ -196,7 +225,7 @@ class Scene:
     def include_mask(self, exclude_owner: str | None = None, include=None) -> np.ndarray:
         """Boolean mask over shapes: ``include`` (bool mask or index list; None = all)
         minus every shape whose ``owner == exclude_owner`` (when not None/empty)."""
-        n = len(self.shapes)
+        n = len(self)
         if include is None:
             mask = np.ones(n, dtype=bool)
         else:

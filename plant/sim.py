@@ -348,9 +348,24 @@ class Simulation:
             tf[:] = sn.getTransform().matrix()         # the world transform (state_rows)
         return out
 
+    def scene(self, part_tfs: np.ndarray | None = None) -> Scene:
+        """What the sensors see now, as one :class:`~plant.raycast.Scene`: the world's scene
+        stacked once with the robots' parts at ``part_tfs`` ((P, 4, 4), from
+        :meth:`part_transforms` if not given: a physics process's), the still shapes and
+        the movable objects where the world file puts them. Built from the arrays, no
+        :class:`~plant.shapes.Shape` a part (:meth:`shapes` has the same values as objects)."""
+        if part_tfs is None:
+            part_tfs = self.part_transforms()
+        poses = np.asarray(part_tfs, dtype=float).reshape(-1, 4, 4)
+        if len(poses) != len(self._robot_parts):
+            raise ValueError(f"{len(poses)} part poses for the {len(self._robot_parts)} "
+                             "visible parts of the robots")
+        return Scene.placed(self._scene_template, len(self._static_shapes), poses)
+
     def shapes(self, part_tfs: np.ndarray | None = None) -> ShapeList:
         """Every solid of the world in world coordinates, robots included (their parts at
-        ``part_tfs``, from :meth:`part_transforms`, if given: a physics process's).
+        ``part_tfs``, from :meth:`part_transforms`, if given: a physics process's), as
+        objects: for those who draw or list them (the sensors' tick uses :meth:`scene`).
 
         A :class:`~plant.raycast.ShapeList`: a :class:`~plant.raycast.Scene` of it shares
         the arrays of the world's still shapes, stacked once, and stacks only the poses of
@@ -368,7 +383,7 @@ class Simulation:
     def room_scene(self) -> Scene:
         """The world without its robots, as one :class:`~plant.raycast.Scene`, built once:
         the still shapes and the movable objects where the world file puts them
-        (:meth:`shapes` never moves them either). What a one-robot world's sensors see:
+        (:meth:`scene` never moves them either). What a one-robot world's sensors see:
         a lidar or a camera skips its own robot's parts."""
         if self._room is None:
             self._room = Scene(list(self._static_shapes) + list(self._movable_shapes))

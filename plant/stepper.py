@@ -35,16 +35,17 @@ class Stepper:
         return self.physics.state(self._index[robot])
 
     def shapes(self):
-        """What the robots' sensors see now (the scene of a tick's lidars and cameras). In a
+        """What the robots' sensors see now (the scene of a tick's lidars and cameras), built
+        from the robots' parts' poses as one array (:meth:`Simulation.scene`). In a
         one-robot world that is the room alone (:meth:`Simulation.room_scene`): a sensor
         skips its own robot's parts, so the rays and pixels are the same, and the robot's
         parts need not be placed (in DART, a world transform per part) every time."""
         if self._room_only:
             return self.sim.room_scene()
         if self.physics is None:
-            return self.sim.shapes()
+            return self.sim.scene()
         assert self.physics.parts is not None, "a scene is due but the snapshot has no parts"
-        return self.sim.shapes(self.physics.parts)
+        return self.sim.scene(self.physics.parts)
 
     def finite(self) -> bool:
         return self.sim.is_finite() if self.physics is None else self.physics.finite

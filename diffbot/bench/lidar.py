@@ -19,16 +19,19 @@ def lidar_suite(ctx: Context):
     where = (f"{len(scene)} shapes (floor, 4 walls, {len(spec.objects)} objects, the robot), "
              f"{cfg.num_rays} rays over {cfg.fov_rad:.3g} rad, max range {cfg.max_range_m:g} m")
     yield Case("scene snapshot + sweep (a tick's lidar)",
-               lambda: lidar.scan(cfg, st.tf, Scene(sim.shapes()), exclude_owner="robot1"),
+               lambda: lidar.scan(cfg, st.tf, sim.scene(), exclude_owner="robot1"),
                target=f"<= {TARGET_US} µs",
-               notes="Scene(sim.shapes()) then lidar.scan (C kernel); peers (quiet machine): "
+               notes="sim.scene() then lidar.scan (C kernel); peers (quiet machine): "
                      "PyBullet 1.58 ms, MuJoCo 0.059 ms")
     yield Case("sweep 180 rays", lambda: lidar.scan(cfg, st.tf, scene, exclude_owner="robot1"),
                notes=where + "; plant/kernels/lidar.c")
     yield Case("sweep + noise", lambda: lidar.measure(cfg, st.tf, scene, None, "robot1"),
                notes="lidar.measure: sweep, clip, (no) noise: what the plant calls")
-    yield Case("scene snapshot", lambda: Scene(sim.shapes()),
-               notes="the robot's parts from DART, restacked onto the world's scene built once")
+    yield Case("scene snapshot", sim.scene,
+               notes="Simulation.scene: the robot's parts' poses from DART written into a copy "
+                     "of the world's scene built once")
+    yield Case("scene snapshot of the solids as objects", lambda: Scene(sim.shapes()),
+               notes="Scene(sim.shapes()): a Shape a part first (figures list them so)")
     yield Case("sweep 180 rays, numpy reference",
                lambda: lidar.scan_many_reference(cfg, [st.tf], scene, ["robot1"]),
                notes="lidar.scan_many_reference: what the kernel replaced, the same bits")

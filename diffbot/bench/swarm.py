@@ -138,8 +138,15 @@ def swarm_suite(ctx: Context):
     yield Case("swarm lidar, all 24 robots' scans in one pass",
                lambda: lidar.scan_many(cfg, tfs, scene, names),
                notes="lidar.scan_many, what the plant does at a tick the lidars are due")
-    yield Case("swarm scene snapshot (24 robots)", lambda: Scene(sim.shapes()),
-               notes="once per tick a lidar is due, shared by every robot")
+    yield Case("swarm scene snapshot (24 robots)", sim.scene,
+               notes="Simulation.scene, once per tick a lidar is due, shared by every robot")
+    _, sim96 = _swarm_sim(96, "kinematic", ctx.tmpdir)
+    yield Case("swarm scene snapshot (96 kinematic robots)", sim96.scene,
+               notes="the parts' poses from the robots' (x, y, yaw) in numpy, into the world's "
+                     "scene built once")
+    yield Case("swarm scene snapshot (96 kinematic robots), the solids as objects",
+               lambda: Scene(sim96.shapes()),
+               notes="Scene(sim.shapes()): a Shape a part first (figures list them so)")
     duration = "5" if ctx.quick else "20"
     yield from composed_swarm(ctx)
 
