@@ -227,14 +227,12 @@ class Plant:
                 out.skip(k - at)                      # due, but nobody reads them
             at = k + 1
             key = self._key(name, topic)
-            if composed is None:
-                out.put(key, data, t, self.epoch)
-                continue
-            if out.reads(key):                        # (else only a composed member reads it)
+            if composed is None or out.reads(key):    # (else only a composed member reads it)
                 out.put(key, data, t, self.epoch)
             else:
                 out.skip()
-            composed.deliver(key, data, None)
+            if composed is not None:
+                composed.deliver(key, data, None)
         if due > at:
             out.skip(due - at)
         key = self.keys.poses                         # every robot's pose, one message
@@ -276,16 +274,14 @@ class Plant:
 
     _wanted_by: object = None        # the outbox's readers the answers below were asked of
     _wanted_of: dict | None = None   # robot -> its Reads' lookup
-    _all_by: object = None           # the readers _all_wanted was made for
-    _all_wanted: dict | None = None
+    _all: tuple = (None, None)       # (the readers, every robot's _wanted) of _wanted_all
 
     def _wanted_all(self) -> dict:
         """Every robot's :meth:`_wanted`, as one dict kept while the bus's readers stay."""
         readers = self.outbox.readers()
-        if readers is not self._all_by or self._all_wanted is None:
-            self._all_wanted = {name: self._wanted(name) for name in self.tick.sensors}
-            self._all_by = readers          # (changed meanwhile: made again next tick)
-        return self._all_wanted
+        if self._all[0] is not readers or self._all[1] is None:
+            self._all = (readers, {name: self._wanted(name) for name in self.tick.sensors})
+        return self._all[1]
 
     def _wanted(self, robot: str):
         """``wanted(topic)`` of ``robot``'s sensors: whether anyone reads it now (a

@@ -110,20 +110,8 @@ def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
             "travel_m": travel}
 
 
-@suite("swarm", "many robots: physics alone (dynamic, kinematic), the swarm lidar, and "
-                "`diffbot run swarm` in lockstep with 3 controller processes vs one per robot")
-def swarm_suite(ctx: Context):
-    repeats = 1 if ctx.quick else 3
-    for mode in ("dynamic", "kinematic"):
-        for n in (1, 8, 24):
-            what = f"physics alone, {n} {mode} robot{'s' if n > 1 else ''}"
-            yield Probe(what, lambda n=n, mode=mode: physics_rtf(n, mode, ctx.tmpdir), [
-                Metric("real_time_factor", f"{what}: real-time factor", "x",
-                       notes="Simulation.step_tick in one process, 2 ms steps, 20 ms ticks"),
-                Metric("us_per_robot_step", f"{what}: per robot per step (wall)", "us"),
-                Metric("cpu_us_per_robot_step", f"{what}: per robot per step (CPU)", "us",
-                       notes="process CPU time: less sensitive to a loaded machine"),
-            ], repeats=repeats, warmup=0)
+def _sensor_cases(ctx: Context):
+    """The swarm world's lidar, one robot's and all at once, and the tick's scene."""
     from plant import lidar
     from plant.raycast import Scene
     spec, sim = _swarm_sim(24, "dynamic", ctx.tmpdir)
@@ -147,6 +135,23 @@ def swarm_suite(ctx: Context):
     yield Case("swarm scene snapshot (96 kinematic robots), the solids as objects",
                lambda: Scene(sim96.shapes()),
                notes="Scene(sim.shapes()): a Shape a part first (figures list them so)")
+
+
+@suite("swarm", "many robots: physics alone (dynamic, kinematic), the swarm lidar, and "
+                "`diffbot run swarm` in lockstep with 3 controller processes vs one per robot")
+def swarm_suite(ctx: Context):
+    repeats = 1 if ctx.quick else 3
+    for mode in ("dynamic", "kinematic"):
+        for n in (1, 8, 24):
+            what = f"physics alone, {n} {mode} robot{'s' if n > 1 else ''}"
+            yield Probe(what, lambda n=n, mode=mode: physics_rtf(n, mode, ctx.tmpdir), [
+                Metric("real_time_factor", f"{what}: real-time factor", "x",
+                       notes="Simulation.step_tick in one process, 2 ms steps, 20 ms ticks"),
+                Metric("us_per_robot_step", f"{what}: per robot per step (wall)", "us"),
+                Metric("cpu_us_per_robot_step", f"{what}: per robot per step (CPU)", "us",
+                       notes="process CPU time: less sensitive to a loaded machine"),
+            ], repeats=repeats, warmup=0)
+    yield from _sensor_cases(ctx)
     duration = "5" if ctx.quick else "20"
     yield from composed_swarm(ctx)
 

@@ -206,7 +206,7 @@ def _published(tmp_path, read: set[str], ticks: int = 12) -> list:
     tick, out = Tick(spec), _KeptOutbox(read)
     host = SimpleNamespace(outbox=out, composed=None, tick=tick, sim=tick.sim, epoch=0,
                            keys=Keys(""), _key=lambda robot, topic: f"{robot}/{topic}",
-                           _wanted_by=None, _wanted_of=None, _all_by=None, _all_wanted=None)
+                           _wanted_by=None, _wanted_of=None, _all=(None, None))
     host._wanted = lambda robot: Plant._wanted(host, robot)
     host._wanted_all = lambda: Plant._wanted_all(host)
     for k in range(ticks):
