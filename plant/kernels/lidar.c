@@ -216,6 +216,14 @@ static void scan_fans(const Fans *a, int64_t g0, int64_t g1, double *work)
                 continue;
             const double *c = a->centers + 3 * s, *R = a->rot + 9 * s, *h = a->halves + 3 * s;
             double o[3] = {org[0] - c[0], org[1] - c[1], org[2] - c[2]};
+            /* Beyond reach, before the cull below: every point of the shape lies in its
+             * bounding sphere (radius |h|, the box its rays are clipped to), so a centre
+             * further than max_range + radius (with a margin far above rounding) has no
+             * hit within range on any ray, and sector() would say so too. In a large world
+             * most shapes are out of a sensor's reach; this test costs a few flops. */
+            const double reach = (a->max_range + a->radii[s]) * (1.0 + 1e-6) + 1e-6;
+            if (o[0] * o[0] + o[1] * o[1] + o[2] * o[2] > reach * reach)
+                continue;
             /* the cull, in the sensor's frame: the centre, the shape's axes */
             double rel[3], A[9];
             for (int i = 0; i < 3; i++) {
