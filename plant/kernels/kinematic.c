@@ -19,10 +19,13 @@
 
 EXPORT int plant_kinematic_abi(void) { return 2; }
 
-/* The static world as the footprint test sees it (plant.footprint.Footprints). */
+/* The static world as the footprint test sees it (plant.footprint.Footprints); tol and
+ * cull as cull_setup sets them. */
 typedef struct {
     int64_t nbox, ncirc;
     const double *box_c, *box_cos, *box_sin, *box_half, *circ_c, *circ_r, *half;
+    double tol;         /* the rounding allowance of clearance_below's bounds */
+    int cull;           /* whether clearance_below may leave shapes out (all finite) */
 } Statics;
 
 /* Footprints.clearances of one point: the floor's walls, then the boxes, then the circles,
@@ -55,16 +58,91 @@ static double clearance(const Statics *s, double cx, double cy)
     return out;
 }
 
+/* clearance_below's set-up for the call: it leaves shapes out only if every number of the
+ * static world is finite (then, for a finite point, so is every shape's clearance) and each
+ * box's (cos, sin) is a unit vector, with a
+ * rounding allowance far above the few ulps of the world's coordinates that the clearance
+ * arithmetic and the bounds below can each be off by. */
+static void cull_setup(Statics *s)
+{
+    double scale = 1.0 + fabs(s->half[0]) + fabs(s->half[1]), big = 0.0, all = scale;
+    int unit = 1;      /* the boxes' bounding squares below need cos^2 + sin^2 = 1 */
+    for (int64_t b = 0; b < s->nbox; b++) {
+        unit &= fabs(s->box_cos[b] * s->box_cos[b] + s->box_sin[b] * s->box_sin[b] - 1.0) < 1e-9;
+        double m = fabs(s->box_c[2 * b]) + fabs(s->box_c[2 * b + 1]) + fabs(s->box_cos[b])
+                   + fabs(s->box_sin[b]) + fabs(s->box_half[2 * b]) + fabs(s->box_half[2 * b + 1]);
+        big = m > big ? m : big;
+        all += m;                               /* NaN or inf if any number is */
+    }
+    for (int64_t c = 0; c < s->ncirc; c++) {
+        double m = fabs(s->circ_c[2 * c]) + fabs(s->circ_c[2 * c + 1]) + fabs(s->circ_r[c]);
+        big = m > big ? m : big;
+        all += m;
+    }
+    s->cull = isfinite(all) && unit;
+    s->tol = 1e-9 * (scale + big);
+}
+
+/* The footprint test needs a clearance exactly only where it is below the footprint's
+ * radius r: clearance_below(s, cx, cy, r) equals clearance(s, cx, cy) whenever that is below
+ * r, and is at least r otherwise. It leaves out the shapes that cannot come that close:
+ * a box's clearance is at least the point's distance to the box's bounding square (half
+ * side hx + hy round its centre), at least max(|dx|, |dy|) - (hx + hy); a circle's at least
+ * max(|dx|, |dy|) - radius (hypot is at least either side). A shape whose bound exceeds r,
+ * or the least clearance found so far, by more than tol is not the minimum. The walls come
+ * first: where they are at or below 0 (on or beyond a wall) no shape (clearance >= 0) is
+ * lower. A point that is not finite, or a world with a number that is not, takes the whole
+ * clearance (its NaNs and infinities as they are). Only the value matters to the caller,
+ * which compares it: a zero's sign may differ. */
+static double clearance_below(const Statics *s, double cx, double cy, double r)
+{
+    if (!s->cull || !isfinite(cx) || !isfinite(cy) || !isfinite(r))
+        return clearance(s, cx, cy);
+    double out = np_min(s->half[0] - fabs(cx), s->half[1] - fabs(cy));
+    if (!(out > 0.0))
+        return out;
+    double cut = (out < r ? out : r) + s->tol;
+    for (int64_t b = 0; b < s->nbox; b++) {
+        double dx = cx - s->box_c[2 * b], dy = cy - s->box_c[2 * b + 1];
+        double reach = s->box_half[2 * b] + s->box_half[2 * b + 1];
+        if (fabs(dx) - reach > cut || fabs(dy) - reach > cut)
+            continue;
+        double qx = np_max(fabs(dx * s->box_cos[b] + dy * s->box_sin[b])
+                           - s->box_half[2 * b], 0.0);
+        double qy = np_max(fabs(-dx * s->box_sin[b] + dy * s->box_cos[b])
+                           - s->box_half[2 * b + 1], 0.0);
+        double h = hypot(qx, qy);
+        if (h < out) {
+            out = h;
+            cut = (out < r ? out : r) + s->tol;
+        }
+    }
+    for (int64_t c = 0; c < s->ncirc; c++) {
+        double dx = cx - s->circ_c[2 * c], dy = cy - s->circ_c[2 * c + 1];
+        if (fabs(dx) - s->circ_r[c] > cut || fabs(dy) - s->circ_r[c] > cut)
+            continue;
+        double d = np_max(hypot(dx, dy) - s->circ_r[c], 0.0);
+        if (d < out) {
+            out = d;
+            cut = (out < r ? out : r) + s->tol;
+        }
+    }
+    return out;
+}
+
 /* Footprints.clearances of n points pts (n, 2) into out (n). */
 EXPORT void plant_clearances(int64_t n, const double *pts, int64_t nbox, const double *box_c,
                              const double *box_cos, const double *box_sin,
                              const double *box_half, int64_t ncirc, const double *circ_c,
                              const double *circ_r, const double *half, double *out)
 {
-    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half};
+    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half, 0.0, 0};
     for (int64_t i = 0; i < n; i++)
         out[i] = clearance(&s, pts[2 * i], pts[2 * i + 1]);
 }
+
+/* Up to this many robots a call's scratch is on the stack (~26 kB), more are malloc'd. */
+#define STACK_ROBOTS 256
 
 /* A robot of the sort below: its world, its new footprint centre's x, its index. */
 typedef struct {
@@ -94,7 +172,8 @@ static int near_order(const void *pa, const void *pb)
  * NaN or inf) and is left out. Returns 0, or -1 if out of memory. */
 static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
 {
-    Near *e = malloc((size_t)n * sizeof(Near));
+    Near here[STACK_ROBOTS];
+    Near *e = n <= STACK_ROBOTS ? here : malloc((size_t)n * sizeof(Near));
     if (!e)
         return -1;
     int64_t k = 0;
@@ -125,7 +204,8 @@ static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
             }
         }
     }
-    free(e);
+    if (e != here)
+        free(e);
     return 0;
 }
 
@@ -143,9 +223,11 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
                                 const double *circ_r, const double *half, double foot_r,
                                 double centre_x, int64_t pairs)
 {
-    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half};
+    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half, 0.0, 0};
+    cull_setup(&s);
     /* per robot: v, w, nx, ny, nyaw, old centre (x, y), new centre (x, y), blocked */
-    double *m = malloc((size_t)(n > 0 ? n : 1) * 10 * sizeof(double));
+    double here[STACK_ROBOTS * 10];
+    double *m = n <= STACK_ROBOTS ? here : malloc((size_t)n * 10 * sizeof(double));
     if (!m)
         return -1;
     for (int64_t i = 0; i < n; i++) {
@@ -169,12 +251,15 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
         q[6] = y + centre_x * sin(yaw);
         q[7] = nx + centre_x * cos(nyaw);
         q[8] = ny + centre_x * sin(nyaw);
-        double c_old = clearance(&s, q[5], q[6]);
-        double c_new = clearance(&s, q[7], q[8]);
-        q[9] = (c_new < foot_r) && (c_new < c_old);
+        /* blocked by the room: (c_new < foot_r) && (c_new < c_old), c_old only wanted when
+         * c_new < foot_r; where c_old >= foot_r, clearance_below's value (also >= foot_r)
+         * answers the same */
+        double c_new = clearance_below(&s, q[7], q[8], foot_r);
+        q[9] = (c_new < foot_r) && (c_new < clearance_below(&s, q[5], q[6], foot_r));
     }
     if (pairs && n > 1 && robot_pairs(n, m, world, 2 * foot_r) != 0) {
-        free(m);
+        if (m != here)
+            free(m);
         return -1;
     }
     for (int64_t i = 0; i < n; i++) {
@@ -192,6 +277,7 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
             speeds[2 * i + k] = targets[2 * i + k];
         }
     }
-    free(m);
+    if (m != here)
+        free(m);
     return 0;
 }
