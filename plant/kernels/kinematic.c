@@ -141,7 +141,7 @@ EXPORT void plant_clearances(int64_t n, const double *pts, int64_t nbox, const d
         out[i] = clearance(&s, pts[2 * i], pts[2 * i + 1]);
 }
 
-/* Up to this many robots a call's scratch is on the stack (~26 kB), more are malloc'd. */
+/* Up to this many robots a call's scratch is on the stack (~32 kB), more are malloc'd. */
 #define STACK_ROBOTS 256
 
 /* A robot of the sort below: its world, its new footprint centre's x, its index. */
@@ -151,14 +151,36 @@ typedef struct {
     int64_t i;
 } Near;
 
-static int near_order(const void *pa, const void *pb)
+static int near_before(const Near *a, const Near *b)
 {
-    const Near *a = pa, *b = pb;
     if (a->world != b->world)
-        return a->world < b->world ? -1 : 1;
+        return a->world < b->world;
     if (a->x != b->x)
-        return a->x < b->x ? -1 : 1;
-    return a->i < b->i ? -1 : (a->i > b->i);
+        return a->x < b->x;
+    return a->i < b->i;
+}
+
+/* Sorts e[0..k) by near_before (a strict total order: the indices differ), a bottom-up merge
+ * sort through tmp (k entries): qsort would malloc its own scratch for a crowd. Returns the
+ * array holding the result (e or tmp). */
+static Near *sort_near(Near *e, Near *tmp, int64_t k)
+{
+    for (int64_t w = 1; w < k; w *= 2) {
+        for (int64_t lo = 0; lo < k; lo += 2 * w) {
+            int64_t mid = lo + w < k ? lo + w : k, hi = lo + 2 * w < k ? lo + 2 * w : k;
+            int64_t a = lo, b = mid, o = lo;
+            while (a < mid && b < hi)
+                tmp[o++] = near_before(&e[b], &e[a]) ? e[b++] : e[a++];
+            while (a < mid)
+                tmp[o++] = e[a++];
+            while (b < hi)
+                tmp[o++] = e[b++];
+        }
+        Near *t = e;
+        e = tmp;
+        tmp = t;
+    }
+    return e;
 }
 
 /* The robot-robot test: robot i (not already blocked, m[10 i + 9]) is blocked if another
@@ -172,10 +194,11 @@ static int near_order(const void *pa, const void *pb)
  * NaN or inf) and is left out. Returns 0, or -1 if out of memory. */
 static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
 {
-    Near here[STACK_ROBOTS];
-    Near *e = n <= STACK_ROBOTS ? here : malloc((size_t)n * sizeof(Near));
-    if (!e)
+    Near here[2 * STACK_ROBOTS];
+    Near *held = n <= STACK_ROBOTS ? here : malloc((size_t)n * 2 * sizeof(Near));
+    if (!held)
         return -1;
+    Near *e = held;
     int64_t k = 0;
     for (int64_t i = 0; i < n; i++) {
         if (isnan(m[10 * i + 7]))
@@ -185,7 +208,7 @@ static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
         e[k].i = i;
         k++;
     }
-    qsort(e, (size_t)k, sizeof(Near), near_order);
+    e = sort_near(e, held + n, k);
     for (int64_t p = 0; p < k; p++) {
         double *a = m + 10 * e[p].i;
         if (a[9] != 0.0)
@@ -204,8 +227,8 @@ static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
             }
         }
     }
-    if (e != here)
-        free(e);
+    if (held != here)
+        free(held);
     return 0;
 }
 
