@@ -60,9 +60,9 @@ static double clearance(const Statics *s, double cx, double cy)
 
 /* clearance_below's set-up for the call: it leaves shapes out only if every number of the
  * static world is finite (then, for a finite point, so is every shape's clearance) and each
- * box's (cos, sin) is a unit vector, with a
- * rounding allowance far above the few ulps of the world's coordinates that the clearance
- * arithmetic and the bounds below can each be off by. */
+ * box's (cos, sin) is a unit vector; tol, the allowance its bounds keep for rounding, is
+ * 1e-9 of the world's scale, far above the few ulps of it that the clearances and the
+ * bounds can each be off by. */
 static void cull_setup(Statics *s)
 {
     double scale = 1.0 + fabs(s->half[0]) + fabs(s->half[1]), big = 0.0, all = scale;
@@ -83,18 +83,73 @@ static void cull_setup(Statics *s)
     s->tol = 1e-9 * (scale + big);
 }
 
+/* A grid over the floor listing, per cell, the shapes whose bound (clearance_below) can
+ * come within r of a point of the cell: built for a call (grid_build), so that each robot
+ * tries the few shapes near it instead of all. */
+#define GRID_SIDE 32            /* cells along each side, at most */
+#define GRID_STACK 4096         /* entries kept on the stack; more are malloc'd */
+#define GRID_CELL_R 4.0         /* a cell's side, at least, in footprint radii */
+/* robots x shapes below which trying every shape costs less than building a grid
+ * (measured: 48 robots and 74 shapes of the swarm world gain nothing, 96 and 146 do) */
+#define GRID_MIN_WORK 8192
+typedef struct {
+    int64_t nx, ny;             /* 0: no grid, every shape is tried */
+    double x0, y0, inv;         /* a point's cell: floor((x - x0) * inv), clamped */
+    int32_t start[GRID_SIDE * GRID_SIDE + 1];   /* cell c's shapes: idx[start[c]..start[c+1]) */
+    int32_t *idx;               /* shape j: a box if j < nbox, else circle j - nbox */
+    int32_t here[GRID_STACK];
+} Grid;
+
+/* The column (or row) of coordinate x: floor((x - x0) * inv) clamped to [0, n): a
+ * non-decreasing function of x, in floating point too. */
+static inline int64_t grid_at(double x, double x0, double inv, int64_t n)
+{
+    double f = floor((x - x0) * inv);
+    return f < 0.0 ? 0 : f >= (double)n ? n - 1 : (int64_t)f;
+}
+
+/* Shape j's clearance from (cx, cy) into *out if lower, unless its bound shows it is above
+ * *cut (then it is not the minimum below r); *cut follows *out. */
+static inline void shape_below(const Statics *s, int64_t j, double cx, double cy, double r,
+                               double *out, double *cut)
+{
+    double d;
+    if (j < s->nbox) {
+        double dx = cx - s->box_c[2 * j], dy = cy - s->box_c[2 * j + 1];
+        double reach = s->box_half[2 * j] + s->box_half[2 * j + 1];
+        if (fabs(dx) - reach > *cut || fabs(dy) - reach > *cut)
+            return;
+        double qx = np_max(fabs(dx * s->box_cos[j] + dy * s->box_sin[j])
+                           - s->box_half[2 * j], 0.0);
+        double qy = np_max(fabs(-dx * s->box_sin[j] + dy * s->box_cos[j])
+                           - s->box_half[2 * j + 1], 0.0);
+        d = hypot(qx, qy);
+    } else {
+        int64_t c = j - s->nbox;
+        double dx = cx - s->circ_c[2 * c], dy = cy - s->circ_c[2 * c + 1];
+        if (fabs(dx) - s->circ_r[c] > *cut || fabs(dy) - s->circ_r[c] > *cut)
+            return;
+        d = np_max(hypot(dx, dy) - s->circ_r[c], 0.0);
+    }
+    if (d < *out) {
+        *out = d;
+        *cut = (d < r ? d : r) + s->tol;
+    }
+}
+
 /* The footprint test needs a clearance exactly only where it is below the footprint's
- * radius r: clearance_below(s, cx, cy, r) equals clearance(s, cx, cy) whenever that is below
- * r, and is at least r otherwise. It leaves out the shapes that cannot come that close:
- * a box's clearance is at least the point's distance to the box's bounding square (half
- * side hx + hy round its centre), at least max(|dx|, |dy|) - (hx + hy); a circle's at least
- * max(|dx|, |dy|) - radius (hypot is at least either side). A shape whose bound exceeds r,
- * or the least clearance found so far, by more than tol is not the minimum. The walls come
- * first: where they are at or below 0 (on or beyond a wall) no shape (clearance >= 0) is
- * lower. A point that is not finite, or a world with a number that is not, takes the whole
- * clearance (its NaNs and infinities as they are). Only the value matters to the caller,
- * which compares it: a zero's sign may differ. */
-static double clearance_below(const Statics *s, double cx, double cy, double r)
+ * radius r: clearance_below(s, g, cx, cy, r) equals clearance(s, cx, cy) whenever that is
+ * below r, and is at least r otherwise. It leaves out the shapes that cannot come that
+ * close: a box's clearance is at least the point's distance to the box's bounding square
+ * (half side hx + hy round its centre), at least max(|dx|, |dy|) - (hx + hy); a circle's at
+ * least max(|dx|, |dy|) - radius (hypot is at least either side). A shape whose bound
+ * exceeds r, or the least clearance found so far, by more than tol is not the minimum; g
+ * (if it has cells) lists the shapes that can pass that test in the point's cell. The walls
+ * come first: where they are at or below 0 (on or beyond a wall) no shape (clearance >= 0)
+ * is lower. A point that is not finite, or a world with a number that is not, takes the
+ * whole clearance (its NaNs and infinities as they are). Only the value matters to the
+ * caller, which compares it: a zero's sign may differ. */
+static double clearance_below(const Statics *s, const Grid *g, double cx, double cy, double r)
 {
     if (!s->cull || !isfinite(cx) || !isfinite(cy) || !isfinite(r))
         return clearance(s, cx, cy);
@@ -102,32 +157,92 @@ static double clearance_below(const Statics *s, double cx, double cy, double r)
     if (!(out > 0.0))
         return out;
     double cut = (out < r ? out : r) + s->tol;
-    for (int64_t b = 0; b < s->nbox; b++) {
-        double dx = cx - s->box_c[2 * b], dy = cy - s->box_c[2 * b + 1];
-        double reach = s->box_half[2 * b] + s->box_half[2 * b + 1];
-        if (fabs(dx) - reach > cut || fabs(dy) - reach > cut)
-            continue;
-        double qx = np_max(fabs(dx * s->box_cos[b] + dy * s->box_sin[b])
-                           - s->box_half[2 * b], 0.0);
-        double qy = np_max(fabs(-dx * s->box_sin[b] + dy * s->box_cos[b])
-                           - s->box_half[2 * b + 1], 0.0);
-        double h = hypot(qx, qy);
-        if (h < out) {
-            out = h;
-            cut = (out < r ? out : r) + s->tol;
-        }
-    }
-    for (int64_t c = 0; c < s->ncirc; c++) {
-        double dx = cx - s->circ_c[2 * c], dy = cy - s->circ_c[2 * c + 1];
-        if (fabs(dx) - s->circ_r[c] > cut || fabs(dy) - s->circ_r[c] > cut)
-            continue;
-        double d = np_max(hypot(dx, dy) - s->circ_r[c], 0.0);
-        if (d < out) {
-            out = d;
-            cut = (out < r ? out : r) + s->tol;
-        }
+    if (g->nx) {
+        int64_t c = grid_at(cy, g->y0, g->inv, g->ny) * g->nx + grid_at(cx, g->x0, g->inv, g->nx);
+        for (int32_t k = g->start[c]; k < g->start[c + 1]; k++)
+            shape_below(s, g->idx[k], cx, cy, r, &out, &cut);
+    } else {
+        for (int64_t j = 0; j < s->nbox + s->ncirc; j++)
+            shape_below(s, j, cx, cy, r, &out, &cut);
     }
     return out;
+}
+
+/* Fills g for the call, or leaves it without cells (every shape tried) where a grid cannot
+ * pay (few robots or shapes), for a world clearance_below does not cull, or without memory.
+ * Cells of at least GRID_CELL_R r, at most GRID_SIDE a side, over the floor. A shape is
+ * listed in the cells from those of its centre -/+ (its bound's reach + r + 2 tol) along x
+ * and y: a point whose shape bound is within r + tol has its coordinates within those,
+ * so (grid_at being non-decreasing) its cell among them. Pass 0 counts each cell's shapes,
+ * pass 1 lists them in shape order. */
+static void grid_build(Grid *g, const Statics *s, double r, int64_t robots)
+{
+    int64_t shapes = s->nbox + s->ncirc;
+    g->nx = g->ny = 0;
+    g->idx = g->here;
+    if (!s->cull || !isfinite(r) || r < 0.0 || shapes > INT32_MAX
+        || (double)robots * (double)shapes < GRID_MIN_WORK)
+        return;
+    double w = 2.0 * fabs(s->half[0]), h = 2.0 * fabs(s->half[1]);
+    double side = fmax(fmax(w, h) / GRID_SIDE, GRID_CELL_R * r);
+    if (!(side > 0.0))
+        return;
+    double x0 = -fabs(s->half[0]), y0 = -fabs(s->half[1]), inv = 1.0 / side;
+    int64_t nx = (int64_t)fmin(fmax(ceil(w * inv), 1.0), GRID_SIDE);
+    int64_t ny = (int64_t)fmin(fmax(ceil(h * inv), 1.0), GRID_SIDE);
+    int64_t cells = nx * ny;
+    double margin = r * (1.0 + 1e-9) + 2.0 * s->tol;     /* (r's own rounding too) */
+    int32_t *count = g->start;          /* pass 0: count[c + 1] the shapes of cell c */
+    for (int64_t c = 0; c <= cells; c++)
+        count[c] = 0;
+    int32_t *idx = NULL;
+    for (int pass = 0; pass < 2; pass++) {
+        for (int64_t j = 0; j < shapes; j++) {
+            int64_t k = j - s->nbox;
+            double x = j < s->nbox ? s->box_c[2 * j] : s->circ_c[2 * k];
+            double y = j < s->nbox ? s->box_c[2 * j + 1] : s->circ_c[2 * k + 1];
+            double reach = j < s->nbox ? s->box_half[2 * j] + s->box_half[2 * j + 1]
+                                       : s->circ_r[k];
+            int64_t ax = grid_at(x - reach - margin, x0, inv, nx);
+            int64_t bx = grid_at(x + reach + margin, x0, inv, nx);
+            int64_t ay = grid_at(y - reach - margin, y0, inv, ny);
+            int64_t by = grid_at(y + reach + margin, y0, inv, ny);
+            for (int64_t iy = ay; iy <= by; iy++)
+                for (int64_t ix = ax; ix <= bx; ix++) {
+                    int64_t c = iy * nx + ix;
+                    if (pass == 0)
+                        count[c + 1]++;
+                    else
+                        idx[count[c]++] = (int32_t)j;
+                }
+        }
+        if (pass == 0) {
+            for (int64_t c = 0; c < cells; c++) {   /* count[c]: cell c's first entry */
+                if (count[c + 1] > INT32_MAX - count[c])
+                    return;
+                count[c + 1] += count[c];
+            }
+            idx = count[cells] <= GRID_STACK ? g->here : malloc((size_t)count[cells] * 4);
+            if (!idx)
+                return;
+        }
+    }
+    /* pass 1 left count[c] at cell c's end, the next cell's start: shift back by one */
+    for (int64_t c = cells; c > 0; c--)
+        count[c] = count[c - 1];
+    count[0] = 0;
+    g->nx = nx;
+    g->ny = ny;
+    g->x0 = x0;
+    g->y0 = y0;
+    g->inv = inv;
+    g->idx = idx;
+}
+
+static void grid_free(Grid *g)
+{
+    if (g->idx != g->here)
+        free(g->idx);
 }
 
 /* Footprints.clearances of n points pts (n, 2) into out (n). */
@@ -248,6 +363,8 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
 {
     Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half, 0.0, 0};
     cull_setup(&s);
+    Grid g;
+    grid_build(&g, &s, foot_r, n);
     /* per robot: v, w, nx, ny, nyaw, old centre (x, y), new centre (x, y), blocked */
     double here[STACK_ROBOTS * 10];
     double *m = n <= STACK_ROBOTS ? here : malloc((size_t)n * 10 * sizeof(double));
@@ -277,9 +394,10 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
         /* blocked by the room: (c_new < foot_r) && (c_new < c_old), c_old only wanted when
          * c_new < foot_r; where c_old >= foot_r, clearance_below's value (also >= foot_r)
          * answers the same */
-        double c_new = clearance_below(&s, q[7], q[8], foot_r);
-        q[9] = (c_new < foot_r) && (c_new < clearance_below(&s, q[5], q[6], foot_r));
+        double c_new = clearance_below(&s, &g, q[7], q[8], foot_r);
+        q[9] = (c_new < foot_r) && (c_new < clearance_below(&s, &g, q[5], q[6], foot_r));
     }
+    grid_free(&g);
     if (pairs && n > 1 && robot_pairs(n, m, world, 2 * foot_r) != 0) {
         if (m != here)
             free(m);
