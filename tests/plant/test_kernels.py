@@ -331,7 +331,8 @@ def test_kinematic_kernel_at_the_footprints_edge_gives_the_reference_to_the_bit(
     radius (bounds, a grid of the shapes near each cell of the floor for crowds, the old
     centre's clearance only when the new one is below): robots put within a hair of the
     radius from walls, boxes, circles and each other (exactly on it, 1e-12 m, 1e-9 m, 1e-6
-    m, 3 mm in or out), barely moving or driving, NaN and infinite poses now and then, in
+    m, 3 mm in or out), barely moving or driving, NaN and infinite poses and centres now and
+    then (a finite one driven to infinity), in
     the 96-robot swarm world (its grid), copies of the living room, an empty room and a
     room whose statics hold a NaN (nothing left out): plant.kinematic.reference_step,
     which tries every shape, gives the same arrays to the bit, and both sides of the edge
@@ -365,6 +366,9 @@ def test_kinematic_kernel_at_the_footprints_edge_gives_the_reference_to_the_bit(
             k.pose[bad[2], :2] = [np.inf, -np.inf]         # inf - inf: NaN clearances
         speed = 10.0 ** rng.uniform(-9, 1, (n, 1))          # a nm to centimetres a tick
         targets = rng.uniform(-1.0, 1.0, (n, 2)) * speed
+        if trial % 4 == 1:          # from a finite centre to (inf, -inf): NaN by a box at yaw 0
+            j = rng.integers(0, n)
+            k.pose[j, 2], targets[j] = rng.uniform(-1.5, -0.1), 1e308
         ref = SimpleNamespace(**{f: getattr(k, f).copy() for f in fields},
                               tick_s=k.tick_s, foot=k.foot)
         before = k.pose.copy()
@@ -377,5 +381,5 @@ def test_kinematic_kernel_at_the_footprints_edge_gives_the_reference_to_the_bit(
         still = (k.pose == before).all(axis=1)
         blocked += int((fine & still).sum())
         moved += int((fine & ~still).sum())
-    least = n if world == "nan_statics" else 3 * n    # (there only robots block robots)
+    least = n // 2 if world == "nan_statics" else 3 * n    # (there only robots block robots)
     assert blocked > least and moved > 3 * n, (blocked, moved)
