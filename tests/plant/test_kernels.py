@@ -325,6 +325,24 @@ def _centres_at_the_edge(rng, foot, n: int, others: np.ndarray) -> np.ndarray:
     return out
 
 
+def _circles_on_grid_lines(rng, foot, centres: np.ndarray) -> None:
+    """Moves circles (in place) so that their reach plus a footprint radius ends, give or take
+    a hair, on a line of a 32 x 32 grid over the floor (the cells the kernel's grid has in a
+    room this size), and puts ``centres`` just inside or outside that reach, across the line
+    from the circle or not: a circle must be listed in every cell such a centre can be in."""
+    from plant.footprint import FOOTPRINT_RADIUS_M as R
+    m = len(centres)
+    pick = rng.choice(len(foot.circ_c), m, replace=False)
+    axis, sign = rng.integers(0, 2, m), rng.choice([-1.0, 1.0], m)
+    for i, c in enumerate(pick):
+        a, half, r = axis[i], foot.half[axis[i]], foot.circ_r[c]
+        line = -half + rng.integers(2, 31) * (2 * half / 32)
+        foot.circ_c[c, a] = line - sign[i] * (r + R) + rng.choice([0.0, 1e-9, -1e-9, 5e-4, -5e-4])
+        foot.circ_c[c, 1 - a] = rng.uniform(-half + 1, half - 1)
+        centres[i] = foot.circ_c[c]
+        centres[i, a] += sign[i] * (r + R + rng.choice([-1e-12, -1e-9, -1e-6, 1e-9, -4e-4]))
+
+
 @pytest.mark.parametrize("world", ["swarm96", "living_room_batch", "empty_batch", "nan_statics"])
 def test_kinematic_kernel_at_the_footprints_edge_gives_the_reference_to_the_bit(world, tmp_path):
     """The kernel only computes a clearance exactly where it can be below the footprint's
@@ -332,11 +350,11 @@ def test_kinematic_kernel_at_the_footprints_edge_gives_the_reference_to_the_bit(
     centre's clearance only when the new one is below): robots put within a hair of the
     radius from walls, boxes, circles and each other (exactly on it, 1e-12 m, 1e-9 m, 1e-6
     m, 3 mm in or out), barely moving or driving, NaN and infinite poses and centres now and
-    then (a finite one driven to infinity), in
-    the 96-robot swarm world (its grid), copies of the living room, an empty room and a
-    room whose statics hold a NaN (nothing left out): plant.kinematic.reference_step,
-    which tries every shape, gives the same arrays to the bit, and both sides of the edge
-    are taken."""
+    then (a finite one driven to infinity), in the 96-robot swarm world (its grid; circles
+    moved onto its cells' edges), copies of the two-robot living room, an empty room and a
+    room whose statics hold a NaN (nothing left out): plant.kinematic.reference_step, which
+    tries every shape, gives the same arrays to the bit, and both sides of the edge are
+    taken."""
     from types import SimpleNamespace
 
     from plant import kinematic
@@ -357,6 +375,8 @@ def test_kinematic_kernel_at_the_footprints_edge_gives_the_reference_to_the_bit(
     blocked = moved = 0
     for trial in range(60):
         centres = _centres_at_the_edge(rng, k.foot, n, k.pose[:, :2])
+        if world == "swarm96":
+            _circles_on_grid_lines(rng, k.foot, centres[:24])
         yaw = rng.uniform(-math.pi, math.pi, n)
         k.pose[:] = np.column_stack([centres[:, 0] - CHASSIS_CENTRE_X_M * np.cos(yaw),
                                      centres[:, 1] - CHASSIS_CENTRE_X_M * np.sin(yaw), yaw])
