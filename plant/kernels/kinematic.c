@@ -7,7 +7,9 @@
  * here it is operation by operation and in the same order, in IEEE doubles: no fused
  * multiply-adds (-ffp-contract=off, plant/kernels/build.py), libm's sin, cos and hypot
  * (numpy's ufuncs give the same values here: tests/plant/test_kernels.py compares the two to the
- * bit), and numpy's minimum and maximum, which keep a NaN.
+ * bit), and numpy's minimum and maximum, which keep a NaN. The footprint test computes a
+ * clearance exactly only where it can be below the footprint's radius (clearance_below),
+ * which is all its comparisons need: it decides as the reference, which computes them all.
  */
 #include <math.h>
 #include <stdint.h>
