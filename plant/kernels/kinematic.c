@@ -7,7 +7,9 @@
  * here it is operation by operation and in the same order, in IEEE doubles: no fused
  * multiply-adds (-ffp-contract=off, plant/kernels/build.py), libm's sin, cos and hypot
  * (numpy's ufuncs give the same values here: tests/plant/test_kernels.py compares the two to the
- * bit), and numpy's minimum and maximum, which keep a NaN.
+ * bit), and numpy's minimum and maximum, which keep a NaN. The footprint test computes a
+ * clearance exactly only where it can be below the footprint's radius (clearance_below),
+ * which is all its comparisons need: it decides as the reference, which computes them all.
  */
 #include <math.h>
 #include <stdint.h>
@@ -19,10 +21,13 @@
 
 EXPORT int plant_kinematic_abi(void) { return 2; }
 
-/* The static world as the footprint test sees it (plant.footprint.Footprints). */
+/* The static world as the footprint test sees it (plant.footprint.Footprints); tol and
+ * cull as cull_setup sets them. */
 typedef struct {
     int64_t nbox, ncirc;
     const double *box_c, *box_cos, *box_sin, *box_half, *circ_c, *circ_r, *half;
+    double tol;         /* the rounding allowance of clearance_below's bounds */
+    int cull;           /* whether clearance_below may leave shapes out (all finite) */
 } Statics;
 
 /* Footprints.clearances of one point: the floor's walls, then the boxes, then the circles,
@@ -55,16 +60,206 @@ static double clearance(const Statics *s, double cx, double cy)
     return out;
 }
 
+/* clearance_below's set-up for the call: it leaves shapes out only if every number of the
+ * static world is finite (then, for a finite point, so is every shape's clearance) and each
+ * box's (cos, sin) is a unit vector; tol, the allowance its bounds keep for rounding, is
+ * 1e-9 of the world's scale, far above the few ulps of it that the clearances and the
+ * bounds can each be off by. */
+static void cull_setup(Statics *s)
+{
+    double scale = 1.0 + fabs(s->half[0]) + fabs(s->half[1]), big = 0.0, all = scale;
+    int unit = 1;      /* the boxes' bounding squares below need cos^2 + sin^2 = 1 */
+    for (int64_t b = 0; b < s->nbox; b++) {
+        unit &= fabs(s->box_cos[b] * s->box_cos[b] + s->box_sin[b] * s->box_sin[b] - 1.0) < 1e-9;
+        double m = fabs(s->box_c[2 * b]) + fabs(s->box_c[2 * b + 1]) + fabs(s->box_cos[b])
+                   + fabs(s->box_sin[b]) + fabs(s->box_half[2 * b]) + fabs(s->box_half[2 * b + 1]);
+        big = m > big ? m : big;
+        all += m;                               /* NaN or inf if any number is */
+    }
+    for (int64_t c = 0; c < s->ncirc; c++) {
+        double m = fabs(s->circ_c[2 * c]) + fabs(s->circ_c[2 * c + 1]) + fabs(s->circ_r[c]);
+        big = m > big ? m : big;
+        all += m;
+    }
+    s->cull = isfinite(all) && unit;
+    s->tol = 1e-9 * (scale + big);
+}
+
+/* A grid over the floor listing, per cell, the shapes whose bound (clearance_below) can
+ * come within r of a point of the cell: built for a call (grid_build), so that each robot
+ * tries the few shapes near it instead of all. */
+#define GRID_SIDE 32            /* cells along each side, at most */
+#define GRID_STACK 4096         /* entries kept on the stack; more are malloc'd */
+#define GRID_CELL_R 4.0         /* a cell's side, at least, in footprint radii */
+/* robots x shapes below which trying every shape costs less than building a grid
+ * (measured: 48 robots and 74 shapes of the swarm world gain nothing, 96 and 146 do) */
+#define GRID_MIN_WORK 8192
+typedef struct {
+    int64_t nx, ny;             /* 0: no grid, every shape is tried */
+    double x0, y0, inv;         /* a point's cell: floor((x - x0) * inv), clamped */
+    int32_t start[GRID_SIDE * GRID_SIDE + 1];   /* cell c's shapes: idx[start[c]..start[c+1]) */
+    int32_t *idx;               /* shape j: a box if j < nbox, else circle j - nbox */
+    int32_t here[GRID_STACK];
+} Grid;
+
+/* The column (or row) of coordinate x: floor((x - x0) * inv) clamped to [0, n): a
+ * non-decreasing function of x, in floating point too. */
+static inline int64_t grid_at(double x, double x0, double inv, int64_t n)
+{
+    double f = floor((x - x0) * inv);
+    return f < 0.0 ? 0 : f >= (double)n ? n - 1 : (int64_t)f;
+}
+
+/* Shape j's clearance from (cx, cy) into *out if lower, unless its bound shows it is above
+ * *cut (then it is not the minimum below r); *cut follows *out. */
+static inline void shape_below(const Statics *s, int64_t j, double cx, double cy, double r,
+                               double *out, double *cut)
+{
+    double d;
+    if (j < s->nbox) {
+        double dx = cx - s->box_c[2 * j], dy = cy - s->box_c[2 * j + 1];
+        double reach = s->box_half[2 * j] + s->box_half[2 * j + 1];
+        if (fabs(dx) - reach > *cut || fabs(dy) - reach > *cut)
+            return;
+        double qx = np_max(fabs(dx * s->box_cos[j] + dy * s->box_sin[j])
+                           - s->box_half[2 * j], 0.0);
+        double qy = np_max(fabs(-dx * s->box_sin[j] + dy * s->box_cos[j])
+                           - s->box_half[2 * j + 1], 0.0);
+        d = hypot(qx, qy);
+    } else {
+        int64_t c = j - s->nbox;
+        double dx = cx - s->circ_c[2 * c], dy = cy - s->circ_c[2 * c + 1];
+        if (fabs(dx) - s->circ_r[c] > *cut || fabs(dy) - s->circ_r[c] > *cut)
+            return;
+        d = np_max(hypot(dx, dy) - s->circ_r[c], 0.0);
+    }
+    if (d < *out) {
+        *out = d;
+        *cut = (d < r ? d : r) + s->tol;
+    }
+}
+
+/* The footprint test needs a clearance exactly only where it is below the footprint's
+ * radius r: clearance_below(s, g, cx, cy, r) equals clearance(s, cx, cy) whenever that is
+ * below r, and is at least r otherwise. It leaves out the shapes that cannot come that
+ * close: a box's clearance is at least the point's distance to the box's bounding square
+ * (half side hx + hy round its centre), at least max(|dx|, |dy|) - (hx + hy); a circle's at
+ * least max(|dx|, |dy|) - radius (hypot is at least either side). A shape whose bound
+ * exceeds r, or the least clearance found so far, by more than tol is not the minimum; g
+ * (if it has cells) lists the shapes that can pass that test in the point's cell. The walls
+ * come first: where they are at or below 0 (on or beyond a wall) no shape (clearance >= 0)
+ * is lower. A point that is not finite, or a world with a number that is not, takes the
+ * whole clearance (its NaNs and infinities as they are). Only the value matters to the
+ * caller, which compares it: a zero's sign may differ. */
+static double clearance_below(const Statics *s, const Grid *g, double cx, double cy, double r)
+{
+    if (!s->cull || !isfinite(cx) || !isfinite(cy) || !isfinite(r))
+        return clearance(s, cx, cy);
+    double out = np_min(s->half[0] - fabs(cx), s->half[1] - fabs(cy));
+    if (!(out > 0.0))
+        return out;
+    double cut = (out < r ? out : r) + s->tol;
+    if (g->nx) {
+        int64_t c = grid_at(cy, g->y0, g->inv, g->ny) * g->nx + grid_at(cx, g->x0, g->inv, g->nx);
+        for (int32_t k = g->start[c]; k < g->start[c + 1]; k++)
+            shape_below(s, g->idx[k], cx, cy, r, &out, &cut);
+    } else {
+        for (int64_t j = 0; j < s->nbox + s->ncirc; j++)
+            shape_below(s, j, cx, cy, r, &out, &cut);
+    }
+    return out;
+}
+
+/* Fills g for the call, or leaves it without cells (every shape tried) where a grid cannot
+ * pay (few robots or shapes), for a world clearance_below does not cull, or without memory.
+ * Cells of at least GRID_CELL_R r, at most GRID_SIDE a side, over the floor. A shape is
+ * listed in the cells from those of its centre -/+ (its bound's reach + r + 2 tol) along x
+ * and y: a point whose shape bound is within r + tol has its coordinates within those,
+ * so (grid_at being non-decreasing) its cell among them. Pass 0 counts each cell's shapes,
+ * pass 1 lists them in shape order. */
+static void grid_build(Grid *g, const Statics *s, double r, int64_t robots)
+{
+    int64_t shapes = s->nbox + s->ncirc;
+    g->nx = g->ny = 0;
+    g->idx = g->here;
+    if (!s->cull || !isfinite(r) || r < 0.0 || shapes > INT32_MAX
+        || (double)robots * (double)shapes < GRID_MIN_WORK)
+        return;
+    double w = 2.0 * fabs(s->half[0]), h = 2.0 * fabs(s->half[1]);
+    double side = fmax(fmax(w, h) / GRID_SIDE, GRID_CELL_R * r);
+    if (!(side > 0.0))
+        return;
+    double x0 = -fabs(s->half[0]), y0 = -fabs(s->half[1]), inv = 1.0 / side;
+    int64_t nx = (int64_t)fmin(fmax(ceil(w * inv), 1.0), GRID_SIDE);
+    int64_t ny = (int64_t)fmin(fmax(ceil(h * inv), 1.0), GRID_SIDE);
+    int64_t cells = nx * ny;
+    double margin = r * (1.0 + 1e-9) + 2.0 * s->tol;     /* (r's own rounding too) */
+    int32_t *count = g->start;          /* pass 0: count[c + 1] the shapes of cell c */
+    for (int64_t c = 0; c <= cells; c++)
+        count[c] = 0;
+    int32_t *idx = NULL;
+    for (int pass = 0; pass < 2; pass++) {
+        for (int64_t j = 0; j < shapes; j++) {
+            int64_t k = j - s->nbox;
+            double x = j < s->nbox ? s->box_c[2 * j] : s->circ_c[2 * k];
+            double y = j < s->nbox ? s->box_c[2 * j + 1] : s->circ_c[2 * k + 1];
+            double reach = j < s->nbox ? s->box_half[2 * j] + s->box_half[2 * j + 1]
+                                       : s->circ_r[k];
+            int64_t ax = grid_at(x - reach - margin, x0, inv, nx);
+            int64_t bx = grid_at(x + reach + margin, x0, inv, nx);
+            int64_t ay = grid_at(y - reach - margin, y0, inv, ny);
+            int64_t by = grid_at(y + reach + margin, y0, inv, ny);
+            for (int64_t iy = ay; iy <= by; iy++)
+                for (int64_t ix = ax; ix <= bx; ix++) {
+                    int64_t c = iy * nx + ix;
+                    if (pass == 0)
+                        count[c + 1]++;
+                    else
+                        idx[count[c]++] = (int32_t)j;
+                }
+        }
+        if (pass == 0) {
+            for (int64_t c = 0; c < cells; c++) {   /* count[c]: cell c's first entry */
+                if (count[c + 1] > INT32_MAX - count[c])
+                    return;
+                count[c + 1] += count[c];
+            }
+            idx = count[cells] <= GRID_STACK ? g->here : malloc((size_t)count[cells] * 4);
+            if (!idx)
+                return;
+        }
+    }
+    /* pass 1 left count[c] at cell c's end, the next cell's start: shift back by one */
+    for (int64_t c = cells; c > 0; c--)
+        count[c] = count[c - 1];
+    count[0] = 0;
+    g->nx = nx;
+    g->ny = ny;
+    g->x0 = x0;
+    g->y0 = y0;
+    g->inv = inv;
+    g->idx = idx;
+}
+
+static void grid_free(Grid *g)
+{
+    if (g->idx != g->here)
+        free(g->idx);
+}
+
 /* Footprints.clearances of n points pts (n, 2) into out (n). */
 EXPORT void plant_clearances(int64_t n, const double *pts, int64_t nbox, const double *box_c,
                              const double *box_cos, const double *box_sin,
                              const double *box_half, int64_t ncirc, const double *circ_c,
                              const double *circ_r, const double *half, double *out)
 {
-    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half};
+    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half, 0.0, 0};
     for (int64_t i = 0; i < n; i++)
         out[i] = clearance(&s, pts[2 * i], pts[2 * i + 1]);
 }
+
+/* Up to this many robots a call's scratch is on the stack (~32 kB), more are malloc'd. */
+#define STACK_ROBOTS 256
 
 /* A robot of the sort below: its world, its new footprint centre's x, its index. */
 typedef struct {
@@ -73,14 +268,36 @@ typedef struct {
     int64_t i;
 } Near;
 
-static int near_order(const void *pa, const void *pb)
+static int near_before(const Near *a, const Near *b)
 {
-    const Near *a = pa, *b = pb;
     if (a->world != b->world)
-        return a->world < b->world ? -1 : 1;
+        return a->world < b->world;
     if (a->x != b->x)
-        return a->x < b->x ? -1 : 1;
-    return a->i < b->i ? -1 : (a->i > b->i);
+        return a->x < b->x;
+    return a->i < b->i;
+}
+
+/* Sorts e[0..k) by near_before (a strict total order: the indices differ), a bottom-up merge
+ * sort through tmp (k entries): qsort would malloc its own scratch for a crowd. Returns the
+ * array holding the result (e or tmp). */
+static Near *sort_near(Near *e, Near *tmp, int64_t k)
+{
+    for (int64_t w = 1; w < k; w *= 2) {
+        for (int64_t lo = 0; lo < k; lo += 2 * w) {
+            int64_t mid = lo + w < k ? lo + w : k, hi = lo + 2 * w < k ? lo + 2 * w : k;
+            int64_t a = lo, b = mid, o = lo;
+            while (a < mid && b < hi)
+                tmp[o++] = near_before(&e[b], &e[a]) ? e[b++] : e[a++];
+            while (a < mid)
+                tmp[o++] = e[a++];
+            while (b < hi)
+                tmp[o++] = e[b++];
+        }
+        Near *t = e;
+        e = tmp;
+        tmp = t;
+    }
+    return e;
 }
 
 /* The robot-robot test: robot i (not already blocked, m[10 i + 9]) is blocked if another
@@ -94,9 +311,11 @@ static int near_order(const void *pa, const void *pb)
  * NaN or inf) and is left out. Returns 0, or -1 if out of memory. */
 static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
 {
-    Near *e = malloc((size_t)n * sizeof(Near));
-    if (!e)
+    Near here[2 * STACK_ROBOTS];
+    Near *held = n <= STACK_ROBOTS ? here : malloc((size_t)n * 2 * sizeof(Near));
+    if (!held)
         return -1;
+    Near *e = held;
     int64_t k = 0;
     for (int64_t i = 0; i < n; i++) {
         if (isnan(m[10 * i + 7]))
@@ -106,7 +325,7 @@ static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
         e[k].i = i;
         k++;
     }
-    qsort(e, (size_t)k, sizeof(Near), near_order);
+    e = sort_near(e, held + n, k);
     for (int64_t p = 0; p < k; p++) {
         double *a = m + 10 * e[p].i;
         if (a[9] != 0.0)
@@ -125,7 +344,8 @@ static int robot_pairs(int64_t n, double *m, const int64_t *world, double two_r)
             }
         }
     }
-    free(e);
+    if (held != here)
+        free(held);
     return 0;
 }
 
@@ -143,9 +363,13 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
                                 const double *circ_r, const double *half, double foot_r,
                                 double centre_x, int64_t pairs)
 {
-    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half};
+    Statics s = {nbox, ncirc, box_c, box_cos, box_sin, box_half, circ_c, circ_r, half, 0.0, 0};
+    cull_setup(&s);
+    Grid g;
+    grid_build(&g, &s, foot_r, n);
     /* per robot: v, w, nx, ny, nyaw, old centre (x, y), new centre (x, y), blocked */
-    double *m = malloc((size_t)(n > 0 ? n : 1) * 10 * sizeof(double));
+    double here[STACK_ROBOTS * 10];
+    double *m = n <= STACK_ROBOTS ? here : malloc((size_t)n * 10 * sizeof(double));
     if (!m)
         return -1;
     for (int64_t i = 0; i < n; i++) {
@@ -169,12 +393,16 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
         q[6] = y + centre_x * sin(yaw);
         q[7] = nx + centre_x * cos(nyaw);
         q[8] = ny + centre_x * sin(nyaw);
-        double c_old = clearance(&s, q[5], q[6]);
-        double c_new = clearance(&s, q[7], q[8]);
-        q[9] = (c_new < foot_r) && (c_new < c_old);
+        /* blocked by the room: (c_new < foot_r) && (c_new < c_old), c_old only wanted when
+         * c_new < foot_r; where c_old >= foot_r, clearance_below's value (also >= foot_r)
+         * answers the same */
+        double c_new = clearance_below(&s, &g, q[7], q[8], foot_r);
+        q[9] = (c_new < foot_r) && (c_new < clearance_below(&s, &g, q[5], q[6], foot_r));
     }
+    grid_free(&g);
     if (pairs && n > 1 && robot_pairs(n, m, world, 2 * foot_r) != 0) {
-        free(m);
+        if (m != here)
+            free(m);
         return -1;
     }
     for (int64_t i = 0; i < n; i++) {
@@ -192,6 +420,7 @@ EXPORT int plant_kinematic_step(int64_t n, double T, const double *targets,
             speeds[2 * i + k] = targets[2 * i + k];
         }
     }
-    free(m);
+    if (m != here)
+        free(m);
     return 0;
 }

@@ -294,3 +294,121 @@ def test_footprint_clearances_kernel_gives_the_numpy_reference_to_the_bit(world)
     assert got.tobytes() == want.tobytes()
     assert np.isnan(got[-3]) and np.isnan(got[-2]) and np.isfinite(got[-1])
     assert (got <= 0).any() and (got > 0.5).any()        # beyond a wall and far from all
+
+
+def _centres_at_the_edge(rng, foot, n: int, others: np.ndarray) -> np.ndarray:
+    """n footprint centres each about one footprint radius (give or take nothing to a few
+    mm) from a wall, a box, a circle or another robot's centre of ``others`` (two radii)."""
+    from plant.footprint import FOOTPRINT_RADIUS_M as R
+    gap = R + rng.choice([0.0, 1e-12, -1e-12, 1e-9, -1e-9, 1e-6, -1e-6, 3e-3, -3e-3], n)
+    axis = rng.random(n) < 0.3                  # along an axis: a bound as tight as it gets
+    a = np.where(axis, rng.integers(0, 4, n) * (math.pi / 2), rng.uniform(-math.pi, math.pi, n))
+    u = np.column_stack([np.cos(a), np.sin(a)])
+    out = np.empty((n, 2))
+    for i in range(n):
+        kind = rng.integers(0, 4)
+        if kind == 0 and len(foot.circ_c):
+            c = rng.integers(len(foot.circ_c))
+            out[i] = foot.circ_c[c] + (foot.circ_r[c] + gap[i]) * u[i]
+        elif kind == 1 and len(foot.box_c):
+            b = rng.integers(len(foot.box_c))
+            h = foot.box_half[b]
+            p = np.clip(rng.uniform(-1.5, 1.5, 2) * h, -h, h)     # on a side or a corner
+            p = p + gap[i] * u[i] if axis[i] else np.sign(u[i]) * h + gap[i] * np.abs(u[i])
+            c, s = foot.box_cos[b], foot.box_sin[b]
+            out[i] = foot.box_c[b] + [c * p[0] - s * p[1], s * p[0] + c * p[1]]
+        elif kind == 2:
+            out[i] = [rng.choice([-1, 1]) * (foot.half[0] - gap[i]),
+                      rng.uniform(-foot.half[1], foot.half[1])]
+        else:
+            out[i] = others[rng.integers(len(others))] + (gap[i] + R) * u[i]
+    return out
+
+
+def _circles_on_grid_lines(rng, foot, centres: np.ndarray) -> None:
+    """Moves circles (in place) so that their reach plus a footprint radius ends, give or take
+    a hair, on a line of a 32 x 32 grid over the floor (the cells the kernel's grid has in a
+    room this size), and puts ``centres`` just inside or outside that reach, across the line
+    from the circle or not: a circle must be listed in every cell such a centre can be in."""
+    from plant.footprint import FOOTPRINT_RADIUS_M as R
+    m = len(centres)
+    pick = rng.choice(len(foot.circ_c), m, replace=False)
+    axis, sign = rng.integers(0, 2, m), rng.choice([-1.0, 1.0], m)
+    for i, c in enumerate(pick):
+        a, half, r = axis[i], foot.half[axis[i]], foot.circ_r[c]
+        line = -half + rng.integers(2, 31) * (2 * half / 32)
+        foot.circ_c[c, a] = line - sign[i] * (r + R) + rng.choice([0.0, 1e-9, -1e-9, 5e-4, -5e-4])
+        foot.circ_c[c, 1 - a] = rng.uniform(-half + 1, half - 1)
+        centres[i] = foot.circ_c[c]
+        centres[i, a] += sign[i] * (r + R + rng.choice([-1e-12, -1e-9, -1e-6, 1e-9, -4e-4]))
+
+
+@pytest.mark.parametrize("world", ["swarm96", "crowd288", "many_circles", "living_room_batch",
+                                   "empty_batch", "nan_statics"])
+def test_kinematic_kernel_at_the_footprints_edge_gives_the_reference_to_the_bit(world, tmp_path):
+    """The kernel only computes a clearance exactly where it can be below the footprint's
+    radius (bounds, a grid of the shapes near each cell of the floor for crowds, the old
+    centre's clearance only when the new one is below): robots put within a hair of the
+    radius from walls, boxes, circles and each other (exactly on it, 1e-12 m, 1e-9 m, 1e-6
+    m, 3 mm in or out), barely moving or driving, NaN and infinite poses and centres now and
+    then (a finite one driven to infinity), in the 96-robot swarm world (its grid; circles
+    moved onto its cells' edges), three copies of it (288 robots: scratch beyond the
+    stack's), it with 2000 more circles (a grid beyond the stack's), copies of the two-robot
+    living room, an empty room and a room whose statics hold a NaN (nothing left out):
+    plant.kinematic.reference_step, which tries every shape, gives the same arrays to the
+    bit, and both sides of the edge are taken."""
+    from types import SimpleNamespace
+
+    from plant import kinematic
+    from plant.footprint import CHASSIS_CENTRE_X_M
+    from plant.swarm_world import write_swarm_world
+    if world in ("swarm96", "crowd288", "many_circles"):
+        spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 96, seed=0, mode="kinematic"))
+        k = kinematic.Kinematics(spec)
+        if world == "crowd288":                     # more robots than the stack scratch holds
+            k = kinematic.join([k] + [kinematic.Kinematics(spec) for _ in range(2)])
+        if world == "many_circles":                 # more grid entries than the stack holds
+            foot, extra = k.foot, np.random.default_rng(3).uniform(-16.0, 16.0, (2000, 2))
+            foot.circ_c = np.concatenate([foot.circ_c, extra])
+            foot.circ_r = np.concatenate([foot.circ_r, np.full(2000, 0.05)])
+            foot._kernel_args = None
+    else:
+        spec = load_world("empty" if world == "empty_batch" else "living_room_follow",
+                          ["world.mode=kinematic"])
+        k = kinematic.join([kinematic.Kinematics(spec) for _ in range(8)])
+    if world == "nan_statics":
+        k.foot.circ_r[0] = np.nan                   # (its kernel_args are the same arrays)
+    n = len(k.pose)
+    rng = np.random.default_rng(57)
+    fields = ("pose", "wheels", "speeds", "vel", "radius", "separation", "world")
+    blocked = moved = 0
+    for trial in range(20 if world in ("crowd288", "many_circles") else 60):
+        centres = _centres_at_the_edge(rng, k.foot, n, k.pose[:, :2])
+        if world != "living_room_batch" and world != "empty_batch" and world != "nan_statics":
+            _circles_on_grid_lines(rng, k.foot, centres[:24])
+        yaw = rng.uniform(-math.pi, math.pi, n)
+        k.pose[:] = np.column_stack([centres[:, 0] - CHASSIS_CENTRE_X_M * np.cos(yaw),
+                                     centres[:, 1] - CHASSIS_CENTRE_X_M * np.sin(yaw), yaw])
+        if trial % 4 == 0:
+            bad = rng.integers(0, n, 3)
+            k.pose[bad, rng.integers(0, 2, 3)] = [np.nan, np.inf, -np.inf]
+            k.pose[bad[2], :2] = [np.inf, -np.inf]         # inf - inf: NaN clearances
+        speed = 10.0 ** rng.uniform(-9, 1, (n, 1))          # a nm to centimetres a tick
+        targets = rng.uniform(-1.0, 1.0, (n, 2)) * speed
+        if trial % 4 == 1:          # from a finite centre to (inf, -inf): NaN by a box at yaw 0
+            j = rng.integers(0, n)
+            k.pose[j, 2], targets[j] = rng.uniform(-1.5, -0.1), 1e308
+        ref = SimpleNamespace(**{f: getattr(k, f).copy() for f in fields},
+                              tick_s=k.tick_s, foot=k.foot)
+        before = k.pose.copy()
+        with np.errstate(invalid="ignore", over="ignore"):
+            kinematic.reference_step(ref, targets)
+        kinematic.step_arrays(k, targets)
+        for f in fields:
+            assert getattr(k, f).tobytes() == getattr(ref, f).tobytes(), (trial, f)
+        fine = np.isfinite(before).all(axis=1)
+        still = (k.pose == before).all(axis=1)
+        blocked += int((fine & still).sum())
+        moved += int((fine & ~still).sum())
+    least = n // 2 if world == "nan_statics" else n    # (there only robots block robots)
+    assert blocked > least and moved > 3 * n, (blocked, moved)
