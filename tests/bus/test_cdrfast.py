@@ -40,6 +40,7 @@ def same(a, b) -> bool:
 def messages():
     rng = random.Random(3)
     vals = [0.0, -0.0, 1.5, -2.25e-300, float("nan"), float("inf"), -float("inf"), 1e300]
+    f32 = [0.0, -0.0, 1.5, 1e-40, float("nan"), float("inf"), -float("inf"), 3e38]
     for i in range(6):
         v = [rng.choice(vals) if i % 3 == 0 else rng.uniform(-10, 10) for _ in range(6)]
         frame = ["", "odom", "r1/odom", "ödöm", "x" * (i + 1)][i % 5]
@@ -58,9 +59,14 @@ def messages():
                                 effort=v[:i % 3]), "sensor_msgs/msg/JointState"
         yield codec.twist_stamped(rng.randrange(0, 10**12), v[0], v[1], frame), \
             "geometry_msgs/msg/TwistStamped"
+        scan = codec.laser_scan(rng.randrange(0, 10**12), -v[0], v[1], 0.1, 0.1, 0.05, 8.0,
+                                [rng.choice(f32) for _ in range(i + n)], frame_id=frame)
+        scan.time_increment = v[2]
+        scan.intensities = np.array(v[:i % 3], np.float32)
+        yield scan, "sensor_msgs/msg/LaserScan"
 
 
-@pytest.mark.parametrize("i", range(18))
+@pytest.mark.parametrize("i", range(24))
 def test_a_fast_decode_equals_rosbags_on_valid_truncated_extended_and_corrupted_bytes(i):
     msg, msgtype = list(messages())[i]
     data = codec.encode(msg)
