@@ -6,8 +6,8 @@ line (:func:`bus.node.capture_member`), runs here with the same rules as over Ze
 composed member is a :class:`bus.member.MemberTick`, exactly as a process member's; only
 the wire differs: the plant hands it the bytes it publishes (and the bytes other members
 send it) directly, decoded as a process would decode them, and takes what it sends back as
-bytes with the same attachment, through the same path as a message from Zenoh (the ACK
-ledger, the command checks). The host also puts those outputs on the bus and holds each
+bytes with the same attachment, a tick's answer in one call, with the effects its messages
+would have one by one from Zenoh (the ACK ledger, the command checks). The host also puts those outputs on the bus and holds each
 member's liveliness tokens (``sim/alive/<node>``, ``sim/sync/<node>``) on the plant's
 session, so a recorder, a live view, a ROS 2 bridge or process members beside composed ones
 see the same bus as when every member is a process. A composed run's recording equals the

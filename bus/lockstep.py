@@ -211,10 +211,11 @@ class AckLedger:
 
     def file_many(self, msgs: list[tuple[str, str, codec.Attachment | None, bytes | None]],
                   now_ns: int) -> list[bool]:
-        """:meth:`file` of each ``(key, topic, att, raw)`` in order, for one member's answer
-        to one tick (a composed member's: every message from the same member, for the same
-        tick), with what they share checked once: the same filing, ACK and reports as
-        :meth:`file` message by message (which it is, where anything is to be reported)."""
+        """Section 4, steps 3-4: :meth:`file` of each ``(key, topic, att, raw)`` in order,
+        for one member's answer to one tick (a composed member's: every message from the
+        same member, for the same tick), with what they share checked once: the same
+        filing, ACK and reports as :meth:`file` message by message (which it is, where
+        anything is to be reported)."""
         first = msgs[0][2] if msgs else None
         if first is None or not self._plain(first, now_ns) or any(
                 a is None or a.node != first.node or a.t_ns != first.t_ns
