@@ -7,9 +7,9 @@ composed member is a :class:`bus.member.MemberTick`, exactly as a process member
 the wire differs: the plant hands it the bytes it publishes (and the bytes other members
 send it) directly, decoded as a process would decode them, and takes what it sends back as
 bytes with the same attachment, a tick's answer in one call, with the effects its messages
-would have one by one from Zenoh (the ACK ledger, the command checks). The host also puts those outputs on the bus and holds each
-member's liveliness tokens (``sim/alive/<node>``, ``sim/sync/<node>``) on the plant's
-session, so a recorder, a live view, a ROS 2 bridge or process members beside composed ones
+would have one by one from Zenoh (the ACK ledger, the command checks). The host also puts
+those outputs on the bus and holds each member's liveliness tokens (``sim/alive/<node>``,
+``sim/sync/<node>``) on the plant's session, so a recorder, a live view, a ROS 2 bridge or process members beside composed ones
 see the same bus as when every member is a process. A composed run's recording equals the
 all-process run's, byte for byte (docs/scenarios.md, "Composed members").
 

@@ -67,9 +67,7 @@ class Slot:
     periods: dict[str, int] = field(default_factory=dict)
     awaited: list[str] = field(default_factory=list)
     done: bool = False
-    #: take_observation's plan: (periods, lag_ns, tick_ns it was made of, [(input, its
-    #: key, its lag, how old a sample may be)]), made again when the member is configured
-    plan: tuple | None = None
+    plan: tuple | None = None     # take_observation's (input, key, lag, max age) per config
 
 
 def make_slots(controller, robots: list[str], topics: dict) -> list[Slot]:
@@ -338,8 +336,7 @@ class MemberTick:
         and the tick's stamps are marked used."""
         msgs = {}
         plan = slot.plan
-        if (plan is None or plan[0] is not slot.periods or plan[1] is not self.lag_ns
-                or plan[2] != self.tick_ns):
+        if plan is None or plan[:3] != (slot.periods, self.lag_ns, self.tick_ns):
             plan = slot.plan = (slot.periods, self.lag_ns, self.tick_ns, [
                 (t, self.key(slot.robot, t), self.lag_ns[t],
                  max(STALE_S * 1e9, 3 * slot.periods.get(t, 1) * self.tick_ns))
