@@ -9,9 +9,10 @@ send it) directly, decoded as a process would decode them, and takes what it sen
 bytes with the same attachment, a tick's answer in one call, with the effects its messages
 would have one by one from Zenoh (the ACK ledger, the command checks). The host also puts
 those outputs on the bus and holds each member's liveliness tokens (``sim/alive/<node>``,
-``sim/sync/<node>``) on the plant's session, so a recorder, a live view, a ROS 2 bridge or process members beside composed ones
-see the same bus as when every member is a process. A composed run's recording equals the
-all-process run's, byte for byte (docs/scenarios.md, "Composed members").
+``sim/sync/<node>``) on the plant's session, so a recorder, a live view, a ROS 2 bridge or
+process members beside composed ones see the same bus as when every member is a process. A
+composed run's recording equals the all-process run's, byte for byte (docs/scenarios.md,
+"Composed members").
 
 A composed member must not block in ``step`` (it holds the plant's tick) nor keep threads
 of its own; one whose ``step`` raises is stopped and leaves as a crashed process would.
