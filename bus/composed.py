@@ -219,8 +219,7 @@ def _attachments(seq: int, t_ns: int, sent: Sent,
     """:func:`bus.codec.attachment_parsed` of each message of a tick's ``sent`` (numbered
     from ``seq`` + 1), the name's bytes and each trailer made once."""
     name = node.encode("utf-8") if node is not None else b""
-    if node is None or not 0 < len(name) <= codec.NAME_MAX or any(
-            flags & codec.FINAL and codec.hold_of(flags) for _, _, flags, _ in sent):
+    if node is None or not 0 < len(name) <= codec.NAME_MAX:
         return [codec.attachment_parsed(seq + i, t_ns, flags, n_plant, node)
                 for i, (_, _, flags, n_plant) in enumerate(sent, 1)]
     head, trailer, tails = codec.ATTACHMENT.pack, codec.TRAILER.pack, {}
@@ -229,6 +228,9 @@ def _attachments(seq: int, t_ns: int, sent: Sent,
     for i, (_, _, flags, n_plant) in enumerate(sent, 1):
         tail = tails.get((flags, n_plant))
         if tail is None:
+            if flags & codec.FINAL and codec.hold_of(flags):     # (parses as nothing)
+                return [codec.attachment_parsed(seq + j, t_ns, f, n, node)
+                        for j, (_, _, f, n) in enumerate(sent, 1)]
             tail = tails[(flags, n_plant)] = trailer(flags, n_plant, len(name)) + name
         s = (seq + i) & mask
         out.append((head(s, t_ns) + tail, codec.Attachment(s, t_ns, flags, n_plant, node)))
