@@ -6,12 +6,13 @@ line (:func:`bus.node.capture_member`), runs here with the same rules as over Ze
 composed member is a :class:`bus.member.MemberTick`, exactly as a process member's; only
 the wire differs: the plant hands it the bytes it publishes (and the bytes other members
 send it) directly, decoded as a process would decode them, and takes what it sends back as
-bytes with the same attachment, through the same path as a message from Zenoh (the ACK
-ledger, the command checks). The host also puts those outputs on the bus and holds each
-member's liveliness tokens (``sim/alive/<node>``, ``sim/sync/<node>``) on the plant's
-session, so a recorder, a live view, a ROS 2 bridge or process members beside composed ones
-see the same bus as when every member is a process. A composed run's recording equals the
-all-process run's, byte for byte (docs/scenarios.md, "Composed members").
+bytes with the same attachment, a tick's answer in one call, with the effects its messages
+would have one by one from Zenoh (the ACK ledger, the command checks). The host also puts
+those outputs on the bus and holds each member's liveliness tokens (``sim/alive/<node>``,
+``sim/sync/<node>``) on the plant's session, so a recorder, a live view, a ROS 2 bridge or
+process members beside composed ones see the same bus as when every member is a process. A
+composed run's recording equals the all-process run's, byte for byte (docs/scenarios.md,
+"Composed members").
 
 A composed member must not block in ``step`` (it holds the plant's tick) nor keep threads
 of its own; one whose ``step`` raises is stopped and leaves as a crashed process would.
@@ -32,10 +33,10 @@ from .log import RejectCounter
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 
-#: emit(key, payload, attachment, the attachment as parse_attachment reads it, a command's
-#: (stamp, linear, angular) the payload was packed from or None): a composed member's
-#: message, handed to the plant
-Emit = Callable[[str, bytes, bytes, codec.Attachment | None, tuple | None], None]
+#: emit([(key, payload, attachment, the attachment as parse_attachment reads it, a command's
+#: (stamp, linear, angular) the payload was packed from or None), ...]): a composed member's
+#: messages for one tick, in order, handed to the plant in one call
+Emit = Callable[[list[tuple[str, bytes, bytes, codec.Attachment | None, tuple | None]]], None]
 
 
 class _Hosted:
@@ -183,16 +184,20 @@ class Composed:
         return finished
 
     def _send(self, h: _Hosted, sent: Sent, t_ns: int, emit: Emit) -> None:
+        if not sent:
+            return
         name = h.name if h.member.sync else None
-        published, make, twists = h.published, codec.attachment_parsed, h.member.twists
+        published, twists = h.published, h.member.twists
         seq = h.seq
-        for key, payload, flags, n_plant in sent:
-            seq += 1
+        msgs = []
+        for (key, payload, _, _), (att, parsed) in zip(sent, _attachments(seq, t_ns, sent,
+                                                                          name)):
             tw = twists.get(key)            # (the values of these very bytes, if a Twist's)
-            emit(key, payload, *make(seq, t_ns, flags, n_plant, name),
-                 tw[1:] if tw is not None and tw[0] is payload else None)
+            msgs.append((key, payload, att, parsed,
+                         tw[1:] if tw is not None and tw[0] is payload else None))
             published[key] = published.get(key, 0) + 1
-        h.seq = seq
+        h.seq = seq + len(sent)
+        emit(msgs)
 
     def close(self) -> None:
         """The run ended: every member leaves, its controllers are closed and its
@@ -207,3 +212,26 @@ class Composed:
                 except Exception as exc:
                     h.log.error("closing %s: %s", h.name, exc)
             write_stats(h.spec.stats, stats, h.log)
+
+
+def _attachments(seq: int, t_ns: int, sent: Sent,
+                 node: str | None) -> list[tuple[bytes, codec.Attachment | None]]:
+    """:func:`bus.codec.attachment_parsed` of each message of a tick's ``sent`` (numbered
+    from ``seq`` + 1), the name's bytes and each trailer made once."""
+    name = node.encode("utf-8") if node is not None else b""
+    if node is None or not 0 < len(name) <= codec.NAME_MAX:
+        return [codec.attachment_parsed(seq + i, t_ns, flags, n_plant, node)
+                for i, (_, _, flags, n_plant) in enumerate(sent, 1)]
+    head, trailer, tails = codec.ATTACHMENT.pack, codec.TRAILER.pack, {}
+    out = []
+    mask = 0xFFFFFFFFFFFFFFFF
+    for i, (_, _, flags, n_plant) in enumerate(sent, 1):
+        tail = tails.get((flags, n_plant))
+        if tail is None:
+            if flags & codec.FINAL and codec.hold_of(flags):     # (parses as nothing)
+                return [codec.attachment_parsed(seq + j, t_ns, f, n, node)
+                        for j, (_, _, f, n) in enumerate(sent, 1)]
+            tail = tails[(flags, n_plant)] = trailer(flags, n_plant, len(name)) + name
+        s = (seq + i) & mask
+        out.append((head(s, t_ns) + tail, codec.Attachment(s, t_ns, flags, n_plant, node)))
+    return out

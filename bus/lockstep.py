@@ -173,6 +173,8 @@ class AckLedger:
              now_ns: int) -> bool:
         """File one message on a plant-read key or ``sim/ack/<node>`` (section 4, steps 3-4;
         section 7 for what is wrong with it). False if it is not to be used at all."""
+        if self._plain(att, now_ns):             # (nothing to report: the usual case)
+            return self._take(key, topic, att)
         if att is None or att.node is None:
             if topic == "odom":                  # a realtime-style odometry node: not ours
                 return False
@@ -205,6 +207,37 @@ class AckLedger:
         if member not in self.members and member not in self.members_seen:
             self.report(f"{key}: from {member!r}, not a lockstep member",
                         "(no sim/sync token); used, not waited for")
+        return self._take(key, topic, att)
+
+    def file_many(self, msgs: list[tuple[str, str, codec.Attachment | None, bytes | None]],
+                  now_ns: int) -> list[bool]:
+        """Section 4, steps 3-4: :meth:`file` of each ``(key, topic, att, raw)`` in order,
+        for one member's answer to one tick (a composed member's: every message from the
+        same member, for the same tick), with what they share checked once: the same
+        filing, ACK and reports as :meth:`file` message by message (which it is, where
+        anything is to be reported)."""
+        first = msgs[0][2] if msgs else None
+        if first is None or not self._plain(first, now_ns) or any(
+                a is None or a.node != first.node or a.t_ns != first.t_ns
+                for _, _, a, _ in msgs):
+            return [self.file(key, topic, att, raw, now_ns) for key, topic, att, raw in msgs]
+        take = self._take
+        return [take(key, topic, att) for key, topic, att, _ in msgs]
+
+    def _plain(self, att: codec.Attachment | None, now_ns: int) -> bool:
+        """Section 7: a message :meth:`file` takes with nothing to report about its
+        attachment: a lockstep member's (known) for a tick on the grid, due and not held."""
+        if att is None or att.node is None:
+            return False
+        member, t = att.node, att.t_ns
+        return ((not self.tick_ns or not t % self.tick_ns) and t <= now_ns
+                and (member in self.members or member in self.members_seen)
+                and self.holding(member, t) is None)
+
+    def _take(self, key: str, topic: str, att: codec.Attachment) -> bool:
+        """Section 4, steps 3-4: file a member's message whose attachment passed the checks
+        (first per key per tick; an ACK ends the member's answer)."""
+        member, t = att.node, att.t_ns
         # A member that left is not waited for, but its ACK is still filed: its FINAL may
         # arrive just after its sim/sync token went (liveliness and data take different
         # paths), and --end-with must still end the run at that tick.

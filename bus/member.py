@@ -67,7 +67,7 @@ class Slot:
     periods: dict[str, int] = field(default_factory=dict)
     awaited: list[str] = field(default_factory=list)
     done: bool = False
-    keys: list[tuple[str, str]] | None = None     # (input, its key), once asked
+    plan: tuple | None = None     # take_observation's (input, key, lag, max age) per config
 
 
 def make_slots(controller, robots: list[str], topics: dict) -> list[Slot]:
@@ -335,28 +335,30 @@ class MemberTick:
         input. Takes: the samples older than the one shown, and held marks, are dropped,
         and the tick's stamps are marked used."""
         msgs = {}
-        keys = slot.keys
-        if keys is None:
-            keys = slot.keys = [(t, self.key(slot.robot, t)) for t in slot.inputs]
-        for topic, key in keys:
-            buf = self.buf.get(key)
+        plan = slot.plan
+        if plan is None or plan[:3] != (slot.periods, self.lag_ns, self.tick_ns):
+            plan = slot.plan = (slot.periods, self.lag_ns, self.tick_ns, [
+                (t, self.key(slot.robot, t), self.lag_ns[t],
+                 max(STALE_S * 1e9, 3 * slot.periods.get(t, 1) * self.tick_ns))
+                for t in slot.inputs])
+        bufs, used = self.buf, self.used
+        for topic, key, lag, stale_ns in plan[3]:
+            buf = bufs.get(key)
             if not buf:
                 continue
-            upto = t_ns - self.lag_ns[topic]       # a lagged input never shows a newer sample
+            upto = t_ns - lag                      # a lagged input never shows a newer sample
             if len(buf) == 1:                      # (the usual case, shortly)
                 (s, m), = buf.items()
                 if s <= upto:
                     if m is _HELD:                 # a held mark alone: dropped
                         del buf[s]
-                    elif upto - s <= max(STALE_S * 1e9,
-                                         3 * slot.periods.get(topic, 1) * self.tick_ns):
+                    elif upto - s <= stale_ns:
                         msgs[topic] = m
-                self.used.add((key, upto))
+                used.add((key, upto))
                 continue
             good = [s for s, m in buf.items() if s <= upto and m is not _HELD]
             if good:
                 best = max(good)
-                stale_ns = max(STALE_S * 1e9, 3 * slot.periods.get(topic, 1) * self.tick_ns)
                 if upto - best <= stale_ns:
                     msgs[topic] = buf[best]
             else:
@@ -364,7 +366,7 @@ class MemberTick:
             for s in [s for s, m in buf.items()
                       if s <= upto and (s != best) and (best is None or s < best or m is _HELD)]:
                 del buf[s]
-            self.used.add((key, upto))
+            used.add((key, upto))
         if len(self.used) > 4 * BUF_PER_TOPIC * max(1, len(self.slot_of)):
             self.used = {(k, s) for k, s in self.used if s >= t_ns - self.tick_ns}
         return Observation(t_ns, slot.robot, msgs)

@@ -129,6 +129,32 @@ def twist_command(stamp_ns: int, linear: float, angular: float, drive, now_ns: i
                     drive, now_ns, tick_ns, check_age)
 
 
+class TwistCheck:
+    """:func:`twist_command`'s checks for one robot, its limits multiplied out once:
+    :meth:`ok` is True exactly where :func:`twist_command` would take the command (the same
+    comparisons of the same values); one it refuses goes through :func:`twist_command`,
+    for its error."""
+    __slots__ = ("lim_a", "lim_b", "tick_ns", "timeout_ns")
+
+    def __init__(self, drive, tick_ns: int, check_age: bool) -> None:
+        self.lim_a = ABSURD_FACTOR * drive.max_linear_mps
+        self.lim_b = ABSURD_FACTOR * drive.max_angular_radps
+        self.tick_ns = tick_ns
+        self.timeout_ns = drive.cmd_timeout_s * 1e9 if check_age else None
+
+    def ok(self, stamp_ns: int, linear: float, angular: float, now_ns: int) -> bool:
+        """Whether ``twist_command(stamp_ns, linear, angular, ...)`` at ``now_ns`` takes it:
+        finite, not absurd, stamped now (0) or neither in the future nor past the timeout."""
+        if not (math.isfinite(linear) and math.isfinite(angular)
+                and abs(linear) <= self.lim_a and abs(angular) <= self.lim_b):
+            return False
+        if stamp_ns == 0:
+            return True
+        timeout = self.timeout_ns
+        return (0 < stamp_ns <= now_ns + self.tick_ns
+                and (timeout is None or now_ns - stamp_ns <= timeout))
+
+
 def _checked(value, a: float, b: float, lim_a: float, lim_b: float, stamp, drive, now_ns: int,
              tick_ns: int, check_age: bool) -> tuple[Twist | WheelSpeeds, int]:
     check_stamp(stamp, now_ns, tick_ns, drive.cmd_timeout_s if check_age else None)

@@ -108,12 +108,22 @@ class Mode:
     def command(self, robot: str) -> Command | None:
         return self.plant.commands.latest.get(robot)
 
+    def commands(self, robots: list[str]) -> list[Command | None]:
+        """:meth:`command` of each of ``robots``, in order."""
+        latest = self.plant.commands.latest
+        return [latest.get(r) for r in robots]
+
     def age_s(self, cmd: Command) -> float:
         return time.monotonic() - cmd.wall
 
     def expired(self, cmd: Command, timeout_s: float) -> bool:
         """Whether ``cmd`` is past its robot's ``cmd_timeout_s`` (it stops the robot)."""
         return self.age_s(cmd) > timeout_s
+
+    def expired_all(self, cmds: list[Command | None], timeouts_s: list[float]) -> list[bool]:
+        """:meth:`expired` of each command (False for None) with its robot's timeout."""
+        expired = self.expired
+        return [cmd is not None and expired(cmd, t) for cmd, t in zip(cmds, timeouts_s)]
 
 
 class Fast(Mode):
@@ -213,6 +223,11 @@ class Lockstep(Mode):
     def command(self, robot: str) -> Command | None:
         return self.plant.commands.for_tick(robot, self.plant.time_ns - self.delay_ns)
 
+    def commands(self, robots: list[str]) -> list[Command | None]:
+        upto = self.plant.time_ns - self.delay_ns
+        for_tick = self.plant.commands.for_tick
+        return [for_tick(r, upto) for r in robots]
+
     def age_s(self, cmd: Command) -> float:
         return (self.plant.time_ns - cmd.t_ns) * 1e-9
 
@@ -220,6 +235,11 @@ class Lockstep(Mode):
         """Section 4: a command's age is the simulated time of the tick it would act from
         (the plant's, as it applies the commands) minus its stamp, in whole ns."""
         return command_expired(self.plant.time_ns - cmd.t_ns, timeout_s)
+
+    def expired_all(self, cmds: list[Command | None], timeouts_s: list[float]) -> list[bool]:
+        now = self.plant.time_ns
+        return [cmd is not None and command_expired(now - cmd.t_ns, t)
+                for cmd, t in zip(cmds, timeouts_s)]
 
     def wait_for_acks(self, t_ns: int) -> None:
         """Until every member owed tick ``t_ns`` has answered it in full (AckLedger.

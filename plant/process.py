@@ -31,7 +31,7 @@ from contextlib import contextmanager
 
 import zenoh
 
-from bus import codec, jsonio, packed
+from bus import jsonio, packed
 from bus.composed import Composed
 from bus.inbox import Event, Inbox
 from bus.keys import Keys
@@ -40,7 +40,8 @@ from bus.log import RejectCounter
 from bus.protocol import PLANT_READS, world_max_hold
 
 from . import core, modes, report
-from .commands import Command, CommandBook, decode_command, stale_commands, twist_command
+from .commands import CommandBook
+from .intake import Emitted, Intake
 from .outbox import Outbox, Reads
 from .presence import PLANT_TOKEN, Presence
 from .reset import parse_reset
@@ -118,6 +119,8 @@ class Plant:
         self.inbox = Inbox(session)
         self._robot_of_key: dict[str, tuple[str, str]] = {}
         self._ack_prefix = keys.ack("")
+        # members' outputs filed, commands checked, and the tick's commands handed over
+        self.intake = Intake(self)
         self._listen()
         # who is here (sim/alive, sim/sync tokens) and what the plant does when one comes
         # or goes; who time is held for is the ledger's
@@ -243,8 +246,8 @@ class Plant:
         clock = packed.clock(t)
         self.outbox.put(self.keys.clock, clock, t, self.epoch)
         if composed is not None:
-            composed.clock(t, self._emit, self.epoch)
-            composed.run(self._emit)
+            composed.clock(t, self._emit_many, self.epoch)
+            composed.run(self._emit_many)
         self.tick.prefetch()
 
     def publish_pending(self) -> None:
@@ -256,15 +259,18 @@ class Plant:
         with self._timed("publish_s"):
             self.publish_sensors()
 
-    def _emit(self, key: str, payload: bytes, att: bytes, parsed: codec.Attachment,
-              twist: tuple | None) -> None:
-        """A composed member's message (bus/composed.py): on the bus for whoever listens,
-        to the plant as if it came from Zenoh (a command as the values it was packed from),
-        and to the other composed members."""
-        self.outbox.relay(key, payload, parsed.t_ns, att)
-        if key in self._robot_of_key or key.startswith(self._ack_prefix):
-            self._on_output(Event("out", key, payload, att), parsed, twist)
-        self.composed.deliver(key, payload, att)
+    def _emit_many(self, msgs: list[Emitted]) -> None:
+        """A composed member's answer to a tick (bus/composed.py): each message on the bus
+        for whoever listens, then those the plant reads filed at once as if they came from
+        Zenoh (a command as the values it was packed from: :meth:`Intake.answer`), and each
+        to the other composed members."""
+        relay = self.outbox.relay
+        for key, payload, att, parsed, _ in msgs:
+            relay(key, payload, parsed.t_ns, att)
+        self.intake.answer(msgs)
+        deliver = self.composed.deliver
+        for key, payload, att, _, _ in msgs:
+            deliver(key, payload, att)
 
     def _key(self, robot: str, topic: str) -> str:
         key = self._keys.get((robot, topic))
@@ -320,60 +326,13 @@ class Plant:
         elif ev.tag == "member":
             self.presence.on_member(ev)
 
-    def _on_output(self, ev: Event, att: codec.Attachment | None = None,
-                   twist: tuple | None = None) -> None:
-        """A message on a key the plant reads: a command to apply, and in lockstep a
-        member's output, filed in the ledger for its tick (``att``: its attachment, parsed
-        already by a composed member's emit; ``twist``: the values its cmd_vel was packed
-        from, :func:`plant.commands.twist_command`)."""
-        robot, topic = self._robot_of_key.get(ev.key, (None, "ack"))
-        if att is None:
-            att = codec.parse_attachment(ev.attachment)
-        lockstep, sim = self.strategy.lockstep, self.tick.sim
-        now = sim.time_ns
-        if lockstep and not self.ledger.file(ev.key, topic, att, ev.attachment, now):
-            return
-        if topic in ("cmd_vel", "wheel_cmd"):
-            drive = sim.robots[robot].spec.drive
-            try:
-                value, t = (twist_command(*twist, drive, now, self.tick_ns,
-                                          self.strategy.check_age) if twist is not None else
-                            decode_command(ev.payload, topic, drive, now, self.tick_ns,
-                                           check_age=self.strategy.check_age, robot=robot))
-            except (codec.CodecError, ValueError) as exc:
-                self.rejects.reject(f"{robot}/{topic}", str(exc))
-                if att is not None:
-                    self.commands.refuse(robot, att.t_ns)      # (not a stale command)
-                return
-            if lockstep and att is not None:
-                t_cmd = att.t_ns       # the tick it was computed for (0: tick 0, not "now")
-            else:
-                t_cmd = t or now
-            member = att.node if att is not None else None
-            problem = self.commands.file(robot, Command(value, t_cmd, time.monotonic(), member))
-            if problem:
-                self.protocol_errors.reject(f"{robot}: two members command it", problem)
+    def _on_output(self, ev: Event) -> None:
+        """A process member's message on a key the plant reads (:meth:`Intake.output`)."""
+        self.intake.output(ev.key, ev.payload, ev.attachment)
 
     def apply_commands(self) -> None:
-        """Hand each robot the command that acts at this tick (the mode's), or zero if it
-        has none or it timed out; in lockstep, any other than the rule's is a protocol error."""
-        picked = {name: self.strategy.command(name) for name in self.sim.robots}
-        # lockstep: an older command than the rule's acting here is a protocol error
-        if self.strategy.lockstep and not self.stop_event.is_set():
-            keys = lambda r: (self._key(r, "cmd_vel"), self._key(r, "wheel_cmd"))  # noqa: E731
-            stale_commands(self.ledger, self.commands, self.sim.time_ns - self.strategy.delay_ns,
-                           picked, keys, self.protocol_errors.reject)
-        for name, robot in self.sim.robots.items():
-            cmd = picked[name]
-            if cmd is not None:
-                timeout = robot.spec.drive.cmd_timeout_s
-                if self.strategy.expired(cmd, timeout):
-                    if cmd.moving:       # a robot told to stand still needs no stopping
-                        self.log.warning("%s: no command for %.2f s (cmd_timeout %.2f s): "
-                                         "stopping it", name, self.strategy.age_s(cmd), timeout)
-                    self.commands.forget(name, cmd.t_ns)
-                    cmd = None
-            self.tick.drive(name, cmd.value if cmd is not None else None)
+        """Hand each robot the command that acts at this tick (:meth:`Intake.apply`)."""
+        self.intake.apply()
 
     def drain(self, timeout: float | None = 0.0) -> bool:
         """Handle queued events; wait up to ``timeout`` for the first. True if any came."""
@@ -386,7 +345,7 @@ class Plant:
         while (ev := self.inbox.get_nowait()) is not None:
             self.handle(ev)
         if self.composed is not None:
-            self.composed.run(self._emit)      # what came may complete a composed member's tick
+            self.composed.run(self._emit_many)      # what came may complete a composed member's tick
         return True
 
     # ------------------------------------------------------------------ loop

@@ -114,3 +114,35 @@ def test_a_message_with_a_list_of_messages_is_walked():
             v3(float("nan"), 0.0, 0.0), T["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0)))
     msg = T["tf2_msgs/msg/TFMessage"](transforms=[tf])
     assert check_input("tf", msg) == numbers_problem(msg, "") is not None
+
+
+def test_a_member_configured_again_shows_its_inputs_by_the_new_coupling_and_periods():
+    """What a robot's observation looks up per input (its key, lag, how old a sample may be)
+    is made once, and made again when sim/info changes the coupling or a sensor's period."""
+    from bus import codec
+    from bus.keys import TOPICS
+    from bus.member import MemberTick, Slot
+
+    class Reads:
+        inputs = ["odom", "scan"]
+
+        def step(self, obs):
+            return None
+    tick = 20_000_000
+    m = MemberTick("reader", tick, slots=[Slot("r", Reads(), ["odom", "scan"], False)],
+                   topics=dict(TOPICS))
+    info = {"mode": "lockstep", "control_tick_s": tick * 1e-9,
+            "robots": {"r": {"topics": {"scan": 100}}}}
+    odom = codec.odometry(tick, 1.0, 2.0, 0.0, 0.0, 0.0)
+    scan_t = 10 * tick                    # 1.6 s before the tick looked at: 0.5 s is stale
+    shown = []
+    for coupling in ({}, {"node_input_delay_ticks": 1}, {"robots": {"r": {"topics": {}}}}):
+        m.configure({**info, **coupling})
+        m.buf = {"r/odom": {tick: odom}, "r/scan": {scan_t: "scan"}}
+        obs = m.take_observation(m.slots[0], tick + 90 * tick)
+        shown.append((obs["odom"] is odom, obs["scan"]))
+        m.buf = {"r/odom": {tick: odom}}
+        shown.append(m.take_observation(m.slots[0], tick)["odom"] is odom)
+    # sequential: odom of the tick shown; pipelined: one tick old only; scan every 100 ticks
+    # (3 periods may pass), then every tick (stale after 0.5 s)
+    assert shown == [(False, "scan"), True, (False, "scan"), False, (False, None), True]
