@@ -37,9 +37,17 @@ class Wander:
         seg = np.linalg.norm(np.diff(np.vstack([self.points, self.points[:1]]), axis=0), axis=1)
         self.step_len = float(seg.mean())
         self.done = False
+        # the route's coordinates as two contiguous arrays (point's arithmetic, a quarter of
+        # the time of the (N, 2) form's) and as Python floats (step's scalar arithmetic)
+        self._xs = np.ascontiguousarray(self.points[:, 0])
+        self._ys = np.ascontiguousarray(self.points[:, 1])
+        self._route = [tuple(p) for p in self.points.tolist()]
+        self._phases = self.params.tolist()
 
     def point(self, x: float, y: float) -> int:
-        return int(np.argmin(np.sum((self.points - (x, y)) ** 2, axis=1)))
+        """The index of the route's point nearest to (x, y) (the first of equals)."""
+        dx, dy = self._xs - x, self._ys - y
+        return int(np.argmin(dx * dx + dy * dy))
 
     def step(self, obs):
         gt = obs["ground_truth"]
@@ -48,13 +56,13 @@ class Wander:
         x, y, yaw = codec.pose_2d(gt)
         i = self.point(x, y)
         j = (i + int(self.sign * self.lookahead / self.step_len)) % len(self.points)
-        tx, ty = self.points[j]
+        tx, ty = self._route[j]
         dx, dy = tx - x, ty - y
         alpha = math.atan2(dy, dx) - yaw
         alpha = (alpha + math.pi) % (2 * math.pi) - math.pi
         dist = math.hypot(dx, dy)
         # Speed: slow and fast stretches, twice round the loop.
-        phase = self.params[i]
+        phase = self._phases[i]
         v = self.vmin + (self.vmax - self.vmin) * 0.5 * (1 + math.sin(2 * phase))
         if abs(alpha) > math.pi / 2:          # far off the route (start-up): turn first
             return Twist(0.0, math.copysign(0.6, alpha))

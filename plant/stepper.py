@@ -34,6 +34,14 @@ class Stepper:
             return self.sim.state(robot)
         return self.physics.state(self._index[robot])
 
+    def rows(self):
+        """Every robot's state as one (R, 26) array (:meth:`Simulation.state_rows`' layout:
+        the values :meth:`state` gives, robot by robot, to the bit): read from DART in one
+        pass, or the physics process's snapshot."""
+        if self.physics is None:
+            return self.sim.state_rows()
+        return self.physics.rows
+
     def shapes(self):
         """What the robots' sensors see now (the scene of a tick's lidars and cameras), built
         from the robots' parts' poses as one array (:meth:`Simulation.scene`). In a

@@ -55,25 +55,22 @@ def poses(model: Model, data: Data, w: int, t_ns: int) -> bytes:
 def observe(model: Model, data: Data, w: int, stepper) -> None:
     """World ``w``'s robots' true state into ``data`` (``stepper``: its
     :class:`plant.stepper.Stepper`), and its tick: a kinematic world's in one kernel call
-    from its arrays, a dynamic one's from DART robot by robot (the orientations then as
-    quaternions in one call)."""
+    from its arrays, a dynamic one's as every robot's row of DART's state in one pass
+    (:meth:`plant.stepper.Stepper.rows`: the values :meth:`plant.sim.Simulation.state`
+    gives, to the bit), the orientations then as quaternions in one call."""
     sim = stepper.sim
     data.tick[w] = sim.time_ns // model.tick_ns
     out = outgoing(model, data, w)
     if sim.kin is not None and stepper.physics is None:
         out.observe_kinematic(sim.kin)
         return
-    tf, enc_pos, enc_vel = data.tf[w], data.enc_pos[w], data.enc_vel[w]
-    yaw, v, w_ = [], [], []
-    for i, name in enumerate(model.robots):           # DART's state, robot by robot
-        st = stepper.state(name)
-        tf[i] = st.tf
-        enc_pos[i] = st.enc_pos
-        enc_vel[i] = st.enc_vel
-        yaw.append(st.yaw)
-        v.append(st.v_body[0])
-        w_.append(st.w_body[2])
-    data.yaw[w], data.v[w], data.w[w] = yaw, v, w_
+    rows = stepper.rows()
+    data.tf[w] = rows[:, :16].reshape(-1, 4, 4)
+    data.enc_pos[w] = rows[:, 22:24]
+    data.enc_vel[w] = rows[:, 24:26]
+    data.yaw[w] = np.arctan2(rows[:, 4], rows[:, 0])        # atan2(tf[1, 0], tf[0, 0])
+    data.v[w] = rows[:, 16]
+    data.w[w] = rows[:, 21]
     out.quaternions()
 
 

@@ -87,6 +87,7 @@ def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
                                     st.shapes, want, encoded=True))
         assert [m[:2] for m in got] == [m[:2] for m in expect] == [m[:2] for m in objects], k
         _check_poses(core_tick, oracle, got, k)
+        _check_state(core_tick, oracle, k)
         for (robot, topic, data), (_, _, ref), (_, _, msg) in zip(got, expect, objects):
             assert data == ref, (k, robot, topic)
             assert (msg is None) == (ref is None), (k, robot, topic)
@@ -102,6 +103,18 @@ def test_core_bytes_equal_the_per_message_path(kind, tmp_path):
     assert {"joint_states", "gps", "ground_truth", "scan", "unread"} <= set(seen)
     if kind != "dynamic":
         assert seen.get("camera/image_raw", 0) > 0 and seen.get("camera/camera_info", 0) > 0
+
+
+def _check_state(core_tick: Tick, oracle: Tick, k: int) -> None:
+    """The core's state arrays (a dynamic world's read in one pass) hold what
+    ``Simulation.state`` gives robot by robot, to the bit: pose, yaw, body speeds, wheels."""
+    d = core_tick.data
+    for i, name in enumerate(oracle.sensors):
+        st = oracle.stepper.state(name)
+        for got, ref in ((d.tf[0, i], st.tf), (d.yaw[0, i], st.yaw), (d.v[0, i], st.v_body[0]),
+                         (d.w[0, i], st.w_body[2]), (d.enc_pos[0, i], st.enc_pos),
+                         (d.enc_vel[0, i], st.enc_vel)):
+            assert np.asarray(got, float).tobytes() == np.asarray(ref, float).tobytes(), (k, name)
 
 
 def _check_poses(core_tick: Tick, oracle: Tick, got: list, k: int) -> None:
