@@ -19,18 +19,14 @@ from . import codec
 from . import controller as hooks
 from .controller import WHEEL_JOINTS, Observation, Twist, WheelSpeeds
 from .inputs import check_input, stamp_of
+from .observe import _HELD, BUF_PER_TOPIC, STALE_S, observations  # noqa: F401
 from .protocol import PLANT_READS, REPUBLISH_TICKS
 
-#: an input older than this (simulated s, or three of its periods) is not shown to the
-#: controller: its producer is gone (realtime and fast modes, where nobody waits for it)
-STALE_S = 0.5
 #: lockstep: ticks of this member's outputs kept to re-send when the plant re-publishes
 #: them after a rejoin (more than the plant re-publishes: bus.protocol.REPUBLISH_TICKS, 25)
 RESEND_TICKS = 30
-#: samples kept per input topic (by stamp) and clock ticks waiting for their inputs
-BUF_PER_TOPIC = 8
+#: clock ticks waiting for their inputs (and samples kept per input topic: BUF_PER_TOPIC)
 PENDING_MAX = 16
-_HELD = object()     # "a bad sample came for this tick": the tick goes on, the last good is held
 
 #: what a member sends for a tick: (key, CDR payload, flags, n_plant)
 Sent = list[tuple[str, bytes, int, int]]
@@ -329,47 +325,9 @@ class MemberTick:
 
     def take_observation(self, slot: Slot, t_ns: int) -> Observation:
         """Section 4, step 2: the latest good message of each of a robot's inputs stamped at
-        or before ``t_ns``
-        (a tick earlier for a lagged one), unless it is stale (older than ``STALE_S`` or
-        three of its periods: its producer is gone), so a controller never steers on a dead
-        input. Takes: the samples older than the one shown, and held marks, are dropped,
-        and the tick's stamps are marked used."""
-        msgs = {}
-        plan = slot.plan
-        if plan is None or plan[:3] != (slot.periods, self.lag_ns, self.tick_ns):
-            plan = slot.plan = (slot.periods, self.lag_ns, self.tick_ns, [
-                (t, self.key(slot.robot, t), self.lag_ns[t],
-                 max(STALE_S * 1e9, 3 * slot.periods.get(t, 1) * self.tick_ns))
-                for t in slot.inputs])
-        bufs, used = self.buf, self.used
-        for topic, key, lag, stale_ns in plan[3]:
-            buf = bufs.get(key)
-            if not buf:
-                continue
-            upto = t_ns - lag                      # a lagged input never shows a newer sample
-            if len(buf) == 1:                      # (the usual case, shortly)
-                (s, m), = buf.items()
-                if s <= upto:
-                    if m is _HELD:                 # a held mark alone: dropped
-                        del buf[s]
-                    elif upto - s <= stale_ns:
-                        msgs[topic] = m
-                used.add((key, upto))
-                continue
-            good = [s for s, m in buf.items() if s <= upto and m is not _HELD]
-            if good:
-                best = max(good)
-                if upto - best <= stale_ns:
-                    msgs[topic] = buf[best]
-            else:
-                best = None
-            for s in [s for s, m in buf.items()
-                      if s <= upto and (s != best) and (best is None or s < best or m is _HELD)]:
-                del buf[s]
-            used.add((key, upto))
-        if len(self.used) > 4 * BUF_PER_TOPIC * max(1, len(self.slot_of)):
-            self.used = {(k, s) for k, s in self.used if s >= t_ns - self.tick_ns}
-        return Observation(t_ns, slot.robot, msgs)
+        or before ``t_ns`` (a tick earlier for a lagged one), unless it is stale
+        (:func:`bus.observe.observations`, which takes them for many robots at once)."""
+        return observations(self, (slot,), t_ns)[slot.robot]
 
     # ------------------------------------------------------------ output (section 4, step 3)
     def act(self, t_ns: int) -> tuple[Sent, bool]:
@@ -382,8 +340,8 @@ class MemberTick:
             if not slot.done and id(slot.controller) not in many \
                     and hooks.steps_many(slot.controller):
                 ctrl = slot.controller
-                obs = {s.robot: self.take_observation(s, t_ns) for s in self.slots
-                       if s.controller is ctrl and not s.done}
+                obs = observations(self, [s for s in self.slots
+                                          if s.controller is ctrl and not s.done], t_ns)
                 many[id(ctrl)] = _commands_of(ctrl, ctrl.step_many(obs))
         for slot in self.slots:
             if slot.done:

@@ -14,6 +14,7 @@ in one call, giving to the bit the commands :meth:`Avoid.step` gives robot by ro
 from __future__ import annotations
 
 import math
+from operator import attrgetter
 
 import numpy as np
 
@@ -21,6 +22,9 @@ from bus.cliargs import positive_float
 from bus.controller import Twist
 from bus.node import node_arg_parser, run_node_args
 from controllers.rowsum import masked_row_sums
+
+#: what scans must share to be stepped as one array (besides their number of rays)
+_RAYS = attrgetter("angle_min", "angle_increment", "range_min", "range_max")
 
 
 class Avoid:
@@ -38,7 +42,13 @@ class Avoid:
         self.slow_m = slow_m
         self.front = front_half_angle_rad
         self.turning = 0.0            # +1 left, -1 right while escaping, 0 when free
-        self.turning_of: dict[str, float] = {}    # step_many: the same, per robot
+        # step_many: the same per robot, by index in the robots of its last call (the
+        # rest by name), and what it computes once per lidar model
+        self._robots: tuple = ()
+        self._turning = np.zeros(0)
+        self._others: dict[str, float] = {}
+        self._geometry: dict[tuple, np.ndarray] = {}
+        self._rays: dict[tuple, tuple] = {}
 
     def step(self, obs):
         scan = obs["scan"]
@@ -53,51 +63,94 @@ class Avoid:
     def step_many(self, observations: dict) -> dict:
         """Every robot's :class:`Twist` at once (``{robot: Observation}`` in,
         ``{robot: Twist}`` out): the scans that share their rays as one array, stepped with
-        numpy; each robot's turning side kept in ``turning_of``."""
-        out = {r: Twist() for r, obs in observations.items() if obs["scan"] is None}
-        groups: dict[tuple, list] = {}
-        for robot, obs in observations.items():
-            scan = obs["scan"]
-            if scan is not None:
-                rays = (len(scan.ranges), scan.angle_min, scan.angle_increment,
-                        scan.range_min, scan.range_max)
-                groups.setdefault(rays, []).append((robot, scan))
-        for (n, a0, da, rmin, rmax), members in groups.items():
-            robots = [r for r, _ in members]
-            ranges = np.array([s.ranges for _, s in members], dtype=float).reshape(-1, n)
-            bad = ~np.isfinite(ranges) | (ranges < rmin)
-            ranges = np.where(bad, rmax, np.minimum(ranges, rmax))
-            angles = a0 + da * np.arange(n)
-            turning_of = self.turning_of
-            turning = np.array([turning_of.get(r, 0.0) for r in robots])
-            v, w, turning = self.commands(angles, ranges, turning)
-            # (tolist: the same Python floats as float() of each element, in one call)
-            for r, vi, wi, ti in zip(robots, v.tolist(), w.tolist(), turning.tolist()):
-                turning_of[r] = ti
-                out[r] = Twist(vi, wi)
-        return {r: out[r] for r in observations}
+        numpy; each robot's turning side kept in an array by robot (``turning_of``)."""
+        robots = tuple(observations)
+        if robots != self._robots:
+            self._track(robots)
+        scans = [obs["scan"] for obs in observations.values()]
+        have = [i for i, s in enumerate(scans) if s is not None]
+        if len(have) < len(scans):
+            scans = [scans[i] for i in have]
+        ranges = [s.ranges for s in scans]
+        rays = list(zip(map(len, ranges), map(_RAYS, scans)))
+        v, w = np.zeros(len(robots)), np.zeros(len(robots))
+        if rays and rays.count(rays[0]) == len(rays):      # (the usual: one lidar model)
+            groups = {rays[0]: have}
+        else:
+            groups = {}
+            for i, key in zip(have, rays):
+                groups.setdefault(key, []).append(i)
+            ranges = dict(zip(have, ranges))
+        for (n, (a0, da, rmin, rmax)), rows in groups.items():
+            r = np.array(ranges if len(groups) == 1 else [ranges[i] for i in rows],
+                         dtype=float).reshape(-1, n)
+            # inf and NaN (no return) and returns under the minimum range read as the maximum
+            np.fmin(r, rmax, out=r)
+            r[r < rmin] = rmax
+            every = len(rows) == len(robots)
+            vg, wg, tg = self.commands(self._angles(n, a0, da), r,
+                                       self._turning if every else self._turning[rows])
+            if every:
+                v, w, self._turning = vg, wg, tg
+            else:
+                v[rows], w[rows], self._turning[rows] = vg, wg, tg
+        # (tolist: the same Python floats as float() of each element, in one call)
+        return dict(zip(robots, map(Twist, v.tolist(), w.tolist())))
+
+    @property
+    def turning_of(self) -> dict[str, float]:
+        """``step_many``: each robot's turning side (as ``turning``), by name."""
+        kept = dict(self._others)
+        kept.update(zip(self._robots, self._turning.tolist()))
+        return kept
+
+    def _track(self, robots: tuple) -> None:
+        """``step_many`` for another set of robots: their turning sides by index in the new
+        order (a robot left out keeps its side for when it comes back)."""
+        kept = self.turning_of
+        self._robots = robots
+        self._turning = np.array([kept.pop(r, 0.0) for r in robots], dtype=float)
+        self._others = kept
+
+    def _angles(self, n: int, a0: float, da: float) -> np.ndarray:
+        key = (n, a0, da)
+        if key not in self._geometry:
+            self._geometry[key] = a0 + da * np.arange(n)
+        return self._geometry[key]
 
     def commands(self, angles: np.ndarray, ranges: np.ndarray, turning: np.ndarray):
         """:meth:`command` for a batch of scans sharing ``angles``: ``ranges`` (robots, rays),
         ``turning`` per robot; (speeds, yaw rates, turning sides after), the same values
         :meth:`command` gives each row (its sums and means taken in numpy's order)."""
-        ahead = np.abs(angles) <= self.front
-        front = ranges[:, ahead].min(axis=1) if ahead.any() else ranges.min(axis=1)
+        ahead, pos, neg, side, toward = self._rays_of(angles)
+        front = ranges[:, ahead].min(axis=1) if ahead is not None else ranges.min(axis=1)
         blocked = (front < self.stop_m) | ((turning != 0) & (front < self.stop_m * 1.3))
         new = blocked & (turning == 0)
         if new.any():
-            pos, neg = angles > 0, angles < 0
-            left = ranges[new][:, pos].mean(axis=1) if pos.any() else np.zeros(new.sum())
-            right = ranges[new][:, neg].mean(axis=1) if neg.any() else np.zeros(new.sum())
+            rows = ranges[new]
+            left = rows[:, pos].mean(axis=1) if pos is not None else np.zeros(len(rows))
+            right = rows[:, neg].mean(axis=1) if neg is not None else np.zeros(len(rows))
             turning = turning.copy()
             turning[new] = np.where(left >= right, 1.0, -1.0)
         turning = np.where(blocked, turning, 0.0)
         v = self.v_max * np.minimum(1.0, (front - self.stop_m) / (self.slow_m - self.stop_m))
-        near = (np.abs(angles) <= math.pi / 2) & (ranges < self.slow_m)
-        terms = -np.sign(angles) * (self.slow_m - ranges) / self.slow_m * np.cos(angles)
+        near = side & (ranges < self.slow_m)
+        terms = toward[0] * (self.slow_m - ranges) / self.slow_m * toward[1]
         w = np.clip(1.5 * masked_row_sums(terms, near), -self.w_turn, self.w_turn)
         return (np.where(blocked, 0.0, v), np.where(blocked, turning * self.w_turn, w),
                 turning)
+
+    def _rays_of(self, angles: np.ndarray) -> tuple:
+        """What :meth:`commands` needs of the rays alone, once per set of angles: the rays
+        ahead, left and right (None where there are none), those within +-90 deg, and the
+        factors of each ray's push (-sign, cos: the per-robot step's factors, in its order)."""
+        key = (self.front, angles.tobytes())
+        got = self._rays.get(key)
+        if got is None:
+            ahead, pos, neg = np.abs(angles) <= self.front, angles > 0, angles < 0
+            got = self._rays[key] = tuple(m if m.any() else None for m in (ahead, pos, neg)) \
+                + (np.abs(angles) <= math.pi / 2, (-np.sign(angles), np.cos(angles)))
+        return got
 
     def command(self, angles: np.ndarray, ranges: np.ndarray) -> Twist:
         """Twist from a scan given as ray angles (rad, 0 = ahead, + left) and ranges (m)."""

@@ -26,6 +26,8 @@ def masked_row_sums(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     if values.ndim != 2 or values.shape != mask.shape:
         raise ValueError(f"values {values.shape} and mask {mask.shape}: need the same 2-D shape")
     rows, width = values.shape
+    if width <= _BLOCK:
+        return _short_rows(values, mask)
     n = mask.sum(axis=1)
     # each row's selected values moved to its front, in order, the rest padding
     packed = np.full((rows, width + 1), _NOTHING)
@@ -81,3 +83,30 @@ def _runs(packed: np.ndarray, row: np.ndarray, start: np.ndarray, n: np.ndarray)
     for j in range(7):
         tot = tot + np.where(j < rest, run[rows, np.minimum(whole + j, span - 1)], _NOTHING)
     return np.where(n < 8, short, tot)
+
+
+def _short_rows(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """:func:`masked_row_sums` of rows of at most 128 values (one run each, a lidar's rays):
+    the selected values packed to each row's front, the whole blocks of eight summed in
+    order into eight partial sums, combined as numpy's tree, then the rest (under eight
+    values) added one by one by a sequential ``cumsum``. A row of fewer than eight values
+    has no whole block: its rest added to -0.0 is numpy's loop from 0.0 but for the sign of
+    a zero sum, which the final ``0.0 +`` gives as numpy does. About 15 numpy calls
+    whatever the rows (and an addition per block of eight)."""
+    rows, width = values.shape
+    n = mask.sum(axis=1)
+    whole = n & -8                            # the values in whole blocks of eight
+    cols = np.arange(width + 8)               # room for a rest read past the last value
+    packed = np.full((rows, width + 8), _NOTHING)
+    packed[cols < n[:, None]] = values[mask]
+    blocks = np.where(cols < whole[:, None], packed, _NOTHING)
+    part = blocks[:, :8]
+    for b in range(8, width - 7, 8):           # (the blocks in order: numpy's partial sums)
+        part = part + blocks[:, b:b + 8]
+    pairs = part[:, 0::2] + part[:, 1::2]
+    quads = pairs[:, 0::2] + pairs[:, 1::2]
+    # (each row: its tree sum, then its rest; padding -0.0 past the rest adds nothing)
+    tail = np.empty((rows, 8))
+    tail[:, 0] = quads[:, 0] + quads[:, 1]
+    tail[:, 1:] = packed[np.arange(rows)[:, None], whole[:, None] + cols[:7]]
+    return 0.0 + tail.cumsum(axis=1)[:, -1]

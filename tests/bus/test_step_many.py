@@ -120,3 +120,37 @@ def test_the_manual_s_controller_for_many_robots_runs_as_a_member():
     assert _commands(sent) == pytest.approx(
         {K.topic("a", "cmd_vel"): 0.0, K.topic("b", "cmd_vel"): 0.15,
          K.topic("c", "cmd_vel"): 0.3})
+
+
+def test_observations_in_one_pass_equal_each_robot_s_own():
+    """A step_many controller's observations, taken for all its robots in one pass, show,
+    keep and mark used what taking them robot by robot does (two inputs a robot, buffers of
+    one to three samples, good, held, stale or newer than the tick; the used stamps pruned)."""
+    import random
+    from bus.member import _HELD
+    from bus.observe import observations
+
+    class Two(_Many):
+        inputs = ["scan", "odom"]
+
+    rng = random.Random(5)
+    T = 20_000_000
+    stamps = [0, T, 2 * T, 5 * T, 40 * T]
+    for trial in range(40):
+        one, each = _member(Two), _member(Two)
+        t = rng.choice(stamps[1:])
+        bufs = {}
+        for r in ROBOTS:
+            for topic in Two.inputs:
+                picked = rng.sample(stamps, rng.randint(0, 3))
+                bufs[K.topic(r, topic)] = {s: _HELD if rng.random() < 0.3 else f"{r}{topic}{s}"
+                                           for s in picked}
+        old = {(K.topic("a", "scan"), -k) for k in range(200 if trial % 2 else 3)}
+        for m in (one, each):
+            m.buf = {k: dict(v) for k, v in bufs.items()}
+            m.used = set(old)
+        got = observations(one, one.slots, t)
+        want = {s.robot: each.take_observation(s, t) for s in each.slots}
+        assert list(got) == ROBOTS
+        assert {r: o.msgs for r, o in got.items()} == {r: o.msgs for r, o in want.items()}
+        assert (one.buf, one.used) == (each.buf, each.used), trial

@@ -91,3 +91,33 @@ def test_step_many_gives_each_robot_s_step_command_to_the_bit():
             free += want.linear > 0.0 and want.angular != 0.0
     # the scans drove every branch: free, blocked, turning either way
     assert states == {-1.0, 0.0, 1.0} and blocked > 500 and free > 500, (blocked, free)
+
+
+def test_step_many_keeps_each_robot_s_side_as_robots_come_and_go():
+    """The swarm's lidar (36 rays over 360 deg) for 10 robots, every tick a different subset
+    in a different order (a robot left out, and back later; all in one group most ticks):
+    every Twist and turning side equals a separate Avoid object's for that robot."""
+    rng = np.random.default_rng(8)
+    robots = [f"r{i}" for i in range(10)]
+    singles = {r: Avoid() for r in robots}
+    many = Avoid()
+    gen = _scans(rng, 10, 200, 36)
+    a0, inc = -math.pi, 2 * math.pi / 36
+    turned = 0
+    for k in range(200):
+        t_ns = k * 20_000_000
+        ranges = next(gen)
+        ranges[rng.random(ranges.shape) < 0.01] = -np.inf
+        shown = list(rng.permutation(robots)[:int(rng.integers(7, 11))]) if k % 4 else robots
+        obs = {r: Observation(t_ns, r, {"scan": codec.laser_scan(
+            t_ns, a0, a0 + 35 * inc, inc, 0.1, 0.12, 5.0, ranges[int(r[1:])])}) for r in shown}
+        got = many.step_many(obs)
+        assert list(got) == shown
+        for r in shown:
+            want = singles[r].step(obs[r])
+            assert (_bits(got[r].linear), _bits(got[r].angular)) == \
+                (_bits(want.linear), _bits(want.angular)), (k, r)
+        assert many.turning_of == {r: singles[r].turning for r in many.turning_of}
+        assert set(many.turning_of) >= set(shown)
+        turned += sum(s.turning != 0.0 for s in singles.values())
+    assert turned > 100, turned
