@@ -215,8 +215,6 @@ def test_small_frames_are_detected_on_one_opencv_thread_large_ones_on_its_defaul
     so few pixels), a large one on OpenCV's default; the detection is the same either way."""
     import cv2
     from controllers import ball_follower as bf
-    cv2.setNumThreads(-1)                       # (a follower of an earlier test set it)
-    bf._opencv_threads = None
     default = cv2.getNumThreads()
     rgb = render(scene_with_ball(0.8, math.radians(5)), noise_std=20.0)
     try:
