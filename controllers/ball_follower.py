@@ -46,24 +46,7 @@ SEARCH_S = 3.0
 #: frames the confidence (the share of believable ones) is judged over
 CONFIDENCE_FRAMES = 12
 
-#: frames of up to this many pixels are processed on one thread: OpenCV's split of each call
-#: on a small frame across threads costs more than it saves (a 160x120 frame's detect_ball on
-#: a busy 2-core machine: median 101 us on one thread, 166 us on two; the results do not
-#: depend on the threads)
-ONE_THREAD_MAX_PX = 320 * 240
-
 log = logging.getLogger("ball_follower")
-_opencv_threads: int | None = None
-
-
-def _threads_for(pixels: int) -> None:
-    """OpenCV's threads for a frame of ``pixels``: one for a small frame, else its default
-    (set when that changes: a process-wide setting)."""
-    global _opencv_threads
-    want = 1 if pixels <= ONE_THREAD_MAX_PX else -1
-    if want != _opencv_threads:
-        cv2.setNumThreads(want)
-        _opencv_threads = want
 
 
 @dataclass
@@ -279,7 +262,6 @@ class BallFollower:
             rgb = codec.image_to_array(img)
         except ValueError:
             return self.command
-        _threads_for(rgb.shape[0] * rgb.shape[1])
         fx, fy, cx, cy = float(info.k[0]), float(info.k[4]), float(info.k[2]), float(info.k[5])
         # the camera's noise changes slowly if at all: a running estimate, not each frame's
         est = image_noise_std(rgb)

@@ -210,27 +210,6 @@ def test_it_holds_the_ball_at_0_65_m_as_the_follow_scenario_runs_it(monkeypatch,
     assert BallFollower().step(frame)["cmd"].linear == out["cmd"].linear   # the class's default
 
 
-def test_small_frames_are_detected_on_one_opencv_thread_large_ones_on_its_default():
-    """A camera-sized frame runs OpenCV on one thread (its split costs more than it saves on
-    so few pixels), a large one on OpenCV's default; the detection is the same either way."""
-    import cv2
-    from controllers import ball_follower as bf
-    default = cv2.getNumThreads()
-    rgb = render(scene_with_ball(0.8, math.radians(5)), noise_std=20.0)
-    try:
-        ctrl = BallFollower()
-        ctrl.step(observation(0.04, rgb))
-        assert cv2.getNumThreads() == 1
-        one = detect_ball(rgb, noise_std=20.0)
-        big = np.zeros((480, 640, 3), np.uint8)
-        ctrl.step(observation(0.08, big))
-        assert cv2.getNumThreads() == default
-        assert one is not None and detect_ball(rgb, noise_std=20.0) == one
-    finally:
-        cv2.setNumThreads(-1)
-        bf._opencv_threads = None
-
-
 def test_the_noise_estimate_of_a_frame_is_the_median_of_its_differences_to_the_bit():
     """image_noise_std's histogram median is np.median's of the neighbours' differences:
     frames of even and odd counts of differences, flat, noisy, saturated, one or two wide."""
