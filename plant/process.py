@@ -278,33 +278,25 @@ class Plant:
             key = self._keys[(robot, topic)] = self.keys.topic(robot, topic)
         return key
 
-    _wanted_by: object = None        # the outbox's readers the answers below were asked of
-    _wanted_of: dict | None = None   # robot -> its Reads' lookup
-    _all: tuple = (None, None)       # (the readers, every robot's _wanted) of _wanted_all
+    _wanted: tuple = (None, None)    # (the outbox's readers, :meth:`_wanted_all`'s dict)
 
     def _wanted_all(self) -> dict:
-        """Every robot's :meth:`_wanted`, as one dict kept while the bus's readers stay."""
+        """Every robot's ``wanted(topic)``: whether anyone reads that topic of the robot now
+        (a subscriber on the bus, a composed member). Each topic is asked once and the
+        answers kept until the bus's subscribers change (:meth:`plant.outbox.Outbox.readers`),
+        so a tick asks a dict, not the bus, for every robot's topics."""
         readers = self.outbox.readers()
-        if self._all[0] is not readers or self._all[1] is None:
-            self._all = (readers, {name: self._wanted(name) for name in self.tick.sensors})
-        return self._all[1]
-
-    def _wanted(self, robot: str):
-        """``wanted(topic)`` of ``robot``'s sensors: whether anyone reads it now (a
-        subscriber on the bus, a composed member). Each topic is asked once and the answer
-        kept until the bus's subscribers change (:meth:`plant.outbox.Outbox.readers`), so a
-        tick asks a dict, not the bus, for every robot's topics."""
-        readers = self.outbox.readers()
-        if readers is not self._wanted_by or self._wanted_of is None:
-            self._wanted_by, self._wanted_of = readers, {}
-        known = self._wanted_of.get(robot)
-        if known is None:
+        if self._wanted[0] is not readers or self._wanted[1] is None:
             reads, key = self.outbox.reads, self._key
             local = self.composed.reads if self.composed is not None else None
-            ask = ((lambda topic: reads(key(robot, topic))) if local is None else
-                   (lambda topic: reads(key(robot, topic)) or local(key(robot, topic))))
-            known = self._wanted_of[robot] = Reads(ask).__getitem__
-        return known
+
+            def ask(robot: str):
+                if local is None:
+                    return lambda topic: reads(key(robot, topic))
+                return lambda topic: reads(key(robot, topic)) or local(key(robot, topic))
+            self._wanted = (readers, {name: Reads(ask(name)).__getitem__
+                                      for name in self.tick.sensors})
+        return self._wanted[1]
 
     # ------------------------------------------------------------------ input
     def handle(self, ev: Event) -> None:

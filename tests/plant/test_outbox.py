@@ -75,7 +75,7 @@ def test_what_is_read_is_asked_again_after_a_change_and_when_a_subscriber_comes(
 
 
 def test_the_plant_s_wanted_keeps_each_answer_until_the_subscribers_change(endpoint, bus):
-    """Plant._wanted answers a robot's topics from a dict kept while the outbox's readers
+    """Plant._wanted_all answers a robot's topics from a dict kept while the outbox's readers
     stay the same, asks the bus again once they change (a subscriber came), and counts a
     composed member's keys as read."""
     from types import SimpleNamespace
@@ -91,13 +91,14 @@ def test_the_plant_s_wanted_keeps_each_answer_until_the_subscribers_change(endpo
         host = SimpleNamespace(outbox=SimpleNamespace(reads=reads, readers=out.readers),
                                composed=SimpleNamespace(reads=lambda key: key == "r/odom"),
                                _key=lambda robot, topic: f"{robot}/{topic}",
-                               _wanted_by=None, _wanted_of=None)
-        wanted = Plant._wanted(host, "r")
+                               tick=SimpleNamespace(sensors={"r": None}), _wanted=(None, None))
+        wanted = Plant._wanted_all(host)["r"]
         assert (wanted("gps"), wanted("odom"), wanted("gps")) == (False, True, False)
-        assert Plant._wanted(host, "r")("gps") is False and asked.count("r/gps") == 1
+        assert Plant._wanted_all(host)["r"]("gps") is False and asked.count("r/gps") == 1
         client = bus()
         client.declare_subscriber("r/gps", lambda s: None)
-        wait_for(lambda: Plant._wanted(host, "r")("gps"), 5.0, what="the answer asked again")
+        wait_for(lambda: Plant._wanted_all(host)["r"]("gps"), 5.0,
+                 what="the answer asked again")
         assert asked.count("r/gps") >= 2
         out.undeclare()
     finally:
@@ -206,8 +207,7 @@ def _published(tmp_path, read: set[str], ticks: int = 12) -> list:
     tick, out = Tick(spec), _KeptOutbox(read)
     host = SimpleNamespace(outbox=out, composed=None, tick=tick, sim=tick.sim, epoch=0,
                            keys=Keys(""), _key=lambda robot, topic: f"{robot}/{topic}",
-                           _wanted_by=None, _wanted_of=None, _all=(None, None))
-    host._wanted = lambda robot: Plant._wanted(host, robot)
+                           _wanted=(None, None))
     host._wanted_all = lambda: Plant._wanted_all(host)
     for k in range(ticks):
         Plant.publish_sensors(host)
