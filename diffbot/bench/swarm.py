@@ -19,16 +19,21 @@ from .harness import Case, Context, Metric, Probe, suite
 from .scenario import run_scenario
 
 
-def _swarm_sim(n: int, mode: str, tmpdir: str):
-    from plant.sim import Simulation
+def _swarm_spec(n: int, mode: str, tmpdir: str):
+    """The swarm world of ``n`` robots (seed 0, as `diffbot run swarm` lays it out)."""
     from plant.swarm_world import write_swarm_world
     from plant.world import load_world
     fd, path = tempfile.mkstemp(suffix=".toml", dir=tmpdir)
     os.close(fd)
     try:
-        spec = load_world(write_swarm_world(path, n, seed=0, mode=mode))
+        return load_world(write_swarm_world(path, n, seed=0, mode=mode))
     finally:
         os.unlink(path)
+
+
+def _swarm_sim(n: int, mode: str, tmpdir: str):
+    from plant.sim import Simulation
+    spec = _swarm_spec(n, mode, tmpdir)
     sim = Simulation(spec)
     for i, name in enumerate(sim.robots):           # all driving, some turning
         sim.command_twist(name, 0.3, 0.3 if i % 2 else -0.2)
@@ -70,14 +75,7 @@ def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
     from bus.controller import Observation
     from controllers.avoid import Avoid
     from plant.tick import Tick
-    from plant.swarm_world import write_swarm_world
-    from plant.world import load_world
-    fd, path = tempfile.mkstemp(suffix=".toml", dir=tmpdir)
-    os.close(fd)
-    try:
-        spec = load_world(write_swarm_world(path, n, seed=0, mode="dynamic"))
-    finally:
-        os.unlink(path)
+    spec = _swarm_spec(n, "dynamic", tmpdir)
     tick, ctrl = Tick(spec), Avoid()
     try:
         robots = list(tick.sim.robots)
