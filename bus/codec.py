@@ -277,12 +277,32 @@ def attachment_parsed(seq: int, t_ns: int, flags: int = 0, n_plant: int = 0,
     """A member's :func:`attachment` bytes and the :class:`Attachment`
     :func:`parse_attachment` reads from them, built from the values rather than parsed back
     (a composed member hands both to the plant)."""
-    att = attachment(seq, t_ns, flags, n_plant, node)
+    return attachments_parsed(seq - 1, t_ns, [(flags, n_plant)], node)[0]
+
+
+def attachments_parsed(seq: int, t_ns: int, marks: list[tuple[int, int]],
+                       node: str | None = None) -> list[tuple[bytes, Attachment | None]]:
+    """:func:`attachment_parsed` of each ``(flags, n_plant)`` of ``marks``, numbered from
+    ``seq`` + 1 (a member's answer to a tick): the name's bytes and each trailer made once."""
+    mask, head = 0xFFFFFFFFFFFFFFFF, ATTACHMENT.pack
     if node is None:
-        return att, Attachment(seq & 0xFFFFFFFFFFFFFFFF, t_ns)
-    if (flags & FINAL and hold_of(flags)) or not 0 < len(att) - 20 <= NAME_MAX:
-        return att, parse_attachment(att)            # (what parsing makes of a bad one)
-    return att, Attachment(seq & 0xFFFFFFFFFFFFFFFF, t_ns, flags, n_plant, node)
+        return [(head(s, t_ns), Attachment(s, t_ns))
+                for s in ((seq + i) & mask for i in range(1, len(marks) + 1))]
+    name = node.encode("utf-8")
+    named = 0 < len(name) <= NAME_MAX
+    tails: dict[tuple[int, int], bytes] = {}
+    out = []
+    for i, (flags, n_plant) in enumerate(marks, 1):
+        tail = tails.get((flags, n_plant))
+        if tail is None:
+            tail = tails[(flags, n_plant)] = TRAILER.pack(flags, n_plant, len(name)) + name
+        s = (seq + i) & mask
+        att = head(s, t_ns) + tail
+        if named and not (flags & FINAL and hold_of(flags)):
+            out.append((att, Attachment(s, t_ns, flags, n_plant, node)))
+        else:
+            out.append((att, parse_attachment(att)))     # (what parsing makes of a bad one)
+    return out
 
 
 def parse_attachment(data: bytes | None) -> Attachment | None:

@@ -190,8 +190,8 @@ class Composed:
         published, twists = h.published, h.member.twists
         seq = h.seq
         msgs = []
-        for (key, payload, _, _), (att, parsed) in zip(sent, _attachments(seq, t_ns, sent,
-                                                                          name)):
+        atts = codec.attachments_parsed(seq, t_ns, [(f, n) for _, _, f, n in sent], name)
+        for (key, payload, _, _), (att, parsed) in zip(sent, atts):
             tw = twists.get(key)            # (the values of these very bytes, if a Twist's)
             msgs.append((key, payload, att, parsed,
                          tw[1:] if tw is not None and tw[0] is payload else None))
@@ -213,25 +213,3 @@ class Composed:
                     h.log.error("closing %s: %s", h.name, exc)
             write_stats(h.spec.stats, stats, h.log)
 
-
-def _attachments(seq: int, t_ns: int, sent: Sent,
-                 node: str | None) -> list[tuple[bytes, codec.Attachment | None]]:
-    """:func:`bus.codec.attachment_parsed` of each message of a tick's ``sent`` (numbered
-    from ``seq`` + 1), the name's bytes and each trailer made once."""
-    name = node.encode("utf-8") if node is not None else b""
-    if node is None or not 0 < len(name) <= codec.NAME_MAX:
-        return [codec.attachment_parsed(seq + i, t_ns, flags, n_plant, node)
-                for i, (_, _, flags, n_plant) in enumerate(sent, 1)]
-    head, trailer, tails = codec.ATTACHMENT.pack, codec.TRAILER.pack, {}
-    out = []
-    mask = 0xFFFFFFFFFFFFFFFF
-    for i, (_, _, flags, n_plant) in enumerate(sent, 1):
-        tail = tails.get((flags, n_plant))
-        if tail is None:
-            if flags & codec.FINAL and codec.hold_of(flags):     # (parses as nothing)
-                return [codec.attachment_parsed(seq + j, t_ns, f, n, node)
-                        for j, (_, _, f, n) in enumerate(sent, 1)]
-            tail = tails[(flags, n_plant)] = trailer(flags, n_plant, len(name)) + name
-        s = (seq + i) & mask
-        out.append((head(s, t_ns) + tail, codec.Attachment(s, t_ns, flags, n_plant, node)))
-    return out

@@ -11,7 +11,6 @@ from types import SimpleNamespace
 import pytest
 
 from bus import codec
-from bus.composed import _attachments
 from bus.controller import Twist
 from bus.keys import NAME_MAX
 from bus.lockstep import AckLedger
@@ -67,8 +66,7 @@ def answer(member: str, t: int, cmds: list, acked: bool = True) -> list:
                          (t, float(c[1]), float(c[2]))))
     flags = [codec.ACK if acked and i == len(sent) - 1 else 0 for i in range(len(sent))]
     n_plant = [len(sent) if f else 0 for f in flags]
-    atts = _attachments(7, t, [(k, p, f, n) for (k, p, _), f, n in zip(sent, flags, n_plant)],
-                        member)
+    atts = codec.attachments_parsed(7, t, list(zip(flags, n_plant)), member)
     return [(k, p, a, parsed, tw) for (k, p, tw), (a, parsed) in zip(sent, atts)]
 
 
@@ -126,9 +124,10 @@ def test_a_member_s_attachments_made_at_once_are_those_made_one_by_one():
     final = sent[:2] + [("k", b"", codec.with_hold(codec.ACK | codec.FINAL, 2), 2)]
     for node, msgs in (("avoid_g0", sent), (None, sent), ("é" * 3, sent),
                        ("x" * (NAME_MAX + 1), sent), ("avoid_g0", final)):
-        assert _attachments(41, NOW, msgs, node) == [
-            codec.attachment_parsed(41 + i, NOW, f, n, node)
-            for i, (_, _, f, n) in enumerate(msgs, 1)]
+        got = codec.attachments_parsed(41, NOW, [(f, n) for _, _, f, n in msgs], node)
+        want = [codec.attachment(41 + i, NOW, f, n, node)
+                for i, (_, _, f, n) in enumerate(msgs, 1)]
+        assert got == [(a, codec.parse_attachment(a)) for a in want]
 
 
 @pytest.mark.parametrize("coupling", ["sequential", "pipelined"])
