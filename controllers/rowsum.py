@@ -26,12 +26,13 @@ def masked_row_sums(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     if values.ndim != 2 or values.shape != mask.shape:
         raise ValueError(f"values {values.shape} and mask {mask.shape}: need the same 2-D shape")
     rows, width = values.shape
-    if width <= _BLOCK:
-        return _short_rows(values, mask)
     n = mask.sum(axis=1)
-    # each row's selected values moved to its front, in order, the rest padding
-    packed = np.full((rows, width + 1), _NOTHING)
-    packed[np.arange(width + 1)[None, :] < n[:, None]] = values[mask]
+    # each row's selected values moved to its front, in order, the rest padding (eight
+    # columns of it: a run's rest is read past its last value)
+    packed = np.full((rows, width + 8), _NOTHING)
+    packed[np.arange(width + 8)[None, :] < n[:, None]] = values[mask]
+    if width <= _BLOCK:                       # (one run a row: a lidar's rays)
+        return 0.0 + _front_sums(packed, n)
     # runs over _BLOCK values split in halves as numpy does, level by level: segments
     # (row, start, length); the first `rows` are the whole rows
     seg_row, seg_start, seg_n = np.arange(rows), np.zeros(rows, dtype=np.intp), n.copy()
@@ -58,47 +59,28 @@ def masked_row_sums(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def _runs(packed: np.ndarray, row: np.ndarray, start: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """numpy's sum of runs of at most 128 values, ``packed[row, start:start + n]`` each:
-    under 8 values a plain loop from 0.0, else eight partial sums over the whole blocks of
-    eight, combined as a tree, then the rest added one by one."""
+    """numpy's sum of runs of at most 128 values, ``packed[row, start:start + n]`` each
+    (:func:`_front_sums` of them, gathered to the front of rows of their own)."""
     if not len(n):
         return np.zeros(0)
     width = packed.shape[1]
-    span = 8 * (int(n.max()) // 8 + 2)
-    cols = np.arange(span)
+    cols = np.arange(8 * (int(n.max()) // 8 + 2))
     run = packed[row[:, None], np.minimum(start[:, None] + cols, width - 1)]
     run[cols[None, :] >= n[:, None]] = _NOTHING
-    short = 0.0
-    for j in range(7):
-        short = short + run[:, j]
-    rest = n % 8
-    whole = n - rest
-    blocks = np.where(cols[None, :] < whole[:, None], run, _NOTHING)
-    part = blocks[:, :8]
-    for b in range(8, span, 8):
-        part = part + blocks[:, b:b + 8]
-    tot = (((part[:, 0] + part[:, 1]) + (part[:, 2] + part[:, 3]))
-           + ((part[:, 4] + part[:, 5]) + (part[:, 6] + part[:, 7])))
-    rows = np.arange(len(n))
-    for j in range(7):
-        tot = tot + np.where(j < rest, run[rows, np.minimum(whole + j, span - 1)], _NOTHING)
-    return np.where(n < 8, short, tot)
+    return _front_sums(run, n)
 
 
-def _short_rows(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """:func:`masked_row_sums` of rows of at most 128 values (one run each, a lidar's rays):
-    the selected values packed to each row's front, the whole blocks of eight summed in
+def _front_sums(packed: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """numpy's sum of each row's first ``n`` values (at most 128: one run), ``packed``
+    holding -0.0 past them for eight columns at least: the whole blocks of eight summed in
     order into eight partial sums, combined as numpy's tree, then the rest (under eight
     values) added one by one by a sequential ``cumsum``. A row of fewer than eight values
     has no whole block: its rest added to -0.0 is numpy's loop from 0.0 but for the sign of
-    a zero sum, which the final ``0.0 +`` gives as numpy does. About 15 numpy calls
-    whatever the rows (and an addition per block of eight)."""
-    rows, width = values.shape
-    n = mask.sum(axis=1)
+    a zero sum, which the caller's final ``0.0 +`` gives as numpy does. About 15 numpy
+    calls whatever the rows (and an addition per block of eight)."""
+    rows, width = packed.shape
     whole = n & -8                            # the values in whole blocks of eight
-    cols = np.arange(width + 8)               # room for a rest read past the last value
-    packed = np.full((rows, width + 8), _NOTHING)
-    packed[cols < n[:, None]] = values[mask]
+    cols = np.arange(width)
     blocks = np.where(cols < whole[:, None], packed, _NOTHING)
     part = blocks[:, :8]
     for b in range(8, width - 7, 8):           # (the blocks in order: numpy's partial sums)
@@ -109,4 +91,4 @@ def _short_rows(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     tail = np.empty((rows, 8))
     tail[:, 0] = quads[:, 0] + quads[:, 1]
     tail[:, 1:] = packed[np.arange(rows)[:, None], whole[:, None] + cols[:7]]
-    return 0.0 + tail.cumsum(axis=1)[:, -1]
+    return tail.cumsum(axis=1)[:, -1]
