@@ -217,9 +217,8 @@ def _camera(model: Model, image_noise, i: int, t_ns: int, tick: int, tf: np.ndar
     c = model.cameras[i]
     optical = model.frames["camera_optical"][i]
     if image:
-        rgb = cam.render(c, cam.camera_pose(c, tf), scene, exclude_owner=model.robots[i])
-        if image_noise is not None:
-            rgb = image_noise.apply(rgb, tick)
+        # render(camera_pose(tf)) then image_noise.apply(tick): the same bytes, one call
+        rgb = cam.frame(c, tf, scene, model.robots[i], image_noise, tick)
         out["camera/image_raw"][i] = enc(codec.image(t_ns, rgb, optical))
     if info:
         out["camera/camera_info"][i] = enc(codec.camera_info(

@@ -1,6 +1,7 @@
 /* The camera's per-pixel work in C (plant/camera.py calls it): every pixel's ray against
  * the shapes whose projected bounding box covers it, a z-buffer on the optical depth,
- * Lambert shading through the colour table (the image noise is plant/kernels/noise.c).
+ * Lambert shading through the colour table, then, if given, the frame's image noise
+ * (plant/kernels/noise.c's plant_image_noise, in place: one call for the noisy picture).
  *
  * Conventions are plant/camera.py's: the ray of pixel (u, v) is (xn, yn, 1) in the optical
  * frame (z forward, x right, y down), xn = (u - cx) / f, yn = (v - cy) / f without
@@ -16,7 +17,11 @@
 #define EXPORT __attribute__((visibility("default")))
 #define LEVELS 256
 
-EXPORT int plant_camera_abi(void) { return 2; }
+EXPORT int plant_camera_abi(void) { return 3; }
+
+/* plant/kernels/noise.c */
+void plant_image_noise(const uint8_t *img, int64_t n, uint64_t seed, int64_t k,
+                       const uint32_t *thr, const uint16_t *vals, uint8_t *out);
 
 /* fmin / fmax for numbers (no NaN reaches them here but 0 * inf's, which they drop) */
 static inline double mn(double a, double b) { return (a <= b || b != b) ? a : b; }
@@ -245,13 +250,16 @@ static void box_block(const double *M, const double *o, const double *h, const d
  * to draw, in order. cam: the optical frame's rotation (9, row-major, optical -> world)
  * then its origin (3). light: unit vector towards the light (world). xy: NULL, or the
  * per-pixel rays (2 x H x W: xn then yn). bounds: the rays' extent (x0, x1, y0, y1).
- * lut: (n_shapes + 1) x 256 RGBA words (row n_shapes: the background). */
+ * lut: (n_shapes + 1) x 256 RGBA words (row n_shapes: the background). thr: NULL (no
+ * noise), or the alias table (k thresholds, vals) of the image noise, drawn for the frame
+ * seed ``seed`` over rgb in place (plant_image_noise's arguments). */
 EXPORT void plant_camera_render(
     const double *centers, const double *rot, const double *halves, const double *quad,
     int64_t n_shapes, const int64_t *todo, int64_t n_todo, const double *cam,
     const double *light, int64_t W, int64_t H, double f, double cx, double cy,
     const double *xy, const double *bounds, double near, double far, const uint32_t *lut,
-    uint8_t *rgb, float *depth, int64_t *sid, double *lam)
+    uint8_t *rgb, float *depth, int64_t *sid, double *lam, uint64_t seed, int64_t k,
+    const uint32_t *thr, const uint16_t *vals)
 {
     const double *Rc = cam, *oc = cam + 9;
     const int64_t np_ = W * H;
@@ -336,4 +344,6 @@ EXPORT void plant_camera_render(
         if (sid[q] < 0)
             depth[q] = INFINITY;
     }
+    if (thr)
+        plant_image_noise(rgb, 3 * np_, seed, k, thr, vals, rgb);
 }
