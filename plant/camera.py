@@ -363,7 +363,7 @@ def frame(config: CameraConfig, robot_pose: np.ndarray, scene: Scene,
     if drawers is None:
         drawers = _local.drawers = {}
     d = drawers.get((id(config), exclude_owner))
-    if d is None or d.config is not config:
+    if d is None:                       # (a drawer holds its config: the id stays its own)
         if len(drawers) > 16:
             drawers.clear()
         d = drawers[(id(config), exclude_owner)] = _Drawer(config, exclude_owner)
