@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 
-__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "normals",
+__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_wide",
+           "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
            "tick_part", "sense_call", "observe_kinematic_call", "quaternions",
@@ -73,6 +74,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_camera_render.restype = None
     lib.plant_camera_render.argtypes = ([_P] * 4 + [_I, _P, _I, _P, _P, _I, _I, _D, _D, _D, _P, _P,
                                          _D, _D] + [_P] * 5 + [ctypes.c_uint64, _I, _P, _P])
+    lib.plant_camera_wide.restype = ctypes.c_int
+    lib.plant_camera_wide.argtypes = [ctypes.c_int]
     lib.plant_image_noise.restype = None
     lib.plant_image_noise.argtypes = [_P, _I, ctypes.c_uint64, _I, _P, _P, _P]
     lib.plant_normals.restype = None
@@ -151,6 +154,13 @@ def camera_render(scene, todo: np.ndarray, cam: np.ndarray, light: np.ndarray, w
         None if xy is None else ptr(xy), ptr(bounds), near, far, ptr(lut), ptr(rgb),
         ptr(depth), ptr(sid), ptr(lam), seed, 0 if thr is None else thr.size,
         None if thr is None else ptr(thr), None if vals is None else ptr(vals))
+
+
+def camera_wide(mode: int | None = None) -> bool:
+    """Whether the camera's box test runs four pixels at a time (AVX2 on x86-64; the same
+    values as two at a time). ``mode`` 0 turns that off, -1 back on where available
+    (the tests compare the two)."""
+    return bool(library().plant_camera_wide(1 if mode is None else int(mode)))
 
 
 def camera_work(w: int, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -360,3 +360,31 @@ def test_a_frame_is_the_rendered_picture_with_its_noise_to_the_bit():
                 got = frame(cfg, robot, scene, owner, noise, 40 + k)
                 assert got.shape == want.shape and got.dtype == np.uint8
                 assert got.tobytes() == want.tobytes(), (k, cfg.width, owner, noise)
+
+
+@pytest.mark.parametrize("size", [(160, 120), (37, 23)])
+def test_the_box_test_four_pixels_at_a_time_gives_the_two_at_a_time_bytes(size):
+    """Where the processor has AVX2 the kernel tests boxes four pixels at a time: picture,
+    depth and shape of each pixel as with two at a time (rows of any length: the last
+    pixels two, then one, at a time), from many poses in the living room."""
+    from plant import kernels
+    from plant.raycast import Scene
+    if not kernels.camera_wide():
+        pytest.skip("the processor has no AVX2: the kernel tests two pixels at a time only")
+    cfg = CameraConfig(width=size[0], height=size[1], hfov_rad=1.2)
+    scene = Scene(living_room())
+    rng = np.random.default_rng(11)
+    poses = [pose_matrix(x, y, 0.0, yaw=yaw) for x, y, yaw in
+             zip(rng.uniform(-2.5, 2.5, 12), rng.uniform(-2.0, 2.0, 12), rng.uniform(-3, 3, 12))]
+    poses.append(pose_matrix(-0.4, -0.3, 0, yaw=0.3))
+    try:
+        for robot in poses:
+            pose = camera_pose(cfg, robot)
+            wide = render_full(cfg, pose, scene, "follower")
+            kernels.camera_wide(0)
+            narrow = render_full(cfg, pose, scene, "follower")
+            kernels.camera_wide(-1)
+            for a, b in zip(wide, narrow):
+                assert a.tobytes() == b.tobytes()
+    finally:
+        kernels.camera_wide(-1)
