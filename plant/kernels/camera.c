@@ -428,7 +428,9 @@ EXPORT void plant_camera_render(
         double l = lam[q] < 0.0 ? 0.0 : (lam[q] > 1.0 ? 1.0 : lam[q]);
         int64_t level = (int64_t)(l * (LEVELS - 1) + 0.5);
         uint32_t c = lut[row * LEVELS + level];
-        memcpy(rgb + 3 * q, &c, 3);              /* RGBA words, little-endian bytes */
+        /* RGBA words, little-endian bytes: all four but the last pixel's, one store (the
+         * A byte is the next pixel's R, written next) */
+        memcpy(rgb + 3 * q, &c, q + 1 < np_ ? 4 : 3);
         if (sid[q] < 0)
             depth[q] = INFINITY;
     }
