@@ -351,7 +351,7 @@ def render(config: CameraConfig, camera_pose: np.ndarray, shapes: "Sequence[Shap
     return rgb
 
 
-def frame(config: CameraConfig, robot_pose: np.ndarray, scene: Scene,
+def frame(config: CameraConfig, robot_pose: np.ndarray, scene: "Sequence[Shape] | Scene",
           exclude_owner: str | None = None, noise=None, tick: int = 0) -> np.ndarray:
     """The camera's rgb8 picture, noisy, as a sensor publishes it frame after frame: the
     bytes of ``noise.apply(render(config, camera_pose(config, robot_pose), scene,
@@ -368,7 +368,7 @@ def frame(config: CameraConfig, robot_pose: np.ndarray, scene: Scene,
             drawers.clear()
         d = drawers[(id(config), exclude_owner)] = _Drawer(config, exclude_owner)
     draw = None if noise is None else noise.image_draw(tick)
-    rgb = d.draw(robot_pose, scene, draw)
+    rgb = d.draw(robot_pose, Scene.from_shapes(scene), draw)
     if noise is not None and draw is None:
         rgb = noise.apply(rgb, tick)
     return rgb

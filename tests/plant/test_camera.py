@@ -360,6 +360,8 @@ def test_a_frame_is_the_rendered_picture_with_its_noise_to_the_bit():
                 got = frame(cfg, robot, scene, owner, noise, 40 + k)
                 assert got.shape == want.shape and got.dtype == np.uint8
                 assert got.tobytes() == want.tobytes(), (k, cfg.width, owner, noise)
+    assert frame(cfgs[0], robot, moved).tobytes() == \
+        render(cfgs[0], camera_pose(cfgs[0], robot), moved).tobytes()     # a list of shapes
 
 
 @pytest.mark.parametrize("size", [(160, 120), (37, 23)])
