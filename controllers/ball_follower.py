@@ -23,6 +23,7 @@ import math
 import sys
 from collections import deque
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -84,14 +85,22 @@ def image_noise_std(rgb: np.ndarray) -> float:
         d = np.abs(np.diff(g.astype(np.int16), axis=1))
         return float(np.median(d)) / (0.6745 * math.sqrt(2.0))
     # a uint8 frame's differences are 0..255: their median from their histogram (np.median's
-    # value: the middle one, or the mean of the two middle ones), half the time of a sort
+    # value: the middle one, or the mean of the two middle ones), half the time of a sort;
+    # OpenCV's histogram in float32, whole counts (< 2**24) exact, in half np.bincount's time
     g = np.ascontiguousarray(g)
-    counts = np.cumsum(np.bincount(cv2.absdiff(g[:, 1:], g[:, :-1]).ravel(), minlength=256))
+    hist = cv2.calcHist([cv2.absdiff(g[:, 1:], g[:, :-1])], [0], None, [256], [0, 256])
+    counts = np.cumsum(hist.ravel().astype(np.int64))
     n = int(counts[-1])
     upper = int(np.searchsorted(counts, n // 2, side="right"))
     median = float(upper) if n % 2 else \
         (int(np.searchsorted(counts, n // 2 - 1, side="right")) + upper) / 2
     return median / (0.6745 * math.sqrt(2.0))
+
+
+@lru_cache(maxsize=8)
+def _square(k: int) -> np.ndarray:
+    """The k x k structuring element of the detector's opening (made once)."""
+    return np.ones((k, k), np.uint8)
 
 
 def detect_ball(rgb: np.ndarray, p: DetectorParams = DetectorParams(),
@@ -108,8 +117,7 @@ def detect_ball(rgb: np.ndarray, p: DetectorParams = DetectorParams(),
     mask = cv2.inRange(hsv, (p.hue_range[0], p.min_saturation, p.min_value),
                        (p.hue_range[1], 255, 255))
     if p.open_kernel > 1:
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN,
-                                np.ones((p.open_kernel, p.open_kernel), np.uint8))
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _square(p.open_kernel))
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     h, w = mask.shape
     for c in sorted(contours, key=cv2.contourArea, reverse=True)[:3]:

@@ -43,11 +43,18 @@ class Wander:
         self._ys = np.ascontiguousarray(self.points[:, 1])
         self._route = [tuple(p) for p in self.points.tolist()]
         self._phases = self.params.tolist()
+        self._dx, self._dy = np.empty_like(self._xs), np.empty_like(self._ys)
 
     def point(self, x: float, y: float) -> int:
         """The index of the route's point nearest to (x, y) (the first of equals)."""
-        dx, dy = self._xs - x, self._ys - y
-        return int(np.argmin(dx * dx + dy * dy))
+        # dx * dx + dy * dy, the same operations into buffers kept for them (a quarter
+        # of the time went to making the arrays)
+        dx, dy = self._dx, self._dy
+        np.subtract(self._xs, x, out=dx)
+        np.subtract(self._ys, y, out=dy)
+        np.multiply(dx, dx, out=dx)
+        np.multiply(dy, dy, out=dy)
+        return int(np.add(dx, dy, out=dx).argmin())
 
     def step(self, obs):
         gt = obs["ground_truth"]

@@ -40,6 +40,7 @@ stacking work with the lidar.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Sequence
@@ -60,6 +61,7 @@ __all__ = [
     "look_at",
     "render",
     "render_full",
+    "frame",
     "third_person",
     "R_BODY_OPTICAL",
     "LIGHT_DIR",
@@ -347,6 +349,80 @@ def render(config: CameraConfig, camera_pose: np.ndarray, shapes: "Sequence[Shap
     _render_into(config, camera_pose, shapes, exclude_owner, background, False,
                  (rgb, *scratch))
     return rgb
+
+
+def frame(config: CameraConfig, robot_pose: np.ndarray, scene: "Sequence[Shape] | Scene",
+          exclude_owner: str | None = None, noise=None, tick: int = 0) -> np.ndarray:
+    """The camera's rgb8 picture, noisy, as a sensor publishes it frame after frame: the
+    bytes of ``noise.apply(render(config, camera_pose(config, robot_pose), scene,
+    exclude_owner), tick)`` (``noise``: a :class:`plant.noise.NoiseModel`, or None), in one
+    kernel call that renders and draws the noise, with the arguments that stay the same
+    from frame to frame (the ray grid, the colour table, the shapes drawn, the buffers)
+    taken once per camera, scene layout and thread."""
+    drawers = getattr(_local, "drawers", None)
+    if drawers is None:
+        drawers = _local.drawers = {}
+    d = drawers.get((id(config), exclude_owner))
+    if d is None:                       # (a drawer holds its config: the id stays its own)
+        if len(drawers) > 16:
+            drawers.clear()
+        d = drawers[(id(config), exclude_owner)] = _Drawer(config, exclude_owner)
+    draw = None if noise is None else noise.image_draw(tick)
+    rgb = d.draw(robot_pose, Scene.from_shapes(scene), draw)
+    if noise is not None and draw is None:
+        rgb = noise.apply(rgb, tick)
+    return rgb
+
+
+_local = threading.local()
+
+
+class _Drawer:
+    """One camera's kernel call with its fixed arguments prepared (see :func:`frame`)."""
+
+    def __init__(self, config: CameraConfig, exclude_owner: str | None) -> None:
+        self.config, self.exclude = config, exclude_owner
+        w, h = config.width, config.height
+        self.shape = (h, w, 3)
+        self.mount = config.mount_pose()
+        grid = _grid_for(config)
+        self.bufs = (np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.intp),
+                     np.empty(w * h + w + h))
+        self.pose, self.opt, self.cam = np.empty((4, 4)), np.empty((4, 4)), np.empty(12)
+        xy = grid.kernel_xy() if grid.distorted else None
+        self._grid = (grid, xy)                 # (kept alive: the call holds their addresses)
+        self.view = (kernels.ptr(self.cam), kernels.ptr(_LIGHT), w, h, grid.f, grid.cx, grid.cy,
+                     None if xy is None else kernels.ptr(xy), kernels.ptr(grid.kernel_bounds),
+                     float(config.near_m), float(config.far_m))
+        self.work = tuple(kernels.ptr(b) for b in self.bufs)
+        self.layout = None      # (owners, colors, todo, lut, their addresses) of the scene
+
+    def _scene(self, scene: Scene) -> tuple:
+        lay = self.layout
+        if lay is None or lay[0] is not scene.owners or lay[1] is not scene.colors:
+            todo = np.nonzero(scene.include_mask(self.exclude))[0].astype(np.int64)
+            bg = tuple(float(v) for v in np.asarray(DEFAULT_BACKGROUND, dtype=float))
+            lut = _lut(scene.colors, bg)
+            lay = self.layout = (scene.owners, scene.colors, todo, lut,
+                                 (kernels.ptr(todo), todo.size), kernels.ptr(lut))
+        return lay
+
+    def draw(self, robot_pose: np.ndarray, scene: Scene, noise: tuple | None) -> np.ndarray:
+        lay = self._scene(scene)
+        # camera_pose's and _render_into's products, into buffers kept for them
+        np.matmul(np.asarray(robot_pose, dtype=float), self.mount, out=self.pose)
+        np.matmul(self.pose, _T_BODY_OPTICAL, out=self.opt)
+        cam = self.cam
+        cam[:9] = self.opt[:3, :3].ravel()
+        cam[9:] = self.opt[:3, 3]
+        rgb = np.empty(self.shape, dtype=np.uint8)
+        seed, thr, vals = (0, None, None) if noise is None else (noise[0], *noise[1])
+        kernels.library().plant_camera_render(
+            scene.centers.ctypes.data, scene.rotations.ctypes.data, *scene.const_ptrs()[:2],
+            len(scene), *lay[4], *self.view, lay[5], rgb.ctypes.data, *self.work, seed,
+            0 if thr is None else thr.size, None if thr is None else thr.ctypes.data,
+            None if vals is None else vals.ctypes.data)
+        return rgb
 
 
 def _render_into(config, camera_pose, shapes, exclude_owner, background, force_flat, bufs):

@@ -384,6 +384,15 @@ class NoiseModel:
             self._ahead = (tick, shape, noise)
         return noise
 
+    def image_draw(self, tick: int) -> tuple[int, tuple[np.ndarray, np.ndarray]] | None:
+        """``(frame seed, alias table)``: the arguments of :func:`plant.kernels.image_noise`
+        with which :meth:`apply` draws an image's noise at ``tick``, or None when it does not
+        draw it so (no noise, quantisation, several keys)."""
+        if not self._by_law or self.rows:
+            return None
+        c = self.config
+        return frame_seed(self.key, tick), alias_table(float(c.std), float(c.bias + c.mean))
+
     def apply(self, x, tick):
         arr = np.asarray(x)
         c = self.config
@@ -397,8 +406,7 @@ class NoiseModel:
             if self._by_law:
                 # x + D, D ~ rint(offset + N(0, std)), clipped: one pass of the C kernel
                 img = np.empty(arr.shape, dtype=np.uint8)
-                kernels.image_noise(np.ascontiguousarray(arr), frame_seed(self.key, tick),
-                                    alias_table(float(c.std), float(c.bias + c.mean)), img)
+                kernels.image_noise(np.ascontiguousarray(arr), *self.image_draw(tick), img)
                 return img
             if c.std > 0:
                 # (x + offset) + noise, summed into the noise's own buffer

@@ -217,14 +217,31 @@ def _camera(model: Model, image_noise, i: int, t_ns: int, tick: int, tf: np.ndar
     c = model.cameras[i]
     optical = model.frames["camera_optical"][i]
     if image:
-        rgb = cam.render(c, cam.camera_pose(c, tf), scene, exclude_owner=model.robots[i])
-        if image_noise is not None:
-            rgb = image_noise.apply(rgb, tick)
+        # render(camera_pose(tf)) then image_noise.apply(tick): the same bytes, one call
+        rgb = cam.frame(c, tf, scene, model.robots[i], image_noise, tick)
         out["camera/image_raw"][i] = enc(codec.image(t_ns, rgb, optical))
     if info:
-        out["camera/camera_info"][i] = enc(codec.camera_info(
-            t_ns, **model.camera_info[i], frame_id=optical))
+        fields = model.camera_info[i]
+        out["camera/camera_info"][i] = _info_bytes(fields, optical, t_ns) if encoded else \
+            codec.camera_info(t_ns, **fields, frame_id=optical)
 
 
 def _same(msg):
     return msg
+
+
+_STAMP = struct.Struct("<iI")        # a Header's stamp (sec, nanosec), after the CDR header
+_INFO: dict[tuple[int, str], tuple] = {}
+
+
+def _info_bytes(fields: dict, frame_id: str, t_ns: int) -> bytes:
+    """``codec.encode(codec.camera_info(t_ns, **fields, frame_id=frame_id))``: a camera's
+    CameraInfo changes only in its stamp (bytes 4-11), so the rest is encoded once."""
+    got = _INFO.get((id(fields), frame_id))
+    if got is None:                    # (an entry holds its fields: their id stays theirs)
+        if len(_INFO) > 64:
+            _INFO.clear()
+        data = codec.encode(codec.camera_info(0, **fields, frame_id=frame_id))
+        got = _INFO[(id(fields), frame_id)] = (fields, data[:4], data[12:])
+    sec, nanosec = divmod(t_ns, 1_000_000_000)
+    return b"".join((got[1], _STAMP.pack(sec, nanosec), got[2]))

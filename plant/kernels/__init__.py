@@ -21,14 +21,15 @@ from pathlib import Path
 import numpy as np
 
 
-__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "image_noise", "normals",
+__all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_wide",
+           "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
            "tick_part", "sense_call", "observe_kinematic_call", "quaternions",
            "quaternions_call", "lidar_noise", "drive_commands_call"]
 
 ABI = 4
-CAMERA_ABI = 2
+CAMERA_ABI = 3
 NOISE_ABI = 2
 DRIVE_ABI = 2
 KINEMATIC_ABI = 2
@@ -72,7 +73,9 @@ def load(path: Path) -> ctypes.CDLL:
                                  f"{HOW_TO_BUILD}")
     lib.plant_camera_render.restype = None
     lib.plant_camera_render.argtypes = ([_P] * 4 + [_I, _P, _I, _P, _P, _I, _I, _D, _D, _D, _P, _P,
-                                         _D, _D] + [_P] * 5)
+                                         _D, _D] + [_P] * 5 + [ctypes.c_uint64, _I, _P, _P])
+    lib.plant_camera_wide.restype = ctypes.c_int
+    lib.plant_camera_wide.argtypes = [ctypes.c_int]
     lib.plant_image_noise.restype = None
     lib.plant_image_noise.argtypes = [_P, _I, ctypes.c_uint64, _I, _P, _P, _P]
     lib.plant_normals.restype = None
@@ -138,16 +141,26 @@ def lidar_scan(scene_arrays: tuple[int, ...], n_shapes: int, poses: np.ndarray,
 def camera_render(scene, todo: np.ndarray, cam: np.ndarray, light: np.ndarray, w: int, h: int,
                   f: float, cx: float, cy: float, xy: np.ndarray | None, bounds: np.ndarray,
                   near: float, far: float, lut: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
-                  sid: np.ndarray, lam: np.ndarray) -> None:
+                  sid: np.ndarray, lam: np.ndarray, noise: tuple | None = None) -> None:
     """Fill ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 and ``sid`` (H, W) int64 with
     the picture of ``scene``'s shapes ``todo`` (int64) seen from ``cam`` (the optical
     frame's rotation, row-major, then its origin: 12 doubles); ``lam``: scratch of
-    W H + W + H doubles. plant/kernels/camera.c."""
+    W H + W + H doubles. ``noise``: None, or ``(seed, (thresholds, values))`` of
+    :func:`image_noise` drawn over ``rgb`` in the same call. plant/kernels/camera.c."""
+    seed, thr, vals = (0, None, None) if noise is None else (noise[0], *noise[1])
     library().plant_camera_render(
         scene.centers.ctypes.data, scene.rotations.ctypes.data, *scene.const_ptrs()[:2],
         len(scene), ptr(todo), todo.size, ptr(cam), ptr(light), w, h, f, cx, cy,
         None if xy is None else ptr(xy), ptr(bounds), near, far, ptr(lut), ptr(rgb),
-        ptr(depth), ptr(sid), ptr(lam))
+        ptr(depth), ptr(sid), ptr(lam), seed, 0 if thr is None else thr.size,
+        None if thr is None else ptr(thr), None if vals is None else ptr(vals))
+
+
+def camera_wide(mode: int | None = None) -> bool:
+    """Whether the camera's box test runs four pixels at a time (AVX2 on x86-64; the same
+    values as two at a time). ``mode`` 0 turns that off, -1 back on where available
+    (the tests compare the two)."""
+    return bool(library().plant_camera_wide(1 if mode is None else int(mode)))
 
 
 def camera_work(w: int, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

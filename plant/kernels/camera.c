@@ -1,6 +1,7 @@
 /* The camera's per-pixel work in C (plant/camera.py calls it): every pixel's ray against
  * the shapes whose projected bounding box covers it, a z-buffer on the optical depth,
- * Lambert shading through the colour table (the image noise is plant/kernels/noise.c).
+ * Lambert shading through the colour table, then, if given, the frame's image noise
+ * (plant/kernels/noise.c's plant_image_noise, in place: one call for the noisy picture).
  *
  * Conventions are plant/camera.py's: the ray of pixel (u, v) is (xn, yn, 1) in the optical
  * frame (z forward, x right, y down), xn = (u - cx) / f, yn = (v - cy) / f without
@@ -16,7 +17,11 @@
 #define EXPORT __attribute__((visibility("default")))
 #define LEVELS 256
 
-EXPORT int plant_camera_abi(void) { return 2; }
+EXPORT int plant_camera_abi(void) { return 3; }
+
+/* plant/kernels/noise.c */
+void plant_image_noise(const uint8_t *img, int64_t n, uint64_t seed, int64_t k,
+                       const uint32_t *thr, const uint16_t *vals, uint8_t *out);
 
 /* fmin / fmax for numbers (no NaN reaches them here but 0 * inf's, which they drop) */
 static inline double mn(double a, double b) { return (a <= b || b != b) ? a : b; }
@@ -160,16 +165,99 @@ static inline void slab2(v2d d, double a, double b, v2d *lo, v2d *hi)
     *hi = sel((t1 >= t2) | nan2, t1, t2);
 }
 
+/* Four lanes where the processor has AVX2 (x86-64, GCC or clang: the function is compiled
+ * for it alone and called only after a check at run time). Per lane the same IEEE double
+ * operations as the two-lane and the scalar code (no fused multiply-add: the build's
+ * -ffp-contract=off), so the same values; a 256-bit division costs about what a 128-bit
+ * one does, which is what the box test spends its time on. */
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define WIDE_ROWS 1
+typedef double v4d __attribute__((vector_size(32)));
+typedef long long v4l __attribute__((vector_size(32)));
+
+#define SEL4(m, a, b) ((v4d)(((m) & (v4l)(a)) | (~(m) & (v4l)(b))))
+#define SPLAT4(x) ((v4d){(x), (x), (x), (x)})
+
+/* -1: four lanes where the processor has AVX2; 0: two, always (the tests compare the two) */
+static int wide_mode = -1;
+
+/* box_block's pixels u0 .. of row (y0, y1, y2: M's yn terms) four at a time, while four
+ * remain up to u1; the first pixel it left */
+__attribute__((target("avx2"))) static int64_t box_row4(
+    const double *M, double y0, double y1, double y2, const double *ab, const double *L,
+    int64_t s, double near, const double *xs, int64_t u0, int64_t u1, float *dep,
+    int64_t *sd, double *lm)
+{
+    const v4d inf = SPLAT4(INFINITY), ninf = SPLAT4(-INFINITY), zero = SPLAT4(0.0);
+    int64_t u = u0;
+    for (; u + 3 <= u1; u += 4) {
+        const v4d xn = {xs[u], xs[u + 1], xs[u + 2], xs[u + 3]};
+        const v4d d[3] = {SPLAT4(M[0]) * xn + SPLAT4(y0) + SPLAT4(M[2]),
+                          SPLAT4(M[3]) * xn + SPLAT4(y1) + SPLAT4(M[5]),
+                          SPLAT4(M[6]) * xn + SPLAT4(y2) + SPLAT4(M[8])};
+        v4d tn = ninf, tf = inf, lamv = zero;
+        for (int k = 0; k < 3; k++) {          /* slab2 of each axis, as box_block */
+            const v4d inv = SPLAT4(1.0) / d[k], t1 = SPLAT4(ab[2 * k]) * inv,
+                      t2 = SPLAT4(ab[2 * k + 1]) * inv;
+            const v4l nan2 = t2 != t2;
+            const v4d lo = SEL4((t1 <= t2) | nan2, t1, t2), hi = SEL4((t1 >= t2) | nan2, t1, t2);
+            const v4d face = SEL4(d[k] > zero, SPLAT4(-L[k]), SPLAT4(L[k]));
+            if (k == 0) {
+                tf = SEL4(hi < inf, hi, inf);
+                tn = SEL4(lo > ninf, lo, ninf);
+                lamv = face;
+            } else {
+                const v4l take = lo > tn;
+                tn = SEL4(take, lo, tn);
+                lamv = SEL4(take, face, lamv);
+                tf = SEL4(hi < tf, hi, tf);
+            }
+        }
+        const v4d cur = {(double)dep[u], (double)dep[u + 1], (double)dep[u + 2],
+                         (double)dep[u + 3]};
+        const v4l ok = (tn <= tf) & (tn >= SPLAT4(near)) & (tn < cur);
+        for (int k = 0; k < 4; k++) {
+            if (ok[k]) {
+                dep[u + k] = (float)tn[k];
+                sd[u + k] = s;
+                lm[u + k] = lamv[k];
+            }
+        }
+    }
+    return u;
+}
+#endif
+
+/* Set the four-lane mode (-1 or 0; other values leave it) and say whether renders use
+ * four lanes. */
+EXPORT int plant_camera_wide(int mode)
+{
+#ifdef WIDE_ROWS
+    if (mode == -1 || mode == 0)
+        wide_mode = mode;
+    return wide_mode == -1 && __builtin_cpu_supports("avx2");
+#else
+    (void)mode;
+    return 0;
+#endif
+}
+
 /* A box over a block of pixels without distortion: hit()'s box case, the same numbers,
- * written without branches (and with its per-shape terms hoisted), two pixels at a time. */
+ * written without branches (and with its per-shape terms hoisted), two pixels at a time
+ * (four with box_row4 where ``wide``). */
 static void box_block(const double *M, const double *o, const double *h, const double *L,
                       int64_t s, double near, const double *xs, const double *ys, int64_t u0,
                       int64_t u1, int64_t v0, int64_t v1, int64_t W, float *depth,
-                      int64_t *sid, double *lam)
+                      int64_t *sid, double *lam, int wide)
 {
     const double a0 = -h[0] - o[0], b0 = h[0] - o[0];
     const double a1 = -h[1] - o[1], b1 = h[1] - o[1];
     const double a2 = -h[2] - o[2], b2 = h[2] - o[2];
+#ifdef WIDE_ROWS
+    const double ab[6] = {a0, b0, a1, b1, a2, b2};
+#else
+    (void)wide;
+#endif
     const v2d inf = splat(INFINITY), ninf = splat(-INFINITY), zero = splat(0.0);
     for (int64_t v = v0; v <= v1; v++) {
         const double yn = ys[v];
@@ -178,6 +266,10 @@ static void box_block(const double *M, const double *o, const double *h, const d
         int64_t *sd = sid + v * W;
         double *lm = lam + v * W;
         int64_t u = u0;
+#ifdef WIDE_ROWS
+        if (wide)
+            u = box_row4(M, y0, y1, y2, ab, L, s, near, xs, u0, u1, dep, sd, lm);
+#endif
         for (; u + 1 <= u1; u += 2) {
             const v2d xn = {xs[u], xs[u + 1]};
             const v2d d0 = splat(M[0]) * xn + splat(y0) + splat(M[2]);
@@ -245,16 +337,20 @@ static void box_block(const double *M, const double *o, const double *h, const d
  * to draw, in order. cam: the optical frame's rotation (9, row-major, optical -> world)
  * then its origin (3). light: unit vector towards the light (world). xy: NULL, or the
  * per-pixel rays (2 x H x W: xn then yn). bounds: the rays' extent (x0, x1, y0, y1).
- * lut: (n_shapes + 1) x 256 RGBA words (row n_shapes: the background). */
+ * lut: (n_shapes + 1) x 256 RGBA words (row n_shapes: the background). thr: NULL (no
+ * noise), or the alias table (k thresholds, vals) of the image noise, drawn for the frame
+ * seed ``seed`` over rgb in place (plant_image_noise's arguments). */
 EXPORT void plant_camera_render(
     const double *centers, const double *rot, const double *halves, const double *quad,
     int64_t n_shapes, const int64_t *todo, int64_t n_todo, const double *cam,
     const double *light, int64_t W, int64_t H, double f, double cx, double cy,
     const double *xy, const double *bounds, double near, double far, const uint32_t *lut,
-    uint8_t *rgb, float *depth, int64_t *sid, double *lam)
+    uint8_t *rgb, float *depth, int64_t *sid, double *lam, uint64_t seed, int64_t k,
+    const uint32_t *thr, const uint16_t *vals)
 {
     const double *Rc = cam, *oc = cam + 9;
     const int64_t np_ = W * H;
+    const int wide = plant_camera_wide(1);
     double *xs = lam + np_, *ys = xs + W;       /* the rays of the columns and rows */
     for (int64_t u = 0; u < W; u++)
         xs[u] = ((double)u - cx) / f;
@@ -299,7 +395,7 @@ EXPORT void plant_camera_render(
             a = floor(f * rc[3] + cy + 1e-9); v1 = a < (double)(H - 1) ? (int64_t)a : H - 1;
         }
         if (kind == 0 && !xy) {
-            box_block(M, o, h, L, s, near, xs, ys, u0, u1, v0, v1, W, depth, sid, lam);
+            box_block(M, o, h, L, s, near, xs, ys, u0, u1, v0, v1, W, depth, sid, lam, wide);
             continue;
         }
         for (int64_t v = v0; v <= v1; v++) {
@@ -332,8 +428,12 @@ EXPORT void plant_camera_render(
         double l = lam[q] < 0.0 ? 0.0 : (lam[q] > 1.0 ? 1.0 : lam[q]);
         int64_t level = (int64_t)(l * (LEVELS - 1) + 0.5);
         uint32_t c = lut[row * LEVELS + level];
-        memcpy(rgb + 3 * q, &c, 3);              /* RGBA words, little-endian bytes */
+        /* RGBA words, little-endian bytes: all four but the last pixel's, one store (the
+         * A byte is the next pixel's R, written next) */
+        memcpy(rgb + 3 * q, &c, q + 1 < np_ ? 4 : 3);
         if (sid[q] < 0)
             depth[q] = INFINITY;
     }
+    if (thr)
+        plant_image_noise(rgb, 3 * np_, seed, k, thr, vals, rgb);
 }

@@ -327,3 +327,66 @@ def test_config_validation():
         CameraConfig(width=0)
     with pytest.raises(ValueError, match="near_m"):
         CameraConfig(near_m=5.0, far_m=1.0)
+
+
+def test_a_frame_is_the_rendered_picture_with_its_noise_to_the_bit():
+    """camera.frame (render and noise in one kernel call, its fixed arguments kept per
+    camera) gives render(camera_pose) then NoiseModel.apply's bytes: noise drawn by the
+    kernel (with a bias), quantised noise (drawn in numpy), none; a distorted camera; the
+    robot hidden or not; scenes that move, and one of other shapes (other colours,
+    owners); two cameras in turn."""
+    from plant.camera import frame
+    from plant.noise import NoiseConfig, NoiseModel, stream_key
+    from plant.raycast import Scene
+    key = stream_key(5, "follower", "camera")
+    noises = [None, NoiseModel(NoiseConfig(std=10.0, bias=3.0), key),
+              NoiseModel(NoiseConfig(std=4.0, resolution=2.0), key), NoiseModel(NoiseConfig(), key)]
+    cfgs = [CameraConfig(width=40, height=30, mount_yaw_rad=0.1),
+            CameraConfig(width=33, height=25, hfov_rad=1.3, k1=-0.2, k2=0.05, mount_pitch_rad=0.2)]
+    world = living_room()
+    others = [s for s in world if s.name not in ("floor", "plant")]     # another layout
+    for k in range(8):
+        shapes = others if k == 5 else world
+        moved = [Shape(s.kind, s.size, pose_matrix(0.05 * k, 0.0, 0.0) @ s.pose, s.color, s.name,
+                       s.owner) if s.owner == "leader" else s for s in shapes]
+        scene = Scene(moved)
+        robot = pose_matrix(-0.4 + 0.1 * k, -0.3, 0, yaw=0.3 - 0.2 * k)
+        for cfg in cfgs:
+            for owner in ("follower", None):
+                noise = noises[(k + (owner is None)) % len(noises)]
+                want = render(cfg, camera_pose(cfg, robot), scene, owner)
+                if noise is not None:
+                    want = noise.apply(want, 40 + k)
+                got = frame(cfg, robot, scene, owner, noise, 40 + k)
+                assert got.shape == want.shape and got.dtype == np.uint8
+                assert got.tobytes() == want.tobytes(), (k, cfg.width, owner, noise)
+    assert frame(cfgs[0], robot, moved).tobytes() == \
+        render(cfgs[0], camera_pose(cfgs[0], robot), moved).tobytes()     # a list of shapes
+
+
+@pytest.mark.parametrize("size", [(160, 120), (37, 23)])
+def test_the_box_test_four_pixels_at_a_time_gives_the_two_at_a_time_bytes(size):
+    """Where the processor has AVX2 the kernel tests boxes four pixels at a time: picture,
+    depth and shape of each pixel as with two at a time (rows of any length: the last
+    pixels two, then one, at a time), from many poses in the living room."""
+    from plant import kernels
+    from plant.raycast import Scene
+    if not kernels.camera_wide():
+        pytest.skip("the processor has no AVX2: the kernel tests two pixels at a time only")
+    cfg = CameraConfig(width=size[0], height=size[1], hfov_rad=1.2)
+    scene = Scene(living_room())
+    rng = np.random.default_rng(11)
+    poses = [pose_matrix(x, y, 0.0, yaw=yaw) for x, y, yaw in
+             zip(rng.uniform(-2.5, 2.5, 12), rng.uniform(-2.0, 2.0, 12), rng.uniform(-3, 3, 12))]
+    poses.append(pose_matrix(-0.4, -0.3, 0, yaw=0.3))
+    try:
+        for robot in poses:
+            pose = camera_pose(cfg, robot)
+            wide = render_full(cfg, pose, scene, "follower")
+            kernels.camera_wide(0)
+            narrow = render_full(cfg, pose, scene, "follower")
+            kernels.camera_wide(-1)
+            for a, b in zip(wide, narrow):
+                assert a.tobytes() == b.tobytes()
+    finally:
+        kernels.camera_wide(-1)
