@@ -7,20 +7,24 @@ import math
 import struct
 
 import numpy as np
+import pytest
 
 from bus import codec
 from bus.controller import Observation
 from controllers.avoid import Avoid
-from controllers.rowsum import masked_row_sums
+from controllers.rowsum import masked_row_sums, masked_row_sums_numpy
 
 
 def _bits(x: float) -> bytes:
     return struct.pack("<d", x)
 
 
-def test_masked_row_sums_equal_numpy_sums_of_each_row():
+@pytest.mark.parametrize("masked_row_sums", [masked_row_sums, masked_row_sums_numpy],
+                         ids=["kernel", "numpy"])
+def test_masked_row_sums_equal_numpy_sums_of_each_row(masked_row_sums):
     """Every run length numpy sums differently (under 8, blocks of 8 up to 128, halves
-    past it), signed zeros and wide magnitudes."""
+    past it, past 256 twice), signed zeros and wide magnitudes: the kernel and its numpy
+    formulation alike."""
     rng = np.random.default_rng(7)
     for trial in range(60):
         rows, width = int(rng.integers(1, 30)), int(rng.integers(1, 400))
