@@ -8,7 +8,7 @@ length is a multiple of eight; numpy/_core/src/umath/loops_utils.h.src, ``pairwi
 :func:`masked_row_sums` follows that order for every row at once, in a fixed number of
 numpy calls whatever the number of rows, so a controller stepping many robots with numpy
 gives the commands its per-robot step gives, byte for byte. It runs as one call of the
-plant's C kernels (plant/kernels/rowsum.c, the same additions in the same order, ~25x
+plant's C kernels (plant/kernels/rowsum.c, the same additions in the same order, ~10x
 cheaper than the numpy formulation on a swarm's scans); :func:`masked_row_sums_numpy` is
 that formulation in numpy, the reference the tests compare the kernel with.
 """
@@ -27,22 +27,19 @@ _BLOCK = 128
 _NOTHING = -0.0
 
 
-#: the ABI of plant/kernels/rowsum.c this module calls
-_ABI = 1
-
-
-@lru_cache(maxsize=1)
-def _kernel():
-    """plant/kernels/rowsum.c's function (KernelsMissing if the kernels are not built, or
-    were built before it)."""
+@lru_cache(maxsize=None)
+def kernel(name: str, abi: tuple[str, int], nargs: int):
+    """The function ``name`` of the plant's C kernels taking ``nargs`` arguments (integers
+    and addresses), its source file's ABI checked (``abi``: its ABI function, the number
+    expected): KernelsMissing if the kernels are not built, or were built before it."""
     lib = kernels.library()
-    abi = lib.plant_rowsum_abi() if hasattr(lib, "plant_rowsum_abi") else None
-    if abi != _ABI:
-        raise kernels.KernelsMissing(f"the plant's C kernels are out of date (plant_rowsum_abi "
-                                     f"{abi}, expected {_ABI}): {kernels.HOW_TO_BUILD}")
-    fn = lib.plant_masked_row_sums
+    got = getattr(lib, abi[0])() if hasattr(lib, abi[0]) else None
+    if got != abi[1]:
+        raise kernels.KernelsMissing(f"the plant's C kernels are out of date ({abi[0]} {got}, "
+                                     f"expected {abi[1]}): {kernels.HOW_TO_BUILD}")
+    fn = getattr(lib, name)
     fn.restype = None
-    fn.argtypes = [ctypes.c_int64, ctypes.c_int64] + [ctypes.c_void_p] * 4
+    fn.argtypes = [ctypes.c_int64] * nargs
     return fn
 
 
@@ -63,8 +60,9 @@ def masked_row_sums(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     rows, width = values.shape
     got = np.empty(rows + width)           # the sums, then the kernel's scratch row
     if rows:
-        _kernel()(rows, width, values.ctypes.data, mask.ctypes.data,
-                  got.ctypes.data + 8 * rows, got.ctypes.data)
+        kernel("plant_masked_row_sums", ("plant_rowsum_abi", 1), 6)(
+            rows, width, values.ctypes.data, mask.ctypes.data, got.ctypes.data + 8 * rows,
+            got.ctypes.data)
     return got[:rows]
 
 
