@@ -9,7 +9,7 @@ side until the front clears (no dithering between left and right). Walls, obstac
 other robots are all just returns: no map, no ground truth, no communication.
 
 One object drives every robot of its node: :meth:`Avoid.step_many` steps them all in one
-call of the plant's C kernels (plant/kernels/avoid.c), giving to the bit the commands
+call of the controllers' C kernels (controllers/kernels/avoid.c), giving to the bit the commands
 :meth:`Avoid.step` gives robot by robot (its numpy code is the reference).
 """
 from __future__ import annotations
@@ -22,15 +22,15 @@ import numpy as np
 from bus.cliargs import positive_float
 from bus.controller import Twist
 from bus.node import node_arg_parser, run_node_args
-from controllers.rowsum import kernel
+from controllers.kernels import function
 
 #: what scans must share to be stepped as one array (besides their number of rays)
 _RAYS = attrgetter("angle_min", "angle_increment", "range_min", "range_max")
 
 
 def _kernel():
-    """plant/kernels/avoid.c's batch of commands."""
-    return kernel("plant_avoid_commands", ("plant_avoid_abi", 1), 12)
+    """controllers/kernels/avoid.c's batch of commands."""
+    return function("controller_avoid_commands", ("controller_avoid_abi", 1), 12)
 
 
 class Avoid:
@@ -125,10 +125,10 @@ class Avoid:
 
     def commands(self, angles: np.ndarray, ranges: np.ndarray, turning: np.ndarray,
                  range_min: float = -math.inf, range_max: float = math.inf):
-        """:meth:`command` for a batch of scans sharing ``angles``, in one call of the plant's
-        C kernels (plant/kernels/avoid.c): ``ranges`` (robots, rays) as :meth:`step` reads a
-        scan's (inf, NaN and returns under ``range_min`` read as ``range_max``; float64, the
-        array overwritten with those), ``turning`` per robot; (speeds, yaw rates, turning
+        """:meth:`command` for a batch of scans sharing ``angles``, in one call of the
+        controllers' C kernels (controllers/kernels/avoid.c): ``ranges`` (robots, rays) as
+        :meth:`step` reads a scan's (inf, NaN and returns under ``range_min`` read as
+        ``range_max``; float64, the array overwritten with those), ``turning`` per robot; (speeds, yaw rates, turning
         sides after), the values :meth:`command` gives each row, to the bit (its means and
         sums taken in numpy's order, its other operations the same, in the same order)."""
         rays = self._rays_of(angles)

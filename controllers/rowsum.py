@@ -8,39 +8,21 @@ length is a multiple of eight; numpy/_core/src/umath/loops_utils.h.src, ``pairwi
 :func:`masked_row_sums` follows that order for every row at once, in a fixed number of
 numpy calls whatever the number of rows, so a controller stepping many robots with numpy
 gives the commands its per-robot step gives, byte for byte. It runs as one call of the
-plant's C kernels (plant/kernels/rowsum.c, the same additions in the same order, ~10x
-cheaper than the numpy formulation on a swarm's scans); :func:`masked_row_sums_numpy` is
-that formulation in numpy, the reference the tests compare the kernel with.
+controllers' C kernels (controllers/kernels/rowsum.c: the same additions in the same
+order, ~10x cheaper than the numpy formulation on a swarm's scans);
+:func:`masked_row_sums_numpy` is that formulation, the reference the tests compare the
+kernel with.
 """
 from __future__ import annotations
 
-import ctypes
-from functools import lru_cache
-
 import numpy as np
 
-from plant import kernels
+from controllers.kernels import function
 
 #: numpy's pairwise-summation block (PW_BLOCKSIZE): longer runs are split in halves
 _BLOCK = 128
 #: padding: x + (-0.0) == x for every x (-0.0 included): it never changes a partial sum
 _NOTHING = -0.0
-
-
-@lru_cache(maxsize=None)
-def kernel(name: str, abi: tuple[str, int], nargs: int):
-    """The function ``name`` of the plant's C kernels taking ``nargs`` arguments (integers
-    and addresses), its source file's ABI checked (``abi``: its ABI function, the number
-    expected): KernelsMissing if the kernels are not built, or were built before it."""
-    lib = kernels.library()
-    got = getattr(lib, abi[0])() if hasattr(lib, abi[0]) else None
-    if got != abi[1]:
-        raise kernels.KernelsMissing(f"the plant's C kernels are out of date ({abi[0]} {got}, "
-                                     f"expected {abi[1]}): {kernels.HOW_TO_BUILD}")
-    fn = getattr(lib, name)
-    fn.restype = None
-    fn.argtypes = [ctypes.c_int64] * nargs
-    return fn
 
 
 def _checked(values, mask) -> tuple[np.ndarray, np.ndarray]:
@@ -60,7 +42,7 @@ def masked_row_sums(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     rows, width = values.shape
     got = np.empty(rows + width)           # the sums, then the kernel's scratch row
     if rows:
-        kernel("plant_masked_row_sums", ("plant_rowsum_abi", 1), 6)(
+        function("controller_masked_row_sums", ("controller_rowsum_abi", 1), 6)(
             rows, width, values.ctypes.data, mask.ctypes.data, got.ctypes.data + 8 * rows,
             got.ctypes.data)
     return got[:rows]

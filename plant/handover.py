@@ -62,6 +62,7 @@ class Handover:
         rows: dict[int, tuple] = {}
         if kept and tick == t_ns // self.model.tick_ns:
             for cfg, robots, ranges in kept:
+                ranges.flags.writeable = False    # (a member's must not change the tick's)
                 head = self._heads[cfg]
                 rows.update((i, (head, r)) for i, r in zip(robots.tolist(), ranges))
         index, laser = self._index, self._laser

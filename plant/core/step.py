@@ -166,7 +166,6 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
             keys, laws = keys[rows], laws[rows]
         ranges = kernels.lidar_noise(np.ascontiguousarray(cast_rows, float), keys, laws, tick,
                                      cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
-        ranges.flags.writeable = False
         kept.append((cfg, rows, ranges))
         if encoded:
             at = np.searchsorted(group, rows)

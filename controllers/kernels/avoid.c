@@ -9,7 +9,7 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_avoid_abi(void) { return 1; }
+EXPORT int controller_avoid_abi(void) { return 1; }
 
 /* The mean of the values of r where mask is set (n of them, n > 0), as numpy's mean. */
 static double masked_mean(const double *r, const uint8_t *mask, int64_t width, double *scratch)
@@ -26,7 +26,7 @@ static double masked_mean(const double *r, const uint8_t *mask, int64_t width, d
  * ray, bit 0 ahead, 1 left (angle > 0), 2 right (< 0), 3 within +-90 deg; t0, t1: each
  * ray's push factors; p: stop, slow, v_max, w_turn, rmin, rmax; has: whether any ray is
  * ahead, left, right; scratch: n doubles; v, w: the commands. */
-EXPORT void plant_avoid_commands(int64_t rows, int64_t n, double *ranges, double *turning,
+EXPORT void controller_avoid_commands(int64_t rows, int64_t n, double *ranges, double *turning,
                                  const uint8_t *rays, const double *t0, const double *t1,
                                  const double *p, const int64_t *has, double *scratch,
                                  double *v, double *w)

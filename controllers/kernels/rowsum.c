@@ -13,11 +13,11 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_rowsum_abi(void) { return 1; }
+EXPORT int controller_rowsum_abi(void) { return 1; }
 
 /* out[i] = np.sum(values[i][mask[i]]) for rows x width row-major values and mask (one
  * byte per value, nonzero: selected); scratch holds width doubles. */
-EXPORT void plant_masked_row_sums(int64_t rows, int64_t width, const double *values,
+EXPORT void controller_masked_row_sums(int64_t rows, int64_t width, const double *values,
                                   const uint8_t *mask, double *scratch, double *out)
 {
     for (int64_t i = 0; i < rows; i++) {
