@@ -125,3 +125,23 @@ def test_step_many_keeps_each_robot_s_side_as_robots_come_and_go():
         assert set(many.turning_of) >= set(shown)
         turned += sum(s.turning != 0.0 for s in singles.values())
     assert turned > 100, turned
+
+
+def test_a_stale_kernels_library_is_refused_saying_how_to_build(monkeypatch):
+    """A library built before a kernel's source changed (its ABI number differs, or the
+    function is missing) is refused with the command that rebuilds it, never called."""
+    from controllers import kernels
+
+    class Stale:
+        def controller_rowsum_abi(self):
+            return 0
+
+    monkeypatch.setattr(kernels, "library", lambda: Stale())
+    kernels.function.cache_clear()
+    try:
+        with pytest.raises(kernels.KernelsMissing, match="out of date.*make setup"):
+            kernels.function("controller_masked_row_sums", ("controller_rowsum_abi", 1), 6)
+        with pytest.raises(kernels.KernelsMissing, match="controller_avoid_abi None"):
+            kernels.function("controller_avoid_commands", ("controller_avoid_abi", 1), 12)
+    finally:
+        kernels.function.cache_clear()
