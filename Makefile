@@ -6,9 +6,10 @@ STAMP   := $(VENV)/.installed
 FMUS    := fmus/build/.built
 TF2MSGS := $(VENV)/share/tf2_msgs/diffbot-build.txt
 FMU_SRC := $(wildcard fmus/odometry/* fmus/wrapper/*) fmus/build.py
-# the plant's C kernels (lidar, camera): plant/kernels/build/, loaded with ctypes
+# the plant's C kernels (lidar, camera): plant/kernels/build/, and the controllers'
+# (controllers/kernels/build/), loaded with ctypes
 KERNELS := plant/kernels/build/.built
-KERNEL_SRC := $(wildcard plant/kernels/*.c plant/kernels/*.h) plant/kernels/build.py plant/kernels/__init__.py
+KERNEL_SRC := $(wildcard plant/kernels/*.c plant/kernels/*.h controllers/kernels/*.c controllers/kernels/*.h) plant/kernels/build.py plant/kernels/__init__.py
 
 .PHONY: setup demo test test-random test-fast soak bench clean netns-tools
 
@@ -61,6 +62,7 @@ $(FMUS): $(STAMP) $(FMU_SRC)
 
 $(KERNELS): $(STAMP) $(KERNEL_SRC)
 	$(BIN)/python -m plant.kernels.build
+	$(BIN)/python -m plant.kernels.build --src controllers/kernels --out controllers/kernels/build --name libcontroller_kernels
 	@touch $(KERNELS)
 
 demo: setup
@@ -108,4 +110,4 @@ bench: setup
 	$(BIN)/diffbot bench
 
 clean:
-	rm -rf out fmus/build plant/kernels/build .pytest_cache build dist *.egg-info
+	rm -rf out fmus/build plant/kernels/build controllers/kernels/build .pytest_cache build dist *.egg-info

@@ -5,6 +5,8 @@
 
 - the plant's C kernels: ``plant/kernels/build/libplant_kernels.so`` (plant/kernels/build.py,
   the library whose ABI numbers :mod:`plant.kernels` checks when it loads it);
+- the controllers' C kernels: ``controllers/kernels/build/libcontroller_kernels.so`` (the
+  same build tool; :mod:`controllers.kernels` checks their ABI numbers);
 - the odometry FMUs: ``fmus/build/odometry_fmi2.fmu`` and ``odometry_fmi3.fmu`` (fmus/build.py),
 
 the places where the package looks for them, installed or in a clone. An editable install
@@ -43,8 +45,11 @@ class BuildPy(build_py):
         finally:
             sys.path.remove(HERE)
         kernels = build_kernels(Path(self.build_lib, "plant", "kernels", "build"))
+        ours = Path(HERE, "controllers", "kernels")
+        controller_kernels = build_kernels(Path(self.build_lib, "controllers", "kernels", "build"),
+                                           sorted(ours.glob("*.c")), "libcontroller_kernels")
         fmus = build_fmus(os.path.join(self.build_lib, "fmus", "build"))
-        for path in (kernels, *fmus.values()):
+        for path in (kernels, controller_kernels, *fmus.values()):
             self.announce(f"built {path}", level=2)
 
 

@@ -4,15 +4,16 @@ Where a member runs is a deployment choice, not a second API (ROS 2 component co
 dora-rs operators): a controller object, the FMU node, a policy, built by its own command
 line (:func:`bus.node.capture_member`), runs here with the same rules as over Zenoh. Each
 composed member is a :class:`bus.member.MemberTick`, exactly as a process member's; only
-the wire differs: the plant hands it the bytes it publishes (and the bytes other members
-send it) directly, decoded as a process would decode them, and takes what it sends back as
-bytes with the same attachment, a tick's answer in one call, with the effects its messages
-would have one by one from Zenoh (the ACK ledger, the command checks). The host also puts
-those outputs on the bus and holds each member's liveliness tokens (``sim/alive/<node>``,
-``sim/sync/<node>``) on the plant's session, so a recorder, a live view, a ROS 2 bridge or
-process members beside composed ones see the same bus as when every member is a process. A
-composed run's recording equals the all-process run's, byte for byte (docs/scenarios.md,
-"Composed members").
+the wire differs: the plant hands it the messages it publishes directly (made from the
+tick's values where it keeps them as the wire carries them, :mod:`plant.handover`; else
+their bytes, and the bytes other members send it, decoded as a process would decode them),
+and takes what it sends back as bytes with the same attachment, a tick's answer in one
+call, with the effects its messages would have one by one from Zenoh (the ACK ledger, the
+command checks). The host also puts those outputs on the bus and holds each member's
+liveliness tokens (``sim/alive/<node>``, ``sim/sync/<node>``) on the plant's session, so a
+recorder, a live view, a ROS 2 bridge or process members beside composed ones see the same
+bus as when every member is a process. A composed run's recording equals the all-process
+run's, byte for byte (docs/scenarios.md, "Composed members").
 
 A composed member must not block in ``step`` (it holds the plant's tick) nor keep threads
 of its own; one whose ``step`` raises is stopped and leaves as a crashed process would.
@@ -126,13 +127,15 @@ class Composed:
         """Whether a composed member reads ``key``."""
         return key in self._readers
 
-    def deliver(self, key: str, payload: bytes, att: bytes | None) -> None:
+    def deliver(self, key: str, payload: bytes, att: bytes | None, msg=None) -> None:
         """Section 4, step 2: a message on ``key`` reaches the members that read it, decoded
-        once, filed by stamp (docs/PROTOCOL.md)."""
+        once, filed by stamp (docs/PROTOCOL.md). ``msg``: the message the plant made of the
+        values ``payload`` carries (:mod:`plant.handover`: the object decoding would give),
+        taken as it is; None: ``payload`` is decoded."""
         readers = self._readers.get(key)
         if not readers:
             return
-        msg = None                       # decoded once for every member that reads it
+        # (decoded at most once for every member that reads it)
         for h in readers:
             if not h.gone:
                 topic, problem, msg = h.member.receive(key, payload, att, msg)

@@ -64,6 +64,7 @@ class Slot:
     awaited: list[str] = field(default_factory=list)
     done: bool = False
     plan: tuple | None = None     # take_observation's (input, key, lag, max age) per config
+    cmd_key: str = ""             # its cmd_vel key (MemberTick asks it once)
 
 
 def make_slots(controller, robots: list[str], topics: dict) -> list[Slot]:
@@ -126,6 +127,8 @@ class MemberTick:
         self.sync = sync
         self.lag_ns = {t: input_delay_ns if v.awaited else 0 for t, v in self.topics.items()}
         self.slot_of = {self.key(s.robot, t): (s, t) for s in self.slots for t in s.inputs}
+        for s in self.slots:
+            s.cmd_key = self.key(s.robot, "cmd_vel")
         self.ticks = 0
         self.final_tick: int | None = None   # the tick at which the last controller finished
         # the newest world epoch seen (kept across reset(): a clock of an older one is late)
@@ -335,24 +338,30 @@ class MemberTick:
         whether every controller is done: then it is the FINAL). A robot whose controller
         is done is sent its stop command every tick until the others are. A controller for
         many robots (``step_many``) is called once with all the robots it still drives."""
-        many: dict[int, dict] = {}          # controller id -> {robot: command}
+        many: dict[int, tuple[dict, bool]] = {}    # controller id -> ({robot: command}, done)
         for slot in self.slots:
             if not slot.done and id(slot.controller) not in many \
                     and hooks.steps_many(slot.controller):
                 ctrl = slot.controller
                 obs = observations(self, [s for s in self.slots
                                           if s.controller is ctrl and not s.done], t_ns)
-                many[id(ctrl)] = _commands_of(ctrl, ctrl.step_many(obs))
+                many[id(ctrl)] = (_commands_of(ctrl, ctrl.step_many(obs)), hooks.is_done(ctrl))
+        queue, twist = self.queue_output, self._queue_twist
         for slot in self.slots:
             if slot.done:
-                self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
+                queue(hooks.stop_command(slot.controller), t_ns, slot.robot)
                 continue
-            if id(slot.controller) in many:
-                out = many[id(slot.controller)].get(slot.robot)
+            got = many.get(id(slot.controller))
+            if got is not None:             # (stepped with the others: one answer, one done)
+                out, done = got[0].get(slot.robot), got[1]
             else:
                 out = slot.controller.step(self.take_observation(slot, t_ns))
-            self.queue_output(out, t_ns, slot.robot)
-            if hooks.is_done(slot.controller):
+                done = hooks.is_done(slot.controller)
+            if type(out) is Twist:          # (the usual answer: its key asked once)
+                twist(slot.cmd_key, out, t_ns)
+            else:
+                queue(out, t_ns, slot.robot)
+            if done:
                 slot.done = True
                 self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
                 self.log.info("%s%s done at t=%.3f s", self.name,
@@ -366,11 +375,7 @@ class MemberTick:
         if out is None:
             return
         if isinstance(out, Twist):
-            key = self.key(robot, "cmd_vel")
-            linear, angular = float(out.linear), float(out.angular)
-            data = codec.twist_stamped_bytes(t_ns, linear, angular)
-            self.twists[key] = (data, t_ns, linear, angular)
-            self._out.append(Output(key, Encoded(data), True))
+            self._queue_twist(self.key(robot, "cmd_vel"), out, t_ns)
         elif isinstance(out, WheelSpeeds):
             self._out.append(Output(self.key(robot, "wheel_cmd"),
                                     codec.joint_state(t_ns, WHEEL_JOINTS,
@@ -384,6 +389,13 @@ class MemberTick:
         else:
             raise TypeError(f"step() returned {type(out).__name__}; expected Twist, "
                             "WheelSpeeds, dict or None")
+
+    def _queue_twist(self, key: str, out: Twist, t_ns: int) -> None:
+        """:meth:`queue_output` of a Twist on cmd_vel key ``key``."""
+        linear, angular = float(out.linear), float(out.angular)
+        data = codec.twist_stamped_bytes(t_ns, linear, angular)
+        self.twists[key] = (data, t_ns, linear, angular)
+        self._out.append(Output(key, Encoded(data), True))
 
     def send_tick(self, t_ns: int, final: bool = False, hold: int = 0) -> Sent:
         """Section 4, step 3: the tick's queued outputs as sent (:meth:`owed`'s order and

@@ -8,8 +8,9 @@ the front is blocked it turns on the spot toward the side with more room, keepin
 side until the front clears (no dithering between left and right). Walls, obstacles and
 other robots are all just returns: no map, no ground truth, no communication.
 
-One object drives every robot of its node: :meth:`Avoid.step_many` steps them all with numpy
-in one call, giving to the bit the commands :meth:`Avoid.step` gives robot by robot.
+One object drives every robot of its node: :meth:`Avoid.step_many` steps them all in one
+call of the controllers' C kernels (controllers/kernels/avoid.c), giving to the bit the commands
+:meth:`Avoid.step` gives robot by robot (its numpy code is the reference).
 """
 from __future__ import annotations
 
@@ -21,10 +22,15 @@ import numpy as np
 from bus.cliargs import positive_float
 from bus.controller import Twist
 from bus.node import node_arg_parser, run_node_args
-from controllers.rowsum import masked_row_sums
+from controllers.kernels import function
 
 #: what scans must share to be stepped as one array (besides their number of rays)
 _RAYS = attrgetter("angle_min", "angle_increment", "range_min", "range_max")
+
+
+def _kernel():
+    """controllers/kernels/avoid.c's batch of commands."""
+    return function("controller_avoid_commands", ("controller_avoid_abi", 1), 12)
 
 
 class Avoid:
@@ -62,8 +68,9 @@ class Avoid:
 
     def step_many(self, observations: dict) -> dict:
         """Every robot's :class:`Twist` at once (``{robot: Observation}`` in,
-        ``{robot: Twist}`` out): the scans that share their rays as one array, stepped with
-        numpy; each robot's turning side kept in an array by robot (``turning_of``)."""
+        ``{robot: Twist}`` out): the scans that share their rays as one array, stepped in one
+        kernel call (:meth:`commands`); each robot's turning side kept in an array by robot
+        (``turning_of``)."""
         robots = tuple(observations)
         if robots != self._robots:
             self._track(robots)
@@ -84,12 +91,10 @@ class Avoid:
         for (n, (a0, da, rmin, rmax)), rows in groups.items():
             r = np.array(ranges if len(groups) == 1 else [ranges[i] for i in rows],
                          dtype=float).reshape(-1, n)
-            # inf and NaN (no return) and returns under the minimum range read as the maximum
-            np.fmin(r, rmax, out=r)
-            r[r < rmin] = rmax
             every = len(rows) == len(robots)
             vg, wg, tg = self.commands(self._angles(n, a0, da), r,
-                                       self._turning if every else self._turning[rows])
+                                       self._turning if every else self._turning[rows],
+                                       rmin, rmax)
             if every:
                 v, w, self._turning = vg, wg, tg
             else:
@@ -118,38 +123,47 @@ class Avoid:
             self._geometry[key] = a0 + da * np.arange(n)
         return self._geometry[key]
 
-    def commands(self, angles: np.ndarray, ranges: np.ndarray, turning: np.ndarray):
-        """:meth:`command` for a batch of scans sharing ``angles``: ``ranges`` (robots, rays),
-        ``turning`` per robot; (speeds, yaw rates, turning sides after), the same values
-        :meth:`command` gives each row (its sums and means taken in numpy's order)."""
-        ahead, pos, neg, side, toward = self._rays_of(angles)
-        front = ranges[:, ahead].min(axis=1) if ahead is not None else ranges.min(axis=1)
-        blocked = (front < self.stop_m) | ((turning != 0) & (front < self.stop_m * 1.3))
-        new = blocked & (turning == 0)
-        if new.any():
-            rows = ranges[new]
-            left = rows[:, pos].mean(axis=1) if pos is not None else np.zeros(len(rows))
-            right = rows[:, neg].mean(axis=1) if neg is not None else np.zeros(len(rows))
-            turning = turning.copy()
-            turning[new] = np.where(left >= right, 1.0, -1.0)
-        turning = np.where(blocked, turning, 0.0)
-        v = self.v_max * np.minimum(1.0, (front - self.stop_m) / (self.slow_m - self.stop_m))
-        near = side & (ranges < self.slow_m)
-        terms = toward[0] * (self.slow_m - ranges) / self.slow_m * toward[1]
-        w = np.clip(1.5 * masked_row_sums(terms, near), -self.w_turn, self.w_turn)
-        return (np.where(blocked, 0.0, v), np.where(blocked, turning * self.w_turn, w),
-                turning)
+    def commands(self, angles: np.ndarray, ranges: np.ndarray, turning: np.ndarray,
+                 range_min: float = -math.inf, range_max: float = math.inf):
+        """:meth:`command` for a batch of scans sharing ``angles``, in one call of the
+        controllers' C kernels (controllers/kernels/avoid.c): ``ranges`` (robots, rays) as
+        :meth:`step` reads a scan's (inf, NaN and returns under ``range_min`` read as
+        ``range_max``; float64, the array overwritten with those), ``turning`` per robot; (speeds, yaw rates, turning
+        sides after), the values :meth:`command` gives each row, to the bit (its means and
+        sums taken in numpy's order, its other operations the same, in the same order)."""
+        rays = self._rays_of(angles)
+        rows, n = ranges.shape
+        ranges = np.ascontiguousarray(ranges, dtype=np.float64)
+        params = rays["params"]
+        if params[4] != range_min or params[5] != range_max:
+            params[4:] = range_min, range_max
+        out = np.empty(3 * rows + n)            # turning, v, w, then the kernel's scratch
+        out[:rows] = turning
+        at = out.ctypes.data
+        if rows:
+            _kernel()(rows, n, ranges.ctypes.data, at, *rays["at"], at + 24 * rows,
+                      at + 8 * rows, at + 16 * rows)
+        return out[rows:2 * rows], out[2 * rows:3 * rows], out[:rows]
 
-    def _rays_of(self, angles: np.ndarray) -> tuple:
-        """What :meth:`commands` needs of the rays alone, once per set of angles: the rays
-        ahead, left and right (None where there are none), those within +-90 deg, and the
-        factors of each ray's push (-sign, cos: the per-robot step's factors, in its order)."""
+    def _rays_of(self, angles: np.ndarray) -> dict:
+        """What :meth:`commands` needs of the rays alone, once per set of angles: each ray's
+        flags (ahead, left, right, within +-90 deg), the factors of its push (-sign, cos: the
+        per-robot step's factors, computed by numpy as it computes them), whether any ray
+        is ahead, left, right, and the parameters (the last two the range limits, set per
+        call): the arrays, kept alive, and their addresses for the kernel, taken once."""
         key = (self.front, angles.tobytes())
         got = self._rays.get(key)
         if got is None:
-            ahead, pos, neg = np.abs(angles) <= self.front, angles > 0, angles < 0
-            got = self._rays[key] = tuple(m if m.any() else None for m in (ahead, pos, neg)) \
-                + (np.abs(angles) <= math.pi / 2, (-np.sign(angles), np.cos(angles)))
+            flags = ((np.abs(angles) <= self.front) * 1 + (angles > 0) * 2 + (angles < 0) * 4
+                     + (np.abs(angles) <= math.pi / 2) * 8).astype(np.uint8)
+            toward = (np.ascontiguousarray(-np.sign(angles), dtype=np.float64),
+                      np.ascontiguousarray(np.cos(angles), dtype=np.float64))
+            has = np.array([(flags & b).any() for b in (1, 2, 4)], np.int64)
+            params = np.array([self.stop_m, self.slow_m, self.v_max, self.w_turn,
+                               -math.inf, math.inf])
+            arrays = (flags, *toward, params, has)
+            got = self._rays[key] = {"arrays": arrays, "params": params,
+                                     "at": tuple(a.ctypes.data for a in arrays)}
         return got
 
     def command(self, angles: np.ndarray, ranges: np.ndarray) -> Twist:

@@ -41,6 +41,7 @@ from bus.protocol import PLANT_READS, world_max_hold
 
 from . import core, modes, report
 from .commands import CommandBook
+from .handover import Handover
 from .intake import Emitted, Intake
 from .outbox import Outbox, Reads
 from .presence import PLANT_TOKEN, Presence
@@ -224,6 +225,9 @@ class Plant:
         t = self.sim.time_ns
         out, composed = self.outbox, self.composed
         due, msgs = self.tick.messages_read(self._wanted_all())
+        if composed is not None:                      # (values its members take: no decoding)
+            self._handover = Handover.of(self._handover, self.tick.model, self.tick.data)
+            handed = self._handover.at(t)
         at = 0                                        # the due messages numbered so far
         for k, name, topic, data in msgs:
             if k > at:
@@ -234,8 +238,8 @@ class Plant:
                 out.put(key, data, t, self.epoch)
             else:
                 out.skip()
-            if composed is not None:
-                composed.deliver(key, data, None)
+            if composed is not None and composed.reads(key):
+                composed.deliver(key, data, None, handed(name, topic))
         if due > at:
             out.skip(due - at)
         key = self.keys.poses                         # every robot's pose, one message
@@ -278,6 +282,7 @@ class Plant:
             key = self._keys[(robot, topic)] = self.keys.topic(robot, topic)
         return key
 
+    _handover: Handover | None = None    # the composed members' tick values (plant.handover)
     _wanted: tuple = (None, None)    # (the outbox's readers, :meth:`_wanted_all`'s dict)
 
     def _wanted_all(self) -> dict:

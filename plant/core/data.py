@@ -51,6 +51,9 @@ class Data:
         self.layout = None
         #: ``sim/poses``' encoder (:class:`plant.core.outgoing.Poses`), made when first asked
         self.poses = None
+        #: each world's lidar ranges of its last sensed tick as the wire carries them: (tick,
+        #: [(lidar config, robot indices, float32 (rows, rays))]) (plant.handover)
+        self.ranges: list[tuple] = [(-1, [])] * W
 
     def set_streams(self, w: int, sensors: dict) -> None:
         """World ``w``'s robots' sensors (freshly built: their noise keys follow the seed)."""

@@ -152,6 +152,7 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
     if cast is None and ("scan" in some or "camera/image_raw" in some):
         scene = Scene.from_shapes(shapes())
     tfs = data.tf[w]
+    kept = []                                  # (the tick's ranges: data.ranges)
     for cfg, group in (model.lidar_groups.items() if "scan" in some else ()):
         rows = group[masks["scan"][group]]
         if not len(rows):
@@ -165,6 +166,7 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
             keys, laws = keys[rows], laws[rows]
         ranges = kernels.lidar_noise(np.ascontiguousarray(cast_rows, float), keys, laws, tick,
                                      cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
+        kept.append((cfg, rows, ranges))
         if encoded:
             at = np.searchsorted(group, rows)
             msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges}, at)
@@ -175,6 +177,7 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
                     for i, r in zip(rows.tolist(), ranges)]
         for i, m in zip(rows.tolist(), msgs):
             got["scan"][i] = m
+    data.ranges[w] = (tick, kept)
     for i in due.get("camera/image_raw", ()):
         _camera(model, data.streams[w][model.robots[i]].camera_noise, i, t_ns, tick, tfs[i],
                 scene, bool(masks["camera/image_raw"][i]), bool(masks["camera/camera_info"][i]),

@@ -39,13 +39,17 @@ def find_c_compiler() -> list[str]:
     raise RuntimeError("no C compiler found: install gcc or set CC")
 
 
-def build(out_dir: Path = BUILD_DIR) -> Path:
-    """Compile every kernel source into ``out_dir``/LIBRARY (written atomically)."""
+def build(out_dir: Path = BUILD_DIR, sources: list[Path] | None = None,
+          name: str | None = None) -> Path:
+    """Compile every kernel source (``sources``: the .c files of another folder, e.g. the
+    controllers' kernels) into ``out_dir``/LIBRARY (``name``: another library's name, the
+    platform's suffix added), written atomically."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    target = out_dir / LIBRARY
+    target = out_dir / (LIBRARY if name is None else name + Path(LIBRARY).suffix)
     fd, tmp = tempfile.mkstemp(prefix=".lib-", suffix=target.suffix, dir=out_dir)
     os.close(fd)
-    cmd = [*find_c_compiler(), *CFLAGS, "-pthread", "-o", tmp, *map(str, SOURCES), "-lm"]
+    cmd = [*find_c_compiler(), *CFLAGS, "-pthread", "-o", tmp,
+           *map(str, SOURCES if sources is None else sources), "-lm"]
     try:
         subprocess.run(cmd, check=True)
         os.replace(tmp, target)
@@ -58,9 +62,12 @@ def build(out_dir: Path = BUILD_DIR) -> Path:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m plant.kernels.build", description=__doc__)
     p.add_argument("--out", type=Path, default=BUILD_DIR, help="output folder (default: %(default)s)")
+    p.add_argument("--src", type=Path, help="build the .c files of this folder instead "
+                   "(with --out and --name)")
+    p.add_argument("--name", help="the library's name, without the platform's suffix")
     args = p.parse_args(argv)
     try:
-        path = build(args.out)
+        path = build(args.out, sorted(args.src.glob("*.c")) if args.src else None, args.name)
     except (RuntimeError, subprocess.CalledProcessError) as e:
         print(f"plant kernels: {e}", file=sys.stderr)
         return 1

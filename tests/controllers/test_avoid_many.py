@@ -7,20 +7,24 @@ import math
 import struct
 
 import numpy as np
+import pytest
 
 from bus import codec
 from bus.controller import Observation
 from controllers.avoid import Avoid
-from controllers.rowsum import masked_row_sums
+from controllers.rowsum import masked_row_sums, masked_row_sums_numpy
 
 
 def _bits(x: float) -> bytes:
     return struct.pack("<d", x)
 
 
-def test_masked_row_sums_equal_numpy_sums_of_each_row():
+@pytest.mark.parametrize("masked_row_sums", [masked_row_sums, masked_row_sums_numpy],
+                         ids=["kernel", "numpy"])
+def test_masked_row_sums_equal_numpy_sums_of_each_row(masked_row_sums):
     """Every run length numpy sums differently (under 8, blocks of 8 up to 128, halves
-    past it), signed zeros and wide magnitudes."""
+    past it, past 256 twice), signed zeros and wide magnitudes: the kernel and its numpy
+    formulation alike."""
     rng = np.random.default_rng(7)
     for trial in range(60):
         rows, width = int(rng.integers(1, 30)), int(rng.integers(1, 400))
@@ -121,3 +125,23 @@ def test_step_many_keeps_each_robot_s_side_as_robots_come_and_go():
         assert set(many.turning_of) >= set(shown)
         turned += sum(s.turning != 0.0 for s in singles.values())
     assert turned > 100, turned
+
+
+def test_a_stale_kernels_library_is_refused_saying_how_to_build(monkeypatch):
+    """A library built before a kernel's source changed (its ABI number differs, or the
+    function is missing) is refused with the command that rebuilds it, never called."""
+    from controllers import kernels
+
+    class Stale:
+        def controller_rowsum_abi(self):
+            return 0
+
+    monkeypatch.setattr(kernels, "library", lambda: Stale())
+    kernels.function.cache_clear()
+    try:
+        with pytest.raises(kernels.KernelsMissing, match="out of date.*make setup"):
+            kernels.function("controller_masked_row_sums", ("controller_rowsum_abi", 1), 6)
+        with pytest.raises(kernels.KernelsMissing, match="controller_avoid_abi None"):
+            kernels.function("controller_avoid_commands", ("controller_avoid_abi", 1), 12)
+    finally:
+        kernels.function.cache_clear()

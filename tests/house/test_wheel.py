@@ -87,7 +87,8 @@ def test_wheel_holds_the_compiled_kernels_and_fmus(installed):
     wheel = installed["wheel"]
     assert "-py3-none-" in wheel.name, wheel.name
     names = set(zipfile.ZipFile(wheel).namelist())
-    for name in ("plant/kernels/build/libplant_kernels.so", "fmus/build/odometry_fmi2.fmu",
+    for name in ("plant/kernels/build/libplant_kernels.so",
+                 "controllers/kernels/build/libcontroller_kernels.so", "fmus/build/odometry_fmi2.fmu",
                  "fmus/build/odometry_fmi3.fmu", "plant/worlds/living_room.toml",
                  "diffbot/launch/scenarios/square.toml", "diffbot/envs/__init__.py",
                  "fmus/plant_guest.py", "fmus/plant_wrapper/plant_python.c",
@@ -117,6 +118,8 @@ def test_installed_wheel_runs_square_and_avoid_outside_the_clone(installed):
         "    obs, reward, term, trunc, info = env.step(env.action_space.sample())\n"
         "assert np.isfinite(reward), reward\n"
         "k.library()\n"
+        "import controllers.kernels as ck\n"
+        "ck.library()\n"
         "print(diffbot.__file__)\n")
     r = subprocess.run([str(installed["python"]), "-c", script], cwd=cwd, env=env,
                        capture_output=True, text=True, timeout=120)

@@ -71,6 +71,20 @@ def test_a_process_member_and_a_composed_one_in_one_run_give_the_same_bytes(tmp_
     same(procs, mixed)
 
 
+@pytest.mark.slow
+def test_a_composed_swarm_records_the_bytes_of_its_processes(tmp_path):
+    """The swarm's avoid member composed takes each scan as the plant's values (not its
+    bytes decoded): four robots over 2 s (seed 1: every robot's commands differ, so each
+    follows its own scans) record the bytes of the same swarm over processes."""
+    common = ("--robots", "4", "--physics", "kinematic", "--controller-processes", "1",
+              "--duration", "2", "--seed", "1", "--no-plots")
+    procs, sp = run(tmp_path, "procs", "swarm", *common)
+    composed, sc = run(tmp_path, "composed", "swarm", *common, "--compose")
+    same(procs, composed)
+    assert sp["composed"] == [] and sc["composed"] == ["avoid_g0"]
+    assert sc["message_counts"] == sp["message_counts"]
+
+
 ROOT_SCENARIO = __import__("pathlib").Path(ROOT) / "diffbot" / "launch" / "scenarios" / "square.toml"
 
 
