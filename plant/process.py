@@ -294,8 +294,8 @@ class Plant:
                 if local is None:
                     return lambda topic: reads(key(robot, topic))
                 return lambda topic: reads(key(robot, topic)) or local(key(robot, topic))
-            self._wanted = (readers, {name: Reads(ask(name)).__getitem__
-                                      for name in self.tick.sensors})
+            self._wanted = (readers, core.Settled({name: Reads(ask(name)).__getitem__
+                                                   for name in self.tick.sensors}))
         return self._wanted[1]
 
     # ------------------------------------------------------------------ input

@@ -62,6 +62,8 @@ class Outgoing:
         self.buffer = layout.buffer.copy()
         #: whether each robot's joint_states, gps, ground_truth is made this tick
         self.read = np.ones((R, 3), np.uint8)
+        #: (the Settled wanted, {its plans at each phase}) (plant.core.step._read_plan)
+        self.plans: tuple = (None, {})
         #: the arrays of world w that a kinematic world's state goes into (views: no
         #: reference back to ``data``, which holds this object)
         self._state = (data.tf[w], data.yaw[w], data.quaternion[w], data.v[w], data.w[w],
