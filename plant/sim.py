@@ -39,6 +39,14 @@ def _dofs(index: list[int]) -> slice | list[int]:
     return index
 
 
+def _finite(q: np.ndarray, dq: np.ndarray) -> bool:
+    """Whether a skeleton's positions and velocities are all finite: their sum as Python
+    floats (a third of numpy's calls) is finite only if every value is; one that overflows
+    is checked value by value."""
+    return math.isfinite(sum(q.tolist()) + sum(dq.tolist())) or bool(
+        np.isfinite(q).all() and np.isfinite(dq).all())
+
+
 @dataclass
 class RobotState:
     """What the plant knows about one robot after a tick (true values, no noise)."""
@@ -327,10 +335,7 @@ class Simulation:
             vel = chassis.getSpatialVelocity(world, world)           # (angular, linear)
             q, dq = sk.getPositions(), sk.getVelocities()
             parts += (tf.ravel(), rot_t @ vel[3:], rot_t @ vel[:3], q[wheels], dq[wheels])
-            # (the sum is finite only if every value is; one that overflows is checked
-            # value by value)
-            if finite and not math.isfinite(sum(q.tolist()) + sum(dq.tolist())):
-                finite = bool(np.isfinite(q).all() and np.isfinite(dq).all())
+            finite = finite and _finite(q, dq)
         return np.concatenate(parts).reshape(len(self.robots), 26), finite
 
     @staticmethod
@@ -345,11 +350,12 @@ class Simulation:
                           kin.wheels[i].copy(), kin.speeds[i].copy())
 
     def is_finite(self) -> bool:
-        """Whether every robot's positions and velocities are finite (checked every tick:
-        :meth:`read_state` reads it with the state the tick then publishes)."""
+        """Whether every robot's positions and velocities are finite (a tick's check comes
+        with the state it then publishes: :meth:`read_state`)."""
         if self.kin is not None:
             return self.kin.finite()
-        return self.read_state()[1]
+        return all(_finite(r.skeleton.getPositions(), r.skeleton.getVelocities())
+                   for r in self.robots.values())
 
     # ------------------------------------------------------------------ geometry for sensors
     @staticmethod

@@ -173,11 +173,12 @@ def test_is_finite_finds_any_non_finite_position_or_velocity():
                 v[i] = bad
                 setter(v)
                 assert not sim.is_finite(), (i, bad)
+                assert not sim.read_state()[1], (i, bad)          # (a tick's check)
                 setter(base)
     q = q0.copy()
     q[:] = 1e308                  # finite, though their sum overflows
     sk.setPositions(q)
-    assert sim.is_finite()
+    assert sim.is_finite() and sim.read_state()[1]
 
 
 def test_a_tick_reads_dart_once_a_step_and_again_after_a_restored_state(monkeypatch):
