@@ -132,11 +132,10 @@ def _odometry(sec: int, nanosec: int, frame_id: str, child_frame_id: str, pose7,
     _STAMP.pack_into(buf, _STAMP_AT, sec, nanosec)
     _D7.pack_into(buf, pose_at, *pose7)
     _D6.pack_into(buf, twist_at, *twist6)
-    view = memoryview(buf)
     for at, cov in ((pose_at + 56, pose_cov), (twist_at + 48, twist_cov)):
-        if cov is not None and np.any(cov):
-            view[at:at + 288] = np.ascontiguousarray(cov, dtype=_F8).reshape(36).tobytes()
-    view.release()
+        # (a message's covariance is an array: its own any() is a cheaper call than np.any)
+        if cov is not None and (cov.any() if isinstance(cov, np.ndarray) else np.any(cov)):
+            buf[at:at + 288] = np.ascontiguousarray(cov, dtype=_F8).reshape(36).tobytes()
     return bytes(buf)
 
 

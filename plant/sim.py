@@ -19,6 +19,7 @@ from .raycast import Scene, ShapeList
 from .world import ObjectSpec, WorldSpec
 
 FLOOR_THICKNESS_M = 0.1
+_WORLD = dart.dynamics.Frame.World()
 
 #: Bullet is ~15 % faster per step than DART's default FCL here, with the same contact
 #: results for the sphere wheels (docs/sensors.md, "Friction and contacts"; docs/benchmarks.md).
@@ -28,6 +29,22 @@ DETECTORS = {
     "dart": dart.collision.DARTCollisionDetector,
     "ode": dart.collision.OdeCollisionDetector,
 }
+
+
+def _dofs(index: list[int]) -> slice | list[int]:
+    """Indices into a skeleton's vectors, as a slice where they follow one another (a
+    slice of an array is a view: cheaper than picking the values by a list)."""
+    if index == list(range(index[0], index[0] + len(index))):
+        return slice(index[0], index[0] + len(index))
+    return index
+
+
+def _finite(q: np.ndarray, dq: np.ndarray) -> bool:
+    """Whether a skeleton's positions and velocities are all finite: their sum as Python
+    floats (a third of numpy's calls) is finite only if every value is; one that overflows
+    is checked value by value."""
+    return math.isfinite(sum(q.tolist()) + sum(dq.tolist())) or bool(
+        np.isfinite(q).all() and np.isfinite(dq).all())
 
 
 @dataclass
@@ -147,8 +164,11 @@ class Simulation:
                              for part in _visible_parts(r, name)]
         self._movable_shapes = [self._shape_of(o) for o in self.objects if not o.static]
         #: each robot's wheel dofs (left, right) in its skeleton's vectors (state_rows)
-        self._wheel_dofs = [[w.getIndexInSkeleton(0) for w in r.wheels]
+        self._wheel_dofs = [_dofs([w.getIndexInSkeleton(0) for w in r.wheels])
                             for r in self.robots.values()]
+        #: +1 whenever the world's state may have moved through this object (a step, a
+        #: clock restored with a saved state): a state read at the same count is still now
+        self.moves = 0
         #: the kinematic world's robots (plant.kinematic), None in a dynamic world
         self.kin = Kinematics(spec) if spec.mode == "kinematic" else None
         if self.kin is not None:
@@ -180,6 +200,7 @@ class Simulation:
         self.kin.restart(self.spec)
         self.drive.reset()
         self._steps = 0
+        self.moves += 1
         self._motion_streams()
 
     def _motion_streams(self) -> None:
@@ -217,10 +238,12 @@ class Simulation:
         """The clock ``ticks`` control ticks on: the world was stepped elsewhere (a physics
         process, a batch's kernel) or is stepped here (:meth:`step_tick`)."""
         self._steps += int(ticks) * self._substeps
+        self.moves += 1
 
     def restore_clock(self, steps: int) -> None:
         """The clock set back to a saved state's (an FMU's restored state)."""
         self._steps = int(steps)
+        self.moves += 1
 
     def step_tick(self) -> None:
         """Advance one control tick (``substeps`` physics steps) with the commands filed
@@ -282,29 +305,38 @@ class Simulation:
     def state_rows(self) -> np.ndarray:
         """Every robot's :meth:`state` as one (R, 26) array, in :attr:`robots` order: the
         base_link pose (4x4, row-major), body linear and angular velocity (3 + 3), wheel
-        angles and speeds (2 + 2), the same values to the bit. A dynamic world's are read
-        straight into their rows (no :class:`RobotState` a robot, no yaw), the pose through
+        angles and speeds (2 + 2), the same values to the bit (:meth:`read_state`)."""
+        return self.read_state()[0]
+
+    def read_state(self) -> tuple[np.ndarray, bool]:
+        """(:meth:`state_rows`, :meth:`is_finite`) of the world now, read in one pass (the
+        plant checks a step's result and publishes the same state a moment later:
+        :class:`plant.stepper.Stepper` keeps it while :attr:`moves` stays the same). A
+        dynamic world's rows are read straight from DART (no
+        :class:`RobotState` a robot, no yaw) with four calls a robot: the pose through
         ``getTransform()`` (the world transform, ~2 us cheaper a call in dartpy than
-        ``getWorldTransform()``) and the wheels from the skeleton's vectors: a physics
-        process sends these every tick, and its tick is the run's."""
-        rows = np.empty((len(self.robots), 26))
-        if self.kin is not None:
+        ``getWorldTransform()``), both velocities in world coordinates through
+        ``getSpatialVelocity(World, World)`` (angular then linear: the values
+        ``getAngularVelocity()`` and ``getLinearVelocity()`` give, in one call), and the
+        skeleton's positions and velocities, whose sum is the finite check."""
+        if self.kin is not None:               # (its arrays are read anew every time)
+            rows = np.empty((len(self.robots), 26))
             for i, name in enumerate(self.robots):
                 st = self.state(name)
                 rows[i, :16] = st.tf.ravel()
                 rows[i, 16:19], rows[i, 19:22] = st.v_body, st.w_body
                 rows[i, 22:24], rows[i, 24:26] = st.enc_pos, st.enc_vel
-            return rows
-        for row, r, wheels in zip(rows, self.robots.values(), self._wheel_dofs):
+            return rows, self.kin.finite()
+        parts, finite, world = [], True, _WORLD
+        for r, wheels in zip(self.robots.values(), self._wheel_dofs):
             chassis, sk = r.chassis, r.skeleton
             tf = chassis.getTransform().matrix()
-            row[:16] = tf.ravel()
             rot_t = tf[:3, :3].T                      # as Robot.body_velocity rotates them
-            row[16:19] = rot_t @ np.asarray(chassis.getLinearVelocity())
-            row[19:22] = rot_t @ np.asarray(chassis.getAngularVelocity())
-            row[22:24] = sk.getPositions()[wheels]
-            row[24:26] = sk.getVelocities()[wheels]
-        return rows
+            vel = chassis.getSpatialVelocity(world, world)           # (angular, linear)
+            q, dq = sk.getPositions(), sk.getVelocities()
+            parts += (tf.ravel(), rot_t @ vel[3:], rot_t @ vel[:3], q[wheels], dq[wheels])
+            finite = finite and _finite(q, dq)
+        return np.concatenate(parts).reshape(len(self.robots), 26), finite
 
     @staticmethod
     def kin_state(kin: Kinematics, i: int) -> RobotState:
@@ -318,18 +350,12 @@ class Simulation:
                           kin.wheels[i].copy(), kin.speeds[i].copy())
 
     def is_finite(self) -> bool:
-        """Whether every robot's positions and velocities are finite (checked every tick: a
-        robot's few values summed as Python floats, a third of numpy's calls; the sum is
-        finite only if every value is, and one that overflows is checked value by value)."""
+        """Whether every robot's positions and velocities are finite (a tick's check comes
+        with the state it then publishes: :meth:`read_state`)."""
         if self.kin is not None:
             return self.kin.finite()
-        for r in self.robots.values():
-            sk = r.skeleton
-            q, dq = sk.getPositions(), sk.getVelocities()
-            if not math.isfinite(sum(q.tolist()) + sum(dq.tolist())) and not (
-                    np.isfinite(q).all() and np.isfinite(dq).all()):
-                return False
-        return True
+        return all(_finite(r.skeleton.getPositions(), r.skeleton.getVelocities())
+                   for r in self.robots.values())
 
     # ------------------------------------------------------------------ geometry for sensors
     @staticmethod

@@ -27,6 +27,9 @@ class Stepper:
         #: one robot: its sensors see the room alone (:meth:`shapes`), so a physics
         #: process need not send its parts' poses
         self._room_only = len(sim.robots) == 1
+        #: (sim.moves, rows, finite) of the last read of the world in this process: a
+        #: tick checks its step (:meth:`finite`) and then publishes the same state (:meth:`rows`)
+        self._read: tuple | None = None
 
     # ------------------------------------------------------------ the world's state
     def state(self, robot: str):
@@ -39,7 +42,7 @@ class Stepper:
         the values :meth:`state` gives, robot by robot, to the bit): read from DART in one
         pass, or the physics process's snapshot."""
         if self.physics is None:
-            return self.sim.state_rows()
+            return self._read_now()[1]
         return self.physics.rows
 
     def shapes(self):
@@ -56,7 +59,22 @@ class Stepper:
         return self.sim.scene(self.physics.parts)
 
     def finite(self) -> bool:
-        return self.sim.is_finite() if self.physics is None else self.physics.finite
+        if self.physics is not None:
+            return self.physics.finite
+        if self.sim.kin is not None:
+            return self.sim.is_finite()
+        return self._read_now()[2]
+
+    def _read_now(self) -> tuple:
+        """The world's state in this process (:meth:`Simulation.read_state`): a dynamic
+        world's read once while its clock stays (a step or a restored state moves it:
+        ``sim.moves``); a kinematic world's, arrays of its own, read every time."""
+        read = self._read
+        if self.sim.kin is not None:
+            return (self.sim.moves, *self.sim.read_state())
+        if read is None or read[0] != self.sim.moves:
+            read = self._read = (self.sim.moves, *self.sim.read_state())
+        return read
 
     # ------------------------------------------------------------ a tick
     def start(self) -> None:

@@ -62,6 +62,8 @@ class Outgoing:
         self.buffer = layout.buffer.copy()
         #: whether each robot's joint_states, gps, ground_truth is made this tick
         self.read = np.ones((R, 3), np.uint8)
+        #: (the Settled wanted, {its plans at each phase}) (plant.core.step._read_plan)
+        self.plans: tuple = (None, {})
         #: the arrays of world w that a kinematic world's state goes into (views: no
         #: reference back to ``data``, which holds this object)
         self._state = (data.tf[w], data.yaw[w], data.quaternion[w], data.v[w], data.w[w],
@@ -93,35 +95,37 @@ class Poses:
     """Every robot's true pose at a tick as one tf2_msgs/msg/TFMessage: a TransformStamped
     per robot in the model's robot order, ``world`` -> ``<robot>/base_link``, each stamped
     with the tick. The message's template (frame ids fixed, so every field's place is known
-    once) is written by two array assignments a tick: the stamps, and each robot's
-    translation and rotation (x, y, z, qx, qy, qz, qw: :class:`Data`'s ``tf`` position and
-    ``quaternion``, the very doubles of its ``ground_truth`` pose)."""
+    once) is written by one array assignment a tick: each robot's 64 bytes (the stamp, then
+    its translation and rotation x, y, z, qx, qy, qz, qw: :class:`Data`'s ``tf`` position
+    and ``quaternion``, the very doubles of its ``ground_truth`` pose) from a row of
+    eight doubles, the first holding the stamp's two integers."""
 
     def __init__(self, model: Model) -> None:
         buf = bytearray(_CDR_LE)
         buf += _U32.pack(len(model.robots))
-        stamps, values = [], []
+        places = []
         for child in model.frames["base_link"]:
             _pad(buf, 4)                       # (header.stamp: two 4-byte integers)
-            stamps.append(len(buf))
+            stamp = len(buf)
             _header(buf, _Stamp(WORLD_FRAME))
             _string(buf, child)
             _pad(buf, 8)                       # transform: translation, rotation (7 <f8)
-            values.append(len(buf))
+            places.append(np.r_[stamp:stamp + 8, len(buf):len(buf) + 56])
             buf += bytes(7 * 8)
         self.template = np.frombuffer(bytes(buf), np.uint8)
-        self._stamps = (np.array(stamps, np.int64)[:, None] + np.arange(8)).ravel()
-        self._values = (np.array(values, np.int64)[:, None] + np.arange(56)).ravel()
-        self._pose = np.empty((len(model.robots), 7))
+        self._places = np.concatenate(places).astype(np.int64) if places else \
+            np.zeros(0, np.int64)
+        #: a row a robot: the stamp (sec int32, nanosec uint32) in its first 8 bytes, the pose
+        self._rows = np.zeros((len(model.robots), 8))
+        self._stamp = self._rows.view(np.uint32)[:, :2]
 
     def encode(self, data: Data, w: int, t_ns: int) -> bytes:
         """World ``w``'s message at ``t_ns`` of the state in ``data`` (observed already:
         :func:`plant.core.step.observe`)."""
+        rows = self._rows
+        rows[:, 1:4] = data.tf[w, :, :3, 3]
+        rows[:, 4:] = data.quaternion[w]
+        self._stamp[:] = np.frombuffer(_STAMP.pack(*_split(t_ns)), np.uint32)
         buf = self.template.copy()
-        stamp = np.frombuffer(_STAMP.pack(*_split(t_ns)), np.uint8)
-        buf[self._stamps] = np.tile(stamp, len(self._pose))
-        pose = self._pose
-        pose[:, :3] = data.tf[w, :, :3, 3]
-        pose[:, 3:] = data.quaternion[w]
-        buf[self._values] = pose.view(np.uint8).ravel()
+        buf[self._places] = rows.view(np.uint8).ravel()
         return buf.tobytes()

@@ -97,6 +97,41 @@ def wanted_masks(model: Model, tick: int, wanted) -> tuple[dict[str, np.ndarray]
     return out, some
 
 
+class Settled(dict):
+    """robot -> ``wanted(topic)`` whose answers hold for as long as this object lives (the
+    plant's: :class:`plant.outbox.Reads`, a new object whenever a reader may have come or
+    gone). :func:`sense` works out what it reads at each phase of the sensors' periods
+    once for such an object, not every tick."""
+    __slots__ = ()
+
+
+def _read_plan(model: Model, out: Outgoing, tick: int, wanted) -> tuple:
+    """(:func:`wanted_masks`' masks and topics read, the robots' due topics, the (R, 3)
+    per-tick messages read (:attr:`Outgoing.read`), their places in the layout's order) at
+    ``tick``; kept for a :class:`Settled` ``wanted`` and the tick's phases (the
+    :meth:`Model.due` entry, held with the plan: the same object is the same phases)."""
+    due = model.due(tick)
+    plans = None
+    if type(wanted) is Settled:
+        if out.plans[0] is not wanted:
+            out.plans = (wanted, {})
+        plans = out.plans[1]
+        plan = plans.get(id(due))
+        if plan is not None and plan[0] is due:
+            return plan[1]
+    masks, some = wanted_masks(model, tick, wanted)
+    reads = out.read if plans is None else out.read.copy()
+    for k, topic in enumerate(EVERY_TICK):
+        reads[:, k] = masks[topic]
+    if plans is None:                      # (the places asked for when needed)
+        return masks, some, due[1], reads, None
+    plan = (masks, some, due[1], reads, np.flatnonzero(reads.ravel()).tolist())
+    if len(plans) >= 1024:
+        plans.clear()
+    plans[id(due)] = (due, plan)
+    return plan
+
+
 def sense_read(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted,
                cast: tuple | None = None) -> tuple[int, list[tuple[int, str, str, bytes]]]:
     """:func:`sense`'s encoded messages that someone reads (``wanted``), without a place for
@@ -125,17 +160,19 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
         some = due.keys()
         if not read.all():
             read[:] = 1
+        places = range(read.size)
     else:
-        masks, some = wanted_masks(model, tick, wanted)
-        due = model.due(tick)[1]
-        for k, topic in enumerate(EVERY_TICK):
-            read[:, k] = masks[topic]
+        masks, some, due, reads, places = _read_plan(model, out, tick, wanted)
+        if reads is not read:
+            read[:] = reads
     out.sense(tick, t_ns)                  # every per-tick message in one call
     raw = out.buffer.tobytes()
     order = out.layout.order
     if read_only and len(due) == len(EVERY_TICK):     # (the per-tick ones alone: their places)
+        if places is None:
+            places = np.flatnonzero(read.ravel()).tolist()
         return len(order), [(k, order[k][0], order[k][1], raw[order[k][2]:order[k][3]])
-                            for k in np.flatnonzero(read.ravel()).tolist()]
+                            for k in places]
     if not encoded:
         made = _objects(model, data, w, out, raw, t_ns)
     elif wanted is None:

@@ -198,3 +198,37 @@ def test_a_model_of_several_worlds_senses_each_as_alone(tmp_path):
             _drive(t, k + 2 * w)
             t.step()
     assert ticks[0].sim.kin.pose.tolist() != ticks[1].sim.kin.pose.tolist()
+
+
+def test_settled_readers_are_worked_out_once_a_phase_and_anew_for_new_readers(tmp_path):
+    """The plant's readers (core.Settled: answers that hold for the object's life): what a
+    tick reads is worked out at the first tick of each phase of the sensors' periods and
+    kept; a new Settled object (a reader came or went) is asked again. The messages equal
+    those of a plain dict with the same answers, lidar ticks and the others."""
+    tick = Tick(_world("kinematic", tmp_path))
+    names = list(tick.sensors)
+    asked = []
+
+    def readers(seed: int) -> dict:
+        def wanted(i):
+            def f(topic):
+                asked.append((i, topic))
+                return (len(topic) + i + seed) % 3 != 0
+            return f
+        return {n: wanted(i) for i, n in enumerate(names)}
+
+    first, due = core.Settled(readers(0)), set()
+    for k in range(12):
+        if k == 7:
+            first = core.Settled(readers(1))         # the readers changed
+            asked.clear()
+        got = tick.messages_read(first)
+        assert got == tick.messages_read(readers(0 if k < 7 else 1)), k
+        assert len(got[1]) < got[0], k              # (some due message is unread)
+        due.add(got[0])
+        if k in (5, 6, 11):                          # (phases met before, as the same object)
+            asked.clear()
+            tick.messages_read(first)
+            assert asked == [], k
+        tick.step()
+    assert len(due) > 1                              # (ticks with a lidar due and without)

@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from bus.controller import Twist
 from plant import drive
 from plant.sim import Simulation
 from plant.world import DriveSpec, load_world
@@ -172,8 +173,32 @@ def test_is_finite_finds_any_non_finite_position_or_velocity():
                 v[i] = bad
                 setter(v)
                 assert not sim.is_finite(), (i, bad)
+                assert not sim.read_state()[1], (i, bad)          # (a tick's check)
                 setter(base)
     q = q0.copy()
     q[:] = 1e308                  # finite, though their sum overflows
     sk.setPositions(q)
-    assert sim.is_finite()
+    assert sim.is_finite() and sim.read_state()[1]
+
+
+def test_a_tick_reads_dart_once_a_step_and_again_after_a_restored_state(monkeypatch):
+    """The step's finite check and the next tick's state come from one read of DART; a
+    state put back at the same clock (the plant FMU's restore) is read anew."""
+    from fmus.plant_state import set_world_state, world_state
+    from plant.tick import Tick
+
+    reads = []
+    real = Simulation.read_state
+    monkeypatch.setattr(Simulation, "read_state", lambda self: reads.append(1) or real(self))
+    driven, standing = (Tick(load_world("living_room"), ("lidar", "camera")) for _ in "ab")
+    driven.drive("robot1", Twist(0.4, 1.0))
+    standing.drive("robot1", None)
+    for tick in (driven, standing):
+        reads.clear()
+        assert tick.step()
+        rows = tick.stepper.rows()
+        assert len(reads) == 1                  # finite() and rows() of the same step
+    assert rows.tobytes() == real(standing.sim)[0].tobytes()
+    assert rows.tobytes() != driven.stepper.rows().tobytes()
+    set_world_state(standing, world_state(driven, None))      # the same clock, moved
+    assert standing.stepper.rows().tobytes() == driven.stepper.rows().tobytes()

@@ -58,3 +58,25 @@ def test_tracks_from_sim_poses_are_the_ground_truth_s(tmp_path):
     fewer = dict(list(truths.keep.items())[1:])                  # (one robot's missing)
     assert path_keys(keys, tick.spec, fewer) == {keys.poses: POSES_TYPE}
     assert path_keys(keys, tick.spec) == {keys.poses: POSES_TYPE}
+
+
+def test_sim_poses_bytes_are_the_typestores_of_each_robots_stamp_and_pose():
+    """The message written from the arrays is the CDR of its own decoded message, the
+    tick's stamp on every transform and each robot's true pose, its ground truth's."""
+    tick = Tick(load_world("living_room_follow"), ("camera", "lidar"))
+    for r in tick.sensors:
+        tick.drive(r, Twist(0.3, 0.8))
+    for _ in range(3):
+        tick.step()
+    truth = {r: codec.decode(m, "nav_msgs/msg/Odometry").pose.pose
+             for r, topic, m in tick.messages(encoded=True) if topic == "ground_truth"}
+    for t_ns in (3_250_000_123, 2 * 10**9, 7):
+        data = core.poses(tick.model, tick.data, 0, t_ns)
+        msg = codec.decode(data, POSES_TYPE)
+        assert bytes(codec.TYPESTORE.serialize_cdr(msg, POSES_TYPE)) == data
+        assert [codec.msg_stamp_ns(tf) for tf in msg.transforms] == [t_ns] * len(truth)
+        for tf, (robot, pose) in zip(msg.transforms, truth.items()):
+            assert tf.child_frame_id.startswith(robot)
+            t, q = tf.transform.translation, tf.transform.rotation
+            p, o = pose.position, pose.orientation
+            assert (t.x, t.y, t.z, q.x, q.y, q.z, q.w) == (p.x, p.y, p.z, o.x, o.y, o.z, o.w)
