@@ -5,22 +5,28 @@ GIL while it steps, so in one process the physics and the plant's sensors, encod
 puts take turns on one core; here they run side by side on two. The worker steps and
 hands back the bare state of its world: each moving skeleton's positions and velocities
 (its generalised coordinates, a few doubles a robot). The plant keeps its own
-:class:`~plant.sim.Simulation` of the same world as a *mirror*: it loads those vectors
-into its skeletons and reads everything its sensors need (poses, body velocities, wheels,
-the parts' poses for a scene) from its own DART world, by the very code that reads it
-without a physics process. DART computes a body's transform and velocity from its
-skeleton's positions and velocities alone, so the values are the same to the bit
-(tests/plant/test_physics_process.py). The reading, which costs more than the vectors, is
-the plant's, done while the worker steps, rather than the worker's, done between two
-steps.
+:class:`~plant.sim.Simulation` of the same world as a *mirror*: it can load those vectors
+into its skeletons and read what its sensors need (every robot's state row, the parts'
+poses for a scene) from its own DART world, by the very code that reads it without a
+physics process. DART computes a body's transform and velocity from its skeleton's
+positions and velocities alone, so the values are the same to the bit
+(tests/plant/test_physics_process.py).
+
+Who reads them is decided tick by tick, by who would otherwise wait: the plant raises a
+flag in the shared block while it waits for the step. A worker that finds the flag down
+when its step is done (the plant still publishing) reads the rows (and the parts' poses,
+if the plant asked for them) itself and leaves them beside the state; one that finds it
+up (the plant idle, the physics the slower side) answers at once and the plant reads its
+mirror, its work overlapping the next step. Either way the values are the same.
 
 Hand-over: one shared memory block (a memfd both map) holds the wheel-speed targets of the
-next step, written by the plant, and two state slots, written by the worker: the state of
-tick k goes into slot k % 2, so the plant reads tick k's while the worker writes k + 1's.
-A socket pair carries one byte each way a tick (the request names the slot; the answer
-says whether the robots' state is finite) and wakes the side that waits; the rare requests
-(build, close) and an error's traceback go as length-framed pickles. The worker exits when
-the plant closes the socket, and is killed with the plant (PDEATHSIG).
+next step, written by the plant, the flag, and two slots (state, rows, parts) written by
+the worker: tick k's go into slot k % 2, so the plant reads tick k's while the worker
+writes k + 1's. A socket pair carries one byte each way a tick (the request names the slot
+and whether a scene is due; the answer, whether the robots' state is finite and whether the
+rows were read) and wakes the side that waits; the rare requests (build, close) and an
+error's traceback go as length-framed pickles. The worker exits when the plant closes the
+socket, and is killed with the plant (PDEATHSIG).
 """
 from __future__ import annotations
 
@@ -37,12 +43,28 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from .memory import keep_freed_memory
-from .sim import Simulation
+from .sim import RobotState, Simulation
 from .world import WorldSpec
 
 CLOSE_TIMEOUT_S = 5.0
-#: one-byte requests and answers on the socket (a step's request is the slot's digit)
-BUILD, CLOSE, ERROR, FINITE, DIVERGED, SLOTS = b"b", b"c", b"e", b"1", b"0", (b"0", b"1")
+#: one-byte requests and answers on the socket besides a step's (:func:`_step_request`,
+#: :func:`_answer_byte`)
+BUILD, CLOSE, ERROR = b"b", b"c", b"e"
+#: a row of :meth:`Simulation.state_rows`
+ROW_COLS = 26
+#: the plant's flag: up (1) while it waits for the step: then the worker leaves the reading
+#: to it; ALWAYS_* hold it down or up for good (tests, or to measure one side)
+ADAPTIVE, ALWAYS_WORKER, ALWAYS_PLANT = None, False, True
+
+
+def _step_request(slot: int, parts: bool) -> bytes:
+    """Step into ``slot`` (0, 1); ``parts``: a scene is due there."""
+    return bytes((48 + slot + 2 * parts,))
+
+
+def _answer_byte(finite: bool, read: bool) -> bytes:
+    """The robots' state finite; ``read``: the rows (and parts) read by the worker."""
+    return bytes((48 + finite + 2 * read,))
 
 
 class PhysicsError(RuntimeError):
@@ -51,9 +73,10 @@ class PhysicsError(RuntimeError):
 
 class Layout:
     """Where a world's state lies in the shared block: the robots' wheel-speed targets
-    ((R, 2) doubles), then two slots of every moving skeleton's positions and velocities
-    (world order; the room's skeleton has none). The same in the plant and in the worker:
-    both build the world from the same spec."""
+    ((R, 2) doubles), the plant's flag, then two slots, each of every moving skeleton's
+    positions and velocities (world order; the room's skeleton has none), the robots'
+    state rows (R, 26) and the parts' poses (P, 4, 4). The same in the plant and in the
+    worker: both build the world from the same spec."""
 
     def __init__(self, sim: Simulation) -> None:
         world = sim.world
@@ -71,18 +94,28 @@ class Layout:
             at += 2 * n
         self.robot_cols = np.array(robot_cols, dtype=np.intp)
         self.n_robots = len(sim.robots)
-        self.slot_len = at
-        self.nbytes = max(8, 8 * (2 * self.n_robots + 2 * at))
+        self.n_parts = len(sim.part_transforms())
+        self.state_len = at
+        self.slot_len = at + ROW_COLS * self.n_robots + 16 * self.n_parts
+        self.n_doubles = 2 * self.n_robots + 1 + 2 * self.slot_len
+        self.nbytes = 8 * self.n_doubles
 
     def key(self) -> tuple:
-        return self.n_robots, tuple(self.skeletons)
+        return self.n_robots, self.n_parts, tuple(self.skeletons)
 
-    def views(self, buf) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        """(the targets (R, 2), the two state slots) over the shared block ``buf``."""
-        a = np.frombuffer(buf, dtype=np.float64, count=2 * self.n_robots + 2 * self.slot_len)
+    def views(self, buf) -> tuple[np.ndarray, np.ndarray, tuple]:
+        """(the targets (R, 2), the flag (1,), the two slots) over the shared block
+        ``buf``; a slot: (state, rows (R, 26), parts (P, 4, 4))."""
+        a = np.frombuffer(buf, dtype=np.float64, count=self.n_doubles)
         t = 2 * self.n_robots
-        return (a[:t].reshape(-1, 2),
-                (a[t:t + self.slot_len], a[t + self.slot_len:]))
+        slots, at = [], t + 1
+        for _ in range(2):
+            state = a[at:at + self.state_len]
+            rows = a[at + self.state_len:at + self.state_len + ROW_COLS * self.n_robots]
+            parts = a[at + self.state_len + rows.size:at + self.slot_len]
+            slots.append((state, rows.reshape(-1, ROW_COLS), parts.reshape(-1, 4, 4)))
+            at += self.slot_len
+        return a[:t].reshape(-1, 2), a[t:t + 1], tuple(slots)
 
 
 def store_state(sim: Simulation, layout: Layout, slot: np.ndarray) -> bool:
@@ -118,10 +151,15 @@ def shared_block(nbytes: int) -> tuple[int, mmap.mmap]:
 
 
 class PhysicsProcess:
-    """The plant's handle on its physics process, keeping ``mirror`` (the plant's own
-    :class:`Simulation` of the same world) at the worker's state: :meth:`sync`."""
+    """The plant's handle on its physics process. The world's present state reads through
+    :meth:`rows`, :meth:`state` and :meth:`parts`: the worker's reading if it made one,
+    else ``mirror`` (the plant's own :class:`Simulation` of the same world) loaded with the
+    worker's state (:meth:`sync`) and read. ``reader``: :data:`ADAPTIVE` (who reads is who
+    would otherwise wait), :data:`ALWAYS_WORKER` or :data:`ALWAYS_PLANT`."""
 
-    def __init__(self, spec: WorldSpec, mirror: Simulation) -> None:
+    def __init__(self, spec: WorldSpec, mirror: Simulation, reader: bool | None = ADAPTIVE
+                 ) -> None:
+        self.reader = reader
         if spec.mode == "kinematic":
             raise ValueError("a kinematic world is stepped in the plant's process: "
                              "no physics process for it")
@@ -148,11 +186,14 @@ class PhysicsProcess:
         self.conn = Connection(mine.detach())
         self._fd = self.conn.fileno()
         self.layout = layout
-        self.targets, self.slots = layout.views(self._mm)
+        self.targets, self.flag, self.slots = layout.views(self._mm)
+        self.flag[0] = 1.0 if self.reader is ALWAYS_PLANT else 0.0
         self.pending = False
         self.finite = True
         self._slot = 0                        # the slot of the world's present state
         self._stale = True                    # the mirror is behind it
+        #: whether the worker read the present tick's rows (and the parts' poses, if asked)
+        self.read_by_worker = self._with_parts = self._asked = False
 
     def build(self, spec: WorldSpec, mirror: Simulation) -> None:
         """(Re)build the world there at t = 0; ``mirror``: the plant's fresh copy of it,
@@ -165,34 +206,65 @@ class PhysicsProcess:
             self._stop()
             self._spawn(layout)
         self.mirror = mirror
+        self.mirror_index = {name: i for i, name in enumerate(mirror.robots)}
         self._send(BUILD)
         self.conn.send(("build", spec))
-        self.finite = self._answer() == FINITE
         self._slot, self._stale = 0, True
+        self.finite, self.read_by_worker = self._answer()
+        self._with_parts = self.read_by_worker
 
-    def start_step(self, targets: np.ndarray) -> None:
+    def start_step(self, targets: np.ndarray, with_parts: bool = False) -> None:
         """Step one control tick with these (R, 2) wheel speed set-points (robots in
-        world-file order), and return at once (:meth:`finish_step` waits for it)."""
+        world-file order), and return at once (:meth:`finish_step` waits for it);
+        ``with_parts``: a scene is due at the next tick (the worker, if it reads, reads
+        the parts' poses too)."""
         if self.pending:
             raise RuntimeError("a step is under way: finish_step first")
         self.targets[:] = targets
-        self._send(SLOTS[1 - self._slot])
-        self.pending = True
+        self._send(_step_request(1 - self._slot, with_parts))
+        self.pending, self._asked = True, with_parts
 
     def finish_step(self) -> None:
-        """Wait for the step started last: the world's state is the new slot's (loaded
-        into the mirror by :meth:`sync`), :attr:`finite` whether the robots' is finite."""
+        """Wait for the step started last (the flag up meanwhile, where adaptive): the
+        world's state is the new slot's, :attr:`finite` whether the robots' is finite."""
         self.pending = False
-        answer = self._answer()
-        self.finite = answer == FINITE
-        self._slot, self._stale = 1 - self._slot, True
+        if self.reader is ADAPTIVE:
+            self.flag[0] = 1.0
+            try:
+                self.finite, self.read_by_worker = self._answer()
+            finally:
+                self.flag[0] = 0.0
+        else:
+            self.finite, self.read_by_worker = self._answer()
+        self._slot, self._stale, self._with_parts = 1 - self._slot, True, self._asked
 
     def sync(self) -> None:
         """The mirror at the worker's state of the present tick (once a tick; safe while
         the next step runs: that one writes the other slot)."""
         if self._stale:
-            load_state(self.mirror, self.layout, self.slots[self._slot])
+            load_state(self.mirror, self.layout, self.slots[self._slot][0])
             self._stale = False
+
+    def rows(self) -> np.ndarray:
+        """Every robot's state row now (:meth:`Simulation.state_rows`)."""
+        if self.read_by_worker:
+            return self.slots[self._slot][1].copy()
+        self.sync()
+        return self.mirror.state_rows()
+
+    def state(self, robot: str):
+        """``robot``'s :class:`~plant.sim.RobotState` now (:meth:`Simulation.state`)."""
+        if self.read_by_worker:
+            return state_from_row(self.slots[self._slot][1][self.mirror_index[robot]])
+        self.sync()
+        return self.mirror.state(robot)
+
+    def parts(self) -> np.ndarray:
+        """The robots' parts' poses now (:meth:`Simulation.part_transforms`)."""
+        if self.read_by_worker and self._with_parts:
+            return self.slots[self._slot][2].copy()
+        self.sync()
+        return self.mirror.part_transforms()
 
     def _send(self, request: bytes) -> None:
         try:
@@ -200,16 +272,18 @@ class PhysicsProcess:
         except OSError as exc:
             raise self._gone(exc) from None
 
-    def _answer(self) -> bytes:
+    def _answer(self) -> tuple[bool, bool]:
+        """(finite, read by the worker) of the answer to the last request."""
         try:
             got = os.read(self._fd, 1)
             if got == ERROR:
                 raise PhysicsError(f"the physics process failed:\n{self.conn.recv()}")
         except (EOFError, OSError) as exc:
             raise self._gone(exc) from None
-        if got not in (FINITE, DIVERGED):
+        if len(got) != 1 or got not in b"0123":
             raise self._gone(EOFError("no answer" if not got else f"answered {got!r}"))
-        return got
+        code = got[0] - ord("0")
+        return bool(code & 1), bool(code & 2)
 
     def _gone(self, exc: BaseException) -> PhysicsError:
         try:
@@ -235,7 +309,7 @@ class PhysicsProcess:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
-        self.targets = self.slots = None     # (views of the block: let it go)
+        self.targets = self.flag = self.slots = None   # (views of the block: let go)
         try:
             self._mm.close()
         except BufferError:                  # a view still held elsewhere: goes with it
@@ -246,11 +320,26 @@ class PhysicsProcess:
         self._stop()
 
 
+def state_from_row(row: np.ndarray) -> RobotState:
+    """The :class:`RobotState` a state row holds (what ``Simulation.state`` gives)."""
+    tf = row[:16].reshape(4, 4).copy()
+    return RobotState(tf, float(np.arctan2(tf[1, 0], tf[0, 0])), row[16:19].copy(),
+                      row[19:22].copy(), row[22:24].copy(), row[24:26].copy())
+
+
+def read_into(sim: Simulation, slot: tuple, with_parts: bool) -> None:
+    """The worker's reading of its world into ``slot``: the rows, and the parts' poses."""
+    slot[1][:] = sim.state_rows()
+    if with_parts:
+        slot[2][:] = sim.part_transforms()
+
+
 def serve(conn: Connection, block: mmap.mmap) -> int:
-    """The worker's loop: build, step and store the state on request until closed."""
+    """The worker's loop: build, step and store the state on request until closed (and
+    read the rows where the plant is not waiting: its flag down)."""
     fd = conn.fileno()
     sim: Simulation | None = None
-    layout = targets = slots = None
+    layout = targets = flag = slots = None
     while True:
         try:
             request = os.read(fd, 1)
@@ -266,15 +355,23 @@ def serve(conn: Connection, block: mmap.mmap) -> int:
                 if layout.nbytes > len(block):
                     raise ValueError(f"the world's state needs {layout.nbytes} bytes, the "
                                      f"shared block has {len(block)}")
-                targets, slots = layout.views(block)
-                answer = store_state(sim, layout, slots[0])
-            elif request in SLOTS:
+                targets, flag, slots = layout.views(block)
+                finite = store_state(sim, layout, slots[0][0])
+                read = not flag[0]
+                if read:
+                    read_into(sim, slots[0], True)
+            elif len(request) == 1 and request in b"0123":
+                code = request[0] - ord("0")
+                slot = slots[code & 1]
                 sim.drive.targets[:] = targets
                 sim.step_tick()
-                answer = store_state(sim, layout, slots[SLOTS.index(request)])
+                finite = store_state(sim, layout, slot[0])
+                read = not flag[0]            # the plant busy yet: the reading is ours
+                if read:
+                    read_into(sim, slot, bool(code & 2))
             else:
                 raise ValueError(f"unknown request {request!r}")
-            os.write(fd, FINITE if answer else DIVERGED)
+            os.write(fd, _answer_byte(finite, read))
         except OSError:                        # the plant went while we answered
             return 0
         except Exception:                      # told to the plant, which raises it

@@ -22,25 +22,24 @@ class Stepper:
         self.physics = physics
         self.sensors = sensors
         self.overlap = overlap and physics is not None
-        #: one robot: its sensors see the room alone (:meth:`shapes`)
+        self.tick_ns = spec.tick_ns
+        #: one robot: its sensors see the room alone (:meth:`shapes`), so a physics
+        #: process need not read its parts' poses
         self._room_only = len(sim.robots) == 1
 
     # ------------------------------------------------------------ the world's state
-    # With a physics process, ``sim`` is its mirror (:class:`plant.physics_process.
-    # PhysicsProcess`): loaded with the worker's state on the first read of a tick, then
-    # read as if it had stepped here.
     def state(self, robot: str):
-        if self.physics is not None:
-            self.physics.sync()
-        return self.sim.state(robot)
+        if self.physics is None:
+            return self.sim.state(robot)
+        return self.physics.state(robot)
 
     def rows(self):
         """Every robot's state as one (R, 26) array (:meth:`Simulation.state_rows`' layout:
-        the values :meth:`state` gives, robot by robot, to the bit), read from DART in one
-        pass."""
-        if self.physics is not None:
-            self.physics.sync()
-        return self.sim.state_rows()
+        the values :meth:`state` gives, robot by robot, to the bit): read from DART in one
+        pass, here or by the physics process (:meth:`PhysicsProcess.rows`)."""
+        if self.physics is None:
+            return self.sim.state_rows()
+        return self.physics.rows()
 
     def shapes(self):
         """What the robots' sensors see now (the scene of a tick's lidars and cameras), built
@@ -50,9 +49,9 @@ class Stepper:
         parts need not be placed (in DART, a world transform per part) every time."""
         if self._room_only:
             return self.sim.room_scene()
-        if self.physics is not None:
-            self.physics.sync()
-        return self.sim.scene()
+        if self.physics is None:
+            return self.sim.scene()
+        return self.sim.scene(self.physics.parts())
 
     def finite(self) -> bool:
         return self.sim.is_finite() if self.physics is None else self.physics.finite
@@ -61,13 +60,14 @@ class Stepper:
     def start(self) -> None:
         """Start the step to the next tick with the targets the commands set: in this
         process, the whole step; in a physics process, its start (:meth:`finish` waits for
-        it), the plant free to publish meanwhile. The mirror is loaded with the present
-        tick's state then, while the worker steps, off the physics' path."""
+        it), the plant free to publish meanwhile."""
         if self.physics is None:
             self.sim.step_tick()
             return
-        self.physics.start_step(self.sim.command_targets())
-        self.physics.sync()
+        tick = self.sim.time_ns // self.tick_ns + 1
+        self.physics.start_step(self.sim.command_targets(),
+                                not self._room_only and
+                                any(s.needs_scene(tick) for s in self.sensors.values()))
 
     def finish(self) -> None:
         """The step started by :meth:`start` done: the world at the next tick."""

@@ -12,7 +12,8 @@ import sys
 import numpy as np
 import pytest
 
-from plant.physics_process import PhysicsError, PhysicsProcess
+from plant.physics_process import (ADAPTIVE, ALWAYS_PLANT, ALWAYS_WORKER, PhysicsError,
+                                   PhysicsProcess)
 from plant.sim import Simulation
 from plant.swarm_world import write_swarm_world
 from plant.tick import Tick
@@ -30,18 +31,21 @@ def _gone(pid: int) -> bool:
 
 
 @pytest.mark.slow
-def test_the_plants_mirror_reads_as_the_world_stepped_here(tmp_path):
-    """The worker hands back bare positions and velocities; the plant's own world loaded
-    with them reads as a world stepped in this process: every robot's state, the parts'
-    poses, finiteness, tick after tick (robots pressing on each other and the walls), after
-    a rebuild, and with the present tick read while the next step runs."""
+@pytest.mark.parametrize("reader", [ALWAYS_WORKER, ALWAYS_PLANT, ADAPTIVE],
+                         ids=["worker reads", "plant's mirror reads", "adaptive"])
+def test_the_state_reads_as_the_world_stepped_here(tmp_path, reader):
+    """The worker hands back positions and velocities, and reads the rows and parts itself
+    or leaves that to the plant's mirror of its world: either reads as a world stepped in
+    this process, every robot's state, the parts' poses and finiteness, tick after tick
+    (robots pressing on each other and a wall), after a rebuild, and with the present
+    tick read while the next step runs."""
     spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, seed=3))
     spec.robot("r0").pose = (0.0, 0.0, 0.0)            # head on into r1
     spec.robot("r1").pose = (0.6, 0.05, math.pi)
     spec.robot("r2").pose = (4.5, 2.0, 0.0)            # into a wall
     local, mirror = Simulation(spec), Simulation(spec)
-    physics = PhysicsProcess(spec, mirror)
-    contacts = []
+    physics = PhysicsProcess(spec, mirror, reader)
+    contacts, by_worker = [], []
     try:
         names = list(local.robots)
         for k in range(40):
@@ -52,23 +56,23 @@ def test_the_plants_mirror_reads_as_the_world_stepped_here(tmp_path):
             for i, name in enumerate(names):  # the plant's own copy turns commands into
                 mirror.command_twist(name, 0.9, 0.5 * math.sin(k / 7 + i))   # targets
                 local.command_twist(name, 0.9, 0.5 * math.sin(k / 7 + i))
-            physics.start_step(mirror.command_targets())
+            physics.start_step(mirror.command_targets(), with_parts=k % 3 == 0)
             local.step_tick()
             physics.finish_step()
-            physics.sync()
-            assert np.array_equal(mirror.state_rows(), local.state_rows())
+            by_worker.append(physics.read_by_worker)
+            assert np.array_equal(physics.rows(), local.state_rows())
             for name in names:
-                want, got = local.state(name), mirror.state(name)
+                want, got = local.state(name), physics.state(name)
                 assert np.array_equal(want.tf, got.tf) and want.yaw == got.yaw
                 assert np.array_equal(want.v_body, got.v_body)
                 assert np.array_equal(want.w_body, got.w_body)
                 assert np.array_equal(want.enc_pos, got.enc_pos)
                 assert np.array_equal(want.enc_vel, got.enc_vel)
-            assert np.array_equal(mirror.part_transforms(), local.part_transforms())
+            assert np.array_equal(physics.parts(), local.part_transforms())
             assert physics.finite and local.is_finite()
-            physics.start_step(mirror.command_targets())   # the next step under way:
-            physics.sync()                                 # this tick's state still reads
-            assert np.array_equal(mirror.part_transforms(), local.part_transforms())
+            physics.start_step(mirror.command_targets(), with_parts=True)  # the next one
+            assert np.array_equal(physics.rows(), local.state_rows())     # under way:
+            assert np.array_equal(physics.parts(), local.part_transforms())   # still now
             physics.finish_step()
             local.step_tick()
             contacts.append(local.world.getLastCollisionResult().getNumContacts())
@@ -76,6 +80,8 @@ def test_the_plants_mirror_reads_as_the_world_stepped_here(tmp_path):
     finally:
         physics.close()
     assert physics.proc.poll() == 0
+    if reader is not ADAPTIVE:                        # (adaptive: as the two race)
+        assert set(by_worker) == {reader is ALWAYS_WORKER}
 
 
 @pytest.mark.slow
