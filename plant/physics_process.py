@@ -121,11 +121,12 @@ class Layout:
 def store_state(sim: Simulation, layout: Layout, slot: np.ndarray) -> bool:
     """``sim``'s moving skeletons' positions and velocities into ``slot``; whether the
     robots' are all finite (:meth:`Simulation.is_finite`'s answer)."""
-    world = sim.world
-    for i, at, n in layout.skeletons:
+    world, got = sim.world, []
+    for i, _, _ in layout.skeletons:
         sk = world.getSkeleton(i)
-        slot[at:at + n] = sk.getPositions()
-        slot[at + n:at + 2 * n] = sk.getVelocities()
+        got += (sk.getPositions(), sk.getVelocities())
+    if got:                                   # (one copy: a third less than one a vector)
+        slot[:layout.state_len] = np.concatenate(got)
     return bool(np.isfinite(slot[layout.robot_cols]).all())
 
 
