@@ -151,6 +151,26 @@ def shared_block(nbytes: int) -> tuple[int, mmap.mmap]:
         raise
 
 
+def split_cpus() -> tuple[set[int], set[int]] | None:
+    """(the plant's CPUs, the worker's): the CPUs this thread may run on, one (not the one
+    it runs on now) for the worker and the rest for the plant's thread; None with fewer
+    than two. When every core is busy, a woken process tends to be queued on its waker's
+    core: the worker, woken by the plant, took the plant's core and the two took turns
+    (the plant's thread waited ~0.35 ms a control tick in the run queue in a composed
+    square on a loaded 2-core machine, against ~0.05 ms without a physics process). Kept
+    apart, each waits only for others' work."""
+    try:
+        allowed = os.sched_getaffinity(0)
+        with open("/proc/thread-self/stat") as f:          # field 39: the CPU it ran on
+            here = int(f.read().rsplit(")", 1)[1].split()[36])
+    except (AttributeError, OSError, ValueError, IndexError):
+        return None
+    if len(allowed) < 2:
+        return None
+    worker = max(c for c in allowed if c != here)
+    return allowed - {worker}, {worker}
+
+
 class PhysicsProcess:
     """The plant's handle on its physics process. The world's present state reads through
     :meth:`rows`, :meth:`state` and :meth:`parts`: the worker's reading if it made one,
@@ -176,14 +196,24 @@ class PhysicsProcess:
     def _spawn(self, layout: Layout) -> None:
         mine, theirs = socket.socketpair()
         fd, self._mm = shared_block(layout.nbytes)
+        cpus = split_cpus()
         try:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "plant.physics_process", str(theirs.fileno()),
-                 str(fd), str(os.getpid())], pass_fds=(theirs.fileno(), fd),
-                stdin=subprocess.DEVNULL)
+                 str(fd), str(os.getpid()),
+                 ",".join(map(str, sorted(cpus[1]))) if cpus else "-"],
+                pass_fds=(theirs.fileno(), fd), stdin=subprocess.DEVNULL)
         finally:
             theirs.close()
             os.close(fd)
+        #: this thread's CPUs before it was kept off the worker's (given back at close)
+        self._cpus = None
+        if cpus is not None:
+            try:
+                self._cpus = os.sched_getaffinity(0)
+                os.sched_setaffinity(0, cpus[0])
+            except OSError:
+                self._cpus = None
         self.conn = Connection(mine.detach())
         self._fd = self.conn.fileno()
         self.layout = layout
@@ -311,6 +341,12 @@ class PhysicsProcess:
             self.proc.kill()
             self.proc.wait()
         self.targets = self.flag = self.slots = None   # (views of the block: let go)
+        if self._cpus is not None:
+            try:
+                os.sched_setaffinity(0, self._cpus)
+            except OSError:
+                pass
+            self._cpus = None
         try:
             self._mm.close()
         except BufferError:                  # a view still held elsewhere: goes with it
@@ -386,6 +422,11 @@ def serve(conn: Connection, block: mmap.mmap) -> int:
 
 def main(argv: list[str]) -> int:
     fd, shm, parent = int(argv[0]), int(argv[1]), int(argv[2])
+    if argv[3] != "-":                                # a core of our own (split_cpus)
+        try:
+            os.sched_setaffinity(0, {int(c) for c in argv[3].split(",")})
+        except OSError:
+            pass
     signal.signal(signal.SIGINT, signal.SIG_IGN)      # the plant stops us (Ctrl-C hits both)
     try:                                              # die with the plant, even on SIGKILL
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG

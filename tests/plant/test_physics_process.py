@@ -109,6 +109,25 @@ def test_a_world_that_is_not_finite_is_told_as_the_plant_would_find_it():
         physics.close()
 
 
+@pytest.mark.slow
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to split")
+def test_the_plant_and_its_physics_process_keep_to_cores_of_their_own():
+    """The worker runs on a core the plant's thread does not (so a woken worker cannot
+    queue behind the plant on its core), and the plant's thread gets its cores back when
+    the physics process closes."""
+    before = os.sched_getaffinity(0)
+    spec = load_world("empty")
+    physics = PhysicsProcess(spec, Simulation(spec))
+    try:
+        mine, theirs = os.sched_getaffinity(0), os.sched_getaffinity(physics.proc.pid)
+        assert mine and theirs and not mine & theirs and mine | theirs == before
+        physics.start_step(np.zeros((1, 2)))
+        physics.finish_step()
+    finally:
+        physics.close()
+    assert os.sched_getaffinity(0) == before
+
+
 @pytest.mark.parametrize("mode", ["dynamic", "kinematic"])
 def test_the_snapshot_holds_each_robots_state_and_parts_to_the_bit(tmp_path, mode):
     """What the plant reads of every robot at once (Simulation.state_rows,
