@@ -185,6 +185,20 @@ def test_a_dead_physics_process_is_an_error_naming_it(tmp_path):
         physics.close()
 
 
+@pytest.mark.slow
+def test_a_failure_in_the_physics_process_comes_back_with_its_traceback():
+    spec = load_world("empty")
+    physics = PhysicsProcess(spec, Simulation(spec))
+    try:
+        bad = load_world("empty")
+        bad.collision_detector = "no-such-detector"        # its world cannot be built there
+        with pytest.raises(PhysicsError, match=r"(?s)physics process failed.*KeyError"):
+            physics.build(bad, Simulation(spec))
+    finally:
+        physics.close()
+    assert physics.proc.poll() == 1
+
+
 def _swarm(tmp_path, name: str, *extra: str) -> tuple[dict, str, dict]:
     out = tmp_path / name
     r = subprocess.run([sys.executable, "-m", "diffbot.cli", "run", "swarm", "--robots", "3",
