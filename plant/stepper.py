@@ -23,9 +23,8 @@ class Stepper:
         self.sensors = sensors
         self.overlap = overlap and physics is not None
         self.tick_ns = spec.tick_ns
-        self._index = {name: i for i, name in enumerate(sim.robots)}
         #: one robot: its sensors see the room alone (:meth:`shapes`), so a physics
-        #: process need not send its parts' poses
+        #: process need not read its parts' poses
         self._room_only = len(sim.robots) == 1
         #: (sim.moves, rows, finite) of the last read of the world in this process: a
         #: tick checks its step (:meth:`finite`) and then publishes the same state (:meth:`rows`)
@@ -35,15 +34,15 @@ class Stepper:
     def state(self, robot: str):
         if self.physics is None:
             return self.sim.state(robot)
-        return self.physics.state(self._index[robot])
+        return self.physics.state(robot)
 
     def rows(self):
         """Every robot's state as one (R, 26) array (:meth:`Simulation.state_rows`' layout:
         the values :meth:`state` gives, robot by robot, to the bit): read from DART in one
-        pass, or the physics process's snapshot."""
+        pass, here or by the physics process (:meth:`PhysicsProcess.rows`)."""
         if self.physics is None:
             return self._read_now()[1]
-        return self.physics.rows
+        return self.physics.rows()
 
     def shapes(self):
         """What the robots' sensors see now (the scene of a tick's lidars and cameras), built
@@ -55,8 +54,7 @@ class Stepper:
             return self.sim.room_scene()
         if self.physics is None:
             return self.sim.scene()
-        assert self.physics.parts is not None, "a scene is due but the snapshot has no parts"
-        return self.sim.scene(self.physics.parts)
+        return self.sim.scene(self.physics.parts())
 
     def finite(self) -> bool:
         if self.physics is not None:
@@ -85,7 +83,7 @@ class Stepper:
             self.sim.step_tick()
             return
         tick = self.sim.time_ns // self.tick_ns + 1
-        self.physics.start_step(self.sim.command_targets().tolist(),
+        self.physics.start_step(self.sim.command_targets(),
                                 not self._room_only and
                                 any(s.needs_scene(tick) for s in self.sensors.values()))
 

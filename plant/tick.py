@@ -71,10 +71,10 @@ class Tick:
         reuse = old if old is not None and old.kin is not None and not self.physics_process else None
         self.sim, self.sensors = build_world(self.spec, self.spec.seed, self.disabled, reuse)
         if self.physics_process:
-            if self.physics is None:
-                self.physics = PhysicsProcess(self.spec)
+            if self.physics is None:         # (the plant's own world: its mirror)
+                self.physics = PhysicsProcess(self.spec, self.sim)
             else:
-                self.physics.build(self.spec)
+                self.physics.build(self.spec, self.sim)
         self.stepper = Stepper(self.spec, self.sim, self.physics, self.sensors,
                                overlap=self.overlap)
         self._owed = True                 # (the new world's t = 0)

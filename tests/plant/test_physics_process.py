@@ -12,7 +12,8 @@ import sys
 import numpy as np
 import pytest
 
-from plant.physics_process import STATE_COLS, PhysicsError, PhysicsProcess, state_from_row
+from plant.physics_process import (ADAPTIVE, ALWAYS_PLANT, ALWAYS_WORKER, PhysicsError,
+                                   PhysicsProcess)
 from plant.sim import Simulation
 from plant.swarm_world import write_swarm_world
 from plant.tick import Tick
@@ -30,45 +31,106 @@ def _gone(pid: int) -> bool:
 
 
 @pytest.mark.slow
-def test_the_process_steps_and_reports_what_the_plant_would_itself(tmp_path):
+@pytest.mark.parametrize("reader", [ALWAYS_WORKER, ALWAYS_PLANT, ADAPTIVE],
+                         ids=["worker reads", "plant's mirror reads", "adaptive"])
+def test_the_state_reads_as_the_world_stepped_here(tmp_path, reader):
+    """The worker hands back positions and velocities, and reads the rows and parts itself
+    or leaves that to the plant's mirror of its world: either reads as a world stepped in
+    this process, every robot's state, the parts' poses and finiteness, tick after tick
+    (robots pressing on each other and a wall), after a rebuild, and with the present
+    tick read while the next step runs."""
     spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, seed=3))
+    spec.robot("r0").pose = (0.0, 0.0, 0.0)            # head on into r1
+    spec.robot("r1").pose = (0.6, 0.05, math.pi)
+    spec.robot("r2").pose = (4.5, 2.0, 0.0)            # into a wall
     local, mirror = Simulation(spec), Simulation(spec)
-    physics = PhysicsProcess(spec)
+    physics = PhysicsProcess(spec, mirror, reader)
+    contacts, by_worker = [], []
     try:
         names = list(local.robots)
         for k in range(40):
             if k == 25:                       # a sim/reset: rebuilt, one robot moved
-                spec.robot("r1").pose = (1.0, -1.0, 0.5)
+                spec.robot("r1").pose = (0.5, -0.05, math.pi)
                 local, mirror = Simulation(spec), Simulation(spec)
-                physics.build(spec)
+                physics.build(spec, mirror)
             for i, name in enumerate(names):  # the plant's own copy turns commands into
-                mirror.command_twist(name, 0.3, 0.5 * math.sin(k / 7 + i))   # targets
-                local.command_twist(name, 0.3, 0.5 * math.sin(k / 7 + i))
-            physics.start_step(mirror.command_targets().tolist(), k % 5 == 4)
+                mirror.command_twist(name, 0.9, 0.5 * math.sin(k / 7 + i))   # targets
+                local.command_twist(name, 0.9, 0.5 * math.sin(k / 7 + i))
+            physics.start_step(mirror.command_targets(), with_parts=k % 3 == 0)
             local.step_tick()
             physics.finish_step()
-            for i, name in enumerate(names):
-                want, got = local.state(name), physics.state(i)
+            by_worker.append(physics.read_by_worker)
+            assert np.array_equal(physics.rows(), local.state_rows())
+            for name in names:
+                want, got = local.state(name), physics.state(name)
                 assert np.array_equal(want.tf, got.tf) and want.yaw == got.yaw
                 assert np.array_equal(want.v_body, got.v_body)
                 assert np.array_equal(want.w_body, got.w_body)
                 assert np.array_equal(want.enc_pos, got.enc_pos)
                 assert np.array_equal(want.enc_vel, got.enc_vel)
-            if k % 5 == 4:
-                assert np.array_equal(physics.parts, local.part_transforms())
-                assert [s.pose.tolist() for s in local.shapes()] == \
-                    [s.pose.tolist() for s in mirror.shapes(physics.parts)]
-            else:
-                assert physics.parts is None
-            assert physics.finite
+            assert np.array_equal(physics.parts(), local.part_transforms())
+            assert physics.finite and local.is_finite()
+            physics.start_step(mirror.command_targets(), with_parts=True)  # the next one
+            assert np.array_equal(physics.rows(), local.state_rows())     # under way:
+            assert np.array_equal(physics.parts(), local.part_transforms())   # still now
+            physics.finish_step()
+            local.step_tick()
+            contacts.append(local.world.getLastCollisionResult().getNumContacts())
+        assert max(contacts) > 3 * len(names)        # more than the wheels on the floor
     finally:
         physics.close()
     assert physics.proc.poll() == 0
+    if reader is not ADAPTIVE:                        # (adaptive: as the two race)
+        assert set(by_worker) == {reader is ALWAYS_WORKER}
+
+
+@pytest.mark.slow
+def test_a_world_that_is_not_finite_is_told_as_the_plant_would_find_it():
+    """The worker's answer says whether the robots' state is finite, as
+    Simulation.is_finite finds the same world here: a start pose of NaN is not (after a
+    step, as DART left it); rebuilt sound, it is again."""
+    spec = load_world("empty")
+    spec.robots[0].pose = (math.nan, 0.0, 0.0)
+    local, mirror = Simulation(spec), Simulation(spec)
+    physics = PhysicsProcess(spec, mirror)
+    try:
+        assert not local.is_finite() and not physics.finite
+        local.step_tick()
+        physics.start_step(np.zeros((1, 2)))
+        physics.finish_step()
+        assert physics.finite == local.is_finite()
+        spec.robots[0].pose = (0.5, 0.0, 0.0)
+        physics.build(spec, Simulation(spec))
+        assert physics.finite
+        physics.start_step(np.full((1, 2), 3.0))
+        physics.finish_step()
+        assert physics.finite
+    finally:
+        physics.close()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to split")
+def test_the_plant_and_its_physics_process_keep_to_cores_of_their_own():
+    """The worker runs on a core the plant's thread does not (so a woken worker cannot
+    queue behind the plant on its core), and the plant's thread gets its cores back when
+    the physics process closes."""
+    before = os.sched_getaffinity(0)
+    spec = load_world("empty")
+    physics = PhysicsProcess(spec, Simulation(spec))
+    try:
+        mine, theirs = os.sched_getaffinity(0), os.sched_getaffinity(physics.proc.pid)
+        assert mine and theirs and not mine & theirs and mine | theirs == before
+        physics.start_step(np.zeros((1, 2)))
+        physics.finish_step()
+    finally:
+        physics.close()
+    assert os.sched_getaffinity(0) == before
 
 
 @pytest.mark.parametrize("mode", ["dynamic", "kinematic"])
 def test_the_snapshot_holds_each_robots_state_and_parts_to_the_bit(tmp_path, mode):
-    """What the physics process sends, read all robots at once (Simulation.state_rows,
+    """What the plant reads of every robot at once (Simulation.state_rows,
     part_transforms), is what Simulation.state and DART's world transforms give."""
     sim = Simulation(load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, 5, mode)))
     for k in range(30):
@@ -76,12 +138,11 @@ def test_the_snapshot_holds_each_robots_state_and_parts_to_the_bit(tmp_path, mod
             sim.command_twist(name, 0.4, 1.5 * math.sin(k / 5 + i))
         sim.step_tick()
     rows = sim.state_rows()
-    assert rows.shape == (4, STATE_COLS)
+    assert rows.shape == (4, 26)
     for row, name in zip(rows, sim.robots):
         st = sim.state(name)
         assert row.tolist() == np.concatenate([st.tf.ravel(), st.v_body, st.w_body,
                                                st.enc_pos, st.enc_vel]).tolist()
-        assert np.array_equal(state_from_row(row).tf, st.tf)
     if mode == "dynamic":
         assert sim.part_transforms().tolist() == \
             [sn.getWorldTransform().matrix().tolist() for sn, *_ in sim._robot_parts]
@@ -112,15 +173,30 @@ def test_the_tick_tells_its_host_when_to_publish():
 
 @pytest.mark.slow
 def test_a_dead_physics_process_is_an_error_naming_it(tmp_path):
-    physics = PhysicsProcess(load_world("empty"))
+    spec = load_world("empty")
+    physics = PhysicsProcess(spec, Simulation(spec))
     try:
         physics.proc.kill()
         physics.proc.wait(10)
         with pytest.raises(PhysicsError, match="physics process is gone"):
-            physics.start_step([(0.0, 0.0)], False)
+            physics.start_step(np.zeros((1, 2)))
             physics.finish_step()
     finally:
         physics.close()
+
+
+@pytest.mark.slow
+def test_a_failure_in_the_physics_process_comes_back_with_its_traceback():
+    spec = load_world("empty")
+    physics = PhysicsProcess(spec, Simulation(spec))
+    try:
+        bad = load_world("empty")
+        bad.collision_detector = "no-such-detector"        # its world cannot be built there
+        with pytest.raises(PhysicsError, match=r"(?s)physics process failed.*KeyError"):
+            physics.build(bad, Simulation(spec))
+    finally:
+        physics.close()
+    assert physics.proc.poll() == 1
 
 
 def _swarm(tmp_path, name: str, *extra: str) -> tuple[dict, str, dict]:
