@@ -151,14 +151,24 @@ def shared_block(nbytes: int) -> tuple[int, mmap.mmap]:
         raise
 
 
+#: the environment variable that keeps the worker and the plant's thread on cores of their
+#: own (:func:`split_cpus`); off by default
+PIN_ENV = "DIFFBOT_PIN_PHYSICS"
+
+
 def split_cpus() -> tuple[set[int], set[int]] | None:
-    """(the plant's CPUs, the worker's): the CPUs this thread may run on, one (not the one
-    it runs on now) for the worker and the rest for the plant's thread; None with fewer
-    than two. When every core is busy, a woken process tends to be queued on its waker's
-    core: the worker, woken by the plant, took the plant's core and the two took turns
-    (the plant's thread waited ~0.35 ms a control tick in the run queue in a composed
-    square on a loaded 2-core machine, against ~0.05 ms without a physics process). Kept
-    apart, each waits only for others' work."""
+    """(the plant's CPUs, the worker's) when ``DIFFBOT_PIN_PHYSICS=1`` is set: the CPUs this
+    thread may run on, one (not the one it runs on now) for the worker and the rest for the
+    plant's thread; None unset or with fewer than two. When every core is busy, a woken
+    process tends to be queued on its waker's core: the worker, woken by the plant, took the
+    plant's core and the two took turns (the plant's thread waited ~0.35 ms a control tick
+    in the run queue in a composed square on a loaded 2-core machine, against ~0.05 ms
+    without a physics process). Kept apart, each waits only for others' work. It is a
+    choice for one run on a machine of its own: a process cannot see where other runs put
+    theirs, so runs side by side (a sweep, parallel tests) could all pin their workers to
+    the same core."""
+    if os.environ.get(PIN_ENV, "") != "1":
+        return None
     try:
         allowed = os.sched_getaffinity(0)
         with open("/proc/thread-self/stat") as f:          # field 39: the CPU it ran on

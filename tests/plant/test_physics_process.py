@@ -111,12 +111,22 @@ def test_a_world_that_is_not_finite_is_told_as_the_plant_would_find_it():
 
 @pytest.mark.slow
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to split")
-def test_the_plant_and_its_physics_process_keep_to_cores_of_their_own():
-    """The worker runs on a core the plant's thread does not (so a woken worker cannot
-    queue behind the plant on its core), and the plant's thread gets its cores back when
-    the physics process closes."""
+def test_the_plant_and_its_physics_process_keep_to_cores_of_their_own(monkeypatch):
+    """Asked to (DIFFBOT_PIN_PHYSICS=1), the worker runs on a core the plant's thread does
+    not (so a woken worker cannot queue behind the plant on its core), and the plant's
+    thread gets its cores back when the physics process closes; unasked, neither is pinned
+    (runs side by side would pin their workers to one core)."""
     before = os.sched_getaffinity(0)
     spec = load_world("empty")
+    monkeypatch.delenv("DIFFBOT_PIN_PHYSICS", raising=False)
+    physics = PhysicsProcess(spec, Simulation(spec))
+    try:
+        assert os.sched_getaffinity(0) == before == os.sched_getaffinity(physics.proc.pid)
+    finally:
+        physics.close()
+    if len(before) < 2:
+        pytest.skip("one CPU: nothing to keep apart")
+    monkeypatch.setenv("DIFFBOT_PIN_PHYSICS", "1")
     physics = PhysicsProcess(spec, Simulation(spec))
     try:
         mine, theirs = os.sched_getaffinity(0), os.sched_getaffinity(physics.proc.pid)
