@@ -248,8 +248,11 @@ class Plant:
             out.put(key, core.poses(self.tick.model, self.tick.data, 0, t), t, self.epoch)
         else:
             out.skip()
-        clock = packed.clock(t)
-        self.outbox.put(self.keys.clock, clock, t, self.epoch)
+        key = self.keys.clock                         # (members composed here are told below)
+        if composed is None or out.reads(key):
+            out.put(key, packed.clock(t), t, self.epoch)
+        else:
+            out.skip()
         if composed is not None:
             composed.clock(t, self._emit_many, self.epoch)
             composed.run(self._emit_many)

@@ -306,3 +306,15 @@ def test_a_scan_only_composed_members_read_is_not_encoded_until_a_subscriber_com
                                      comes=(tick, scans, mid)) if p[0] in scans]
         assert got and got == [p for p in ref if codec.parse_attachment(p[2]).t_ns
                                >= tick * 20_000_000], mid
+
+
+def test_a_plant_hosting_members_puts_sim_clock_only_for_a_reader(tmp_path):
+    """Members composed into the plant are told the tick in its process: ``sim/clock`` goes
+    on the bus only while someone there reads it, and the other messages' attachments do
+    not depend on whether it did."""
+    clock = Keys("").clock
+    alone, read = (_published(tmp_path, keys, composed=_ScanMembers())
+                   for keys in ({"r0/gps"}, {"r0/gps", clock}))
+    assert not [p for p in alone if p[0] == clock]
+    assert len([p for p in read if p[0] == clock]) == 12
+    assert [p for p in alone if p[0] == "r0/gps"] == [p for p in read if p[0] == "r0/gps"]
