@@ -121,9 +121,15 @@ class _Unencoded(bytes):
 UNENCODED = _Unencoded()
 
 
-def _scan_bytes(model: Model, cfg, group, rows, ranges, t_ns: int, wanted) -> list:
-    """The LaserScans of ``rows`` (of lidar ``group``) with ``ranges``; :data:`UNENCODED`
-    for a robot whose scan only a values reader reads (:class:`Settled`'s ``bare``)."""
+def _scans(model: Model, cfg, group, rows, ranges, t_ns: int, wanted) -> list:
+    """The LaserScans of ``rows`` (of lidar ``group``) with ``ranges``: their bytes,
+    :data:`UNENCODED` for a robot whose scan only a values reader reads (:class:`Settled`'s
+    ``bare``); ``wanted`` False: the messages (:mod:`bus.codec`'s), not their bytes."""
+    if wanted is False:
+        return [codec.laser_scan(t_ns, cfg.angle_min, cfg.angle_max, cfg.angle_increment,
+                                 1.0 / cfg.rate_hz, cfg.min_range_m, cfg.max_range_m, r,
+                                 frame_id=model.frames["laser"][i])
+                for i, r in zip(rows.tolist(), ranges)]
     at = np.searchsorted(group, rows)
     bare = getattr(wanted, "bare", None)
     if bare is None:
@@ -237,13 +243,7 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
         ranges = kernels.lidar_noise(np.ascontiguousarray(cast_rows, float), keys, laws, tick,
                                      cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
         kept.append((cfg, rows, ranges))
-        if encoded:
-            msgs = _scan_bytes(model, cfg, group, rows, ranges, t_ns, wanted)
-        else:
-            msgs = [codec.laser_scan(t_ns, cfg.angle_min, cfg.angle_max, cfg.angle_increment,
-                                     1.0 / cfg.rate_hz, cfg.min_range_m, cfg.max_range_m, r,
-                                     frame_id=model.frames["laser"][i])
-                    for i, r in zip(rows.tolist(), ranges)]
+        msgs = _scans(model, cfg, group, rows, ranges, t_ns, wanted if encoded else False)
         for i, m in zip(rows.tolist(), msgs):
             got["scan"][i] = m
     data.ranges[w] = (tick, kept)
