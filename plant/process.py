@@ -30,7 +30,7 @@ import time
 
 import zenoh
 
-from bus import jsonio, packed
+from bus import codec, jsonio, packed
 from bus.composed import Composed
 from bus.inbox import Event, Inbox
 from bus.keys import Keys
@@ -234,6 +234,8 @@ class Plant:
             at = k + 1
             key = self._key(name, topic)
             if composed is None or out.reads(key):    # (else only a composed member reads it)
+                if data is core.UNENCODED:            # (a reader came since the tick's plan)
+                    data = codec.encode(handed(name, topic))
                 out.put(key, data, t, self.epoch)
             else:
                 out.skip()
@@ -246,8 +248,11 @@ class Plant:
             out.put(key, core.poses(self.tick.model, self.tick.data, 0, t), t, self.epoch)
         else:
             out.skip()
-        clock = packed.clock(t)
-        self.outbox.put(self.keys.clock, clock, t, self.epoch)
+        key = self.keys.clock                         # (members composed here are told below)
+        if composed is None or out.reads(key):
+            out.put(key, packed.clock(t), t, self.epoch)
+        else:
+            out.skip()
         if composed is not None:
             composed.clock(t, self._emit_many, self.epoch)
             composed.run(self._emit_many)
@@ -299,8 +304,13 @@ class Plant:
                 if local is None:
                     return lambda topic: reads(key(robot, topic))
                 return lambda topic: reads(key(robot, topic)) or local(key(robot, topic))
-            self._wanted = (readers, core.Settled({name: Reads(ask(name)).__getitem__
-                                                   for name in self.tick.sensors}))
+
+            def bare(robot: str) -> bool:    # (its scan only composed members read: values)
+                scan = key(robot, "scan")
+                return local(scan) and not reads(scan)
+            self._wanted = (readers, core.Settled(
+                {name: Reads(ask(name)).__getitem__ for name in self.tick.sensors},
+                Reads(bare).__getitem__ if local is not None else None))
         return self._wanted[1]
 
     # ------------------------------------------------------------------ input

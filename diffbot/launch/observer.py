@@ -4,7 +4,9 @@ It never takes part in lockstep; it only listens to the keys it keeps, so the pl
 does not build messages nobody else reads. Message counts come from each
 process's own stats. At a run's end it answers the plant's get on ``sim/seen/*`` with the
 latest clock it has received, so the plant leaves only once the last tick is here
-(docs/PROTOCOL.md section 4, "End": a loaded machine's run once lacked its last 20 ticks).
+(docs/PROTOCOL.md section 4, "End"). Where it keeps ``sim/poses``, which the plant puts
+every tick just before that tick's ``sim/clock``, the latest pose's stamp is that clock,
+so it does not subscribe to ``sim/clock`` (the plant then need not put it for nobody).
 """
 from __future__ import annotations
 
@@ -48,9 +50,12 @@ class Observer:
         self._subs = {k: session.declare_subscriber(k, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
                       for k in keep}
         # the latest clock received, for the plant's get on sim/seen/* at a run's end (its
-        # channel is emptied with the others; the stamp of the last one is kept)
-        self._clock = session.declare_subscriber(keys.clock,
-                                                 zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+        # channel is emptied with the others; the stamp of the last one is kept), or the
+        # latest sim/poses' stamp where those are kept (module docstring)
+        self._ticks = keys.poses if keys.poses in keep else None
+        self._clock = (session.declare_subscriber(keys.clock,
+                                                  zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+                       if self._ticks is None else None)
         self._clock_ns: int | None = None
         self._seen = session.declare_queryable(keys.seen(OBSERVER), self._answer_seen)
         self._stop = threading.Event()
@@ -86,6 +91,8 @@ class Observer:
                     att = sample.attachment
                     att = codec.parse_attachment(att.to_bytes() if att is not None else None)
                     out.append((att[1] if att else -1, sample.payload.to_bytes()))
+            if self._ticks is not None and self.samples[self._ticks]:
+                self._clock_ns = self.samples[self._ticks][-1][0]
 
     def settle(self, expected: dict[str, int], timeout_s: float = 2.0) -> None:
         """Wait, up to ``timeout_s``, until every kept key holds as many samples as its
@@ -134,5 +141,5 @@ class Observer:
         self._thread.join()
         self.drain()                      # what arrived before the close is kept
         subs, self._subs = self._subs, {}
-        undeclare_all([*subs.values(), self._seen, self._clock])
+        undeclare_all([*subs.values(), self._seen, *([self._clock] if self._clock else [])])
         self._clock = None

@@ -101,8 +101,47 @@ class Settled(dict):
     """robot -> ``wanted(topic)`` whose answers hold for as long as this object lives (the
     plant's: :class:`plant.outbox.Reads`, a new object whenever a reader may have come or
     gone). :func:`sense` works out what it reads at each phase of the sensors' periods
-    once for such an object, not every tick."""
+    once for such an object, not every tick. ``bare``: robot -> whether its LaserScan is
+    read only as values (:mod:`plant.handover`, by members composed into the host), so
+    its bytes are not made (:data:`UNENCODED` in their place); None: every scan read is
+    encoded."""
+    __slots__ = ("bare",)
+
+    def __init__(self, wanted=(), bare: Callable[[str], bool] | None = None) -> None:
+        super().__init__(wanted)
+        self.bare = bare
+
+
+class _Unencoded(bytes):
+    """The type of :data:`UNENCODED`."""
     __slots__ = ()
+
+
+#: a message read only as values: its bytes were not made (compare with ``is``)
+UNENCODED = _Unencoded()
+
+
+def _scans(model: Model, cfg, group, rows, ranges, t_ns: int, wanted) -> list:
+    """The LaserScans of ``rows`` (of lidar ``group``) with ``ranges``: their bytes,
+    :data:`UNENCODED` for a robot whose scan only a values reader reads (:class:`Settled`'s
+    ``bare``); ``wanted`` False: the messages (:mod:`bus.codec`'s), not their bytes."""
+    if wanted is False:
+        return [codec.laser_scan(t_ns, cfg.angle_min, cfg.angle_max, cfg.angle_increment,
+                                 1.0 / cfg.rate_hz, cfg.min_range_m, cfg.max_range_m, r,
+                                 frame_id=model.frames["laser"][i])
+                for i, r in zip(rows.tolist(), ranges)]
+    at = np.searchsorted(group, rows)
+    bare = getattr(wanted, "bare", None)
+    if bare is None:
+        return model.scan_rows[cfg].pack(t_ns, {"ranges": ranges}, at)
+    names = model.robots
+    need = np.array([not bare(names[i]) for i in rows.tolist()], bool)
+    msgs = [UNENCODED] * len(rows)
+    if need.any():
+        made = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges[need]}, at[need])
+        for k, m in zip(np.flatnonzero(need).tolist(), made):
+            msgs[k] = m
+    return msgs
 
 
 def _read_plan(model: Model, out: Outgoing, tick: int, wanted) -> tuple:
@@ -204,14 +243,7 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
         ranges = kernels.lidar_noise(np.ascontiguousarray(cast_rows, float), keys, laws, tick,
                                      cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
         kept.append((cfg, rows, ranges))
-        if encoded:
-            at = np.searchsorted(group, rows)
-            msgs = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges}, at)
-        else:
-            msgs = [codec.laser_scan(t_ns, cfg.angle_min, cfg.angle_max, cfg.angle_increment,
-                                     1.0 / cfg.rate_hz, cfg.min_range_m, cfg.max_range_m, r,
-                                     frame_id=model.frames["laser"][i])
-                    for i, r in zip(rows.tolist(), ranges)]
+        msgs = _scans(model, cfg, group, rows, ranges, t_ns, wanted if encoded else False)
         for i, m in zip(rows.tolist(), msgs):
             got["scan"][i] = m
     data.ranges[w] = (tick, kept)

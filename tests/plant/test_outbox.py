@@ -193,9 +193,13 @@ class _KeptOutbox(Outbox):
         return _Pub(key, self.read, self.puts)
 
 
-def _published(tmp_path, read: set[str], ticks: int = 12) -> list:
+def _published(tmp_path, read: set[str], ticks: int = 12, composed=None,
+               comes: tuple | None = None) -> list:
     """Every message the plant's publish_sensors puts over ``ticks`` ticks of a 4-robot
-    kinematic swarm whose readers are ``read`` (keys), lidars due every few ticks."""
+    kinematic swarm whose readers are ``read`` (keys), lidars due every few ticks.
+    ``composed``: members hosted in the plant; ``comes``: (tick, keys, mid) keys a subscriber
+    starts to read at that tick, before the tick's sensing or (``mid``) after it, before
+    the puts (the matching listener's reset comes from Zenoh's thread at any time)."""
     from types import SimpleNamespace
     from bus.controller import Twist
     from bus.keys import Keys
@@ -205,11 +209,23 @@ def _published(tmp_path, read: set[str], ticks: int = 12) -> list:
     from plant.world import load_world
     spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, seed=1, mode="kinematic"))
     tick, out = Tick(spec), _KeptOutbox(read)
-    host = SimpleNamespace(outbox=out, composed=None, tick=tick, sim=tick.sim, epoch=0,
+    host = SimpleNamespace(outbox=out, composed=composed, tick=tick, sim=tick.sim, epoch=0,
                            keys=Keys(""), _key=lambda robot, topic: f"{robot}/{topic}",
-                           _wanted=(None, None))
+                           _wanted=(None, None), _handover=None, _emit_many=None)
     host._wanted_all = lambda: Plant._wanted_all(host)
+    sense = tick.messages_read
+
+    def comes_now(*args):
+        read.update(comes[1])
+        out.changed()
+        return args[0] if args else None
     for k in range(ticks):
+        if comes is not None and k == comes[0]:
+            tick.messages_read = (lambda w: comes_now(sense(w))) if comes[2] else sense
+            if not comes[2]:
+                comes_now()
+        else:
+            tick.messages_read = sense
         Plant.publish_sensors(host)
         for i, name in enumerate(tick.sensors):
             tick.drive(name, Twist(0.2, 0.3 * (i - 1.5)))
@@ -231,3 +247,74 @@ def test_a_message_s_sequence_number_is_the_same_whoever_listens(tmp_path):
     common = [[(k, d, a) for k, d, a in run if k in few] for run in runs]
     assert len(common[0]) == 2 * 12 and common[0] == common[1] == common[2]
     assert {k for k, _, _ in runs[2]} == every        # (the lidars came due)
+
+
+class _ScanMembers:
+    """Members composed into the plant that read every robot's scan and nothing else."""
+
+    def __init__(self) -> None:
+        self.got: list[tuple[str, bytes, object]] = []
+
+    def reads(self, key: str) -> bool:
+        return key.endswith("/scan")
+
+    def deliver(self, key: str, data: bytes, att, msg=None) -> None:
+        self.got.append((key, data, msg))
+
+    def clock(self, *args) -> None:
+        pass
+
+    def run(self, emit) -> None:
+        pass
+
+
+def test_a_scan_only_composed_members_read_is_not_encoded_until_a_subscriber_comes(
+        tmp_path, monkeypatch):
+    """A LaserScan read only by members composed into the plant (they take the tick's values,
+    plant.handover) is not encoded; once a subscriber reads it, from the next tick's
+    sensing or from the very tick whose sensing went without it, its bytes are those of a run
+    read all along, attachments included, and the members get the same message."""
+    from bus.packed import Rows
+    keys = Keys("")
+    scans = {f"r{i}/scan" for i in range(4)}
+    packed_rows: list[int] = []
+    pack = Rows.pack
+
+    def counted(self, t_ns, values, rows=None):
+        packed_rows.append(len(self.lengths) if rows is None else len(rows))
+        return pack(self, t_ns, values, rows)
+    monkeypatch.setattr(Rows, "pack", counted)
+    ref_members = _ScanMembers()
+    ref = [p for p in _published(tmp_path, {keys.clock} | scans, composed=ref_members)
+           if p[0] in scans]
+    assert len(ref) >= 8 and sum(packed_rows) == len(ref)
+    ref_msgs = [(k, codec.encode(m)) for k, _, m in ref_members.got]
+    assert ref_msgs == [(k, d) for k, d, _ in ref]
+
+    packed_rows.clear()
+    members = _ScanMembers()
+    assert not [p for p in _published(tmp_path, {keys.clock}, composed=members)
+                if p[0] in scans]
+    assert sum(packed_rows) == 0                     # no scan's bytes made
+    assert [(k, codec.encode(m)) for k, _, m in members.got] == ref_msgs
+
+    for mid in (False, True):
+        at = ref[len(ref) // 2][2]                   # (a tick whose scans are due)
+        tick = next(k for k in range(12) if codec.parse_attachment(at).t_ns
+                    == k * 20_000_000)
+        got = [p for p in _published(tmp_path, {keys.clock}, composed=_ScanMembers(),
+                                     comes=(tick, scans, mid)) if p[0] in scans]
+        assert got and got == [p for p in ref if codec.parse_attachment(p[2]).t_ns
+                               >= tick * 20_000_000], mid
+
+
+def test_a_plant_hosting_members_puts_sim_clock_only_for_a_reader(tmp_path):
+    """Members composed into the plant are told the tick in its process: ``sim/clock`` goes
+    on the bus only while someone there reads it, and the other messages' attachments do
+    not depend on whether it did."""
+    clock = Keys("").clock
+    alone, read = (_published(tmp_path, keys, composed=_ScanMembers())
+                   for keys in ({"r0/gps"}, {"r0/gps", clock}))
+    assert not [p for p in alone if p[0] == clock]
+    assert len([p for p in read if p[0] == clock]) == 12
+    assert [p for p in alone if p[0] == "r0/gps"] == [p for p in read if p[0] == "r0/gps"]

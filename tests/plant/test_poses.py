@@ -80,3 +80,37 @@ def test_sim_poses_bytes_are_the_typestores_of_each_robots_stamp_and_pose():
             t, q = tf.transform.translation, tf.transform.rotation
             p, o = pose.position, pose.orientation
             assert (t.x, t.y, t.z, q.x, q.y, q.z, q.w) == (p.x, p.y, p.z, o.x, o.y, o.z, o.w)
+
+
+def test_an_observer_keeping_sim_poses_takes_the_run_s_clock_from_their_stamps(endpoint, bus):
+    """The launcher's observer answers the plant's ``sim/seen`` get with the latest tick it
+    has: kept ``sim/poses`` (put every tick before the clock) stand for the clock, so it
+    does not subscribe to ``sim/clock``; one without them does, and answers from it."""
+    from bus.protocol import decode_seen
+    from bus.session import open_session
+    from diffbot.launch.observer import OBSERVER, Observer
+    from ..conftest import wait_for
+    keys = Keys("")
+    plant = open_session("plant", endpoint)
+    tick = 20_000_000
+    try:
+        clock, poses = (plant.declare_publisher(k) for k in (keys.clock, keys.poses))
+        for keep, pub in (({keys.poses: POSES_TYPE}, poses), ({}, clock)):
+            obs = Observer(bus(), keys, keep)
+            try:
+                # (its token, declared last, says every subscription is in the tables)
+                wait_for(lambda: list(plant.liveliness().get(keys.alive(OBSERVER))), 5.0,
+                         what="the observer's token")
+                assert pub.matching_status.matching
+                assert clock.matching_status.matching == (pub is clock)
+                for k in range(1, 4):
+                    pub.put(b"\0" * 8, attachment=codec.attachment(k, k * tick, epoch=0))
+
+                def seen():
+                    replies = list(plant.get(keys.seen(OBSERVER), timeout=5.0))
+                    return [decode_seen(r.ok.payload.to_bytes()) for r in replies if r.ok]
+                wait_for(lambda: seen() == [3 * tick], 5.0, what="the latest tick seen")
+            finally:
+                obs.close()
+    finally:
+        plant.close()
