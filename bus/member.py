@@ -18,6 +18,7 @@ from typing import Any, Callable
 from . import codec
 from . import controller as hooks
 from .controller import WHEEL_JOINTS, Observation, Twist, WheelSpeeds
+from .encoded import Encoded
 from .inputs import check_input, stamp_of
 from .observe import _HELD, BUF_PER_TOPIC, STALE_S, observations  # noqa: F401
 from .protocol import PLANT_READS, REPUBLISH_TICKS
@@ -38,15 +39,6 @@ class Output:
     key: str
     msg: Any               # a message, or its CDR bytes already (:class:`Encoded`)
     plant_read: bool       # on a key the plant reads (PLANT_READS): counted in n_plant
-
-
-class Encoded:
-    """A queued message's CDR bytes, encoded as it was queued (a command built from the
-    Twist a controller returned)."""
-    __slots__ = ("data",)
-
-    def __init__(self, data: bytes) -> None:
-        self.data = data
 
 
 def _wire(msg) -> bytes:
