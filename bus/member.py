@@ -18,6 +18,7 @@ from typing import Any, Callable
 from . import codec
 from . import controller as hooks
 from .controller import WHEEL_JOINTS, Observation, Twist, WheelSpeeds
+from .encoded import Encoded
 from .inputs import check_input, stamp_of
 from .observe import _HELD, BUF_PER_TOPIC, STALE_S, observations  # noqa: F401
 from .protocol import PLANT_READS, REPUBLISH_TICKS
@@ -40,13 +41,13 @@ class Output:
     plant_read: bool       # on a key the plant reads (PLANT_READS): counted in n_plant
 
 
-class Encoded:
-    """A queued message's CDR bytes, encoded as it was queued (a command built from the
-    Twist a controller returned)."""
-    __slots__ = ("data",)
+def _holds(att: bytes) -> bool:
+    """Whether attachment ``att`` may carry a hold (a trailer with hold bits): only those
+    are parsed (the usual sample's, never holding, is not)."""
+    return len(att) > _NO_TRAILER and codec.hold_of(att[codec.ATTACHMENT.size]) > 0
 
-    def __init__(self, data: bytes) -> None:
-        self.data = data
+
+_NO_TRAILER = codec.ATTACHMENT.size + codec.EPOCH.size    # (the longest without a trailer)
 
 
 def _wire(msg) -> bytes:
@@ -64,6 +65,7 @@ class Slot:
     awaited: list[str] = field(default_factory=list)
     done: bool = False
     plan: tuple | None = None     # take_observation's (input, key, lag, max age) per config
+    due: tuple | None = None      # needs' (input key, topic, period, lag) per config
     cmd_key: str = ""             # its cmd_vel key (MemberTick asks it once)
 
 
@@ -202,12 +204,15 @@ class MemberTick:
         """Section 4, step 2: (input key, topic, stamp) a robot needs before the member acts
         on tick ``t_ns``: the plant's sensors due at this tick, and outputs of other lockstep
         members (stamped ``t_ns``, or a tick earlier in pipelined coupling)."""
-        out = []
-        for t in slot.awaited:
-            stamp = self.input_stamp(t_ns, slot.periods.get(t, 1), self.lag_ns[t])
-            if stamp is not None:
-                out.append((self.key(slot.robot, t), t, stamp))
-        return out
+        due = slot.due               # (made once per configuration: input_stamp's rule)
+        if due is None or due[0] is not slot.awaited or due[1] is not slot.periods \
+                or due[2] is not self.lag_ns:
+            due = slot.due = (slot.awaited, slot.periods, self.lag_ns, [
+                (self.key(slot.robot, t), t, slot.periods.get(t, 1), self.lag_ns[t])
+                for t in slot.awaited])
+        k = t_ns // self.tick_ns if self.tick_ns else 0
+        return [(key, t, t_ns - lag) for key, t, period, lag in due[3]
+                if not k % period and t_ns >= lag]
 
     def receive(self, key: str, payload: bytes, att: bytes | None,
                 msg=None) -> tuple[str, str | None, object]:
@@ -239,7 +244,7 @@ class MemberTick:
         else:
             buf[stamp] = msg
             self.used.discard((key, stamp))    # a new sample for that tick (a reset)
-            if self.topics[topic].awaited and att is not None:
+            if self.topics[topic].awaited and att is not None and _holds(att):
                 a = codec.parse_attachment(att)
                 if a is not None and a.node is not None and codec.hold_of(a.flags):
                     # "Holding": its producer answers nothing for the ticks it holds, so

@@ -64,6 +64,7 @@ import math
 from pathlib import Path
 
 from bus import jsonio
+from bus.encoded import Encoded
 from bus.keys import TOPICS, Keys, check_name, fmu_topic
 from bus.log import RejectCounter
 
@@ -403,7 +404,8 @@ class FmuNode:
         out = {}
         for o, options in zip(self.builders, self.options):
             values = {f: float(self.outputs[var][0]) for f, var in o.fields.items()}
-            out[o.topic] = o.kind.build(t_ns, values, options)
+            # (its bytes written from the values; read as a message, it decodes them)
+            out[o.topic] = Encoded(o.kind.pack(t_ns, values, options), o.kind.msgtype)
         for v, topic in zip(self.generic, self.generic_topics):
             out[topic] = v.message(self.outputs[v.name])
         return out

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from bus import codec
+from bus import codec, packed
 from bus.keys import TOPICS, BadName, check_fmu_topic, is_fmu_topic
 from bus.controller import WHEEL_JOINTS
 from plant.tomlfile import Table, read_toml
@@ -107,6 +107,9 @@ class MessageKind:
     optional: tuple[str, ...]
     options: dict[str, str]                      # option -> default (strings)
     build: Callable[..., Any]                    # build(t_ns, values: dict, options: dict)
+    #: pack(t_ns, values, options): the bytes of build's message, written straight from the
+    #: values (bus.packed: no message tree built and encoded every tick)
+    pack: Callable[..., bytes]
 
 
 MESSAGES: dict[str, MessageKind] = {
@@ -115,17 +118,29 @@ MESSAGES: dict[str, MessageKind] = {
         {"frame_id": "world", "child_frame_id": "base_link"},
         lambda t, v, o: codec.odometry(t, v["x"], v["y"], v["yaw"], v.get("linear", 0.0),
                                        v.get("angular", 0.0), frame_id=o["frame_id"],
-                                       child_frame_id=o["child_frame_id"])),
+                                       child_frame_id=o["child_frame_id"]),
+        lambda t, v, o: packed.odometry(t, v["x"], v["y"], 0.0, _planar(v["yaw"]),
+                                        v.get("linear", 0.0), v.get("angular", 0.0),
+                                        o["frame_id"], o["child_frame_id"])),
     "point": MessageKind(
         "geometry_msgs/msg/PointStamped", ("x", "y"), ("z",), {"frame_id": "world"},
-        lambda t, v, o: codec.point_stamped(t, v["x"], v["y"], v.get("z", 0.0), o["frame_id"])),
+        lambda t, v, o: codec.point_stamped(t, v["x"], v["y"], v.get("z", 0.0), o["frame_id"]),
+        lambda t, v, o: packed.point_stamped(t, v["x"], v["y"], v.get("z", 0.0),
+                                             o["frame_id"])),
     "twist": MessageKind(
         "geometry_msgs/msg/TwistStamped", ("linear", "angular"), (), {"frame_id": "base_link"},
-        lambda t, v, o: codec.twist_stamped(t, v["linear"], v["angular"], o["frame_id"])),
+        lambda t, v, o: codec.twist_stamped(t, v["linear"], v["angular"], o["frame_id"]),
+        lambda t, v, o: codec.twist_stamped_bytes(t, v["linear"], v["angular"], o["frame_id"])),
     "wheel_speeds": MessageKind(
         "sensor_msgs/msg/JointState", ("left", "right"), (), {},
-        lambda t, v, o: codec.joint_state(t, WHEEL_JOINTS, velocity=(v["left"], v["right"]))),
+        lambda t, v, o: codec.joint_state(t, WHEEL_JOINTS, velocity=(v["left"], v["right"])),
+        lambda t, v, o: packed.joint_state(t, WHEEL_JOINTS, (), (v["left"], v["right"]))),
 }
+
+
+def _planar(yaw: float) -> tuple[float, float, float, float]:
+    """The quaternion (x, y, z, w) :func:`bus.codec.yaw_to_quaternion` makes of ``yaw``."""
+    return 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
 
 
 # ====================================================================== mapping file
