@@ -341,8 +341,14 @@ def header(t_ns: int, frame_id: str = ""):
     return _Header(stamp=time_msg(t_ns), frame_id=frame_id)
 
 
+def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
+    """The rotation by ``yaw`` about z as a quaternion (x, y, z, w)."""
+    return 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
+
+
 def yaw_to_quaternion(yaw: float):
-    return _Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
+    x, y, z, w = yaw_quaternion(yaw)
+    return _Quaternion(x=x, y=y, z=z, w=w)
 
 
 def quaternion_to_yaw(q) -> float:

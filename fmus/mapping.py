@@ -119,7 +119,7 @@ MESSAGES: dict[str, MessageKind] = {
         lambda t, v, o: codec.odometry(t, v["x"], v["y"], v["yaw"], v.get("linear", 0.0),
                                        v.get("angular", 0.0), frame_id=o["frame_id"],
                                        child_frame_id=o["child_frame_id"]),
-        lambda t, v, o: packed.odometry(t, v["x"], v["y"], 0.0, _planar(v["yaw"]),
+        lambda t, v, o: packed.odometry(t, v["x"], v["y"], 0.0, codec.yaw_quaternion(v["yaw"]),
                                         v.get("linear", 0.0), v.get("angular", 0.0),
                                         o["frame_id"], o["child_frame_id"])),
     "point": MessageKind(
@@ -136,11 +136,6 @@ MESSAGES: dict[str, MessageKind] = {
         lambda t, v, o: codec.joint_state(t, WHEEL_JOINTS, velocity=(v["left"], v["right"])),
         lambda t, v, o: packed.joint_state(t, WHEEL_JOINTS, (), (v["left"], v["right"]))),
 }
-
-
-def _planar(yaw: float) -> tuple[float, float, float, float]:
-    """The quaternion (x, y, z, w) :func:`bus.codec.yaw_to_quaternion` makes of ``yaw``."""
-    return 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
 
 
 # ====================================================================== mapping file
