@@ -43,15 +43,13 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from .memory import keep_freed_memory
-from .sim import RobotState, Simulation
+from .sim import STATE_COLS, RobotState, Simulation
 from .world import WorldSpec
 
 CLOSE_TIMEOUT_S = 5.0
 #: one-byte requests and answers on the socket besides a step's (:func:`_step_request`,
 #: :func:`_answer_byte`)
 BUILD, CLOSE, ERROR = b"b", b"c", b"e"
-#: a row of :meth:`Simulation.state_rows`
-ROW_COLS = 26
 #: the plant's flag: up (1) while it waits for the step: then the worker leaves the reading
 #: to it; ALWAYS_* hold it down or up for good (tests, or to measure one side)
 ADAPTIVE, ALWAYS_WORKER, ALWAYS_PLANT = None, False, True
@@ -96,7 +94,7 @@ class Layout:
         self.n_robots = len(sim.robots)
         self.n_parts = len(sim.part_transforms())
         self.state_len = at
-        self.slot_len = at + ROW_COLS * self.n_robots + 16 * self.n_parts
+        self.slot_len = at + STATE_COLS * self.n_robots + 16 * self.n_parts
         self.n_doubles = 2 * self.n_robots + 1 + 2 * self.slot_len
         self.nbytes = 8 * self.n_doubles
 
@@ -111,9 +109,9 @@ class Layout:
         slots, at = [], t + 1
         for _ in range(2):
             state = a[at:at + self.state_len]
-            rows = a[at + self.state_len:at + self.state_len + ROW_COLS * self.n_robots]
+            rows = a[at + self.state_len:at + self.state_len + STATE_COLS * self.n_robots]
             parts = a[at + self.state_len + rows.size:at + self.slot_len]
-            slots.append((state, rows.reshape(-1, ROW_COLS), parts.reshape(-1, 4, 4)))
+            slots.append((state, rows.reshape(-1, STATE_COLS), parts.reshape(-1, 4, 4)))
             at += self.slot_len
         return a[:t].reshape(-1, 2), a[t:t + 1], tuple(slots)
 

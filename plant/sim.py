@@ -19,6 +19,9 @@ from .raycast import Scene, ShapeList
 from .world import ObjectSpec, WorldSpec
 
 FLOOR_THICKNESS_M = 0.1
+#: the width of a robot's row in :meth:`Simulation.state_rows`: base_link pose (16, the 4x4
+#: row-major), body linear and angular velocity (3 + 3), wheel angles and speeds (2 + 2)
+STATE_COLS = 26
 _WORLD = dart.dynamics.Frame.World()
 
 #: Bullet is ~15 % faster per step than DART's default FCL here, with the same contact
@@ -320,7 +323,7 @@ class Simulation:
         ``getAngularVelocity()`` and ``getLinearVelocity()`` give, in one call), and the
         skeleton's positions and velocities, whose sum is the finite check."""
         if self.kin is not None:               # (its arrays are read anew every time)
-            rows = np.empty((len(self.robots), 26))
+            rows = np.empty((len(self.robots), STATE_COLS))
             for i, name in enumerate(self.robots):
                 st = self.state(name)
                 rows[i, :16] = st.tf.ravel()
@@ -336,7 +339,7 @@ class Simulation:
             q, dq = sk.getPositions(), sk.getVelocities()
             parts += (tf.ravel(), rot_t @ vel[3:], rot_t @ vel[:3], q[wheels], dq[wheels])
             finite = finite and _finite(q, dq)
-        return np.concatenate(parts).reshape(len(self.robots), 26), finite
+        return np.concatenate(parts).reshape(len(self.robots), STATE_COLS), finite
 
     @staticmethod
     def kin_state(kin: Kinematics, i: int) -> RobotState:
