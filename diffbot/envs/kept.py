@@ -54,10 +54,11 @@ class Kept:
         self.dirty, self.new_scan = np.zeros(n, bool), np.zeros(n, bool)
         self.scan_fields: tuple = ()
 
-    def read(self, at: np.ndarray, tasks: Sequence) -> None:
-        """Rows ``at`` from ``tasks``' objects (one task each, in order)."""
-        for i, t in zip(at.tolist(), tasks):
-            name = t.robots[0]
+    def read(self, at: np.ndarray, tasks: Sequence, names: Sequence | None = None) -> None:
+        """Rows ``at`` from ``tasks``' objects (one task each, in order): robot ``names[k]``
+        of task k (None: each task's one robot; a swarm world's robots are a row each)."""
+        for k, (i, t) in enumerate(zip(at.tolist(), tasks)):
+            name = t.robots[0] if names is None else names[k]
             tick = t.transport.tick
             sim, o = tick.sim, t.observers[name]
             self.roster[i] = (tick, name, tick.sensors[name], sim, o, o.odom,
@@ -119,12 +120,15 @@ class Kept:
             od.v, od.w = u
             od._last = (e[0], e[1])
             od._last_t = te
-            sim.advance((n - sim.steps) // sim.spec.substeps)   # the ticks the arrays ran
+            ran = (n - sim.steps) // sim.spec.substeps      # the ticks the arrays ran
+            if ran:                          # (a world's next robots: already moved on)
+                sim.advance(ran)
             drive.set_limiter(j, v, w, wh)
             drive.targets[j] = tg
             task.t_ns = t
             task._ticks_left = 0
-            task.truth = {name: tuple(tr)}
+            task.truth = ({name: tuple(tr)} if len(task.robots) == 1
+                          else {**task.truth, name: tuple(tr)})
         for i in rows[self.new_scan[rows]].tolist():
             _tick, name, _s, _sim, o, _od, _drive, _j, task = self.roster[i]
             o.scan = self.scans[i].copy()

@@ -97,7 +97,7 @@ class ArrayTicks:
         k.flush(np.flatnonzero(k.dirty) if rows is None else np.asarray(rows, np.int64))
 
     def advance(self, tasks: Sequence, cmds: np.ndarray, rows: np.ndarray,
-                fresh: np.ndarray) -> Made:
+                fresh: np.ndarray, names: Sequence | None = None) -> Made:
         """``action_repeat`` ticks of every task in ``tasks`` with its command (``cmds``,
         (W, 2): v m/s, w rad/s each), each task's state left as its own ``_observe`` at the
         step's last tick leaves it (its contacts not judged: the caller's, all at once).
@@ -106,7 +106,9 @@ class ArrayTicks:
         are kept (:class:`~.kept.Kept`) from this step to its next, and written back to the
         objects by :meth:`flush`; ``fresh`` (W,) bool marks the tasks whose objects may
         have changed since their last step here (a reset, or no step yet; flushed before
-        it): those are read again."""
+        it): those are read again. ``names``: the robot of each row, when a world has
+        several (:mod:`diffbot.envs.swarm_arrays`: ``tasks`` then holds a world's task once
+        per robot, its robots in order, as the kinematic batch lays them out)."""
         w = len(tasks)
         k, at = self._kept, np.asarray(rows, np.int64)
         stale = np.flatnonzero(fresh)
@@ -114,7 +116,8 @@ class ArrayTicks:
             if k.dirty[at[stale]].any():
                 raise RuntimeError("an env's objects were changed before its state was "
                                    "written back (ArrayTicks.flush)")
-            k.read(at[stale], [tasks[j] for j in stale.tolist()])
+            k.read(at[stale], [tasks[j] for j in stale.tolist()],
+                   None if names is None else [names[j] for j in stale.tolist()])
         plan = self._plan
         if plan is None or stale.size or not plan.fits(at):
             self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
@@ -148,6 +151,15 @@ class _TickPlan:
         ticks, names, sensors, sims, obs = (list(c) for c in zip(*[r[:5] for r in roster]))
         self.sims = sims
         self.kinematic = sims[0].kin is not None
+        #: rows of worlds with several robots (a swarm's): each row's world among them
+        worlds = {id(s): k for k, s in reversed(list(enumerate(sims)))}
+        self.shared = len(worlds) < len(sims)
+        if self.shared:
+            if not self.kinematic:
+                raise ValueError("the array ticks step worlds of several robots when "
+                                 "kinematic only")
+            self.ticks, self.names = ticks, names
+            self.world_of = np.array([worlds[id(s)] for s in sims], np.int64)
         self.worlds = _Kinematic(sims) if self.kinematic else _Dart(sims, names)
         lo = int(at[0])
         self.run = bool(np.array_equal(at, np.arange(lo, lo + w)))
@@ -288,6 +300,22 @@ class _TickPlan:
 
     def _scan(self, owner: ArrayTicks, due: np.ndarray) -> None:
         """The lidars of rows ``due`` (their robots where the last tick left them)."""
+        cfg = self.cfg
+        if self.shared:
+            exact = self._cast_worlds(due)
+        else:
+            exact = self._cast(owner, due)
+        r32 = self._lidar_noise(cfg, np.ascontiguousarray(exact, float), due)
+        scans = np.where(np.isfinite(r32), clip(r32, 0.0, self.max_range),
+                         np.float32(self.max_range)).astype(np.float32)
+        if due.size == len(self.at):
+            self.raw[:], self.state["scans"][:], self.new_scan[:] = r32, scans, True
+        else:
+            self.raw[due], self.state["scans"][due], self.new_scan[due] = r32, scans, True
+
+    def _cast(self, owner: ArrayTicks, due: np.ndarray) -> np.ndarray:
+        """The exact ranges of one-robot worlds' rows ``due`` (the room alone: a lidar skips
+        its own robot)."""
         cfg, scene = self.cfg, owner._static_scene(self.sims[0])
         if self.fans is None or self.fans.scene is not scene:
             self.fans = lid.Fans(cfg, scene, len(self.at), owner.threads)
@@ -296,13 +324,18 @@ class _TickPlan:
         else:
             exact = lid.scan_many(cfg, self.worlds.transforms(due), self.fans.scene,
                                   [None] * due.size, owner.threads)
-        r32 = self._lidar_noise(cfg, np.ascontiguousarray(exact, float), due)
-        scans = np.where(np.isfinite(r32), clip(r32, 0.0, self.max_range),
-                         np.float32(self.max_range)).astype(np.float32)
-        if due.size == len(self.at):
-            self.raw[:], self.state["scans"][:], self.new_scan[:] = r32, scans, True
-        else:
-            self.raw[due], self.state["scans"][due], self.new_scan[due] = r32, scans, True
+        return exact
+
+    def _cast_worlds(self, due: np.ndarray) -> np.ndarray:
+        """The exact ranges of rows ``due`` in worlds of several robots, as
+        :func:`plant.tick.messages_of` casts them: each world's scene with its robots where
+        the last tick left them, a lidar skipping its own robot, every world in one call."""
+        at = self.world_of[due]
+        idx = np.unique(at)
+        scenes = [Scene.from_shapes(self.ticks[k].stepper.shapes()) for k in idx.tolist()]
+        names = [self.names[j] for j in due.tolist()]
+        return lid.scan_worlds(self.cfg, scenes, self.worlds.transforms(due), names,
+                               np.searchsorted(idx, at))
 
     def _lidar_noise(self, cfg, exact: np.ndarray, due: np.ndarray) -> np.ndarray:
         """The reported ranges (float32) of rows ``due``'s exact ones: the plant's lidar
@@ -335,7 +368,7 @@ class _Kinematic:
     call steps them all."""
 
     def __init__(self, sims: list) -> None:
-        kins = [s.kin for s in sims]
+        kins = list({id(s.kin): s.kin for s in sims}.values())    # (a world's rows: one)
         self.batch = kinematic.join(kins) if len(kins) > 1 else kins[0]
 
     def transforms(self, idx: np.ndarray) -> np.ndarray:

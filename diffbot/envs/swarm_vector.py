@@ -53,6 +53,7 @@ from .actions import check_action
 from .results import autoreset_mode as autoreset_mode_of
 from .results import reset_mask
 from .swarm import SwarmEnv
+from .swarm_arrays import SwarmArrays
 from .worlds import advance_together
 
 
@@ -83,6 +84,26 @@ class _Rows:
                 col = np.zeros((self.w, self.n, *v.shape), v.dtype)
             self.infos[key] = col
         return col
+
+    def put_block(self, at: list[int], live: np.ndarray, obs: dict, rew: np.ndarray,
+                  term: np.ndarray, trunc: np.ndarray, infos: dict) -> None:
+        """:meth:`put` of worlds ``at`` at once, from (K, N, ...) arrays
+        (:meth:`diffbot.envs.swarm_arrays.SwarmArrays.step`'s), rows ``live`` (K, N) only."""
+        rows = np.asarray(at, np.int64)
+        for k, a in self.obs.items():
+            a[rows] = np.where(live.reshape(live.shape + (1,) * (a.ndim - 2)), obs[k], 0)
+        self.rew[rows] = np.where(live, rew, 0.0)
+        self.term[rows], self.trunc[rows] = term & live, trunc & live
+        self.infos["active"][rows] = live
+        for key, value in infos.items():
+            if key == "plant":
+                col = self._column(key, None)
+                for i, ep in zip(rows.tolist(), value):
+                    col[i] = ep
+                continue
+            value = np.asarray(value)
+            col = self._column(key, value[0, 0])
+            col[rows] = np.where(live.reshape(live.shape + (1,) * (value.ndim - 2)), value, 0)
 
     def put(self, i: int, agents: list[str], obs: dict, infos: dict, rew: dict | None = None,
             term: dict | None = None, trunc: dict | None = None) -> None:
@@ -118,7 +139,7 @@ class SwarmVectorEnv:
 
     def __init__(self, num_worlds: int = 1,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 **kwargs) -> None:
+                 arrays: bool = True, **kwargs) -> None:
         mode = autoreset_mode_of(autoreset_mode)
         if kwargs.get("transport", "inproc") != "inproc" or kwargs.get("endpoint"):
             raise ValueError("the swarm's vector env batches in-process worlds "
@@ -151,6 +172,9 @@ class SwarmVectorEnv:
         self.state_space = _tile(first.state_space, (self.num_worlds,))
         self._needs_reset = np.zeros(self.num_worlds, bool)
         self._obs: dict | None = None
+        #: the worlds stepped as arrays where they can be (None: every world through its
+        #: messages, the path the arrays are tested against)
+        self.arrays = SwarmArrays(self.num_worlds, self.possible_agents) if arrays else None
 
     @property
     def num_agents(self) -> int:
@@ -180,7 +204,7 @@ class SwarmVectorEnv:
             for k, a in rows.obs.items():
                 a[:] = self._obs[k]
         for i in range(w) if mask is None else np.flatnonzero(mask).tolist():
-            obs, infos = self.envs[i].reset(seed=seeds[i])
+            obs, infos = self._reset_world(i, seeds[i])
             rows.put(i, self.possible_agents, obs, infos)
             self._needs_reset[i] = False
         self._obs = rows.obs
@@ -206,15 +230,20 @@ class SwarmVectorEnv:
         self._check(actions, live, index)      # before any world moves
         rows = _Rows(w, n, self.single_observation_space)
         for i in np.flatnonzero(self._needs_reset).tolist():           # NEXT_STEP
-            obs, infos = self.envs[i].reset()
+            obs, infos = self._reset_world(i, None)
             rows.put(i, self.possible_agents, obs, infos)
         tasks = [self.envs[i].task for i in stepping]
-        cmds = [t.begin_step({a: actions[i, index[a]] for a in live[i]})
-                for i, t in zip(stepping, tasks)]
-        advance_together(tasks, cmds)
-        for i, task in zip(stepping, tasks):
-            obs, rew, term, trunc, infos = self.envs[i].ended(live[i], *task.end_step())
-            rows.put(i, self.possible_agents, obs, infos, rew, term, trunc)
+        if tasks and self.arrays is not None and self.arrays.fits(tasks, stepping):
+            self._step_arrays(stepping, tasks, actions, live, rows)
+        elif tasks:
+            if self.arrays is not None:
+                self.arrays.flush(stepping)
+            cmds = [t.begin_step({a: actions[i, index[a]] for a in live[i]})
+                    for i, t in zip(stepping, tasks)]
+            advance_together(tasks, cmds)
+            for i, task in zip(stepping, tasks):
+                obs, rew, term, trunc, infos = self.envs[i].ended(live[i], *task.end_step())
+                rows.put(i, self.possible_agents, obs, infos, rew, term, trunc)
         done = np.array([not e.agents for e in self.envs]) & ~self._needs_reset
         if self.autoreset_mode == AutoresetMode.SAME_STEP:
             self._reset_ended(rows, done)
@@ -223,6 +252,26 @@ class SwarmVectorEnv:
             self._needs_reset = done
         self._obs = rows.obs
         return rows.obs, rows.rew, rows.term, rows.trunc, rows.infos
+
+    def _step_arrays(self, stepping: list[int], tasks: list, actions: np.ndarray,
+                     live: dict, rows: _Rows) -> None:
+        """The step of worlds ``stepping`` as arrays (:mod:`diffbot.envs.swarm_arrays`):
+        the numbers the message path gives."""
+        mask = np.zeros((len(stepping), self.n_robots), bool)
+        for j, i in enumerate(stepping):
+            mask[j] = [a in live[i] for a in self.possible_agents]
+        obs, rew, term, trunc, infos = self.arrays.step(tasks, stepping, actions[stepping],
+                                                        mask)
+        rows.put_block(stepping, mask, obs, rew, term, trunc, infos)
+        ended = mask & ~(term | trunc)
+        for j, i in enumerate(stepping):
+            self.envs[i].agents = [a for a, on in zip(self.possible_agents, ended[j]) if on]
+
+    def _reset_world(self, i: int, seed: int | None) -> tuple[dict, dict]:
+        """World ``i``'s reset (its objects brought up to date with the arrays first)."""
+        if self.arrays is not None:
+            self.arrays.forget(i)
+        return self.envs[i].reset(seed=seed)
 
     def _check(self, actions: np.ndarray, live: dict, index: dict) -> None:
         """The actions of the live robots (check_action's ValueError, naming the first bad
@@ -245,7 +294,7 @@ class SwarmVectorEnv:
         for i in np.flatnonzero(done).tolist():
             final_obs[i] = {k: a[i].copy() for k, a in rows.obs.items()}
             rew, term, trunc = rows.rew[i].copy(), rows.term[i].copy(), rows.trunc[i].copy()
-            obs, infos = self.envs[i].reset()
+            obs, infos = self._reset_world(i, None)
             rows.put(i, self.possible_agents, obs, infos)
             rows.rew[i], rows.term[i], rows.trunc[i] = rew, term, trunc
         rows.infos.update({"final_obs": final_obs, "_final_obs": done.copy(),
@@ -254,15 +303,25 @@ class SwarmVectorEnv:
     # ---------------------------------------------------------------- the rest
     def state(self) -> np.ndarray:
         """Each world's global state (:meth:`SwarmEnv.state`), (W, 5 N)."""
+        self.sync()
         return np.stack([e.state() for e in self.envs])
 
     def render(self):
         """``rgb_array``: each world's top-down frame (a tuple, world by world)."""
         if self.render_mode != "rgb_array":
             return None
+        self.sync()
         return tuple(e.render() for e in self.envs)
 
+    def sync(self) -> list[SwarmEnv]:
+        """The worlds, their objects brought up to date with the array steps' state (written
+        back only when asked: :meth:`SwarmArrays.flush`)."""
+        if self.arrays is not None:
+            self.arrays.flush()
+        return self.envs
+
     def close(self) -> None:
+        self.arrays = None
         for e in self.envs:
             e.close()
         self.envs = []
