@@ -1,0 +1,92 @@
+"""The swarm's vector env stepped as arrays (diffbot.envs.swarm_arrays) against the same env
+through its messages (arrays=False), side by side, to the bit: every observation, reward,
+flag and info of every robot of every world, for hundreds of steps through robots ending
+alone, robot-robot contacts and the worlds' autoresets (next step and same step); the state
+and frames written back; DART worlds keep the message path."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pettingzoo")
+from diffbot.envs import swarm_v0  # noqa: E402
+
+#: 4 robots driven forward at random: some touch each other or a wall, some reach their
+#: goal (0.6 m), the others run out of steps, so robots end alone and worlds end often
+KW = dict(n_robots=4, mode="kinematic", layout_seed=0, max_steps=40, robot="avoid",
+          goal_radius_m=0.6)
+W, STEPS = 3, 200
+
+
+def _same(a, b, where: str) -> None:
+    if isinstance(a, tuple):
+        assert isinstance(b, tuple) and len(a) == len(b), where
+        for k, (u, v) in enumerate(zip(a, b)):
+            _same(u, v, f"{where}[{k}]")
+    elif isinstance(a, dict):
+        assert list(a) == list(b), where
+        for k in a:
+            _same(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, np.ndarray) and a.dtype == object:
+        assert a.shape == b.shape, where
+        for i, (u, v) in enumerate(zip(a.tolist(), b.tolist())):
+            if isinstance(u, dict):
+                _same(u, v, f"{where}[{i}]")
+            else:
+                assert u == v, f"{where}[{i}]"
+    else:
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.dtype == b.dtype and a.shape == b.shape, where
+        assert a.tobytes() == b.tobytes(), where
+
+
+@pytest.mark.parametrize("mode", ["next_step", "same_step"])
+def test_arrays_give_the_messages_numbers_through_ends_contacts_and_autoresets(mode):
+    fast = swarm_v0.vector_env(W, autoreset_mode=mode, **KW)
+    slow = swarm_v0.vector_env(W, autoreset_mode=mode, arrays=False, **KW)
+    assert fast.arrays is not None and slow.arrays is None
+    rng = np.random.default_rng(7)
+    seen = {"contact": 0, "is_success": 0, "trunc": 0, "resets": 0}
+    with fast, slow:
+        _same(fast.reset(seed=21), slow.reset(seed=21), "reset")
+        for s in range(STEPS):
+            act = rng.uniform(fast.action_space.low, fast.action_space.high).astype(np.float32)
+            act[..., 0] = np.abs(act[..., 0])
+            if s == 90:                    # a masked reset of one world, mid-episode
+                m = {"reset_mask": np.arange(W) == 1}
+                _same(fast.reset(seed=5, options=m), slow.reset(seed=5, options=m), "mask")
+            got, want = fast.step(act), slow.step(act)
+            _same(got, want, f"step {s}")
+            infos = got[4]
+            seen["contact"] += int(infos["contact"].sum())
+            seen["is_success"] += int(infos["is_success"].sum())
+            seen["trunc"] += int(got[3].sum())
+            seen["resets"] += int(infos.get("_final_obs", np.zeros(W, bool)).sum())
+            if s % 67 == 0:           # the objects written back: the global state
+                _same(fast.state(), slow.state(), f"state at {s}")
+        assert fast.arrays.ticks._plan is not None            # (the arrays did step)
+    # every way a robot's episode ends happened, so each was compared
+    assert seen["contact"] and seen["is_success"] and seen["trunc"], seen
+    if mode == "same_step":
+        assert seen["resets"], seen
+
+
+def test_frames_after_array_steps_and_dart_worlds_keep_the_messages():
+    kw = {**KW, "render_mode": "rgb_array"}
+    fast = swarm_v0.vector_env(2, **kw)
+    slow = swarm_v0.vector_env(2, arrays=False, **kw)
+    with fast, slow:
+        fast.reset(seed=3)
+        slow.reset(seed=3)
+        act = np.tile(np.float32([0.3, 0.5]), (2, KW["n_robots"], 1))
+        for _ in range(4):
+            fast.step(act)
+            slow.step(act)
+        for a, b in zip(fast.render(), slow.render()):
+            assert np.array_equal(a, b)
+    dyn = swarm_v0.vector_env(1, **{**KW, "mode": "dynamic", "n_robots": 2})
+    with dyn:
+        dyn.reset(seed=0)
+        assert not dyn.arrays.fits([dyn.envs[0].task], [0])
+        dyn.step(np.zeros((1, 2, 2), np.float32))
+        assert dyn.arrays.ticks._plan is None
