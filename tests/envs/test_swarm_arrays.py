@@ -8,12 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from plant.footprint import FOOTPRINT_RADIUS_M, footprint_centres
+
 pytest.importorskip("pettingzoo")
 from diffbot.envs import swarm_v0  # noqa: E402
 
-#: 4 robots driven forward at random: some touch each other or a wall, some reach their
+#: 6 robots driven forward at random: some touch each other or a wall, some reach their
 #: goal (0.6 m), the others run out of steps, so robots end alone and worlds end often
-KW = dict(n_robots=4, mode="kinematic", layout_seed=0, max_steps=40, robot="avoid",
+KW = dict(n_robots=6, mode="kinematic", layout_seed=0, max_steps=40, robot="avoid",
           goal_radius_m=0.6)
 W, STEPS = 3, 200
 
@@ -40,13 +42,23 @@ def _same(a, b, where: str) -> None:
         assert a.tobytes() == b.tobytes(), where
 
 
+def _robot_contacts(infos: dict) -> int:
+    """The robots whose contact this step was another robot's footprint (by their poses)."""
+    n = 0
+    for pose, hit, on in zip(infos["pose"], infos["contact"], infos["active"]):
+        c = footprint_centres(*pose.T)
+        d = np.hypot(*(c[:, None] - c[None]).transpose(2, 0, 1)) + 9 * np.eye(len(c))
+        n += int((hit & on & (d < 2 * FOOTPRINT_RADIUS_M + 0.05).any(1)).sum())
+    return n
+
+
 @pytest.mark.parametrize("mode", ["next_step", "same_step"])
 def test_arrays_give_the_messages_numbers_through_ends_contacts_and_autoresets(mode):
     fast = swarm_v0.vector_env(W, autoreset_mode=mode, **KW)
     slow = swarm_v0.vector_env(W, autoreset_mode=mode, arrays=False, **KW)
     assert fast.arrays is not None and slow.arrays is None
     rng = np.random.default_rng(7)
-    seen = {"contact": 0, "is_success": 0, "trunc": 0, "resets": 0}
+    seen = {"robots": 0, "contact": 0, "is_success": 0, "trunc": 0, "resets": 0}
     with fast, slow:
         _same(fast.reset(seed=21), slow.reset(seed=21), "reset")
         for s in range(STEPS):
@@ -59,6 +71,7 @@ def test_arrays_give_the_messages_numbers_through_ends_contacts_and_autoresets(m
             _same(got, want, f"step {s}")
             infos = got[4]
             seen["contact"] += int(infos["contact"].sum())
+            seen["robots"] += _robot_contacts(infos)
             seen["is_success"] += int(infos["is_success"].sum())
             seen["trunc"] += int(got[3].sum())
             seen["resets"] += int(infos.get("_final_obs", np.zeros(W, bool)).sum())
@@ -66,7 +79,7 @@ def test_arrays_give_the_messages_numbers_through_ends_contacts_and_autoresets(m
                 _same(fast.state(), slow.state(), f"state at {s}")
         assert fast.arrays.ticks._plan is not None            # (the arrays did step)
     # every way a robot's episode ends happened, so each was compared
-    assert seen["contact"] and seen["is_success"] and seen["trunc"], seen
+    assert seen["robots"] and seen["contact"] and seen["is_success"] and seen["trunc"], seen
     if mode == "same_step":
         assert seen["resets"], seen
 
