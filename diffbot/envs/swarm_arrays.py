@@ -11,7 +11,7 @@ tick left them, a lidar skipping its own robot, every world in one call, as
 :func:`plant.tick.messages_of` casts them) with the plant's noise kernel, and whose
 observations and ground truth are :mod:`diffbot.envs.obsmath`'s. The rewards, flags and
 infos of all robots are then made here at once (:func:`diffbot.envs.avoid.step_rewards`,
-the contacts of all worlds in one :meth:`~diffbot.envs.geometry.Footprints.contacts_of`).
+the contacts of all worlds at once: :func:`contacts`).
 No message is built: the numbers are to the bit those of the message path
 (:func:`diffbot.envs.worlds.advance_together`, then each task's ``end_step``;
 ``tests/envs/test_swarm_arrays.py`` runs both side by side).
@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from plant.footprint import footprint_centres
+from plant.footprint import CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M, footprint_centres
 
 from .avoid import step_rewards
 from .kinbatch import ArrayTicks
@@ -119,8 +119,7 @@ class SwarmArrays:
                                   self._rows(at), np.repeat(~self._kept[at], n), names * k)
         truth = made.truth
         centres = footprint_centres(*truth.T).reshape(k, n, 2)
-        touched = first.geo.contacts_of([dict(zip(names, c)) for c in centres])
-        contact = np.array([[a in hit for a in names] for hit in touched], bool).reshape(k, n)
+        contact = contacts(first.geo, centres)
         goals = np.array([[t.goals[a] for a in names] for t in tasks], float).reshape(k, n, 2)
         # AvoidTask._distance of each robot, by the truth the step left (math.hypot's bits)
         d = np.array([math.hypot(gx - x, gy - y) for (gx, gy), (x, y, _)
@@ -130,10 +129,10 @@ class SwarmArrays:
         rew = step_rewards(before, d, success, contact)
         term = success | contact
         steps = np.empty(k, np.int64)
-        for j, (t, hit) in enumerate(zip(tasks, touched)):
+        for j, (t, hit) in enumerate(zip(tasks, contact.tolist())):
             t.steps += 1
             steps[j] = t.steps
-            t.touched = hit
+            t.touched = {a for a, h in zip(names, hit) if h}
         trunc = (np.zeros((k, n), bool) if first.max_steps is None
                  else ~term & (steps >= first.max_steps)[:, None])
         for t, ended in zip(tasks, (live & (term | trunc)).tolist()):
@@ -146,3 +145,18 @@ class SwarmArrays:
                  "t": made.t_ns.reshape(k, n) * 1e-9,
                  "plant": [t.episode for t in tasks]}
         return obs, rew, term, trunc, infos
+
+
+def contacts(geo, centres: np.ndarray) -> np.ndarray:
+    """:meth:`diffbot.envs.geometry.Footprints.contacts_of` of K worlds' N robots at the
+    footprint centres ``centres`` (K, N, 2), as (K, N) bool: the static test of all in one
+    call, the robots' distances in each world as arrays (``np.hypot`` of each pair's
+    difference, the same bits)."""
+    k, n, _ = centres.shape
+    hit = geo.touching(centres.reshape(-1, 2)).reshape(k, n)
+    if n > 1:
+        diff = centres[:, :, None, :] - centres[:, None, :, :]
+        near = np.hypot(diff[..., 0], diff[..., 1]) < 2 * FOOTPRINT_RADIUS_M + CONTACT_MARGIN_M
+        near[:, np.arange(n), np.arange(n)] = False
+        hit |= near.any(2)
+    return hit
