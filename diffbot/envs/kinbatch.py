@@ -155,9 +155,6 @@ class _TickPlan:
         worlds = {id(s): k for k, s in reversed(list(enumerate(sims)))}
         self.shared = len(worlds) < len(sims)
         if self.shared:
-            if not self.kinematic:
-                raise ValueError("the array ticks step worlds of several robots when "
-                                 "kinematic only")
             self.ticks, self.names = ticks, names
             self.world_of = np.array([worlds[id(s)] for s in sims], np.int64)
         self.worlds = _Kinematic(sims) if self.kinematic else _Dart(sims, names)
@@ -396,13 +393,15 @@ class _Dart:
         self.robots = [s.robots[n] for s, n in zip(sims, names)]
         self._targets = [s.drive.targets[s.drive.index[n]] for s, n in zip(sims, names)]
         self._tfs: dict[int, np.ndarray] = {}    # the robots' poses since the last tick
+        self._worlds = list({id(s): s for s in sims}.values())   # (a world's rows: one)
 
     def step(self, targets: np.ndarray) -> None:
         """One tick of every world (:meth:`plant.tick.Tick.step` without its check, which
         :meth:`finish` makes once a step: not a number stays one)."""
         self._tfs.clear()
-        for sim, mine, row in zip(self.sims, self._targets, targets):
+        for mine, row in zip(self._targets, targets):
             mine[:] = row                            # as Simulation.command_twist sets them
+        for sim in self._worlds:
             sim.step_tick()
 
     def _tf(self, j: int) -> np.ndarray:

@@ -6,7 +6,8 @@ code: each robot of each world is a row of an :class:`ArrayTicks` (world after w
 world's robots in order, as :func:`plant.kinematic.join` lays out their kinematic arrays),
 whose calls of plant/kernels/ticks.c tick them all (drive limiters, motion noise, the
 kinematic step with its robot-robot test inside each world, encoders and their noise, dead
-reckoning), whose lidars are cast where due (each world's scene with its robots where the
+reckoning; a DART world's robots in the two halves of each tick, DART stepping each world
+once between them), whose lidars are cast where due (each world's scene with its robots where the
 tick left them, a lidar skipping its own robot, every world in one call, as
 :func:`plant.tick.messages_of` casts them) with the plant's noise kernel, and whose
 observations and ground truth are :mod:`diffbot.envs.obsmath`'s. The rewards, flags and
@@ -16,10 +17,11 @@ No message is built: the numbers are to the bit those of the message path
 (:func:`diffbot.envs.worlds.advance_together`, then each task's ``end_step``;
 ``tests/envs/test_swarm_arrays.py`` runs both side by side).
 
-Which worlds (:meth:`SwarmArrays.eligible`): kinematic worlds in this process, every robot
-with a lidar and no camera, every robot the same drive limits, motion noise and lidar (the
-``robot=`` of :func:`plant.swarm_world.swarm_world_text` gives them that). DART worlds
-(``mode="dynamic"``, the default) take the message path. Between steps the state stays in
+Which worlds (:meth:`SwarmArrays.eligible`): worlds in this process (kinematic, or DART
+without a physics process), every robot with a lidar and no camera, every robot the same
+drive limits, motion noise and lidar (the ``robot=`` of
+:func:`plant.swarm_world.swarm_world_text` gives them that); the others take the message
+path, as does ``SwarmVectorEnv(arrays=False)``. Between steps the state stays in
 the arrays; :meth:`SwarmArrays.flush` writes it back to the tasks' objects (before a reset,
 ``state()``, ``render()``). A world that diverges is an error here (FloatingPointError).
 """
@@ -61,7 +63,8 @@ class SwarmArrays:
         if not isinstance(tr, InProc) or tr.tick is None or tr.tick.physics is not None:
             return False
         tick = tr.tick
-        if tick.sim.kin is None or list(tick.sim.kin.names) != list(task.robots):
+        kin = tick.sim.kin                 # (the rows' order: the world's robots')
+        if list(tick.sim.robots if kin is None else kin.names) != list(task.robots):
             return False
         robots = [task.spec.robot(n) for n in task.robots]
         first = robots[0]

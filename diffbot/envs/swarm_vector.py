@@ -12,9 +12,10 @@ observation key a (W, N, ...) array, rewards (W, N) float64, terminations and tr
 :class:`diffbot.envs.swarm.SwarmEnv` made with the same arguments: after
 ``reset(seed=s)`` it plays what ``swarm_v0.parallel_env(...)`` plays after
 ``reset(seed=s + i)`` (a list of seeds: one each), step for step, to the bit. Each step
-drives every world's robots tick by tick, all worlds at once
-(:func:`diffbot.envs.worlds.advance_together`: a kinematic world's robots, all worlds' in
-one call; every world's lidars cast in one call), then each world's observations.
+drives every world's robots as arrays (:mod:`diffbot.envs.swarm_arrays`: every robot of
+every world a row of the same kernel calls, no message built; where a world is not made for
+that, or with ``arrays=False``, tick by tick through each robot's messages,
+:func:`diffbot.envs.worlds.advance_together`, the path the arrays are tested against).
 
 A robot's episode ends alone (its goal, a contact; the others go on, it stands still): the
 step that ends it has its flag set, later steps of that episode give its row zeros
@@ -41,7 +42,8 @@ envs do (``autoreset_mode=``, ``metadata["autoreset_mode"]``):
 
 An autoreset, like the single env's ``reset()`` without a seed, draws the next episode's
 seed from the world's own stream (``infos["plant"][i].seed``). ``state()`` is each world's
-global state (W, 5 N); ``render()`` a frame per world. In-process worlds only.
+global state (W, 5 N); ``render()`` a frame per world; :meth:`SwarmVectorEnv.sync` brings
+the worlds' objects (``envs``) up to date with the arrays. In-process worlds only.
 """
 from __future__ import annotations
 
