@@ -286,10 +286,12 @@ class _TickPlan:
             self.worlds.finish()
         except Diverged as e:
             envs = [int(self.at[j]) for j in e.worlds]
-            raise FloatingPointError(
+            err = FloatingPointError(
                 f"the world of env {', '.join(map(str, envs))} diverged (not finite) in this "
                 "step: reset() it (in-process a world that diverges ends the episode here; a "
-                "plant over the bus rebuilds it at t = 0 and goes on)") from None
+                "plant over the bus rebuilds it at t = 0 and goes on)")
+            err.rows = envs                    # (a swarm's caller names its worlds)
+            raise err from None
         truth = self.worlds.truth()
         owner._kept.keep(self, truth)
         return Made(observation(st["pose"], st["vel"], self.goal, st["scans"]), truth,

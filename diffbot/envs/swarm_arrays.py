@@ -118,8 +118,14 @@ class SwarmArrays:
         before = self._dist[at]
         for j in np.flatnonzero(~self._kept[at]).tolist():
             before[j] = [tasks[j]._distance(a) for a in names]
-        made = self.ticks.advance([t for t in tasks for _ in names], twists.reshape(-1, 2),
-                                  self._rows(at), np.repeat(~self._kept[at], n), names * k)
+        try:
+            made = self.ticks.advance([t for t in tasks for _ in names], twists.reshape(-1, 2),
+                                      self._rows(at), np.repeat(~self._kept[at], n), names * k)
+        except FloatingPointError as e:
+            bad = sorted({r // n for r in getattr(e, "rows", ())})
+            raise FloatingPointError(
+                f"swarm world {', '.join(map(str, bad))} diverged (not finite) in this step: "
+                "reset it (reset(options={'reset_mask': ...}))") from None
         truth = made.truth
         centres = footprint_centres(*truth.T).reshape(k, n, 2)
         contact = contacts(first.geo, centres)

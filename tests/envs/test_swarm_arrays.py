@@ -113,3 +113,12 @@ def test_dart_worlds_as_arrays_give_the_messages_numbers():
             _same(fast.step(act), slow.step(act), f"step {s}")
         assert fast.arrays.ticks._plan is not None and not fast.arrays.ticks._plan.kinematic
         _same(fast.state(), slow.state(), "state")
+
+
+def test_a_world_that_diverges_is_named():
+    venv = swarm_v0.vector_env(3, **KW)
+    with venv:
+        venv.reset(seed=1)
+        venv.envs[2].task.transport.tick.sim.kin.pose[1, 0] = np.nan
+        with pytest.raises(FloatingPointError, match=r"swarm world 2 diverged"):
+            venv.step(np.zeros((3, KW["n_robots"], 2), np.float32))
