@@ -14,7 +14,10 @@ between them. The lidars due are cast together, and their noise is the plant's k
 world's drawn in one call). Every noise here is the core's code, drawn in C. Between steps each env's state stays
 in arrays (:mod:`diffbot.envs.kept`); the observation and the ground truth are
 :mod:`diffbot.envs.obsmath`'s. A world that diverges is an error here (FloatingPointError),
-where the message path rebuilds it at t = 0.
+where the message path rebuilds it at t = 0. A world of several robots (a swarm's,
+:mod:`diffbot.envs.swarm_arrays`) is a row per robot, its robots in order: the kinematic
+step tests them against each other, a DART world is stepped once a tick, and their lidars
+see each other (:meth:`_TickPlan._cast_worlds`).
 """
 from __future__ import annotations
 
