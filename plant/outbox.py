@@ -132,13 +132,12 @@ class Outbox:
         self._kept(t_ns, key, data, att)
 
     def hold(self) -> None:
-        """Hold this tick's puts back until :meth:`flush`: the plant's composed members are
-        the only ones in lockstep, so no process waits for the tick's sensors while they
-        answer. Zenoh sends what reaches its transmit queue while the link is busy as one
-        batch, so the tick's messages put back to back go out in fewer writes, where puts
-        spread over the tick wake the transmit task and the reader once each. The bytes,
-        attachments and their order on every key are the same; only when they leave
-        changes."""
+        """Hold the puts back until :meth:`flush` (the plant does for a tick whose lockstep
+        members are all composed into it: no process waits on the tick's messages while
+        those members answer). Zenoh's transmit task writes what it finds queued as one
+        batch, so messages put back to back share writes and wake the transmit task and a
+        reading process less often than puts spread over the tick. The bytes, attachments
+        and their order on every key stay the same; only when they leave changes."""
         self.flush()
         self._held = []
 
