@@ -89,6 +89,7 @@ class Composed:
         self.keys = keys
         self.session = session
         self.hosted = [_Hosted(s, keys) for s in specs]
+        self._names = frozenset(names)
         self._readers: dict[str, list[_Hosted]] = {}
         for h in self.hosted:
             for key in h.member.slot_of:
@@ -97,6 +98,10 @@ class Composed:
     @property
     def names(self) -> list[str]:
         return [h.name for h in self.hosted]
+
+    def hosts(self, nodes: set[str]) -> bool:
+        """Whether every node of ``nodes`` is a member composed here."""
+        return nodes <= self._names
 
     def start(self, info: dict) -> None:
         """Configure every member from the plant's ``sim/info`` and let it join: its

@@ -64,6 +64,7 @@ class Outbox:
         self._listeners: list = []
         self._reads: dict[str, bool] = {}      # matching status, asked since the last change
         self._ever: set[str] = set()            # keys someone has read: read from then on
+        self._held: list | None = None          # puts held back (:meth:`hold`), in order
 
     def publisher(self, key: str, remote: bool = False) -> zenoh.Publisher:
         """``key``'s publisher, declared on first use: ``remote`` (asked first for the key) to
@@ -108,7 +109,11 @@ class Outbox:
         """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number
         and the plant's world ``epoch`` (docs/PROTOCOL.md section 3)."""
         self.seq += 1
-        self.publisher(key).put(data, attachment=codec.attachment(self.seq, t_ns, epoch=epoch))
+        att = codec.attachment(self.seq, t_ns, epoch=epoch)
+        if self._held is None:
+            self.publisher(key).put(data, attachment=att)
+        else:
+            self._held.append((self.publisher(key), data, att))
         self.published[key] = self.published.get(key, 0) + 1
         self._kept(t_ns, key, data, None)
 
@@ -120,8 +125,27 @@ class Outbox:
         (bus/composed.py), so a composed member's command nobody else reads stays off the
         bus, as a due sensor nobody reads does. It is kept to re-publish either way."""
         if self.reads(key, remote=True):
-            self.publisher(key, remote=True).put(data, attachment=att)
+            if self._held is None:
+                self.publisher(key, remote=True).put(data, attachment=att)
+            else:
+                self._held.append((self.publisher(key, remote=True), data, att))
         self._kept(t_ns, key, data, att)
+
+    def hold(self) -> None:
+        """Hold the puts back until :meth:`flush` (the plant does for a tick whose lockstep
+        members are all composed into it: no process waits on the tick's messages while
+        those members answer). Zenoh's transmit task writes what it finds queued as one
+        batch, so messages put back to back share writes and wake the transmit task and a
+        reading process less often than puts spread over the tick. The bytes, attachments
+        and their order on every key stay the same; only when they leave changes."""
+        self.flush()
+        self._held = []
+
+    def flush(self) -> None:
+        """The puts held back since :meth:`hold`, in their order; puts go out at once again."""
+        held, self._held = self._held, None
+        for pub, data, att in held or ():
+            pub.put(data, attachment=att)
 
     def _kept(self, t_ns: int, key: str, data: bytes, att: bytes | None) -> None:
         if self.keep:
@@ -133,6 +157,7 @@ class Outbox:
         """The kept messages of the ticks up to ``upto_ns`` (of the world ``epoch``: the
         plant clears :attr:`recent` at a new one) again, as they were (new sequence
         numbers; a composed member's with its attachment); the ticks."""
+        self.flush()                            # (what was held goes first)
         ticks = sorted(t for t in self.recent if t <= upto_ns)
         for t in ticks:
             for key, data, att in self.recent[t]:

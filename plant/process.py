@@ -220,7 +220,22 @@ class Plant:
     def publish_sensors(self) -> None:
         """The sensors due at this tick that someone reads (:mod:`plant.outbox`), robot by
         robot, ``sim/poses`` if read, then ``sim/clock``; then the next tick's sensor noise
-        is drawn ahead (prefetch), off the members' critical path."""
+        is drawn ahead (prefetch), off the members' critical path. Where every lockstep
+        member is composed here, no process waits for the tick's messages before its
+        members have answered: its puts then go out together, after those answers
+        (:meth:`plant.outbox.Outbox.hold`)."""
+        together = (self.composed is not None and self.strategy.lockstep
+                    and self.composed.hosts(self.ledger.members))
+        if together:
+            self.outbox.hold()
+        try:
+            self._sensors_out()
+        finally:
+            if together:
+                self.outbox.flush()
+        self.tick.prefetch()
+
+    def _sensors_out(self) -> None:
         t = self.sim.time_ns
         out, composed = self.outbox, self.composed
         due, msgs = self.tick.messages_read(self._wanted_all())
@@ -256,7 +271,6 @@ class Plant:
         if composed is not None:
             composed.clock(t, self._emit_many, self.epoch)
             composed.run(self._emit_many)
-        self.tick.prefetch()
 
     def publish_pending(self) -> None:
         """This tick's sensors, if they have not gone out yet (the run ends)."""

@@ -194,10 +194,11 @@ class _KeptOutbox(Outbox):
 
 
 def _published(tmp_path, read: set[str], ticks: int = 12, composed=None,
-               comes: tuple | None = None) -> list:
+               comes: tuple | None = None, members: frozenset = frozenset()) -> list:
     """Every message the plant's publish_sensors puts over ``ticks`` ticks of a 4-robot
     kinematic swarm whose readers are ``read`` (keys), lidars due every few ticks.
-    ``composed``: members hosted in the plant; ``comes``: (tick, keys, mid) keys a subscriber
+    ``composed``: members hosted in the plant (given the outbox as ``outbox``);
+    ``members``: the lockstep members present; ``comes``: (tick, keys, mid) keys a subscriber
     starts to read at that tick, before the tick's sensing or (``mid``) after it, before
     the puts (the matching listener's reset comes from Zenoh's thread at any time)."""
     from types import SimpleNamespace
@@ -211,8 +212,13 @@ def _published(tmp_path, read: set[str], ticks: int = 12, composed=None,
     tick, out = Tick(spec), _KeptOutbox(read)
     host = SimpleNamespace(outbox=out, composed=composed, tick=tick, sim=tick.sim, epoch=0,
                            keys=Keys(""), _key=lambda robot, topic: f"{robot}/{topic}",
-                           _wanted=(None, None), _handover=None, _emit_many=None)
+                           _wanted=(None, None), _handover=None, _emit_many=None,
+                           strategy=SimpleNamespace(lockstep=True),
+                           ledger=SimpleNamespace(members=set(members)))
     host._wanted_all = lambda: Plant._wanted_all(host)
+    host._sensors_out = lambda: Plant._sensors_out(host)
+    if composed is not None:
+        composed.outbox = out
     sense = tick.messages_read
 
     def comes_now(*args):
@@ -250,13 +256,19 @@ def test_a_message_s_sequence_number_is_the_same_whoever_listens(tmp_path):
 
 
 class _ScanMembers:
-    """Members composed into the plant that read every robot's scan and nothing else."""
+    """Members composed into the plant that read every robot's scan and nothing else: one
+    lockstep member, ``scans``. ``at_run``: how many messages the outbox had put when
+    the members ran, each tick."""
 
     def __init__(self) -> None:
         self.got: list[tuple[str, bytes, object]] = []
+        self.at_run: list[int] = []
 
     def reads(self, key: str) -> bool:
         return key.endswith("/scan")
+
+    def hosts(self, nodes: set[str]) -> bool:
+        return nodes <= {"scans"}
 
     def deliver(self, key: str, data: bytes, att, msg=None) -> None:
         self.got.append((key, data, msg))
@@ -265,7 +277,7 @@ class _ScanMembers:
         pass
 
     def run(self, emit) -> None:
-        pass
+        self.at_run.append(len(self.outbox.puts))
 
 
 def test_a_scan_only_composed_members_read_is_not_encoded_until_a_subscriber_comes(
@@ -318,3 +330,51 @@ def test_a_plant_hosting_members_puts_sim_clock_only_for_a_reader(tmp_path):
     assert not [p for p in alone if p[0] == clock]
     assert len([p for p in read if p[0] == clock]) == 12
     assert [p for p in alone if p[0] == "r0/gps"] == [p for p in read if p[0] == "r0/gps"]
+
+
+def test_held_puts_go_out_at_the_flush_as_they_would_have_gone_at_once():
+    """Puts held back (:meth:`Outbox.hold`) reach the bus at the flush, in their order, with
+    the bytes and attachments they would have had put at once; the numbering and what is
+    kept to re-publish do not change, a re-publish sends what was held first, and after
+    the flush puts go out at once again."""
+    def run(held: bool):
+        out = _KeptOutbox({"r/gps", "r/odom", "r/cmd_vel"})
+        out.keep = True
+        if held:
+            out.hold()
+        out.put("r/gps", b"g", 20_000_000, 0)
+        out.skip()
+        out.relay("r/odom", b"o", 20_000_000, b"odom-att")
+        out.relay("r/scan", b"s", 20_000_000, b"scan-att")     # nobody reads it
+        out.put("r/cmd_vel", b"c", 20_000_000, 0)
+        before = list(out.puts)
+        out.flush()
+        out.put("r/gps", b"g2", 40_000_000, 0)
+        after = len(out.puts)
+        if held:
+            out.hold()
+        out.put("r/gps", b"g3", 60_000_000, 0)
+        out.republish(20_000_000, 0)
+        return before, out.puts, after, out.recent, out.seq
+    at_once, held = run(False), run(True)
+    assert held[0] == [] and len(at_once[0]) == 3
+    assert held[1:] == at_once[1:]
+    assert [k for k, _, _ in at_once[1]] == ["r/gps", "r/odom", "r/cmd_vel", "r/gps", "r/gps",
+                                             "r/gps", "r/odom", "r/scan", "r/cmd_vel"]
+
+
+def test_a_tick_s_puts_wait_for_its_members_only_where_they_are_its_only_lockstep_ones(
+        tmp_path):
+    """Where every lockstep member is composed into the plant, a tick's messages go on the
+    bus after its members ran (together); with a process member in lockstep beside them they
+    go before, as they come. The bytes, attachments and order are the same either way."""
+    read = {"r0/gps", "r1/joint_states", Keys("").clock}
+    alone, beside = _ScanMembers(), _ScanMembers()
+    puts = [_published(tmp_path, set(read), composed=m, members=frozenset(nodes))
+            for m, nodes in ((alone, {"scans"}), (beside, {"scans", "process"}))]
+    assert puts[0] == puts[1]
+    stamps = [codec.parse_attachment(a).t_ns for _, _, a in puts[0]]
+    ticks = range(len(alone.at_run))
+    assert len(ticks) == 12
+    assert alone.at_run == [sum(s < k * 20_000_000 for s in stamps) for k in ticks]
+    assert beside.at_run == [sum(s <= k * 20_000_000 for s in stamps) for k in ticks]
