@@ -40,7 +40,8 @@ from plant import kernels
 from plant.raycast import Scene, cast_sectors
 from plant.shapes import Shape, pose_matrix
 
-__all__ = ["LidarConfig", "scan", "scan_many", "scan_worlds", "scan_many_reference",
+__all__ = ["LidarConfig", "scan", "scan_many", "scan_worlds", "WorldScenes",
+           "scan_many_reference",
            "apply_noise", "measure", "ray_directions", "sensor_pose"]
 
 
@@ -224,6 +225,82 @@ def scan_worlds(config: LidarConfig, scenes: Sequence[Scene], robot_poses,
     return kernels.lidar_scan(arrays, int(starts[-1]), poses, dirs, skip, config.angle_min,
                               config.angle_increment, config.min_range_m, config.max_range_m,
                               first, last)
+
+
+class WorldScenes:
+    """:func:`scan_worlds` call after call for robots in W worlds whose shapes stay the same
+    but for the poses of some (a batch's worlds: their robots' parts move): every world's
+    scene laid out once in one set of arrays, world after world, the owner ids made distinct
+    across worlds and each robot's skipped owner and shapes found once. :meth:`move` writes
+    the moving shapes' poses in place, :meth:`scan` casts; the same bits as
+    :func:`scan_worlds` of the worlds' scenes with their shapes there.
+
+    ``scenes``: the W worlds' scenes (their still shapes where they stay); ``owners`` (G,):
+    the robot each lidar skips (None: none), ``world_of`` (G,) its world; ``moving`` (W,):
+    (first shape, count) of each world's moving shapes, in its scene's order."""
+
+    def __init__(self, config: LidarConfig, scenes: Sequence[Scene],
+                 owners: Sequence[str | None], world_of: Sequence[int],
+                 moving: Sequence[tuple[int, int]]) -> None:
+        world_of = np.asarray(world_of, dtype=np.int64).reshape(-1)
+        if not scenes or len(moving) != len(scenes) or len(owners) != len(world_of):
+            raise ValueError(f"{len(scenes)} scenes, {len(moving)} moving ranges, "
+                             f"{len(owners)} owners for {len(world_of)} robots")
+        if world_of.size and not 0 <= world_of.min() <= world_of.max() < len(scenes):
+            raise ValueError(f"a robot's world is not one of the {len(scenes)} scenes")
+        self.config = config
+        sizes = [len(sc) for sc in scenes]
+        #: each world's first shape in the arrays (and their end)
+        self.starts = starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        shift = np.concatenate([[0], np.cumsum([len(sc._owner_ids) for sc in scenes])])
+        self.centers, self.rotations, halves, quad, rr, radii = (
+            np.ascontiguousarray(np.concatenate([getattr(sc, key) for sc in scenes]), dtype=float)
+            for key in ("centers", "rotations", "halves", "quad", "rr", "radii"))
+        self.owner_ids = np.concatenate([sc.owner_ids + shift[k] for k, sc in enumerate(scenes)]
+                                        ).astype(np.int64)
+        self.skip = np.array([scenes[k].owner_id(o) + shift[k]
+                              if o and scenes[k].owner_id(o) >= 0 else -1
+                              for k, o in zip(world_of.tolist(), owners)], dtype=np.int64)
+        self.first = np.ascontiguousarray(starts[world_of])
+        self.last = np.ascontiguousarray(starts[world_of + 1])
+        rows = []
+        for k, (first, count) in enumerate(moving):
+            if not 0 <= first <= first + count <= sizes[k]:
+                raise ValueError(f"{count} moving shapes from shape {first} do not fit world "
+                                 f"{k}'s {sizes[k]} shapes")
+            rows.append(starts[k] + first + np.arange(count, dtype=np.int64))
+        #: the moving shapes' rows in the arrays, world after world (:meth:`move`'s order)
+        self.rows = np.concatenate(rows)
+        self._keep = (halves, quad, rr, radii)          # alive as long as this object
+        self._arrays = tuple(a.ctypes.data for a in (self.centers, self.rotations) + self._keep
+                             ) + (kernels.ptr(self.owner_ids),)
+        self._range = (config.angle_min, config.angle_increment, config.min_range_m,
+                       config.max_range_m)
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+    def move(self, poses: np.ndarray) -> None:
+        """The moving shapes at ``poses`` ((M, 4, 4), in :attr:`rows`' order)."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
+        if len(poses) != len(self.rows):
+            raise ValueError(f"{len(poses)} poses for {len(self.rows)} moving shapes")
+        self.centers[self.rows] = poses[:, :3, 3]
+        self.rotations[self.rows] = poses[:, :3, :3]
+
+    def scan(self, robot_poses, robots: np.ndarray | None = None) -> np.ndarray:
+        """(g, num_rays) exact ranges of robots ``robots`` (indices of the G; None: all of
+        them) at ``robot_poses`` ((g, 4, 4) base -> world), each in its world as the last
+        :meth:`move` left it."""
+        poses, dirs = _fans(self.config, robot_poses)
+        skip, first, last = self.skip, self.first, self.last
+        if robots is not None:
+            at = np.asarray(robots, dtype=np.intp).reshape(-1)
+            skip, first, last = skip[at], first[at], last[at]
+        if len(poses) != len(skip):
+            raise ValueError(f"{len(poses)} robot poses for {len(skip)} robots")
+        return kernels.lidar_scan(self._arrays, len(self.centers), poses, dirs, skip,
+                                  *self._range, first, last)
 
 
 def _fans(config: LidarConfig, robot_poses) -> tuple[np.ndarray, np.ndarray]:

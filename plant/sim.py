@@ -391,6 +391,16 @@ class Simulation:
                              "visible parts of the robots")
         return Scene.placed(self._scene_template, len(self._static_shapes), poses)
 
+    def scene_layout(self) -> tuple:
+        """How :meth:`scene` lays the world out, for those who cast it call after call
+        (read-only, the world's own arrays): (the scene as built once, the row of the robots'
+        first part in it, their count (the parts follow in :meth:`part_transforms`' order),
+        each part's robot (index) and pose on its base_link in a kinematic world, whose
+        :meth:`part_transforms` is ``transforms[robot] @ pose``, else None and None)."""
+        owner, rel = (self._part_owner, self._part_rel) if self.kin is not None else (None, None)
+        return (self._scene_template, len(self._static_shapes), len(self._robot_parts),
+                owner, rel)
+
     def shapes(self, part_tfs: np.ndarray | None = None) -> ShapeList:
         """Every solid of the world in world coordinates, robots included (their parts at
         ``part_tfs``, from :meth:`part_transforms`, if given: a physics process's), as

@@ -184,6 +184,7 @@ class _TickPlan:
         self._key = self.at.tobytes()
         self._first_kin = sims[0].kin
         self.fans: lid.Fans | None = None                  # the lidars' casts (_scan)
+        self.scenes: lid.WorldScenes | None = None         # several robots' worlds' casts
         self._base = np.zeros((1, 4, 4))                   # one robot's pose (_transforms)
         self._base[0, 2, 2], self._base[0, 3, 3] = 1.0, 1.0
         if self.kinematic:
@@ -331,13 +332,33 @@ class _TickPlan:
     def _cast_worlds(self, due: np.ndarray) -> np.ndarray:
         """The exact ranges of rows ``due`` in worlds of several robots, as
         :func:`plant.tick.messages_of` casts them: each world's scene with its robots where
-        the last tick left them, a lidar skipping its own robot, every world in one call."""
-        at = self.world_of[due]
-        idx = np.unique(at)
-        scenes = [Scene.from_shapes(self.ticks[k].stepper.shapes()) for k in idx.tolist()]
-        names = [self.names[j] for j in due.tolist()]
-        return lid.scan_worlds(self.cfg, scenes, self.worlds.transforms(due), names,
-                               np.searchsorted(idx, at))
+        the last tick left them, a lidar skipping its own robot, every world in one call.
+        The worlds' scenes are laid out once for the plan (:class:`plant.lidar.WorldScenes`):
+        a cast writes the robots' parts in place (a kinematic batch's all in one matmul) and
+        casts, the same bits as the worlds' scenes built afresh."""
+        if self.scenes is None:
+            self._lay_out_scenes()
+        if self.kinematic:
+            tfs = self.worlds.batch.transforms()
+            self.scenes.move(np.matmul(tfs[self._part_robot], self._part_rel))
+            return self.scenes.scan(tfs[due], due)
+        self.scenes.move(np.concatenate([self.sims[k].part_transforms()
+                                         for k in self._world_rows.tolist()]))
+        return self.scenes.scan(self.worlds.transforms(due), due)
+
+    def _lay_out_scenes(self) -> None:
+        """:attr:`scenes`: every world's scene (:meth:`plant.sim.Simulation.scene_layout`),
+        its robots' parts moving; in a kinematic batch, each part's row (its robot's) in the
+        batch and its pose on that robot's base."""
+        self._world_rows = firsts = np.unique(self.world_of)     # each world's first row
+        layouts = [self.sims[k].scene_layout() for k in firsts.tolist()]
+        self.scenes = lid.WorldScenes(self.cfg, [lay[0] for lay in layouts], self.names,
+                                      np.searchsorted(firsts, self.world_of),
+                                      [(lay[1], lay[2]) for lay in layouts])
+        if self.kinematic:
+            self._part_robot = np.concatenate([k + lay[3] for k, lay in
+                                               zip(firsts.tolist(), layouts)])
+            self._part_rel = np.concatenate([lay[4] for lay in layouts])
 
     def _lidar_noise(self, cfg, exact: np.ndarray, due: np.ndarray) -> np.ndarray:
         """The reported ranges (float32) of rows ``due``'s exact ones: the plant's lidar

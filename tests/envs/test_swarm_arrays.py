@@ -122,3 +122,37 @@ def test_a_world_that_diverges_is_named():
         venv.envs[2].task.transport.tick.sim.kin.pose[1, 0] = np.nan
         with pytest.raises(FloatingPointError, match=r"swarm world 2 diverged"):
             venv.step(np.zeros((3, KW["n_robots"], 2), np.float32))
+
+
+def test_a_cast_is_the_worlds_scenes_built_afresh_with_every_robot_where_it_is():
+    """The lidars' cast of a step (every world's scene laid out once, the robots' parts
+    written in place each cast) against :func:`plant.lidar.scan_worlds` of each world's
+    scene built afresh, step after step while the robots move and see each other: the same
+    bits, for every robot and for some."""
+    from plant import lidar as lid
+    from plant.raycast import Scene
+    venv = swarm_v0.vector_env(2, **{**KW, "max_steps": 200})
+    act = np.tile(np.float32([0.4, 0.9]), (2, KW["n_robots"], 1))
+    seen = 0
+    with venv:
+        venv.reset(seed=3)
+        for _ in range(5):
+            venv.step(act)
+            plan = venv.arrays.ticks._plan
+            due = np.arange(len(plan.at))
+            firsts = np.unique(plan.world_of)
+            world = np.searchsorted(firsts, plan.world_of)
+            tfs = plan.worlds.transforms(due)
+            fresh = [Scene.from_shapes(plan.sims[k].shapes()) for k in firsts.tolist()]
+            want = lid.scan_worlds(plan.cfg, fresh, tfs, plan.names, world)
+            assert plan._cast_worlds(due).tobytes() == want.tobytes()
+            for k, sc in enumerate(fresh):              # every shape where it is, seen or not
+                rows = slice(plan.scenes.starts[k], plan.scenes.starts[k + 1])
+                assert plan.scenes.centers[rows].tobytes() == sc.centers.tobytes()
+                assert plan.scenes.rotations[rows].tobytes() == sc.rotations.tobytes()
+            some = due[1::3]
+            assert plan._cast_worlds(some).tobytes() == want[some].tobytes()
+            rooms = lid.scan_worlds(plan.cfg, [plan.sims[k].room_scene() for k in firsts],
+                                    tfs, [None] * len(due), world)
+            seen += int((want != rooms).any(axis=1).sum())    # lidars that saw a robot
+    assert seen >= 5, seen
