@@ -158,7 +158,7 @@ class _TickPlan:
         worlds = {id(s): k for k, s in reversed(list(enumerate(sims)))}
         self.shared = len(worlds) < len(sims)
         if self.shared:
-            self.ticks, self.names = ticks, names
+            self.names = names
             self.world_of = np.array([worlds[id(s)] for s in sims], np.int64)
         self.worlds = _Kinematic(sims) if self.kinematic else _Dart(sims, names)
         lo = int(at[0])
