@@ -206,25 +206,10 @@ def scan_worlds(config: LidarConfig, scenes: Sequence[Scene], robot_poses,
     """:func:`scan_many` for G robots in several worlds (a batched environment's N
     copies of a world): robot g stands in ``scenes[world_of[g]]``. (G, num_rays), row g
     bit for bit what ``scan_many`` of its world alone gives; one call of the kernel."""
-    poses, dirs = _fans(config, robot_poses)
-    world_of = np.asarray(world_of, dtype=np.int64).reshape(-1)
-    sizes = np.array([len(sc) for sc in scenes], dtype=np.int64)
-    starts = np.concatenate([[0], np.cumsum(sizes)])
-    # owner ids made distinct across worlds: world k's ids shifted past world k-1's
-    shift = np.concatenate([[0], np.cumsum([len(sc._owner_ids) for sc in scenes])])
-    cols = [np.concatenate([getattr(sc, key) for sc in scenes]) if len(scenes) else np.zeros(0)
-            for key in ("centers", "rotations", "halves", "quad", "rr", "radii")]
-    owners = np.concatenate([sc.owner_ids + shift[k] for k, sc in enumerate(scenes)]
-                            + [np.zeros(0, dtype=np.int64)])
-    skip = np.array([scenes[k].owner_id(o) + shift[k] if o and scenes[k].owner_id(o) >= 0 else -1
-                     for k, o in zip(world_of, exclude_owners)], dtype=np.int64)
-    keep = [np.ascontiguousarray(a, dtype=float) for a in cols]       # alive for the call
-    arrays = tuple(a.ctypes.data for a in keep) + (kernels.ptr(owners),)
-    first = np.ascontiguousarray(starts[world_of])
-    last = np.ascontiguousarray(starts[world_of + 1])
-    return kernels.lidar_scan(arrays, int(starts[-1]), poses, dirs, skip, config.angle_min,
-                              config.angle_increment, config.min_range_m, config.max_range_m,
-                              first, last)
+    if not len(scenes):                    # (no world, so no robot to cast for)
+        return np.zeros((0, config.num_rays))
+    return WorldScenes(config, scenes, exclude_owners, world_of,
+                       [(0, 0)] * len(scenes)).scan(robot_poses)
 
 
 class WorldScenes:
