@@ -31,6 +31,7 @@ from . import controller as hooks
 from .jsonio import write_stats
 from .keys import TOPICS, Keys
 from .log import RejectCounter
+from .many import ManyTick
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 
@@ -54,6 +55,8 @@ class _Hosted:
         self.member = MemberTick(spec.name, 0, slots=slots, topics=self.topics,
                                  key=functools.lru_cache(maxsize=None)(keys.topic),
                                  ack_key=keys.ack(spec.name), log=self.log)
+        # (a member of many robots on one step_many controller answers in one pass)
+        self.many = ManyTick.of(self.member)
         self.rejects = RejectCounter(self.log)
         self.published: dict[str, int] = {}
         self.seq = 0
@@ -181,7 +184,8 @@ class Composed:
 
     def _act(self, h: _Hosted, t_ns: int, emit: Emit) -> bool:
         try:
-            sent, finished = h.member.act(t_ns)
+            got = h.many.act(t_ns) if h.many is not None else None
+            sent, finished = got if got is not None else h.member.act(t_ns)
         except Exception:
             h.log.exception("%s failed at t=%.3f s; it leaves the simulation", h.name,
                             t_ns * 1e-9)

@@ -20,6 +20,16 @@ from .commands import Command, TwistCheck, decode_command, stale_commands, twist
 #: a composed member's message as the plant takes it: (key, payload, attachment bytes, the
 #: attachment parsed, the (stamp, linear, angular) a cmd_vel was packed from or None)
 Emitted = tuple[str, bytes, bytes, "codec.Attachment | None", "tuple | None"]
+_COMMANDS = ("cmd_vel", "wheel_cmd")
+_ACK = (None, "ack")
+
+
+def _stamps(cmds: list) -> set:
+    """The stamps of ``cmds``, with None among them if any is None (no command)."""
+    try:
+        return {c.t_ns for c in cmds}
+    except AttributeError:
+        return {None}
 
 
 class Intake:
@@ -31,6 +41,8 @@ class Intake:
         self.plant = plant
         self._sim = None                     # the world the per-robot tables below are of
         self._robots: list[tuple[str, float]] = []     # (robot, cmd_timeout_s) in order
+        self._names: list[str] = []                     # (the same, apart)
+        self._timeouts: list[float] = []
         self._checks: dict[str, TwistCheck] = {}
 
     def _tables(self):
@@ -41,6 +53,8 @@ class Intake:
         if sim is not self._sim:
             self._sim = sim
             self._robots = [(n, r.spec.drive.cmd_timeout_s) for n, r in sim.robots.items()]
+            self._names = [n for n, _ in self._robots]
+            self._timeouts = [t for _, t in self._robots]
             check_age = p.strategy.check_age
             self._checks = {n: TwistCheck(r.spec.drive, p.tick_ns, check_age)
                             for n, r in sim.robots.items()}
@@ -100,7 +114,7 @@ class Intake:
         its error)."""
         p = self.plant
         robot_of, ack_prefix = p._robot_of_key, p._ack_prefix
-        ours = [(m, robot_of.get(m[0], (None, "ack"))) for m in msgs
+        ours = [(m, robot_of.get(m[0], _ACK)) for m in msgs
                 if m[0] in robot_of or m[0].startswith(ack_prefix)]
         if not ours:
             return
@@ -112,9 +126,10 @@ class Intake:
                                        now)
         else:
             taken = [True] * len(ours)
-        checks, file = self._checks, self._file
+        checks, book = self._checks, p.commands
+        wall = time.monotonic()      # (one reading for the answer: it came in one call)
         for ((key, payload, _, att, twist), (robot, topic)), took in zip(ours, taken):
-            if not took or topic not in ("cmd_vel", "wheel_cmd"):
+            if not took or topic not in _COMMANDS:
                 continue
             if twist is None or att is None:
                 self._command(robot, topic, payload, att, twist, now)
@@ -123,9 +138,11 @@ class Intake:
             if not checks[robot].ok(t, a, b, now):
                 self._command(robot, topic, payload, att, twist, now)
                 continue
-            file(robot, Command(Twist(float(a), float(b)),
-                                att.t_ns if lockstep else (t or now), time.monotonic(),
-                                att.node))
+            problem = book.file(robot, Command(Twist(float(a), float(b)),
+                                               att.t_ns if lockstep else (t or now), wall,
+                                               att.node))
+            if problem:
+                p.protocol_errors.reject(f"{robot}: two members command it", problem)
 
     # ------------------------------------------------------------------ the tick's commands
     def apply(self) -> None:
@@ -134,19 +151,22 @@ class Intake:
         p = self.plant
         sim = self._tables()
         strategy = p.strategy
-        robots = self._robots
-        picked = strategy.commands([n for n, _ in robots])
+        robots, names = self._robots, self._names
+        picked = strategy.commands(names)
         # lockstep: an older command than the rule's acting here is a protocol error (asked
         # only where a robot's command is not the tick's: nothing else can be stale)
         if strategy.lockstep and not p.stop_event.is_set():
             due = sim.time_ns - strategy.delay_ns
-            if due >= 0 and any(c is None or c.t_ns != due for c in picked):
+            if due >= 0 and picked and _stamps(picked) != {due}:
                 keys = lambda r: (p._key(r, "cmd_vel"), p._key(r, "wheel_cmd"))  # noqa: E731
-                stale_commands(p.ledger, p.commands, due,
-                               dict(zip((n for n, _ in robots), picked)), keys,
+                stale_commands(p.ledger, p.commands, due, dict(zip(names, picked)), keys,
                                p.protocol_errors.reject)
-        expired = strategy.expired_all(picked, [t for _, t in robots])
+        expired = strategy.expired_all(picked, self._timeouts)
         drive = p.tick.drive
+        if True not in expired:          # (the usual tick: no command timed out)
+            for name, cmd in zip(names, picked):
+                drive(name, cmd.value if cmd is not None else None)
+            return
         for (name, timeout), cmd, old in zip(robots, picked, expired):
             if old:
                 if cmd.moving:       # a robot told to stand still needs no stopping

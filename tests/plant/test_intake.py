@@ -151,3 +151,10 @@ def test_the_tick_s_commands_are_handed_over_as_the_rule_says_robot_by_robot(cou
         p.commands.file(r, modes.Command(Twist(0.1, 0.0), due, 0.0, "a"))
     p.intake.apply()
     assert p.protocol_errors.said == [] and [v for _, v in p.driven] == [Twist(0.1, 0.0)] * 4
+    # every robot with a command, one of them older than the tick's: stale, said
+    p = plant(coupling)
+    p.ledger.join("a")
+    for r in ROBOTS:
+        p.commands.file(r, modes.Command(Twist(0.1, 0.0), due - T * (r == "r2"), 0.0, "a"))
+    p.intake.apply()
+    assert [d.split(":")[0] for k, d in p.protocol_errors.said] == ["r2"]

@@ -1,0 +1,88 @@
+"""A lockstep member whose robots are all driven by one ``step_many`` controller (the
+swarm's avoid members): its answer to a tick made in one pass, :class:`ManyTick`.
+
+:meth:`bus.member.MemberTick.act` steps such a controller once and then, robot by robot,
+queues each command as an output, orders the outputs (:meth:`~bus.member.MemberTick.owed`)
+and packs them. When every robot gets a :class:`Twist` and the controller is not done, that
+answer is always the same shape: one ``cmd_vel`` per robot in the robots' order, the last
+carrying the ACK and the count. :meth:`ManyTick.act` makes it so directly, the same bytes,
+flags and member state as ``act`` (tests/bus/test_many_tick.py compares them tick by tick);
+any other answer (a robot left without a command, another kind of output, the controller
+done) goes the general way.
+"""
+from __future__ import annotations
+
+from . import codec
+from . import controller as hooks
+from .controller import Twist
+from .member import MemberTick, Sent, _commands_of
+from .observe import observations
+
+
+class ManyTick:
+    """:meth:`MemberTick.act` for ``member``, whose robots share one ``step_many``
+    controller (:meth:`of`: None for any other member). The robots, their ``cmd_vel`` keys
+    and the Twist's CDR layout are taken once."""
+
+    def __init__(self, member: MemberTick) -> None:
+        self.member = member
+        self.ctrl = member.slots[0].controller
+        self.robots = [s.robot for s in member.slots]
+        self.keys = [s.cmd_key for s in member.slots]
+        self.layout, self.frame = codec._twist_layout("base_link")   # (twist_stamped_bytes')
+
+    @classmethod
+    def of(cls, member: MemberTick) -> "ManyTick | None":
+        slots = member.slots
+        if not slots or not hooks.steps_many(slots[0].controller) \
+                or any(s.controller is not slots[0].controller for s in slots):
+            return None
+        return cls(member)
+
+    def act(self, t_ns: int) -> tuple[Sent, bool] | None:
+        """``member.act(t_ns)``'s (what to send, finished), or None without stepping
+        anything where the member is not in lockstep, has outputs queued already or a robot
+        done (the caller then calls ``act``)."""
+        m = self.member
+        slots = m.slots
+        if not m.sync or m._out or any(s.done for s in slots):
+            return None
+        ctrl = self.ctrl
+        answer = _commands_of(ctrl, ctrl.step_many(observations(m, slots, t_ns)))
+        done = hooks.is_done(ctrl)
+        cmds = list(map(answer.get, self.robots))
+        if done or any(type(c) is not Twist for c in cmds):
+            return self._general(cmds, done, t_ns)
+        # act's queue, owed and send_tick for one Twist per robot: cmd_vel keys distinct,
+        # all read by the plant (owed's order is theirs), the last with ACK and n_plant
+        sec, nanosec = divmod(t_ns, 1_000_000_000)
+        pack, cdr, frame = self.layout.pack, codec._CDR_LE, self.frame
+        twists = m.twists
+        sent: Sent = []
+        for key, c in zip(self.keys, cmds):
+            linear, angular = float(c.linear), float(c.angular)
+            data = pack(cdr, sec, nanosec, frame, linear, 0.0, 0.0, 0.0, 0.0, angular)
+            twists[key] = (data, t_ns, linear, angular)
+            sent.append((key, data, 0, 0))
+        key, data, _, _ = sent[-1]
+        sent[-1] = (key, data, codec.ACK, len(sent))
+        m.ticks += 1
+        m.hold_until = t_ns if m._keep_sent else None
+        m._keep(t_ns, sent)
+        return sent, False
+
+    def _general(self, cmds: list, done: bool, t_ns: int) -> tuple[Sent, bool]:
+        """The rest of :meth:`MemberTick.act` for the commands ``step_many`` gave."""
+        m = self.member
+        for slot, out in zip(m.slots, cmds):
+            if type(out) is Twist:
+                m._queue_twist(slot.cmd_key, out, t_ns)
+            else:
+                m.queue_output(out, t_ns, slot.robot)
+            if done:
+                slot.done = True
+                m.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
+                m.log.info("%s%s done at t=%.3f s", m.name,
+                           f" ({slot.robot})" if len(m.slots) > 1 else "", t_ns * 1e-9)
+        finished = all(slot.done for slot in m.slots)
+        return m.send_tick(t_ns, final=finished), finished
