@@ -226,6 +226,10 @@ class _Live:
                     run.failed = run.children[0]
                 if self.session is not None:
                     keep = self.analysis.keys(keys, spec, self.world)
+                    if not self.draw:             # (keys read only to draw the figures)
+                        drawing = getattr(self.analysis, "drawing_keys", None)
+                        for key in drawing(keys) if drawing is not None else ():
+                            keep.pop(key, None)
                     if not self.own_paths:
                         keep = {**analysis_paths.keys(keys, self.world, keep), **keep}
                     self.observer = Observer(self.session, keys, keep)
