@@ -40,7 +40,7 @@ from bus.protocol import PLANT_READS, world_max_hold
 
 from . import core, modes, report
 from .commands import CommandBook
-from .handover import Handover
+from .camera_handover import CameraHandover
 from .intake import Emitted, Intake
 from .outbox import Outbox, Reads
 from .presence import PLANT_TOKEN, Presence
@@ -240,7 +240,8 @@ class Plant:
         out, composed = self.outbox, self.composed
         due, msgs = self.tick.messages_read(self._wanted_all())
         if composed is not None:                      # (values its members take: no decoding)
-            self._handover = Handover.of(self._handover, self.tick.model, self.tick.data)
+            self._handover = CameraHandover.of(self._handover, self.tick.model,
+                                               self.tick.data)
             handed = self._handover.at(t)
         at = 0                                        # the due messages numbered so far
         for k, name, topic, data in msgs:
@@ -301,7 +302,7 @@ class Plant:
             key = self._keys[(robot, topic)] = self.keys.topic(robot, topic)
         return key
 
-    _handover: Handover | None = None    # the composed members' tick values (plant.handover)
+    _handover: CameraHandover | None = None  # composed members' tick values (plant.handover)
     _wanted: tuple = (None, None)    # (the outbox's readers, :meth:`_wanted_all`'s dict)
 
     def _wanted_all(self) -> dict:

@@ -195,6 +195,18 @@ def _inputs(args) -> tuple:
     return spec, out, world, Keys(args.namespace)
 
 
+def analysis_keys(analysis, keys, spec, world, draw: bool) -> dict[str, str]:
+    """The keys (and their types) the launcher's observer keeps for ``analysis``: without
+    the figures (``draw`` False), not those the analysis reads only to draw them (its
+    ``drawing_keys``, if it names any: the follow's camera images)."""
+    keep = analysis.keys(keys, spec, world)
+    drawing = getattr(analysis, "drawing_keys", None)
+    if not draw and drawing is not None:
+        for key in drawing(keys):
+            keep.pop(key, None)
+    return keep
+
+
 class _Live:
     """A built run while it goes: its processes started and supervised, the launcher's own
     bus session observing what the analysis needs, and after it the summary."""
@@ -225,7 +237,7 @@ class _Live:
                     run.reason = f"cannot connect to the plant: {exc}"
                     run.failed = run.children[0]
                 if self.session is not None:
-                    keep = self.analysis.keys(keys, spec, self.world)
+                    keep = analysis_keys(self.analysis, keys, spec, self.world, self.draw)
                     if not self.own_paths:
                         keep = {**analysis_paths.keys(keys, self.world, keep), **keep}
                     self.observer = Observer(self.session, keys, keep)

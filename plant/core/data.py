@@ -54,6 +54,9 @@ class Data:
         #: each world's lidar ranges of its last sensed tick as the wire carries them: (tick,
         #: [(lidar config, robot indices, float32 (rows, rays))]) (plant.handover)
         self.ranges: list[tuple] = [(-1, [])] * W
+        #: each world's camera pictures of its last sensed tick, noisy, as the Image
+        #: messages carry them: (tick, {robot index: uint8 (H, W, 3)}) (plant.camera_handover)
+        self.images: list[tuple] = [(-1, {})] * W
 
     def set_streams(self, w: int, sensors: dict) -> None:
         """World ``w``'s robots' sensors (freshly built: their noise keys follow the seed)."""

@@ -247,10 +247,12 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
         for i, m in zip(rows.tolist(), msgs):
             got["scan"][i] = m
     data.ranges[w] = (tick, kept)
+    pictures: dict[int, np.ndarray] = {}       # (the tick's pictures: data.images)
+    data.images[w] = (tick, pictures)
     for i in due.get("camera/image_raw", ()):
         _camera(model, data.streams[w][model.robots[i]].camera_noise, i, t_ns, tick, tfs[i],
                 scene, bool(masks["camera/image_raw"][i]), bool(masks["camera/camera_info"][i]),
-                got, encoded)
+                got, encoded, pictures)
     made = [(name, topic, got[topic][i]) for i, name, topic, p in model.order if tick % p == 0]
     if read_only:
         return len(made), [(k, *m) for k, m in enumerate(made) if m[2] is not None]
@@ -282,15 +284,15 @@ def _objects(model: Model, data: Data, w: int, out, raw: bytes, t_ns: int) -> li
 
 
 def _camera(model: Model, image_noise, i: int, t_ns: int, tick: int, tf: np.ndarray, scene,
-            image: bool, info: bool, out: dict, encoded: bool) -> None:
+            image: bool, info: bool, out: dict, encoded: bool, pictures: dict) -> None:
     """Robot ``i``'s camera messages (render, ``image_noise`` at ``tick``, encode where
-    ``encoded``), as RobotSensors makes them."""
+    ``encoded``), as RobotSensors makes them; its picture into ``pictures``."""
     enc = codec.encode if encoded else _same
     c = model.cameras[i]
     optical = model.frames["camera_optical"][i]
     if image:
         # render(camera_pose(tf)) then image_noise.apply(tick): the same bytes, one call
-        rgb = cam.frame(c, tf, scene, model.robots[i], image_noise, tick)
+        rgb = pictures[i] = cam.frame(c, tf, scene, model.robots[i], image_noise, tick)
         out["camera/image_raw"][i] = enc(codec.image(t_ns, rgb, optical))
     if info:
         fields = model.camera_info[i]

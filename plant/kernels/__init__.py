@@ -22,7 +22,7 @@ import numpy as np
 
 
 __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_wide",
-           "image_noise", "normals",
+           "noise_wide", "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
            "tick_part", "sense_call", "observe_kinematic_call", "quaternions",
@@ -30,7 +30,7 @@ __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_w
 
 ABI = 4
 CAMERA_ABI = 3
-NOISE_ABI = 2
+NOISE_ABI = 3
 DRIVE_ABI = 2
 KINEMATIC_ABI = 2
 TICKS_ABI = 5
@@ -76,6 +76,8 @@ def load(path: Path) -> ctypes.CDLL:
                                          _D, _D] + [_P] * 5 + [ctypes.c_uint64, _I, _P, _P])
     lib.plant_camera_wide.restype = ctypes.c_int
     lib.plant_camera_wide.argtypes = [ctypes.c_int]
+    lib.plant_noise_wide.restype = ctypes.c_int
+    lib.plant_noise_wide.argtypes = [ctypes.c_int]
     lib.plant_image_noise.restype = None
     lib.plant_image_noise.argtypes = [_P, _I, ctypes.c_uint64, _I, _P, _P, _P]
     lib.plant_normals.restype = None
@@ -161,6 +163,13 @@ def camera_wide(mode: int | None = None) -> bool:
     values as two at a time). ``mode`` 0 turns that off, -1 back on where available
     (the tests compare the two)."""
     return bool(library().plant_camera_wide(1 if mode is None else int(mode)))
+
+
+def noise_wide(mode: int | None = None) -> bool:
+    """Whether the image noise is drawn eight elements at a time (AVX2 on x86-64; the same
+    bytes as two at a time). ``mode`` 0 turns that off, -1 back on where available (the
+    tests compare the two)."""
+    return bool(library().plant_noise_wide(1 if mode is None else int(mode)))
 
 
 def camera_work(w: int, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

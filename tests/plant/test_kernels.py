@@ -13,7 +13,8 @@ from plant import kernels
 from plant.camera import CameraConfig, render_full
 from plant.camera_reference import render_full_reference
 from plant.lidar import LidarConfig, scan, scan_many, scan_many_reference, scan_worlds
-from plant.noise import NoiseConfig, NoiseModel, frame_seed, image_noise_reference, stream_key
+from plant.noise import (NoiseConfig, NoiseModel, alias_table, frame_seed, image_noise_reference,
+                         stream_key)
 from plant.raycast import Scene
 from plant.shapes import Shape, pose_matrix
 from plant.sim import Simulation
@@ -186,6 +187,35 @@ def test_image_noise_kernel_gives_the_numpy_reference_bytes(cfg, shape):
         got = model.apply(img, tick)
         want = image_noise_reference(img, frame_seed(key, tick), cfg.std, cfg.bias + cfg.mean)
         assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("cfg", [NoiseConfig(std=10.0), NoiseConfig(std=7.3, bias=3.5, mean=-1.25),
+                                 NoiseConfig(std=300.0)])
+def test_image_noise_eight_at_a_time_gives_the_two_at_a_time_bytes(cfg):
+    """Where the processor has AVX2 the image noise is drawn eight elements at a time: the
+    bytes of two at a time and of the numpy reference, for every length (the last elements
+    two, then one, at a time) and for grey levels that clip at 0 and 255."""
+    if not kernels.noise_wide():
+        pytest.skip("the processor has no AVX2: the noise is drawn two elements at a time only")
+    rng = np.random.default_rng(5)
+    key = stream_key(2, "follower", "camera")
+    table = alias_table(float(cfg.std), float(cfg.bias + cfg.mean))
+    try:
+        for n in (*range(1, 40), 57600, 57603):
+            img = rng.integers(0, 256, n, dtype=np.uint8)
+            img[:: 7] = 0
+            img[3:: 7] = 255
+            seed = frame_seed(key, int(rng.integers(0, 10 ** 9)))
+            wide, narrow = np.empty_like(img), np.empty_like(img)
+            kernels.image_noise(img, seed, table, wide)
+            kernels.noise_wide(0)
+            kernels.image_noise(img, seed, table, narrow)
+            kernels.noise_wide(-1)
+            assert wide.tobytes() == narrow.tobytes(), n
+            assert wide.tobytes() == image_noise_reference(
+                img, seed, cfg.std, cfg.bias + cfg.mean).tobytes(), n
+    finally:
+        kernels.noise_wide(-1)
 
 
 def test_a_missing_library_says_how_to_build_it(tmp_path):
