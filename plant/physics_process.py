@@ -305,6 +305,17 @@ class PhysicsProcess:
         self.sync()
         return self.mirror.part_transforms()
 
+    def cpu_s(self) -> float | None:
+        """The worker's CPU seconds so far (user + system, /proc/PID/stat), None where it
+        cannot be read: what its steps cost, beside DART's alone, however loaded the
+        machine (the wall clock is not)."""
+        try:
+            with open(f"/proc/{self.proc.pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (AttributeError, OSError, ValueError, IndexError):
+            return None
+
     def _send(self, request: bytes) -> None:
         try:
             os.write(self._fd, request)
