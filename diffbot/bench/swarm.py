@@ -59,6 +59,7 @@ def physics_rtf(n: int, mode: str, tmpdir: str, sim_s: float = 2.0) -> dict:
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     steps = ticks * spec.substeps
     return {"real_time_factor": ticks * spec.control_tick_s / wall,
+            "cpu_ms_per_tick": cpu / ticks * 1e3,
             "us_per_robot_step": wall / steps / n * 1e6,
             "cpu_us_per_robot_step": cpu / steps / n * 1e6,
             **({"contacts": contacts / ticks} if dart else {})}
@@ -83,7 +84,7 @@ def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
         latest: dict[str, object] = dict.fromkeys(robots)
         ticks = max(1, int(round(sim_s / spec.control_tick_s)))
         start = {r: tick.sim.state(r).tf[:2, 3].copy() for r in robots}
-        stepping = contacts = 0.0
+        stepping = stepping_cpu = contacts = 0.0
         t_loop = time.perf_counter()
         for _ in range(ticks):
             t_ns = tick.t_ns
@@ -94,9 +95,10 @@ def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
                                    for r in robots})
             for r in robots:
                 tick.drive(r, cmds.get(r))
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             tick.step()
             stepping += time.perf_counter() - t0
+            stepping_cpu += time.thread_time() - c0
             contacts += tick.sim.world.getLastCollisionResult().getNumContacts()
         loop = time.perf_counter() - t_loop
         travel = sum(float(np.hypot(*(tick.sim.state(r).tf[:2, 3] - start[r])))
@@ -104,6 +106,7 @@ def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
     finally:
         tick.close()
     return {"real_time_factor": ticks * spec.control_tick_s / stepping,
+            "cpu_ms_per_tick": stepping_cpu / ticks * 1e3,
             "physics_share": stepping / loop, "contacts": contacts / ticks,
             "travel_m": travel}
 
@@ -214,6 +217,8 @@ def composed_run(ctx: Context, n: int, mode: str, duration: str) -> dict:
     out = {**summary, "us_per_robot_tick": tick_s / rtf / n * 1e6 if rtf else float("nan")}
     for k, v in (summary.get("plant_per_tick_ms") or {}).items():
         out[f"{k}_us_per_robot"] = v * 1e3 / n
+    for k, v in (summary.get("cpu_per_tick_ms") or {}).items():
+        out[f"{k}_cpu_ms_per_tick"] = v
     return out
 
 
@@ -228,6 +233,9 @@ def composed_swarm(ctx: Context):
             yield Probe(alone, lambda n=n, mode=mode: physics_rtf(n, mode, ctx.tmpdir), [
                 Metric("real_time_factor", f"{alone}: real-time factor", "x",
                        notes="beside the composed run below: what the physics allows")]
+                + ([Metric("cpu_ms_per_tick", f"{alone}: CPU a tick", "ms",
+                           notes="process CPU: beside the composed run's physics process")]
+                   if mode == "dynamic" else [])
                 + ([Metric("contacts", f"{alone}: contacts a tick", "",
                            notes="the floor's alone (3 a robot); the composed swarm's "
                                  "robots touch walls and each other too, and DART's step "
@@ -241,6 +249,9 @@ def composed_swarm(ctx: Context):
                            notes="only DART's steps timed, the robots driven by the swarm's "
                                  "avoid on their scans in this process: the composed run's "
                                  "contacts, so its bound"),
+                    Metric("cpu_ms_per_tick", f"{steered}: CPU a tick", "ms",
+                           notes="the steps' thread CPU: beside the composed run's "
+                                 "physics process, whatever else the cores run"),
                     Metric("contacts", f"{steered}: contacts a tick", "")],
                     repeats=1, warmup=0)
             what = f"swarm composed, {n} {mode} robots with lidars and avoid controllers"
@@ -252,5 +263,12 @@ def composed_swarm(ctx: Context):
                        notes="control tick / real-time factor / robots"),
                 Metric("publish_us_per_robot", f"{what}: plant publishing per robot", "us",
                        notes="sensors, messages, the composed members, puts (a tick / robots)"),
-                Metric("physics_us_per_robot", f"{what}: physics per robot", "us")],
+                Metric("physics_us_per_robot", f"{what}: physics per robot", "us")]
+                + ([Metric("physics_cpu_ms_per_tick", f"{what}: physics process CPU a tick",
+                           "ms", notes="summary.json cpu_per_tick_ms: its DART step and "
+                                       "hand-over, beside DART alone's CPU above"),
+                    Metric("plant_cpu_ms_per_tick", f"{what}: plant CPU a tick", "ms",
+                           notes="the plant's process, all threads: what competes with "
+                                 "the physics process for the cores")]
+                   if mode == "dynamic" else []),
                 repeats=1, warmup=0)
