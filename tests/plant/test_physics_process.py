@@ -182,6 +182,29 @@ def test_the_tick_tells_its_host_when_to_publish():
 
 
 @pytest.mark.slow
+def test_the_physics_process_tells_its_own_cpu_time(tmp_path):
+    """cpu_s is the worker's CPU (user + system) as of its last step, not the plant's: what
+    the operating system accounts to it (/proc, to the clock tick's resolution), grown by
+    its steps (8 robots' 100 ticks cost it several hundredths of a second)."""
+    spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 8, seed=0))
+    physics = PhysicsProcess(spec, Simulation(spec))
+    try:
+        built = physics.cpu_s()
+        for _ in range(100):
+            physics.start_step(np.full((8, 2), 3.0))
+            physics.finish_step()
+        told = physics.cpu_s()
+        with open(f"/proc/{physics.proc.pid}/stat") as f:       # (it waits: no CPU now)
+            fields = f.read().rsplit(")", 1)[1].split()
+        accounted = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    finally:
+        physics.close()
+    assert 0.05 < built and told - built > 0.03          # (it imported DART, built a world)
+    assert told == pytest.approx(accounted, abs=0.025)
+    assert physics.cpu_s() is None                       # closed
+
+
+@pytest.mark.slow
 def test_a_dead_physics_process_is_an_error_naming_it(tmp_path):
     spec = load_world("empty")
     physics = PhysicsProcess(spec, Simulation(spec))
