@@ -222,6 +222,31 @@ def composed_run(ctx: Context, n: int, mode: str, duration: str) -> dict:
     return out
 
 
+def _kept(into: dict, key: str, fn):
+    """``fn``, its result also kept in ``into[key]`` (for a later probe of the suite)."""
+    def run() -> dict:
+        got = into[key] = fn()
+        return got
+    return run
+
+
+def composed_beside(ctx: Context, n: int, mode: str, duration: str, bound: dict) -> dict:
+    """:func:`composed_run` with its shares of the bounds measured just before it
+    (``bound``: "open" -> :func:`physics_rtf`'s, "steered" -> :func:`steered_physics_rtf`'s):
+    its real-time factor over each, and its physics process's CPU a tick over DART's
+    steered."""
+    out = composed_run(ctx, n, mode, duration)
+    rtf = out.get("real_time_factor") or 0.0
+    for key in ("open", "steered"):
+        alone = (bound.get(key) or {}).get("real_time_factor")
+        if alone:
+            out[f"share_of_{key}"] = rtf / alone
+    steered_cpu = (bound.get("steered") or {}).get("cpu_ms_per_tick")
+    if steered_cpu and out.get("physics_cpu_ms_per_tick"):
+        out["physics_cpu_over_steered"] = out["physics_cpu_ms_per_tick"] / steered_cpu
+    return out
+
+
 def composed_swarm(ctx: Context):
     """Composed swarms, each beside DART (or the kinematic step) alone with as many robots."""
     duration = "2" if ctx.quick else "6"
@@ -229,8 +254,10 @@ def composed_swarm(ctx: Context):
         for n in sizes:
             if ctx.quick and n > 96:
                 continue
+            bound: dict = {}
             alone = f"physics alone, {n} {mode} robots"
-            yield Probe(alone, lambda n=n, mode=mode: physics_rtf(n, mode, ctx.tmpdir), [
+            yield Probe(alone, _kept(bound, "open", lambda n=n, mode=mode: physics_rtf(
+                n, mode, ctx.tmpdir)), [
                 Metric("real_time_factor", f"{alone}: real-time factor", "x",
                        notes="beside the composed run below: what the physics allows")]
                 + ([Metric("cpu_ms_per_tick", f"{alone}: CPU a tick", "ms",
@@ -243,8 +270,8 @@ def composed_swarm(ctx: Context):
                 repeats=1, warmup=0)
             if mode == "dynamic":
                 steered = f"physics alone, {n} dynamic robots steered by their avoid controllers"
-                yield Probe(steered, lambda n=n: steered_physics_rtf(n, ctx.tmpdir,
-                                                                     float(duration)), [
+                yield Probe(steered, _kept(bound, "steered", lambda n=n: steered_physics_rtf(
+                    n, ctx.tmpdir, float(duration))), [
                     Metric("real_time_factor", f"{steered}: real-time factor", "x",
                            notes="only DART's steps timed, the robots driven by the swarm's "
                                  "avoid on their scans in this process: the composed run's "
@@ -256,15 +283,27 @@ def composed_swarm(ctx: Context):
                     repeats=1, warmup=0)
             what = f"swarm composed, {n} {mode} robots with lidars and avoid controllers"
             target = COMPOSED_TARGETS.get((mode, n), "")
-            yield Probe(what, lambda n=n, mode=mode: composed_run(ctx, n, mode, duration), [
-                Metric("real_time_factor", f"{what}: real-time factor", "x", target=target,
+            dynamic = mode == "dynamic"               # (its target is a share of DART's)
+            yield Probe(what, lambda n=n, mode=mode, bound=bound: composed_beside(
+                ctx, n, mode, duration, bound), [
+                Metric("real_time_factor", f"{what}: real-time factor", "x",
+                       target="" if dynamic else target,
                        notes=f"summary.json, {duration} s simulated, pipelined"),
                 Metric("us_per_robot_tick", f"{what}: wall per robot per tick", "us",
                        notes="control tick / real-time factor / robots"),
                 Metric("publish_us_per_robot", f"{what}: plant publishing per robot", "us",
                        notes="sensors, messages, the composed members, puts (a tick / robots)"),
                 Metric("physics_us_per_robot", f"{what}: physics per robot", "us")]
-                + ([Metric("physics_cpu_ms_per_tick", f"{what}: physics process CPU a tick",
+                + ([Metric("share_of_steered", f"{what}: share of DART alone steered", "",
+                           target=target, notes="its real-time factor over the steered "
+                                                "bound's above: the fair one"),
+                    Metric("share_of_open", f"{what}: share of DART alone open-loop", "",
+                           notes="over the open-loop circles' (floor contacts alone)"),
+                    Metric("physics_cpu_over_steered",
+                           f"{what}: physics process CPU over DART alone steered's", "",
+                           notes="1: the worker costs what DART alone does; the rest of "
+                                 "the gap is the plant's CPU sharing the cores"),
+                    Metric("physics_cpu_ms_per_tick", f"{what}: physics process CPU a tick",
                            "ms", notes="summary.json cpu_per_tick_ms: its DART step and "
                                        "hand-over, beside DART alone's CPU above"),
                     Metric("plant_cpu_ms_per_tick", f"{what}: plant CPU a tick", "ms",
