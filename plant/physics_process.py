@@ -20,8 +20,9 @@ up (the plant idle, the physics the slower side) answers at once and the plant r
 mirror, its work overlapping the next step. Either way the values are the same.
 
 Hand-over: one shared memory block (a memfd both map) holds the wheel-speed targets of the
-next step, written by the plant, the flag, and two slots (state, rows, parts) written by
-the worker: tick k's go into slot k % 2, so the plant reads tick k's while the worker
+next step, written by the plant, the flag, the worker's CPU seconds so far (written after
+each step: what its steps cost, beside DART's alone), and two slots (state, rows, parts)
+written by the worker: tick k's go into slot k % 2, so the plant reads tick k's while the worker
 writes k + 1's. A socket pair carries one byte each way a tick (the request names the slot
 and whether a scene is due; the answer, whether the robots' state is finite and whether the
 rows were read) and wakes the side that waits; the rare requests (build, close) and an
@@ -37,6 +38,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 import traceback
 from multiprocessing.connection import Connection
 
@@ -71,7 +73,7 @@ class PhysicsError(RuntimeError):
 
 class Layout:
     """Where a world's state lies in the shared block: the robots' wheel-speed targets
-    ((R, 2) doubles), the plant's flag, then two slots, each of every moving skeleton's
+    ((R, 2) doubles), the plant's flag, the worker's CPU seconds, then two slots, each of every moving skeleton's
     positions and velocities (world order; the room's skeleton has none), the robots'
     state rows (R, 26) and the parts' poses (P, 4, 4). The same in the plant and in the
     worker: both build the world from the same spec."""
@@ -95,25 +97,25 @@ class Layout:
         self.n_parts = len(sim.part_transforms())
         self.state_len = at
         self.slot_len = at + STATE_COLS * self.n_robots + 16 * self.n_parts
-        self.n_doubles = 2 * self.n_robots + 1 + 2 * self.slot_len
+        self.n_doubles = 2 * self.n_robots + 2 + 2 * self.slot_len
         self.nbytes = 8 * self.n_doubles
 
     def key(self) -> tuple:
         return self.n_robots, self.n_parts, tuple(self.skeletons)
 
     def views(self, buf) -> tuple[np.ndarray, np.ndarray, tuple]:
-        """(the targets (R, 2), the flag (1,), the two slots) over the shared block
-        ``buf``; a slot: (state, rows (R, 26), parts (P, 4, 4))."""
+        """(the targets (R, 2), the flag and the worker's CPU seconds (2,), the two slots)
+        over the shared block ``buf``; a slot: (state, rows (R, 26), parts (P, 4, 4))."""
         a = np.frombuffer(buf, dtype=np.float64, count=self.n_doubles)
         t = 2 * self.n_robots
-        slots, at = [], t + 1
+        slots, at = [], t + 2
         for _ in range(2):
             state = a[at:at + self.state_len]
             rows = a[at + self.state_len:at + self.state_len + STATE_COLS * self.n_robots]
             parts = a[at + self.state_len + rows.size:at + self.slot_len]
             slots.append((state, rows.reshape(-1, STATE_COLS), parts.reshape(-1, 4, 4)))
             at += self.slot_len
-        return a[:t].reshape(-1, 2), a[t:t + 1], tuple(slots)
+        return a[:t].reshape(-1, 2), a[t:t + 2], tuple(slots)
 
 
 def store_state(sim: Simulation, layout: Layout, slot: np.ndarray) -> bool:
@@ -305,6 +307,12 @@ class PhysicsProcess:
         self.sync()
         return self.mirror.part_transforms()
 
+    def cpu_s(self) -> float | None:
+        """The worker's CPU seconds (user + system, its own clock) as of its last answer,
+        None once closed: what its steps cost, beside DART's alone, however loaded the
+        machine (the wall clock is not)."""
+        return None if self.flag is None else float(self.flag[1])
+
     def _send(self, request: bytes) -> None:
         try:
             os.write(self._fd, request)
@@ -402,6 +410,7 @@ def serve(conn: Connection, block: mmap.mmap) -> int:
                                      f"shared block has {len(block)}")
                 targets, flag, slots = layout.views(block)
                 finite = store_state(sim, layout, slots[0][0])
+                flag[1] = time.process_time()
                 read = not flag[0]
                 if read:
                     read_into(sim, slots[0], True)
@@ -414,6 +423,7 @@ def serve(conn: Connection, block: mmap.mmap) -> int:
                 read = not flag[0]            # the plant busy yet: the reading is ours
                 if read:
                     read_into(sim, slot, bool(code & 2))
+                flag[1] = time.process_time()
             else:
                 raise ValueError(f"unknown request {request!r}")
             os.write(fd, _answer_byte(finite, read))

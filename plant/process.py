@@ -108,6 +108,7 @@ class Plant:
         self.wall_start = 0.0
         self.end_reason = "stopped"
         self.wall_end = 0.0
+        self.cpu_start = self.cpu_end = (0.0, None)   # (report.cpu_now) around the loop
         # In lockstep nothing may be lost: block rather than drop when a queue is full.
         self.congestion = (zenoh.CongestionControl.BLOCK if lockstep
                            else zenoh.CongestionControl.DROP)
@@ -404,6 +405,7 @@ class Plant:
                 and not self.wait_for_members():
             return 1 if not self.stop_event.is_set() else 0
         self.wall_start = time.monotonic()
+        self.cpu_start = report.cpu_now(self)
         self.strategy.start()
         report.say_running(self)
         # each phase's wall time (summary.json's plant_per_tick_ms), read around it in the
@@ -440,6 +442,7 @@ class Plant:
                     self.restart_world("the physics diverged", rebuilt=True)
         finally:
             self.wall_end = time.monotonic()
+            self.cpu_end = report.cpu_now(self)
         if self.end_reason != "stopped":      # (an end of its own, not a stop signal)
             self.presence.last_tick_taken_in(self.sim.time_ns)
         return 0

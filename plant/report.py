@@ -3,6 +3,8 @@ run's counters (``--stats``, the launcher's summary) and the line it logs when i
 Read from a :class:`plant.process.Plant` on its main thread."""
 from __future__ import annotations
 
+import time
+
 from bus.lockstep import HOLD_PAST
 from bus.protocol import PROTOCOL_MINOR, PROTOCOL_VERSION
 
@@ -44,7 +46,25 @@ def stats(p) -> dict:
             "protocol_errors": dict(errors),
             "stale_commands": errors.get(STALE, 0),
             "holds_past_timeout": errors.get(HOLD_PAST, 0),
-            "per_tick_ms": {k[:-2]: 1e3 * v / max(p.ticks, 1) for k, v in p.timing.items()}}
+            "per_tick_ms": {k[:-2]: 1e3 * v / max(p.ticks, 1) for k, v in p.timing.items()},
+            "cpu_per_tick_ms": cpu_per_tick_ms(p)}
+
+
+def cpu_now(p) -> tuple[float, float | None]:
+    """(this process's CPU seconds, its physics process's or None)."""
+    physics = p.tick.physics
+    return time.process_time(), None if physics is None else physics.cpu_s()
+
+
+def cpu_per_tick_ms(p) -> dict:
+    """CPU ms a tick over the loop: the plant's process (all its threads) and, with one,
+    its physics process. Unlike the wall clock, not stretched by other work on the cores."""
+    ticks = max(p.ticks, 1)
+    (c0, w0), (c1, w1) = p.cpu_start, p.cpu_end
+    out = {"plant": 1e3 * (c1 - c0) / ticks}
+    if w0 is not None and w1 is not None and w1 >= w0:    # (not across a new worker)
+        out["physics"] = 1e3 * (w1 - w0) / ticks
+    return out
 
 
 def say_running(p) -> None:

@@ -22,6 +22,10 @@ FLOOR_THICKNESS_M = 0.1
 #: the width of a robot's row in :meth:`Simulation.state_rows`: base_link pose (16, the 4x4
 #: row-major), body linear and angular velocity (3 + 3), wheel angles and speeds (2 + 2)
 STATE_COLS = 26
+#: from this many robots a dynamic world's rows are read with one matmul for all their
+#: velocities (:meth:`Simulation.read_state`): 24 robots' rows in 211 us instead of 266,
+#: one robot's in 14.6 us instead of 11.4
+BATCH_ROWS_FROM = 4
 _WORLD = dart.dynamics.Frame.World()
 
 #: Bullet is ~15 % faster per step than DART's default FCL here, with the same contact
@@ -165,6 +169,7 @@ class Simulation:
         self._static_shapes = [self._shape_of(o) for o in self.objects if o.static]
         self._robot_parts = [part for name, r in self.robots.items()
                              for part in _visible_parts(r, name)]
+        self._part_nodes = [part[0] for part in self._robot_parts]     # (part_transforms)
         self._movable_shapes = [self._shape_of(o) for o in self.objects if not o.static]
         #: each robot's wheel dofs (left, right) in its skeleton's vectors (state_rows)
         self._wheel_dofs = [_dofs([w.getIndexInSkeleton(0) for w in r.wheels])
@@ -330,6 +335,28 @@ class Simulation:
                 rows[i, 16:19], rows[i, 19:22] = st.v_body, st.w_body
                 rows[i, 22:24], rows[i, 24:26] = st.enc_pos, st.enc_vel
             return rows, self.kin.finite()
+        n, finite, world = len(self.robots), True, _WORLD
+        if n < BATCH_ROWS_FROM:
+            return self._read_rows_one_by_one()
+        rows, vels = np.empty((n, STATE_COLS)), np.empty((n, 6))
+        for row, vel, r, wheels in zip(rows, vels, self.robots.values(), self._wheel_dofs):
+            chassis, sk = r.chassis, r.skeleton
+            row[:16] = chassis.getTransform().matrix().ravel()
+            vel[:] = chassis.getSpatialVelocity(world, world)        # (angular, linear)
+            q, dq = sk.getPositions(), sk.getVelocities()
+            row[22:24], row[24:26] = q[wheels], dq[wheels]
+            finite = finite and _finite(q, dq)
+        # the body velocities as Robot.body_velocity rotates them (rot.T @ v), every robot
+        # in one matmul: each rot.T a C-ordered 3x3 as DART's (column-major) tf[:3, :3].T
+        # is, so numpy takes the same BLAS path and the values are the same to the bit
+        rot_t = np.ascontiguousarray(rows[:, :16].reshape(n, 4, 4)[:, :3, :3].transpose(0, 2, 1))
+        rows[:, 16:19] = np.matmul(rot_t, vels[:, 3:, None])[..., 0]
+        rows[:, 19:22] = np.matmul(rot_t, vels[:, :3, None])[..., 0]
+        return rows, finite
+
+    def _read_rows_one_by_one(self) -> tuple[np.ndarray, bool]:
+        """:meth:`read_state` of a dynamic world of a few robots: their rows built robot by
+        robot, a matmul a robot (cheaper than stacking them for one to three)."""
         parts, finite, world = [], True, _WORLD
         for r, wheels in zip(self.robots.values(), self._wheel_dofs):
             chassis, sk = r.chassis, r.skeleton
@@ -372,10 +399,10 @@ class Simulation:
         """(P, 4, 4) world poses of the robots' visible parts, in :meth:`shapes` order."""
         if self.kin is not None:
             return np.matmul(self.kin.transforms()[self._part_owner], self._part_rel)
-        out = np.empty((len(self._robot_parts), 4, 4))
-        for tf, (sn, *_) in zip(out, self._robot_parts):
-            tf[:] = sn.getTransform().matrix()         # the world transform (state_rows)
-        return out
+        # the world transforms (as state_rows reads them), stacked in one call: a fifth
+        # cheaper than copying each into its place (24 robots' 96 parts: ~170 us, not ~215)
+        return np.array([sn.getTransform().matrix() for sn in self._part_nodes]
+                        ).reshape(-1, 4, 4)
 
     def scene(self, part_tfs: np.ndarray | None = None) -> Scene:
         """What the sensors see now, as one :class:`~plant.raycast.Scene`: the world's scene

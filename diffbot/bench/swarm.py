@@ -59,6 +59,7 @@ def physics_rtf(n: int, mode: str, tmpdir: str, sim_s: float = 2.0) -> dict:
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     steps = ticks * spec.substeps
     return {"real_time_factor": ticks * spec.control_tick_s / wall,
+            "cpu_ms_per_tick": cpu / ticks * 1e3,
             "us_per_robot_step": wall / steps / n * 1e6,
             "cpu_us_per_robot_step": cpu / steps / n * 1e6,
             **({"contacts": contacts / ticks} if dart else {})}
@@ -83,7 +84,7 @@ def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
         latest: dict[str, object] = dict.fromkeys(robots)
         ticks = max(1, int(round(sim_s / spec.control_tick_s)))
         start = {r: tick.sim.state(r).tf[:2, 3].copy() for r in robots}
-        stepping = contacts = 0.0
+        stepping = stepping_cpu = contacts = 0.0
         t_loop = time.perf_counter()
         for _ in range(ticks):
             t_ns = tick.t_ns
@@ -94,9 +95,10 @@ def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
                                    for r in robots})
             for r in robots:
                 tick.drive(r, cmds.get(r))
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             tick.step()
             stepping += time.perf_counter() - t0
+            stepping_cpu += time.thread_time() - c0
             contacts += tick.sim.world.getLastCollisionResult().getNumContacts()
         loop = time.perf_counter() - t_loop
         travel = sum(float(np.hypot(*(tick.sim.state(r).tf[:2, 3] - start[r])))
@@ -104,6 +106,7 @@ def steered_physics_rtf(n: int, tmpdir: str, sim_s: float) -> dict:
     finally:
         tick.close()
     return {"real_time_factor": ticks * spec.control_tick_s / stepping,
+            "cpu_ms_per_tick": stepping_cpu / ticks * 1e3,
             "physics_share": stepping / loop, "contacts": contacts / ticks,
             "travel_m": travel}
 
@@ -214,6 +217,33 @@ def composed_run(ctx: Context, n: int, mode: str, duration: str) -> dict:
     out = {**summary, "us_per_robot_tick": tick_s / rtf / n * 1e6 if rtf else float("nan")}
     for k, v in (summary.get("plant_per_tick_ms") or {}).items():
         out[f"{k}_us_per_robot"] = v * 1e3 / n
+    for k, v in (summary.get("cpu_per_tick_ms") or {}).items():
+        out[f"{k}_cpu_ms_per_tick"] = v
+    return out
+
+
+def _kept(into: dict, key: str, fn):
+    """``fn``, its result also kept in ``into[key]`` (for a later probe of the suite)."""
+    def run() -> dict:
+        got = into[key] = fn()
+        return got
+    return run
+
+
+def composed_beside(ctx: Context, n: int, mode: str, duration: str, bound: dict) -> dict:
+    """:func:`composed_run` with its shares of the bounds measured just before it
+    (``bound``: "open" -> :func:`physics_rtf`'s, "steered" -> :func:`steered_physics_rtf`'s):
+    its real-time factor over each, and its physics process's CPU a tick over DART's
+    steered."""
+    out = composed_run(ctx, n, mode, duration)
+    rtf = out.get("real_time_factor") or 0.0
+    for key in ("open", "steered"):
+        alone = (bound.get(key) or {}).get("real_time_factor")
+        if alone:
+            out[f"share_of_{key}"] = rtf / alone
+    steered_cpu = (bound.get("steered") or {}).get("cpu_ms_per_tick")
+    if steered_cpu and out.get("physics_cpu_ms_per_tick"):
+        out["physics_cpu_over_steered"] = out["physics_cpu_ms_per_tick"] / steered_cpu
     return out
 
 
@@ -224,10 +254,15 @@ def composed_swarm(ctx: Context):
         for n in sizes:
             if ctx.quick and n > 96:
                 continue
+            bound: dict = {}
             alone = f"physics alone, {n} {mode} robots"
-            yield Probe(alone, lambda n=n, mode=mode: physics_rtf(n, mode, ctx.tmpdir), [
+            yield Probe(alone, _kept(bound, "open", lambda n=n, mode=mode: physics_rtf(
+                n, mode, ctx.tmpdir)), [
                 Metric("real_time_factor", f"{alone}: real-time factor", "x",
                        notes="beside the composed run below: what the physics allows")]
+                + ([Metric("cpu_ms_per_tick", f"{alone}: CPU a tick", "ms",
+                           notes="process CPU: beside the composed run's physics process")]
+                   if mode == "dynamic" else [])
                 + ([Metric("contacts", f"{alone}: contacts a tick", "",
                            notes="the floor's alone (3 a robot); the composed swarm's "
                                  "robots touch walls and each other too, and DART's step "
@@ -235,22 +270,44 @@ def composed_swarm(ctx: Context):
                 repeats=1, warmup=0)
             if mode == "dynamic":
                 steered = f"physics alone, {n} dynamic robots steered by their avoid controllers"
-                yield Probe(steered, lambda n=n: steered_physics_rtf(n, ctx.tmpdir,
-                                                                     float(duration)), [
+                yield Probe(steered, _kept(bound, "steered", lambda n=n: steered_physics_rtf(
+                    n, ctx.tmpdir, float(duration))), [
                     Metric("real_time_factor", f"{steered}: real-time factor", "x",
                            notes="only DART's steps timed, the robots driven by the swarm's "
                                  "avoid on their scans in this process: the composed run's "
                                  "contacts, so its bound"),
+                    Metric("cpu_ms_per_tick", f"{steered}: CPU a tick", "ms",
+                           notes="the steps' thread CPU: beside the composed run's "
+                                 "physics process, whatever else the cores run"),
                     Metric("contacts", f"{steered}: contacts a tick", "")],
                     repeats=1, warmup=0)
             what = f"swarm composed, {n} {mode} robots with lidars and avoid controllers"
             target = COMPOSED_TARGETS.get((mode, n), "")
-            yield Probe(what, lambda n=n, mode=mode: composed_run(ctx, n, mode, duration), [
-                Metric("real_time_factor", f"{what}: real-time factor", "x", target=target,
+            dynamic = mode == "dynamic"               # (its target is a share of DART's)
+            yield Probe(what, lambda n=n, mode=mode, bound=bound: composed_beside(
+                ctx, n, mode, duration, bound), [
+                Metric("real_time_factor", f"{what}: real-time factor", "x",
+                       target="" if dynamic else target,
                        notes=f"summary.json, {duration} s simulated, pipelined"),
                 Metric("us_per_robot_tick", f"{what}: wall per robot per tick", "us",
                        notes="control tick / real-time factor / robots"),
                 Metric("publish_us_per_robot", f"{what}: plant publishing per robot", "us",
                        notes="sensors, messages, the composed members, puts (a tick / robots)"),
-                Metric("physics_us_per_robot", f"{what}: physics per robot", "us")],
+                Metric("physics_us_per_robot", f"{what}: physics per robot", "us")]
+                + ([Metric("share_of_steered", f"{what}: share of DART alone steered", "",
+                           target=target, notes="its real-time factor over the steered "
+                                                "bound's above: the fair one"),
+                    Metric("share_of_open", f"{what}: share of DART alone open-loop", "",
+                           notes="over the open-loop circles' (floor contacts alone)"),
+                    Metric("physics_cpu_over_steered",
+                           f"{what}: physics process CPU over DART alone steered's", "",
+                           notes="1: the worker costs what DART alone does; the rest of "
+                                 "the gap is the plant's CPU sharing the cores"),
+                    Metric("physics_cpu_ms_per_tick", f"{what}: physics process CPU a tick",
+                           "ms", notes="summary.json cpu_per_tick_ms: its DART step and "
+                                       "hand-over, beside DART alone's CPU above"),
+                    Metric("plant_cpu_ms_per_tick", f"{what}: plant CPU a tick", "ms",
+                           notes="the plant's process, all threads: what competes with "
+                                 "the physics process for the cores")]
+                   if mode == "dynamic" else []),
                 repeats=1, warmup=0)

@@ -452,6 +452,8 @@ def summarize(run: ScenarioRun, wall: float, code: int, stats: dict | None = Non
         # where the plant's wall time went per tick (ms): publishing, waiting for the
         # nodes, physics (with a physics process: the part publishing did not hide)
         "plant_per_tick_ms": plant.get("per_tick_ms"),
+        # CPU ms a tick over the loop: the plant's process and its physics process's
+        "cpu_per_tick_ms": plant.get("cpu_per_tick_ms"),
         "physics_process": plant.get("physics_process", False),
         # A run that ended in the plant (duration reached, the ending node finished) says so.
         "end_reason": (f"plant: {plant['end_reason']}"

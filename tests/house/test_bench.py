@@ -288,3 +288,22 @@ def test_the_steered_swarm_bound_steps_robots_their_avoid_drives(tmp_path):
     assert 0 < got["physics_share"] <= 1, got
     assert got["contacts"] >= 9, got
     assert got["travel_m"] > 0.2, got
+    # the steps' CPU a tick (beside the composed run's physics process): no more than
+    # their wall time a tick
+    assert 0 < got["cpu_ms_per_tick"] <= 20.0 / got["real_time_factor"] + 0.05, got
+
+
+def test_the_composed_dynamic_swarm_is_told_as_a_share_of_the_bounds_before_it(monkeypatch):
+    """The composed run's real-time factor over the bounds the suite measured just before
+    it (open-loop and steered), and its physics process's CPU over DART's steered."""
+    from diffbot.bench import swarm
+    monkeypatch.setattr(swarm, "composed_run", lambda ctx, n, mode, duration: {
+        "real_time_factor": 4.0, "physics_cpu_ms_per_tick": 4.5})
+    bound = {"open": {"real_time_factor": 8.0}, "steered": {"real_time_factor": 5.0,
+                                                           "cpu_ms_per_tick": 3.6}}
+    got = swarm.composed_beside(None, 24, "dynamic", "2", bound)
+    assert got["share_of_open"] == 0.5 and got["share_of_steered"] == 0.8
+    assert got["physics_cpu_over_steered"] == 4.5 / 3.6
+    assert "share_of_open" not in swarm.composed_beside(None, 24, "dynamic", "2", {})
+    kept: dict = {}
+    assert swarm._kept(kept, "open", lambda: {"real_time_factor": 2.0})() == kept["open"]

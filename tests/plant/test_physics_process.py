@@ -138,17 +138,18 @@ def test_the_plant_and_its_physics_process_keep_to_cores_of_their_own(monkeypatc
     assert os.sched_getaffinity(0) == before
 
 
-@pytest.mark.parametrize("mode", ["dynamic", "kinematic"])
-def test_the_snapshot_holds_each_robots_state_and_parts_to_the_bit(tmp_path, mode):
+@pytest.mark.parametrize("mode,n", [("dynamic", 4), ("dynamic", 2), ("kinematic", 4)])
+def test_the_snapshot_holds_each_robots_state_and_parts_to_the_bit(tmp_path, mode, n):
     """What the plant reads of every robot at once (Simulation.state_rows,
-    part_transforms), is what Simulation.state and DART's world transforms give."""
-    sim = Simulation(load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, 5, mode)))
+    part_transforms), is what Simulation.state and DART's world transforms give: read for
+    all robots in one pass (4) or robot by robot (a few: 2)."""
+    sim = Simulation(load_world(write_swarm_world(str(tmp_path / "w.toml"), n, 5, mode)))
     for k in range(30):
         for i, name in enumerate(sim.robots):
             sim.command_twist(name, 0.4, 1.5 * math.sin(k / 5 + i))
         sim.step_tick()
     rows = sim.state_rows()
-    assert rows.shape == (4, 26)
+    assert rows.shape == (n, 26)
     for row, name in zip(rows, sim.robots):
         st = sim.state(name)
         assert row.tolist() == np.concatenate([st.tf.ravel(), st.v_body, st.w_body,
@@ -179,6 +180,29 @@ def test_the_tick_tells_its_host_when_to_publish():
         tick.finish_step()
     finally:
         tick.close()
+
+
+@pytest.mark.slow
+def test_the_physics_process_tells_its_own_cpu_time(tmp_path):
+    """cpu_s is the worker's CPU (user + system) as of its last step, not the plant's: what
+    the operating system accounts to it (/proc, to the clock tick's resolution), grown by
+    its steps (8 robots' 100 ticks cost it several hundredths of a second)."""
+    spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 8, seed=0))
+    physics = PhysicsProcess(spec, Simulation(spec))
+    try:
+        built = physics.cpu_s()
+        for _ in range(100):
+            physics.start_step(np.full((8, 2), 3.0))
+            physics.finish_step()
+        told = physics.cpu_s()
+        with open(f"/proc/{physics.proc.pid}/stat") as f:       # (it waits: no CPU now)
+            fields = f.read().rsplit(")", 1)[1].split()
+        accounted = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    finally:
+        physics.close()
+    assert 0.05 < built and told - built > 0.03          # (it imported DART, built a world)
+    assert told == pytest.approx(accounted, abs=0.025)
+    assert physics.cpu_s() is None                       # closed
 
 
 @pytest.mark.slow

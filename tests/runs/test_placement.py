@@ -24,7 +24,7 @@ pytestmark = pytest.mark.xdist_group("ray")
 SQUARE = ("run", "square", "--seed", "0", "--duration", "12")
 #: what differs between two runs of the same lockstep scenario, wherever they run
 NOT_COMPARED = {"wall_time_s", "plant_wall_time_s", "real_time_factor", "plant_per_tick_ms",
-                "placement"}
+                "cpu_per_tick_ms", "placement"}
 NODES = [{"id": "a1b2c3d4e5f6" * 4, "address": "10.0.0.1", "hostname": "sim", "cpus": 8,
           "resources": ["plant"]},
          {"id": "0f9e8d7c6b5a" * 4, "address": "10.0.0.2", "hostname": "robot", "cpus": 4,

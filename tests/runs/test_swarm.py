@@ -100,6 +100,9 @@ def test_short_swarm_run_writes_summary_and_paths(tmp_path):
     assert s["physics_process"] is True                     # the scenario's default
     assert set(s["plant_per_tick_ms"]) == {"publish", "wait", "physics"}
     assert all(v >= 0 for v in s["plant_per_tick_ms"].values())
+    # the CPU of both processes a tick: DART stepping 4 robots costs its worker some
+    assert set(s["cpu_per_tick_ms"]) == {"plant", "physics"}
+    assert s["cpu_per_tick_ms"]["physics"] > 0 and s["cpu_per_tick_ms"]["plant"] > 0
     assert (tmp_path / "paths.png").stat().st_size > 10_000
     assert (tmp_path / "world.toml").read_text() == swarm_world_text(4, 0)
 
