@@ -45,6 +45,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from .memory import keep_freed_memory
+from .mirror import MirrorRows
 from .sim import STATE_COLS, RobotState, Simulation
 from .world import WorldSpec
 
@@ -248,6 +249,7 @@ class PhysicsProcess:
             self._spawn(layout)
         self.mirror = mirror
         self.mirror_index = {name: i for i, name in enumerate(mirror.robots)}
+        self.mirror_rows = MirrorRows(mirror, self.layout.skeletons)
         self._send(BUILD)
         self.conn.send(("build", spec))
         self._slot, self._stale = 0, True
@@ -291,7 +293,7 @@ class PhysicsProcess:
         if self.read_by_worker:
             return self.slots[self._slot][1].copy()
         self.sync()
-        return self.mirror.state_rows()
+        return self.mirror_rows.rows(self.slots[self._slot][0])
 
     def state(self, robot: str):
         """``robot``'s :class:`~plant.sim.RobotState` now (:meth:`Simulation.state`)."""

@@ -12,8 +12,9 @@ import sys
 import numpy as np
 import pytest
 
-from plant.physics_process import (ADAPTIVE, ALWAYS_PLANT, ALWAYS_WORKER, PhysicsError,
-                                   PhysicsProcess)
+from plant.mirror import MirrorRows
+from plant.physics_process import (ADAPTIVE, ALWAYS_PLANT, ALWAYS_WORKER, Layout,
+                                   PhysicsError, PhysicsProcess, store_state)
 from plant.sim import Simulation
 from plant.swarm_world import write_swarm_world
 from plant.tick import Tick
@@ -157,6 +158,11 @@ def test_the_snapshot_holds_each_robots_state_and_parts_to_the_bit(tmp_path, mod
     if mode == "dynamic":
         assert sim.part_transforms().tolist() == \
             [sn.getWorldTransform().matrix().tolist() for sn, *_ in sim._robot_parts]
+        # the plant's mirror reads the same rows, its wheels from the worker's slot
+        layout = Layout(sim)
+        slot = np.full(layout.state_len, np.nan)
+        store_state(sim, layout, slot)
+        assert MirrorRows(sim, layout.skeletons).rows(slot).tobytes() == rows.tobytes()
 
 
 @pytest.mark.slow

@@ -1,0 +1,51 @@
+"""The plant's reading of its mirror world: the robots' state rows from the worker's state.
+
+With a physics process (:mod:`plant.physics_process`) the plant keeps its own DART world
+loaded with the worker's positions and velocities, and reads from it what its sensors need
+when the worker did not. Those positions and velocities are in the shared slot already, so
+the rows take the wheels' angles and speeds straight from it (the doubles DART would hand
+back: it stores what ``setPositions``/``setVelocities`` were given) and ask DART only for
+what it computes: each chassis' world transform and spatial velocity, two calls a robot
+instead of four, gathered in one list each. The rows equal :meth:`Simulation.state_rows`'
+to the bit (tests/plant/test_physics_process.py).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .sim import _WORLD, STATE_COLS, Simulation
+
+
+class MirrorRows:
+    """Reads ``sim``'s robots' state rows (:meth:`Simulation.state_rows`' layout) with the
+    skeletons' positions and velocities given as a slot laid out as ``skeletons`` says:
+    (world index, offset in the slot, dofs) per moving skeleton (``Layout.skeletons``)."""
+
+    def __init__(self, sim: Simulation, skeletons: list[tuple[int, int, int]]) -> None:
+        at = {i: (offset, n) for i, offset, n in skeletons}
+        world = sim.world
+        index = {world.getSkeleton(i).getName(): i for i in at}
+        self._chassis = [r.chassis for r in sim.robots.values()]
+        pos, vel = [], []
+        for r, wheels in zip(sim.robots.values(), sim._wheel_dofs):
+            offset, n = at[index[r.skeleton.getName()]]
+            dofs = np.arange(n)[wheels]
+            pos.append(offset + dofs)
+            vel.append(offset + n + dofs)
+        self._pos = np.array(pos, dtype=np.intp).reshape(-1, 2)
+        self._vel = np.array(vel, dtype=np.intp).reshape(-1, 2)
+
+    def rows(self, state: np.ndarray) -> np.ndarray:
+        """The (R, 26) rows of the world now, its skeletons loaded with ``state``."""
+        n, world = len(self._chassis), _WORLD
+        rows = np.empty((n, STATE_COLS))
+        rows[:, :16] = np.array([c.getTransform().matrix() for c in self._chassis]
+                                ).reshape(n, 16)
+        vels = np.array([c.getSpatialVelocity(world, world) for c in self._chassis]
+                        ).reshape(n, 6)                              # (angular, linear)
+        rows[:, 22:24], rows[:, 24:26] = state[self._pos], state[self._vel]
+        # the body velocities as Simulation.read_state rotates them (the same matmul)
+        rot_t = np.ascontiguousarray(rows[:, :16].reshape(n, 4, 4)[:, :3, :3].transpose(0, 2, 1))
+        rows[:, 16:19] = np.matmul(rot_t, vels[:, 3:, None])[..., 0]
+        rows[:, 19:22] = np.matmul(rot_t, vels[:, :3, None])[..., 0]
+        return rows
