@@ -16,14 +16,21 @@ import numpy as np
 from .sim import _WORLD, STATE_COLS, Simulation
 
 
-class MirrorRows:
-    """Reads ``sim``'s robots' state rows (:meth:`Simulation.state_rows`' layout) with the
-    skeletons' positions and velocities given as a slot laid out as ``skeletons`` says:
-    (world index, offset in the slot, dofs) per moving skeleton (``Layout.skeletons``)."""
+class Mirror:
+    """``sim`` as the plant's mirror of the worker's world: the skeletons' positions and
+    velocities come from ``states`` (the two slots' state vectors, laid out as ``skeletons``
+    says: (world index, offset in a slot, dofs) per moving skeleton: ``Layout.skeletons``),
+    loaded on demand (:meth:`load`), and its robots' state rows read
+    (:meth:`Simulation.state_rows`' layout, :meth:`rows`)."""
 
-    def __init__(self, sim: Simulation, skeletons: list[tuple[int, int, int]]) -> None:
+    def __init__(self, sim: Simulation, skeletons: list[tuple[int, int, int]],
+                 states: list[np.ndarray]) -> None:
         at = {i: (offset, n) for i, offset, n in skeletons}
         world = sim.world
+        # each slot's (skeleton, positions, velocities): views made once, not a tick
+        self._loads = [[(world.getSkeleton(i), s[a:a + n], s[a + n:a + 2 * n])
+                        for i, a, n in skeletons] for s in states]
+        self._states = states
         index = {world.getSkeleton(i).getName(): i for i in at}
         self._chassis = [r.chassis for r in sim.robots.values()]
         pos, vel = [], []
@@ -35,8 +42,16 @@ class MirrorRows:
         self._pos = np.array(pos, dtype=np.intp).reshape(-1, 2)
         self._vel = np.array(vel, dtype=np.intp).reshape(-1, 2)
 
-    def rows(self, state: np.ndarray) -> np.ndarray:
-        """The (R, 26) rows of the world now, its skeletons loaded with ``state``."""
+    def load(self, slot: int) -> None:
+        """Slot ``slot``'s state into the skeletons: the world reads as the worker's did,
+        every transform and velocity to the bit."""
+        for sk, q, dq in self._loads[slot]:
+            sk.setPositions(q)
+            sk.setVelocities(dq)
+
+    def rows(self, slot: int) -> np.ndarray:
+        """The (R, 26) rows of the world now, slot ``slot`` loaded (:meth:`load`)."""
+        state = self._states[slot]
         n, world = len(self._chassis), _WORLD
         rows = np.empty((n, STATE_COLS))
         rows[:, :16] = np.array([c.getTransform().matrix() for c in self._chassis]

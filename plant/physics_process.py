@@ -45,7 +45,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from .memory import keep_freed_memory
-from .mirror import MirrorRows
+from .mirror import Mirror
 from .sim import STATE_COLS, RobotState, Simulation
 from .world import WorldSpec
 
@@ -129,16 +129,6 @@ def store_state(sim: Simulation, layout: Layout, slot: np.ndarray) -> bool:
     if got:                                   # (one copy: a third less than one a vector)
         slot[:layout.state_len] = np.concatenate(got)
     return bool(np.isfinite(slot[layout.robot_cols]).all())
-
-
-def load_state(sim: Simulation, layout: Layout, slot: np.ndarray) -> None:
-    """``slot`` (:func:`store_state`'s) into ``sim``'s skeletons: its world reads as the
-    stored one's, every transform and velocity to the bit."""
-    world = sim.world
-    for i, at, n in layout.skeletons:
-        sk = world.getSkeleton(i)
-        sk.setPositions(slot[at:at + n])
-        sk.setVelocities(slot[at + n:at + 2 * n])
 
 
 def shared_block(nbytes: int) -> tuple[int, mmap.mmap]:
@@ -249,7 +239,8 @@ class PhysicsProcess:
             self._spawn(layout)
         self.mirror = mirror
         self.mirror_index = {name: i for i, name in enumerate(mirror.robots)}
-        self.mirror_rows = MirrorRows(mirror, self.layout.skeletons)
+        self.mirror_reads = Mirror(mirror, self.layout.skeletons,
+                                   [slot[0] for slot in self.slots])
         self._send(BUILD)
         self.conn.send(("build", spec))
         self._slot, self._stale = 0, True
@@ -285,7 +276,7 @@ class PhysicsProcess:
         """The mirror at the worker's state of the present tick (once a tick; safe while
         the next step runs: that one writes the other slot)."""
         if self._stale:
-            load_state(self.mirror, self.layout, self.slots[self._slot][0])
+            self.mirror_reads.load(self._slot)
             self._stale = False
 
     def rows(self) -> np.ndarray:
@@ -293,7 +284,7 @@ class PhysicsProcess:
         if self.read_by_worker:
             return self.slots[self._slot][1].copy()
         self.sync()
-        return self.mirror_rows.rows(self.slots[self._slot][0])
+        return self.mirror_reads.rows(self._slot)
 
     def state(self, robot: str):
         """``robot``'s :class:`~plant.sim.RobotState` now (:meth:`Simulation.state`)."""
@@ -358,7 +349,8 @@ class PhysicsProcess:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
-        self.targets = self.flag = self.slots = None   # (views of the block: let go)
+        # (views of the block: let go)
+        self.targets = self.flag = self.slots = self.mirror_reads = None
         if self._cpus is not None:
             try:
                 os.sched_setaffinity(0, self._cpus)
