@@ -26,6 +26,10 @@ class Stepper:
         #: one robot: its sensors see the room alone (:meth:`shapes`), so a physics
         #: process need not read its parts' poses
         self._room_only = len(sim.robots) == 1
+        #: the periods (ticks) of the sensors that cast rays (RobotSensors.needs_scene's
+        #: topics), once for all robots: a tick asks a few numbers, not every robot
+        self._scene_periods = sorted({s.periods[t] for s in sensors.values()
+                                      for t in ("scan", "camera/image_raw") if t in s.periods})
         #: (sim.moves, rows, finite) of the last read of the world in this process: a
         #: tick checks its step (:meth:`finite`) and then publishes the same state (:meth:`rows`)
         self._read: tuple | None = None
@@ -85,7 +89,7 @@ class Stepper:
         tick = self.sim.time_ns // self.tick_ns + 1
         self.physics.start_step(self.sim.command_targets(),
                                 not self._room_only and
-                                any(s.needs_scene(tick) for s in self.sensors.values()))
+                                any(tick % p == 0 for p in self._scene_periods))
 
     def finish(self) -> None:
         """The step started by :meth:`start` done: the world at the next tick."""

@@ -2,6 +2,7 @@
 the same run on the bus, and no process left behind however the plant ends."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -17,7 +18,8 @@ from plant.physics_process import (ADAPTIVE, ALWAYS_PLANT, ALWAYS_WORKER, Layout
                                    PhysicsError, PhysicsProcess, store_state)
 from plant.sim import Simulation
 from plant.swarm_world import write_swarm_world
-from plant.tick import Tick
+from plant.stepper import Stepper
+from plant.tick import Tick, build_world
 from plant.world import load_world
 
 from ..conftest import ROOT, wait_for
@@ -166,6 +168,35 @@ def test_the_snapshot_holds_each_robots_state_and_parts_to_the_bit(tmp_path, mod
         mirror = Mirror(Simulation(sim.spec), layout.skeletons, [np.zeros_like(slot), slot])
         mirror.load(1)
         assert mirror.rows(1).tobytes() == rows.tobytes()
+
+
+def test_the_step_asks_for_the_parts_where_a_robot_casts_rays_at_the_next_tick(tmp_path):
+    """The stepper asks the physics process for the parts' poses at a tick exactly where
+    some robot's lidar or camera is due then (RobotSensors.needs_scene), robots of
+    different rates and one without a lidar."""
+    spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 3, seed=1))
+    spec.robot("r1").sensors.lidar = dataclasses.replace(spec.robot("r1").sensors.lidar,
+                                                         rate_hz=25.0)   # every 2nd tick
+    spec.robot("r2").sensors.lidar = None
+    sim, sensors = build_world(spec, 0)
+    asked = []
+
+    class Physics:                        # the stepper's side of a physics process
+        finite = True
+
+        def start_step(self, targets, with_parts=False):
+            asked.append(with_parts)
+
+        def finish_step(self):
+            pass
+
+    stepper = Stepper(spec, sim, Physics(), sensors, overlap=True)
+    want = []
+    for k in range(12):
+        want.append(any(s.needs_scene(k + 1) for s in sensors.values()))
+        stepper.start()
+        stepper.finish()
+    assert asked == want and want.count(True) == 7
 
 
 @pytest.mark.slow
