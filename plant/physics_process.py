@@ -7,8 +7,9 @@ hands back the bare state of its world: each moving skeleton's positions and vel
 (its generalised coordinates, a few doubles a robot). The plant keeps its own
 :class:`~plant.sim.Simulation` of the same world as a *mirror*: it can load those vectors
 into its skeletons and read what its sensors need (every robot's state row, the parts'
-poses for a scene) from its own DART world, by the very code that reads it without a
-physics process. DART computes a body's transform and velocity from its skeleton's
+poses for a scene) from its own DART world (:class:`plant.mirror.Mirror`: the wheels'
+values straight from the slot, the chassis' by the DART calls
+:meth:`Simulation.read_state` makes). DART computes a body's transform and velocity from its skeleton's
 positions and velocities alone, so the values are the same to the bit
 (tests/plant/test_physics_process.py).
 
