@@ -9,8 +9,8 @@ hands back the bare state of its world: each moving skeleton's positions and vel
 into its skeletons and read what its sensors need (every robot's state row, the parts'
 poses for a scene) from its own DART world (:class:`plant.mirror.Mirror`: the wheels'
 values straight from the slot, the chassis' by the DART calls
-:meth:`Simulation.read_state` makes). DART computes a body's transform and velocity from its skeleton's
-positions and velocities alone, so the values are the same to the bit
+:meth:`Simulation.read_state` makes). DART computes a body's transform and velocity from
+its skeleton's positions and velocities alone, so the values are the same to the bit
 (tests/plant/test_physics_process.py).
 
 Who reads them is decided tick by tick, by who would otherwise wait: the plant raises a
