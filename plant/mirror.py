@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .sim import _WORLD, STATE_COLS, Simulation
+from .sim import Simulation, chassis_rows
 
 
 class Mirror:
@@ -52,15 +52,6 @@ class Mirror:
     def rows(self, slot: int) -> np.ndarray:
         """The (R, 26) rows of the world now, slot ``slot`` loaded (:meth:`load`)."""
         state = self._states[slot]
-        n, world = len(self._chassis), _WORLD
-        rows = np.empty((n, STATE_COLS))
-        rows[:, :16] = np.array([c.getTransform().matrix() for c in self._chassis]
-                                ).reshape(n, 16)
-        vels = np.array([c.getSpatialVelocity(world, world) for c in self._chassis]
-                        ).reshape(n, 6)                              # (angular, linear)
+        rows = chassis_rows(self._chassis)          # (as Simulation.read_state reads them)
         rows[:, 22:24], rows[:, 24:26] = state[self._pos], state[self._vel]
-        # the body velocities as Simulation.read_state rotates them (the same matmul)
-        rot_t = np.ascontiguousarray(rows[:, :16].reshape(n, 4, 4)[:, :3, :3].transpose(0, 2, 1))
-        rows[:, 16:19] = np.matmul(rot_t, vels[:, 3:, None])[..., 0]
-        rows[:, 19:22] = np.matmul(rot_t, vels[:, :3, None])[..., 0]
         return rows
