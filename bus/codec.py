@@ -290,6 +290,7 @@ def attachments_parsed(seq: int, t_ns: int, marks: list[tuple[int, int]],
                 for s in ((seq + i) & mask for i in range(1, len(marks) + 1))]
     name = node.encode("utf-8")
     named = 0 < len(name) <= NAME_MAX
+    make = tuple.__new__       # (an Attachment made as a plain tuple: half its __new__'s cost)
     tails: dict[tuple[int, int], bytes] = {}
     out = []
     for i, (flags, n_plant) in enumerate(marks, 1):
@@ -299,7 +300,7 @@ def attachments_parsed(seq: int, t_ns: int, marks: list[tuple[int, int]],
         s = (seq + i) & mask
         att = head(s, t_ns) + tail
         if named and not (flags & FINAL and hold_of(flags)):
-            out.append((att, Attachment(s, t_ns, flags, n_plant, node)))
+            out.append((att, make(Attachment, (s, t_ns, flags, n_plant, node, None))))
         else:
             out.append((att, parse_attachment(att)))     # (what parsing makes of a bad one)
     return out

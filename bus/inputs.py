@@ -22,8 +22,9 @@ def stamp_of(msg, tick_ns: int, att: bytes | None = None,
     """(stamp in ns, problem or None): stamps must be valid times on the tick grid. A
     message with no header (std_msgs) has the attachment's stamp, or without one the
     last clock tick (it came "now")."""
-    if hasattr(msg, "header") or hasattr(msg, "clock"):
-        st = msg.header.stamp if hasattr(msg, "header") else msg.clock
+    head = getattr(msg, "header", None)       # (asked once: every input sample comes here)
+    if head is not None or hasattr(msg, "clock"):
+        st = head.stamp if head is not None else msg.clock
         if st.sec < 0 or not 0 <= st.nanosec < 1_000_000_000:
             return 0, f"invalid stamp ({st.sec} s, {st.nanosec} ns)"
         t_ns = codec.stamp_ns(st)

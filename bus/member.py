@@ -290,9 +290,24 @@ class MemberTick:
     def _complete(self, t_ns: int) -> bool:
         """Every robot still driven has, for every input due at ``t_ns``, a sample (good or
         held) of the stamp it needs that this member has not acted on yet."""
-        return all(self._has(key, s) and (key, s) not in self.used
-                   for slot in self.slots if not slot.done
-                   for key, _, s in self.needs(slot, t_ns))
+        # (needs' rule on its kept plan, read in place: asked for every robot every tick)
+        k = t_ns // self.tick_ns if self.tick_ns else 0
+        bufs, used, lag_ns = self.buf, self.used, self.lag_ns
+        for slot in self.slots:
+            if slot.done:
+                continue
+            due = slot.due
+            if due is None or due[0] is not slot.awaited or due[1] is not slot.periods \
+                    or due[2] is not lag_ns:
+                self.needs(slot, t_ns)
+                due = slot.due
+            for key, _, period, lag in due[3]:
+                if k % period or t_ns < lag:
+                    continue
+                s = t_ns - lag
+                if (s not in bufs.get(key, ()) and not self._has(key, s)) or (key, s) in used:
+                    return False
+        return True
 
     def _has(self, key: str, stamp: int) -> bool:
         """A sample (good or held) of input ``key`` for ``stamp``: its own, or one whose

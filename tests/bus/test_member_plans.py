@@ -65,3 +65,37 @@ def test_a_sample_covers_later_ticks_only_when_its_attachment_holds():
         m.clock(4 * T)
         assert m.file_input(key, odom, att) is None
         assert m.covered.get(key) == covered, att
+
+
+def test_a_tick_is_complete_exactly_by_needs_has_and_used():
+    """_complete reads needs()' kept plan in place; it answers as needs(), _has() and the
+    used marks say, robot by robot, whatever is filed, held, covered, used or done."""
+    import random
+    rnd = random.Random(5)
+    robots = ["a", "b", "c"]
+    answers = set()
+    for case in range(300):
+        m = MemberTick("m", T, slots=[Slot(r, _Reads(), list(_Reads.inputs), True)
+                                      for r in robots], topics=dict(TOPICS))
+        periods = rnd.choice(({"joint_states": 1, "gps": 5}, {"joint_states": 2, "gps": 3},
+                              {"joint_states": 1}))
+        m.configure({"control_tick_s": T * 1e-9, "node_input_delay_ticks": rnd.randint(0, 2),
+                     "robots": {r: {"topics": periods} for r in robots}})
+        t_ns = rnd.randint(0, 12) * T
+        for slot in m.slots:
+            slot.done = rnd.random() < 0.2
+            for key, _, s in m.needs(slot, t_ns):
+                roll = rnd.random()
+                if roll < 0.8:
+                    m.buf.setdefault(key, {})[s] = object()
+                elif roll < 0.9:                  # an earlier sample whose producer holds
+                    m.buf.setdefault(key, {})[s - T] = object()
+                    m.covered[key] = (s - T, s + rnd.choice((-T, 0, T)))
+                if rnd.random() < 0.1:
+                    m.used.add((key, s))
+        want = all(m._has(key, s) and (key, s) not in m.used
+                   for slot in m.slots if not slot.done
+                   for key, _, s in m.needs(slot, t_ns))
+        assert m._complete(t_ns) is want, case
+        answers.add(want)
+    assert answers == {True, False}
