@@ -75,14 +75,6 @@ class ManyTick:
         """The rest of :meth:`MemberTick.act` for the commands ``step_many`` gave."""
         m = self.member
         for slot, out in zip(m.slots, cmds):
-            if type(out) is Twist:
-                m._queue_twist(slot.cmd_key, out, t_ns)
-            else:
-                m.queue_output(out, t_ns, slot.robot)
-            if done:
-                slot.done = True
-                m.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
-                m.log.info("%s%s done at t=%.3f s", m.name,
-                           f" ({slot.robot})" if len(m.slots) > 1 else "", t_ns * 1e-9)
+            m.queue_answer(slot, out, done, t_ns)
         finished = all(slot.done for slot in m.slots)
         return m.send_tick(t_ns, final=finished), finished

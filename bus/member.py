@@ -366,10 +366,9 @@ class MemberTick:
                 obs = observations(self, [s for s in self.slots
                                           if s.controller is ctrl and not s.done], t_ns)
                 many[id(ctrl)] = (_commands_of(ctrl, ctrl.step_many(obs)), hooks.is_done(ctrl))
-        queue, twist = self.queue_output, self._queue_twist
         for slot in self.slots:
             if slot.done:
-                queue(hooks.stop_command(slot.controller), t_ns, slot.robot)
+                self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
                 continue
             got = many.get(id(slot.controller))
             if got is not None:             # (stepped with the others: one answer, one done)
@@ -377,17 +376,22 @@ class MemberTick:
             else:
                 out = slot.controller.step(self.take_observation(slot, t_ns))
                 done = hooks.is_done(slot.controller)
-            if type(out) is Twist:          # (the usual answer: its key asked once)
-                twist(slot.cmd_key, out, t_ns)
-            else:
-                queue(out, t_ns, slot.robot)
-            if done:
-                slot.done = True
-                self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
-                self.log.info("%s%s done at t=%.3f s", self.name,
-                              f" ({slot.robot})" if len(self.slots) > 1 else "", t_ns * 1e-9)
+            self.queue_answer(slot, out, done, t_ns)
         finished = all(slot.done for slot in self.slots)
         return self.send_tick(t_ns, final=finished), finished
+
+    def queue_answer(self, slot: Slot, out, done: bool, t_ns: int) -> None:
+        """Queue ``slot``'s controller's answer ``out`` to tick ``t_ns``; where it is ``done``,
+        mark it so and queue its stop command too."""
+        if type(out) is Twist:              # (the usual answer: its key asked once)
+            self._queue_twist(slot.cmd_key, out, t_ns)
+        else:
+            self.queue_output(out, t_ns, slot.robot)
+        if done:
+            slot.done = True
+            self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)
+            self.log.info("%s%s done at t=%.3f s", self.name,
+                          f" ({slot.robot})" if len(self.slots) > 1 else "", t_ns * 1e-9)
 
     def queue_output(self, out, t_ns: int, robot: str) -> None:
         """Section 4, step 3: queue what ``step`` returned for tick ``t_ns`` for ``robot``
