@@ -75,6 +75,6 @@ class ManyTick:
         """The rest of :meth:`MemberTick.act` for the commands ``step_many`` gave."""
         m = self.member
         for slot, out in zip(m.slots, cmds):
-            m.queue_answer(slot, out, done, t_ns)
+            m._queue_answer(slot, out, done, t_ns)
         finished = all(slot.done for slot in m.slots)
         return m.send_tick(t_ns, final=finished), finished

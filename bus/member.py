@@ -376,11 +376,11 @@ class MemberTick:
             else:
                 out = slot.controller.step(self.take_observation(slot, t_ns))
                 done = hooks.is_done(slot.controller)
-            self.queue_answer(slot, out, done, t_ns)
+            self._queue_answer(slot, out, done, t_ns)
         finished = all(slot.done for slot in self.slots)
         return self.send_tick(t_ns, final=finished), finished
 
-    def queue_answer(self, slot: Slot, out, done: bool, t_ns: int) -> None:
+    def _queue_answer(self, slot: Slot, out, done: bool, t_ns: int) -> None:
         """Queue ``slot``'s controller's answer ``out`` to tick ``t_ns``; where it is ``done``,
         mark it so and queue its stop command too."""
         if type(out) is Twist:              # (the usual answer: its key asked once)
