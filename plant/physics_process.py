@@ -23,8 +23,8 @@ mirror, its work overlapping the next step. Either way the values are the same.
 Hand-over: one shared memory block (a memfd both map) holds the wheel-speed targets of the
 next step, written by the plant, the flag, the worker's CPU seconds so far (written after
 each step: what its steps cost, beside DART's alone), and two slots (state, rows, parts)
-written by the worker: tick k's go into slot k % 2, so the plant reads tick k's while the worker
-writes k + 1's. A socket pair carries one byte each way a tick (the request names the slot
+written by the worker: tick k's go into slot k % 2, so the plant reads tick k's while the
+worker writes k + 1's. A socket pair carries one byte each way a tick (the request names the slot
 and whether a scene is due; the answer, whether the robots' state is finite and whether the
 rows were read) and wakes the side that waits; the rare requests (build, close) and an
 error's traceback go as length-framed pickles. The worker exits when the plant closes the
@@ -75,9 +75,9 @@ class PhysicsError(RuntimeError):
 
 class Layout:
     """Where a world's state lies in the shared block: the robots' wheel-speed targets
-    ((R, 2) doubles), the plant's flag, the worker's CPU seconds, then two slots, each of every moving skeleton's
-    positions and velocities (world order; the room's skeleton has none), the robots'
-    state rows (R, 26) and the parts' poses (P, 4, 4). The same in the plant and in the
+    ((R, 2) doubles), the plant's flag, the worker's CPU seconds, then two slots, each of
+    every moving skeleton's positions and velocities (world order; the room's skeleton has
+    none), the robots' state rows (R, 26) and the parts' poses (P, 4, 4). The same in the plant and in the
     worker: both build the world from the same spec."""
 
     def __init__(self, sim: Simulation) -> None:
