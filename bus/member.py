@@ -204,15 +204,20 @@ class MemberTick:
         """Section 4, step 2: (input key, topic, stamp) a robot needs before the member acts
         on tick ``t_ns``: the plant's sensors due at this tick, and outputs of other lockstep
         members (stamped ``t_ns``, or a tick earlier in pipelined coupling)."""
-        due = slot.due               # (made once per configuration: input_stamp's rule)
+        k = t_ns // self.tick_ns if self.tick_ns else 0
+        return [(key, t, t_ns - lag) for key, t, period, lag in self._plan(slot)
+                if not k % period and t_ns >= lag]
+
+    def _plan(self, slot: Slot) -> list[tuple[str, str, int, int]]:
+        """``slot``'s inputs as (key, topic, period in ticks, lag ns), made once per
+        configuration (input_stamp's rule) and kept while its inputs, periods and lags stay."""
+        due = slot.due
         if due is None or due[0] is not slot.awaited or due[1] is not slot.periods \
                 or due[2] is not self.lag_ns:
             due = slot.due = (slot.awaited, slot.periods, self.lag_ns, [
                 (self.key(slot.robot, t), t, slot.periods.get(t, 1), self.lag_ns[t])
                 for t in slot.awaited])
-        k = t_ns // self.tick_ns if self.tick_ns else 0
-        return [(key, t, t_ns - lag) for key, t, period, lag in due[3]
-                if not k % period and t_ns >= lag]
+        return due[3]
 
     def receive(self, key: str, payload: bytes, att: bytes | None,
                 msg=None) -> tuple[str, str | None, object]:
@@ -292,16 +297,11 @@ class MemberTick:
         held) of the stamp it needs that this member has not acted on yet."""
         # (needs' rule on its kept plan, read in place: asked for every robot every tick)
         k = t_ns // self.tick_ns if self.tick_ns else 0
-        bufs, used, lag_ns = self.buf, self.used, self.lag_ns
+        bufs, used = self.buf, self.used
         for slot in self.slots:
             if slot.done:
                 continue
-            due = slot.due
-            if due is None or due[0] is not slot.awaited or due[1] is not slot.periods \
-                    or due[2] is not lag_ns:
-                self.needs(slot, t_ns)
-                due = slot.due
-            for key, _, period, lag in due[3]:
+            for key, _, period, lag in self._plan(slot):
                 if k % period or t_ns < lag:
                     continue
                 s = t_ns - lag
