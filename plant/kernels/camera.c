@@ -14,6 +14,8 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "wide.h"
+
 #define EXPORT __attribute__((visibility("default")))
 #define LEVELS 256
 
@@ -233,9 +235,7 @@ __attribute__((target("avx2"))) static int64_t box_row4(
 EXPORT int plant_camera_wide(int mode)
 {
 #ifdef WIDE_ROWS
-    if (mode == -1 || mode == 0)
-        wide_mode = mode;
-    return wide_mode == -1 && __builtin_cpu_supports("avx2");
+    return wide_switch(&wide_mode, mode);
 #else
     (void)mode;
     return 0;

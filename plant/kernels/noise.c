@@ -29,6 +29,7 @@
 #include <stdint.h>
 
 #include "normals.h"
+#include "wide.h"
 
 #define EXPORT __attribute__((visibility("default")))
 
@@ -141,9 +142,7 @@ AVX2 static int64_t noise8(const uint8_t *img, int64_t n, uint64_t seed, int64_t
 EXPORT int plant_noise_wide(int mode)
 {
 #ifdef WIDE_NOISE
-    if (mode == -1 || mode == 0)
-        wide_mode = mode;
-    return wide_mode == -1 && __builtin_cpu_supports("avx2");
+    return wide_switch(&wide_mode, mode);
 #else
     (void)mode;
     return 0;
