@@ -34,7 +34,7 @@ from ..conftest import ROOT, require_built_fmus, wait_for
 
 #: xdist_group: with test_fmu_odometry, one worker builds the session's FMUs (conftest.built_fmus)
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = [pytest.mark.xdist_group("fmus"), pytest.mark.background]
 K = Keys()
 TOL = 1e-9
