@@ -411,18 +411,12 @@ def ray_cluster():
 
 
 @pytest.fixture
-def bus(endpoint):
-    """A client session to the test's endpoint (open it after the plant is started)."""
-    from bus.session import open_session
-    sessions = []
-
-    def connect():
-        s = open_session("test", endpoint)
-        sessions.append(s)
-        return s
-    yield connect
-    for s in sessions:
-        s.close()
+def bus(endpoint, procs):
+    """``connect()``: a client session to the test's endpoint, opened once the plant the test
+    started there listens, however long its start takes (tests/support/patience.py)."""
+    from .support.patience import sessions
+    with sessions(endpoint, procs.procs) as connect:
+        yield connect
 
 
 def wait_for(pred, timeout: float, step: float = 0.02, what: str = "condition"):

@@ -43,7 +43,6 @@ def test_a_member_that_leaves_at_the_next_tick_after_final_still_ends_the_run(pr
     plant = procs.diffbot("plant", "--world", "empty", "--coupling", coupling, "--expect",
                           "quitter", "--end-with", "quitter", "--endpoint", endpoint,
                           "--stats", str(stats), name="plant")
-    patience.listening(plant, endpoint)
     s = bus()
     clocks, sub, pub = member_ends(s)
     tok = s.liveliness().declare_token(K.sync("quitter"))
@@ -90,7 +89,6 @@ def test_a_lost_member_holds_time_and_is_waited_for_where_it_left(procs, endpoin
     plant = procs.diffbot("plant", "--world", "empty", "--expect", "first", "--coupling",
                           "pipelined", "--rejoin-timeout", "30", "--endpoint", endpoint,
                           "--stats", str(stats), name="plant")
-    patience.listening(plant, endpoint)
     s = bus()
     clocks, sub, pub = member_ends(s)
     seq = 0
@@ -148,7 +146,6 @@ def test_a_watcher_back_before_the_first_step_gets_tick_0_again(procs, endpoint,
     plant = procs.diffbot("plant", "--world", "empty", "--expect", "first", "--coupling",
                           "sequential", "--rejoin-timeout", "30", "--endpoint", endpoint,
                           name="plant")
-    patience.listening(plant, endpoint)
     s, w = bus(), bus()
     clocks, sub, pub = member_ends(s)
     seen: queue.SimpleQueue = queue.SimpleQueue()

@@ -56,3 +56,13 @@ def test_a_plant_that_exits_before_listening_is_named(tmp_path):
     gone = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
     with pytest.raises(AssertionError, match="exited 3 before listening"):
         patience.listening(gone, f"unixsock-stream/{tmp_path}/bus.sock")
+
+
+def test_a_bus_session_waits_for_the_test_s_plant_to_listen(endpoint):
+    """The ``bus`` fixture's sessions: a plant the test started on the endpoint is waited for
+    before connecting (here one that ends before it listens is named at once)."""
+    code = "import time; time.sleep(1); raise SystemExit(3)"
+    plant = subprocess.Popen([sys.executable, "-c", code, "plant", "--endpoint", endpoint])
+    with patience.sessions(endpoint, [plant]) as connect:
+        with pytest.raises(AssertionError, match="exited 3 before listening"):
+            connect()

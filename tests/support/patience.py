@@ -14,6 +14,7 @@ keeps no scheduler statistics the clock is the wall clock.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import time
@@ -101,3 +102,23 @@ def listening(proc, endpoint: str, timeout_s: float = 30.0) -> None:
         log = getattr(proc, "log_path", None)
         tail = open(log, errors="replace").read()[-3000:] if log else ""
         raise AssertionError(f"the plant exited {proc.poll()} before listening:\n{tail}")
+
+
+@contextlib.contextmanager
+def sessions(endpoint: str, started: list):
+    """``connect()``: a client session to ``endpoint``, closed at the end, opened once each
+    plant of ``started`` (the test's processes) that serves ``endpoint`` listens there."""
+    from bus.session import open_session
+    opened = []
+
+    def connect():
+        for p in started:
+            if p.poll() is None and "plant" in p.args and endpoint in p.args:
+                listening(p, endpoint)
+        opened.append(open_session("test", endpoint))
+        return opened[-1]
+    try:
+        yield connect
+    finally:
+        for s in opened:
+            s.close()
