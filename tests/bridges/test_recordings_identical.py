@@ -12,7 +12,7 @@ from ..support.compare_recordings import compare
 from ..conftest import ROOT
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 

@@ -43,7 +43,7 @@ from plant.world import WORLDS_DIR, WorldError, load_world, parse_world, tomllib
 from ..conftest import ROOT, examples, wait_for
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py): one test starts 55 processes at once, which a
+#: low CPU priority (tests/conftest.py): one test starts 55 processes at once, which a
 #: lockstep neighbour at the same priority once felt
 pytestmark = pytest.mark.background
 

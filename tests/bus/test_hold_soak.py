@@ -23,7 +23,7 @@ from bus.protocol import COUPLINGS, PROTOCOL_MINOR, max_hold
 
 from ..conftest import ROOT, wait_for
 
-#: no wall-clock promise: runs beside the serial tests, at the lowest CPU priority (conftest.py)
+#: no wall-clock promise: runs beside the serial tests, at a low CPU priority (conftest.py)
 pytestmark = pytest.mark.background
 
 K = Keys()

@@ -21,7 +21,7 @@ from ..conftest import wait_for
 from ..bus.test_pipelined_end import TICK_NS, member_ends
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 K = Keys()

@@ -13,7 +13,7 @@ from bus.controller import Twist, make_controllers
 from bus.node import node_arg_parser
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 K = Keys()

@@ -13,8 +13,10 @@ import zenoh
 from bus import codec
 from bus.keys import Keys
 
+from ..support import patience
+
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 K = Keys()
@@ -48,7 +50,7 @@ def test_a_member_that_leaves_at_the_next_tick_after_final_still_ends_the_run(pr
     seq = 0
     try:
         while True:
-            t = clocks.get(timeout=20)
+            t = patience.get(clocks, 20, plant.pid, what="sim/clock")
             seq += 1
             final = codec.FINAL if t == last else 0
             pub.put(codec.encode(codec.twist_stamped(t, 0.1, 0.0)),
@@ -68,7 +70,8 @@ def test_a_member_that_leaves_at_the_next_tick_after_final_still_ends_the_run(pr
         tok.undeclare()
         pub.undeclare()
         sub.undeclare()
-    assert plant.wait(30) == 0, procs.log(plant)
+    patience.wait_until(lambda: plant.poll() is not None, 30, plant.pid, what="the plant's end")
+    assert plant.wait() == 0, procs.log(plant)
     st = json.loads(stats.read_text())
     assert st["end_reason"] == "quitter finished", procs.log(plant)
     # the plant stops at the tick it has published when it takes the FINAL
@@ -82,7 +85,6 @@ def test_a_lost_member_holds_time_and_is_waited_for_where_it_left(procs, endpoin
     """A lockstep plant never runs alone: with --rejoin-timeout the plant holds
     the tick its lost member left at, re-publishes it when the member is back, and waits
     for its answer there, not a tick older than its last ACK."""
-    from ..conftest import wait_for
     stats = tmp_path / "plant.json"
     plant = procs.diffbot("plant", "--world", "empty", "--expect", "first", "--coupling",
                           "pipelined", "--rejoin-timeout", "30", "--endpoint", endpoint,
@@ -95,7 +97,7 @@ def test_a_lost_member_holds_time_and_is_waited_for_where_it_left(procs, endpoin
     def answer(ticks: int, speed: float = 0.3) -> None:
         nonlocal seq
         for _ in range(ticks):
-            t = clocks.get(timeout=20)
+            t = patience.get(clocks, 20, plant.pid, what="sim/clock")
             if answered and t <= answered[-1]:
                 continue                      # re-published: the plant has our answer
             seq += 1
@@ -107,7 +109,8 @@ def test_a_lost_member_holds_time_and_is_waited_for_where_it_left(procs, endpoin
         tok = s.liveliness().declare_token(K.sync("first"))
         answer(5)
         tok.undeclare()                       # lost: the plant holds its tick
-        wait_for(lambda: "member lost: first" in procs.log(plant), 10, what="first gone")
+        patience.wait_until(lambda: "member lost: first" in procs.log(plant), 10, plant.pid,
+                            what="first gone")
         time.sleep(1.0)
         held = []
         while not clocks.empty():
@@ -119,8 +122,8 @@ def test_a_lost_member_holds_time_and_is_waited_for_where_it_left(procs, endpoin
                         [answered[-1] + TICK_NS, answered[-1] + 2 * TICK_NS]), held
         assert plant.poll() is None
         tok = s.liveliness().declare_token(K.sync("first"))
-        wait_for(lambda: "member rejoined: first" in procs.log(plant), 10,
-                 what="the plant to see it back")
+        patience.wait_until(lambda: "member rejoined: first" in procs.log(plant), 10,
+                            plant.pid, what="the plant to see it back")
         answer(12)
         assert answered == [k * TICK_NS for k in range(len(answered))], answered
         tok.undeclare()
@@ -128,7 +131,7 @@ def test_a_lost_member_holds_time_and_is_waited_for_where_it_left(procs, endpoin
         pub.undeclare()
         sub.undeclare()
     plant.terminate()
-    plant.wait(20)
+    patience.wait_until(lambda: plant.poll() is not None, 20, plant.pid, what="the plant's exit")
     st = json.loads(stats.read_text())
     assert st["members_seen"] == ["first"] and st["protocol_errors"] == {}, st
 
@@ -151,14 +154,15 @@ def test_a_watcher_back_before_the_first_step_gets_tick_0_again(procs, endpoint,
     watcher = w.liveliness().declare_token(K.alive("recorder"))
     tok = s.liveliness().declare_token(K.sync("first"))
     try:
-        assert clocks.get(timeout=20) == 0 and seen.get(timeout=5) == 0
+        assert patience.get(clocks, 20, plant.pid, what="sim/clock") == 0
+        assert patience.get(seen, 5, plant.pid, what="the watcher's sim/clock") == 0
         again = None
         for away_s in (0.5, 1.0, 2.0):          # (longer if the plant missed it going)
             watcher.undeclare()                 # the recorder is away ...
             time.sleep(away_s)
             watcher = w.liveliness().declare_token(K.alive("recorder"))   # ... and back
             try:
-                again = seen.get(timeout=5)
+                again = patience.get(seen, 5, plant.pid, what="t=0 again")
                 break
             except queue.Empty:
                 continue
@@ -166,12 +170,13 @@ def test_a_watcher_back_before_the_first_step_gets_tick_0_again(procs, endpoint,
         assert "recorder is back" in procs.log(plant)
         pub.put(codec.encode(codec.twist_stamped(0, 0.1, 0.0)),
                 attachment=codec.attachment(1, 0, codec.ACK, 1, "first"))
-        later = seen.get(timeout=10)
+        later = patience.get(seen, 10, plant.pid, what="the next tick")
         while later == 0:                       # (more re-publishes of t=0 may follow)
-            later = seen.get(timeout=10)
+            later = patience.get(seen, 10, plant.pid, what="the next tick")
         assert later == TICK_NS
     finally:
         for d in (tok, watcher, pub, sub, wsub):
             d.undeclare()
     plant.terminate()
-    assert plant.wait(20) == 0, procs.log(plant)
+    patience.wait_until(lambda: plant.poll() is not None, 20, plant.pid, what="the plant's exit")
+    assert plant.wait() == 0, procs.log(plant)

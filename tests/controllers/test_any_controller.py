@@ -19,7 +19,7 @@ from diffbot.launch.scenario import load_scenario
 from plant.world import WorldError
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

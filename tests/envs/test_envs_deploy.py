@@ -20,7 +20,7 @@ from diffbot.envs import deploy  # noqa: E402
 from diffbot.envs.episode import Episode  # noqa: E402
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

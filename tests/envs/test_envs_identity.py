@@ -21,7 +21,7 @@ gym = pytest.importorskip("gymnasium")
 import diffbot.envs  # noqa: E402,F401  (registers the environments)
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 STEPS = 300

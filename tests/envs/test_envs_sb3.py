@@ -19,7 +19,7 @@ from diffbot.envs.sb3 import AvoidVecEnv  # noqa: E402
 from stable_baselines3.common.monitor import Monitor  # noqa: E402
 from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
 
-#: no wall-clock promise: runs beside the serial tests, at the lowest CPU priority (conftest.py)
+#: no wall-clock promise: runs beside the serial tests, at a low CPU priority (conftest.py)
 pytestmark = pytest.mark.background
 
 KW = dict(max_episode_steps=6, normalize_actions=True,

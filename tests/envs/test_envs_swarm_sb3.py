@@ -16,7 +16,7 @@ from diffbot.envs.swarm_sb3 import SwarmVecEnv  # noqa: E402
 from diffbot.envs.swarm_vector import SwarmVectorEnv  # noqa: E402
 from stable_baselines3.common.monitor import Monitor  # noqa: E402
 
-#: no wall-clock promise: runs beside the serial tests, at the lowest CPU priority (conftest.py)
+#: no wall-clock promise: runs beside the serial tests, at a low CPU priority (conftest.py)
 pytestmark = pytest.mark.background
 
 #: robots end alone (goals within 2 m: reached at the first step) and with the 4-step limit

@@ -20,7 +20,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 DOC = os.path.join(ROOT, "docs", "learning.md")
 SKIP = ("vectorization_mode=\"async\"", "stable_baselines3")
 
-#: no wall-clock promise: runs beside the serial tests, at the lowest CPU priority (conftest.py)
+#: no wall-clock promise: runs beside the serial tests, at a low CPU priority (conftest.py)
 pytestmark = pytest.mark.background
 
 

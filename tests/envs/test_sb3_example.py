@@ -18,7 +18,7 @@ pytest.importorskip("stable_baselines3",
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-#: no wall-clock promise: runs beside the serial tests, at the lowest CPU priority (conftest.py)
+#: no wall-clock promise: runs beside the serial tests, at a low CPU priority (conftest.py)
 pytestmark = pytest.mark.background
 
 

@@ -30,7 +30,7 @@ from fmus import fmu_node
 from ..conftest import ROOT, wait_for
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 K = Keys()

@@ -31,10 +31,11 @@ from fmus import fmu as fmu_mod
 from fmus import fmu_node
 
 from ..conftest import ROOT, require_built_fmus, wait_for
+from ..support import patience
 
 #: xdist_group: with test_fmu_odometry, one worker builds the session's FMUs (conftest.built_fmus)
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = [pytest.mark.xdist_group("fmus"), pytest.mark.background]
 K = Keys()
 TOL = 1e-9
@@ -426,10 +427,12 @@ def test_fmu_node_on_the_bus_equals_the_reference_every_tick(procs, endpoint, bu
     info = wait_for(lambda: _info(s), 30, what="sim/info")
     odo = procs.diffbot("fmu-node", str(fmus[2]), "--robot", "robot1", "--endpoint", endpoint,
                         "--stats", str(stats), name="fmu")
-    procs.diffbot("controller", "square_path", "--robot", "robot1", "--side", "1.5",
-                  "--endpoint", endpoint, name="square")
-    # 20 s of simulated time: the first leg, the first turn and part of the second leg.
-    wait_for(lambda: tap.last("odom") >= 20_000_000_000, 45, step=0.2, what="odom up to t=20 s")
+    square = procs.diffbot("controller", "square_path", "--robot", "robot1", "--side", "1.5",
+                           "--endpoint", endpoint, name="square")
+    # 20 s of simulated time: the first leg, the first turn and part of the second leg (45 s
+    # on the clock of the three processes: not counting their waits for a CPU).
+    patience.wait_until(lambda: tap.last("odom") >= 20_000_000_000, 45, plant.pid, odo.pid,
+                        square.pid, step=0.2, what="odom up to t=20 s")
     odo.send_signal(signal.SIGINT)
     assert odo.wait(10) == 0, procs.log(odo)
     js, od = tap.copy("joint_states"), tap.copy("odom")

@@ -34,7 +34,7 @@ from ..conftest import CI  # noqa: E402
 
 #: xdist_group: with test_fmu_node, one worker builds the session's FMUs (conftest.built_fmus)
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = [pytest.mark.xdist_group("fmus"), pytest.mark.background]
 VERSIONS = (2, 3)
 R, D = 0.12, 0.36  # default wheel_radius, wheel_separation (m)

@@ -1,5 +1,5 @@
 """The ``background`` mark (tests/conftest.py): a background test's processes run at the
-lowest CPU priority, each in a session of its own, so that under `make test`'s two workers
+low CPU priority, each in a session of its own, so that under `make test`'s two workers
 they take only what the serial tests' wall-clock runs leave idle. Checked on a real process
 and on what it starts."""
 from __future__ import annotations

@@ -15,7 +15,7 @@ from bus.keys import Keys
 from ..conftest import ROOT
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 

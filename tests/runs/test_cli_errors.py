@@ -20,7 +20,7 @@ from plant.world import WorldError, load_world
 from ..conftest import ROOT
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 

@@ -14,7 +14,7 @@ import pytest
 from ..conftest import ROOT
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = [pytest.mark.slow, pytest.mark.background]
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -16,7 +16,7 @@ from diffbot.study.figures_render import colour_fraction
 from ..conftest import ROOT, check_real_time_factor
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

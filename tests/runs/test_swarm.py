@@ -17,7 +17,7 @@ from plant.world import load_world
 from ..conftest import ROOT, check_real_time_factor
 
 #: background: no wall-clock bound here; runs beside the serial tests, its processes at the
-#: lowest CPU priority (tests/conftest.py)
+#: low CPU priority (tests/conftest.py)
 pytestmark = pytest.mark.background
 
 
