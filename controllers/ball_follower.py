@@ -116,10 +116,23 @@ def detect_ball(rgb: np.ndarray, p: DetectorParams = DetectorParams(),
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     mask = cv2.inRange(hsv, (p.hue_range[0], p.min_saturation, p.min_value),
                        (p.hue_range[1], 255, 255))
+    h, w = mask.shape
+    # Only the rectangle round the mask's pixels is opened and searched, with a margin of
+    # the opening's size: outside it the mask is empty and stays so (an opening only takes
+    # pixels away), and within the margin the result is the whole frame's (the opening
+    # sees only empty pixels beyond the rectangle either way, findContours a border of
+    # them). The contours come back in the frame's coordinates and order.
+    x0, y0, bw, bh = cv2.boundingRect(mask)
+    if bw == 0:
+        return None
+    m = max(p.open_kernel, 1)
+    x0, y0, x1, y1 = max(x0 - m, 0), max(y0 - m, 0), min(x0 + bw + m, w), min(y0 + bh + m, h)
+    if (x0, y0, x1, y1) != (0, 0, w, h):
+        mask = np.ascontiguousarray(mask[y0:y1, x0:x1])
     if p.open_kernel > 1:
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _square(p.open_kernel))
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    h, w = mask.shape
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE,
+                                   offset=(x0, y0))
     for c in sorted(contours, key=cv2.contourArea, reverse=True)[:3]:
         (u, v), r = cv2.minEnclosingCircle(c)
         if r < p.min_radius_px:
