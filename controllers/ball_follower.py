@@ -18,6 +18,7 @@ goes out on ``follower/debug`` so a user can see what it sees.
 """
 from __future__ import annotations
 
+import ctypes
 import logging
 import math
 import sys
@@ -32,6 +33,7 @@ from bus import codec
 from bus.cliargs import nonneg_float, positive_float
 from bus.controller import Twist
 from bus.node import node_arg_parser, run_controller
+from controllers.kernels import function
 
 #: The ball's edge beyond minEnclosingCircle's radius of the pixel contour, px.
 EDGE_OFFSET_PX = 0.2
@@ -81,20 +83,25 @@ def image_noise_std(rgb: np.ndarray) -> float:
     """
     # every 4th row of one channel: ~4,800 differences, 2 % precision
     g = rgb[::4, :, 1]
-    if rgb.dtype != np.uint8 or g.shape[1] < 2:
+    if rgb.dtype != np.uint8 or g.shape[1] < 2 or g.shape[0] == 0:
         d = np.abs(np.diff(g.astype(np.int16), axis=1))
         return float(np.median(d)) / (0.6745 * math.sqrt(2.0))
-    # a uint8 frame's differences are 0..255: their median from their histogram (np.median's
-    # value: the middle one, or the mean of the two middle ones), half the time of a sort;
-    # OpenCV's histogram in float32, whole counts (< 2**24) exact, in half np.bincount's time
-    g = np.ascontiguousarray(g)
-    hist = cv2.calcHist([cv2.absdiff(g[:, 1:], g[:, :-1])], [0], None, [256], [0, 256])
-    counts = np.cumsum(hist.ravel().astype(np.int64))
-    n = int(counts[-1])
-    upper = int(np.searchsorted(counts, n // 2, side="right"))
-    median = float(upper) if n % 2 else \
-        (int(np.searchsorted(counts, n // 2 - 1, side="right")) + upper) / 2
-    return median / (0.6745 * math.sqrt(2.0))
+    # a uint8 frame's differences are 0..255: their median (np.median's value: the middle
+    # one, or the mean of the two middle ones) from their histogram, in C (vision.c)
+    out = (ctypes.c_int64 * 2)()
+    h, w = rgb.shape[:2]
+    _vision("controller_diff_median", 7)(_address(rgb) + rgb.strides[2], h, w, rgb.strides[0],
+                                         rgb.strides[1], 4, ctypes.addressof(out))
+    return out[0] / 2 / (0.6745 * math.sqrt(2.0))
+
+
+def _vision(name: str, nargs: int):
+    """controllers/kernels/vision.c's ``name``."""
+    return function(name, ("controller_vision_abi", 1), nargs)
+
+
+def _address(a: np.ndarray) -> int:
+    return a.__array_interface__["data"][0]
 
 
 @lru_cache(maxsize=8)
