@@ -185,7 +185,7 @@ def locate_ball(det: Detection, fx: float, fy: float, cx: float, cy: float,
 
     def ray(u: float, v: float) -> np.ndarray:
         r = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])
-        return r / np.linalg.norm(r)
+        return r / math.sqrt(r.dot(r))        # (np.linalg.norm(r), without its checks)
     r1 = ray(det.u - det.radius * eu, det.v - det.radius * ev)
     r2 = ray(det.u + det.radius * eu, det.v + det.radius * ev)
     half = 0.5 * math.acos(max(-1.0, min(1.0, float(r1 @ r2))))
