@@ -264,3 +264,26 @@ def test_the_detection_on_the_masks_rectangle_is_the_whole_frames():
             got = seen.pop()[0]
             assert len(got) == len(want) and all(
                 np.array_equal(a, b) for a, b in zip(got, want)), k
+
+
+def test_the_ball_is_located_as_with_numpys_norm_to_the_bit():
+    """locate_ball normalises its rays as np.linalg.norm would: the same doubles."""
+    def reference(det, fx, fy, cx, cy):
+        du, dv = det.u - cx, det.v - cy
+        n = math.hypot(du, dv)
+        eu, ev = (du / n, dv / n) if n > 1e-9 else (1.0, 0.0)
+
+        def ray(u, v):
+            r = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])
+            return r / np.linalg.norm(r)
+        r1 = ray(det.u - det.radius * eu, det.v - det.radius * ev)
+        r2 = ray(det.u + det.radius * eu, det.v + det.radius * ev)
+        half = 0.5 * math.acos(max(-1.0, min(1.0, float(r1 @ r2))))
+        centre = r1 + r2
+        return BALL_R / math.sin(max(half, 1e-9)), -math.atan2(centre[0], centre[2])
+    rng = np.random.default_rng(7)
+    from controllers.ball_follower import Detection
+    for _ in range(300):
+        det = Detection(rng.uniform(-20, 180), rng.uniform(-20, 140), rng.uniform(0.5, 40))
+        f, cx, cy = rng.uniform(50, 200), rng.uniform(60, 100), rng.uniform(40, 80)
+        assert locate_ball(det, f, f, cx, cy, BALL_R) == reference(det, f, f, cx, cy)
