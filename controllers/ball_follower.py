@@ -18,6 +18,7 @@ goes out on ``follower/debug`` so a user can see what it sees.
 """
 from __future__ import annotations
 
+import ctypes
 import logging
 import math
 import sys
@@ -32,6 +33,7 @@ from bus import codec
 from bus.cliargs import nonneg_float, positive_float
 from bus.controller import Twist
 from bus.node import node_arg_parser, run_controller
+from controllers.kernels import function
 
 #: The ball's edge beyond minEnclosingCircle's radius of the pixel contour, px.
 EDGE_OFFSET_PX = 0.2
@@ -81,20 +83,25 @@ def image_noise_std(rgb: np.ndarray) -> float:
     """
     # every 4th row of one channel: ~4,800 differences, 2 % precision
     g = rgb[::4, :, 1]
-    if rgb.dtype != np.uint8 or g.shape[1] < 2:
+    if rgb.dtype != np.uint8 or g.shape[1] < 2 or g.shape[0] == 0:
         d = np.abs(np.diff(g.astype(np.int16), axis=1))
         return float(np.median(d)) / (0.6745 * math.sqrt(2.0))
-    # a uint8 frame's differences are 0..255: their median from their histogram (np.median's
-    # value: the middle one, or the mean of the two middle ones), half the time of a sort;
-    # OpenCV's histogram in float32, whole counts (< 2**24) exact, in half np.bincount's time
-    g = np.ascontiguousarray(g)
-    hist = cv2.calcHist([cv2.absdiff(g[:, 1:], g[:, :-1])], [0], None, [256], [0, 256])
-    counts = np.cumsum(hist.ravel().astype(np.int64))
-    n = int(counts[-1])
-    upper = int(np.searchsorted(counts, n // 2, side="right"))
-    median = float(upper) if n % 2 else \
-        (int(np.searchsorted(counts, n // 2 - 1, side="right")) + upper) / 2
-    return median / (0.6745 * math.sqrt(2.0))
+    # a uint8 frame's differences are 0..255: their median (np.median's value: the middle
+    # one, or the mean of the two middle ones) from their histogram, in C (vision.c)
+    out = (ctypes.c_int64 * 2)()
+    h, w = rgb.shape[:2]
+    _vision("controller_diff_median", 7)(_address(rgb) + rgb.strides[2], h, w, rgb.strides[0],
+                                         rgb.strides[1], 4, ctypes.addressof(out))
+    return out[0] / 2 / (0.6745 * math.sqrt(2.0))
+
+
+def _vision(name: str, nargs: int):
+    """controllers/kernels/vision.c's ``name``."""
+    return function(name, ("controller_vision_abi", 1), nargs)
+
+
+def _address(a: np.ndarray) -> int:
+    return a.__array_interface__["data"][0]
 
 
 @lru_cache(maxsize=8)
@@ -116,10 +123,23 @@ def detect_ball(rgb: np.ndarray, p: DetectorParams = DetectorParams(),
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     mask = cv2.inRange(hsv, (p.hue_range[0], p.min_saturation, p.min_value),
                        (p.hue_range[1], 255, 255))
+    h, w = mask.shape
+    # Only the rectangle round the mask's pixels is opened and searched, with a margin of
+    # the opening's size: outside it the mask is empty and stays so (an opening only takes
+    # pixels away), and within the margin the result is the whole frame's (the opening
+    # sees only empty pixels beyond the rectangle either way, findContours a border of
+    # them). The contours come back in the frame's coordinates and order.
+    x0, y0, bw, bh = cv2.boundingRect(mask)
+    if bw == 0:
+        return None
+    m = max(p.open_kernel, 1)
+    x0, y0, x1, y1 = max(x0 - m, 0), max(y0 - m, 0), min(x0 + bw + m, w), min(y0 + bh + m, h)
+    if (x0, y0, x1, y1) != (0, 0, w, h):
+        mask = np.ascontiguousarray(mask[y0:y1, x0:x1])
     if p.open_kernel > 1:
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _square(p.open_kernel))
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    h, w = mask.shape
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE,
+                                   offset=(x0, y0))
     for c in sorted(contours, key=cv2.contourArea, reverse=True)[:3]:
         (u, v), r = cv2.minEnclosingCircle(c)
         if r < p.min_radius_px:
@@ -165,7 +185,7 @@ def locate_ball(det: Detection, fx: float, fy: float, cx: float, cy: float,
 
     def ray(u: float, v: float) -> np.ndarray:
         r = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])
-        return r / np.linalg.norm(r)
+        return r / math.sqrt(r.dot(r))        # (np.linalg.norm(r), without its checks)
     r1 = ray(det.u - det.radius * eu, det.v - det.radius * ev)
     r2 = ray(det.u + det.radius * eu, det.v + det.radius * ev)
     half = 0.5 * math.acos(max(-1.0, min(1.0, float(r1 @ r2))))

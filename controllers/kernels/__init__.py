@@ -1,7 +1,8 @@
 """The controllers' compiled kernels (C, built into controllers/kernels/build/ by ``make
 setup`` in a clone, or by the wheel's build), loaded with ctypes: the masked row sums of
 :mod:`controllers.rowsum` (rowsum.c) and the avoid controller's batch of commands
-(avoid.c), both numpy's arithmetic in numpy's order (pairwise.h). Built with the plant's
+(avoid.c), both numpy's arithmetic in numpy's order (pairwise.h), and the ball follower's
+noise estimate (vision.c: a median of pixel differences, integers only). Built with the plant's
 kernels' flags (IEEE double arithmetic as written). There is no silent fallback: without
 the library, :func:`function` raises :class:`KernelsMissing`, which says how to build it.
 """

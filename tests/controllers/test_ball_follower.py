@@ -215,12 +215,75 @@ def test_the_noise_estimate_of_a_frame_is_the_median_of_its_differences_to_the_b
     frames of even and odd counts of differences, flat, noisy, saturated, one or two wide."""
     rng = np.random.default_rng(3)
     for shape in [(120, 160, 3), (121, 161, 3), (9, 2, 3), (5, 3, 3), (4, 1, 3), (1, 7, 3)]:
-        for std in (0.0, 2.0, 20.0, 300.0):
+        for std, view in zip((0.0, 2.0, 20.0, 300.0, 20.0, 20.0),
+                             (np.s_[:], np.s_[:], np.s_[:], np.s_[:], np.s_[::-1, ::-1],
+                              np.s_[1::2, ::2])):   # (and frames that are views)
             img = np.clip(rng.normal(128, std, shape) + 60 * rng.integers(0, 2, shape), 0, 255)
-            img = img.astype(np.uint8)
+            img = img.astype(np.uint8)[view]
             d = np.abs(np.diff(img[::4, :, 1].astype(np.int16), axis=1))
             with np.errstate(invalid="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)   # (a one-pixel-wide frame)
                 want = float(np.median(d)) / (0.6745 * math.sqrt(2.0))
                 got = image_noise_std(img)
             assert np.float64(got).tobytes() == np.float64(want).tobytes(), (shape, std)
+
+
+def whole_frame_detection(rgb, p):
+    """detect_ball's threshold, opening and contours on the whole frame, for comparison."""
+    import cv2
+    mask = cv2.inRange(cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV),
+                       (p.hue_range[0], p.min_saturation, p.min_value), (p.hue_range[1], 255, 255))
+    if p.open_kernel > 1:
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((p.open_kernel,) * 2, np.uint8))
+    return cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0]
+
+
+def test_the_detection_on_the_masks_rectangle_is_the_whole_frames():
+    """detect_ball opens and searches only the rectangle round the mask's pixels: the
+    contours it measures are the whole frame's, point for point and in order (balls near
+    and far, at the frame's edges, noisy; green speckle all over; every opening size)."""
+    import cv2
+    import controllers.ball_follower as bf
+    rng = np.random.default_rng(5)
+    frames = [render(scene_with_ball(d, b), std, seed) for seed, (d, b, std) in enumerate(
+        [(0.3, 0.0, 10.0), (0.65, 0.69, 10.0), (0.65, -0.69, 0.0), (1.5, 0.2, 25.0),
+         (0.25, 0.3, 51.0)])]
+    speckle = (rng.random((120, 160, 3)) < 0.02) * rng.integers(0, 256, (120, 160, 3))
+    speckle[..., 1] = np.where(rng.random((120, 160)) < 0.3, 230, speckle[..., 1])
+    frames.append(speckle.astype(np.uint8))
+    seen = []
+    real = cv2.findContours
+    for rgb in frames:
+        for k in (1, 2, 3, 5):
+            p = bf.DetectorParams(open_kernel=k)
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(cv2, "findContours", lambda *a, **kw: seen.append(real(*a, **kw))
+                           or seen[-1])
+                bf.detect_ball(rgb, p, noise_std=0.0)
+            want = whole_frame_detection(rgb, p)
+            got = seen.pop()[0]
+            assert len(got) == len(want) and all(
+                np.array_equal(a, b) for a, b in zip(got, want)), k
+
+
+def test_the_ball_is_located_as_with_numpys_norm_to_the_bit():
+    """locate_ball normalises its rays as np.linalg.norm would: the same doubles."""
+    def reference(det, fx, fy, cx, cy):
+        du, dv = det.u - cx, det.v - cy
+        n = math.hypot(du, dv)
+        eu, ev = (du / n, dv / n) if n > 1e-9 else (1.0, 0.0)
+
+        def ray(u, v):
+            r = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])
+            return r / np.linalg.norm(r)
+        r1 = ray(det.u - det.radius * eu, det.v - det.radius * ev)
+        r2 = ray(det.u + det.radius * eu, det.v + det.radius * ev)
+        half = 0.5 * math.acos(max(-1.0, min(1.0, float(r1 @ r2))))
+        centre = r1 + r2
+        return BALL_R / math.sin(max(half, 1e-9)), -math.atan2(centre[0], centre[2])
+    rng = np.random.default_rng(7)
+    from controllers.ball_follower import Detection
+    for _ in range(300):
+        det = Detection(rng.uniform(-20, 180), rng.uniform(-20, 140), rng.uniform(0.5, 40))
+        f, cx, cy = rng.uniform(50, 200), rng.uniform(60, 100), rng.uniform(40, 80)
+        assert locate_ball(det, f, f, cx, cy, BALL_R) == reference(det, f, f, cx, cy)
