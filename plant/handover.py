@@ -32,6 +32,8 @@ _F7 = struct.Struct("<7f")
 _STAMP = struct.Struct("<iI")        # a message's header stamp, after the 4-byte encapsulation
 _D3 = struct.Struct("<3d")
 _JOINTS_T = "sensor_msgs/msg/JointState"
+_EMPTY32 = np.zeros(0, np.float32)     # a LaserScan's intensities (none), read-only: shared
+_EMPTY32.flags.writeable = False
 _GPS_T = "geometry_msgs/msg/PointStamped"
 #: a message type's class, built positionally as the decoder builds it (bus/cdrfast.py)
 _TIME = codec.T["builtin_interfaces/msg/Time"]
@@ -79,8 +81,7 @@ class Handover:
                 rows.update((i, (head, r)) for i, r in zip(robots.tolist(), ranges))
         index, laser = self._index, self._laser
         sec, nanosec = divmod(t_ns, 1_000_000_000)
-        empty = np.zeros(0, np.float32)
-        empty.flags.writeable = False
+        empty = _EMPTY32
         per_tick = self._per_tick(sec, nanosec)
 
         def message(robot: str, topic: str):
