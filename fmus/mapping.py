@@ -12,16 +12,14 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 from bus import codec, made, packed
 from bus.keys import TOPICS, BadName, check_fmu_topic, is_fmu_topic
 from bus.controller import WHEEL_JOINTS
 from plant.tomlfile import Table, read_toml
 
-if TYPE_CHECKING:
-    from .fmu import Fmu
-    from .variables import Variable
+from .variables import Variable
 
 FMUS_DIR = Path(__file__).resolve().parent
 
@@ -315,8 +313,9 @@ def in_bounds(var: Variable, value: float, where: str) -> float:
     return value if var.fmi_type in ("Real", "Float64", "Float32") else int(value)
 
 
-def cli_parameters(fmu: Fmu, given: dict[str, str]) -> dict[str, tuple[Variable, list]]:
-    """``--param NAME=VALUE``: checked against the variable's causality, type and bounds."""
+def cli_parameters(fmu, given: dict[str, str]) -> dict[str, tuple[Variable, list]]:
+    """``--param NAME=VALUE`` of ``fmu`` (an :class:`fmus.fmu.Fmu`): checked against the
+    variable's causality, type and bounds."""
     out = {}
     for name, text in given.items():
         where = f"--param {name}={text}"
