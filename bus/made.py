@@ -62,3 +62,15 @@ def joint_state(sec: int, nanosec: int, frame_id: str, names, position: np.ndarr
 def point_stamped(sec: int, nanosec: int, frame_id: str, x: float, y: float, z: float):
     """A geometry_msgs/msg/PointStamped as decoded."""
     return _POINT_STAMPED(_HEADER(_TIME(sec, nanosec), frame_id), _POINT(x, y, z))
+
+
+def odometry_of(sec: int, nanosec: int, frame_id: str, child_frame_id: str, pose7, pose_cov,
+                twist6, twist_cov):
+    """A nav_msgs/msg/Odometry as decoded, of its pose (x, y, z, qx, qy, qz, qw), twist
+    (linear x, y, z, angular x, y, z) and covariances (float64 arrays the caller made
+    read-only, views of bytes)."""
+    x, y, z, qx, qy, qz, qw = pose7
+    lx, ly, lz, ax, ay, az = twist6
+    return _ODOMETRY(_HEADER(_TIME(sec, nanosec), frame_id), child_frame_id,
+                     _POSE_WC(_POSE(_POINT(x, y, z), _QUATERNION(qx, qy, qz, qw)), pose_cov),
+                     _TWIST_WC(_TWIST(_VECTOR3(lx, ly, lz), _VECTOR3(ax, ay, az)), twist_cov))

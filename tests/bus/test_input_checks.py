@@ -91,7 +91,8 @@ def test_a_built_messages_shared_zero_covariance_cannot_change():
     with pytest.raises(ValueError):
         made.ZERO_COVARIANCE[0] = np.nan
     bad = made.odometry(0, "odom", "base_link", 2e9, 0.0, 0.0, (0.0, 0.0, 0.0, 1.0), 0.0, 0.0)
-    assert check_input("odom", bad) == numbers_problem(bad, "") == "pose.pose.position.x = 2000000000.0"
+    assert check_input("odom", bad) == numbers_problem(bad, "") == \
+        "pose.pose.position.x = 2000000000.0"
 
 
 def test_hand_built_values_of_other_types_get_the_walks_answer():

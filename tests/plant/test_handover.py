@@ -31,13 +31,13 @@ def _same(got, want, where: str = "") -> None:
 
 
 _TYPES = {"scan": "sensor_msgs/msg/LaserScan", "joint_states": "sensor_msgs/msg/JointState",
-          "gps": "geometry_msgs/msg/PointStamped"}
+          "gps": "geometry_msgs/msg/PointStamped", "ground_truth": "nav_msgs/msg/Odometry"}
 
 
 def test_handed_messages_are_the_decoded_bytes(tmp_path):
     """A kinematic swarm with noisy lidars (one quantised: two lidar models), noisy
-    encoders and GPS, readers that come and go, a reset: every scan, joint_states and gps
-    due and read is handed, equal to its bytes decoded; other topics, and messages of a
+    encoders and GPS, readers that come and go, a reset: every scan, joint_states, gps and
+    ground_truth due and read is handed, equal to its bytes decoded; other topics, and messages of a
     tick not due or not read, are not (the member decodes those)."""
     tick = Tick(_world("kinematic", tmp_path))
     names = list(tick.sensors)
