@@ -94,6 +94,10 @@ class Composed:
         self.hosted = [_Hosted(s, keys) for s in specs]
         self._names = frozenset(names)
         self._readers: dict[str, list[_Hosted]] = {}
+        #: key -> (the payload a member last sent on it, its Encoded), for a key another
+        #: member composed here reads: :meth:`deliver` hands that the message built from
+        #: the values the payload was packed from (bus.made), not the payload decoded
+        self._made: dict[str, tuple[bytes, object]] = {}
         for h in self.hosted:
             for key in h.member.slot_of:
                 self._readers.setdefault(key, []).append(h)
@@ -143,6 +147,8 @@ class Composed:
         readers = self._readers.get(key)
         if not readers:
             return
+        if msg is None and (got := self._made.get(key)) is not None and got[0] is payload:
+            msg = got[1].made()
         # (decoded at most once for every member that reads it)
         for h in readers:
             if not h.gone:
@@ -199,11 +205,14 @@ class Composed:
         if not sent:
             return
         name = h.name if h.member.sync else None
-        published, twists = h.published, h.member.twists
+        published, twists, encoded = h.published, h.member.twists, h.member.encoded
         seq = h.seq
         msgs = []
         atts = codec.attachments_parsed(seq, t_ns, [(f, n) for _, _, f, n in sent], name)
         for (key, payload, _, _), (att, parsed) in zip(sent, atts):
+            enc = encoded.get(key)          # (these very bytes, with their values)
+            if enc is not None and enc.data is payload and key in self._readers:
+                self._made[key] = (payload, enc)
             tw = twists.get(key)            # (the values of these very bytes, if a Twist's)
             msgs.append((key, payload, att, parsed,
                          tw[1:] if tw is not None and tw[0] is payload else None))

@@ -5,23 +5,38 @@ its member an :class:`Encoded` instead of a rosbags message: the member sends th
 they are (no message tree is built and walked to encode it). Given its type, it still reads
 as the message: its fields are those of the bytes decoded, decoded once, on first use (a
 test or a log that looks at what a node returned), so a caller need not know which it got.
+A node that still holds the values may give a function that builds the message from them
+(:mod:`bus.made`: the object decoding the bytes gives), called instead of decoding where a
+reader in the same process wants the message (:meth:`Encoded.made`).
 """
 from __future__ import annotations
 
 
 class Encoded:
     """``data``: a message's CDR bytes; ``msgtype``: its ROS type, for reading its fields
-    (None: bytes only)."""
-    __slots__ = ("data", "msgtype", "_msg")
+    (None: bytes only); ``make``: a function of no arguments that builds the message these
+    bytes decode to from the values they were packed from (None: decoded)."""
+    __slots__ = ("data", "msgtype", "_msg", "_make")
 
-    def __init__(self, data: bytes, msgtype: str | None = None) -> None:
+    def __init__(self, data: bytes, msgtype: str | None = None, make=None) -> None:
         self.data = data
         self.msgtype = msgtype
         self._msg = None
+        self._make = make
+
+    def made(self):
+        """The message built from its values (``make``), once; None without ``make``."""
+        if self._msg is None and self._make is not None:
+            self._msg = self._make()
+        return self._msg if self._make is not None else None
 
     def decoded(self):
-        """The message these bytes are (:func:`bus.codec.decode`), decoded once."""
+        """The message these bytes are (:func:`bus.codec.decode`), decoded once (or built
+        from its values: ``make``)."""
         if self._msg is None:
+            if self._make is not None:
+                self._msg = self._make()
+                return self._msg
             if self.msgtype is None:
                 raise TypeError("encoded bytes of no known type: no fields to read")
             from .codec import decode           # (codec imports packed, which may use this)

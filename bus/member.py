@@ -141,6 +141,9 @@ class MemberTick:
         #: cmd_vel key -> (the bytes last queued on it, the stamp, linear, angular they were
         #: packed from): a composed member's plant takes the values, not the bytes
         self.twists: dict[str, tuple[bytes, int, float, float]] = {}
+        #: key -> the :class:`Encoded` last queued on it: a composed member's host hands a
+        #: reader beside it the message built from its values (Encoded.made), not the bytes
+        self.encoded: dict[str, Encoded] = {}
         self.reset()
         self._keep_sent = True
 
@@ -409,7 +412,10 @@ class MemberTick:
                 if isinstance(msg, (Twist, WheelSpeeds)):     # a command among other outputs
                     self.queue_output(msg, t_ns, robot)
                 else:
-                    self._out.append(Output(self.key(robot, topic), msg, topic in PLANT_READS))
+                    key = self.key(robot, topic)
+                    if type(msg) is Encoded:
+                        self.encoded[key] = msg
+                    self._out.append(Output(key, msg, topic in PLANT_READS))
         else:
             raise TypeError(f"step() returned {type(out).__name__}; expected Twist, "
                             "WheelSpeeds, dict or None")

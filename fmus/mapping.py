@@ -14,10 +14,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from bus import codec, packed
+from bus import codec, made, packed
 from bus.keys import TOPICS, BadName, check_fmu_topic, is_fmu_topic
 from bus.controller import WHEEL_JOINTS
 from plant.tomlfile import Table, read_toml
+
+from .variables import Variable
 
 FMUS_DIR = Path(__file__).resolve().parent
 
@@ -110,6 +112,9 @@ class MessageKind:
     #: pack(t_ns, values, options): the bytes of build's message, written straight from the
     #: values (bus.packed: no message tree built and encoded every tick)
     pack: Callable[..., bytes]
+    #: made(t_ns, values, options): the message decoding pack's bytes gives, built from the
+    #: values (bus.made), for a reader in the node's process; None: decoded where read
+    made: Callable[..., Any] | None = None
 
 
 MESSAGES: dict[str, MessageKind] = {
@@ -121,7 +126,10 @@ MESSAGES: dict[str, MessageKind] = {
                                        child_frame_id=o["child_frame_id"]),
         lambda t, v, o: packed.odometry(t, v["x"], v["y"], 0.0, codec.yaw_quaternion(v["yaw"]),
                                         v.get("linear", 0.0), v.get("angular", 0.0),
-                                        o["frame_id"], o["child_frame_id"])),
+                                        o["frame_id"], o["child_frame_id"]),
+        lambda t, v, o: made.odometry(t, o["frame_id"], o["child_frame_id"], v["x"], v["y"],
+                                      0.0, codec.yaw_quaternion(v["yaw"]),
+                                      v.get("linear", 0.0), v.get("angular", 0.0))),
     "point": MessageKind(
         "geometry_msgs/msg/PointStamped", ("x", "y"), ("z",), {"frame_id": "world"},
         lambda t, v, o: codec.point_stamped(t, v["x"], v["y"], v.get("z", 0.0), o["frame_id"]),
@@ -288,3 +296,43 @@ def _input_source(t: Table, topic: str) -> tuple[FieldPath | None, str | None]:
 def default_mapping(model_identifier: str) -> Path | None:
     p = FMUS_DIR / model_identifier / "mapping.toml"
     return p if p.is_file() else None
+
+
+# ====================================================================== parameters
+
+def in_bounds(var: Variable, value: float, where: str) -> float:
+    """``value`` if it is within the variable's declared min / max, else FmuNodeError."""
+    lo = var.min if var.min is not None else -math.inf
+    hi = var.max if var.max is not None else math.inf
+    if not lo <= value <= hi:
+        raise FmuNodeError(f"{where}: {value:g} is outside the bounds of {var.name!r} "
+                           f"[{lo:g}, {hi:g}] declared by the FMU")
+    if var.fmi_type not in ("Real", "Float64", "Float32") and value != int(value):
+        raise FmuNodeError(f"{where}: {var.name!r} is {var.fmi_type}: {value!r} is not an "
+                           "integer")
+    return value if var.fmi_type in ("Real", "Float64", "Float32") else int(value)
+
+
+def cli_parameters(fmu, given: dict[str, str]) -> dict[str, tuple[Variable, list]]:
+    """``--param NAME=VALUE`` of ``fmu`` (an :class:`fmus.fmu.Fmu`): checked against the
+    variable's causality, type and bounds."""
+    out = {}
+    for name, text in given.items():
+        where = f"--param {name}={text}"
+        var = fmu.variable(name, "parameter", where)
+        if var.shape:
+            raise FmuNodeError(f"{where}: {name!r} is an array: set it in a mapping file")
+        if var.msgtype == "std_msgs/msg/String":
+            out[name] = (var, [text])
+            continue
+        if var.msgtype == "std_msgs/msg/Bool":
+            if text.lower() not in ("true", "false", "1", "0"):
+                raise FmuNodeError(f"{where}: {name!r} is Boolean: true or false")
+            out[name] = (var, [text.lower() in ("true", "1")])
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            raise FmuNodeError(f"{where}: {text!r} is not a number") from None
+        out[name] = (var, [in_bounds(var, value, where)])
+    return out

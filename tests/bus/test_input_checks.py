@@ -9,7 +9,7 @@ import random
 import numpy as np
 import pytest
 
-from bus import codec
+from bus import codec, made
 from bus.inputs import ABSURD_INPUT, check_input, numbers_problem
 
 T = codec.T
@@ -34,7 +34,9 @@ def samples():
     out = [("odom", decoded(odom)), ("joint_states", decoded(js)), ("imu", imu),
            ("cmd_vel", decoded(codec.twist_stamped(40_000_000, 0.2, 0.1))),
            ("gps", decoded(codec.point_stamped(40_000_000, 1.0, 2.0, 0.0)))]
-    return out + [("scan", decoded(scan))]
+    built = made.odometry(40_000_000, "odom", "base_link", 1.0, -2.0, 0.0,
+                          codec.yaw_quaternion(0.5), 0.3, -0.1)   # (zero covariances shared)
+    return out + [("scan", decoded(scan)), ("odom", built)]
 
 
 def float_leaves(msg, path=""):
@@ -60,7 +62,7 @@ def reference(topic, msg):
     return numbers_problem(msg, "")
 
 
-@pytest.mark.parametrize("k", range(6))
+@pytest.mark.parametrize("k", range(7))
 def test_the_quick_pass_answers_as_the_walk_on_every_value_of_every_field(k):
     topic, base = samples()[k]
     assert check_input(topic, base) is None
@@ -80,6 +82,17 @@ def test_the_quick_pass_answers_as_the_walk_on_every_value_of_every_field(k):
                 setattr(owner, name, arr)
             want = reference(topic, msg)
             assert check_input(topic, msg) == want, (name, i, value)
+
+
+def test_a_built_messages_shared_zero_covariance_cannot_change():
+    """The quick pass takes bus.made's shared covariance as checked: it is zeros, and
+    read-only; a built message with an absurd value is rejected all the same."""
+    assert not made.ZERO_COVARIANCE.flags.writeable and not made.ZERO_COVARIANCE.any()
+    with pytest.raises(ValueError):
+        made.ZERO_COVARIANCE[0] = np.nan
+    bad = made.odometry(0, "odom", "base_link", 2e9, 0.0, 0.0, (0.0, 0.0, 0.0, 1.0), 0.0, 0.0)
+    assert check_input("odom", bad) == numbers_problem(bad, "") == \
+        "pose.pose.position.x = 2000000000.0"
 
 
 def test_hand_built_values_of_other_types_get_the_walks_answer():

@@ -1,6 +1,7 @@
 """The messages a composed member takes from the tick's values (plant.handover) are, field
 for field, the objects decoding the plant's bytes gives: the same types, float32 fields
-rounded as the wire rounds them, the ranges' bits, arrays read-only as a decoded view is."""
+rounded as the wire rounds them, the ranges' and encoders' bits, arrays read-only as a
+decoded view is."""
 from __future__ import annotations
 
 import dataclasses
@@ -29,14 +30,19 @@ def _same(got, want, where: str = "") -> None:
         assert got == want, where
 
 
-def test_handed_scans_are_the_decoded_bytes(tmp_path):
-    """A kinematic swarm with noisy lidars (one quantised: two lidar models), readers that
-    come and go, a reset: every scan due and read is handed, equal to its bytes decoded;
-    other topics, and scans of a tick not due, are not (the member decodes those)."""
+_TYPES = {"scan": "sensor_msgs/msg/LaserScan", "joint_states": "sensor_msgs/msg/JointState",
+          "gps": "geometry_msgs/msg/PointStamped", "ground_truth": "nav_msgs/msg/Odometry"}
+
+
+def test_handed_messages_are_the_decoded_bytes(tmp_path):
+    """A kinematic swarm with noisy lidars (one quantised: two lidar models), noisy
+    encoders and GPS, readers that come and go, a reset: every scan, joint_states, gps and
+    ground_truth due and read is handed, equal to its bytes decoded; other topics, and messages of a
+    tick not due or not read, are not (the member decodes those)."""
     tick = Tick(_world("kinematic", tmp_path))
     names = list(tick.sensors)
-    handover, scans = None, 0
-    for k in range(16):
+    handover, counts = None, dict.fromkeys(_TYPES, 0)
+    for k in range(24):
         want = _wanted(names, k)
         _, msgs = tick.messages_read(want or {n: (lambda t: True) for n in names})
         handover = Handover.of(handover, tick.model, tick.data)
@@ -44,17 +50,18 @@ def test_handed_scans_are_the_decoded_bytes(tmp_path):
         sent = set()
         for _, robot, topic, data in msgs:
             msg = handed(robot, topic)
-            if topic != "scan":
+            if topic not in _TYPES:
                 assert msg is None, (k, robot, topic)
                 continue
-            decoded = codec.decode(data, "sensor_msgs/msg/LaserScan")
-            _same(msg, decoded, f"{k} {robot}")
-            sent.add(robot)
-            scans += 1
-        for robot in set(names) - sent:          # not due or not read: nothing handed
-            assert handed(robot, "scan") is None, (k, robot)
+            decoded = codec.decode(data, _TYPES[topic])
+            _same(msg, decoded, f"{k} {robot} {topic}")
+            sent.add((robot, topic))
+            counts[topic] += 1
+        for robot in names:                      # not due or not read: nothing handed
+            for topic in set(_TYPES) - {t for r, t in sent if r == robot}:
+                assert handed(robot, topic) is None, (k, robot, topic)
         _drive(tick, k)
         tick.step()
         if k == 8:
             tick.reset(seed=11)
-    assert scans >= 2 * len(names)
+    assert min(counts.values()) >= 2 * len(names), counts
