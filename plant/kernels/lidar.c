@@ -113,20 +113,32 @@ static inline double atan2_approx(double y, double x)
 }
 
 /* The rays [*lo, *hi] of a fan that may meet shape s (0 if none may): its bounding box
- * must cross the scan plane, lie within range, and cover their bearings. Conservative (a
- * whole ray of slack on each side of a sector), so testing these rays finds what testing
- * every ray would. rel: the shape's centre in the sensor's frame; A: the shape's axes in
- * the sensor's frame (A[3k + i]: component i of axis k). */
-static int sector(const double *rel, const double *A, const double *h, double radius,
-                  int64_t n, double a0, double inc, double max_range, int64_t *lo, int64_t *hi)
+ * must cross the scan plane, lie within range, and cover their bearings. Conservative:
+ * every angle it takes is widened by more than its own error (SLACK), so a ray it leaves
+ * out misses the shape's bounding sphere (or the box's corners' span) by at least SLACK
+ * and testing the rays it keeps finds what testing every ray would. o: the sensor's origin
+ * minus the shape's centre (world frame); P: the sensor's pose (its axes: columns of the
+ * rotation); R: the shape's rotation. What it needs of the shape in the sensor's frame
+ * (the centre rel, the shape's axes A[3k + i]: component i of axis k) is computed as it
+ * goes: most shapes are left out, or found narrow, from the normal's row alone. */
+static int sector(const double *o, const double *P, const double *R, const double *h,
+                  double radius, int64_t n, double a0, double inc, double max_range,
+                  int64_t *lo, int64_t *hi)
 {
+    double rel[3], A[9];
+    rel[2] = -(o[0] * P[2] + o[1] * P[6] + o[2] * P[10]);
+    for (int k = 0; k < 3; k++)
+        A[3 * k + 2] = R[k] * P[2] + R[3 + k] * P[6] + R[6 + k] * P[10];
     double extent = fabs(A[2]) * h[0] + fabs(A[5]) * h[1] + fabs(A[8]) * h[2];
     double hz = fabs(rel[2]);
     if (hz > extent * (1.0 + 1e-9) + 1e-9)
         return 0;                                 /* wholly above or below the plane */
+    for (int i = 0; i < 2; i++)
+        rel[i] = -(o[0] * P[i] + o[1] * P[4 + i] + o[2] * P[8 + i]);
     double r = radius * (1.0 + 1e-9) + 1e-9;
     double rp = hz < r ? sqrt(r * r - hz * hz) : 0.0;
-    double rho = hypot(rel[0], rel[1]);
+    /* rho to a few ulps (sqrt of the sum, not hypot: the margins are far wider) */
+    double rho = sqrt(rel[0] * rel[0] + rel[1] * rel[1]);
     if (rho - rp > max_range * (1.0 + 1e-9) + 1e-9)
         return 0;                                 /* out of range */
     *lo = 0;
@@ -134,11 +146,18 @@ static int sector(const double *rel, const double *A, const double *h, double ra
     if (n < 2 || rho <= 1e-9)
         return 1;
     double bearing = atan2_approx(rel[1], rel[0]), dmin, dmax;
-    double half = rho > rp ? asin(rp / rho) : PI;
+    /* the sphere's half angle asin(rp / rho) (pi: the sensor inside it), bounded above by
+     * its tangent first (cheaper, within a part in 1e3 of it for the narrow sectors it is
+     * kept for) */
+    double half = rho > rp ? rp / sqrt((rho - rp) * (rho + rp)) : PI;
     if (half * 2.0 > 8.0 * inc) {
-        /* a wide sector (or the sensor inside the sphere): the bearings of the bounding
-         * box's corners projected on the plane, relative to the centre's; if they span
-         * less than pi the sensor is outside the box's shadow and they bound it */
+        half = rho > rp ? asin(rp / rho) : PI;
+        /* a wide sector: the bearings of the bounding box's corners projected on the
+         * plane, relative to the centre's; if they span less than pi the sensor is
+         * outside the box's shadow and they bound it */
+        for (int i = 0; i < 2; i++)
+            for (int k = 0; k < 3; k++)
+                A[3 * k + i] = R[k] * P[i] + R[3 + k] * P[4 + i] + R[6 + k] * P[8 + i];
         dmin = 0.0;
         dmax = 0.0;
         for (int c = 0; c < 8; c++) {
@@ -171,10 +190,12 @@ static int sector(const double *rel, const double *A, const double *h, double ra
     dmax += 2.0 * SLACK;
     if (fabs(bearing) + (dmax > -dmin ? dmax : -dmin) >= PI - 1e-6)
         return 1;                                 /* across the +-pi seam: every ray */
-    double f = ceil((bearing + dmin - a0) / inc) - 1.0;
-    double l = floor((bearing + dmax - a0) / inc) + 1.0;
-    if (l < 0.0 || f > (double)(n - 1))
-        return 0;                                 /* outside the field of view */
+    /* the rays whose angles a0 + i inc lie in the widened sector (none: the sector falls
+     * between two rays or outside the field of view, or a number is NaN: no ray hits) */
+    double f = ceil((bearing + dmin - a0) / inc);
+    double l = floor((bearing + dmax - a0) / inc);
+    if (!(l >= f) || l < 0.0 || f > (double)(n - 1))
+        return 0;
     *lo = f < 0.0 ? 0 : (int64_t)f;
     *hi = l > (double)(n - 1) ? n - 1 : (int64_t)l;
     return 1;
@@ -224,15 +245,8 @@ static void scan_fans(const Fans *a, int64_t g0, int64_t g1, double *work)
             const double reach = (a->max_range + a->radii[s]) * (1.0 + 1e-6) + 1e-6;
             if (o[0] * o[0] + o[1] * o[1] + o[2] * o[2] > reach * reach)
                 continue;
-            /* the cull, in the sensor's frame: the centre, the shape's axes */
-            double rel[3], A[9];
-            for (int i = 0; i < 3; i++) {
-                rel[i] = -(o[0] * P[i] + o[1] * P[4 + i] + o[2] * P[8 + i]);
-                for (int k = 0; k < 3; k++)
-                    A[3 * k + i] = R[k] * P[i] + R[3 + k] * P[4 + i] + R[6 + k] * P[8 + i];
-            }
             int64_t lo, hi;
-            if (!sector(rel, A, h, a->radii[s], n, a->a0, a->inc, a->max_range, &lo, &hi))
+            if (!sector(o, P, R, h, a->radii[s], n, a->a0, a->inc, a->max_range, &lo, &hi))
                 continue;
             /* the origin in the shape's frame, as cast_sectors computes it per pair */
             double ol[3];
