@@ -10,8 +10,9 @@ plant/kernels/drive.c's plant_drive_commands), the step, the
 encoders with their noise (sense.c's noise law) and the dead reckoning; a kinematic world's
 ticks in one call up to where a lidar comes due, a DART world's in two halves, DART stepping
 between them. The lidars due are cast together, and their noise is the plant's kernel's
-(:func:`plant.kernels.lidar_noise`: a reading is a function of its key and tick, every
-world's drawn in one call). Every noise here is the core's code, drawn in C. Between steps each env's state stays
+(plant/kernels/sense.c's plant_lidar_noise: a reading is a function of its key and tick),
+every world's drawn at its own tick, with the observation's clip, in one call of ticks.c.
+Every noise here is the core's code, drawn in C. Between steps each env's state stays
 in arrays (:mod:`diffbot.envs.kept`); the observation and the ground truth are
 :mod:`diffbot.envs.obsmath`'s. A world that diverges is an error here (FloatingPointError),
 where the message path rebuilds it at t = 0. A world of several robots (a swarm's,
@@ -35,7 +36,7 @@ from plant.raycast import Scene
 from plant.sim import rotation_to_quaternion
 
 from .kept import Kept
-from .obsmath import clip, observation, truths
+from .obsmath import observation, truths
 from .transport import InProc
 
 
@@ -133,8 +134,9 @@ _SLOTS = ("v w lim_wheels kind cmd targets limits std keys tick "
           "nbox box_c box_cos box_sin box_half ncirc circ_c circ_r half "
           "enc_keys enc_laws "
           "odo_pose odo_vel last last_t odo_r odo_d pos t "
-          "steps t_ns due sub step_ns tick_ns period").split()
-_PARAMS = "tick_s foot_r centre_x".split()
+          "steps t_ns due sub step_ns tick_ns period "
+          "lid_keys lid_laws lid_work raw scans new_scan rays").split()
+_PARAMS = "tick_s foot_r centre_x lid_lo lid_hi lid_q scan_max".split()
 
 
 class _TickPlan:
@@ -178,6 +180,7 @@ class _TickPlan:
         self.sub = sims[0].spec.substeps
         self.tick_ns = ticks[0].tick_ns
         self.wheels = np.zeros((w, 2))        # a DART world's wheel angles, each tick
+        self._lid_work = np.zeros(cfg.num_rays)   # (the lidar noise's scratch)
         self._noises(sims, names, sensors)
         self._lay_out(sims[0].spec, sensors[0])
         self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
@@ -234,12 +237,19 @@ class _TickPlan:
             "last_t": st["last_t"], "odo_r": st["r"], "odo_d": st["d"], "pos": self.pos,
             "t": self.t, "steps": st["steps"], "t_ns": st["t_ns"], "due": self.due,
             "sub": sim_spec.substeps, "step_ns": int(round(sim_spec.physics_step_s * 1e9)),
-            "tick_ns": self.tick_ns, "period": sensors.periods["scan"]}
+            "tick_ns": self.tick_ns, "period": sensors.periods["scan"],
+            "lid_keys": self.lid_keys, "lid_laws": self.lid_laws, "lid_work": self._lid_work,
+            "raw": self.raw, "scans": st["scans"], "new_scan": self.new_scan.view(np.uint8),
+            "rays": self.cfg.num_rays}
+        assert st["scans"].dtype == np.float32 and self.raw.dtype == np.float32
         slots.update(zip(_SLOTS[_SLOTS.index("radius"):], robots))
         slots.update(zip(_SLOTS[_SLOTS.index("nbox"):], statics))
         self.slots = np.array([kernels.ptr(slots[n]) for n in _SLOTS], np.int64)
+        cfg = self.cfg
         params = {"tick_s": tick_s, "foot_r": kinematic.FOOTPRINT_RADIUS_M,
-                  "centre_x": kinematic.CHASSIS_CENTRE_X_M}
+                  "centre_x": kinematic.CHASSIS_CENTRE_X_M, "lid_lo": cfg.min_range_m,
+                  "lid_hi": cfg.max_range_m, "lid_q": cfg.resolution_m,
+                  "scan_max": self.max_range}
         self.params = np.array([params[n] for n in _PARAMS], float)
         if kernels.library().plant_ticks_count() != len(_SLOTS) * 1000 + len(_PARAMS):
             raise kernels.KernelsMissing("plant/kernels/ticks.c's blocks are not the ones "
@@ -303,18 +313,9 @@ class _TickPlan:
 
     def _scan(self, owner: ArrayTicks, due: np.ndarray) -> None:
         """The lidars of rows ``due`` (their robots where the last tick left them)."""
-        cfg = self.cfg
-        if self.shared:
-            exact = self._cast_worlds(due)
-        else:
-            exact = self._cast(owner, due)
-        r32 = self._lidar_noise(cfg, np.ascontiguousarray(exact, float), due)
-        scans = np.where(np.isfinite(r32), clip(r32, 0.0, self.max_range),
-                         np.float32(self.max_range)).astype(np.float32)
-        if due.size == len(self.at):
-            self.raw[:], self.state["scans"][:], self.new_scan[:] = r32, scans, True
-        else:
-            self.raw[due], self.state["scans"][due], self.new_scan[due] = r32, scans, True
+        exact = self._cast_worlds(due) if self.shared else self._cast(owner, due)
+        # their noise, each at its world's tick, and the observation's clip: one kernel call
+        kernels.ticks_scans(due, np.ascontiguousarray(exact, float), *self._addr)
 
     def _cast(self, owner: ArrayTicks, due: np.ndarray) -> np.ndarray:
         """The exact ranges of one-robot worlds' rows ``due`` (the room alone: a lidar skips
@@ -359,23 +360,6 @@ class _TickPlan:
             self._part_robot = np.concatenate([k + lay[3] for k, lay in
                                                zip(firsts.tolist(), layouts)])
             self._part_rel = np.concatenate([lay[4] for lay in layouts])
-
-    def _lidar_noise(self, cfg, exact: np.ndarray, due: np.ndarray) -> np.ndarray:
-        """The reported ranges (float32) of rows ``due``'s exact ones: the plant's lidar
-        noise kernel (:func:`plant.kernels.lidar_noise`, as the core's tick draws it), one
-        call for the rows at the same tick (all of them, unless some world was reset)."""
-        ticks = self.state["t_ns"][due] // self.tick_ns
-        keys, laws = self.lid_keys[due], self.lid_laws[due]
-        args = (cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
-        first = int(ticks[0])
-        if (ticks == first).all():
-            return kernels.lidar_noise(exact, keys, laws, first, *args)
-        out = np.empty(exact.shape, np.float32)
-        for t in np.unique(ticks).tolist():
-            rows = ticks == t
-            out[rows] = kernels.lidar_noise(np.ascontiguousarray(exact[rows]), keys[rows],
-                                            laws[rows], int(t), *args)
-        return out
 
 
 class Diverged(Exception):

@@ -25,7 +25,7 @@ __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_w
            "noise_wide", "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
-           "tick_part", "sense_call", "observe_kinematic_call", "quaternions",
+           "tick_part", "ticks_scans", "sense_call", "observe_kinematic_call", "quaternions",
            "quaternions_call", "lidar_noise", "drive_commands_call"]
 
 ABI = 4
@@ -33,7 +33,7 @@ CAMERA_ABI = 3
 NOISE_ABI = 3
 DRIVE_ABI = 2
 KINEMATIC_ABI = 2
-TICKS_ABI = 5
+TICKS_ABI = 6
 SENSE_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
@@ -89,6 +89,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_ticks.argtypes = [_I, _I, _P, _P]
     lib.plant_tick_part.restype = ctypes.c_int64
     lib.plant_tick_part.argtypes = [_I, _I, _P, _P]
+    lib.plant_ticks_scans.restype = None
+    lib.plant_ticks_scans.argtypes = [_I, _P, _P, _P, _P]
     lib.plant_ticks_count.restype = ctypes.c_int64
     lib.plant_ticks_count.argtypes = []
     lib.plant_clearances.restype = None
@@ -257,6 +259,17 @@ def tick_part(n: int, part: int, slots: Array, params: Array) -> int:
     what follows the step (the engine's wheel angles put in the wheels' slot first):
     whether some world's lidar is due."""
     return library().plant_tick_part(n, part, ptr(slots), ptr(params))
+
+
+def ticks_scans(rows: np.ndarray, exact: np.ndarray, slots: Array, params: Array) -> None:
+    """The scans of the worlds ``rows`` (int64 (g,)) whose lidar :func:`ticks` found due,
+    from their exact ranges ``exact`` (g, rays) float64, C-contiguous (plant/kernels/ticks.c:
+    each world's lidar noise at its own tick, as :func:`lidar_noise` draws it, and the
+    observation's clip), into the arrays ``slots`` names."""
+    assert rows.dtype == np.int64 and rows.flags.c_contiguous and exact.dtype == np.float64
+    assert exact.flags.c_contiguous and exact.shape[0] == rows.size
+    library().plant_ticks_scans(rows.size, rows.ctypes.data, exact.ctypes.data, ptr(slots),
+                                ptr(params))
 
 
 def clearances(pts: np.ndarray, statics: tuple) -> np.ndarray:
