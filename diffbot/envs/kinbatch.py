@@ -123,7 +123,7 @@ class ArrayTicks:
             k.read(at[stale], [tasks[j] for j in stale.tolist()],
                    None if names is None else [names[j] for j in stale.tolist()])
         plan = self._plan
-        if plan is None or stale.size or not plan.fits(at):
+        if plan is None or not plan.fits(at) or (stale.size and not plan.refresh(self, stale)):
             self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
         return plan.step(self, cmds)
 
@@ -145,8 +145,9 @@ class _TickPlan:
     each tick, DART stepping it between them), the lidars cast where due between them,
     with everything the calls read laid out once: the rows' state (views of the
     :class:`~.kept.Kept` arrays when ``at`` is a run of rows, else copies written back each
-    step), the noises' keys and laws, the addresses. Kept from step to
-    step while the same worlds step and none was reset since (:meth:`fits`)."""
+    step), the noises' keys and laws, the addresses. Kept from step to step while the
+    same worlds step (:meth:`fits`); a kinematic world reset since is read again in place
+    (:meth:`refresh`), a DART world's reset makes a new plan."""
 
     def __init__(self, owner: ArrayTicks, at: np.ndarray, repeat: int) -> None:
         k = owner._kept
@@ -181,7 +182,9 @@ class _TickPlan:
         self.tick_ns = ticks[0].tick_ns
         self.wheels = np.zeros((w, 2))        # a DART world's wheel angles, each tick
         self._lid_work = np.zeros(cfg.num_rays)   # (the lidar noise's scratch)
-        self._noises(sims, names, sensors)
+        self.drive_limits, self.motion_std = _drive(sims[0], names[0])
+        for f, a in _noises(sims, names, sensors).items():
+            setattr(self, f, a)
         self._lay_out(sims[0].spec, sensors[0])
         self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
         self._key = self.at.tobytes()
@@ -193,25 +196,32 @@ class _TickPlan:
         if self.kinematic:
             self._base[0, 2, 3] = float(self.worlds.batch.radius[0])
 
-    def _noises(self, sims: list, names: list[str], sensors: list) -> None:
-        """The noises' keys and laws, each drawn in the kernels from its key and the tick:
-        the motion noise's (plant_drive_commands), the encoders' (ticks.c, as the plant's
-        sensors draw it), the lidar's."""
-        robot = sims[0].spec.robot(names[0])
-        dt = sims[0].spec.control_tick_s
-        self.drive_limits, self.motion_std = limits_of([robot], dt), motion_std([robot])
-        self.motion_keys = _keys([s.motion_noise[n] for s, n in zip(sims, names)])
-        models = [s.enc_noise for s in sensors]
-        if models[0] is None:
-            self.enc_keys = self.enc_laws = None
-        else:
-            self.enc_keys = _keys(models)
-            self.enc_laws = np.array([noise_law(m.config) for m in models], float).reshape(-1, 4)
-        models = [s.lidar_noise for s in sensors]
-        self.lid_keys = (np.zeros(len(models), np.uint64) if models[0] is None
-                         else _keys(models))
-        self.lid_laws = np.array([(0.0,) * 4 if m is None else noise_law(m.config)
-                                  for m in models], float).reshape(-1, 4)
+    def refresh(self, owner: ArrayTicks, stale: np.ndarray) -> bool:
+        """Rows ``stale`` (indices in :attr:`at`) read again after their worlds' reset, in
+        place: a kinematic world restarts in place (:meth:`plant.sim.Simulation.restart`:
+        the same objects and arrays), so only its noise streams, goal and state are new
+        (the state read by :meth:`Kept.read` already). False when the plan cannot keep
+        them (a DART world is built anew): the plan is made again."""
+        if not self.kinematic:
+            return False
+        k, batch = owner._kept, self.worlds.batch
+        roster = [k.roster[i] for i in self.at[stale].tolist()]
+        if any(r[3] is not self.sims[j] or (r[3].kin.batch or r[3].kin) is not batch
+               for j, r in zip(stale.tolist(), roster)):
+            return False
+        names, sensors, sims, obs = (list(c) for c in zip(*[r[1:5] for r in roster]))
+        new = _noises(sims, names, sensors)
+        if any((a is None) != (getattr(self, f) is None) for f, a in new.items()):
+            return False                       # (a noise on in some worlds, off in others)
+        for f, a in new.items():
+            if a is not None:
+                getattr(self, f)[stale] = a    # (in place: the kernels' addresses stay)
+        self.goal[stale] = np.array([o.goal for o in obs], float).reshape(-1, 2)
+        if not self.run:                       # (the state's copies: Kept.read's rows)
+            rows = self.at[stale]
+            for f in Kept.STATE:
+                self.state[f][stale] = getattr(k, f)[rows]
+        return True
 
     def _lay_out(self, sim_spec, sensors) -> None:
         """The addresses of every block plant/kernels/ticks.c reads (its slots, in
@@ -360,6 +370,33 @@ class _TickPlan:
             self._part_robot = np.concatenate([k + lay[3] for k, lay in
                                                zip(firsts.tolist(), layouts)])
             self._part_rel = np.concatenate([lay[4] for lay in layouts])
+
+
+def _drive(sim, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The drive limits and motion noise std of robot ``name`` of ``sim``'s spec, as
+    plant_drive_commands reads them (a batch's robots share them)."""
+    robot = sim.spec.robot(name)
+    return limits_of([robot], sim.spec.control_tick_s), motion_std([robot])
+
+
+def _noises(sims: list, names: list[str], sensors: list) -> dict:
+    """The noises' keys and laws of robots ``names`` (one per world of ``sims``, with its
+    ``sensors``), each drawn in the kernels from its key and the tick: the motion noise's
+    (plant_drive_commands), the encoders' (ticks.c, as the plant's sensors draw it; None
+    when off), the lidar's (laws of zeros when off)."""
+    out = {"motion_keys": _keys([s.motion_noise[n] for s, n in zip(sims, names)])}
+    models = [s.enc_noise for s in sensors]
+    if models[0] is None:
+        out["enc_keys"] = out["enc_laws"] = None
+    else:
+        out["enc_keys"] = _keys(models)
+        out["enc_laws"] = np.array([noise_law(m.config) for m in models], float).reshape(-1, 4)
+    models = [s.lidar_noise for s in sensors]
+    out["lid_keys"] = (np.zeros(len(models), np.uint64) if models[0] is None
+                       else _keys(models))
+    out["lid_laws"] = np.array([(0.0,) * 4 if m is None else noise_law(m.config)
+                                for m in models], float).reshape(-1, 4)
+    return out
 
 
 class Diverged(Exception):

@@ -329,3 +329,32 @@ def test_batch_truths_are_the_ground_truth_messages_poses():
         x, y, z = st.xyz
         msg = codec.odometry(0, x, y, st.yaw, 0.0, 0.0, z=z, quaternion=st.quaternion)
         assert got[i].tobytes() == np.array(codec.pose_2d(msg)).tobytes(), f"yaw {yaw[i]!r}"
+
+
+def test_an_ended_envs_ignored_action_may_be_anything_while_the_others_step():
+    """Next-step autoreset: the step after env k's episode ended resets it and ignores its
+    action, not a number included, while the other envs step (a kinematic batch steps the
+    ended envs standing and drops their results, so it keeps its plan): the numbers of the
+    message path (the oracle) given a finite action there."""
+    kw = dict(num_envs=3, vectorization_mode="vector_entry_point", max_episode_steps=2,
+              overrides=("world.mode=kinematic", *NOISE))
+    fast, slow = (gym.make_vec("diffbot/Avoid-v0", **kw) for _ in range(2))
+    slow.unwrapped.chunks[0].arrays = None
+    try:
+        act = np.tile(fast.single_action_space.high * 0.3, (3, 1)).astype(np.float32)
+        for env in (fast, slow):
+            env.reset(seed=4)
+            env.step(act)
+            env.reset(options={"reset_mask": np.array([False, False, True])})
+        for step in range(3):   # envs 0, 1 truncated, reset (ignored actions), stepped
+            a, b = act.copy(), act.copy()
+            if step == 1:           # envs 0, 1 are reset
+                a[:2], b[:2] = np.nan, 5.0
+            (oa, *fa, ia), (ob, *fb, ib) = fast.step(a), slow.step(b)
+            assert all(oa[k].tobytes() == ob[k].tobytes() for k in oa), f"obs at step {step}"
+            assert all(x.tobytes() == y.tobytes() for x, y in zip(fa, fb)), f"step {step}"
+            assert _same_infos(ia, ib), f"infos at step {step}"
+            assert (fa[2].tolist() == [True, True, False]) == (step == 0)
+    finally:
+        fast.close()
+        slow.close()
