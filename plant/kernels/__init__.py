@@ -25,7 +25,7 @@ __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_w
            "noise_wide", "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
-           "tick_part", "ticks_scans", "sense_call", "observe_kinematic_call", "quaternions",
+           "tick_part", "ticks_scans", "ticks_truths", "sense_call", "observe_kinematic_call", "quaternions",
            "quaternions_call", "lidar_noise", "drive_commands_call"]
 
 ABI = 4
@@ -90,6 +90,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_tick_part.restype = ctypes.c_int64
     lib.plant_tick_part.argtypes = [_I, _I, _P, _P]
     lib.plant_ticks_scans.restype = None
+    lib.plant_ticks_truths.restype = None
+    lib.plant_ticks_truths.argtypes = [_I, _P, _P]
     lib.plant_ticks_scans.argtypes = [_I, _P, _P, _P, _P]
     lib.plant_ticks_count.restype = ctypes.c_int64
     lib.plant_ticks_count.argtypes = []
@@ -270,6 +272,17 @@ def ticks_scans(rows: np.ndarray, exact: np.ndarray, slots: Array, params: Array
     assert exact.flags.c_contiguous and exact.shape[0] == rows.size
     library().plant_ticks_scans(rows.size, rows.ctypes.data, exact.ctypes.data, ptr(slots),
                                 ptr(params))
+
+
+def ticks_truths(pose: np.ndarray) -> np.ndarray:
+    """The true (x, y, yaw), a new (n, 3) array, of kinematic robots at ``pose`` (n, 3)
+    float64, C-contiguous, as their ``ground_truth`` messages give them back
+    (plant/kernels/ticks.c: :func:`diffbot.envs.obsmath.truths`' arithmetic)."""
+    assert pose.ndim == 2 and pose.shape[1] == 3 and pose.dtype == np.float64
+    assert pose.flags.c_contiguous
+    out = np.empty((len(pose), 3))
+    library().plant_ticks_truths(len(pose), pose.ctypes.data, out.ctypes.data)
+    return out
 
 
 def clearances(pts: np.ndarray, statics: tuple) -> np.ndarray:

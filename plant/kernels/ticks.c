@@ -193,3 +193,31 @@ EXPORT void plant_ticks_scans(int64_t g, const int64_t *rows, const double *exac
         new_scan[r] = 1;
     }
 }
+
+/* The true (x, y, yaw) (n, 3) of kinematic robots at pose (n, 3), as their ground_truth
+ * messages give them back (diffbot/envs/obsmath.py's truths): the rotation of the yaw
+ * (plant/sim.py's kin_state: cos, sin), its quaternion (rotation_to_quaternion, both of
+ * its branches: the trace's, or the largest diagonal element's, m22 = 1), and the yaw of
+ * that (bus/codec.py's yaw_of: atan2, which Python's math.atan2 calls for finite values). */
+EXPORT void plant_ticks_truths(int64_t n, const double *pose, double *out)
+{
+    for (int64_t i = 0; i < n; i++) {
+        const double yaw = pose[3 * i + 2], c = cos(yaw), s = sin(yaw);
+        const double tr = c + c + 1.0;
+        double qx, qy, qz, qw;
+        if (tr > 0) {
+            const double s1 = sqrt(tr + 1.0) * 2;
+            qx = qy = 0.0 / s1;
+            qz = (s - -s) / s1;
+            qw = 0.25 * s1;
+        } else {
+            const double s2 = sqrt(1.0 + 1.0 - c - c) * 2;
+            qx = qy = 0.0 / s2;
+            qz = 0.25 * s2;
+            qw = (s - -s) / s2;
+        }
+        out[3 * i] = pose[3 * i];
+        out[3 * i + 1] = pose[3 * i + 1];
+        out[3 * i + 2] = atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz));
+    }
+}
