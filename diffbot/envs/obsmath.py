@@ -2,10 +2,11 @@
 the message path computes robot by robot (:meth:`controllers.learned.AvoidObserver.observation`,
 the ``ground_truth`` message read back with :func:`bus.codec.pose_2d`).
 
-numpy's ``+ - * /``, ``sqrt``, ``sin``, ``cos`` and ``%`` give Python's bits; its ``atan2``
-and ``hypot`` do not (they differ in the last bit): the ground truth's ``atan2`` is libm's,
-which ``math.atan2`` calls (plant/kernels/ticks.c), and a distance is ``math.hypot``'s.
-One world is computed in Python floats, which numpy's arrays are slower at.
+Many worlds are one call of plant/kernels/ticks.c each (the same operations in the same
+order, with libm's ``cos``, ``sin``, ``sqrt`` and ``atan2``, which Python's ``math`` calls:
+numpy's ``atan2`` differs in the last bit); one world is computed in Python floats, cheaper
+than a call. A distance to a goal stays ``math.hypot``'s (CPython's own algorithm, not
+libm's), robot by robot, in the callers.
 """
 from __future__ import annotations
 
@@ -20,8 +21,9 @@ from plant import kernels
 
 def observation(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray,
                 scans: np.ndarray) -> dict:
-    """:meth:`AvoidObserver.observation` of every world at once (one world: with its own
-    functions, Python floats, which numpy's arrays are slower at)."""
+    """:meth:`AvoidObserver.observation` of every world at once: the odometry and goal
+    parts in one call of plant/kernels/ticks.c (one world: with its own functions, Python
+    floats, cheaper than a call)."""
     if len(pose) == 1:
         x, y, th = pose[0].tolist()
         v, om = vel[0].tolist()
@@ -30,15 +32,10 @@ def observation(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray,
         in_robot = np.array([in_frame((x, y, th), gx, gy)], np.float32)
         return {"scan": scans.copy(), "odom": clip(odom, -ODOM_HIGH, ODOM_HIGH),
                 "goal": clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
-    x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
-    v, om = vel[:, 0], vel[:, 1]
-    c, s = np.cos(th), np.sin(th)
-    dx, dy = goal[:, 0] - x, goal[:, 1] - y
-    in_robot = np.stack([dx * c + dy * s, -dx * s + dy * c], 1).astype(np.float32)
-    odom = np.stack([x, y, (th + math.pi) % (2 * math.pi) - math.pi, v, om], 1
-                    ).astype(np.float32)
-    return {"scan": scans.copy(), "odom": clip(odom, -ODOM_HIGH, ODOM_HIGH),
-            "goal": clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
+    odom, in_robot = kernels.ticks_observe(*(np.ascontiguousarray(a, float)
+                                             for a in (pose, vel, goal)),
+                                           ODOM_HIGH, GOAL_LIMIT_M)
+    return {"scan": scans.copy(), "odom": odom, "goal": in_robot}
 
 
 def clamp(x: np.ndarray, lim: float) -> np.ndarray:

@@ -25,7 +25,8 @@ __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_w
            "noise_wide", "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
-           "tick_part", "ticks_scans", "ticks_truths", "sense_call", "observe_kinematic_call", "quaternions",
+           "tick_part", "ticks_scans", "ticks_truths",
+           "ticks_observe", "sense_call", "observe_kinematic_call", "quaternions",
            "quaternions_call", "lidar_noise", "drive_commands_call"]
 
 ABI = 4
@@ -91,6 +92,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_tick_part.argtypes = [_I, _I, _P, _P]
     lib.plant_ticks_scans.restype = None
     lib.plant_ticks_truths.restype = None
+    lib.plant_ticks_observe.restype = None
+    lib.plant_ticks_observe.argtypes = [_I, _P, _P, _P, _P, _D, _P, _P]
     lib.plant_ticks_truths.argtypes = [_I, _P, _P]
     lib.plant_ticks_scans.argtypes = [_I, _P, _P, _P, _P]
     lib.plant_ticks_count.restype = ctypes.c_int64
@@ -283,6 +286,24 @@ def ticks_truths(pose: np.ndarray) -> np.ndarray:
     out = np.empty((len(pose), 3))
     library().plant_ticks_truths(len(pose), pose.ctypes.data, out.ctypes.data)
     return out
+
+
+def ticks_observe(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray, odom_high: np.ndarray,
+                  goal_limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """The odometry (n, 5) and goal (n, 2) float32 parts of n robots' Avoid observations
+    from their dead-reckoned ``pose`` (n, 3), velocity ``vel`` (n, 2) and ``goal`` (n, 2),
+    float64, C-contiguous, clipped to +-``odom_high`` (5,) float32 and +-``goal_limit``
+    (plant/kernels/ticks.c: :func:`diffbot.envs.obsmath.observation`'s arithmetic)."""
+    n = len(pose)
+    for a, k in ((pose, 3), (vel, 2), (goal, 2)):
+        assert a.shape == (n, k) and a.dtype == np.float64 and a.flags.c_contiguous
+    assert odom_high.shape == (5,) and odom_high.dtype == np.float32
+    assert odom_high.flags.c_contiguous
+    odom, out = np.empty((n, 5), np.float32), np.empty((n, 2), np.float32)
+    library().plant_ticks_observe(n, pose.ctypes.data, vel.ctypes.data, goal.ctypes.data,
+                                  odom_high.ctypes.data, float(goal_limit), odom.ctypes.data,
+                                  out.ctypes.data)
+    return odom, out
 
 
 def clearances(pts: np.ndarray, statics: tuple) -> np.ndarray:

@@ -221,3 +221,48 @@ EXPORT void plant_ticks_truths(int64_t n, const double *pose, double *out)
         out[3 * i + 2] = atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz));
     }
 }
+
+/* x % m as Python's float % (and numpy's) gives it: fmod, moved to m's sign */
+static double py_mod(double x, double m)
+{
+    double r = fmod(x, m);
+    if (r != 0.0) {
+        if ((m < 0) != (r < 0))
+            r += m;
+    } else
+        r = copysign(0.0, m);
+    return r;
+}
+
+/* np.minimum(np.maximum(v, lo), hi) of float32s (a NaN stays one; at a tie the bound) */
+static float clip32(float v, float lo, float hi)
+{
+    if (v != v)
+        return v;
+    v = v > lo ? v : lo;
+    return v < hi ? v : hi;
+}
+
+/* The odometry and goal parts of n robots' Avoid observations (diffbot/envs/obsmath.py's
+ * observation; controllers/learned.py's AvoidObserver, robot by robot, in Python floats):
+ * odom (n, 5) float32 = (x, y, wrap(yaw), v, w) of the dead-reckoned pose (n, 3) and
+ * velocity vel (n, 2), clipped to +-odom_high (5); goal_out (n, 2) float32 = goal (n, 2)
+ * (in the odometry's frame) in the robot's frame, clipped to +-goal_limit. libm's cos and
+ * sin, which Python's math calls. */
+EXPORT void plant_ticks_observe(int64_t n, const double *pose, const double *vel,
+                                const double *goal, const float *odom_high, double goal_limit,
+                                float *odom, float *goal_out)
+{
+    const double pi = 3.141592653589793;
+    const float gl = (float)goal_limit;
+    for (int64_t i = 0; i < n; i++) {
+        const double x = pose[3 * i], y = pose[3 * i + 1], th = pose[3 * i + 2];
+        const double c = cos(th), s = sin(th);
+        const double dx = goal[2 * i] - x, dy = goal[2 * i + 1] - y;
+        const double v[5] = {x, y, py_mod(th + pi, 2 * pi) - pi, vel[2 * i], vel[2 * i + 1]};
+        for (int k = 0; k < 5; k++)
+            odom[5 * i + k] = clip32((float)v[k], -odom_high[k], odom_high[k]);
+        goal_out[2 * i] = clip32((float)(dx * c + dy * s), -gl, gl);
+        goal_out[2 * i + 1] = clip32((float)(-dx * s + dy * c), -gl, gl);
+    }
+}

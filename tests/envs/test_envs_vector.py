@@ -358,3 +358,30 @@ def test_an_ended_envs_ignored_action_may_be_anything_while_the_others_step():
     finally:
         fast.close()
         slow.close()
+
+
+def test_batch_observations_are_the_observers():
+    """obsmath.observation (every robot at once) gives each robot's odometry and goal parts
+    as its AvoidObserver.observation does, to the bit: yaws wrapped from far out and at the
+    wrap's edges, values clipped at both bounds."""
+    import math
+
+    from controllers.learned import AvoidObserver
+    from diffbot.envs.obsmath import observation
+    rng = np.random.default_rng(4)
+    edge = [0.0, -0.0, math.pi, -math.pi, 3 * math.pi, -3 * math.pi, 2 * math.pi, 1e-300,
+            np.nextafter(math.pi, 0), np.nextafter(-math.pi, 0), 1e6, -57.3]
+    yaw = np.concatenate([edge, rng.uniform(-20, 20, 500)])
+    w = yaw.size
+    pose = np.stack([rng.uniform(-150, 150, w), rng.uniform(-150, 150, w), yaw], 1)
+    vel = np.stack([rng.uniform(-15, 15, w), rng.uniform(-30, 30, w)], 1)
+    goal = rng.uniform(-200, 200, (w, 2))
+    scans = rng.uniform(0, 9, (w, 4)).astype(np.float32)
+    got = observation(pose, vel, goal, scans)
+    ob = AvoidObserver(0.05, 0.3, 4, 9.0)
+    for i in range(w):
+        od = ob.odom
+        (od.x, od.y, od.theta), (od.v, od.w) = pose[i].tolist(), vel[i].tolist()
+        ob.goal, ob.scan = tuple(goal[i].tolist()), scans[i]
+        one = ob.observation()
+        assert all(got[k][i].tobytes() == one[k].tobytes() for k in one), f"robot {i}"
