@@ -14,6 +14,11 @@ from plant.footprint import (CONTACT_MARGIN_M, FOOTPRINT_RADIUS_M, ROBOT_TOP_M, 
                              Footprints as _Static)
 
 
+#: the candidate points :meth:`Footprints.free_point` tests at once (most calls take the
+#: first few)
+_BLOCK = 8
+
+
 class Footprints(_Static):
     """The static world's footprint test (:class:`plant.footprint.Footprints`), with the
     environments' contacts between robots and their free points."""
@@ -48,17 +53,32 @@ class Footprints(_Static):
                    away_m: float = 0.0, within=None, tries: int = 2000) -> np.ndarray:
         """A point whose footprint keeps ``margin_m`` from walls and low objects, ``away_m``
         from each point of ``avoid``, and (if given) lies at a distance in the range
-        ``within`` = (lo, hi) from ``within_of``."""
+        ``within`` = (lo, hi) from ``within_of``: the first of ``rng``'s uniform draws in
+        the room that does, ``rng`` left just after it.
+
+        The draws are tested :data:`_BLOCK` at a time (one call of the clearance kernel, the
+        distances as arrays: the same numbers as one by one), and ``rng`` is taken back to
+        the state after the one chosen, so it draws what drawing them one by one draws."""
         need = FOOTPRINT_RADIUS_M + margin_m
-        for _ in range(tries):
-            p = rng.uniform(-self.half + need, self.half - need)
-            if self.clearance(p) < need:
-                continue
-            if any(np.hypot(*(p - q)) < away_m for q in avoid):
-                continue
+        low, high = -self.half + need, self.half - need
+        made = 0
+        while made < tries:
+            k = min(_BLOCK, tries - made)
+            state = rng.bit_generator.state
+            ps = rng.uniform(low, high, (k, 2))
+            ok = ~(self.clearances(ps) < need)
+            for q in avoid:
+                ok &= ~(np.hypot(ps[:, 0] - q[0], ps[:, 1] - q[1]) < away_m)
             if within is not None:
                 q, lo, hi = within
-                if not lo <= np.hypot(*(p - q)) <= hi:
-                    continue
-            return p
+                d = np.hypot(ps[:, 0] - q[0], ps[:, 1] - q[1])
+                ok &= (lo <= d) & (d <= hi)
+            hit = np.flatnonzero(ok)
+            if hit.size:
+                j = int(hit[0])
+                if j + 1 < k:                  # (the draws after it: not made)
+                    rng.bit_generator.state = state
+                    rng.uniform(low, high, (j + 1, 2))
+                return ps[j].copy()
+            made += k
         raise RuntimeError("no free point found: the world is too crowded for the robots")

@@ -10,8 +10,9 @@ plant/kernels/drive.c's plant_drive_commands), the step, the
 encoders with their noise (sense.c's noise law) and the dead reckoning; a kinematic world's
 ticks in one call up to where a lidar comes due, a DART world's in two halves, DART stepping
 between them. The lidars due are cast together, and their noise is the plant's kernel's
-(:func:`plant.kernels.lidar_noise`: a reading is a function of its key and tick, every
-world's drawn in one call). Every noise here is the core's code, drawn in C. Between steps each env's state stays
+(plant/kernels/sense.c's plant_lidar_noise: a reading is a function of its key and tick),
+every world's drawn at its own tick, with the observation's clip, in one call of ticks.c.
+Every noise here is the core's code, drawn in C. Between steps each env's state stays
 in arrays (:mod:`diffbot.envs.kept`); the observation and the ground truth are
 :mod:`diffbot.envs.obsmath`'s. A world that diverges is an error here (FloatingPointError),
 where the message path rebuilds it at t = 0. A world of several robots (a swarm's,
@@ -35,7 +36,7 @@ from plant.raycast import Scene
 from plant.sim import rotation_to_quaternion
 
 from .kept import Kept
-from .obsmath import clip, observation, truths
+from .obsmath import observation, truths
 from .transport import InProc
 
 
@@ -122,7 +123,7 @@ class ArrayTicks:
             k.read(at[stale], [tasks[j] for j in stale.tolist()],
                    None if names is None else [names[j] for j in stale.tolist()])
         plan = self._plan
-        if plan is None or stale.size or not plan.fits(at):
+        if plan is None or not plan.fits(at) or (stale.size and not plan.refresh(self, stale)):
             self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
         return plan.step(self, cmds)
 
@@ -133,8 +134,9 @@ _SLOTS = ("v w lim_wheels kind cmd targets limits std keys tick "
           "nbox box_c box_cos box_sin box_half ncirc circ_c circ_r half "
           "enc_keys enc_laws "
           "odo_pose odo_vel last last_t odo_r odo_d pos t "
-          "steps t_ns due sub step_ns tick_ns period").split()
-_PARAMS = "tick_s foot_r centre_x".split()
+          "steps t_ns due sub step_ns tick_ns period "
+          "lid_keys lid_laws lid_work raw scans new_scan rays").split()
+_PARAMS = "tick_s foot_r centre_x lid_lo lid_hi lid_q scan_max".split()
 
 
 class _TickPlan:
@@ -143,8 +145,9 @@ class _TickPlan:
     each tick, DART stepping it between them), the lidars cast where due between them,
     with everything the calls read laid out once: the rows' state (views of the
     :class:`~.kept.Kept` arrays when ``at`` is a run of rows, else copies written back each
-    step), the noises' keys and laws, the addresses. Kept from step to
-    step while the same worlds step and none was reset since (:meth:`fits`)."""
+    step), the noises' keys and laws, the addresses. Kept from step to step while the
+    same worlds step (:meth:`fits`); a kinematic world reset since is read again in place
+    (:meth:`refresh`), a DART world's reset makes a new plan."""
 
     def __init__(self, owner: ArrayTicks, at: np.ndarray, repeat: int) -> None:
         k = owner._kept
@@ -178,7 +181,10 @@ class _TickPlan:
         self.sub = sims[0].spec.substeps
         self.tick_ns = ticks[0].tick_ns
         self.wheels = np.zeros((w, 2))        # a DART world's wheel angles, each tick
-        self._noises(sims, names, sensors)
+        self._lid_work = np.zeros(cfg.num_rays)   # (the lidar noise's scratch)
+        self.drive_limits, self.motion_std = _drive(sims[0], names[0])
+        for f, a in _noises(sims, names, sensors).items():
+            setattr(self, f, a)
         self._lay_out(sims[0].spec, sensors[0])
         self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
         self._key = self.at.tobytes()
@@ -190,25 +196,32 @@ class _TickPlan:
         if self.kinematic:
             self._base[0, 2, 3] = float(self.worlds.batch.radius[0])
 
-    def _noises(self, sims: list, names: list[str], sensors: list) -> None:
-        """The noises' keys and laws, each drawn in the kernels from its key and the tick:
-        the motion noise's (plant_drive_commands), the encoders' (ticks.c, as the plant's
-        sensors draw it), the lidar's."""
-        robot = sims[0].spec.robot(names[0])
-        dt = sims[0].spec.control_tick_s
-        self.drive_limits, self.motion_std = limits_of([robot], dt), motion_std([robot])
-        self.motion_keys = _keys([s.motion_noise[n] for s, n in zip(sims, names)])
-        models = [s.enc_noise for s in sensors]
-        if models[0] is None:
-            self.enc_keys = self.enc_laws = None
-        else:
-            self.enc_keys = _keys(models)
-            self.enc_laws = np.array([noise_law(m.config) for m in models], float).reshape(-1, 4)
-        models = [s.lidar_noise for s in sensors]
-        self.lid_keys = (np.zeros(len(models), np.uint64) if models[0] is None
-                         else _keys(models))
-        self.lid_laws = np.array([(0.0,) * 4 if m is None else noise_law(m.config)
-                                  for m in models], float).reshape(-1, 4)
+    def refresh(self, owner: ArrayTicks, stale: np.ndarray) -> bool:
+        """Rows ``stale`` (indices in :attr:`at`) read again after their worlds' reset, in
+        place: a kinematic world restarts in place (:meth:`plant.sim.Simulation.restart`:
+        the same objects and arrays), so only its noise streams, goal and state are new
+        (the state read by :meth:`Kept.read` already). False when the plan cannot keep
+        them (a DART world is built anew): the plan is made again."""
+        if not self.kinematic:
+            return False
+        k, batch = owner._kept, self.worlds.batch
+        roster = [k.roster[i] for i in self.at[stale].tolist()]
+        if any(r[3] is not self.sims[j] or (r[3].kin.batch or r[3].kin) is not batch
+               for j, r in zip(stale.tolist(), roster)):
+            return False
+        names, sensors, sims, obs = (list(c) for c in zip(*[r[1:5] for r in roster]))
+        new = _noises(sims, names, sensors)
+        if any((a is None) != (getattr(self, f) is None) for f, a in new.items()):
+            return False                       # (a noise on in some worlds, off in others)
+        for f, a in new.items():
+            if a is not None:
+                getattr(self, f)[stale] = a    # (in place: the kernels' addresses stay)
+        self.goal[stale] = np.array([o.goal for o in obs], float).reshape(-1, 2)
+        if not self.run:                       # (the state's copies: Kept.read's rows)
+            rows = self.at[stale]
+            for f in Kept.STATE:
+                self.state[f][stale] = getattr(k, f)[rows]
+        return True
 
     def _lay_out(self, sim_spec, sensors) -> None:
         """The addresses of every block plant/kernels/ticks.c reads (its slots, in
@@ -234,12 +247,19 @@ class _TickPlan:
             "last_t": st["last_t"], "odo_r": st["r"], "odo_d": st["d"], "pos": self.pos,
             "t": self.t, "steps": st["steps"], "t_ns": st["t_ns"], "due": self.due,
             "sub": sim_spec.substeps, "step_ns": int(round(sim_spec.physics_step_s * 1e9)),
-            "tick_ns": self.tick_ns, "period": sensors.periods["scan"]}
+            "tick_ns": self.tick_ns, "period": sensors.periods["scan"],
+            "lid_keys": self.lid_keys, "lid_laws": self.lid_laws, "lid_work": self._lid_work,
+            "raw": self.raw, "scans": st["scans"], "new_scan": self.new_scan.view(np.uint8),
+            "rays": self.cfg.num_rays}
+        assert st["scans"].dtype == np.float32 and self.raw.dtype == np.float32
         slots.update(zip(_SLOTS[_SLOTS.index("radius"):], robots))
         slots.update(zip(_SLOTS[_SLOTS.index("nbox"):], statics))
         self.slots = np.array([kernels.ptr(slots[n]) for n in _SLOTS], np.int64)
+        cfg = self.cfg
         params = {"tick_s": tick_s, "foot_r": kinematic.FOOTPRINT_RADIUS_M,
-                  "centre_x": kinematic.CHASSIS_CENTRE_X_M}
+                  "centre_x": kinematic.CHASSIS_CENTRE_X_M, "lid_lo": cfg.min_range_m,
+                  "lid_hi": cfg.max_range_m, "lid_q": cfg.resolution_m,
+                  "scan_max": self.max_range}
         self.params = np.array([params[n] for n in _PARAMS], float)
         if kernels.library().plant_ticks_count() != len(_SLOTS) * 1000 + len(_PARAMS):
             raise kernels.KernelsMissing("plant/kernels/ticks.c's blocks are not the ones "
@@ -303,18 +323,9 @@ class _TickPlan:
 
     def _scan(self, owner: ArrayTicks, due: np.ndarray) -> None:
         """The lidars of rows ``due`` (their robots where the last tick left them)."""
-        cfg = self.cfg
-        if self.shared:
-            exact = self._cast_worlds(due)
-        else:
-            exact = self._cast(owner, due)
-        r32 = self._lidar_noise(cfg, np.ascontiguousarray(exact, float), due)
-        scans = np.where(np.isfinite(r32), clip(r32, 0.0, self.max_range),
-                         np.float32(self.max_range)).astype(np.float32)
-        if due.size == len(self.at):
-            self.raw[:], self.state["scans"][:], self.new_scan[:] = r32, scans, True
-        else:
-            self.raw[due], self.state["scans"][due], self.new_scan[due] = r32, scans, True
+        exact = self._cast_worlds(due) if self.shared else self._cast(owner, due)
+        # their noise, each at its world's tick, and the observation's clip: one kernel call
+        kernels.ticks_scans(due, np.ascontiguousarray(exact, float), *self._addr)
 
     def _cast(self, owner: ArrayTicks, due: np.ndarray) -> np.ndarray:
         """The exact ranges of one-robot worlds' rows ``due`` (the room alone: a lidar skips
@@ -360,22 +371,32 @@ class _TickPlan:
                                                zip(firsts.tolist(), layouts)])
             self._part_rel = np.concatenate([lay[4] for lay in layouts])
 
-    def _lidar_noise(self, cfg, exact: np.ndarray, due: np.ndarray) -> np.ndarray:
-        """The reported ranges (float32) of rows ``due``'s exact ones: the plant's lidar
-        noise kernel (:func:`plant.kernels.lidar_noise`, as the core's tick draws it), one
-        call for the rows at the same tick (all of them, unless some world was reset)."""
-        ticks = self.state["t_ns"][due] // self.tick_ns
-        keys, laws = self.lid_keys[due], self.lid_laws[due]
-        args = (cfg.min_range_m, cfg.max_range_m, cfg.resolution_m)
-        first = int(ticks[0])
-        if (ticks == first).all():
-            return kernels.lidar_noise(exact, keys, laws, first, *args)
-        out = np.empty(exact.shape, np.float32)
-        for t in np.unique(ticks).tolist():
-            rows = ticks == t
-            out[rows] = kernels.lidar_noise(np.ascontiguousarray(exact[rows]), keys[rows],
-                                            laws[rows], int(t), *args)
-        return out
+
+def _drive(sim, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The drive limits and motion noise std of robot ``name`` of ``sim``'s spec, as
+    plant_drive_commands reads them (a batch's robots share them)."""
+    robot = sim.spec.robot(name)
+    return limits_of([robot], sim.spec.control_tick_s), motion_std([robot])
+
+
+def _noises(sims: list, names: list[str], sensors: list) -> dict:
+    """The noises' keys and laws of robots ``names`` (one per world of ``sims``, with its
+    ``sensors``), each drawn in the kernels from its key and the tick: the motion noise's
+    (plant_drive_commands), the encoders' (ticks.c, as the plant's sensors draw it; None
+    when off), the lidar's (laws of zeros when off)."""
+    out = {"motion_keys": _keys([s.motion_noise[n] for s, n in zip(sims, names)])}
+    models = [s.enc_noise for s in sensors]
+    if models[0] is None:
+        out["enc_keys"] = out["enc_laws"] = None
+    else:
+        out["enc_keys"] = _keys(models)
+        out["enc_laws"] = np.array([noise_law(m.config) for m in models], float).reshape(-1, 4)
+    models = [s.lidar_noise for s in sensors]
+    out["lid_keys"] = (np.zeros(len(models), np.uint64) if models[0] is None
+                       else _keys(models))
+    out["lid_laws"] = np.array([(0.0,) * 4 if m is None else noise_law(m.config)
+                                for m in models], float).reshape(-1, 4)
+    return out
 
 
 class Diverged(Exception):

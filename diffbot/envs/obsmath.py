@@ -2,9 +2,11 @@
 the message path computes robot by robot (:meth:`controllers.learned.AvoidObserver.observation`,
 the ``ground_truth`` message read back with :func:`bus.codec.pose_2d`).
 
-numpy's ``+ - * /``, ``sqrt``, ``sin``, ``cos`` and ``%`` give Python's bits; its ``atan2``
-and ``hypot`` do not (they differ in the last bit), so those are ``math``'s, robot by robot.
-One world is computed in Python floats, which numpy's arrays are slower at.
+Many worlds are one call of plant/kernels/ticks.c each (the same operations in the same
+order, with libm's ``cos``, ``sin``, ``sqrt`` and ``atan2``, which Python's ``math`` calls:
+numpy's ``atan2`` differs in the last bit); one world is computed in Python floats, cheaper
+than a call. A distance to a goal stays ``math.hypot``'s (CPython's own algorithm, not
+libm's), robot by robot, in the callers.
 """
 from __future__ import annotations
 
@@ -14,12 +16,14 @@ import numpy as np
 
 from bus.codec import yaw_of
 from controllers.learned import GOAL_LIMIT_M, ODOM_HIGH, in_frame, wrap
+from plant import kernels
 
 
 def observation(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray,
                 scans: np.ndarray) -> dict:
-    """:meth:`AvoidObserver.observation` of every world at once (one world: with its own
-    functions, Python floats, which numpy's arrays are slower at)."""
+    """:meth:`AvoidObserver.observation` of every world at once: the odometry and goal
+    parts in one call of plant/kernels/ticks.c (one world: with its own functions, Python
+    floats, cheaper than a call)."""
     if len(pose) == 1:
         x, y, th = pose[0].tolist()
         v, om = vel[0].tolist()
@@ -28,15 +32,10 @@ def observation(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray,
         in_robot = np.array([in_frame((x, y, th), gx, gy)], np.float32)
         return {"scan": scans.copy(), "odom": clip(odom, -ODOM_HIGH, ODOM_HIGH),
                 "goal": clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
-    x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
-    v, om = vel[:, 0], vel[:, 1]
-    c, s = np.cos(th), np.sin(th)
-    dx, dy = goal[:, 0] - x, goal[:, 1] - y
-    in_robot = np.stack([dx * c + dy * s, -dx * s + dy * c], 1).astype(np.float32)
-    odom = np.stack([x, y, (th + math.pi) % (2 * math.pi) - math.pi, v, om], 1
-                    ).astype(np.float32)
-    return {"scan": scans.copy(), "odom": clip(odom, -ODOM_HIGH, ODOM_HIGH),
-            "goal": clip(in_robot, -GOAL_LIMIT_M, GOAL_LIMIT_M)}
+    odom, in_robot = kernels.ticks_observe(*(np.ascontiguousarray(a, float)
+                                             for a in (pose, vel, goal)),
+                                           ODOM_HIGH, GOAL_LIMIT_M)
+    return {"scan": scans.copy(), "odom": odom, "goal": in_robot}
 
 
 def clamp(x: np.ndarray, lim: float) -> np.ndarray:
@@ -54,26 +53,12 @@ def truths(pose: np.ndarray) -> np.ndarray:
     """(x, y, yaw) (W, 3) of kinematic robots at ``pose`` (W, 3) as their ``ground_truth``
     messages give them: :meth:`plant.sim.Simulation.kin_state`'s rotation, its quaternion
     (:func:`plant.sim.rotation_to_quaternion`, both of its branches), back to a yaw
-    (:func:`bus.codec.quaternion_to_yaw`, ``math.atan2``: numpy's differs in the last bit)."""
+    (:func:`bus.codec.quaternion_to_yaw`, ``math.atan2``: numpy's differs in the last bit),
+    all robots in one call of plant/kernels/ticks.c (libm's ``cos``, ``sin``, ``sqrt`` and
+    ``atan2``: what ``math``'s call)."""
     if len(pose) == 1:
         return np.array([truth_of(*pose[0].tolist())])
-    yaw = pose[:, 2]
-    c, s = np.cos(yaw), np.sin(yaw)
-    # the rotation [[c, -s, 0], [s, c, 0], [0, 0, 1]]: trace (m00 + m11) + m22
-    tr = c + c + 1.0
-    pos = tr > 0
-    s1 = np.sqrt(np.where(pos, tr, 0.0) + 1.0) * 2              # tr > 0
-    s2 = np.sqrt(np.where(pos, 1.0, 1.0 + 1.0 - c - c)) * 2     # else: the largest is m22
-    zero = 0.0 / np.where(pos, s1, s2)                          # (m21 - m12) / s, ...
-    qx = qy = zero
-    qz = np.where(pos, (s - -s) / s1, 0.25 * s2)
-    qw = np.where(pos, 0.25 * s1, (s - -s) / s2)
-    num = 2.0 * (qw * qz + qx * qy)
-    den = 1.0 - 2.0 * (qy * qy + qz * qz)
-    out = np.empty_like(pose, dtype=float)
-    out[:, :2] = pose[:, :2]
-    out[:, 2] = [math.atan2(a, b) for a, b in zip(num.tolist(), den.tolist())]
-    return out
+    return kernels.ticks_truths(np.ascontiguousarray(pose, float))
 
 
 def truth_of(x: float, y: float, yaw: float) -> tuple[float, float, float]:

@@ -68,7 +68,7 @@ class Out:
             first = col[0]
             sample = first.item() if isinstance(first, np.generic) else first
             a = self._array(key, sample)
-            if a.dtype == object:
+            if a.dtype == object and not (isinstance(col, np.ndarray) and col.dtype == object):
                 for r, v in zip(rows.tolist(), col):
                     a[r] = v
             else:

@@ -54,6 +54,7 @@ class SwarmArrays:
         self._ok = np.zeros(self.w, bool)
         self._kept = np.zeros(self.w, bool)
         self._dist = np.zeros((self.w, self.n))
+        self._goals = np.zeros((self.w, self.n, 2))     # (read with the distances)
         self._cols = np.arange(self.n)
 
     @staticmethod
@@ -118,6 +119,7 @@ class SwarmArrays:
         before = self._dist[at]
         for j in np.flatnonzero(~self._kept[at]).tolist():
             before[j] = [tasks[j]._distance(a) for a in names]
+            self._goals[at[j]] = [tasks[j].goals[a] for a in names]
         try:
             made = self.ticks.advance([t for t in tasks for _ in names], twists.reshape(-1, 2),
                                       self._rows(at), np.repeat(~self._kept[at], n), names * k)
@@ -129,10 +131,11 @@ class SwarmArrays:
         truth = made.truth
         centres = footprint_centres(*truth.T).reshape(k, n, 2)
         contact = contacts(first.geo, centres)
-        goals = np.array([[t.goals[a] for a in names] for t in tasks], float).reshape(k, n, 2)
+        goals = self._goals[at]
+        flat = goals.reshape(-1, 2)
         # AvoidTask._distance of each robot, by the truth the step left (math.hypot's bits)
-        d = np.array([math.hypot(gx - x, gy - y) for (gx, gy), (x, y, _)
-                      in zip(goals.reshape(-1, 2).tolist(), truth.tolist())]).reshape(k, n)
+        d = np.array(list(map(math.hypot, (flat[:, 0] - truth[:, 0]).tolist(),
+                              (flat[:, 1] - truth[:, 1]).tolist()))).reshape(k, n)
         self._dist[at], self._kept[at] = d, True
         success = d < first.goal_radius
         rew = step_rewards(before, d, success, contact)

@@ -229,14 +229,20 @@ class SwarmVectorEnv:
         stepping = np.flatnonzero(~self._needs_reset).tolist()
         live = {i: list(self.envs[i].agents) for i in stepping}
         index = {a: j for j, a in enumerate(self.possible_agents)}
-        self._check(actions, live, index)      # before any world moves
+        used = np.zeros((w, n), bool)          # the live robots' rows
+        for i, agents in live.items():
+            if len(agents) == n:
+                used[i] = True
+            else:
+                used[i, [index[a] for a in agents]] = True
+        self._check(actions, used)             # before any world moves
         rows = _Rows(w, n, self.single_observation_space)
         for i in np.flatnonzero(self._needs_reset).tolist():           # NEXT_STEP
             obs, infos = self._reset_world(i, None)
             rows.put(i, self.possible_agents, obs, infos)
         tasks = [self.envs[i].task for i in stepping]
         if tasks and self.arrays is not None and self.arrays.fits(tasks, stepping):
-            self._step_arrays(stepping, tasks, actions, live, rows)
+            self._step_arrays(stepping, tasks, actions, used[stepping], rows)
         elif tasks:
             if self.arrays is not None:
                 self.arrays.flush(stepping)
@@ -256,18 +262,17 @@ class SwarmVectorEnv:
         return rows.obs, rows.rew, rows.term, rows.trunc, rows.infos
 
     def _step_arrays(self, stepping: list[int], tasks: list, actions: np.ndarray,
-                     live: dict, rows: _Rows) -> None:
-        """The step of worlds ``stepping`` as arrays (:mod:`diffbot.envs.swarm_arrays`):
-        the numbers the message path gives."""
-        mask = np.zeros((len(stepping), self.n_robots), bool)
-        for j, i in enumerate(stepping):
-            mask[j] = [a in live[i] for a in self.possible_agents]
+                     mask: np.ndarray, rows: _Rows) -> None:
+        """The step of worlds ``stepping`` as arrays (:mod:`diffbot.envs.swarm_arrays`),
+        ``mask`` (K, N) their live robots: the numbers the message path gives."""
         obs, rew, term, trunc, infos = self.arrays.step(tasks, stepping, actions[stepping],
                                                         mask)
         rows.put_block(stepping, mask, obs, rew, term, trunc, infos)
-        ended = mask & ~(term | trunc)
-        for j, i in enumerate(stepping):
-            self.envs[i].agents = [a for a, on in zip(self.possible_agents, ended[j]) if on]
+        going = mask & ~(term | trunc)
+        changed = (going != mask).any(1)
+        for j in np.flatnonzero(changed).tolist():      # (the others' agents stay)
+            self.envs[stepping[j]].agents = [a for a, on in zip(self.possible_agents,
+                                                                going[j].tolist()) if on]
 
     def _reset_world(self, i: int, seed: int | None) -> tuple[dict, dict]:
         """World ``i``'s reset (its objects brought up to date with the arrays first)."""
@@ -275,12 +280,9 @@ class SwarmVectorEnv:
             self.arrays.forget(i)
         return self.envs[i].reset(seed=seed)
 
-    def _check(self, actions: np.ndarray, live: dict, index: dict) -> None:
-        """The actions of the live robots (check_action's ValueError, naming the first bad
-        one, before any world steps)."""
-        used = np.zeros(actions.shape[:2], bool)
-        for i, agents in live.items():
-            used[i, [index[a] for a in agents]] = True
+    def _check(self, actions: np.ndarray, used: np.ndarray) -> None:
+        """The actions of the live robots, ``used`` (W, N) (check_action's ValueError, naming
+        the first bad one, before any world steps)."""
         try:
             ok = bool(np.isfinite(actions[used].astype(np.float32)).all())
         except (TypeError, ValueError):

@@ -43,6 +43,7 @@ class Worlds:
             self.close()
             raise
         self.robot = self.tasks[0].robots[0]
+        self.kinematic = self.tasks[0].transport.spec.mode == "kinematic"
         self._obs_space = self.tasks[0].observation_space(self.robot)
         self._rngs: list[np.random.Generator | None] = [None] * self.n
         self._steps = np.zeros(self.n, np.int64)
@@ -56,6 +57,9 @@ class Worlds:
         self._eligible = np.zeros(self.n, bool)
         self._dist = np.zeros(self.n)
         self._kept = np.zeros(self.n, bool)
+        #: each env's goal (x, y) in the world and its episode, as its last reset drew them
+        self._goals = np.zeros((self.n, 2))
+        self._episodes = np.full(self.n, None, dtype=object)
 
     def spaces(self):
         t = self.tasks[0]
@@ -74,6 +78,8 @@ class Worlds:
         task = self.tasks[i]
         obs, info = task.reset(self._rngs[i])
         task.episode.seed = seed
+        self._goals[i] = task.goals[self.robot]
+        self._episodes[i] = task.episode
         self._steps[i] = 0
         self._needs_reset[i] = False
         self._eligible[i] = self._kept[i] = False
@@ -95,9 +101,8 @@ class Worlds:
             live = np.flatnonzero(~self._needs_reset)
         else:          # (DISABLED: AvoidVectorEnv.step refused a step of an ended episode)
             resets, live = np.zeros(0, np.int64), np.arange(self.n)
-        tasks = [self.tasks[i] for i in live]
         if live.size and self._arrays_for(live):
-            self._step_arrays(live, tasks, np.asarray(actions)[live], out)
+            self._step_arrays(live, np.asarray(actions), out, resets)
         elif live.size:
             if self.arrays is not None:
                 self.arrays.flush(live)
@@ -152,38 +157,62 @@ class Worlds:
             self._eligible[unknown] = True
         return True
 
-    def _step_arrays(self, live: np.ndarray, tasks: list[AvoidTask], actions: np.ndarray,
-                     out: "Out") -> None:
+    def _step_arrays(self, live: np.ndarray, actions: np.ndarray, out: "Out",
+                     resets: np.ndarray) -> None:
         """The live envs' step as arrays (:mod:`diffbot.envs.kinbatch`): each task's
-        ``begin_step``, ticks and ``end_step`` for all at once, the same numbers."""
-        robot, first = self.robot, tasks[0]
-        twists = first.drives[robot].commands(actions)
-        before = self._dist[live]                  # where the last step left each robot
-        fresh = ~self._kept[live]
+        ``begin_step``, ticks and ``end_step`` for all at once, the same numbers.
+
+        In a kinematic batch whose every env steps as arrays, the envs whose reset follows
+        (``resets``: their episodes ended last step) step too, standing (a command of 0),
+        their results dropped: so the batch steps the same rows each step and keeps its
+        plan (a kinematic world restarts in place, :meth:`ArrayTicks.advance` reads its new
+        episode in). Nothing of theirs outlives the reset: it restarts the world (the
+        robot's arrays these ticks moved), its sensors, observer and odometry, and the
+        task's episode."""
+        robot = self.robot
+        rows, on = live, None
+        if resets.size and self._eligible.all() and self.kinematic:
+            rows, on = np.arange(self.n), ~self._needs_reset
+        tasks = [self.tasks[i] for i in rows.tolist()]
+        first = tasks[0]
+        acts = np.asarray(actions, np.float32)[rows]
+        if on is not None:
+            acts[~on] = 0.0                        # (an ended env's action is ignored)
+        twists = first.drives[robot].commands(acts)
+        before = self._dist[rows]                  # where the last step left each robot
+        fresh = ~self._kept[rows]
         for j in np.flatnonzero(fresh).tolist():
             before[j] = tasks[j]._distance(robot)
-        made = self.arrays.advance(tasks, twists, live, fresh)
-        contact = first.geo.touching(footprint_centres(*made.truth.T))
-        goals = np.array([t.goals[robot] for t in tasks], float).reshape(-1, 2)
-        # AvoidTask._distance of each, by the truth advance left
-        d = np.array([math.hypot(gx - x, gy - y) for (gx, gy), (x, y, _)
-                      in zip(goals.tolist(), made.truth.tolist())])
-        self._dist[live], self._kept[live] = d, True
+        made = self.arrays.advance(tasks, twists, rows, fresh)
+        truth, obs, t_ns = made.truth, made.obs, made.t_ns
+        if on is not None:                         # (the live envs' results only)
+            tasks = [t for t, o in zip(tasks, on.tolist()) if o]
+            truth, t_ns, before = truth[on], t_ns[on], before[on]
+            obs = {key: a[on] for key, a in obs.items()}
+        contact = first.geo.touching(footprint_centres(*truth.T))
+        goals = self._goals[live]
+        # AvoidTask._distance of each (math.hypot: numpy's differs in the last bit)
+        d = np.array(list(map(math.hypot, (goals[:, 0] - truth[:, 0]).tolist(),
+                              (goals[:, 1] - truth[:, 1]).tolist())))
+        self._dist[live], self._kept[rows] = d, True
         success = d < first.goal_radius
         rew = step_rewards(before, d, success, contact)
         term = success | contact
         self._steps[live] += 1
         trunc = (np.zeros(live.size, bool) if self.max_episode_steps is None
                  else self._steps[live] >= self.max_episode_steps)        # as TimeLimit
-        for t, hit, ended in zip(tasks, contact.tolist(), term.tolist()):
+        for t in tasks:
             t.steps += 1
-            t.touched = {robot} if hit else set()
-            if ended:
-                t.active.discard(robot)
-        out.put_rows(live, made.obs, rew, term, trunc, {
-            "pose": made.truth, "goal": goals, "distance": d,
-            "is_success": success & ~contact, "contact": contact, "t": made.t_ns * 1e-9,
-            "plant": [t.episode for t in tasks]})
+            if t.touched:
+                t.touched = set()
+        for j in np.flatnonzero(contact).tolist():
+            tasks[j].touched = {robot}
+        for j in np.flatnonzero(term).tolist():
+            tasks[j].active.discard(robot)
+        out.put_rows(live, obs, rew, term, trunc, {
+            "pose": truth, "goal": goals, "distance": d,
+            "is_success": success & ~contact, "contact": contact, "t": t_ns * 1e-9,
+            "plant": self._episodes[live]})
 
     def _advance(self, live: list[int], cmds: dict) -> None:
         """Every live env's ``action_repeat`` ticks (:func:`advance_together`)."""

@@ -25,7 +25,8 @@ __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_w
            "noise_wide", "image_noise", "normals",
            "ptr",
            "kinematic_step", "clearances", "ticks",
-           "tick_part", "sense_call", "observe_kinematic_call", "quaternions",
+           "tick_part", "ticks_scans", "ticks_truths",
+           "ticks_observe", "sense_call", "observe_kinematic_call", "quaternions",
            "quaternions_call", "lidar_noise", "drive_commands_call"]
 
 ABI = 4
@@ -33,7 +34,7 @@ CAMERA_ABI = 3
 NOISE_ABI = 3
 DRIVE_ABI = 2
 KINEMATIC_ABI = 2
-TICKS_ABI = 5
+TICKS_ABI = 6
 SENSE_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
@@ -89,6 +90,12 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_ticks.argtypes = [_I, _I, _P, _P]
     lib.plant_tick_part.restype = ctypes.c_int64
     lib.plant_tick_part.argtypes = [_I, _I, _P, _P]
+    lib.plant_ticks_scans.restype = None
+    lib.plant_ticks_truths.restype = None
+    lib.plant_ticks_observe.restype = None
+    lib.plant_ticks_observe.argtypes = [_I, _P, _P, _P, _P, _D, _P, _P]
+    lib.plant_ticks_truths.argtypes = [_I, _P, _P]
+    lib.plant_ticks_scans.argtypes = [_I, _P, _P, _P, _P]
     lib.plant_ticks_count.restype = ctypes.c_int64
     lib.plant_ticks_count.argtypes = []
     lib.plant_clearances.restype = None
@@ -257,6 +264,46 @@ def tick_part(n: int, part: int, slots: Array, params: Array) -> int:
     what follows the step (the engine's wheel angles put in the wheels' slot first):
     whether some world's lidar is due."""
     return library().plant_tick_part(n, part, ptr(slots), ptr(params))
+
+
+def ticks_scans(rows: np.ndarray, exact: np.ndarray, slots: Array, params: Array) -> None:
+    """The scans of the worlds ``rows`` (int64 (g,)) whose lidar :func:`ticks` found due,
+    from their exact ranges ``exact`` (g, rays) float64, C-contiguous (plant/kernels/ticks.c:
+    each world's lidar noise at its own tick, as :func:`lidar_noise` draws it, and the
+    observation's clip), into the arrays ``slots`` names."""
+    assert rows.dtype == np.int64 and rows.flags.c_contiguous and exact.dtype == np.float64
+    assert exact.flags.c_contiguous and exact.shape[0] == rows.size
+    library().plant_ticks_scans(rows.size, rows.ctypes.data, exact.ctypes.data, ptr(slots),
+                                ptr(params))
+
+
+def ticks_truths(pose: np.ndarray) -> np.ndarray:
+    """The true (x, y, yaw), a new (n, 3) array, of kinematic robots at ``pose`` (n, 3)
+    float64, C-contiguous, as their ``ground_truth`` messages give them back
+    (plant/kernels/ticks.c: :func:`diffbot.envs.obsmath.truths`' arithmetic)."""
+    assert pose.ndim == 2 and pose.shape[1] == 3 and pose.dtype == np.float64
+    assert pose.flags.c_contiguous
+    out = np.empty((len(pose), 3))
+    library().plant_ticks_truths(len(pose), pose.ctypes.data, out.ctypes.data)
+    return out
+
+
+def ticks_observe(pose: np.ndarray, vel: np.ndarray, goal: np.ndarray, odom_high: np.ndarray,
+                  goal_limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """The odometry (n, 5) and goal (n, 2) float32 parts of n robots' Avoid observations
+    from their dead-reckoned ``pose`` (n, 3), velocity ``vel`` (n, 2) and ``goal`` (n, 2),
+    float64, C-contiguous, clipped to +-``odom_high`` (5,) float32 and +-``goal_limit``
+    (plant/kernels/ticks.c: :func:`diffbot.envs.obsmath.observation`'s arithmetic)."""
+    n = len(pose)
+    for a, k in ((pose, 3), (vel, 2), (goal, 2)):
+        assert a.shape == (n, k) and a.dtype == np.float64 and a.flags.c_contiguous
+    assert odom_high.shape == (5,) and odom_high.dtype == np.float32
+    assert odom_high.flags.c_contiguous
+    odom, out = np.empty((n, 5), np.float32), np.empty((n, 2), np.float32)
+    library().plant_ticks_observe(n, pose.ctypes.data, vel.ctypes.data, goal.ctypes.data,
+                                  odom_high.ctypes.data, float(goal_limit), odom.ctypes.data,
+                                  out.ctypes.data)
+    return odom, out
 
 
 def clearances(pts: np.ndarray, statics: tuple) -> np.ndarray:

@@ -21,7 +21,7 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_ticks_abi(void) { return 5; }
+EXPORT int plant_ticks_abi(void) { return 6; }
 
 void plant_drive_commands(int64_t worlds, int64_t n, const int64_t *tick,
                           const double *limits, const double *std, const uint64_t *keys,
@@ -29,6 +29,9 @@ void plant_drive_commands(int64_t worlds, int64_t n, const int64_t *tick,
                           double *wheels, double *targets);
 void plant_noise_values(const double *law, uint64_t key, int64_t tick, int64_t n,
                         const double *x, double *y);
+void plant_lidar_noise(int64_t g, int64_t n, const double *exact, const uint64_t *keys,
+                       const double *laws, int64_t tick, double lo, double hi, double q,
+                       double *work, float *out);
 void plant_odometry(int64_t n, const double *pos, const double *t, double *pose, double *vel,
                     double *last, double *last_t, const double *r, const double *d);
 int plant_kinematic_step(int64_t n, double T, const double *targets, const double *radius,
@@ -52,11 +55,13 @@ enum {
     A_ENC_KEYS, A_ENC_LAWS,                                        /* encoder noise (0: none) */
     A_ODO_POSE, A_ODO_VEL, A_LAST, A_LAST_T, A_ODO_R, A_ODO_D, A_POS, A_T, /* dead reckoning */
     A_STEPS, A_T_NS, A_DUE, A_SUB, A_STEP_NS, A_TICK_NS, A_PERIOD, /* clocks, lidar due */
+    A_LID_KEYS, A_LID_LAWS, A_LID_WORK, A_RAW, A_SCANS, A_NEW_SCAN, A_RAYS, /* the scans */
     A_COUNT
 };
 /* ... and of its double block */
 enum {
     P_TICK_S, P_FOOT_R, P_CENTRE_X,                /* the kinematic step's */
+    P_LID_LO, P_LID_HI, P_LID_Q, P_SCAN_MAX,       /* the lidar's range, step; the scan's bound */
     P_COUNT
 };
 
@@ -152,4 +157,112 @@ EXPORT int64_t plant_tick_part(int64_t n, int64_t part, const int64_t *a, const 
         return 0;
     }
     return after(n, a);
+}
+
+/* The scans of the g worlds rows[0 .. g) whose lidar is due, from their exact ranges exact
+ * (g, rays) float64: each row's reported ranges (raw, (n, rays) float32) with its lidar's
+ * noise (keys (n), laws (n, 4)) at its own world's tick (plant_lidar_noise, as the plant's
+ * tick draws it), and its observation's scan (scans, (n, rays) float32): each finite
+ * reading clipped to [0, max] as np.minimum(np.maximum(r, 0), max) does, max where it is
+ * not finite (controllers.learned.AvoidObserver); new_scan (n, bool) marks the rows. */
+EXPORT void plant_ticks_scans(int64_t g, const int64_t *rows, const double *exact,
+                              const int64_t *a, const double *p)
+{
+    const int64_t rays = a[A_RAYS], tick_ns = a[A_TICK_NS];
+    const int64_t *t_ns = PTR(const int64_t, A_T_NS);
+    const uint64_t *keys = PTR(const uint64_t, A_LID_KEYS);
+    const double *laws = PTR(const double, A_LID_LAWS);
+    double *work = PTR(double, A_LID_WORK);
+    float *raw = PTR(float, A_RAW), *scans = PTR(float, A_SCANS);
+    uint8_t *new_scan = PTR(uint8_t, A_NEW_SCAN);
+    const float top = (float)p[P_SCAN_MAX];
+    for (int64_t k = 0; k < g; k++) {
+        const int64_t r = rows[k];
+        float *y = raw + r * rays, *s = scans + r * rays;
+        plant_lidar_noise(1, rays, exact + k * rays, keys + r, laws + 4 * r, t_ns[r] / tick_ns,
+                          p[P_LID_LO], p[P_LID_HI], p[P_LID_Q], work, y);
+        for (int64_t i = 0; i < rays; i++) {
+            float v = y[i];
+            if (isfinite(v)) {
+                v = (v > 0.0f) ? v : 0.0f;        /* np.maximum(v, 0): 0 at a tie (-0.0) */
+                v = (v < top) ? v : top;          /* np.minimum(v, max): max at a tie */
+            } else
+                v = top;
+            s[i] = v;
+        }
+        new_scan[r] = 1;
+    }
+}
+
+/* The true (x, y, yaw) (n, 3) of kinematic robots at pose (n, 3), as their ground_truth
+ * messages give them back (diffbot/envs/obsmath.py's truths): the rotation of the yaw
+ * (plant/sim.py's kin_state: cos, sin), its quaternion (rotation_to_quaternion, both of
+ * its branches: the trace's, or the largest diagonal element's, m22 = 1), and the yaw of
+ * that (bus/codec.py's yaw_of: atan2, which Python's math.atan2 calls for finite values). */
+EXPORT void plant_ticks_truths(int64_t n, const double *pose, double *out)
+{
+    for (int64_t i = 0; i < n; i++) {
+        const double yaw = pose[3 * i + 2], c = cos(yaw), s = sin(yaw);
+        const double tr = c + c + 1.0;
+        double qx, qy, qz, qw;
+        if (tr > 0) {
+            const double s1 = sqrt(tr + 1.0) * 2;
+            qx = qy = 0.0 / s1;
+            qz = (s - -s) / s1;
+            qw = 0.25 * s1;
+        } else {
+            const double s2 = sqrt(1.0 + 1.0 - c - c) * 2;
+            qx = qy = 0.0 / s2;
+            qz = 0.25 * s2;
+            qw = (s - -s) / s2;
+        }
+        out[3 * i] = pose[3 * i];
+        out[3 * i + 1] = pose[3 * i + 1];
+        out[3 * i + 2] = atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz));
+    }
+}
+
+/* x % m as Python's float % (and numpy's) gives it: fmod, moved to m's sign */
+static double py_mod(double x, double m)
+{
+    double r = fmod(x, m);
+    if (r != 0.0) {
+        if ((m < 0) != (r < 0))
+            r += m;
+    } else
+        r = copysign(0.0, m);
+    return r;
+}
+
+/* np.minimum(np.maximum(v, lo), hi) of float32s (a NaN stays one; at a tie the bound) */
+static float clip32(float v, float lo, float hi)
+{
+    if (v != v)
+        return v;
+    v = v > lo ? v : lo;
+    return v < hi ? v : hi;
+}
+
+/* The odometry and goal parts of n robots' Avoid observations (diffbot/envs/obsmath.py's
+ * observation; controllers/learned.py's AvoidObserver, robot by robot, in Python floats):
+ * odom (n, 5) float32 = (x, y, wrap(yaw), v, w) of the dead-reckoned pose (n, 3) and
+ * velocity vel (n, 2), clipped to +-odom_high (5); goal_out (n, 2) float32 = goal (n, 2)
+ * (in the odometry's frame) in the robot's frame, clipped to +-goal_limit. libm's cos and
+ * sin, which Python's math calls. */
+EXPORT void plant_ticks_observe(int64_t n, const double *pose, const double *vel,
+                                const double *goal, const float *odom_high, double goal_limit,
+                                float *odom, float *goal_out)
+{
+    const double pi = 3.141592653589793;
+    const float gl = (float)goal_limit;
+    for (int64_t i = 0; i < n; i++) {
+        const double x = pose[3 * i], y = pose[3 * i + 1], th = pose[3 * i + 2];
+        const double c = cos(th), s = sin(th);
+        const double dx = goal[2 * i] - x, dy = goal[2 * i + 1] - y;
+        const double v[5] = {x, y, py_mod(th + pi, 2 * pi) - pi, vel[2 * i], vel[2 * i + 1]};
+        for (int k = 0; k < 5; k++)
+            odom[5 * i + k] = clip32((float)v[k], -odom_high[k], odom_high[k]);
+        goal_out[2 * i] = clip32((float)(dx * c + dy * s), -gl, gl);
+        goal_out[2 * i + 1] = clip32((float)(-dx * s + dy * c), -gl, gl);
+    }
 }

@@ -124,6 +124,32 @@ def test_free_points_keep_their_margins_and_a_full_room_says_so():
         geo.free_point(rng, 2.2, tries=200)        # 2.44 m from everything: nowhere
 
 
+def test_a_free_point_is_the_first_good_draw_and_the_generator_stops_after_it():
+    """free_point tests its draws several at a time, yet picks what drawing them one by one
+    picks (here: that loop, the distances as 2-vectors) and leaves the generator just after
+    that draw, whatever the margins, the points to keep away from and the ring."""
+    geo = Footprints(LIVING)
+
+    def one_by_one(rng, margin, avoid=(), away=0.0, within=None):
+        need = FOOTPRINT_RADIUS_M + margin
+        while True:
+            p = rng.uniform(-geo.half + need, geo.half - need)
+            if geo.clearance(p) < need or any(np.hypot(*(p - q)) < away for q in avoid):
+                continue
+            if within is None or within[1] <= np.hypot(*(p - within[0])) <= within[2]:
+                return p
+
+    for seed in range(40):
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        starts: list = []
+        for f, rng in ((one_by_one, a), (geo.free_point, b)):
+            got = [f(rng, 0.3), f(rng, 0.3, [np.array([0.5, 0.5])], 1.5)]
+            got.append(f(rng, 0.2, got[:1], 0.8, (got[1], 1.0, 3.0)))
+            got.append(f(rng, 0.6))     # (few points keep 0.84 m from everything)
+            starts.append((np.array(got).tobytes(), rng.uniform(0, 1, 4).tobytes()))
+        assert starts[0] == starts[1], f"seed {seed}"
+
+
 # ---------------------------------------------------------------------- Avoid-v0
 
 def _towards_goal(info) -> list[float]:

@@ -329,3 +329,59 @@ def test_batch_truths_are_the_ground_truth_messages_poses():
         x, y, z = st.xyz
         msg = codec.odometry(0, x, y, st.yaw, 0.0, 0.0, z=z, quaternion=st.quaternion)
         assert got[i].tobytes() == np.array(codec.pose_2d(msg)).tobytes(), f"yaw {yaw[i]!r}"
+
+
+def test_an_ended_envs_ignored_action_may_be_anything_while_the_others_step():
+    """Next-step autoreset: the step after env k's episode ended resets it and ignores its
+    action, not a number included, while the other envs step (a kinematic batch steps the
+    ended envs standing and drops their results, so it keeps its plan): the numbers of the
+    message path (the oracle) given a finite action there."""
+    kw = dict(num_envs=3, vectorization_mode="vector_entry_point", max_episode_steps=2,
+              overrides=("world.mode=kinematic", *NOISE))
+    fast, slow = (gym.make_vec("diffbot/Avoid-v0", **kw) for _ in range(2))
+    slow.unwrapped.chunks[0].arrays = None
+    try:
+        act = np.tile(fast.single_action_space.high * 0.3, (3, 1)).astype(np.float32)
+        for env in (fast, slow):
+            env.reset(seed=4)
+            env.step(act)
+            env.reset(options={"reset_mask": np.array([False, False, True])})
+        for step in range(3):   # envs 0, 1 truncated, reset (ignored actions), stepped
+            a, b = act.copy(), act.copy()
+            if step == 1:           # envs 0, 1 are reset
+                a[:2], b[:2] = np.nan, 5.0
+            (oa, *fa, ia), (ob, *fb, ib) = fast.step(a), slow.step(b)
+            assert all(oa[k].tobytes() == ob[k].tobytes() for k in oa), f"obs at step {step}"
+            assert all(x.tobytes() == y.tobytes() for x, y in zip(fa, fb)), f"step {step}"
+            assert _same_infos(ia, ib), f"infos at step {step}"
+            assert (fa[2].tolist() == [True, True, False]) == (step == 0)
+    finally:
+        fast.close()
+        slow.close()
+
+
+def test_batch_observations_are_the_observers():
+    """obsmath.observation (every robot at once) gives each robot's odometry and goal parts
+    as its AvoidObserver.observation does, to the bit: yaws wrapped from far out and at the
+    wrap's edges, values clipped at both bounds."""
+    import math
+
+    from controllers.learned import AvoidObserver
+    from diffbot.envs.obsmath import observation
+    rng = np.random.default_rng(4)
+    edge = [0.0, -0.0, math.pi, -math.pi, 3 * math.pi, -3 * math.pi, 2 * math.pi, 1e-300,
+            np.nextafter(math.pi, 0), np.nextafter(-math.pi, 0), 1e6, -57.3]
+    yaw = np.concatenate([edge, rng.uniform(-20, 20, 500)])
+    w = yaw.size
+    pose = np.stack([rng.uniform(-150, 150, w), rng.uniform(-150, 150, w), yaw], 1)
+    vel = np.stack([rng.uniform(-15, 15, w), rng.uniform(-30, 30, w)], 1)
+    goal = rng.uniform(-200, 200, (w, 2))
+    scans = rng.uniform(0, 9, (w, 4)).astype(np.float32)
+    got = observation(pose, vel, goal, scans)
+    ob = AvoidObserver(0.05, 0.3, 4, 9.0)
+    for i in range(w):
+        od = ob.odom
+        (od.x, od.y, od.theta), (od.v, od.w) = pose[i].tolist(), vel[i].tolist()
+        ob.goal, ob.scan = tuple(goal[i].tolist()), scans[i]
+        one = ob.observation()
+        assert all(got[k][i].tobytes() == one[k].tobytes() for k in one), f"robot {i}"
