@@ -36,9 +36,12 @@ from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 
 #: emit([(key, payload, attachment, the attachment as parse_attachment reads it, a command's
-#: (stamp, linear, angular) the payload was packed from or None), ...]): a composed member's
-#: messages for one tick, in order, handed to the plant in one call
-Emit = Callable[[list[tuple[str, bytes, bytes, codec.Attachment | None, tuple | None]]], None]
+#: (stamp, linear, angular) the payload was packed from or None), ...], twists): a composed
+#: member's messages for one tick, in order, handed to the plant in one call; ``twists``:
+#: where they are one Twist per robot, (their keys, stamp, (n, 2) values), else None
+#: (:meth:`bus.many.ManyTick.twists_of`)
+Emit = Callable[[list[tuple[str, bytes, bytes, codec.Attachment | None, tuple | None]],
+                 tuple | None], None]
 
 
 class _Hosted:
@@ -201,15 +204,22 @@ class Composed:
         name = h.name if h.member.sync else None
         published, twists = h.published, h.member.twists
         seq = h.seq
-        msgs = []
         atts = codec.attachments_parsed(seq, t_ns, [(f, n) for _, _, f, n in sent], name)
-        for (key, payload, _, _), (att, parsed) in zip(sent, atts):
-            tw = twists.get(key)            # (the values of these very bytes, if a Twist's)
-            msgs.append((key, payload, att, parsed,
-                         tw[1:] if tw is not None and tw[0] is payload else None))
-            published[key] = published.get(key, 0) + 1
+        many = h.many.twists_of(sent) if h.many is not None else None
+        if many is not None:           # (one Twist per robot: their values, as arrays too)
+            msgs = [(key, payload, att, parsed, (t_ns, a, b)) for (key, payload, _, _),
+                    (att, parsed), (a, b) in zip(sent, atts, many[2].tolist())]
+            for key in many[0]:
+                published[key] = published.get(key, 0) + 1
+        else:
+            msgs = []
+            for (key, payload, _, _), (att, parsed) in zip(sent, atts):
+                tw = twists.get(key)        # (the values of these very bytes, if a Twist's)
+                msgs.append((key, payload, att, parsed,
+                             tw[1:] if tw is not None and tw[0] is payload else None))
+                published[key] = published.get(key, 0) + 1
         h.seq = seq + len(sent)
-        emit(msgs)
+        emit(msgs, many)
 
     def close(self) -> None:
         """The run ended: every member leaves, its controllers are closed and its

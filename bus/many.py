@@ -12,6 +12,10 @@ done) goes the general way.
 """
 from __future__ import annotations
 
+from itertools import repeat
+
+import numpy as np
+
 from . import codec
 from . import controller as hooks
 from .controller import Twist
@@ -30,6 +34,16 @@ class ManyTick:
         self.robots = [s.robot for s in member.slots]
         self.keys = [s.cmd_key for s in member.slots]
         self.layout, self.frame = codec._twist_layout("base_link")   # (twist_stamped_bytes')
+        #: the last answer made in one pass, and its commands as (cmd_vel keys, stamp,
+        #: (n, 2) linear and angular values): what :meth:`twists_of` hands the plant
+        self.last: tuple | None = None
+
+    def twists_of(self, sent: Sent) -> tuple | None:
+        """(keys, stamp, values) of ``sent`` if it is the answer :meth:`act` made last in
+        one pass (its cmd_vel messages in the keys' order, the values they were packed
+        from), else None."""
+        last = self.last
+        return last[1] if last is not None and last[0] is sent else None
 
     @classmethod
     def of(cls, member: MemberTick) -> "ManyTick | None":
@@ -57,18 +71,22 @@ class ManyTick:
         # all read by the plant (owed's order is theirs), the last with ACK and n_plant
         sec, nanosec = divmod(t_ns, 1_000_000_000)
         pack, cdr, frame = self.layout.pack, codec._CDR_LE, self.frame
-        twists = m.twists
-        sent: Sent = []
-        for key, c in zip(self.keys, cmds):
-            linear, angular = float(c.linear), float(c.angular)
-            data = pack(cdr, sec, nanosec, frame, linear, 0.0, 0.0, 0.0, 0.0, angular)
-            twists[key] = (data, t_ns, linear, angular)
-            sent.append((key, data, 0, 0))
-        key, data, _, _ = sent[-1]
-        sent[-1] = (key, data, codec.ACK, len(sent))
+        keys = self.keys
+        linear = [float(c.linear) for c in cmds]
+        angular = [float(c.angular) for c in cmds]
+        datas = [pack(cdr, sec, nanosec, frame, a, 0.0, 0.0, 0.0, 0.0, b)
+                 for a, b in zip(linear, angular)]
+        m.twists.update(zip(keys, zip(datas, repeat(t_ns), linear, angular)))
+        sent: Sent = list(zip(keys, datas, repeat(0), repeat(0)))
+        sent[-1] = (keys[-1], datas[-1], codec.ACK, len(sent))
         m.ticks += 1
         m.hold_until = t_ns if m._keep_sent else None
         m._keep(t_ns, sent)
+        # (the plant takes the values as arrays: plant.intake.Intake.answer's ``twists``)
+        value = np.empty((len(sent), 2))
+        value[:, 0] = linear
+        value[:, 1] = angular
+        self.last = (sent, (keys, t_ns, value))
         return sent, False
 
     def _general(self, cmds: list, done: bool, t_ns: int) -> tuple[Sent, bool]:

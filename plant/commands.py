@@ -24,6 +24,8 @@ from bus.controller import Twist, WheelSpeeds
 from bus.keys import frame
 from bus.lockstep import AckLedger
 
+from .command_rows import CommandRows
+
 #: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
 ABSURD_FACTOR = 10.0
 
@@ -182,23 +184,76 @@ def check_stamp(stamp, now_ns: int, tick_ns: int, timeout_s: float | None) -> No
 
 
 class CommandBook:
-    """The commands received per robot: the latest, and in lockstep one per tick stamp."""
+    """The commands received per robot: the latest, and in lockstep one per tick stamp.
+    Lockstep, once :meth:`bind` names the world's robots, a member's Twists for many robots
+    at one tick are filed as arrays (:meth:`file_twists`, :mod:`plant.command_rows`) and
+    the tick's commands picked for all of them at once (:meth:`pick_rows`); the rest, robot
+    by robot, in the dicts :attr:`latest` and :attr:`by_tick` (reading either brings every
+    robot's commands there)."""
 
     def __init__(self, lockstep: bool) -> None:
         self.lockstep = lockstep
-        self.latest: dict[str, Command] = {}
-        self.by_tick: dict[str, dict[int, Command]] = {}
+        self._latest: dict[str, Command] = {}
+        self._by_tick: dict[str, dict[int, Command]] = {}
         self.refused: dict[str, int] = {}      # robot -> stamp of its last rejected command
+        self.rows: CommandRows | None = None
+
+    @property
+    def latest(self) -> dict[str, Command]:
+        """robot -> the latest command filed for it."""
+        self._out_all()
+        return self._latest
+
+    @property
+    def by_tick(self) -> dict[str, dict[int, Command]]:
+        """Lockstep: robot -> {tick stamp: its command}."""
+        self._out_all()
+        return self._by_tick
+
+    def bind(self, names) -> CommandRows | None:
+        """Lockstep: the world's robots ``names`` (in order), whose Twists may be filed as
+        arrays from now on (a robot with commands in the dicts already stays there)."""
+        if not self.lockstep:
+            return None
+        names = tuple(names)
+        if self.rows is None or self.rows.names != names:
+            self._out_all()
+            self.rows = CommandRows(names)
+            for i, n in enumerate(names):
+                if n in self._latest or self._by_tick.get(n):
+                    self.rows.inside[i] = False
+        return self.rows
+
+    def _out(self, robot: str) -> None:
+        """``robot``'s commands, if kept as arrays, into the dicts for good."""
+        rows = self.rows
+        i = rows.row.get(robot) if rows is not None else None
+        if i is None or not rows.inside[i]:
+            return
+        kept, latest = rows.take_out(i)
+        if kept:
+            self._by_tick[robot] = {t: Command(Twist(a, b), t, w, m)
+                                    for t, (a, b, w, m) in kept.items()}
+        if latest is not None:
+            t, a, b, w, m = latest
+            self._latest[robot] = Command(Twist(a, b), t, w, m)
+
+    def _out_all(self) -> None:
+        rows = self.rows
+        if rows is not None and rows.inside.any():
+            for i in np.flatnonzero(rows.inside):
+                self._out(rows.names[i])
 
     def file(self, robot: str, cmd: Command) -> str | None:
         """Keep ``cmd``. Lockstep: one command per robot per tick, the same whatever the
         arrival order (docs/PROTOCOL.md section 7): a member's first for the tick (the
         ledger drops its later ones), and of two members' the one whose name sorts first;
         then what is wrong, for the protocol error count."""
-        self.latest[robot] = cmd
+        self._out(robot)
+        self._latest[robot] = cmd
         if not self.lockstep:
             return None
-        by_tick = self.by_tick.setdefault(robot, {})
+        by_tick = self._by_tick.setdefault(robot, {})
         had = by_tick.get(cmd.t_ns)
         if had is None or had.member == cmd.member:
             if had is None:
@@ -211,11 +266,45 @@ class CommandBook:
         return (f"{had.member} and {cmd.member} for t={cmd.t_ns * 1e-9:.3f} s; "
                 f"{keep.member}'s applied")
 
+    def file_twists(self, robots: list[str], ix: np.ndarray, t_ns: int, value: np.ndarray,
+                    wall: float, member: str | None) -> list[tuple[str, str]]:
+        """Lockstep, bound: :meth:`file` of ``Command(Twist(*value[j]), t_ns, wall,
+        member)`` for each robot ``robots[j]`` (row ``ix[j]`` of :meth:`bind`'s names), in
+        order, as arrays where the robot's commands are kept so; (robot, what is wrong) of
+        each that :meth:`file` reports."""
+        left = self.rows.file(ix, t_ns, value, wall, member)
+        said = []
+        if left.any():                # (one by one: outside the arrays, or a second one)
+            for j in np.flatnonzero(left):
+                problem = self.file(robots[j], Command(
+                    Twist(float(value[j, 0]), float(value[j, 1])), t_ns, wall, member))
+                if problem:
+                    said.append((robots[j], problem))
+        return said
+
+    def pick_rows(self, upto_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                               np.ndarray]:
+        """Lockstep, bound: :meth:`for_tick` of every robot of :meth:`bind`'s names at once:
+        (whether it has one, its stamp, its (linear, angular), whether it is kept as arrays:
+        a robot that is not has none here; ask it :meth:`for_tick`)."""
+        rows = self.rows
+        has, stamp, slot = rows.pick(upto_ns)
+        return has, stamp, rows.values(slot), rows.inside
+
+    def command_of(self, i: int, stamp: int, value) -> Command:
+        """The :class:`Command` :meth:`for_tick` gives for robot row ``i`` whose pick (in
+        the arrays) is ``stamp``, ``value`` (:meth:`pick_rows`)."""
+        rows = self.rows
+        k = int(np.flatnonzero(rows.stamp[i] == stamp)[0])
+        return Command(Twist(float(value[0]), float(value[1])), int(stamp),
+                       float(rows.wall[i, k]), rows.members[int(rows.member[i, k])])
+
     def for_tick(self, robot: str, upto_ns: int) -> Command | None:
         """Lockstep: the command computed for the latest tick at or before ``upto_ns`` (the
         current tick in sequential coupling, the one before in pipelined): what arrives early
         for a later tick waits for its turn, so runs are the same whatever the timing."""
-        by_tick = self.by_tick.get(robot)
+        self._out(robot)
+        by_tick = self._by_tick.get(robot)
         if not by_tick:
             return None
         cmd = by_tick.get(upto_ns)
@@ -242,18 +331,21 @@ class CommandBook:
         dropped, so the robot has none until a newer one acts. A command already filed for a
         later tick (pipelined: the next answer, often in before this tick is applied) stays:
         what acts never depends on when it arrived (docs/PROTOCOL.md section 4)."""
-        cmd = self.latest.get(robot)
+        self._out(robot)
+        cmd = self._latest.get(robot)
         if cmd is not None and cmd.t_ns <= upto_ns:
-            del self.latest[robot]
-        by_tick = self.by_tick.get(robot)
+            del self._latest[robot]
+        by_tick = self._by_tick.get(robot)
         if by_tick:
             for t in [t for t in by_tick if t <= upto_ns]:
                 del by_tick[t]
 
     def clear(self) -> None:
-        self.latest.clear()
-        self.by_tick.clear()
+        self._latest.clear()
+        self._by_tick.clear()
         self.refused.clear()
+        if self.rows is not None:
+            self.rows.clear()
 
 
 #: the protocol error kind of a robot driven by a command other than the coupling's rule's

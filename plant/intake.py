@@ -12,8 +12,11 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from bus import codec
 from bus.controller import Twist
+from bus.protocol import command_expired
 
 from .commands import Command, TwistCheck, decode_command, stale_commands, twist_command
 
@@ -41,24 +44,48 @@ class Intake:
         self.plant = plant
         self._sim = None                     # the world the per-robot tables below are of
         self._robots: list[tuple[str, float]] = []     # (robot, cmd_timeout_s) in order
-        self._names: list[str] = []                     # (the same, apart)
+        self._names: tuple[str, ...] = ()                # (the same, apart)
+        self._many: dict[int, tuple] = {}                # _rows_of's answers
         self._timeouts: list[float] = []
         self._checks: dict[str, TwistCheck] = {}
 
     def _tables(self):
         """The world's robots in order with their command timeouts, and each robot's
-        :class:`TwistCheck`: made once per world."""
+        :class:`TwistCheck`: made once per world (and the same as arrays, by robot row of
+        the command book's :meth:`~plant.commands.CommandBook.bind`)."""
         p = self.plant
         sim = p.sim
         if sim is not self._sim:
             self._sim = sim
             self._robots = [(n, r.spec.drive.cmd_timeout_s) for n, r in sim.robots.items()]
-            self._names = [n for n, _ in self._robots]
+            self._names = tuple(n for n, _ in self._robots)
             self._timeouts = [t for _, t in self._robots]
             check_age = p.strategy.check_age
             self._checks = {n: TwistCheck(r.spec.drive, p.tick_ns, check_age)
                             for n, r in sim.robots.items()}
+            checks = [self._checks[n] for n in self._names]
+            self._lim = np.array([(c.lim_a, c.lim_b) for c in checks]).reshape(-1, 2)
+            self._age_ns = (np.array([c.timeout_ns for c in checks], float)
+                            if check_age else None)
+            # (command_expired's bound per robot, in whole ns)
+            self._expiry_ns = np.array([round(t * 1e9) for t in self._timeouts], np.int64)
+            self._many = {}
+            p.commands.bind(self._names)
         return sim
+
+    def _rows_of(self, keys: list[str]) -> np.ndarray | None:
+        """The robot rows of ``keys``, a composed member's cmd_vel keys (its robots' in
+        order), or None if one is not a distinct cmd_vel key of this world's robots; asked
+        once per list of keys and world."""
+        got = self._many.get(id(keys))
+        if got is None or got[0] is not keys:
+            robot_of, rows = self.plant._robot_of_key, self.plant.commands.rows
+            robots = [robot_of.get(k, _ACK) for k in keys]
+            ok = (rows is not None and len(set(keys)) == len(keys)
+                  and all(t == "cmd_vel" and r in rows.row for r, t in robots))
+            ix = np.array([rows.row[r] for r, _ in robots], np.intp) if ok else None
+            got = self._many[id(keys)] = (keys, ix, [r for r, _ in robots], frozenset(keys))
+        return got
 
     # ------------------------------------------------------------------ members' outputs
     def output(self, key: str, payload: bytes, raw: bytes | None,
@@ -105,13 +132,18 @@ class Intake:
         if problem:
             p.protocol_errors.reject(f"{robot}: two members command it", problem)
 
-    def answer(self, msgs: list[Emitted]) -> None:
+    def answer(self, msgs: list[Emitted], twists: tuple | None = None) -> None:
         """A composed member's answer to one tick: of its messages, those on keys the plant
         reads, as :meth:`output` of each in order (the ledger's filing and reports, the
         commands and their rejections), with the attachment they share checked once
         (:meth:`bus.lockstep.AckLedger.file_many`) and each cmd_vel's values checked by the
         robot's :class:`TwistCheck` (one it refuses goes through :meth:`output`'s path, for
-        its error)."""
+        its error). ``twists``: (keys, stamp, values) where the answer is one Twist per
+        robot (:class:`bus.many.ManyTick`), ``msgs`` their cmd_vel on ``keys`` in order,
+        the last with the ACK, ``values`` (n, 2) the (linear, angular) they were packed
+        from: in lockstep filed and checked as arrays (:meth:`_answer_twists`)."""
+        if twists is not None and self._answer_twists(msgs, twists):
+            return
         p = self.plant
         robot_of, ack_prefix = p._robot_of_key, p._ack_prefix
         ours = [(m, robot_of.get(m[0], _ACK)) for m in msgs
@@ -144,6 +176,44 @@ class Intake:
             if problem:
                 p.protocol_errors.reject(f"{robot}: two members command it", problem)
 
+    def _answer_twists(self, msgs: list[Emitted], twists: tuple) -> bool:
+        """:meth:`answer` of one Twist per robot as arrays (lockstep): the ledger's filing in
+        one update (:meth:`bus.lockstep.AckLedger.file_answer`), the checks of every value
+        at once, the commands filed by row (:meth:`plant.commands.CommandBook.file_twists`);
+        False, with nothing done, where any of it has something to say (then message by
+        message, for what it says)."""
+        p = self.plant
+        if not p.strategy.lockstep or not msgs:
+            return False
+        self._tables()
+        keys, t_ns, value = twists
+        got = self._rows_of(keys)
+        ix = got[1]
+        if ix is None or len(msgs) != len(keys):
+            return False
+        first, last = msgs[0][3], msgs[-1][3]
+        if first is None or last is None or first.t_ns != t_ns or last.t_ns != t_ns \
+                or first.node != last.node:
+            return False
+        now = p.sim.time_ns
+        # TwistCheck.ok of each: finite, not absurd, stamped now (0) or neither in the
+        # future nor past the timeout
+        lim = self._lim[ix]
+        if not (np.isfinite(value).all() and (np.abs(value) <= lim).all()):
+            return False
+        if t_ns != 0:
+            if not 0 < t_ns <= now + p.tick_ns:
+                return False
+            if self._age_ns is not None and not (now - t_ns <= self._age_ns[ix]).all():
+                return False
+        key, _, raw, att, _ = msgs[-1]
+        if not p.ledger.file_answer(got[3], key, "cmd_vel", att, now):
+            return False
+        said = p.commands.file_twists(got[2], ix, t_ns, value, time.monotonic(), att.node)
+        for robot, problem in said:
+            p.protocol_errors.reject(f"{robot}: two members command it", problem)
+        return True
+
     # ------------------------------------------------------------------ the tick's commands
     def apply(self) -> None:
         """Hand each robot the command that acts at this tick (the mode's), or zero if it
@@ -151,23 +221,39 @@ class Intake:
         p = self.plant
         sim = self._tables()
         strategy = p.strategy
+        if strategy.lockstep and p.commands.rows is not None \
+                and hasattr(p.tick, "drive_twists") and self._apply_rows(sim):
+            return
         robots, names = self._robots, self._names
         picked = strategy.commands(names)
-        # lockstep: an older command than the rule's acting here is a protocol error (asked
-        # only where a robot's command is not the tick's: nothing else can be stale)
+        self._stale(sim, picked)
+        self._drive(picked)
+
+    def _stale(self, sim, picked: list) -> None:
+        """Lockstep: an older command than the rule's acting here is a protocol error (asked
+        only where a robot's command is not the tick's: nothing else can be stale)."""
+        p = self.plant
+        strategy = p.strategy
         if strategy.lockstep and not p.stop_event.is_set():
             due = sim.time_ns - strategy.delay_ns
             if due >= 0 and picked and _stamps(picked) != {due}:
+                names = self._names
                 keys = lambda r: (p._key(r, "cmd_vel"), p._key(r, "wheel_cmd"))  # noqa: E731
                 stale_commands(p.ledger, p.commands, due, dict(zip(names, picked)), keys,
                                p.protocol_errors.reject)
+
+    def _drive(self, picked: list) -> None:
+        """Each robot driven by its picked command, a timed-out one stopped and forgotten."""
+        p = self.plant
+        strategy = p.strategy
+        names = self._names
         expired = strategy.expired_all(picked, self._timeouts)
         drive = p.tick.drive
         if True not in expired:          # (the usual tick: no command timed out)
             for name, cmd in zip(names, picked):
                 drive(name, cmd.value if cmd is not None else None)
             return
-        for (name, timeout), cmd, old in zip(robots, picked, expired):
+        for (name, timeout), cmd, old in zip(self._robots, picked, expired):
             if old:
                 if cmd.moving:       # a robot told to stand still needs no stopping
                     p.log.warning("%s: no command for %.2f s (cmd_timeout %.2f s): "
@@ -175,3 +261,41 @@ class Intake:
                 p.commands.forget(name, cmd.t_ns)
                 cmd = None
             drive(name, cmd.value if cmd is not None else None)
+
+    def _apply_rows(self, sim) -> bool:
+        """:meth:`apply` in lockstep with the command book's arrays: every robot's command
+        picked at once, and where each is the tick's own (none stale, none timed out) and
+        kept as arrays, all handed to the core's command arrays in one assignment; a robot
+        whose commands are kept one by one is asked and driven so after them. False where
+        a command is stale or timed out, with the picks made: then robot by robot."""
+        p = self.plant
+        strategy = p.strategy
+        book = p.commands
+        now = sim.time_ns
+        upto = now - strategy.delay_ns
+        has, stamp, value, inside = book.pick_rows(upto)
+        names = self._names
+        apart = {} if inside.all() else {i: book.for_tick(names[i], upto)
+                                         for i in np.flatnonzero(~inside)}
+        plain = (has.all() and (stamp == upto).all()) or upto < 0 \
+            or p.stop_event.is_set()
+        expired = has & (now - stamp > self._expiry_ns)
+        if apart:
+            plain = plain and all(c is not None and c.t_ns == upto for c in apart.values())
+            late = any(c is not None and command_expired(now - c.t_ns, self._timeouts[i])
+                       for i, c in apart.items())
+        else:
+            late = False
+        if not plain or late or expired.any():
+            picked = [apart[i] if i in apart else
+                      book.command_of(i, stamp[i], value[i]) if has[i] else None
+                      for i in range(len(names))]
+            self._stale(sim, picked)
+            self._drive(picked)
+            return True
+        value[~has] = 0.0                 # (no command: stand still)
+        p.tick.drive_twists(names, value)
+        drive = p.tick.drive
+        for i, cmd in apart.items():
+            drive(names[i], cmd.value if cmd is not None else None)
+        return True
