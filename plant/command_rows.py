@@ -9,7 +9,8 @@ the commands of its last ``RECENT_TICKS`` tick stamps, one per stamp, the oldest
 the latest filed kept apart. A robot whose commands need anything else (a second command
 for a stamp, a wheel command, a command forgotten after its timeout, a look at its
 commands one by one) leaves the arrays for the book's dicts with what it has
-(:meth:`CommandRows.take_out`), and stays there.
+(:meth:`CommandRows.take_out`), until a member's Twists for it come again as arrays
+(:meth:`CommandRows.take_in`).
 """
 from __future__ import annotations
 
@@ -115,6 +116,29 @@ class CommandRows:
                 self.latest[i, :2], self.latest[i, 2], self.latest[i, 3])
             self.latest_t[i] = EMPTY
         return kept, latest
+
+    def take_in(self, i: int, kept: list[tuple], latest: tuple | None) -> None:
+        """Robot ``i``'s commands back into the arrays (it has none here): ``kept``, (stamp,
+        linear, angular, wall, member) of each (at most ``RECENT_TICKS``); ``latest``, the
+        same of the latest filed, or None."""
+        self.inside[i] = True
+        for k, (t, a, b, w, m) in enumerate(kept):
+            self.stamp[i, k] = t
+            self.value[i, k] = a, b
+            self.wall[i, k] = w
+            self.member[i, k] = self.member_ix(m)
+        if latest is not None:
+            t, a, b, w, m = latest
+            self.latest_t[i] = t
+            self.latest[i] = a, b, w, self.member_ix(m)
+
+    def forget(self, i: int, upto_ns: int) -> None:
+        """Robot ``i``'s commands stamped ``upto_ns`` or before dropped, and its latest if
+        it is one of them (the book's ``forget``)."""
+        stamp = self.stamp[i]
+        stamp[stamp <= upto_ns] = EMPTY
+        if self.latest_t[i] <= upto_ns:
+            self.latest_t[i] = EMPTY
 
     def _entry(self, value, wall, member) -> tuple:
         return float(value[0]), float(value[1]), float(wall), self.members[int(member)]

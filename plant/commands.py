@@ -238,6 +238,20 @@ class CommandBook:
             t, a, b, w, m = latest
             self._latest[robot] = Command(Twist(a, b), t, w, m)
 
+    def _in(self, robot: str, i: int) -> None:
+        """``robot``'s commands (row ``i``) from the dicts into the arrays, if they are all
+        Twists."""
+        by_tick = self._by_tick.get(robot) or {}
+        latest = self._latest.get(robot)
+        cmds = list(by_tick.values()) + ([latest] if latest is not None else [])
+        if any(type(c.value) is not Twist for c in cmds):
+            return
+        entry = lambda c: (c.t_ns, c.value.linear, c.value.angular, c.wall, c.member)  # noqa
+        self.rows.take_in(i, [entry(c) for c in by_tick.values()],
+                          entry(latest) if latest is not None else None)
+        self._by_tick.pop(robot, None)
+        self._latest.pop(robot, None)
+
     def _out_all(self) -> None:
         rows = self.rows
         if rows is not None and rows.inside.any():
@@ -272,7 +286,11 @@ class CommandBook:
         member)`` for each robot ``robots[j]`` (row ``ix[j]`` of :meth:`bind`'s names), in
         order, as arrays where the robot's commands are kept so; (robot, what is wrong) of
         each that :meth:`file` reports."""
-        left = self.rows.file(ix, t_ns, value, wall, member)
+        rows = self.rows
+        if not rows.inside[ix].all():        # (robots kept one by one: back, if they can)
+            for j in np.flatnonzero(~rows.inside[ix]):
+                self._in(robots[j], int(ix[j]))
+        left = rows.file(ix, t_ns, value, wall, member)
         said = []
         if left.any():                # (one by one: outside the arrays, or a second one)
             for j in np.flatnonzero(left):
@@ -331,7 +349,11 @@ class CommandBook:
         dropped, so the robot has none until a newer one acts. A command already filed for a
         later tick (pipelined: the next answer, often in before this tick is applied) stays:
         what acts never depends on when it arrived (docs/PROTOCOL.md section 4)."""
-        self._out(robot)
+        rows = self.rows
+        i = rows.row.get(robot) if rows is not None else None
+        if i is not None and rows.inside[i]:
+            rows.forget(i, upto_ns)
+            return
         cmd = self._latest.get(robot)
         if cmd is not None and cmd.t_ns <= upto_ns:
             del self._latest[robot]
