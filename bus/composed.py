@@ -38,7 +38,7 @@ from .node import MemberSpec
 #: emit([(key, payload, attachment, the attachment as parse_attachment reads it, a command's
 #: (stamp, linear, angular) the payload was packed from or None), ...], twists): a composed
 #: member's messages for one tick, in order, handed to the plant in one call; ``twists``:
-#: where they are one Twist per robot, (their keys, stamp, (n, 2) values), else None
+#: where they are one Twist per robot, (their keys, stamp, linear, angular values), else None
 #: (:meth:`bus.many.ManyTick.twists_of`)
 Emit = Callable[[list[tuple[str, bytes, bytes, codec.Attachment | None, tuple | None]],
                  tuple | None], None]
@@ -208,7 +208,7 @@ class Composed:
         many = h.many.twists_of(sent) if h.many is not None else None
         if many is not None:           # (one Twist per robot: their values, as arrays too)
             msgs = [(key, payload, att, parsed, (t_ns, a, b)) for (key, payload, _, _),
-                    (att, parsed), (a, b) in zip(sent, atts, many[2].tolist())]
+                    (att, parsed), a, b in zip(sent, atts, many[2], many[3])]
             for key in many[0]:
                 published[key] = published.get(key, 0) + 1
         else:

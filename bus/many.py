@@ -14,8 +14,6 @@ from __future__ import annotations
 
 from itertools import repeat
 
-import numpy as np
-
 from . import codec
 from . import controller as hooks
 from .controller import Twist
@@ -35,11 +33,11 @@ class ManyTick:
         self.keys = [s.cmd_key for s in member.slots]
         self.layout, self.frame = codec._twist_layout("base_link")   # (twist_stamped_bytes')
         #: the last answer made in one pass, and its commands as (cmd_vel keys, stamp,
-        #: (n, 2) linear and angular values): what :meth:`twists_of` hands the plant
+        #: linear values, angular values): what :meth:`twists_of` hands the plant
         self.last: tuple | None = None
 
     def twists_of(self, sent: Sent) -> tuple | None:
-        """(keys, stamp, values) of ``sent`` if it is the answer :meth:`act` made last in
+        """(keys, stamp, linear, angular) of ``sent`` if it is the answer :meth:`act` made last in
         one pass (its cmd_vel messages in the keys' order, the values they were packed
         from), else None."""
         last = self.last
@@ -82,11 +80,8 @@ class ManyTick:
         m.ticks += 1
         m.hold_until = t_ns if m._keep_sent else None
         m._keep(t_ns, sent)
-        # (the plant takes the values as arrays: plant.intake.Intake.answer's ``twists``)
-        value = np.empty((len(sent), 2))
-        value[:, 0] = linear
-        value[:, 1] = angular
-        self.last = (sent, (keys, t_ns, value))
+        # (the plant takes the values whole: plant.intake.Intake.answer's ``twists``)
+        self.last = (sent, (keys, t_ns, linear, angular))
         return sent, False
 
     def _general(self, cmds: list, done: bool, t_ns: int) -> tuple[Sent, bool]:

@@ -211,8 +211,9 @@ class CommandBook:
         return self._by_tick
 
     def bind(self, names) -> CommandRows | None:
-        """Lockstep: the world's robots ``names`` (in order), whose Twists may be filed as
-        arrays from now on (a robot with commands in the dicts already stays there)."""
+        """Lockstep: the world's robots ``names`` (in order), whose Twists may be filed
+        whole from now on (:mod:`plant.command_rows`; a robot with commands in the dicts
+        already stays there until its next)."""
         if not self.lockstep:
             return None
         names = tuple(names)
@@ -221,14 +222,15 @@ class CommandBook:
             self.rows = CommandRows(names)
             for i, n in enumerate(names):
                 if n in self._latest or self._by_tick.get(n):
-                    self.rows.inside[i] = False
+                    self.rows.apart.add(i)
         return self.rows
 
     def _out(self, robot: str) -> None:
-        """``robot``'s commands, if kept as arrays, into the dicts for good."""
+        """``robot``'s commands, if kept whole, into the dicts (until its next Twists come
+        whole: :meth:`_in`)."""
         rows = self.rows
         i = rows.row.get(robot) if rows is not None else None
-        if i is None or not rows.inside[i]:
+        if i is None or i in rows.apart:
             return
         kept, latest = rows.take_out(i)
         if kept:
@@ -239,24 +241,26 @@ class CommandBook:
             self._latest[robot] = Command(Twist(a, b), t, w, m)
 
     def _in(self, robot: str, i: int) -> None:
-        """``robot``'s commands (row ``i``) from the dicts into the arrays, if they are all
+        """``robot``'s commands (row ``i``) from the dicts back to the rows, if they are all
         Twists."""
         by_tick = self._by_tick.get(robot) or {}
         latest = self._latest.get(robot)
         cmds = list(by_tick.values()) + ([latest] if latest is not None else [])
         if any(type(c.value) is not Twist for c in cmds):
             return
-        entry = lambda c: (c.t_ns, c.value.linear, c.value.angular, c.wall, c.member)  # noqa
-        self.rows.take_in(i, [entry(c) for c in by_tick.values()],
-                          entry(latest) if latest is not None else None)
+        self.rows.take_in(i, {t: (c.value.linear, c.value.angular, c.wall, c.member)
+                              for t, c in by_tick.items()},
+                          None if latest is None else
+                          (latest.t_ns, latest.value.linear, latest.value.angular,
+                           latest.wall, latest.member))
         self._by_tick.pop(robot, None)
         self._latest.pop(robot, None)
 
     def _out_all(self) -> None:
         rows = self.rows
-        if rows is not None and rows.inside.any():
-            for i in np.flatnonzero(rows.inside):
-                self._out(rows.names[i])
+        if rows is not None and len(rows.apart) < len(rows.names):
+            for i, name in enumerate(rows.names):
+                self._out(name)
 
     def file(self, robot: str, cmd: Command) -> str | None:
         """Keep ``cmd``. Lockstep: one command per robot per tick, the same whatever the
@@ -280,42 +284,35 @@ class CommandBook:
         return (f"{had.member} and {cmd.member} for t={cmd.t_ns * 1e-9:.3f} s; "
                 f"{keep.member}'s applied")
 
-    def file_twists(self, robots: list[str], ix: np.ndarray, t_ns: int, value: np.ndarray,
-                    wall: float, member: str | None) -> list[tuple[str, str]]:
-        """Lockstep, bound: :meth:`file` of ``Command(Twist(*value[j]), t_ns, wall,
-        member)`` for each robot ``robots[j]`` (row ``ix[j]`` of :meth:`bind`'s names), in
-        order, as arrays where the robot's commands are kept so; (robot, what is wrong) of
-        each that :meth:`file` reports."""
-        rows = self.rows
-        if not rows.inside[ix].all():        # (robots kept one by one: back, if they can)
-            for j in np.flatnonzero(~rows.inside[ix]):
-                self._in(robots[j], int(ix[j]))
-        left = rows.file(ix, t_ns, value, wall, member)
+    def file_twists(self, robots: list[str], rows: tuple, rowset: frozenset, t_ns: int,
+                    linear: list, angular: list, wall: float,
+                    member: str | None) -> list[tuple[str, str]]:
+        """Lockstep, bound: :meth:`file` of ``Command(Twist(linear[j], angular[j]), t_ns,
+        wall, member)`` for each robot ``robots[j]`` (row ``rows[j]`` of :meth:`bind`'s
+        names; ``rowset`` the same as a set), in order: whole where it can
+        (:meth:`plant.command_rows.CommandRows.file`), else one by one; (robot, what is
+        wrong) of each that :meth:`file` reports."""
+        book = self.rows
+        if book.apart and not book.apart.isdisjoint(rowset):   # (back whole, if they can)
+            for robot, i in zip(robots, rows):
+                if i in book.apart:
+                    self._in(robot, i)
+        if book.file(rows, rowset, t_ns, linear, angular, wall, member):
+            return []
         said = []
-        if left.any():                # (one by one: outside the arrays, or a second one)
-            for j in np.flatnonzero(left):
-                problem = self.file(robots[j], Command(
-                    Twist(float(value[j, 0]), float(value[j, 1])), t_ns, wall, member))
-                if problem:
-                    said.append((robots[j], problem))
+        for robot, a, b in zip(robots, linear, angular):
+            problem = self.file(robot, Command(Twist(a, b), t_ns, wall, member))
+            if problem:
+                said.append((robot, problem))
         return said
 
-    def pick_rows(self, upto_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                               np.ndarray]:
-        """Lockstep, bound: :meth:`for_tick` of every robot of :meth:`bind`'s names at once:
-        (whether it has one, its stamp, its (linear, angular), whether it is kept as arrays:
-        a robot that is not has none here; ask it :meth:`for_tick`)."""
-        rows = self.rows
-        has, stamp, slot = rows.pick(upto_ns)
-        return has, stamp, rows.values(slot), rows.inside
-
-    def command_of(self, i: int, stamp: int, value) -> Command:
-        """The :class:`Command` :meth:`for_tick` gives for robot row ``i`` whose pick (in
-        the arrays) is ``stamp``, ``value`` (:meth:`pick_rows`)."""
-        rows = self.rows
-        k = int(np.flatnonzero(rows.stamp[i] == stamp)[0])
-        return Command(Twist(float(value[0]), float(value[1])), int(stamp),
-                       float(rows.wall[i, k]), rows.members[int(rows.member[i, k])])
+    def pick_rows(self, upto_ns: int, value: np.ndarray) -> bool:
+        """Lockstep, bound: where every robot kept whole has a command for exactly
+        ``upto_ns`` (or none has any: ``upto_ns`` < 0), their :meth:`for_tick` at once into
+        ``value`` ((R, 2) by row, zero for the rest), True; else False, nothing changed.
+        The robots kept in the dicts (:attr:`plant.command_rows.CommandRows.apart`) are
+        asked :meth:`for_tick` one by one."""
+        return self.rows.pick(upto_ns, value)
 
     def for_tick(self, robot: str, upto_ns: int) -> Command | None:
         """Lockstep: the command computed for the latest tick at or before ``upto_ns`` (the
@@ -349,11 +346,7 @@ class CommandBook:
         dropped, so the robot has none until a newer one acts. A command already filed for a
         later tick (pipelined: the next answer, often in before this tick is applied) stays:
         what acts never depends on when it arrived (docs/PROTOCOL.md section 4)."""
-        rows = self.rows
-        i = rows.row.get(robot) if rows is not None else None
-        if i is not None and rows.inside[i]:
-            rows.forget(i, upto_ns)
-            return
+        self._out(robot)
         cmd = self._latest.get(robot)
         if cmd is not None and cmd.t_ns <= upto_ns:
             del self._latest[robot]

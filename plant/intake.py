@@ -10,13 +10,13 @@ from. :meth:`Intake.apply` hands every robot the command the mode picks for the 
 """
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
 
 from bus import codec
 from bus.controller import Twist
-from bus.protocol import command_expired
 
 from .commands import Command, TwistCheck, decode_command, stale_commands, twist_command
 
@@ -63,29 +63,35 @@ class Intake:
             check_age = p.strategy.check_age
             self._checks = {n: TwistCheck(r.spec.drive, p.tick_ns, check_age)
                             for n, r in sim.robots.items()}
-            checks = [self._checks[n] for n in self._names]
-            self._lim = np.array([(c.lim_a, c.lim_b) for c in checks]).reshape(-1, 2)
-            self._age_ns = (np.array([c.timeout_ns for c in checks], float)
-                            if check_age else None)
-            # (command_expired's bound per robot, in whole ns)
-            self._expiry_ns = np.array([round(t * 1e9) for t in self._timeouts], np.int64)
+            # (command_expired's bound, in whole ns: the least of any robot's)
+            self._expiry_ns = min((round(t * 1e9) for t in self._timeouts), default=0)
+            self._value = np.zeros((len(self._names), 2))
             self._many = {}
             p.commands.bind(self._names)
         return sim
 
-    def _rows_of(self, keys: list[str]) -> np.ndarray | None:
-        """The robot rows of ``keys``, a composed member's cmd_vel keys (its robots' in
-        order), or None if one is not a distinct cmd_vel key of this world's robots; asked
-        once per list of keys and world."""
+    def _rows_of(self, keys: list[str]) -> tuple | None:
+        """For ``keys``, a composed member's cmd_vel keys (its robots' in order): (keys, their
+        robots, rows (:meth:`plant.commands.CommandBook.bind`'s), the rows as a set, the
+        keys as a set, the least of the robots' :class:`TwistCheck` limits (linear,
+        angular, age)), or None if one is not a distinct cmd_vel key of this world's
+        robots; made once per list of keys and world."""
         got = self._many.get(id(keys))
         if got is None or got[0] is not keys:
-            robot_of, rows = self.plant._robot_of_key, self.plant.commands.rows
+            robot_of, book = self.plant._robot_of_key, self.plant.commands.rows
             robots = [robot_of.get(k, _ACK) for k in keys]
-            ok = (rows is not None and len(set(keys)) == len(keys)
-                  and all(t == "cmd_vel" and r in rows.row for r, t in robots))
-            ix = np.array([rows.row[r] for r, _ in robots], np.intp) if ok else None
-            got = self._many[id(keys)] = (keys, ix, [r for r, _ in robots], frozenset(keys))
-        return got
+            made = None
+            if book is not None and keys and len(set(keys)) == len(keys) \
+                    and all(t == "cmd_vel" and r in book.row for r, t in robots):
+                names = [r for r, _ in robots]
+                rows = tuple(book.row[r] for r in names)
+                checks = [self._checks[r] for r in names]
+                ages = [c.timeout_ns for c in checks]
+                made = (names, rows, frozenset(rows), frozenset(keys),
+                        min(c.lim_a for c in checks), min(c.lim_b for c in checks),
+                        None if None in ages else min(ages))
+            got = self._many[id(keys)] = (keys, made)
+        return got[1]
 
     # ------------------------------------------------------------------ members' outputs
     def output(self, key: str, payload: bytes, raw: bytes | None,
@@ -138,10 +144,10 @@ class Intake:
         commands and their rejections), with the attachment they share checked once
         (:meth:`bus.lockstep.AckLedger.file_many`) and each cmd_vel's values checked by the
         robot's :class:`TwistCheck` (one it refuses goes through :meth:`output`'s path, for
-        its error). ``twists``: (keys, stamp, values) where the answer is one Twist per
+        its error). ``twists``: (keys, stamp, linear, angular) where the answer is one Twist per
         robot (:class:`bus.many.ManyTick`), ``msgs`` their cmd_vel on ``keys`` in order,
-        the last with the ACK, ``values`` (n, 2) the (linear, angular) they were packed
-        from: in lockstep filed and checked as arrays (:meth:`_answer_twists`)."""
+        the last with the ACK, ``linear``, ``angular`` the values they were packed from: in
+        lockstep filed and checked whole (:meth:`_answer_twists`)."""
         if twists is not None and self._answer_twists(msgs, twists):
             return
         p = self.plant
@@ -177,39 +183,40 @@ class Intake:
                 p.protocol_errors.reject(f"{robot}: two members command it", problem)
 
     def _answer_twists(self, msgs: list[Emitted], twists: tuple) -> bool:
-        """:meth:`answer` of one Twist per robot as arrays (lockstep): the ledger's filing in
-        one update (:meth:`bus.lockstep.AckLedger.file_answer`), the checks of every value
-        at once, the commands filed by row (:meth:`plant.commands.CommandBook.file_twists`);
-        False, with nothing done, where any of it has something to say (then message by
+        """:meth:`answer` of one Twist per robot, whole (lockstep): the ledger's filing in
+        one update (:meth:`bus.lockstep.AckLedger.file_answer`), every value checked
+        against the least of the robots' limits, the commands filed as one batch
+        (:meth:`plant.commands.CommandBook.file_twists`); False, with nothing done, where
+        any of it has something to say or to check robot by robot (then message by
         message, for what it says)."""
         p = self.plant
         if not p.strategy.lockstep or not msgs:
             return False
         self._tables()
-        keys, t_ns, value = twists
+        keys, t_ns, linear, angular = twists
         got = self._rows_of(keys)
-        ix = got[1]
-        if ix is None or len(msgs) != len(keys):
+        if got is None or len(msgs) != len(keys):
             return False
+        robots, rows, rowset, keyset, lim_a, lim_b, age_ns = got
         first, last = msgs[0][3], msgs[-1][3]
         if first is None or last is None or first.t_ns != t_ns or last.t_ns != t_ns \
                 or first.node != last.node:
             return False
         now = p.sim.time_ns
-        # TwistCheck.ok of each: finite, not absurd, stamped now (0) or neither in the
-        # future nor past the timeout
-        lim = self._lim[ix]
-        if not (np.isfinite(value).all() and (np.abs(value) <= lim).all()):
+        # TwistCheck.ok of each: finite (a finite sum has no inf or NaN in it), not absurd,
+        # stamped now (0) or neither in the future nor past the timeout
+        if not (math.isfinite(sum(linear) + sum(angular))
+                and max(linear) <= lim_a and -min(linear) <= lim_a
+                and max(angular) <= lim_b and -min(angular) <= lim_b):
             return False
-        if t_ns != 0:
-            if not 0 < t_ns <= now + p.tick_ns:
-                return False
-            if self._age_ns is not None and not (now - t_ns <= self._age_ns[ix]).all():
-                return False
-        key, _, raw, att, _ = msgs[-1]
-        if not p.ledger.file_answer(got[3], key, "cmd_vel", att, now):
+        if t_ns != 0 and not (0 < t_ns <= now + p.tick_ns
+                              and (age_ns is None or now - t_ns <= age_ns)):
             return False
-        said = p.commands.file_twists(got[2], ix, t_ns, value, time.monotonic(), att.node)
+        key, _, _, att, _ = msgs[-1]
+        if not p.ledger.file_answer(keyset, key, "cmd_vel", att, now):
+            return False
+        said = p.commands.file_twists(robots, rows, rowset, t_ns, linear, angular,
+                                      time.monotonic(), att.node)
         for robot, problem in said:
             p.protocol_errors.reject(f"{robot}: two members command it", problem)
         return True
@@ -263,39 +270,25 @@ class Intake:
             drive(name, cmd.value if cmd is not None else None)
 
     def _apply_rows(self, sim) -> bool:
-        """:meth:`apply` in lockstep with the command book's arrays: every robot's command
-        picked at once, and where each is the tick's own (none stale, none timed out) and
-        kept as arrays, all handed to the core's command arrays in one assignment; a robot
-        whose commands are kept one by one is asked and driven so after them. False where
-        a command is stale or timed out, with the picks made: then robot by robot."""
+        """:meth:`apply` in lockstep with the command book's batches: where every robot's
+        command is the tick's own (none stale, none timed out), those kept whole handed to
+        the core's command arrays in one assignment, those kept one by one asked and driven
+        after them; True. False where any is not (then robot by robot, with what it says)."""
         p = self.plant
-        strategy = p.strategy
         book = p.commands
         now = sim.time_ns
-        upto = now - strategy.delay_ns
-        has, stamp, value, inside = book.pick_rows(upto)
+        upto = now - p.strategy.delay_ns
+        if upto >= 0 and now - upto > self._expiry_ns:
+            return False
+        value = self._value
+        if not book.pick_rows(upto, value):
+            return False
         names = self._names
-        apart = {} if inside.all() else {i: book.for_tick(names[i], upto)
-                                         for i in np.flatnonzero(~inside)}
-        plain = (has.all() and (stamp == upto).all()) or upto < 0 \
-            or p.stop_event.is_set()
-        expired = has & (now - stamp > self._expiry_ns)
-        if apart:
-            plain = plain and all(c is not None and c.t_ns == upto for c in apart.values())
-            late = any(c is not None and command_expired(now - c.t_ns, self._timeouts[i])
-                       for i, c in apart.items())
-        else:
-            late = False
-        if not plain or late or expired.any():
-            picked = [apart[i] if i in apart else
-                      book.command_of(i, stamp[i], value[i]) if has[i] else None
-                      for i in range(len(names))]
-            self._stale(sim, picked)
-            self._drive(picked)
-            return True
-        value[~has] = 0.0                 # (no command: stand still)
+        apart = [(names[i], book.for_tick(names[i], upto)) for i in book.rows.apart]
+        if upto >= 0 and any(c is None or c.t_ns != upto for _, c in apart):
+            return False
         p.tick.drive_twists(names, value)
         drive = p.tick.drive
-        for i, cmd in apart.items():
-            drive(names[i], cmd.value if cmd is not None else None)
+        for name, cmd in apart:
+            drive(name, cmd.value if cmd is not None else None)
         return True
