@@ -25,11 +25,12 @@ from bus.lockstep import RECENT_TICKS
 class _Batch:
     """One member's Twists for robots ``rows`` (in order) stamped ``t_ns`` (``linear``
     None: a robot's "no latest command")."""
-    __slots__ = ("rows", "t_ns", "linear", "angular", "wall", "member", "seq")
+    __slots__ = ("rows", "ix", "t_ns", "linear", "angular", "wall", "member", "seq")
 
-    def __init__(self, rows, t_ns, linear, angular, wall, member, seq) -> None:
+    def __init__(self, rows, t_ns, linear, angular, wall, member, seq, ix=None) -> None:
         self.rows, self.t_ns, self.linear, self.angular = rows, t_ns, linear, angular
         self.wall, self.member, self.seq = wall, member, seq
+        self.ix = np.array(rows, np.intp) if ix is None else ix     # (rows, for numpy)
 
     def entry(self, i: int) -> tuple:
         j = self.rows.index(i)
@@ -51,8 +52,8 @@ class CommandRows:
 
     # ------------------------------------------------------------------ filing
     def file(self, rows: tuple, rowset: frozenset, t_ns: int, linear, angular, wall: float,
-             member: str | None) -> bool:
-        """File robots ``rows``' (``rowset``: the same, as a set) commands (``linear[j]``,
+             member: str | None, ix: np.ndarray | None = None) -> bool:
+        """File robots ``rows``' (``rowset``, ``ix``: the same as a set, as an array) commands (``linear[j]``,
         ``angular[j]``) stamped ``t_ns`` from ``member``, received at ``wall``, as the book
         would one by one: True; False, with nothing filed, where one of them has a command
         for ``t_ns`` already or is apart, or the book would drop an old stamp (then they go
@@ -64,7 +65,7 @@ class CommandRows:
             page = self.pages[t_ns] = (set(), [])
         elif not page[0].isdisjoint(rowset) or not self.apart.isdisjoint(rowset):
             return False
-        batch = _Batch(rows, t_ns, linear, angular, wall, member, next(self._seq))
+        batch = _Batch(rows, t_ns, linear, angular, wall, member, next(self._seq), ix)
         page[0].update(rowset)
         page[1].append(batch)
         self.last[rowset] = batch
@@ -83,8 +84,8 @@ class CommandRows:
         if page is None or len(page[0]) + len(self.apart) != len(self.names):
             return False
         for b in page[1]:
-            value[b.rows, 0] = b.linear
-            value[b.rows, 1] = b.angular
+            value[b.ix, 0] = b.linear
+            value[b.ix, 1] = b.angular
         for t in [t for t in self.pages if t < upto_ns]:
             del self.pages[t]
         return True

@@ -285,11 +285,11 @@ class CommandBook:
                 f"{keep.member}'s applied")
 
     def file_twists(self, robots: list[str], rows: tuple, rowset: frozenset, t_ns: int,
-                    linear: list, angular: list, wall: float,
-                    member: str | None) -> list[tuple[str, str]]:
+                    linear: list, angular: list, wall: float, member: str | None,
+                    ix: np.ndarray | None = None) -> list[tuple[str, str]]:
         """Lockstep, bound: :meth:`file` of ``Command(Twist(linear[j], angular[j]), t_ns,
         wall, member)`` for each robot ``robots[j]`` (row ``rows[j]`` of :meth:`bind`'s
-        names; ``rowset`` the same as a set), in order: whole where it can
+        names; ``rowset``, ``ix``: the same as a set, as an array), in order: whole where it can
         (:meth:`plant.command_rows.CommandRows.file`), else one by one; (robot, what is
         wrong) of each that :meth:`file` reports."""
         book = self.rows
@@ -297,7 +297,7 @@ class CommandBook:
             for robot, i in zip(robots, rows):
                 if i in book.apart:
                     self._in(robot, i)
-        if book.file(rows, rowset, t_ns, linear, angular, wall, member):
+        if book.file(rows, rowset, t_ns, linear, angular, wall, member, ix):
             return []
         said = []
         for robot, a, b in zip(robots, linear, angular):

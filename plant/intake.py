@@ -74,7 +74,7 @@ class Intake:
         """For ``keys``, a composed member's cmd_vel keys (its robots' in order): (keys, their
         robots, rows (:meth:`plant.commands.CommandBook.bind`'s), the rows as a set, the
         keys as a set, the least of the robots' :class:`TwistCheck` limits (linear,
-        angular, age)), or None if one is not a distinct cmd_vel key of this world's
+        angular, age), the rows as an array), or None if one is not a distinct cmd_vel key of this world's
         robots; made once per list of keys and world."""
         got = self._many.get(id(keys))
         if got is None or got[0] is not keys:
@@ -89,7 +89,7 @@ class Intake:
                 ages = [c.timeout_ns for c in checks]
                 made = (names, rows, frozenset(rows), frozenset(keys),
                         min(c.lim_a for c in checks), min(c.lim_b for c in checks),
-                        None if None in ages else min(ages))
+                        None if None in ages else min(ages), np.array(rows, np.intp))
             got = self._many[id(keys)] = (keys, made)
         return got[1]
 
@@ -197,7 +197,7 @@ class Intake:
         got = self._rows_of(keys)
         if got is None or len(msgs) != len(keys):
             return False
-        robots, rows, rowset, keyset, lim_a, lim_b, age_ns = got
+        robots, rows, rowset, keyset, lim_a, lim_b, age_ns, ix = got
         first, last = msgs[0][3], msgs[-1][3]
         if first is None or last is None or first.t_ns != t_ns or last.t_ns != t_ns \
                 or first.node != last.node:
@@ -216,7 +216,7 @@ class Intake:
         if not p.ledger.file_answer(keyset, key, "cmd_vel", att, now):
             return False
         said = p.commands.file_twists(robots, rows, rowset, t_ns, linear, angular,
-                                      time.monotonic(), att.node)
+                                      time.monotonic(), att.node, ix)
         for robot, problem in said:
             p.protocol_errors.reject(f"{robot}: two members command it", problem)
         return True
