@@ -31,7 +31,7 @@ from . import controller as hooks
 from .jsonio import write_stats
 from .keys import TOPICS, Keys
 from .log import RejectCounter
-from .many import ManyTick
+from .many import ManyTick, answer_attachments
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 
@@ -204,14 +204,15 @@ class Composed:
         name = h.name if h.member.sync else None
         published, twists = h.published, h.member.twists
         seq = h.seq
-        atts = codec.attachments_parsed(seq, t_ns, [(f, n) for _, _, f, n in sent], name)
         many = h.many.twists_of(sent) if h.many is not None else None
-        if many is not None:           # (one Twist per robot: their values, as arrays too)
+        if many is not None:           # (one Twist per robot: their values, as lists too)
+            atts = answer_attachments(seq, t_ns, len(sent), name)
             msgs = [(key, payload, att, parsed, (t_ns, a, b)) for (key, payload, _, _),
                     (att, parsed), a, b in zip(sent, atts, many[2], many[3])]
             for key in many[0]:
                 published[key] = published.get(key, 0) + 1
         else:
+            atts = codec.attachments_parsed(seq, t_ns, [(f, n) for _, _, f, n in sent], name)
             msgs = []
             for (key, payload, _, _), (att, parsed) in zip(sent, atts):
                 tw = twists.get(key)        # (the values of these very bytes, if a Twist's)

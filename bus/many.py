@@ -12,6 +12,7 @@ done) goes the general way.
 """
 from __future__ import annotations
 
+import struct
 from itertools import repeat
 
 from . import codec
@@ -19,6 +20,31 @@ from . import controller as hooks
 from .controller import Twist
 from .member import MemberTick, Sent, _commands_of
 from .observe import observations
+
+
+_PACKS: dict[int, struct.Struct] = {}     # a member's attachment by its name's length
+
+
+def answer_attachments(seq: int, t_ns: int, n: int,
+                       node: str | None) -> list[tuple[bytes, codec.Attachment | None]]:
+    """``codec.attachments_parsed(seq, t_ns, marks, node)`` of :meth:`ManyTick.act`'s
+    answer of ``n`` messages (``marks``: no flags, the last ACK with ``n``): each attachment
+    packed in one call, header, trailer and name together."""
+    name = node.encode("utf-8") if node is not None else b""
+    if node is None or not 0 < len(name) <= codec.NAME_MAX or n < 1:
+        return codec.attachments_parsed(seq, t_ns, [(0, 0)] * (n - 1) + [(codec.ACK, n)],
+                                        node)
+    pack = _PACKS.get(len(name))
+    if pack is None:
+        pack = _PACKS[len(name)] = struct.Struct(f"<QQBHB{len(name)}s")
+    pack, k, mask = pack.pack, len(name), 0xFFFFFFFFFFFFFFFF
+    make, kind = tuple.__new__, codec.Attachment      # (as attachments_parsed makes them)
+    out = [(pack(s, t_ns, 0, 0, k, name), make(kind, (s, t_ns, 0, 0, node, None)))
+           for s in ((seq + i) & mask for i in range(1, n))]
+    s = (seq + n) & mask
+    out.append((pack(s, t_ns, codec.ACK, n, k, name),
+                make(kind, (s, t_ns, codec.ACK, n, node, None))))
+    return out
 
 
 class ManyTick:
