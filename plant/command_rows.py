@@ -124,8 +124,10 @@ class CommandRows:
         """Robot ``i``'s commands, out to the book's dicts: (:meth:`entries`, its latest or
         None); it is apart from now on."""
         kept, latest = self.entries(i), self.latest(i)
-        for page in self.pages.values():
+        for t, page in list(self.pages.items()):
             page[0].discard(i)
+            if not page[0]:                  # (nobody's command left on it)
+                del self.pages[t]
         self.apart.add(i)
         return kept, latest
 

@@ -42,8 +42,8 @@ def _script(seed: int, ticks: int) -> list[tuple[int, list]]:
         t = k * T
         plan = []
         for member, robots in (("a", ROBOTS[:2]), ("b", ROBOTS[2:])):
-            if 10 <= k < 40 and member == "b":
-                continue                                  # silent past cmd_timeout (25)
+            if 10 <= k < 50 and member == "b":
+                continue                      # silent past cmd_timeout, and past 32 ticks
             cmds = [(r, round(rng.uniform(-0.5, 0.5), 3), round(rng.uniform(-2, 2), 3))
                     for r in robots]
             roll = rng.random()
@@ -59,7 +59,7 @@ def _script(seed: int, ticks: int) -> list[tuple[int, list]]:
             plan.append(("c", t, [("r1", 0.1, 0.1)]))
         if rng.random() < 0.08:                            # a process member's command
             plan.append(("r3", 0.2, -0.1, "d"))
-        out.append((t, plan, not 60 <= k < 100))           # 40 ticks filed, none applied
+        out.append((t, plan, not 70 <= k < 110))           # 40 ticks filed, none applied
     return out
 
 
@@ -71,7 +71,7 @@ def test_twists_filed_and_applied_as_arrays_have_the_effects_of_one_by_one(coupl
     for p in (rows, one):
         for m in ("a", "b", "c", "d"):
             p.ledger.join(m)
-    for t, plan, applied in _script(seed, 130):
+    for t, plan, applied in _script(seed, 160):
         for p in (rows, one):
             p.sim.time_ns = p.time_ns = t
             p.ledger.begin_tick(t)
@@ -98,7 +98,7 @@ def test_twists_filed_and_applied_as_arrays_have_the_effects_of_one_by_one(coupl
         one.driven.clear()
     assert one.protocol_errors.said and one.rejects.said     # the script said something
     assert effects(rows) == effects(one)
-    assert rows.whole >= 25               # (of the 90 ticks applied: the rest robot by robot)
+    assert rows.whole >= 50               # (of the 120 ticks applied: the rest robot by robot)
 
 
 def test_a_member_s_twists_take_the_arrays_way():
