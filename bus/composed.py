@@ -97,6 +97,7 @@ class Composed:
         self.hosted = [_Hosted(s, keys) for s in specs]
         self._names = frozenset(names)
         self._readers: dict[str, list[_Hosted]] = {}
+        self._any: dict[int, tuple[list, bool]] = {}     # reads_any's answers
         for h in self.hosted:
             for key in h.member.slot_of:
                 self._readers.setdefault(key, []).append(h)
@@ -137,6 +138,14 @@ class Composed:
     def reads(self, key: str) -> bool:
         """Whether a composed member reads ``key``."""
         return key in self._readers
+
+    def reads_any(self, keys: list[str]) -> bool:
+        """Whether a composed member reads any of ``keys`` (a member's cmd_vel keys: asked
+        once per list, which stays the member's own)."""
+        got = self._any.get(id(keys))
+        if got is None or got[0] is not keys:
+            got = self._any[id(keys)] = (keys, any(k in self._readers for k in keys))
+        return got[1]
 
     def deliver(self, key: str, payload: bytes, att: bytes | None, msg=None) -> None:
         """Section 4, step 2: a message on ``key`` reaches the members that read it, decoded

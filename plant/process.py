@@ -293,6 +293,8 @@ class Plant:
         for key, payload, att, parsed, _ in msgs:
             relay(key, payload, parsed.t_ns, att)
         self.intake.answer(msgs, twists)
+        if twists is not None and not self.composed.reads_any(twists[0]):
+            return                       # (one Twist per robot that no composed member reads)
         deliver = self.composed.deliver
         for key, payload, att, _, _ in msgs:
             deliver(key, payload, att)
