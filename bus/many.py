@@ -63,9 +63,9 @@ class ManyTick:
         self.last: tuple | None = None
 
     def twists_of(self, sent: Sent) -> tuple | None:
-        """(keys, stamp, linear, angular) of ``sent`` if it is the answer :meth:`act` made last in
-        one pass (its cmd_vel messages in the keys' order, the values they were packed
-        from), else None."""
+        """(keys, stamp, linear, angular) of ``sent`` if it is the answer :meth:`act` made
+        last in one pass (its cmd_vel messages in the keys' order, the values they were
+        packed from), else None."""
         last = self.last
         return last[1] if last is not None and last[0] is sent else None
 

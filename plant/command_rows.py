@@ -53,11 +53,11 @@ class CommandRows:
     # ------------------------------------------------------------------ filing
     def file(self, rows: tuple, rowset: frozenset, t_ns: int, linear, angular, wall: float,
              member: str | None, ix: np.ndarray | None = None) -> bool:
-        """File robots ``rows``' (``rowset``, ``ix``: the same as a set, as an array) commands (``linear[j]``,
-        ``angular[j]``) stamped ``t_ns`` from ``member``, received at ``wall``, as the book
-        would one by one: True; False, with nothing filed, where one of them has a command
-        for ``t_ns`` already or is apart, or the book would drop an old stamp (then they go
-        one by one)."""
+        """File robots ``rows``' commands (``linear[j]``, ``angular[j]``) stamped ``t_ns``
+        from ``member``, received at ``wall`` (``rowset``, ``ix``: the rows as a set, as an
+        array), as the book would one by one: True; False, with nothing filed, where one of
+        them has a command for ``t_ns`` already or is apart, or the book would drop an old
+        stamp (then they go one by one)."""
         page = self.pages.get(t_ns)
         if page is None:
             if len(self.pages) >= RECENT_TICKS or not self.apart.isdisjoint(rowset):

@@ -289,9 +289,9 @@ class CommandBook:
                     ix: np.ndarray | None = None) -> list[tuple[str, str]]:
         """Lockstep, bound: :meth:`file` of ``Command(Twist(linear[j], angular[j]), t_ns,
         wall, member)`` for each robot ``robots[j]`` (row ``rows[j]`` of :meth:`bind`'s
-        names; ``rowset``, ``ix``: the same as a set, as an array), in order: whole where it can
-        (:meth:`plant.command_rows.CommandRows.file`), else one by one; (robot, what is
-        wrong) of each that :meth:`file` reports."""
+        names; ``rowset``, ``ix``: the same as a set, as an array), in order: whole where
+        it can (:meth:`plant.command_rows.CommandRows.file`), else one by one; (robot, what
+        is wrong) of each that :meth:`file` reports."""
         book = self.rows
         if book.apart and not book.apart.isdisjoint(rowset):   # (back whole, if they can)
             for robot, i in zip(robots, rows):

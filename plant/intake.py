@@ -71,11 +71,11 @@ class Intake:
         return sim
 
     def _rows_of(self, keys: list[str]) -> tuple | None:
-        """For ``keys``, a composed member's cmd_vel keys (its robots' in order): (keys, their
-        robots, rows (:meth:`plant.commands.CommandBook.bind`'s), the rows as a set, the
-        keys as a set, the least of the robots' :class:`TwistCheck` limits (linear,
-        angular, age), the rows as an array), or None if one is not a distinct cmd_vel key of this world's
-        robots; made once per list of keys and world."""
+        """For ``keys``, a composed member's cmd_vel keys (its robots' in order): (their
+        robots, their rows in :meth:`plant.commands.CommandBook.bind`'s order, the rows as
+        a set, the keys as a set, the least of the robots' :class:`TwistCheck` limits
+        (linear, angular, age), the rows as an array), or None if one is not a distinct
+        cmd_vel key of this world's robots; made once per list of keys and world."""
         got = self._many.get(id(keys))
         if got is None or got[0] is not keys:
             robot_of, book = self.plant._robot_of_key, self.plant.commands.rows
@@ -144,10 +144,10 @@ class Intake:
         commands and their rejections), with the attachment they share checked once
         (:meth:`bus.lockstep.AckLedger.file_many`) and each cmd_vel's values checked by the
         robot's :class:`TwistCheck` (one it refuses goes through :meth:`output`'s path, for
-        its error). ``twists``: (keys, stamp, linear, angular) where the answer is one Twist per
-        robot (:class:`bus.many.ManyTick`), ``msgs`` their cmd_vel on ``keys`` in order,
-        the last with the ACK, ``linear``, ``angular`` the values they were packed from: in
-        lockstep filed and checked whole (:meth:`_answer_twists`)."""
+        its error). ``twists``: (keys, stamp, linear, angular) where the answer is one
+        Twist per robot (:class:`bus.many.ManyTick`), ``msgs`` their cmd_vel on ``keys``
+        in order, the last with the ACK, ``linear``, ``angular`` the values they were
+        packed from: in lockstep filed and checked whole (:meth:`_answer_twists`)."""
         if twists is not None and self._answer_twists(msgs, twists):
             return
         p = self.plant
@@ -231,8 +231,7 @@ class Intake:
         if strategy.lockstep and p.commands.rows is not None \
                 and hasattr(p.tick, "drive_twists") and self._apply_rows(sim):
             return
-        robots, names = self._robots, self._names
-        picked = strategy.commands(names)
+        picked = strategy.commands(self._names)
         self._stale(sim, picked)
         self._drive(picked)
 

@@ -30,7 +30,8 @@ def _arrays_driven(p) -> None:
 
 def _standing(driven: list) -> list:
     """What acts: each robot's last command filed in the tick (None: a zero Twist)."""
-    return sorted((n, v if v is not None else Twist(0.0, 0.0)) for n, v in dict(driven).items())
+    return sorted((n, v if v is not None else Twist(0.0, 0.0))
+                  for n, v in dict(driven).items())
 
 
 def _script(seed: int, ticks: int) -> list[tuple[int, list]]:
@@ -85,8 +86,8 @@ def test_twists_filed_and_applied_as_arrays_have_the_effects_of_one_by_one(coupl
                 continue
             member, stamp, cmds = item
             msgs = answer(member, stamp, cmds)
-            rows.intake.answer(msgs, ([m[0] for m in msgs], stamp,
-                                      [float(c[1]) for c in cmds], [float(c[2]) for c in cmds]))
+            rows.intake.answer(msgs, ([m[0] for m in msgs], stamp, [float(c[1]) for c in cmds],
+                                      [float(c[2]) for c in cmds]))
             one.intake.answer(msgs)
         if applied:
             for p in (rows, one):
