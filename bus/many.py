@@ -8,7 +8,9 @@ answer is always the same shape: one ``cmd_vel`` per robot in the robots' order,
 carrying the ACK and the count. :meth:`ManyTick.act` makes it so directly, the same bytes,
 flags and member state as ``act`` (tests/bus/test_many_tick.py compares them tick by tick);
 any other answer (a robot left without a command, another kind of output, the controller
-done) goes the general way.
+done) goes the general way. The values its commands were packed from stay beside them
+(:meth:`ManyTick.twists_of`): a plant hosting the member takes them whole
+(:meth:`plant.intake.Intake.answer`).
 """
 from __future__ import annotations
 

@@ -6,7 +6,9 @@ ledger (:class:`bus.lockstep.AckLedger`), a command checked and filed in the pla
 message comes one by one from Zenoh (:meth:`Intake.output`); a composed member's answer to a
 tick comes whole (:meth:`Intake.answer`), with the same effects as its messages one by one,
 its shared attachment checked once and its commands checked on the values they were packed
-from. :meth:`Intake.apply` hands every robot the command the mode picks for the tick.
+from; one Twist per robot from a many-robot member (:class:`bus.many.ManyTick`) is checked
+and filed whole (:mod:`plant.command_rows`). :meth:`Intake.apply` hands every robot the
+command the mode picks for the tick: in lockstep, where each is the tick's own, all at once.
 """
 from __future__ import annotations
 
