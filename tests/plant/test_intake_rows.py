@@ -1,10 +1,10 @@
-"""A composed member's Twists for many robots, filed and applied as arrays (plant/intake.py,
+"""A composed member's Twists for many robots, filed and applied whole (plant/intake.py,
 plant/command_rows.py), have the effects of the same answers filed message by message and
 applied robot by robot: tick by tick the same commands driven and the same protocol errors,
-and at the end the same command book and ledger, through answers that take the arrays'
-way and ones that leave it (a refused value, a member silent past the command timeout, a
-second member for a robot, a process member's command, an answer twice, ticks filed with
-none applied past the book's memory), under both couplings. No processes, no Zenoh."""
+and at the end the same command book and ledger, through answers that go whole and ones
+that cannot (a refused value, a member silent past the command timeout, a second member
+for a robot, a process member's command, an answer twice, ticks filed with none applied
+past the book's memory), under both couplings. No processes, no Zenoh."""
 from __future__ import annotations
 
 import math
@@ -18,7 +18,7 @@ from plant.commands import Command
 from .test_intake import ROBOTS, T, answer, effects, plant
 
 
-def _arrays_driven(p) -> None:
+def _driven_at_once(p) -> None:
     """The plant's tick with the core's one-assignment hand-over, recorded robot by robot
     (a robot told to stand still is a zero Twist, as :meth:`plant.tick.Tick.drive` files
     None)."""
@@ -66,9 +66,9 @@ def _script(seed: int, ticks: int) -> list[tuple[int, list]]:
 
 @pytest.mark.parametrize("coupling", ["sequential", "pipelined"])
 @pytest.mark.parametrize("seed", [1, 2])
-def test_twists_filed_and_applied_as_arrays_have_the_effects_of_one_by_one(coupling, seed):
+def test_twists_filed_and_applied_whole_have_the_effects_of_one_by_one(coupling, seed):
     rows, one = plant(coupling, 0), plant(coupling, 0)
-    _arrays_driven(rows)
+    _driven_at_once(rows)
     for p in (rows, one):
         for m in ("a", "b", "c", "d"):
             p.ledger.join(m)
@@ -102,11 +102,11 @@ def test_twists_filed_and_applied_as_arrays_have_the_effects_of_one_by_one(coupl
     assert rows.whole >= 50               # (of the 120 ticks applied: the rest robot by robot)
 
 
-def test_a_member_s_twists_take_the_arrays_way():
-    """The usual answer is filed as arrays, and picked and handed over in one assignment;
+def test_a_member_s_twists_are_taken_whole():
+    """The usual answer is filed whole, and picked and handed over in one assignment;
     each command is then the one the book gives robot by robot."""
     p = plant("pipelined", 0)
-    _arrays_driven(p)
+    _driven_at_once(p)
     calls = []
     p.tick.drive = lambda r, v: calls.append(r)           # (robot by robot: not used)
     p.ledger.join("a")
