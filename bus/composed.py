@@ -31,14 +31,17 @@ from . import controller as hooks
 from .jsonio import write_stats
 from .keys import TOPICS, Keys
 from .log import RejectCounter
-from .many import ManyTick
+from .many import ManyTick, answer_attachments
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 
 #: emit([(key, payload, attachment, the attachment as parse_attachment reads it, a command's
-#: (stamp, linear, angular) the payload was packed from or None), ...]): a composed member's
-#: messages for one tick, in order, handed to the plant in one call
-Emit = Callable[[list[tuple[str, bytes, bytes, codec.Attachment | None, tuple | None]]], None]
+#: (stamp, linear, angular) the payload was packed from or None), ...], twists): a composed
+#: member's messages for one tick, in order, handed to the plant in one call; ``twists``:
+#: where they are one Twist per robot, (their keys, stamp, linear, angular values), else None
+#: (:meth:`bus.many.ManyTick.twists_of`)
+Emit = Callable[[list[tuple[str, bytes, bytes, codec.Attachment | None, tuple | None]],
+                 tuple | None], None]
 
 
 class _Hosted:
@@ -98,6 +101,7 @@ class Composed:
         #: member composed here reads: :meth:`deliver` hands that the message built from
         #: the values the payload was packed from (bus.made), not the payload decoded
         self._made: dict[str, tuple[bytes, object]] = {}
+        self._any: dict[int, tuple[list, bool]] = {}     # reads_any's answers
         for h in self.hosted:
             for key in h.member.slot_of:
                 self._readers.setdefault(key, []).append(h)
@@ -138,6 +142,14 @@ class Composed:
     def reads(self, key: str) -> bool:
         """Whether a composed member reads ``key``."""
         return key in self._readers
+
+    def reads_any(self, keys: list[str]) -> bool:
+        """Whether a composed member reads any of ``keys`` (a member's cmd_vel keys: asked
+        once per list, which stays the member's own)."""
+        got = self._any.get(id(keys))
+        if got is None or got[0] is not keys:
+            got = self._any[id(keys)] = (keys, any(k in self._readers for k in keys))
+        return got[1]
 
     def deliver(self, key: str, payload: bytes, att: bytes | None, msg=None) -> None:
         """Section 4, step 2: a message on ``key`` reaches the members that read it, decoded
@@ -207,18 +219,26 @@ class Composed:
         name = h.name if h.member.sync else None
         published, twists, encoded = h.published, h.member.twists, h.member.encoded
         seq = h.seq
-        msgs = []
-        atts = codec.attachments_parsed(seq, t_ns, [(f, n) for _, _, f, n in sent], name)
-        for (key, payload, _, _), (att, parsed) in zip(sent, atts):
-            enc = encoded.get(key)          # (these very bytes, with their values)
-            if enc is not None and enc.data is payload and key in self._readers:
-                self._made[key] = (payload, enc)
-            tw = twists.get(key)            # (the values of these very bytes, if a Twist's)
-            msgs.append((key, payload, att, parsed,
-                         tw[1:] if tw is not None and tw[0] is payload else None))
-            published[key] = published.get(key, 0) + 1
+        many = h.many.twists_of(sent) if h.many is not None else None
+        if many is not None:           # (one Twist per robot: their values, as lists too)
+            atts = answer_attachments(seq, t_ns, len(sent), name)
+            msgs = [(key, payload, att, parsed, (t_ns, a, b)) for (key, payload, _, _),
+                    (att, parsed), a, b in zip(sent, atts, many[2], many[3])]
+            for key in many[0]:
+                published[key] = published.get(key, 0) + 1
+        else:
+            atts = codec.attachments_parsed(seq, t_ns, [(f, n) for _, _, f, n in sent], name)
+            msgs = []
+            for (key, payload, _, _), (att, parsed) in zip(sent, atts):
+                enc = encoded.get(key)      # (these very bytes, with their values)
+                if enc is not None and enc.data is payload and key in self._readers:
+                    self._made[key] = (payload, enc)
+                tw = twists.get(key)        # (the values of these very bytes, if a Twist's)
+                msgs.append((key, payload, att, parsed,
+                             tw[1:] if tw is not None and tw[0] is payload else None))
+                published[key] = published.get(key, 0) + 1
         h.seq = seq + len(sent)
-        emit(msgs)
+        emit(msgs, many)
 
     def close(self) -> None:
         """The run ended: every member leaves, its controllers are closed and its

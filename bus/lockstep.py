@@ -234,6 +234,23 @@ class AckLedger:
         take = self._take
         return [take(key, topic, att) for key, topic, att, _ in msgs]
 
+    def file_answer(self, keys: frozenset, last: str, topic: str,
+                    att: codec.Attachment | None, now_ns: int) -> bool:
+        """:meth:`file_many` of a composed member's usual answer to a tick: outputs on the
+        distinct keys ``keys`` (none an ACK key), the last on ``last`` (``topic``) with the
+        ACK, every one with an attachment like ``att`` (the same member and tick): filed
+        with one set update, True; False, with nothing filed, where anything is to be
+        reported or checked message by message (then :meth:`file_many`)."""
+        if att is None or not att.flags & codec.ACK or topic == "ack" \
+                or not self._plain(att, now_ns):
+            return False
+        got = self.member_msgs.get((att.node, att.t_ns))
+        if got is not None and not got.isdisjoint(keys):
+            return False
+        self._take(last, topic, att)
+        self.member_msgs[(att.node, att.t_ns)].update(keys)
+        return True
+
     def _plain(self, att: codec.Attachment | None, now_ns: int) -> bool:
         """Section 7: a message :meth:`file` takes with nothing to report about its
         attachment: a lockstep member's (known) for a tick on the grid, due and not held."""

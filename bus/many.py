@@ -8,15 +8,45 @@ answer is always the same shape: one ``cmd_vel`` per robot in the robots' order,
 carrying the ACK and the count. :meth:`ManyTick.act` makes it so directly, the same bytes,
 flags and member state as ``act`` (tests/bus/test_many_tick.py compares them tick by tick);
 any other answer (a robot left without a command, another kind of output, the controller
-done) goes the general way.
+done) goes the general way. The values its commands were packed from stay beside them
+(:meth:`ManyTick.twists_of`): a plant hosting the member takes them whole
+(:meth:`plant.intake.Intake.answer`).
 """
 from __future__ import annotations
+
+import struct
+from itertools import repeat
 
 from . import codec
 from . import controller as hooks
 from .controller import Twist
 from .member import MemberTick, Sent, _commands_of
 from .observe import observations
+
+
+_PACKS: dict[int, struct.Struct] = {}     # a member's attachment by its name's length
+
+
+def answer_attachments(seq: int, t_ns: int, n: int,
+                       node: str | None) -> list[tuple[bytes, codec.Attachment | None]]:
+    """``codec.attachments_parsed(seq, t_ns, marks, node)`` of :meth:`ManyTick.act`'s
+    answer of ``n`` messages (``marks``: no flags, the last ACK with ``n``): each attachment
+    packed in one call, header, trailer and name together."""
+    name = node.encode("utf-8") if node is not None else b""
+    if node is None or not 0 < len(name) <= codec.NAME_MAX or n < 1:
+        return codec.attachments_parsed(seq, t_ns, [(0, 0)] * (n - 1) + [(codec.ACK, n)],
+                                        node)
+    pack = _PACKS.get(len(name))
+    if pack is None:
+        pack = _PACKS[len(name)] = struct.Struct(f"<QQBHB{len(name)}s")
+    pack, k, mask = pack.pack, len(name), 0xFFFFFFFFFFFFFFFF
+    make, kind = tuple.__new__, codec.Attachment      # (as attachments_parsed makes them)
+    out = [(pack(s, t_ns, 0, 0, k, name), make(kind, (s, t_ns, 0, 0, node, None)))
+           for s in ((seq + i) & mask for i in range(1, n))]
+    s = (seq + n) & mask
+    out.append((pack(s, t_ns, codec.ACK, n, k, name),
+                make(kind, (s, t_ns, codec.ACK, n, node, None))))
+    return out
 
 
 class ManyTick:
@@ -30,6 +60,16 @@ class ManyTick:
         self.robots = [s.robot for s in member.slots]
         self.keys = [s.cmd_key for s in member.slots]
         self.layout, self.frame = codec._twist_layout("base_link")   # (twist_stamped_bytes')
+        #: the last answer made in one pass, and its commands as (cmd_vel keys, stamp,
+        #: linear values, angular values): what :meth:`twists_of` hands the plant
+        self.last: tuple | None = None
+
+    def twists_of(self, sent: Sent) -> tuple | None:
+        """(keys, stamp, linear, angular) of ``sent`` if it is the answer :meth:`act` made
+        last in one pass (its cmd_vel messages in the keys' order, the values they were
+        packed from), else None."""
+        last = self.last
+        return last[1] if last is not None and last[0] is sent else None
 
     @classmethod
     def of(cls, member: MemberTick) -> "ManyTick | None":
@@ -57,18 +97,19 @@ class ManyTick:
         # all read by the plant (owed's order is theirs), the last with ACK and n_plant
         sec, nanosec = divmod(t_ns, 1_000_000_000)
         pack, cdr, frame = self.layout.pack, codec._CDR_LE, self.frame
-        twists = m.twists
-        sent: Sent = []
-        for key, c in zip(self.keys, cmds):
-            linear, angular = float(c.linear), float(c.angular)
-            data = pack(cdr, sec, nanosec, frame, linear, 0.0, 0.0, 0.0, 0.0, angular)
-            twists[key] = (data, t_ns, linear, angular)
-            sent.append((key, data, 0, 0))
-        key, data, _, _ = sent[-1]
-        sent[-1] = (key, data, codec.ACK, len(sent))
+        keys = self.keys
+        linear = [float(c.linear) for c in cmds]
+        angular = [float(c.angular) for c in cmds]
+        datas = [pack(cdr, sec, nanosec, frame, a, 0.0, 0.0, 0.0, 0.0, b)
+                 for a, b in zip(linear, angular)]
+        m.twists.update(zip(keys, zip(datas, repeat(t_ns), linear, angular)))
+        sent: Sent = list(zip(keys, datas, repeat(0), repeat(0)))
+        sent[-1] = (keys[-1], datas[-1], codec.ACK, len(sent))
         m.ticks += 1
         m.hold_until = t_ns if m._keep_sent else None
         m._keep(t_ns, sent)
+        # (the plant takes the values whole: plant.intake.Intake.answer's ``twists``)
+        self.last = (sent, (keys, t_ns, linear, angular))
         return sent, False
 
     def _general(self, cmds: list, done: bool, t_ns: int) -> tuple[Sent, bool]:

@@ -24,6 +24,8 @@ from bus.controller import Twist, WheelSpeeds
 from bus.keys import frame
 from bus.lockstep import AckLedger
 
+from .command_rows import CommandRows
+
 #: Commands beyond this multiple of a robot's limit are rejected as absurd, not clamped.
 ABSURD_FACTOR = 10.0
 
@@ -182,23 +184,94 @@ def check_stamp(stamp, now_ns: int, tick_ns: int, timeout_s: float | None) -> No
 
 
 class CommandBook:
-    """The commands received per robot: the latest, and in lockstep one per tick stamp."""
+    """The commands received per robot: the latest, and in lockstep one per tick stamp.
+    Lockstep, once :meth:`bind` names the world's robots, a member's Twists for many robots
+    at one tick are filed as arrays (:meth:`file_twists`, :mod:`plant.command_rows`) and
+    the tick's commands picked for all of them at once (:meth:`pick_rows`); the rest, robot
+    by robot, in the dicts :attr:`latest` and :attr:`by_tick` (reading either brings every
+    robot's commands there)."""
 
     def __init__(self, lockstep: bool) -> None:
         self.lockstep = lockstep
-        self.latest: dict[str, Command] = {}
-        self.by_tick: dict[str, dict[int, Command]] = {}
+        self._latest: dict[str, Command] = {}
+        self._by_tick: dict[str, dict[int, Command]] = {}
         self.refused: dict[str, int] = {}      # robot -> stamp of its last rejected command
+        self.rows: CommandRows | None = None
+
+    @property
+    def latest(self) -> dict[str, Command]:
+        """robot -> the latest command filed for it."""
+        self._out_all()
+        return self._latest
+
+    @property
+    def by_tick(self) -> dict[str, dict[int, Command]]:
+        """Lockstep: robot -> {tick stamp: its command}."""
+        self._out_all()
+        return self._by_tick
+
+    def bind(self, names) -> CommandRows | None:
+        """Lockstep: the world's robots ``names`` (in order), whose Twists may be filed
+        whole from now on (:mod:`plant.command_rows`; a robot with commands in the dicts
+        already stays there until its next)."""
+        if not self.lockstep:
+            return None
+        names = tuple(names)
+        if self.rows is None or self.rows.names != names:
+            self._out_all()
+            self.rows = CommandRows(names)
+            for i, n in enumerate(names):
+                if n in self._latest or self._by_tick.get(n):
+                    self.rows.apart.add(i)
+        return self.rows
+
+    def _out(self, robot: str) -> None:
+        """``robot``'s commands, if kept whole, into the dicts (until its next Twists come
+        whole: :meth:`_in`)."""
+        rows = self.rows
+        i = rows.row.get(robot) if rows is not None else None
+        if i is None or i in rows.apart:
+            return
+        kept, latest = rows.take_out(i)
+        if kept:
+            self._by_tick[robot] = {t: Command(Twist(a, b), t, w, m)
+                                    for t, (a, b, w, m) in kept.items()}
+        if latest is not None:
+            t, a, b, w, m = latest
+            self._latest[robot] = Command(Twist(a, b), t, w, m)
+
+    def _in(self, robot: str, i: int) -> None:
+        """``robot``'s commands (row ``i``) from the dicts back to the rows, if they are all
+        Twists."""
+        by_tick = self._by_tick.get(robot) or {}
+        latest = self._latest.get(robot)
+        cmds = list(by_tick.values()) + ([latest] if latest is not None else [])
+        if any(type(c.value) is not Twist for c in cmds):
+            return
+        self.rows.take_in(i, {t: (c.value.linear, c.value.angular, c.wall, c.member)
+                              for t, c in by_tick.items()},
+                          None if latest is None else
+                          (latest.t_ns, latest.value.linear, latest.value.angular,
+                           latest.wall, latest.member))
+        self._by_tick.pop(robot, None)
+        self._latest.pop(robot, None)
+
+    def _out_all(self) -> None:
+        rows = self.rows
+        if rows is not None and len(rows.apart) < len(rows.names):
+            for i, name in enumerate(rows.names):
+                self._out(name)
 
     def file(self, robot: str, cmd: Command) -> str | None:
         """Keep ``cmd``. Lockstep: one command per robot per tick, the same whatever the
         arrival order (docs/PROTOCOL.md section 7): a member's first for the tick (the
         ledger drops its later ones), and of two members' the one whose name sorts first;
         then what is wrong, for the protocol error count."""
-        self.latest[robot] = cmd
+        self._out(robot)
+        self._latest[robot] = cmd
         if not self.lockstep:
             return None
-        by_tick = self.by_tick.setdefault(robot, {})
+        by_tick = self._by_tick.setdefault(robot, {})
         had = by_tick.get(cmd.t_ns)
         if had is None or had.member == cmd.member:
             if had is None:
@@ -211,11 +284,42 @@ class CommandBook:
         return (f"{had.member} and {cmd.member} for t={cmd.t_ns * 1e-9:.3f} s; "
                 f"{keep.member}'s applied")
 
+    def file_twists(self, robots: list[str], rows: tuple, rowset: frozenset, t_ns: int,
+                    linear: list, angular: list, wall: float, member: str | None,
+                    ix: np.ndarray | None = None) -> list[tuple[str, str]]:
+        """Lockstep, bound: :meth:`file` of ``Command(Twist(linear[j], angular[j]), t_ns,
+        wall, member)`` for each robot ``robots[j]`` (row ``rows[j]`` of :meth:`bind`'s
+        names; ``rowset``, ``ix``: the same as a set, as an array), in order: whole where
+        it can (:meth:`plant.command_rows.CommandRows.file`), else one by one; (robot, what
+        is wrong) of each that :meth:`file` reports."""
+        book = self.rows
+        if book.apart and not book.apart.isdisjoint(rowset):   # (back whole, if they can)
+            for robot, i in zip(robots, rows):
+                if i in book.apart:
+                    self._in(robot, i)
+        if book.file(rows, rowset, t_ns, linear, angular, wall, member, ix):
+            return []
+        said = []
+        for robot, a, b in zip(robots, linear, angular):
+            problem = self.file(robot, Command(Twist(a, b), t_ns, wall, member))
+            if problem:
+                said.append((robot, problem))
+        return said
+
+    def pick_rows(self, upto_ns: int, value: np.ndarray) -> bool:
+        """Lockstep, bound: where every robot kept whole has a command for exactly
+        ``upto_ns`` (or none has any: ``upto_ns`` < 0), their :meth:`for_tick` at once into
+        ``value`` ((R, 2) by row, zero for the rest), True; else False, nothing changed.
+        The robots kept in the dicts (:attr:`plant.command_rows.CommandRows.apart`) are
+        asked :meth:`for_tick` one by one."""
+        return self.rows.pick(upto_ns, value)
+
     def for_tick(self, robot: str, upto_ns: int) -> Command | None:
         """Lockstep: the command computed for the latest tick at or before ``upto_ns`` (the
         current tick in sequential coupling, the one before in pipelined): what arrives early
         for a later tick waits for its turn, so runs are the same whatever the timing."""
-        by_tick = self.by_tick.get(robot)
+        self._out(robot)
+        by_tick = self._by_tick.get(robot)
         if not by_tick:
             return None
         cmd = by_tick.get(upto_ns)
@@ -242,18 +346,21 @@ class CommandBook:
         dropped, so the robot has none until a newer one acts. A command already filed for a
         later tick (pipelined: the next answer, often in before this tick is applied) stays:
         what acts never depends on when it arrived (docs/PROTOCOL.md section 4)."""
-        cmd = self.latest.get(robot)
+        self._out(robot)
+        cmd = self._latest.get(robot)
         if cmd is not None and cmd.t_ns <= upto_ns:
-            del self.latest[robot]
-        by_tick = self.by_tick.get(robot)
+            del self._latest[robot]
+        by_tick = self._by_tick.get(robot)
         if by_tick:
             for t in [t for t in by_tick if t <= upto_ns]:
                 del by_tick[t]
 
     def clear(self) -> None:
-        self.latest.clear()
-        self.by_tick.clear()
+        self._latest.clear()
+        self._by_tick.clear()
         self.refused.clear()
+        if self.rows is not None:
+            self.rows.clear()
 
 
 #: the protocol error kind of a robot driven by a command other than the coupling's rule's

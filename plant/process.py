@@ -284,7 +284,7 @@ class Plant:
         self.publish_sensors()
         self.timing["publish_s"] += time.perf_counter() - c0
 
-    def _emit_many(self, msgs: list[Emitted]) -> None:
+    def _emit_many(self, msgs: list[Emitted], twists: tuple | None = None) -> None:
         """A composed member's answer to a tick (bus/composed.py): each message on the bus
         for whoever listens, then those the plant reads filed at once as if they came from
         Zenoh (a command as the values it was packed from: :meth:`Intake.answer`), and each
@@ -292,7 +292,9 @@ class Plant:
         relay = self.outbox.relay
         for key, payload, att, parsed, _ in msgs:
             relay(key, payload, parsed.t_ns, att)
-        self.intake.answer(msgs)
+        self.intake.answer(msgs, twists)
+        if twists is not None and not self.composed.reads_any(twists[0]):
+            return                       # (one Twist per robot that no composed member reads)
         deliver = self.composed.deliver
         for key, payload, att, _, _ in msgs:
             deliver(key, payload, att)

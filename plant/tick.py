@@ -51,6 +51,8 @@ class Tick:
     publishing overlapping the step where ``overlap`` (the mode's commands for the step do
     not wait for tick k's sensors)."""
 
+    _twist_rows: tuple | None = None      # (drive, names, their rows): drive_twists'
+
     def __init__(self, spec: WorldSpec, disabled: tuple[str, ...] = (),
                  physics_process: bool = False, overlap: bool = False) -> None:
         self.spec = spec
@@ -144,6 +146,15 @@ class Tick:
             d.twist(d.index[robot], command.linear, command.angular)
         else:
             d.wheels_to(d.index[robot], command.left, command.right)
+
+    def drive_twists(self, names: tuple, values: np.ndarray) -> None:
+        """:meth:`drive` of ``Twist(*values[j])`` for each robot ``names[j]``, filed into the
+        core's command arrays at once (the rows of ``names`` asked once per drive)."""
+        d = self.sim.drive
+        rows = self._twist_rows
+        if rows is None or rows[0] is not d or rows[1] is not names:
+            rows = self._twist_rows = (d, names, np.array([d.index[n] for n in names]))
+        d.twists(rows[2], values)
 
     def begin(self) -> bool:
         """A new tick: whether the host publishes its sensors now (not if the step will,

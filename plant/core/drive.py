@@ -102,6 +102,13 @@ class WorldDrive:
         self._cmds[2 * i], self._cmds[2 * i + 1] = float(v), float(w)
         self._filed = True
 
+    def twists(self, rows: np.ndarray, values: np.ndarray) -> None:
+        """:meth:`twist` of ``values[j]`` (v, w) for each robot ``rows[j]``, in one
+        assignment per array."""
+        self.kind[rows] = TWIST
+        self.cmd[rows] = values
+        self._filed = True
+
     def wheels_to(self, i: int, left: float, right: float) -> None:
         """Robot ``i``'s command this tick: the wheel speeds (rad/s)."""
         self._kinds[i] = WHEELS

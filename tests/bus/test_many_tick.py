@@ -83,3 +83,15 @@ def test_only_lockstep_members_of_one_step_many_controller_answer_in_one_pass():
             return Twist()
     assert ManyTick.of(MemberTick("o", T, slots=make_slots(_One, ROBOTS, topics),
                                   topics=topics, key=K.topic)) is None
+
+
+def test_an_answer_s_attachments_packed_at_once_are_those_made_one_by_one():
+    """Also no name, one too long, a name not ASCII, one message, the sequence wrapping."""
+    from bus import codec
+    from bus.keys import NAME_MAX
+    from bus.many import answer_attachments
+    for node in ("avoid_g0", None, "é" * 3, "x" * (NAME_MAX + 1), "x" * NAME_MAX):
+        for seq, n in ((41, 8), (0, 1), (2**64 - 3, 5)):
+            marks = [(0, 0)] * (n - 1) + [(codec.ACK, n)]
+            assert answer_attachments(seq, 20 * T, n, node) == \
+                codec.attachments_parsed(seq, 20 * T, marks, node), (node, seq, n)
