@@ -13,12 +13,14 @@ from .test_core import _drive, _wanted, _world
 from .test_handover import _same
 
 CAMERA = ("camera/image_raw", "camera/camera_info")
+HANDED = ("scan", "joint_states", "gps", "ground_truth")   # (plant.handover's topics)
 
 
 def test_handed_camera_messages_are_the_decoded_bytes(tmp_path):
     """The follow's world with a noisy camera, readers that come and go, a reset: every
-    camera message due and read is handed, equal to its bytes decoded; the scans as
-    plant.handover hands them; nothing for a camera not due this tick."""
+    camera message due and read is handed, equal to its bytes decoded; the scans, joint
+    states, GPS and ground truth as plant.handover hands them; nothing for a camera not
+    due this tick nor for a topic handed by neither."""
     spec = _world("follow", tmp_path)
     spec.robot("follower").sensors.camera_noise = NoiseConfig(std=10.0)
     tick = Tick(spec)
@@ -32,7 +34,7 @@ def test_handed_camera_messages_are_the_decoded_bytes(tmp_path):
         sent = set()
         for _, robot, topic, data in msgs:
             msg = handed(robot, topic)
-            if topic in CAMERA or topic == "scan":
+            if topic in CAMERA or topic in HANDED:
                 _same(msg, codec.decode(data, TOPICS[topic].msgtype), f"{k} {robot} {topic}")
                 sent.add((robot, topic))
                 handed_count[topic] = handed_count.get(topic, 0) + 1
