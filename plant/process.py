@@ -323,12 +323,14 @@ class Plant:
                     return lambda topic: reads(key(robot, topic))
                 return lambda topic: reads(key(robot, topic)) or local(key(robot, topic))
 
-            def bare(robot: str) -> bool:    # (its scan only composed members read: values)
-                scan = key(robot, "scan")
-                return local(scan) and not reads(scan)
+            def only_local(robot_topic: tuple[str, str]) -> bool:
+                k = key(*robot_topic)           # (only composed members read it: values)
+                return local(k) and not reads(k)
+            bare = Reads(only_local).__getitem__
+
             self._wanted = (readers, core.Settled(
                 {name: Reads(ask(name)).__getitem__ for name in self.tick.sensors},
-                Reads(bare).__getitem__ if local is not None else None))
+                (lambda robot, topic: bare((robot, topic))) if local is not None else None))
         return self._wanted[1]
 
     # ------------------------------------------------------------------ input

@@ -101,10 +101,11 @@ class Settled(dict):
     """robot -> ``wanted(topic)`` whose answers hold for as long as this object lives (the
     plant's: :class:`plant.outbox.Reads`, a new object whenever a reader may have come or
     gone). :func:`sense` works out what it reads at each phase of the sensors' periods
-    once for such an object, not every tick. ``bare``: robot -> whether its LaserScan is
-    read only as values (:mod:`plant.handover`, by members composed into the host), so
-    its bytes are not made (:data:`UNENCODED` in their place); None: every scan read is
-    encoded."""
+    once for such an object, not every tick. ``bare``: (robot, topic) -> whether that
+    message (a LaserScan, a camera's Image or CameraInfo) is read only as values
+    (:mod:`plant.handover`, :mod:`plant.camera_handover`: by members composed into the
+    host), so its bytes are not made (:data:`UNENCODED` in their place); None: every
+    message read is encoded."""
     __slots__ = ("bare",)
 
     def __init__(self, wanted=(), bare: Callable[[str], bool] | None = None) -> None:
@@ -135,7 +136,7 @@ def _scans(model: Model, cfg, group, rows, ranges, t_ns: int, wanted) -> list:
     if bare is None:
         return model.scan_rows[cfg].pack(t_ns, {"ranges": ranges}, at)
     names = model.robots
-    need = np.array([not bare(names[i]) for i in rows.tolist()], bool)
+    need = np.array([not bare(names[i], "scan") for i in rows.tolist()], bool)
     msgs = [UNENCODED] * len(rows)
     if need.any():
         made = model.scan_rows[cfg].pack(t_ns, {"ranges": ranges[need]}, at[need])
@@ -249,10 +250,11 @@ def sense(model: Model, data: Data, w: int, t_ns: int, shapes: Callable, wanted=
     data.ranges[w] = (tick, kept)
     pictures: dict[int, np.ndarray] = {}       # (the tick's pictures: data.images)
     data.images[w] = (tick, pictures)
+    bare = getattr(wanted, "bare", None) if encoded else None
     for i in due.get("camera/image_raw", ()):
         _camera(model, data.streams[w][model.robots[i]].camera_noise, i, t_ns, tick, tfs[i],
                 scene, bool(masks["camera/image_raw"][i]), bool(masks["camera/camera_info"][i]),
-                got, encoded, pictures)
+                got, encoded, pictures, bare)
     made = [(name, topic, got[topic][i]) for i, name, topic, p in model.order if tick % p == 0]
     if read_only:
         return len(made), [(k, *m) for k, m in enumerate(made) if m[2] is not None]
@@ -284,17 +286,26 @@ def _objects(model: Model, data: Data, w: int, out, raw: bytes, t_ns: int) -> li
 
 
 def _camera(model: Model, image_noise, i: int, t_ns: int, tick: int, tf: np.ndarray, scene,
-            image: bool, info: bool, out: dict, encoded: bool, pictures: dict) -> None:
+            image: bool, info: bool, out: dict, encoded: bool, pictures: dict,
+            bare: Callable[[str, str], bool] | None = None) -> None:
     """Robot ``i``'s camera messages (render, ``image_noise`` at ``tick``, encode where
-    ``encoded``), as RobotSensors makes them; its picture into ``pictures``."""
+    ``encoded``), as RobotSensors makes them; its picture into ``pictures`` (what
+    :mod:`plant.camera_handover` hands composed members). A message ``bare`` says only
+    values readers read is :data:`UNENCODED`: the picture is drawn, its bytes not made."""
     enc = codec.encode if encoded else _same
     c = model.cameras[i]
+    robot = model.robots[i]
     optical = model.frames["camera_optical"][i]
     if image:
         # render(camera_pose(tf)) then image_noise.apply(tick): the same bytes, one call
-        rgb = pictures[i] = cam.frame(c, tf, scene, model.robots[i], image_noise, tick)
-        out["camera/image_raw"][i] = enc(codec.image(t_ns, rgb, optical))
-    if info:
+        rgb = pictures[i] = cam.frame(c, tf, scene, robot, image_noise, tick)
+        if bare is not None and bare(robot, "camera/image_raw"):
+            out["camera/image_raw"][i] = UNENCODED
+        else:
+            out["camera/image_raw"][i] = enc(codec.image(t_ns, rgb, optical))
+    if info and bare is not None and bare(robot, "camera/camera_info"):
+        out["camera/camera_info"][i] = UNENCODED
+    elif info:
         fields = model.camera_info[i]
         out["camera/camera_info"][i] = _info_bytes(fields, optical, t_ns) if encoded else \
             codec.camera_info(t_ns, **fields, frame_id=optical)

@@ -194,9 +194,11 @@ class _KeptOutbox(Outbox):
 
 
 def _published(tmp_path, read: set[str], ticks: int = 12, composed=None,
-               comes: tuple | None = None, members: frozenset = frozenset()) -> list:
+               comes: tuple | None = None, members: frozenset = frozenset(),
+               spec=None) -> list:
     """Every message the plant's publish_sensors puts over ``ticks`` ticks of a 4-robot
-    kinematic swarm whose readers are ``read`` (keys), lidars due every few ticks.
+    kinematic swarm (or the world ``spec``) whose readers are ``read`` (keys), lidars due
+    every few ticks.
     ``composed``: members hosted in the plant (given the outbox as ``outbox``);
     ``members``: the lockstep members present; ``comes``: (tick, keys, mid) keys a subscriber
     starts to read at that tick, before the tick's sensing or (``mid``) after it, before
@@ -208,7 +210,9 @@ def _published(tmp_path, read: set[str], ticks: int = 12, composed=None,
     from plant.swarm_world import write_swarm_world
     from plant.tick import Tick
     from plant.world import load_world
-    spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, seed=1, mode="kinematic"))
+    if spec is None:
+        spec = load_world(write_swarm_world(str(tmp_path / "w.toml"), 4, seed=1,
+                                            mode="kinematic"))
     tick, out = Tick(spec), _KeptOutbox(read)
     host = SimpleNamespace(outbox=out, composed=composed, tick=tick, sim=tick.sim, epoch=0,
                            keys=Keys(""), _key=lambda robot, topic: f"{robot}/{topic}",
