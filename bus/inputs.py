@@ -26,9 +26,10 @@ def stamp_of(msg, tick_ns: int, att: bytes | None = None,
     head = getattr(msg, "header", None)       # (asked once: every input sample comes here)
     if head is not None or hasattr(msg, "clock"):
         st = head.stamp if head is not None else msg.clock
-        if st.sec < 0 or not 0 <= st.nanosec < 1_000_000_000:
-            return 0, f"invalid stamp ({st.sec} s, {st.nanosec} ns)"
-        t_ns = codec.stamp_ns(st)
+        sec, nanosec = st.sec, st.nanosec
+        if sec < 0 or not 0 <= nanosec < 1_000_000_000:
+            return 0, f"invalid stamp ({sec} s, {nanosec} ns)"
+        t_ns = int(sec) * 1_000_000_000 + int(nanosec)      # (codec.stamp_ns, inline)
     else:
         a = codec.parse_attachment(att)
         t_ns = a.t_ns if a else (last_clock or 0)
@@ -64,6 +65,8 @@ _UNKNOWN = object()
 #: float arrays up to this size are checked as Python floats (cheaper than numpy's calls)
 _SMALL = 64
 _PLANS: dict[type, "_Plan | None"] = {}
+#: float tuples a plan keeps as passed (values that change every message fill it once)
+_PASSED_MAX = 32
 #: the Python type rosbags decodes each base type to (the rest: int)
 _DECODED = {"float32": float, "float64": float, "string": str, "bool": bool}
 
@@ -84,6 +87,9 @@ class _Plan:
         self.floats = itemgetter(*floats) if len(floats) > 1 else \
             (lambda v: (v[floats[0]],)) if floats else (lambda v: ())
         self.arrays = arrays          # (index, bounded: not a covariance)
+        #: a type without float arrays: float values that passed, as a tuple (a lidar's
+        #: constants, the same in every scan, are then checked once: a set lookup)
+        self.passed: set | None = None if arrays else set()
 
     @classmethod
     def of(cls, msg) -> "_Plan | None":
@@ -121,6 +127,16 @@ class _Plan:
         vals = self.get(msg)
         if tuple(map(type, vals)) != self.types:
             return False
+        passed = self.passed
+        if passed is not None:                     # (no arrays: the floats alone decide)
+            got = self.floats(vals)
+            if got in passed:                      # (NaN never passes, so never matches)
+                return True
+            ok = not got or (math.isfinite(sum(got)) and max(got) <= ABSURD_INPUT
+                             and min(got) >= -ABSURD_INPUT)
+            if ok and len(passed) < _PASSED_MAX:
+                passed.add(got)
+            return ok
         floats = list(self.floats(vals))
         for i, bounded in self.arrays:
             a = vals[i]

@@ -245,14 +245,14 @@ class MemberTick:
         stamp, problem = stamp_of(msg, self.tick_ns, att, self.last_clock)
         if problem:
             return problem
-        buf = self.buf.setdefault(key, {})
+        buf = self.buf.get(key) or self.buf.setdefault(key, {})    # (no new dict each call)
         if slot.check_inputs and (problem := check_input(topic, msg)):
             buf.setdefault(stamp, _HELD)       # never replaces a good sample of the tick
             problem = f"{problem} (t={stamp * 1e-9:.3f} s; holding the last good one)"
         else:
             buf[stamp] = msg
             self.used.discard((key, stamp))    # a new sample for that tick (a reset)
-            if self.topics[topic].awaited and att is not None and _holds(att):
+            if att is not None and self.topics[topic].awaited and _holds(att):
                 a = codec.parse_attachment(att)
                 if a is not None and a.node is not None and codec.hold_of(a.flags):
                     # "Holding": its producer answers nothing for the ticks it holds, so

@@ -159,3 +159,28 @@ def test_a_member_configured_again_shows_its_inputs_by_the_new_coupling_and_peri
     # sequential: odom of the tick shown; pipelined: one tick old only; scan every 100 ticks
     # (3 periods may pass), then every tick (stale after 0.5 s)
     assert shown == [(False, "scan"), True, (False, "scan"), False, (False, None), True]
+
+
+@pytest.mark.parametrize("topic", ["scan", "gps"])
+def test_values_checked_before_are_answered_alike_every_time(topic):
+    """A type without float arrays keeps the float values that passed (a lidar's constants
+    are then checked once): the same message, good or bad, gets the same answer each time,
+    however many distinct values came before."""
+    base = dict(samples())[topic]
+    for k in range(40):                              # (more than the plan keeps)
+        good = copy.deepcopy(base)
+        if topic == "scan":
+            good.range_max = 5.0 + k
+        else:
+            good.point.x = float(k)
+        for _ in range(2):
+            assert check_input(topic, good) is None
+        bad = copy.deepcopy(good)
+        if topic == "scan":
+            bad.range_max = 2e9 + k
+        else:
+            bad.point.y = float("nan")
+        want = reference(topic, bad)
+        assert want is not None
+        for _ in range(3):
+            assert check_input(topic, bad) == want, k
