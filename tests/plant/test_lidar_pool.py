@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant.lidar import LidarConfig, scan_many
+from plant.lidar import Fans, LidarConfig, scan_many
 from plant.raycast import Scene
 from plant.shapes import pose_matrix
 from plant.sim import Simulation
@@ -61,27 +61,29 @@ def test_casts_call_after_call_on_kept_workers_are_one_threads_bits(room):
 
 
 def test_two_python_threads_casting_at_once_each_get_their_own_bits(room):
-    """Two Python threads casting at the same time (the kernel runs without the GIL): one
-    owns the workers, the other casts on its own thread; both get one thread's bits."""
+    """Two Python threads casting at the same time, call after call (the kernel runs
+    without the GIL): one call at a time owns the workers, another casts on its own
+    thread; every cast of both is one thread's bits."""
     cfg, scene = room
-    owners = [None] * 40
-    sets = [_batches(21, 25), _batches(22, 25)]
-    want = [[scan_many(cfg, b, scene, owners, 1).tobytes() for b in s] for s in sets]
-    got: list[list[bytes]] = [[], []]
+    sets = [np.array(_batches(seed, 12, g=64)) for seed in (21, 22)]
+    want = [[scan_many(cfg, b, scene, [None] * 64, 1).tobytes() for b in s] for s in sets]
+    bad: list[tuple[int, int]] = []
     start = threading.Barrier(2)
 
     def cast(k: int) -> None:
+        fans = Fans(cfg, scene, 64, 4)
         start.wait()
-        for _ in range(4):
-            got[k] = [scan_many(cfg, b, scene, owners, 3).tobytes() for b in sets[k]]
+        for i in range(120):
+            if fans.scan(sets[k][i % 12]).tobytes() != want[k][i % 12]:
+                bad.append((k, i))
 
-    runners = [threading.Thread(target=cast, args=(k,)) for k in range(2)]
+    runners = [threading.Thread(target=cast, args=(k,), daemon=True) for k in range(2)]
     for t in runners:
         t.start()
     for t in runners:
-        t.join(timeout=60)
-    assert not any(t.is_alive() for t in runners)
-    assert got == want
+        t.join(timeout=30)
+    assert not any(t.is_alive() for t in runners), "a cast never returned"
+    assert bad == []
 
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="needs fork")
