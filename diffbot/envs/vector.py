@@ -39,8 +39,7 @@ ends with :meth:`AvoidVectorEnv.close`, or by itself when this process is gone.
 ``engine="ray"`` puts every chunk in a Ray actor instead, spread over a cluster's nodes
 (``address=``, or a private instance on this machine: :mod:`diffbot.envs.ray_workers`);
 the same envs, to the bit. ``threads=T`` casts a process's lidars on up to T threads
-(default: the CPUs this process may use divided by K; 1 in a Ray actor); the same bits
-whatever T.
+(default 1: worth raising only where cores stand idle); the same bits whatever T.
 """
 from __future__ import annotations
 
@@ -52,7 +51,7 @@ from .actions import check_action
 from .avoid import AvoidTask
 from .results import merge, reset_mask
 from .results import autoreset_mode as autoreset_mode_of
-from .workers import _Worker, cpus
+from .workers import _Worker
 from .worlds import Worlds
 
 
@@ -84,8 +83,8 @@ class AvoidVectorEnv(VectorEnv):
                              f"got {workers!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if threads is None:       # the CPUs this process may use, shared among the processes
-            threads = 1 if engine == "ray" else max(1, cpus() // int(workers))
+        if threads is None:       # one: on a busy machine a second casting thread saved no
+            threads = 1           # wall time and cost CPU (docs/benchmarks.md)
         elif int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads!r}")
         self.num_envs = int(num_envs)

@@ -14,8 +14,10 @@
  * the scan plane's normal), n ray directions (n x 3), the owner id it skips (-1: none),
  * the range of shapes [first, last) it sees (several worlds may share one call).
  */
+#define _GNU_SOURCE                  /* pthread_setname_np, pthread_sigmask under -std=c99 */
 #include <math.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdint.h>
 
 #include "npmath.h"
@@ -270,25 +272,132 @@ typedef struct {
     double *work;
 } Part;
 
-static void *scan_part(void *arg)
+#define MAX_THREADS 64
+#define MIN_FANS_PER_THREAD 8        /* a waking worker costs about what a few scans do */
+
+/* The workers, kept between calls: starting a thread per part on every call cost more
+ * CPU than the part it cast. Worker w (0-based) casts part w + 1 of each call whose
+ * generation it has not seen yet and that has that part; it parks on ``go`` between
+ * calls. One call at a time owns the pool (``owner``, taken with trylock: a call that
+ * finds it busy, from another thread, casts all its fans on its own thread: the same
+ * bits). The workers are never joined; they block every signal (the interpreter's
+ * handlers run on its own threads) and die with the process. A forked child has none of
+ * them: the atfork handler empties the pool there, and the first call re-creates it. */
+typedef struct {
+    pthread_mutex_t owner;           /* held by the call using the pool */
+    pthread_mutex_t lock;            /* guards the fields below */
+    pthread_cond_t go, done;
+    int64_t n_workers;               /* started so far */
+    uint64_t generation;             /* one per call that hands out parts */
+    int64_t n_parts;                 /* parts of the current call (its own is part 0) */
+    int64_t pending;                 /* worker parts of the current call not yet cast */
+    uint64_t born[MAX_THREADS];      /* the generation before worker w's first call */
+    Part parts[MAX_THREADS];
+} Pool;
+
+static Pool pool = {.owner = PTHREAD_MUTEX_INITIALIZER, .lock = PTHREAD_MUTEX_INITIALIZER,
+                    .go = PTHREAD_COND_INITIALIZER, .done = PTHREAD_COND_INITIALIZER};
+static pthread_once_t pool_once = PTHREAD_ONCE_INIT;
+
+static void pool_after_fork(void)
 {
-    const Part *p = (const Part *)arg;
-    scan_fans(p->fans, p->g0, p->g1, p->work);
+    /* only the forking thread lives on in the child: no workers, nothing held */
+    pthread_mutex_init(&pool.owner, NULL);
+    pthread_mutex_init(&pool.lock, NULL);
+    pthread_cond_init(&pool.go, NULL);
+    pthread_cond_init(&pool.done, NULL);
+    pool.n_workers = 0;
+    pool.n_parts = 0;
+    pool.pending = 0;
+}
+
+static void pool_register(void) { pthread_atfork(NULL, NULL, pool_after_fork); }
+
+static void *pool_worker(void *arg)
+{
+    const int64_t w = (int64_t)(intptr_t)arg, part = w + 1;
+    pthread_setname_np(pthread_self(), "lidar-cast");   /* for top -H, py-spy, the tests */
+    pthread_mutex_lock(&pool.lock);
+    uint64_t seen = pool.born[w];           /* the call that started it is its first */
+    for (;;) {
+        while (pool.generation == seen)
+            pthread_cond_wait(&pool.go, &pool.lock);
+        seen = pool.generation;
+        if (part >= pool.n_parts)
+            continue;                       /* this call has fewer parts */
+        const Part p = pool.parts[part];
+        pthread_mutex_unlock(&pool.lock);
+        scan_fans(p.fans, p.g0, p.g1, p.work);
+        pthread_mutex_lock(&pool.lock);
+        if (--pool.pending == 0)
+            pthread_cond_signal(&pool.done);
+    }
     return NULL;
 }
 
-#define MAX_THREADS 64
-#define MIN_FANS_PER_THREAD 8        /* a thread costs about what a few scans do */
+/* Start workers until there are ``want`` (pool.lock held); returns how many there are. */
+static int64_t pool_grow(int64_t want)
+{
+    if (pool.n_workers >= want)
+        return pool.n_workers;
+    sigset_t all, old;
+    sigfillset(&all);
+    pthread_sigmask(SIG_SETMASK, &all, &old);    /* the workers inherit: no signals */
+    pthread_attr_t attr;
+    pthread_attr_init(&attr);
+    pthread_attr_setdetachstate(&attr, PTHREAD_CREATE_DETACHED);
+    while (pool.n_workers < want) {
+        pthread_t t;
+        pool.born[pool.n_workers] = pool.generation;
+        if (pthread_create(&t, &attr, pool_worker, (void *)(intptr_t)pool.n_workers) != 0)
+            break;
+        pool.n_workers++;
+    }
+    pthread_attr_destroy(&attr);
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
+    return pool.n_workers;
+}
+
+/* Cast ``parts[0 .. t_n)``: parts 1.. on the pool's workers, part 0 (and any part no
+ * worker could take) here. Returns 0 when the pool is busy (nothing cast). */
+static int pool_cast(Part *parts, int64_t t_n)
+{
+    pthread_once(&pool_once, pool_register);
+    if (pthread_mutex_trylock(&pool.owner) != 0)
+        return 0;
+    pthread_mutex_lock(&pool.lock);
+    int64_t handed = pool_grow(t_n - 1);
+    if (handed > t_n - 1)
+        handed = t_n - 1;
+    for (int64_t t = 0; t <= handed; t++)
+        pool.parts[t] = parts[t];
+    pool.n_parts = handed + 1;
+    pool.pending = handed;
+    pool.generation++;
+    if (handed > 0)
+        pthread_cond_broadcast(&pool.go);
+    pthread_mutex_unlock(&pool.lock);
+    scan_fans(parts[0].fans, parts[0].g0, parts[0].g1, parts[0].work);
+    for (int64_t t = handed + 1; t < t_n; t++)   /* workers that could not be started */
+        scan_fans(parts[t].fans, parts[t].g0, parts[t].g1, parts[t].work);
+    pthread_mutex_lock(&pool.lock);
+    while (pool.pending > 0)
+        pthread_cond_wait(&pool.done, &pool.lock);
+    pool.n_parts = 0;
+    pthread_mutex_unlock(&pool.lock);
+    pthread_mutex_unlock(&pool.owner);
+    return 1;
+}
 
 /* Nearest entering hit of every ray of every fan: out (G x n), +inf where none, and a
  * hit nearer than min_range reported as +inf (it still occludes what lies behind).
  * poses: the sensors' world poses (G x 16, row-major 4x4); ray i of a fan points at
  * a0 + i inc in its sensor's plane (used only to skip the rays outside a shape's bearing
  * sector). first_shape / last_shape: the shapes [first, last) fan g sees (NULL: all).
- * n_threads: at most that many threads (this one included), each with a contiguous part
- * of at least MIN_FANS_PER_THREAD fans (a thread that cannot be started leaves its part
- * to this one); work: room for 3 n doubles per thread. The result does not depend on
- * n_threads. */
+ * n_threads: at most that many threads (this one and the pool's workers), each with a
+ * contiguous part of at least MIN_FANS_PER_THREAD fans (a worker that cannot be started
+ * leaves its part to this one; a pool busy with another thread's call leaves it all);
+ * work: room for 3 n doubles per thread. The result does not depend on n_threads. */
 EXPORT void plant_lidar_scan(
     const double *centers, const double *rot, const double *halves, const double *quad,
     const double *rr, const double *radii, const int64_t *owner, int64_t n_shapes,
@@ -307,17 +416,8 @@ EXPORT void plant_lidar_scan(
         return;
     }
     Part parts[MAX_THREADS];
-    pthread_t threads[MAX_THREADS];
-    int started[MAX_THREADS];
-    for (int64_t t = 0; t < t_n; t++) {
+    for (int64_t t = 0; t < t_n; t++)
         parts[t] = (Part){&fans, n_fans * t / t_n, n_fans * (t + 1) / t_n, work + 3 * n * t};
-        started[t] = t > 0 && pthread_create(&threads[t], NULL, scan_part, &parts[t]) == 0;
-    }
-    scan_part(&parts[0]);
-    for (int64_t t = 1; t < t_n; t++) {
-        if (started[t])
-            pthread_join(threads[t], NULL);
-        else
-            scan_part(&parts[t]);
-    }
+    if (!pool_cast(parts, t_n))
+        scan_fans(&fans, 0, n_fans, work);      /* another thread's call has the pool */
 }
