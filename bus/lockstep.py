@@ -236,11 +236,11 @@ class AckLedger:
 
     def file_answer(self, keys: frozenset, last: str, topic: str,
                     att: codec.Attachment | None, now_ns: int) -> bool:
-        """:meth:`file_many` of a composed member's usual answer to a tick: outputs on the
-        distinct keys ``keys`` (none an ACK key), the last on ``last`` (``topic``) with the
-        ACK, every one with an attachment like ``att`` (the same member and tick): filed
-        with one set update, True; False, with nothing filed, where anything is to be
-        reported or checked message by message (then :meth:`file_many`)."""
+        """Section 4, steps 3-4: :meth:`file_many` of a composed member's usual answer to a
+        tick: outputs on the distinct keys ``keys`` (none an ACK key), the last on ``last``
+        (``topic``) with the ACK, every one with an attachment like ``att`` (the same member
+        and tick): filed with one set update, True; False, with nothing filed, where
+        anything is to be reported or checked message by message (then :meth:`file_many`)."""
         if att is None or not att.flags & codec.ACK or topic == "ack" \
                 or not self._plain(att, now_ns):
             return False
