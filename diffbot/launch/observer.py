@@ -37,6 +37,10 @@ DRAIN_S = 0.05
 #: the observer's node name: its ``sim/alive/observer`` token says it listens (a plant that
 #: hosts its members waits for it before the first tick: ``diffbot plant --wait-for``)
 OBSERVER = "observer"
+#: (ms) the lease the launcher's session announces: the plant's router drops a launcher
+#: frozen this long (one killed at once), so one suspended for a few seconds is kept, and
+#: the run, paced to it, waits (module docstring)
+OBSERVER_LEASE_MS = 5000
 
 
 class Observer:
