@@ -26,9 +26,7 @@ class Encoded:
 
     def made(self):
         """The message built from its values (``make``), once; None without ``make``."""
-        if self._msg is None and self._make is not None:
-            self._msg = self._make()
-        return self._msg if self._make is not None else None
+        return self.decoded() if self._make is not None else None
 
     def decoded(self):
         """The message these bytes are (:func:`bus.codec.decode`), decoded once (or built

@@ -45,10 +45,8 @@ def odometry(t_ns: int, frame_id: str, child_frame_id: str, x: float, y: float, 
     """The nav_msgs/msg/Odometry that decoding :func:`bus.packed.odometry`'s bytes of the
     same arguments gives (zero covariances; the values Python floats)."""
     sec, nanosec = divmod(t_ns, 1_000_000_000)
-    return _ODOMETRY(_HEADER(_TIME(sec, nanosec), frame_id), child_frame_id,
-                     _POSE_WC(_POSE(_POINT(x, y, z), _QUATERNION(*quaternion)), ZERO_COVARIANCE),
-                     _TWIST_WC(_TWIST(_VECTOR3(linear, 0.0, 0.0), _VECTOR3(0.0, 0.0, angular)),
-                               ZERO_COVARIANCE))
+    return odometry_of(sec, nanosec, frame_id, child_frame_id, (x, y, z, *quaternion),
+                       ZERO_COVARIANCE, (linear, 0.0, 0.0, 0.0, 0.0, angular), ZERO_COVARIANCE)
 
 
 def joint_state(sec: int, nanosec: int, frame_id: str, names, position: np.ndarray,
