@@ -46,7 +46,7 @@ class SwarmArrays:
     def __init__(self, w: int, names: Sequence[str], threads: int = 1) -> None:
         self.w, self.names = int(w), list(names)
         self.n = len(self.names)
-        self.ticks = ArrayTicks(self.w * self.n, threads)
+        self.ticks = ArrayTicks(self.w * self.n, threads, robots=self.n)
         #: per world, until its next reset: ``eligible``'s answer was asked (``_asked``) and
         #: yes (``_ok``); its state is in the arrays (``_kept``), the robots' goal
         #: distances where its last step left them (``_dist``)
