@@ -152,9 +152,9 @@ class ArrayTicks:
 
         ``rows`` (W,) are the tasks' indices in the batch: each task's state is the core's
         data (:attr:`data`) from this step to its next, written back to the objects by
-        :meth:`flush` (:class:`~.writeback.WriteBack`); ``fresh`` (W,) bool marks the tasks whose objects may
-        have changed since their last step here (a reset, or no step yet; flushed before
-        it): those are read again. ``names``: the robot of each row, when a world has
+        :meth:`flush` (:class:`~.writeback.WriteBack`); ``fresh`` (W,) bool marks the tasks
+        whose objects may have changed since their last step here (a reset, or no step
+        yet; flushed before it): those are read again. ``names``: the robot of each row, when a world has
         several (:mod:`diffbot.envs.swarm_arrays`: ``tasks`` then holds a world's task once
         per robot, its robots in order, as the kinematic batch lays them out)."""
         k, at = self._back, np.asarray(rows, np.int64)
