@@ -38,10 +38,10 @@ from plant.core.data import Data
 from plant.core.model import Model
 from plant.raycast import Scene
 
-from .writeback import WriteBack
 from .batchworlds import Dart, Diverged, Kinematic
 from .obsmath import observation
 from .transport import InProc
+from .writeback import WriteBack
 
 
 class Made(NamedTuple):
@@ -154,9 +154,10 @@ class ArrayTicks:
         data (:attr:`data`) from this step to its next, written back to the objects by
         :meth:`flush` (:class:`~.writeback.WriteBack`); ``fresh`` (W,) bool marks the tasks
         whose objects may have changed since their last step here (a reset, or no step
-        yet; flushed before it): those are read again. ``names``: the robot of each row, when a world has
-        several (:mod:`diffbot.envs.swarm_arrays`: ``tasks`` then holds a world's task once
-        per robot, its robots in order, as the kinematic batch lays them out)."""
+        yet; flushed before it): those are read again. ``names``: the robot of each row,
+        when a world has several (:mod:`diffbot.envs.swarm_arrays`: ``tasks`` then holds a
+        world's task once per robot, its robots in order, as the kinematic batch lays them
+        out)."""
         k, at = self._back, np.asarray(rows, np.int64)
         stale = np.flatnonzero(fresh)
         if stale.size:
@@ -222,7 +223,7 @@ class _TickPlan:
         self.worlds_at = slice(lo // R, (lo + w) // R) if self.run else self.wat
         self.state: dict[str, np.ndarray] = {}
         self._gather(k, self.state)
-        #: scratch of the calls: the encoders' readings and their time, each world's lidars due
+        #: the calls' scratch: the encoders' readings and their time, each world's lidars due
         self.pos, self.t = np.zeros((w, 2)), np.zeros(w)
         self.due = np.zeros(len(self.wat), np.int64)
         self.cfg = cfg = sensors[0].lidar
@@ -299,10 +300,9 @@ class _TickPlan:
         else:
             robots = (0, 0, 0, 0, self.wheels, 0, 0)      # (what ticks.c's after reads)
             statics, pairs, tick_s = (0,) * 9, False, dt
-        #: the model's per robot (R, ...): plant_drive_commands' limits and std, the noise
-        #: laws (a law of zeros leaves a value as it is: plant_noise_values)
-        self.model_arrays = (model.drive_limits, model.motion_std, model.noise["encoders"],
-                             model.noise["lidar"])
+        # the model's per robot (R, ...): plant_drive_commands' limits and std, the noise
+        # laws (a law of zeros leaves a value as it is: plant_noise_values); the owner keeps
+        # the model, so their addresses stay
         periods = model.periods["scan"]
         assert (periods == periods[0]).all() and self.cmd.dtype == np.float64
         slots = {
