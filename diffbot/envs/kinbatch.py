@@ -138,7 +138,7 @@ class ArrayTicks:
         at the first; every world a copy of the model's (its robots, their drive and sensors)."""
         if self.model is None:
             self.bind(tasks[0].spec)
-        for t in tasks:
+        for t in {id(t): t for t in tasks}.values():       # (a world's task once)
             if _make_up(t.spec) != self._made_of:
                 raise ValueError("a batch's worlds differ in their robots (their drive or "
                                  "sensors): one spec expected")

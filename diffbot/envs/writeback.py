@@ -96,7 +96,7 @@ class WriteBack:
             self.scans = np.zeros((self.n,) + scans.shape[1:], scans.dtype)
             self.raw = np.zeros((self.n,) + scans.shape[1:], np.float32)
             self.scan_fields = Scan.fields(objs[0][2].lidar)
-            rows["scans"] = self.scans
+            rows["scans"] = self.scans     # (a row's array the ticks write: the plan's too)
         self.scans[at] = scans
 
     def keep(self, plan, truth: np.ndarray) -> None:
