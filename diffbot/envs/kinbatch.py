@@ -12,8 +12,13 @@ ticks in one call up to where a lidar comes due, a DART world's in two halves, D
 between them. The lidars due are cast together, and their noise is the plant's kernel's
 (plant/kernels/sense.c's plant_lidar_noise: a reading is a function of its key and tick),
 every world's drawn at its own tick, with the observation's clip, in one call of ticks.c.
-Every noise here is the core's code, drawn in C. Between steps each env's state stays
-in arrays (:mod:`diffbot.envs.kept`); the observation and the ground truth are
+Every noise here is the core's code, drawn in C. The batch's state is the core's: a
+:class:`plant.core.model.Model` of its W worlds (each robot's drive limits, motion noise std,
+noise laws, lidar period) and their :class:`plant.core.data.Data` (every robot's limiter,
+commands, targets, noise keys and dead reckoning, every world's steps, time and tick, as
+(W, R, ...) arrays), which ticks.c steps in place and reads from between steps; what only
+the environment keeps (each row's objects to write back to, the observers' scans, the
+ground truth) is :mod:`diffbot.envs.writeback`'s. The observation and the ground truth are
 :mod:`diffbot.envs.obsmath`'s. A world that diverges is an error here (FloatingPointError),
 where the message path rebuilds it at t = 0. A world of several robots (a swarm's,
 :mod:`diffbot.envs.swarm_arrays`) is a row per robot, its robots in order: the kinematic
@@ -27,17 +32,16 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from bus.codec import yaw_of
 from plant import kernels, kinematic
 from plant import lidar as lid
-from plant.core.drive import limits_of, motion_std
-from plant.core.model import noise_law
+from plant.core.data import Data
+from plant.core.model import Model
 from plant.raycast import Scene
-from plant.sim import rotation_to_quaternion
 
-from .kept import Kept
-from .obsmath import observation, truths
+from .batchworlds import Dart, Diverged, Kinematic
+from .obsmath import observation
 from .transport import InProc
+from .writeback import WriteBack
 
 
 class Made(NamedTuple):
@@ -48,22 +52,36 @@ class Made(NamedTuple):
     t_ns: np.ndarray
 
 
-def _keys(models: list) -> np.ndarray:
-    """The keys (W,) of one sensor's noise models, a world each (a batch's worlds share a
-    spec: all have one, or none)."""
-    if any(m is None for m in models):
-        raise ValueError("a batch's worlds differ in their sensor noise (one spec expected)")
-    return np.array([m.key for m in models], np.uint64)
+#: the core's data a row of the batch has (a robot of a world), as ticks.c reads it:
+#: (group of :class:`~plant.core.data.Data`, its array)
+_ROW_DATA = {"lim_v": ("drive", "v"), "lim_w": ("drive", "w"), "wheels": ("drive", "wheels"),
+             "kind": ("drive", "kind"), "cmd": ("drive", "cmd"),
+             "targets": ("drive", "targets"), "motion_keys": ("drive", "keys"),
+             "pose": ("odometry", "pose"), "vel": ("odometry", "vel"),
+             "last": ("odometry", "last"), "last_t": ("odometry", "last_t"),
+             "r": ("odometry", "r"), "d": ("odometry", "d"),
+             "enc_keys": ("keys", "encoders"), "lid_keys": ("keys", "lidar")}
+#: a row's arrays a step changes (a plan's copies written back: :meth:`_TickPlan.step`),
+#: the observers' scans among them (:class:`~.writeback.WriteBack`'s), and a world's
+_STEPPED = ("lim_v", "lim_w", "wheels", "kind", "cmd", "targets", "pose", "vel", "last",
+            "last_t", "scans")
+_CLOCKS = ("steps", "t_ns", "tick")
 
 
 class ArrayTicks:
-    """The fast path for a batch of ``n`` tasks (module docstring); :meth:`eligible` says
-    when. Its lidars are cast on up to ``threads`` threads (:func:`plant.lidar.scan_many`:
-    the same bits whatever their number)."""
+    """The fast path for a batch of ``n`` rows (module docstring), a robot each: ``robots``
+    robots a world, world after world (one: the Avoid envs); :meth:`eligible` says when.
+    Its lidars are cast on up to ``threads`` threads (:func:`plant.lidar.scan_many`: the
+    same bits whatever their number). Its state is :attr:`data` of :attr:`model` (made
+    when the first tasks are read: the batch's worlds are copies of their world)."""
 
-    def __init__(self, n: int, threads: int = 1) -> None:
-        self.threads = int(threads)
-        self._kept = Kept(n)                   # advance's rows, from step to step
+    def __init__(self, n: int, threads: int = 1, robots: int = 1) -> None:
+        self.threads, self.robots = int(threads), int(robots)
+        if n % self.robots:
+            raise ValueError(f"{n} rows are not worlds of {self.robots} robots")
+        self.model: Model | None = None
+        self.data: Data | None = None
+        self._back = WriteBack(n, self.robots)  # each row's objects, from step to step
         self._scene: Scene | None = None
         self._scene_of = None
         self._plan: _TickPlan | None = None     # the last step's calls, kept
@@ -95,10 +113,36 @@ class ArrayTicks:
 
     def flush(self, rows: np.ndarray | None = None) -> None:
         """Rows ``rows``' (None: every row's) objects brought up to date with the state the
-        steps left in the arrays (:class:`~.kept.Kept`): to be called before anything reads or
-        changes a task's objects (its observer, odometry, limiter, world, truth, scans)."""
-        k = self._kept
+        steps left in the core's data (:class:`~.writeback.WriteBack`): to be called before
+        anything reads or changes a task's objects (its observer, odometry, limiter, world,
+        truth, scans)."""
+        k = self._back
         k.flush(np.flatnonzero(k.dirty) if rows is None else np.asarray(rows, np.int64))
+
+    def bind(self, spec) -> None:
+        """The batch's model (its worlds copies of ``spec``'s) and data, laid out for ticks.c
+        (the data's arrays as a row per robot: :meth:`plant.core.data.Data.flat`)."""
+        k = self._back
+        self.model = model = Model([spec] * (k.n // self.robots))
+        if model.robots != tuple(r.name for r in spec.robots) or len(model.robots) != self.robots:
+            raise ValueError(f"a batch of {self.robots}-robot worlds got world "
+                             f"{spec.name!r} of {len(model.robots)}")
+        self.data = data = Data(model)
+        flat = {g: data.flat(getattr(data, g)) for g in ("drive", "odometry", "keys")}
+        k.bind({f: flat[g][a] for f, (g, a) in _ROW_DATA.items()},
+               {f: getattr(data, f) for f in _CLOCKS})
+        self._made_of = _make_up(spec)
+
+    def _read(self, at: np.ndarray, tasks: Sequence, names: Sequence | None) -> None:
+        """Rows ``at`` read from ``tasks``' objects (:meth:`WriteBack.read`), the model made
+        at the first; every world a copy of the model's (its robots, their drive and sensors)."""
+        if self.model is None:
+            self.bind(tasks[0].spec)
+        for t in {id(t): t for t in tasks}.values():       # (a world's task once)
+            if _make_up(t.spec) != self._made_of:
+                raise ValueError("a batch's worlds differ in their robots (their drive or "
+                                 "sensors): one spec expected")
+        self._back.read(at, tasks, names)
 
     def advance(self, tasks: Sequence, cmds: np.ndarray, rows: np.ndarray,
                 fresh: np.ndarray, names: Sequence | None = None) -> Made:
@@ -106,26 +150,32 @@ class ArrayTicks:
         (W, 2): v m/s, w rad/s each), each task's state left as its own ``_observe`` at the
         step's last tick leaves it (its contacts not judged: the caller's, all at once).
 
-        ``rows`` (W,) are the tasks' indices in the batch: each task's objects and state
-        are kept (:class:`~.kept.Kept`) from this step to its next, and written back to the
-        objects by :meth:`flush`; ``fresh`` (W,) bool marks the tasks whose objects may
-        have changed since their last step here (a reset, or no step yet; flushed before
-        it): those are read again. ``names``: the robot of each row, when a world has
-        several (:mod:`diffbot.envs.swarm_arrays`: ``tasks`` then holds a world's task once
-        per robot, its robots in order, as the kinematic batch lays them out)."""
-        w = len(tasks)
-        k, at = self._kept, np.asarray(rows, np.int64)
+        ``rows`` (W,) are the tasks' indices in the batch: each task's state is the core's
+        data (:attr:`data`) from this step to its next, written back to the objects by
+        :meth:`flush` (:class:`~.writeback.WriteBack`); ``fresh`` (W,) bool marks the tasks
+        whose objects may have changed since their last step here (a reset, or no step
+        yet; flushed before it): those are read again. ``names``: the robot of each row,
+        when a world has several (:mod:`diffbot.envs.swarm_arrays`: ``tasks`` then holds a
+        world's task once per robot, its robots in order, as the kinematic batch lays them
+        out)."""
+        k, at = self._back, np.asarray(rows, np.int64)
         stale = np.flatnonzero(fresh)
         if stale.size:
             if k.dirty[at[stale]].any():
                 raise RuntimeError("an env's objects were changed before its state was "
                                    "written back (ArrayTicks.flush)")
-            k.read(at[stale], [tasks[j] for j in stale.tolist()],
-                   None if names is None else [names[j] for j in stale.tolist()])
+            self._read(at[stale], [tasks[j] for j in stale.tolist()],
+                       None if names is None else [names[j] for j in stale.tolist()])
         plan = self._plan
         if plan is None or not plan.fits(at) or (stale.size and not plan.refresh(self, stale)):
             self._plan = plan = _TickPlan(self, at, tasks[0].action_repeat)
         return plan.step(self, cmds)
+
+
+def _make_up(spec) -> tuple:
+    """What the batch's model takes of a world's robots: their names, drives and sensors
+    (not their start poses, which an episode's reset draws)."""
+    return tuple((r.name, r.drive, r.sensors) for r in spec.robots)
 
 
 #: plant/kernels/ticks.c's slots (its enums), in order
@@ -135,24 +185,27 @@ _SLOTS = ("v w lim_wheels kind cmd targets limits std keys tick "
           "enc_keys enc_laws "
           "odo_pose odo_vel last last_t odo_r odo_d pos t "
           "steps t_ns due sub step_ns tick_ns period "
-          "lid_keys lid_laws lid_work raw scans new_scan rays").split()
+          "lid_keys lid_laws lid_work raw scans new_scan rays robots").split()
 _PARAMS = "tick_s foot_r centre_x lid_lo lid_hi lid_q scan_max".split()
 
 
 class _TickPlan:
-    """An Avoid step of one-robot worlds ``at`` (rows of the batch): its ticks in calls of
-    plant/kernels/ticks.c (a kinematic world's whole ticks; a DART world's two halves of
+    """An Avoid step of rows ``at`` of the batch (whole worlds, in order): its ticks in calls
+    of plant/kernels/ticks.c (a kinematic world's whole ticks; a DART world's two halves of
     each tick, DART stepping it between them), the lidars cast where due between them,
-    with everything the calls read laid out once: the rows' state (views of the
-    :class:`~.kept.Kept` arrays when ``at`` is a run of rows, else copies written back each
-    step), the noises' keys and laws, the addresses. Kept from step to step while the
+    with everything the calls read laid out once: the rows' and worlds' state (views of the
+    core's data when ``at`` is a run of rows, else copies written back each step), the
+    model's drive limits and noise laws, the addresses. Kept from step to step while the
     same worlds step (:meth:`fits`); a kinematic world reset since is read again in place
     (:meth:`refresh`), a DART world's reset makes a new plan."""
 
     def __init__(self, owner: ArrayTicks, at: np.ndarray, repeat: int) -> None:
-        k = owner._kept
+        k, R = owner._back, owner.robots
         self.at, self.repeat = at.copy(), int(repeat)
         w = len(at)
+        self.R, self.wat = R, at[::R] // R            # (each world's index in the data)
+        if not np.array_equal(at, (self.wat[:, None] * R + np.arange(R)).ravel()):
+            raise ValueError("a batch steps whole worlds, their robots in order")
         roster = [k.roster[i] for i in at.tolist()]
         ticks, names, sensors, sims, obs = (list(c) for c in zip(*[r[:5] for r in roster]))
         self.sims = sims
@@ -163,16 +216,16 @@ class _TickPlan:
         if self.shared:
             self.names = names
             self.world_of = np.array([worlds[id(s)] for s in sims], np.int64)
-        self.worlds = _Kinematic(sims) if self.kinematic else _Dart(sims, names)
+        self.worlds = Kinematic(sims) if self.kinematic else Dart(sims, names)
         lo = int(at[0])
         self.run = bool(np.array_equal(at, np.arange(lo, lo + w)))
         self.rows = slice(lo, lo + w) if self.run else at      # (a slice: views)
-        self.state = {f: getattr(k, f)[self.rows] for f in Kept.STATE}
-        #: the commands as plant_drive_commands reads them: each world's twist, its kind
-        #: and tick (set by ticks.c each tick)
-        self.cmd_in = np.zeros((w, 2))
-        self.kind, self.tick_at = np.zeros(w, np.int64), np.zeros(w, np.int64)
-        self.pos, self.t, self.due = np.zeros((w, 2)), np.zeros(w), np.zeros(w, np.int64)
+        self.worlds_at = slice(lo // R, (lo + w) // R) if self.run else self.wat
+        self.state: dict[str, np.ndarray] = {}
+        self._gather(k, self.state)
+        #: the calls' scratch: the encoders' readings and their time, each world's lidars due
+        self.pos, self.t = np.zeros((w, 2)), np.zeros(w)
+        self.due = np.zeros(len(self.wat), np.int64)
         self.cfg = cfg = sensors[0].lidar
         self.raw = np.zeros((w, cfg.num_rays), np.float32)
         self.new_scan = np.zeros(w, bool)
@@ -182,10 +235,7 @@ class _TickPlan:
         self.tick_ns = ticks[0].tick_ns
         self.wheels = np.zeros((w, 2))        # a DART world's wheel angles, each tick
         self._lid_work = np.zeros(cfg.num_rays)   # (the lidar noise's scratch)
-        self.drive_limits, self.motion_std = _drive(sims[0], names[0])
-        for f, a in _noises(sims, names, sensors).items():
-            setattr(self, f, a)
-        self._lay_out(sims[0].spec, sensors[0])
+        self._lay_out(owner.model, sims[0].spec)
         self._addr = (kernels.ptr(self.slots), kernels.ptr(self.params))
         self._key = self.at.tobytes()
         self._first_kin = sims[0].kin
@@ -200,33 +250,47 @@ class _TickPlan:
         """Rows ``stale`` (indices in :attr:`at`) read again after their worlds' reset, in
         place: a kinematic world restarts in place (:meth:`plant.sim.Simulation.restart`:
         the same objects and arrays), so only its noise streams, goal and state are new
-        (the state read by :meth:`Kept.read` already). False when the plan cannot keep
+        (the state read by :meth:`WriteBack.read` already). False when the plan cannot keep
         them (a DART world is built anew): the plan is made again."""
         if not self.kinematic:
             return False
-        k, batch = owner._kept, self.worlds.batch
+        k, batch = owner._back, self.worlds.batch
         roster = [k.roster[i] for i in self.at[stale].tolist()]
         if any(r[3] is not self.sims[j] or (r[3].kin.batch or r[3].kin) is not batch
                for j, r in zip(stale.tolist(), roster)):
             return False
-        names, sensors, sims, obs = (list(c) for c in zip(*[r[1:5] for r in roster]))
-        new = _noises(sims, names, sensors)
-        if any((a is None) != (getattr(self, f) is None) for f, a in new.items()):
-            return False                       # (a noise on in some worlds, off in others)
-        for f, a in new.items():
-            if a is not None:
-                getattr(self, f)[stale] = a    # (in place: the kernels' addresses stay)
+        obs = [r[4] for r in roster]
         self.goal[stale] = np.array([o.goal for o in obs], float).reshape(-1, 2)
-        if not self.run:                       # (the state's copies: Kept.read's rows)
-            rows = self.at[stale]
-            for f in Kept.STATE:
-                self.state[f][stale] = getattr(k, f)[rows]
+        if not self.run:                       # (the state's copies: WriteBack.read's rows)
+            got: dict[str, np.ndarray] = {}
+            self._gather(k, got)
+            worlds = np.unique(stale // self.R)
+            for f, a in got.items():
+                self.state[f][worlds if f in _CLOCKS else stale] = a[
+                    worlds if f in _CLOCKS else stale]    # (in place: the addresses stay)
         return True
 
-    def _lay_out(self, sim_spec, sensors) -> None:
+    def _gather(self, back: WriteBack, into: dict) -> None:
+        """The plan's rows' and worlds' state from the core's data (views when the rows are
+        a run, else copies)."""
+        for f, a in back.rows.items():
+            into[f] = a[self.rows]
+        for f, a in back.clocks.items():
+            into[f] = a[self.worlds_at]
+
+    def put_back(self, back: WriteBack) -> None:
+        """A step's copies (rows not a run) written back to the core's data."""
+        if not self.run:
+            for f in _STEPPED:
+                back.rows[f][self.rows] = self.state[f]
+            for f in _CLOCKS:
+                back.clocks[f][self.wat] = self.state[f]
+
+    def _lay_out(self, model: Model, sim_spec) -> None:
         """The addresses of every block plant/kernels/ticks.c reads (its slots, in
-        :data:`_SLOTS`' order) and its parameters (:data:`_PARAMS`): ``sim_spec`` the
-        world's, ``sensors`` a robot's (the batch's share them)."""
+        :data:`_SLOTS`' order) and its parameters (:data:`_PARAMS`): the state's, the
+        ``model``'s (a robot's drive limits, motion noise std, noise laws, lidar period),
+        ``sim_spec`` the world's (its physics step)."""
         st = self.state
         dt = sim_spec.control_tick_s
         if self.kinematic:
@@ -236,21 +300,26 @@ class _TickPlan:
         else:
             robots = (0, 0, 0, 0, self.wheels, 0, 0)      # (what ticks.c's after reads)
             statics, pairs, tick_s = (0,) * 9, False, dt
+        # the model's per robot (R, ...): plant_drive_commands' limits and std, the noise
+        # laws (a law of zeros leaves a value as it is: plant_noise_values); the owner keeps
+        # the model, so their addresses stay
+        periods = model.periods["scan"]
+        assert (periods == periods[0]).all() and self.cmd.dtype == np.float64
         slots = {
             "v": st["lim_v"], "w": st["lim_w"], "lim_wheels": st["wheels"],
-            "kind": self.kind, "cmd": self.cmd_in, "targets": st["targets"],
-            "limits": self.drive_limits, "std": self.motion_std, "keys": self.motion_keys,
-            "tick": self.tick_at,
-            "pairs": int(pairs), "enc_keys": 0 if self.enc_keys is None else self.enc_keys,
-            "enc_laws": 0 if self.enc_laws is None else self.enc_laws,
+            "kind": st["kind"], "cmd": self.cmd, "targets": st["targets"],
+            "limits": model.drive_limits, "std": model.motion_std, "keys": st["motion_keys"],
+            "tick": st["tick"],
+            "pairs": int(pairs), "enc_keys": st["enc_keys"], "enc_laws": model.noise["encoders"],
             "odo_pose": st["pose"], "odo_vel": st["vel"], "last": st["last"],
             "last_t": st["last_t"], "odo_r": st["r"], "odo_d": st["d"], "pos": self.pos,
             "t": self.t, "steps": st["steps"], "t_ns": st["t_ns"], "due": self.due,
             "sub": sim_spec.substeps, "step_ns": int(round(sim_spec.physics_step_s * 1e9)),
-            "tick_ns": self.tick_ns, "period": sensors.periods["scan"],
-            "lid_keys": self.lid_keys, "lid_laws": self.lid_laws, "lid_work": self._lid_work,
-            "raw": self.raw, "scans": st["scans"], "new_scan": self.new_scan.view(np.uint8),
-            "rays": self.cfg.num_rays}
+            "tick_ns": self.tick_ns, "period": int(periods[0]),
+            "lid_keys": st["lid_keys"], "lid_laws": model.noise["lidar"],
+            "lid_work": self._lid_work, "raw": self.raw, "scans": st["scans"],
+            "new_scan": self.new_scan.view(np.uint8), "rays": self.cfg.num_rays,
+            "robots": self.R}
         assert st["scans"].dtype == np.float32 and self.raw.dtype == np.float32
         slots.update(zip(_SLOTS[_SLOTS.index("radius"):], robots))
         slots.update(zip(_SLOTS[_SLOTS.index("nbox"):], statics))
@@ -287,10 +356,15 @@ class _TickPlan:
                  or (self._first_kin.batch or self._first_kin) is self.worlds.batch)
                 and len(at) == len(self.at) and at.tobytes() == self._key)
 
+    @property
+    def cmd(self) -> np.ndarray:
+        """The rows' commands (n, 2) as plant_drive_commands reads them (the data's)."""
+        return self.state["cmd"]
+
     def step(self, owner: ArrayTicks, cmds: np.ndarray) -> Made:
         """:meth:`ArrayTicks.advance` of the plan's rows with ``cmds`` (W, 2)."""
         st, w = self.state, len(self.at)
-        self.cmd_in[:] = cmds                   # (clamped to the limits by the kernel)
+        st["cmd"][:] = cmds                     # (clamped to the limits by the kernel)
         self.new_scan[:] = False
         if self.kinematic:
             done = 0
@@ -317,12 +391,16 @@ class _TickPlan:
             err.rows = envs                    # (a swarm's caller names its worlds)
             raise err from None
         truth = self.worlds.truth()
-        owner._kept.keep(self, truth)
-        return Made(observation(st["pose"], st["vel"], self.goal, st["scans"]), truth,
-                    st["t_ns"].copy())
+        self.put_back(owner._back)
+        owner._back.keep(self, truth)
+        t_ns = st["t_ns"].copy() if self.R == 1 else np.repeat(st["t_ns"], self.R)
+        return Made(observation(st["pose"], st["vel"], self.goal, st["scans"]), truth, t_ns)
 
-    def _scan(self, owner: ArrayTicks, due: np.ndarray) -> None:
-        """The lidars of rows ``due`` (their robots where the last tick left them)."""
+    def _scan(self, owner: ArrayTicks, worlds: np.ndarray) -> None:
+        """The lidars of the robots of ``worlds`` (indices in the plan's; the robots where
+        the last tick left them)."""
+        R = self.R
+        due = worlds if R == 1 else (worlds[:, None] * R + np.arange(R)).ravel()
         exact = self._cast_worlds(due) if self.shared else self._cast(owner, due)
         # their noise, each at its world's tick, and the observation's clip: one kernel call
         kernels.ticks_scans(due, np.ascontiguousarray(exact, float), *self._addr)
@@ -370,115 +448,3 @@ class _TickPlan:
             self._part_robot = np.concatenate([k + lay[3] for k, lay in
                                                zip(firsts.tolist(), layouts)])
             self._part_rel = np.concatenate([lay[4] for lay in layouts])
-
-
-def _drive(sim, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """The drive limits and motion noise std of robot ``name`` of ``sim``'s spec, as
-    plant_drive_commands reads them (a batch's robots share them)."""
-    robot = sim.spec.robot(name)
-    return limits_of([robot], sim.spec.control_tick_s), motion_std([robot])
-
-
-def _noises(sims: list, names: list[str], sensors: list) -> dict:
-    """The noises' keys and laws of robots ``names`` (one per world of ``sims``, with its
-    ``sensors``), each drawn in the kernels from its key and the tick: the motion noise's
-    (plant_drive_commands), the encoders' (ticks.c, as the plant's sensors draw it; None
-    when off), the lidar's (laws of zeros when off)."""
-    out = {"motion_keys": _keys([s.motion_noise[n] for s, n in zip(sims, names)])}
-    models = [s.enc_noise for s in sensors]
-    if models[0] is None:
-        out["enc_keys"] = out["enc_laws"] = None
-    else:
-        out["enc_keys"] = _keys(models)
-        out["enc_laws"] = np.array([noise_law(m.config) for m in models], float).reshape(-1, 4)
-    models = [s.lidar_noise for s in sensors]
-    out["lid_keys"] = (np.zeros(len(models), np.uint64) if models[0] is None
-                       else _keys(models))
-    out["lid_laws"] = np.array([(0.0,) * 4 if m is None else noise_law(m.config)
-                                for m in models], float).reshape(-1, 4)
-    return out
-
-
-class Diverged(Exception):
-    """Worlds (their indices in a step) no longer finite."""
-
-    def __init__(self, worlds: list[int]) -> None:
-        super().__init__(worlds)
-        self.worlds = worlds
-
-
-class _Kinematic:
-    """The worlds' robots as the kinematic batch's arrays (:mod:`plant.kinematic`): one
-    call steps them all."""
-
-    def __init__(self, sims: list) -> None:
-        kins = list({id(s.kin): s.kin for s in sims}.values())    # (a world's rows: one)
-        self.batch = kinematic.join(kins) if len(kins) > 1 else kins[0]
-
-    def transforms(self, idx: np.ndarray) -> np.ndarray:
-        return self.batch.transforms()[idx]
-
-    def finish(self) -> None:
-        """The step's end: a world no longer finite is an error (the worlds' clocks move
-        when their state is written back: :meth:`ArrayTicks.flush`)."""
-        b = self.batch
-        if not b.finite():              # (not a number stays one: checked once a step)
-            raise Diverged(np.flatnonzero(~(np.isfinite(b.pose).all(1)
-                                            & np.isfinite(b.wheels).all(1))).tolist())
-
-    def truth(self) -> np.ndarray:
-        return truths(self.batch.pose)
-
-
-class _Dart:
-    """The worlds' robots in their DART worlds, stepped world by world
-    (:meth:`plant.tick.Tick.step`, as the message path steps them), read back as arrays:
-    wheel angles each tick, poses where a lidar is due and at the step's end."""
-
-    def __init__(self, sims: list, names: list[str]) -> None:
-        self.sims = sims
-        self.robots = [s.robots[n] for s, n in zip(sims, names)]
-        self._targets = [s.drive.targets[s.drive.index[n]] for s, n in zip(sims, names)]
-        self._tfs: dict[int, np.ndarray] = {}    # the robots' poses since the last tick
-        self._worlds = list({id(s): s for s in sims}.values())   # (a world's rows: one)
-
-    def step(self, targets: np.ndarray) -> None:
-        """One tick of every world (:meth:`plant.tick.Tick.step` without its check, which
-        :meth:`finish` makes once a step: not a number stays one)."""
-        self._tfs.clear()
-        for mine, row in zip(self._targets, targets):
-            mine[:] = row                            # as Simulation.command_twist sets them
-        for sim in self._worlds:
-            sim.step_tick()
-
-    def _tf(self, j: int) -> np.ndarray:
-        """Robot j's base -> world, asked of DART once a tick (the lidar's and the truth's
-        at a step's last tick: ~10 us each)."""
-        tf = self._tfs.get(j)
-        if tf is None:
-            tf = self._tfs[j] = self.robots[j].transform()
-        return tf
-
-    def read_wheels(self, out: np.ndarray) -> None:
-        """The wheel angles (W, 2) into ``out``."""
-        for j, r in enumerate(self.robots):
-            out[j, 0], out[j, 1] = r.wheels[0].getPosition(0), r.wheels[1].getPosition(0)
-
-    def transforms(self, idx: np.ndarray) -> np.ndarray:
-        return np.array([self._tf(j) for j in idx.tolist()])
-
-    def finish(self) -> None:
-        bad = [j for j, sim in enumerate(self.sims) if not sim.is_finite()]
-        if bad:
-            raise Diverged(bad)
-
-    def truth(self) -> np.ndarray:
-        """As the ``ground_truth`` message read back gives it (codec.pose_2d)."""
-        out = np.empty((len(self.robots), 3))
-        for j in range(len(self.robots)):
-            tf = self._tf(j)
-            qx, qy, qz, qw = rotation_to_quaternion(tf[:3, :3])
-            out[j] = (float(tf[0, 3]), float(tf[1, 3]), yaw_of(qx, qy, qz, qw))
-        return out
-
-

@@ -2,17 +2,18 @@
 
 :class:`SwarmArrays` is to :class:`diffbot.envs.swarm_vector.SwarmVectorEnv` what
 :class:`diffbot.envs.kinbatch.ArrayTicks` is to the batched Avoid env, and it is that same
-code: each robot of each world is a row of an :class:`ArrayTicks` (world after world, each
-world's robots in order, as :func:`plant.kinematic.join` lays out their kinematic arrays),
-whose calls of plant/kernels/ticks.c tick them all (drive limiters, motion noise, the
-kinematic step with its robot-robot test inside each world, encoders and their noise, dead
-reckoning; a DART world's robots in the two halves of each tick, DART stepping each world
-once between them), whose lidars are cast where due (each world's scene with its robots where the
-tick left them, a lidar skipping its own robot, every world in one call, as
-:func:`plant.tick.messages_of` casts them) with the plant's noise kernel, and whose
-observations and ground truth are :mod:`diffbot.envs.obsmath`'s. The rewards, flags and
-infos of all robots are then made here at once (:func:`diffbot.envs.avoid.step_rewards`,
-the contacts of all worlds at once: :func:`contacts`).
+code: each robot of each world is a row of an :class:`ArrayTicks` of N robots a world
+(world after world, each world's robots in order, as :func:`plant.kinematic.join` lays
+out their kinematic arrays), whose calls of plant/kernels/ticks.c tick them all (drive
+limiters, motion noise, the kinematic step with its robot-robot test inside each world,
+encoders and their noise, dead reckoning; a DART world's robots in the two halves of each
+tick, DART stepping each world once between them), whose lidars are cast where due (each
+world's scene with its robots where the tick left them, a lidar skipping its own robot,
+every world in one call, as :func:`plant.tick.messages_of` casts them) with the plant's
+noise kernel, and whose observations and ground truth are :mod:`diffbot.envs.obsmath`'s.
+The rewards, flags and infos of all robots are then made here at once
+(:func:`diffbot.envs.avoid.step_rewards`, the contacts of all worlds at once:
+:func:`contacts`).
 No message is built: the numbers are to the bit those of the message path
 (:func:`diffbot.envs.worlds.advance_together`, then each task's ``end_step``;
 ``tests/envs/test_swarm_arrays.py`` runs both side by side).
@@ -22,8 +23,10 @@ without a physics process), every robot with a lidar and no camera, every robot 
 drive limits, motion noise and lidar (the ``robot=`` of
 :func:`plant.swarm_world.swarm_world_text` gives them that); the others take the message
 path, as does ``SwarmVectorEnv(arrays=False)``. Between steps the state stays in
-the arrays; :meth:`SwarmArrays.flush` writes it back to the tasks' objects (before a reset,
-``state()``, ``render()``). A world that diverges is an error here (FloatingPointError).
+the core's data (:attr:`ArrayTicks.data`: a :class:`plant.core.data.Data` of the W worlds of
+N robots, (W, N, ...) arrays); :meth:`SwarmArrays.flush` writes it back to the tasks'
+objects (before a reset, ``state()``, ``render()``). A world that diverges is an error
+here (FloatingPointError).
 """
 from __future__ import annotations
 
@@ -46,7 +49,7 @@ class SwarmArrays:
     def __init__(self, w: int, names: Sequence[str], threads: int = 1) -> None:
         self.w, self.names = int(w), list(names)
         self.n = len(self.names)
-        self.ticks = ArrayTicks(self.w * self.n, threads)
+        self.ticks = ArrayTicks(self.w * self.n, threads, robots=self.n)
         #: per world, until its next reset: ``eligible``'s answer was asked (``_asked``) and
         #: yes (``_ok``); its state is in the arrays (``_kept``), the robots' goal
         #: distances where its last step left them (``_dist``)

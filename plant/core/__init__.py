@@ -5,7 +5,9 @@ as arrays shaped (worlds, robots, ...)), and :mod:`plant.core.step` (one call a 
 robot: the state read into the arrays, every robot's per-tick messages drawn and written in
 one kernel call (plant/kernels/sense.c, :mod:`plant.core.outgoing`), the lidars cast in one
 kernel call per configuration), and the front half of a tick: every robot's command
-through its drive limiter and motion noise in one kernel call (:mod:`plant.core.drive`)."""
+through its drive limiter and motion noise in one kernel call (:mod:`plant.core.drive`).
+A batched environment's worlds are a model and data too, ticked by plant/kernels/ticks.c
+(:class:`diffbot.envs.kinbatch.ArrayTicks`)."""
 from .data import Data
 from .drive import WorldDrive, world_drive
 from .model import Model

@@ -32,6 +32,8 @@ class Data:
         self.enc_pos = np.zeros((W, R, 2))          # wheel angles (left, right), rad
         self.enc_vel = np.zeros((W, R, 2))          # wheel speeds, rad/s
         self.tick = np.zeros(W, np.int64)           # the control tick each world is at
+        self.steps = np.zeros(W, np.int64)          # physics steps each world has made
+        self.t_ns = np.zeros(W, np.int64)           # each world's time, ns (steps x step)
         #: each world's robots' sensors (:class:`plant.sensors.RobotSensors`, the camera's
         #: noise model among them), set by :meth:`set_streams`
         self.streams: list[dict | None] = [None] * W
@@ -45,6 +47,9 @@ class Data:
         #: and each world's view of its rows (:func:`plant.core.drive.world_drive`)
         self.drive = state_arrays(W, R)
         self.drives: list = [None] * W
+        #: each robot's dead reckoning from its encoders (:func:`odometry_arrays`), where a
+        #: host runs it for the robot's controller (a batched environment's observers)
+        self.odometry = odometry_arrays(W, R)
         #: each world's message buffer and kernel calls (:mod:`plant.core.outgoing`), made
         #: when first sensed, and their layout (the same for every world)
         self.outgoing: list = [None] * W
@@ -65,7 +70,26 @@ class Data:
             self.keys[k][w] = [0 if (m := getattr(sensors[n], attr)) is None else m.key
                                for n in self._names]
 
+    def flat(self, group: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``group``'s (W, R, ...) arrays (:attr:`drive`, :attr:`odometry`, :attr:`keys`) as
+        views of a row per robot, world after world (W * R, ...): what a kernel that walks
+        every robot of every world reads."""
+        return {k: a.reshape((-1,) + a.shape[2:]) for k, a in group.items()}
+
     @property
     def xyz(self) -> np.ndarray:
         """(W, R, 3) base_link positions, m (a view of :attr:`tf`)."""
         return self.tf[..., :3, 3]
+
+
+def odometry_arrays(worlds: int, robots: int) -> dict[str, np.ndarray]:
+    """The dead reckoning's state of ``worlds`` worlds of ``robots`` robots
+    (:class:`controllers.odometry.Odometry`'s, robot by robot; plant/kernels/drive.c's
+    plant_odometry steps them all), at rest."""
+    W, R = worlds, robots
+    return {"pose": np.zeros((W, R, 3)),       # x m, y m, theta rad (its start's frame)
+            "vel": np.zeros((W, R, 2)),        # v m/s, w rad/s of the last update
+            "last": np.zeros((W, R, 2)),       # the encoders' angles it last read, rad
+            "last_t": np.zeros((W, R)),        # and their time, s
+            "r": np.zeros((W, R)),             # the wheel radius it assumes, m
+            "d": np.zeros((W, R))}             # the wheel separation it assumes, m

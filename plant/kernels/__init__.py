@@ -34,7 +34,7 @@ CAMERA_ABI = 3
 NOISE_ABI = 3
 DRIVE_ABI = 2
 KINEMATIC_ABI = 2
-TICKS_ABI = 6
+TICKS_ABI = 7
 SENSE_ABI = 1
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
@@ -247,9 +247,9 @@ def kinematic_step(n: int, tick_s: float, targets: np.ndarray, robots: tuple[int
 
 
 def ticks(n: int, most: int, slots: Array, params: Array) -> int:
-    """Up to ``most`` control ticks of ``n`` one-robot kinematic worlds in one call
-    (plant/kernels/ticks.c: the drive limiters, command noise, kinematic step, encoders and
-    dead reckoning of each): ``slots`` the int64 block of addresses and counts, ``params``
+    """Up to ``most`` control ticks of ``n`` robots in kinematic worlds (R a world: the
+    ``robots`` slot) in one call (plant/kernels/ticks.c: the drive limiters, command noise,
+    kinematic step, encoders and dead reckoning of each): ``slots`` the int64 block of addresses and counts, ``params``
     the double block, in the order ticks.c names them (or their addresses). The ticks
     made: fewer when a lidar came due."""
     made = library().plant_ticks(n, most, ptr(slots), ptr(params))
@@ -259,7 +259,7 @@ def ticks(n: int, most: int, slots: Array, params: Array) -> int:
 
 
 def tick_part(n: int, part: int, slots: Array, params: Array) -> int:
-    """Half a control tick of ``n`` one-robot worlds another engine steps (DART), as
+    """Half a control tick of ``n`` robots in worlds another engine steps (DART), as
     :func:`ticks` makes whole ones: ``part`` 0 the commands (into the targets' slot), 1
     what follows the step (the engine's wheel angles put in the wheels' slot first):
     whether some world's lidar is due."""
@@ -267,7 +267,7 @@ def tick_part(n: int, part: int, slots: Array, params: Array) -> int:
 
 
 def ticks_scans(rows: np.ndarray, exact: np.ndarray, slots: Array, params: Array) -> None:
-    """The scans of the worlds ``rows`` (int64 (g,)) whose lidar :func:`ticks` found due,
+    """The scans of the robots ``rows`` (int64 (g,)) whose lidars :func:`ticks` found due,
     from their exact ranges ``exact`` (g, rays) float64, C-contiguous (plant/kernels/ticks.c:
     each world's lidar noise at its own tick, as :func:`lidar_noise` draws it, and the
     observation's clip), into the arrays ``slots`` names."""

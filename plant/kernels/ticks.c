@@ -1,5 +1,5 @@
-/* Control ticks of one-robot worlds, a batch of them per call (diffbot/envs/kinbatch.py:
- * an Avoid step's ticks, the batched env's and the single env's).
+/* Control ticks of a batch of worlds of R robots each, per call (diffbot/envs/kinbatch.py:
+ * an Avoid step's ticks, the batched env's and the single env's; a swarm's worlds).
  *
  * Each tick is what the plant's tick does for such a world: the commands through the drive
  * limiters and the motion noise of the robots that move (plant_drive_commands, as a
@@ -21,7 +21,7 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_ticks_abi(void) { return 6; }
+EXPORT int plant_ticks_abi(void) { return 7; }
 
 void plant_drive_commands(int64_t worlds, int64_t n, const int64_t *tick,
                           const double *limits, const double *std, const uint64_t *keys,
@@ -43,10 +43,14 @@ int plant_kinematic_step(int64_t n, double T, const double *targets, const doubl
                          double centre_x, int64_t pairs);
 
 /* The slots of the call's int64 block (addresses and counts; kinbatch._TickPlan fills it
- * in this order). The commands: plant_drive_commands' arrays for n worlds of one robot
- * (cmd (n, 2) each world's twist; limits (1, 8) and std (1) the robot's; keys (n) its
- * motion noise's; kind and tick (n) set here each tick). The encoders' noise: keys (n)
- * each world's stream, laws (n, 4) its (std, mean, bias, resolution), or 0 for none. */
+ * in this order), most of them pointing into the core's data (plant/core/data.py): n rows,
+ * a robot each, world after world, R (A_ROBOTS) robots a world, so row j is world j / R's
+ * robot j % R. A row's arrays (n, ...): the limiters, the commands, the targets, the noise
+ * keys, the dead reckoning, the scans. A world's (n / R): its tick, steps, time, due. A
+ * robot's (R, ...), the model's: the drive limits (R, 8) and motion noise std (R), the
+ * noise laws (R, 4) (std, mean, bias, resolution; the encoders' may be 0: none). The
+ * commands: plant_drive_commands' arrays (cmd (n, 2) each robot's twist; kind (n) and the
+ * worlds' ticks set here each tick). */
 enum {
     A_V, A_W, A_LIM_WHEELS, A_KIND, A_CMD, A_TARGETS,            /* drive limiters */
     A_LIMITS, A_STD, A_KEYS, A_TICK,                               /* and motion noise */
@@ -56,6 +60,7 @@ enum {
     A_ODO_POSE, A_ODO_VEL, A_LAST, A_LAST_T, A_ODO_R, A_ODO_D, A_POS, A_T, /* dead reckoning */
     A_STEPS, A_T_NS, A_DUE, A_SUB, A_STEP_NS, A_TICK_NS, A_PERIOD, /* clocks, lidar due */
     A_LID_KEYS, A_LID_LAWS, A_LID_WORK, A_RAW, A_SCANS, A_NEW_SCAN, A_RAYS, /* the scans */
+    A_ROBOTS,                                                      /* robots a world */
     A_COUNT
 };
 /* ... and of its double block */
@@ -70,27 +75,27 @@ EXPORT int64_t plant_ticks_count(void) { return A_COUNT * 1000 + P_COUNT; }
 
 #define PTR(type, slot) ((type *)(intptr_t)a[slot])
 
-/* A tick's commands: Tick.drive's twist of every world, run as a plant's tick runs them
- * (plant_drive_commands: the limiter, then the motion noise of a robot that moves, at the
+/* A tick's commands: Tick.drive's twist of every robot, run as a plant's tick runs them
+ * (plant_drive_commands: the limiter, then the motion noise of a robot that moves, at its
  * world's tick) into targets (n, 2). */
 static void commands(int64_t n, const int64_t *a)
 {
     int64_t *kind = PTR(int64_t, A_KIND), *tick = PTR(int64_t, A_TICK);
     const int64_t *steps = PTR(const int64_t, A_STEPS);
-    const int64_t sub = a[A_SUB];
-    for (int64_t i = 0; i < n; i++) {
+    const int64_t sub = a[A_SUB], R = a[A_ROBOTS];
+    for (int64_t i = 0; i < n; i++)
         kind[i] = 1;                                            /* a twist */
-        tick[i] = steps[i] / sub;
-    }
-    plant_drive_commands(n, 1, tick, PTR(const double, A_LIMITS), PTR(const double, A_STD),
+    for (int64_t k = 0; k < n / R; k++)
+        tick[k] = steps[k] / sub;
+    plant_drive_commands(n / R, R, tick, PTR(const double, A_LIMITS), PTR(const double, A_STD),
                          PTR(const uint64_t, A_KEYS), kind, PTR(const double, A_CMD),
                          PTR(double, A_V), PTR(double, A_W), PTR(double, A_LIM_WHEELS),
                          PTR(double, A_TARGETS));
 }
 
-/* What follows a tick's step: the worlds' clocks, their encoders (the wheel angles in
- * wheels (n, 2), with the encoders' noise at the new tick), the dead reckoning, and due
- * (n): whose lidar is due now. Whether any is. */
+/* What follows a tick's step: the worlds' clocks, the encoders (the wheel angles in
+ * wheels (n, 2), with the encoders' noise at the world's new tick), the dead reckoning, and
+ * due (n / R): whose worlds' lidars are due now. Whether any is. */
 static int after(int64_t n, const int64_t *a)
 {
     const double *wheels = PTR(const double, A_WHEELS);
@@ -98,18 +103,22 @@ static int after(int64_t n, const int64_t *a)
     const double *enc_laws = PTR(const double, A_ENC_LAWS);
     double *pos = PTR(double, A_POS), *t = PTR(double, A_T);
     int64_t *steps = PTR(int64_t, A_STEPS), *t_ns = PTR(int64_t, A_T_NS);
-    int64_t *due = PTR(int64_t, A_DUE);
-    const int64_t sub = a[A_SUB], step_ns = a[A_STEP_NS];
+    int64_t *due = PTR(int64_t, A_DUE), *tick = PTR(int64_t, A_TICK);
+    const int64_t sub = a[A_SUB], step_ns = a[A_STEP_NS], R = a[A_ROBOTS];
     const int64_t tick_ns = a[A_TICK_NS], period = a[A_PERIOD];
     int any_due = 0;
+    for (int64_t k = 0; k < n / R; k++) {
+        steps[k] += sub;
+        t_ns[k] = steps[k] * step_ns;
+        tick[k] = steps[k] / sub;
+        due[k] = (t_ns[k] / tick_ns) % period == 0;
+        any_due |= (int)due[k];
+    }
     for (int64_t i = 0; i < n; i++) {
-        steps[i] += sub;
-        t_ns[i] = steps[i] * step_ns;
-        t[i] = (double)t_ns[i] * 1e-9;
-        due[i] = (t_ns[i] / tick_ns) % period == 0;
-        any_due |= (int)due[i];
+        const int64_t k = i / R;
+        t[i] = (double)t_ns[k] * 1e-9;
         if (enc_laws)
-            plant_noise_values(enc_laws + 4 * i, enc_keys[i], steps[i] / sub, 2,
+            plant_noise_values(enc_laws + 4 * (i % R), enc_keys[i], steps[k] / sub, 2,
                                wheels + 2 * i, pos + 2 * i);
         else {
             pos[2 * i] = wheels[2 * i];
@@ -122,9 +131,10 @@ static int after(int64_t n, const int64_t *a)
     return any_due;
 }
 
-/* Up to `ticks` control ticks of n kinematic worlds (the commands, the kinematic step,
- * what follows it); returns the ticks made (fewer when a lidar came due: due (n, int64)
- * marks the worlds whose lidar is due after the last one), or -1 if out of memory. */
+/* Up to `ticks` control ticks of n robots in kinematic worlds (the commands, the kinematic
+ * step, what follows it); returns the ticks made (fewer when a lidar came due: due
+ * (n / R, int64) marks the worlds whose lidars are due after the last one), or -1 if out
+ * of memory. */
 EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const double *p)
 {
     for (int64_t k = 0; k < ticks; k++) {
@@ -146,7 +156,7 @@ EXPORT int64_t plant_ticks(int64_t n, int64_t ticks, const int64_t *a, const dou
     return ticks;
 }
 
-/* One tick's half, for worlds another engine steps (DART): part 0 the commands (into
+/* One tick's half, for n robots in worlds another engine steps (DART): part 0 the commands (into
  * targets), part 1 what follows the step (the engine's wheel angles put in wheels first).
  * Part 1 returns whether some world's lidar is due. */
 EXPORT int64_t plant_tick_part(int64_t n, int64_t part, const int64_t *a, const double *p)
@@ -159,16 +169,16 @@ EXPORT int64_t plant_tick_part(int64_t n, int64_t part, const int64_t *a, const 
     return after(n, a);
 }
 
-/* The scans of the g worlds rows[0 .. g) whose lidar is due, from their exact ranges exact
+/* The scans of the g robots rows[0 .. g) whose lidar is due, from their exact ranges exact
  * (g, rays) float64: each row's reported ranges (raw, (n, rays) float32) with its lidar's
- * noise (keys (n), laws (n, 4)) at its own world's tick (plant_lidar_noise, as the plant's
+ * noise (keys (n), laws (R, 4)) at its own world's tick (plant_lidar_noise, as the plant's
  * tick draws it), and its observation's scan (scans, (n, rays) float32): each finite
  * reading clipped to [0, max] as np.minimum(np.maximum(r, 0), max) does, max where it is
  * not finite (controllers.learned.AvoidObserver); new_scan (n, bool) marks the rows. */
 EXPORT void plant_ticks_scans(int64_t g, const int64_t *rows, const double *exact,
                               const int64_t *a, const double *p)
 {
-    const int64_t rays = a[A_RAYS], tick_ns = a[A_TICK_NS];
+    const int64_t rays = a[A_RAYS], tick_ns = a[A_TICK_NS], R = a[A_ROBOTS];
     const int64_t *t_ns = PTR(const int64_t, A_T_NS);
     const uint64_t *keys = PTR(const uint64_t, A_LID_KEYS);
     const double *laws = PTR(const double, A_LID_LAWS);
@@ -179,7 +189,8 @@ EXPORT void plant_ticks_scans(int64_t g, const int64_t *rows, const double *exac
     for (int64_t k = 0; k < g; k++) {
         const int64_t r = rows[k];
         float *y = raw + r * rays, *s = scans + r * rays;
-        plant_lidar_noise(1, rays, exact + k * rays, keys + r, laws + 4 * r, t_ns[r] / tick_ns,
+        plant_lidar_noise(1, rays, exact + k * rays, keys + r, laws + 4 * (r % R),
+                          t_ns[r / R] / tick_ns,
                           p[P_LID_LO], p[P_LID_HI], p[P_LID_Q], work, y);
         for (int64_t i = 0; i < rays; i++) {
             float v = y[i];

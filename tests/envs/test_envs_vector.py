@@ -385,3 +385,46 @@ def test_batch_observations_are_the_observers():
         ob.goal, ob.scan = tuple(goal[i].tolist()), scans[i]
         one = ob.observation()
         assert all(got[k][i].tobytes() == one[k].tobytes() for k in one), f"robot {i}"
+
+
+def test_the_batchs_state_between_steps_is_the_cores_data():
+    """The batch's state is its core's: a plant.core Model of its worlds and their Data,
+    (W, R, ...) arrays holding every env's dead reckoning, limiter, wheel targets, noise
+    keys and clock, as the message path leaves them in its objects."""
+    n = 3
+    kw = dict(num_envs=n, vectorization_mode="vector_entry_point", max_episode_steps=50,
+              overrides=("world.mode=kinematic", *NOISE))
+    fast, slow = gym.make_vec("diffbot/Avoid-v0", **kw), gym.make_vec("diffbot/Avoid-v0", **kw)
+    slow.unwrapped.chunks[0].arrays = None
+    try:
+        fast.reset(seed=3)
+        slow.reset(seed=3)
+        rng = np.random.default_rng(1)
+        for _ in range(7):
+            act = (rng.uniform([0.2, -0.5], [1.0, 0.5], (n, 2))
+                   * fast.single_action_space.high).astype(np.float32)
+            fast.step(act)
+            slow.step(act)
+        arrays = fast.unwrapped.chunks[0].arrays
+        model, data = arrays.model, arrays.data
+        assert model.worlds == n and model.robots == ("robot1",)
+        assert data.odometry["pose"].shape == (n, 1, 3) and data.drive["v"].shape == (n, 1)
+        for w, task in enumerate(slow.unwrapped.tasks):
+            name = task.robots[0]
+            sim, od = task.transport.tick.sim, task.observers[name].odom
+            i, sensors = sim.drive.index[name], task.transport.tick.sensors[name]
+            assert data.odometry["pose"][w, 0].tolist() == [od.x, od.y, od.theta]
+            assert data.odometry["vel"][w, 0].tolist() == [od.v, od.w]
+            assert data.odometry["last"][w, 0].tolist() == list(od._last)
+            assert data.odometry["last_t"][w, 0] == od._last_t
+            assert sim.steps > 0 and data.steps[w] == sim.steps and data.t_ns[w] == task.t_ns
+            assert data.tick[w] == sim.steps // sim.spec.substeps
+            assert (float(data.drive["v"][w, 0]), float(data.drive["w"][w, 0]),
+                    tuple(data.drive["wheels"][w, 0].tolist())) == sim.drive.limiter(i)
+            assert data.drive["targets"][w, 0].tolist() == sim.drive.targets[i].tolist()
+            assert data.drive["keys"][w, 0] == sim.motion_noise[name].key
+            assert data.keys["encoders"][w, 0] == sensors.enc_noise.key
+            assert data.keys["lidar"][w, 0] == sensors.lidar_noise.key
+    finally:
+        fast.close()
+        slow.close()

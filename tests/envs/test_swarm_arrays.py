@@ -99,6 +99,66 @@ def test_frames_after_array_steps_are_the_messages_ones():
             assert np.array_equal(a, b)
 
 
+def test_the_worlds_state_is_the_cores_data_a_row_per_world_and_robot():
+    """The arrays' state is a plant.core Data of the W worlds of N robots: world w's robot
+    r's dead reckoning, limiter and noise keys at [w, r], each world's clock at [w], as the
+    message path leaves them in its objects."""
+    fast, slow = swarm_v0.vector_env(2, **KW), swarm_v0.vector_env(2, arrays=False, **KW)
+    with fast, slow:
+        fast.reset(seed=3)
+        slow.reset(seed=3)
+        act = np.tile(np.float32([0.3, 0.5]), (2, KW["n_robots"], 1))
+        act[1, :, 1] *= -1                       # (the worlds' robots turn apart)
+        for _ in range(3):
+            fast.step(act)
+            slow.step(act)
+        data = fast.arrays.ticks.data
+        assert data.odometry["pose"].shape == (2, KW["n_robots"], 3)
+        for w, env in enumerate(slow.envs):
+            sim = env.task.transport.tick.sim
+            assert data.steps[w] == sim.steps > 0 and data.t_ns[w] == env.task.t_ns
+            for r, name in enumerate(slow.possible_agents):
+                od = env.task.observers[name].odom
+                assert data.odometry["pose"][w, r].tolist() == [od.x, od.y, od.theta]
+                assert data.odometry["vel"][w, r].tolist() == [od.v, od.w]
+                assert (float(data.drive["v"][w, r]), float(data.drive["w"][w, r]),
+                        tuple(data.drive["wheels"][w, r].tolist())) == \
+                    sim.drive.limiter(sim.drive.index[name])
+                assert data.drive["keys"][w, r] == sim.motion_noise[name].key
+
+
+def test_every_noise_on_worlds_out_of_phase_give_the_messages_numbers(monkeypatch):
+    """Encoder, lidar and motion noise on every robot, each drawn at its own world's tick
+    (a world reset mid-run: the worlds' clocks apart) from its own robot's key: the same
+    bits as the messages."""
+    import plant.swarm_world as sw
+    tables = sw._robot_tables
+
+    def noisy(robot: str) -> list[str]:      # (the lidar's table last: its noise, then more)
+        return tables(robot)[:-1] + ["noise = { std = 0.01 }", "", "[robots.encoders]",
+                                     "noise = { std = 0.002 }", "", "[robots.motion]",
+                                     "command_noise_std_radps = 0.05", ""]
+    monkeypatch.setattr(sw, "_robot_tables", noisy)
+    kw = {**KW, "n_robots": 3, "max_steps": 60}
+    fast = swarm_v0.vector_env(3, **kw)
+    slow = swarm_v0.vector_env(3, arrays=False, **kw)
+    rng = np.random.default_rng(4)
+    with fast, slow:
+        _same(fast.reset(seed=8), slow.reset(seed=8), "reset")
+        spec = fast.envs[0].task.spec.robots
+        assert all(r.sensors.encoder_noise.std and r.sensors.lidar_noise.std
+                   and r.sensors.command_noise_std_radps for r in spec)
+        for s in range(12):
+            if s == 5:                     # world 1 starts again: its clock behind the others'
+                m = {"reset_mask": np.arange(3) == 1}
+                _same(fast.reset(seed=2, options=m), slow.reset(seed=2, options=m), "mask")
+            act = rng.uniform(fast.action_space.low, fast.action_space.high).astype(np.float32)
+            act[..., 0] = np.abs(act[..., 0])
+            _same(fast.step(act), slow.step(act), f"step {s}")
+        steps = fast.arrays.ticks.data.steps
+        assert steps[1] < steps[0] == steps[2]
+
+
 def test_dart_worlds_as_arrays_give_the_messages_numbers():
     """DART steps each world once a tick between the kernel's two halves (the robots
     pushing each other are DART's contacts): the same bits, through ends and resets."""

@@ -1,6 +1,12 @@
-"""What a batch of one-robot Avoid worlds ticked as arrays keeps between steps
-(:class:`Kept`): each env's state as arrays, read from its objects once after a reset and
-written back to them only when something reads them (:meth:`Kept.flush`)."""
+"""What a batch ticked as arrays (:class:`diffbot.envs.kinbatch.ArrayTicks`) holds besides the
+core's data: each row's objects, to write the state back to (:class:`WriteBack`), and what
+only the environment has (the observers' scans, the last scan as sent, the ground truth).
+
+The state itself, every row's limiter, dead reckoning, noise keys and its world's clock, is
+the core's :class:`plant.core.data.Data` of the batch's worlds, which the ticks step in place
+(plant/kernels/ticks.c); it is read from a task's objects once after its reset
+(:meth:`WriteBack.read`) and written back to them only when something reads them
+(:meth:`WriteBack.flush`), so the message path finds them as it would have left them."""
 from __future__ import annotations
 
 from typing import Sequence
@@ -25,34 +31,36 @@ class Scan:
         return float(cfg.max_range_m), float(cfg.angle_min), float(cfg.angle_increment)
 
 
-class Kept:
-    """A batch's tasks by index, as :meth:`diffbot.envs.kinbatch.ArrayTicks.advance` left
-    them: each one's objects (``roster``: tick, robot name, sensors, simulation, observer,
-    its odometry, its world's drive arrays (:class:`plant.core.drive.WorldDrive`: the
-    limiter, the wheel targets), the robot's index there, task) and its state (the odometry's pose, velocity, last encoder angles
-    and their time, wheel radius and separation, the observer's scan, the world's step
-    count, the limiter's v, w and wheel speeds; the robot's wheel targets, the task's time
-    and ground truth, its last scan as sent), so a step reads the arrays, not every task's
-    objects (a task reset since is read again: :meth:`read`). ``dirty``: the rows whose
-    objects are behind the arrays (:meth:`ArrayTicks.flush` writes them back);
-    ``new_scan``: those with a scan since their last write-back."""
+class WriteBack:
+    """A batch's ``n`` rows (a robot each, world after world, ``robots`` a world), their
+    objects and what the environment keeps of them beside the core's data:
 
-    #: the arrays a step changes (a step's plan steps them in place, or copies)
-    STATE = ("pose", "vel", "last", "last_t", "r", "d", "scans", "steps", "lim_v", "lim_w",
-             "wheels", "targets", "t_ns")
+    - ``roster``: each row's objects (tick, robot name, sensors, simulation, observer, its
+      odometry, its world's drive arrays (:class:`plant.core.drive.WorldDrive`: the
+      limiter, the wheel targets), the robot's index there, task);
+    - ``scans`` (n, rays) float32: each observer's scan, as the observation carries it
+      (the ticks write it where a lidar is due); ``raw``: the last scan as sent, for
+      :meth:`AvoidTask.render`; ``truth`` (n, 3): the ground truth of the last step;
+    - ``dirty``: the rows whose objects are behind the data (:meth:`flush` writes them
+      back); ``new_scan``: those with a scan since their last write-back.
 
-    def __init__(self, n: int) -> None:
+    ``rows`` and ``clocks`` are the core's data as the ticks read it (:meth:`bind`): a row's
+    arrays (n, ...) and a world's (n / robots,)."""
+
+    def __init__(self, n: int, robots: int = 1) -> None:
+        self.n, self.robots = int(n), int(robots)
         self.roster: list = [None] * n
-        self.pose, self.vel, self.last = np.zeros((n, 3)), np.zeros((n, 2)), np.zeros((n, 2))
-        self.last_t, self.r, self.d = np.zeros(n), np.zeros(n), np.zeros(n)
         self.scans: np.ndarray | None = None
         self.raw: np.ndarray | None = None
-        self.steps = np.zeros(n, np.int64)
-        self.lim_v, self.lim_w, self.wheels = np.zeros(n), np.zeros(n), np.zeros((n, 2))
-        self.targets, self.truth = np.zeros((n, 2)), np.zeros((n, 3))
-        self.t_ns = np.zeros(n, np.int64)
+        self.truth = np.zeros((n, 3))
         self.dirty, self.new_scan = np.zeros(n, bool), np.zeros(n, bool)
         self.scan_fields: tuple = ()
+        self.rows: dict[str, np.ndarray] = {}
+        self.clocks: dict[str, np.ndarray] = {}
+
+    def bind(self, rows: dict[str, np.ndarray], clocks: dict[str, np.ndarray]) -> None:
+        """The core's data to read into and write back from (views: :meth:`ArrayTicks.bind`)."""
+        self.rows, self.clocks = rows, clocks
 
     def read(self, at: np.ndarray, tasks: Sequence, names: Sequence | None = None) -> None:
         """Rows ``at`` from ``tasks``' objects (one task each, in order): robot ``names[k]``
@@ -65,31 +73,36 @@ class Kept:
                               sim.drive, sim.drive.index[name], t)
         objs = [self.roster[i] for i in at.tolist()]
         odo = [r[5] for r in objs]
-        self.pose[at] = [(o.x, o.y, o.theta) for o in odo]
-        self.vel[at] = [(o.v, o.w) for o in odo]
-        self.last[at] = [o._last for o in odo]
-        self.last_t[at] = [o._last_t for o in odo]
-        self.r[at] = [o.r for o in odo]
-        self.d[at] = [o.d for o in odo]
+        rows, clocks = self.rows, self.clocks
+        rows["pose"][at] = [(o.x, o.y, o.theta) for o in odo]
+        rows["vel"][at] = [(o.v, o.w) for o in odo]
+        rows["last"][at] = [o._last for o in odo]
+        rows["last_t"][at] = [o._last_t for o in odo]
+        rows["r"][at] = [o.r for o in odo]
+        rows["d"][at] = [o.d for o in odo]
+        lims = [r[6].limiter(r[7]) for r in objs]
+        rows["lim_v"][at] = [v for v, _, _ in lims]
+        rows["lim_w"][at] = [w for _, w, _ in lims]
+        rows["wheels"][at] = [wh for _, _, wh in lims]
+        # each noise stream's key (a row's law is the model's: its robot's): none, 0
+        rows["motion_keys"][at] = [r[3].motion_noise[r[1]].key for r in objs]
+        rows["enc_keys"][at] = [0 if r[2].enc_noise is None else r[2].enc_noise.key
+                                for r in objs]
+        rows["lid_keys"][at] = [0 if r[2].lidar_noise is None else r[2].lidar_noise.key
+                                for r in objs]
+        clocks["steps"][at // self.robots] = [r[3].steps for r in objs]
         scans = np.array([r[4].scan for r in objs])
         if self.scans is None:        # (the first read: every row; one spec, one scan shape)
-            self.scans = np.zeros((len(self.roster),) + scans.shape[1:], scans.dtype)
-            self.raw = np.zeros((len(self.roster),) + scans.shape[1:], np.float32)
+            self.scans = np.zeros((self.n,) + scans.shape[1:], scans.dtype)
+            self.raw = np.zeros((self.n,) + scans.shape[1:], np.float32)
             self.scan_fields = Scan.fields(objs[0][2].lidar)
+            rows["scans"] = self.scans     # (a row's array the ticks write: the plan's too)
         self.scans[at] = scans
-        self.steps[at] = [r[3].steps for r in objs]
-        lims = [r[6].limiter(r[7]) for r in objs]
-        self.lim_v[at] = [v for v, _, _ in lims]
-        self.lim_w[at] = [w for _, w, _ in lims]
-        self.wheels[at] = [wh for _, _, wh in lims]
 
     def keep(self, plan, truth: np.ndarray) -> None:
         """What a step's plan (:class:`diffbot.envs.kinbatch._TickPlan`) left of its rows
-        (their objects now behind: ``dirty``)."""
+        besides the core's data (their objects now behind: ``dirty``)."""
         rows = plan.rows
-        if not plan.run:
-            for f in self.STATE:
-                getattr(self, f)[rows] = plan.state[f]
         self.truth[rows] = truth
         if plan.new_scan.all():
             self.raw[rows], self.new_scan[rows] = plan.raw, True
@@ -107,13 +120,14 @@ class Kept:
         rows = rows[self.dirty[rows]]
         if not rows.size:
             return
-        at = rows.tolist()
+        at, world = rows.tolist(), rows // self.robots
+        d, c = self.rows, self.clocks
         for i, p, u, e, te, n, v, w, wh, tg, t, tr in zip(
-                at, self.pose[rows].tolist(), self.vel[rows].tolist(),
-                self.last[rows].tolist(), self.last_t[rows].tolist(),
-                self.steps[rows].tolist(), self.lim_v[rows].tolist(),
-                self.lim_w[rows].tolist(), self.wheels[rows].tolist(),
-                self.targets[rows].tolist(), self.t_ns[rows].tolist(),
+                at, d["pose"][rows].tolist(), d["vel"][rows].tolist(),
+                d["last"][rows].tolist(), d["last_t"][rows].tolist(),
+                c["steps"][world].tolist(), d["lim_v"][rows].tolist(),
+                d["lim_w"][rows].tolist(), d["wheels"][rows].tolist(),
+                d["targets"][rows].tolist(), c["t_ns"][world].tolist(),
                 self.truth[rows].tolist()):
             _tick, name, _s, sim, _o, od, drive, j, task = self.roster[i]
             od.x, od.y, od.theta = p
