@@ -16,6 +16,8 @@ from .protocol import PACE_TICKS
 
 #: ACKs per member, member messages and the members owed per tick, remembered (ticks)
 RECENT_TICKS = 32
+#: :attr:`AckLedger.pace_ns` while no watcher says what it has taken in: no tick waits
+UNPACED_NS = 1 << 63
 #: the protocol error kind of a hold longer than the world's command timeout allows
 #: (section 4, "Holding"; counted in the plant's stats as ``holds_past_timeout``)
 HOLD_PAST = "hold past cmd_timeout"
@@ -61,6 +63,9 @@ class AckLedger:
         # processes that are not members and say what they have taken in (sim/seen/<node>:
         # a recorder) -> the stamp they last said ("Watchers that keep up")
         self.seen: dict[str, int] = {}
+        # the last tick that may be published with nobody of ``seen`` behind (:meth:`behind`),
+        # kept as the reports come, so the plant's check a tick is one int compare
+        self.pace_ns = UNPACED_NS
 
     # ------------------------------------------------------------ membership
     def join(self, node: str, now_ns: int = 0) -> bool:
@@ -114,6 +119,7 @@ class AckLedger:
         if node in self.members_seen or node in self.away:
             return False
         self.away.add(node)
+        self._repace()
         return True
 
     def back(self, node: str) -> bool:
@@ -121,6 +127,7 @@ class AckLedger:
         was held for it."""
         if node in self.away:
             self.away.discard(node)
+            self._repace()
             return True
         return False
 
@@ -131,6 +138,7 @@ class AckLedger:
         gone, self.away = sorted(self.away), set()
         for node in gone:
             self.seen.pop(node, None)
+        self._repace()
         return gone
 
     def saw(self, node: str, t_ns: int) -> None:
@@ -138,18 +146,26 @@ class AckLedger:
         taken in the ticks up to ``t_ns`` (its latest ``sim/seen``; a member's is ignored)."""
         if node not in self.members_seen:
             self.seen[node] = t_ns
+            self._repace()
 
     def unseen(self, node: str) -> None:
         """Section 4, "Watchers that keep up": ``node`` is gone (and not held for): the plant
         no longer keeps up with it."""
-        self.seen.pop(node, None)
+        if self.seen.pop(node, None) is not None:
+            self._repace()
+
+    def _repace(self) -> None:
+        """:attr:`pace_ns` from ``seen`` and ``away``, whenever either changes."""
+        pace = PACE_TICKS * self.tick_ns
+        self.pace_ns = min((t + pace for n, t in self.seen.items() if n not in self.away),
+                           default=UNPACED_NS)
 
     def behind(self, t_ns: int) -> list[str]:
         """Section 4, "Watchers that keep up": the processes that said what they have taken
         in and have not reached ``PACE_TICKS`` ticks before ``t_ns``: tick ``t_ns`` is not
         published until they have. One held for ("Lost members") is the hold's, with its
-        timeout, until it is back."""
-        if not self.seen:                       # (asked every tick: the usual case first)
+        timeout, until it is back. None is if ``t_ns`` is at most :attr:`pace_ns`."""
+        if t_ns <= self.pace_ns:                # (asked every tick: the usual case first)
             return []
         least = t_ns - PACE_TICKS * self.tick_ns
         return sorted(n for n, t in self.seen.items() if t < least and n not in self.away)

@@ -100,10 +100,12 @@ def zenoh_error(exc: BaseException) -> str:
 
 
 def open_session(role: str, endpoint: str = DEFAULT_ENDPOINT,
-                 config_file: str | None = None) -> zenoh.Session:
+                 config_file: str | None = None,
+                 lease_ms: int = DEFAULT_LEASE_MS) -> zenoh.Session:
     """A session, or BusConfigError naming each endpoint and why it failed (refused,
-    timeout, unknown CA, name mismatch, certificate required, ...) and the config file."""
-    conf = make_config(role, endpoint, config_file)
+    timeout, unknown CA, name mismatch, certificate required, ...) and the config file.
+    ``lease_ms``: after how long frozen the others drop this process (:func:`make_config`)."""
+    conf = make_config(role, endpoint, config_file, lease_ms)
     try:
         return _open_in_attempts(conf)
     except BusConfigError as exc:

@@ -284,7 +284,7 @@ class Lockstep(Mode):
         lost: time is then held (:meth:`hold`, with the rejoin timeout), and this wait
         comes again once they are back."""
         p = self.plant
-        if not p.ledger.behind(t_ns):           # (every tick: the usual case first)
+        if t_ns <= p.ledger.pace_ns:            # (every tick: the usual case first)
             return
 
         def say(waited_s: float, behind: list[str]) -> None:

@@ -2,11 +2,17 @@
 
 It never takes part in lockstep; it only listens to the keys it keeps, so the plant
 does not build messages nobody else reads. Message counts come from each
-process's own stats. At a run's end it answers the plant's get on ``sim/seen/*`` with the
-latest clock it has received, so the plant leaves only once the last tick is here
-(docs/PROTOCOL.md section 4, "End"). Where it keeps ``sim/poses``, which the plant puts
-every tick just before that tick's ``sim/clock``, the latest pose's stamp is that clock,
-so it does not subscribe to ``sim/clock`` (the plant then need not put it for nobody).
+process's own stats. It is a watcher that keeps up (docs/PROTOCOL.md section 4): it says
+on ``sim/seen/observer`` the latest clock it has received, so a lockstep plant runs at
+most a few ticks ahead of it, and at a run's end it answers the plant's get on
+``sim/seen/*`` with that clock, so the plant leaves only once the last tick is here
+("End"). Paced, a launcher that stops reading for a while (suspended, swapped out) pauses
+the run: the plant waits rather than filling its router's queue towards the launcher,
+where a reliable put blocks the router's receiving threads, and the lockstep members'
+links, unread for longer than their lease, would be dropped. Where it keeps
+``sim/poses``, which the plant puts every tick just before that tick's ``sim/clock``, the
+latest pose's stamp is that clock, so it does not subscribe to ``sim/clock`` (the plant
+then need not put it for nobody).
 """
 from __future__ import annotations
 
@@ -15,9 +21,9 @@ import time
 
 import zenoh
 
+from bridges.seen import SeenReporter
 from bus import codec
 from bus.keys import Keys
-from bus.protocol import encode_seen
 from bus.session import undeclare_all
 
 
@@ -31,6 +37,10 @@ DRAIN_S = 0.05
 #: the observer's node name: its ``sim/alive/observer`` token says it listens (a plant that
 #: hosts its members waits for it before the first tick: ``diffbot plant --wait-for``)
 OBSERVER = "observer"
+#: (ms) the lease the launcher's session announces: the plant's router drops a launcher
+#: frozen this long (one killed at once), so one suspended for a few seconds is kept, and
+#: the run, paced to it, waits (module docstring)
+OBSERVER_LEASE_MS = 5000
 
 
 class Observer:
@@ -49,15 +59,14 @@ class Observer:
         self.lock = threading.Lock()
         self._subs = {k: session.declare_subscriber(k, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
                       for k in keep}
-        # the latest clock received, for the plant's get on sim/seen/* at a run's end (its
-        # channel is emptied with the others; the stamp of the last one is kept), or the
-        # latest sim/poses' stamp where those are kept (module docstring)
-        self._ticks = keys.poses if keys.poses in keep else None
-        self._clock = (session.declare_subscriber(keys.clock,
-                                                  zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
-                       if self._ticks is None else None)
-        self._clock_ns: int | None = None
-        self._seen = session.declare_queryable(keys.seen(OBSERVER), self._answer_seen)
+        # the clock taken in, said on sim/seen/observer as it comes and answered at a run's
+        # end: each tick's sim/poses where those are kept, its sim/clock otherwise (module
+        # docstring). On Zenoh's thread, one small callback a tick: said from the drain
+        # thread instead, every DRAIN_S, the plant would wait at each drain for it.
+        self._seen = SeenReporter(session, keys, OBSERVER)
+        self._seen.declare()
+        self._ticks = session.declare_subscriber(
+            keys.poses if keys.poses in keep else keys.clock, self._took_in)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._drain_loop, name="observer", daemon=True)
         self._thread.start()
@@ -67,32 +76,20 @@ class Observer:
         while not self._stop.wait(DRAIN_S):
             self.drain()
 
-    def _answer_seen(self, query: zenoh.Query) -> None:
-        """Zenoh's thread (the plant asks at a run's end): the latest clock received. The
-        get came after the plant's last messages, so what it sent before is in the
-        channels by now."""
-        self.drain()
-        if self._clock_ns is not None:
-            query.reply(self.keys.seen(OBSERVER), encode_seen(self._clock_ns))
+    def _took_in(self, sample: zenoh.Sample) -> None:
+        """Zenoh's thread: a tick's clock (or poses) has come; what has come is kept."""
+        if sample.attachment is not None:
+            self._seen.took_in_clock(sample.attachment.to_bytes())
 
     def drain(self) -> None:
         """Move what the channels hold into ``samples``."""
         with self.lock:
-            last = None                          # (only the latest clock counts)
-            while self._clock is not None and (sample := self._clock.try_recv()) is not None:
-                last = sample
-            if last is not None and last.attachment is not None:
-                att = codec.parse_attachment(last.attachment.to_bytes())
-                if att is not None:
-                    self._clock_ns = att.t_ns
             for key, sub in self._subs.items():
                 out = self.samples[key]
                 while (sample := sub.try_recv()) is not None:
                     att = sample.attachment
                     att = codec.parse_attachment(att.to_bytes() if att is not None else None)
                     out.append((att[1] if att else -1, sample.payload.to_bytes()))
-            if self._ticks is not None and self.samples[self._ticks]:
-                self._clock_ns = self.samples[self._ticks][-1][0]
 
     def settle(self, expected: dict[str, int], timeout_s: float = 2.0) -> None:
         """Wait, up to ``timeout_s``, until every kept key holds as many samples as its
@@ -141,5 +138,5 @@ class Observer:
         self._thread.join()
         self.drain()                      # what arrived before the close is kept
         subs, self._subs = self._subs, {}
-        undeclare_all([*subs.values(), self._seen, *([self._clock] if self._clock else [])])
-        self._clock = None
+        undeclare_all([*subs.values(), self._ticks])
+        self._seen.undeclare()

@@ -31,7 +31,7 @@ from bus.runtime import EXIT_PLANT_GONE
 from bus.session import BusConfigError, open_session
 
 from ..runner import procs
-from .observer import OBSERVER
+from .observer import OBSERVER, OBSERVER_LEASE_MS
 from .placement import Placement, set_option, tls_config
 from ..runner.procs import diffbot_argv
 from .scenario import ScenarioSpec, expand
@@ -198,7 +198,8 @@ class ScenarioRun:
                                        if self.placement is not None else 0.0)
         while True:
             try:
-                return open_session("observer", self.endpoint, self.zenoh_config)
+                return open_session("observer", self.endpoint, self.zenoh_config,
+                                    lease_ms=OBSERVER_LEASE_MS)
             except BusConfigError:
                 if (self.placement is None or time.monotonic() > deadline
                         or self.children[0].poll() is not None):

@@ -214,6 +214,7 @@ def test_a_watcher_that_says_what_it_took_in_is_kept_within_pace_ticks():
     """Section 4, "Watchers that keep up": a tick is not published while a reporting
     process is PACE_TICKS behind it; the latest report counts; a member's report is
     ignored; one held for is the hold's until back; gone, given up or a reset: forgotten."""
+    from bus.lockstep import UNPACED_NS
     from bus.protocol import PACE_TICKS
     led, _ = ledger()
     led.join("a")
@@ -221,6 +222,7 @@ def test_a_watcher_that_says_what_it_took_in_is_kept_within_pace_ticks():
     led.saw("a", 0)                                          # a member: its ACKs pace it
     assert led.behind(1000 * T) == []
     led.saw("recorder", 5 * T)
+    assert led.pace_ns == (5 + PACE_TICKS) * T               # the plant's check a tick
     assert led.behind((5 + PACE_TICKS) * T) == []
     assert led.behind((6 + PACE_TICKS) * T) == ["recorder"]
     led.saw("recorder", 6 * T)
@@ -229,15 +231,18 @@ def test_a_watcher_that_says_what_it_took_in_is_kept_within_pace_ticks():
     assert led.behind((1 + PACE_TICKS) * T) == ["recorder"]
     assert led.gone_with_link("recorder")
     assert led.behind(1000 * T) == [] and led.held_for() == ["recorder"]   # the hold's
+    assert led.pace_ns == UNPACED_NS
     led.back("recorder")
     assert led.behind(1000 * T) == ["recorder"]              # back: kept up with again
+    assert led.pace_ns == PACE_TICKS * T
     led.gone_with_link("recorder")
     led.give_up_away()
     led.back("recorder")
-    assert led.behind(1000 * T) == []                        # given up: forgotten
+    assert led.behind(1000 * T) == [] and led.pace_ns == UNPACED_NS   # given up: forgotten
     led.saw("view", 0)
+    assert led.pace_ns == PACE_TICKS * T
     led.unseen("view")
-    assert led.behind(1000 * T) == []                        # its token went
+    assert led.behind(1000 * T) == [] and led.pace_ns == UNPACED_NS   # its token went
     led.saw("view", 0)
     led.restart()
     assert led.behind(1000 * T) == []                        # the old world's stamps
