@@ -7,7 +7,8 @@ Odometry, ~115 us for a robot's joint states, GPS and ground truth together, whi
 joint names, array lengths): its bytes with the values' places known, so a message is one
 copy of the template and a few ``struct.pack_into``. These are the only encoders of Clock,
 PointStamped, JointState, Odometry and Float64MultiArray: :func:`bus.codec.encode` of such
-a message comes here too. Their bytes are rosbags' (pinned by tests against rosbags, the oracle).
+a message comes here too. Their bytes are rosbags' (pinned by tests against rosbags, the
+oracle).
 """
 from __future__ import annotations
 
@@ -210,6 +211,9 @@ def encode_odometry(m) -> bytes:
                       t.angular.z), m.pose.covariance, m.twist.covariance)
 
 
+_U_U = struct.Struct("<II")
+
+
 @lru_cache(maxsize=64)
 def _multi_array_layout(dims: tuple, data_offset: int) -> bytes:
     """A Float64MultiArray's bytes before its data: its layout, ``dims`` as (label, size,
@@ -223,9 +227,6 @@ def _multi_array_layout(dims: tuple, data_offset: int) -> bytes:
     _pad(buf, 4)
     buf += _U32.pack(data_offset)
     return bytes(buf)
-
-
-_U_U = struct.Struct("<II")
 
 
 def encode_f64_array(m) -> bytes:
