@@ -18,8 +18,8 @@ from rosbags.typesys.store import Typestore
 from . import msgtypes
 from .cdrfast import Decoders
 from .keys import NAME_MAX
-from .packed import (_CDR_LE, _U32, _doubles, _f64_seq, _header, _pad, _string,
-                     encode_clock, encode_joint_state, encode_odometry, encode_point_stamped)
+from .packed import (_CDR_LE, _U32, _doubles, _f64_seq, _header, _pad, _string, encode_clock,
+                     encode_f64_array, encode_joint_state, encode_odometry, encode_point_stamped)
 
 
 class _Table(dict):
@@ -232,6 +232,7 @@ _FAST = {
     "sensor_msgs/msg/Image": _fast_image,
     "sensor_msgs/msg/LaserScan": _fast_laser_scan,
     "sensor_msgs/msg/CameraInfo": _fast_camera_info,
+    "std_msgs/msg/Float64MultiArray": encode_f64_array,
 }
 
 

@@ -34,6 +34,7 @@ from .log import RejectCounter
 from .many import ManyTick, answer_attachments
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
+from .one import OneTick
 
 #: emit([(key, payload, attachment, the attachment as parse_attachment reads it, a command's
 #: (stamp, linear, angular) the payload was packed from or None), ...], twists): a composed
@@ -58,8 +59,9 @@ class _Hosted:
         self.member = MemberTick(spec.name, 0, slots=slots, topics=self.topics,
                                  key=functools.lru_cache(maxsize=None)(keys.topic),
                                  ack_key=keys.ack(spec.name), log=self.log)
-        # (a member of many robots on one step_many controller answers in one pass)
-        self.many = ManyTick.of(self.member)
+        # (a member of many robots on one step_many controller, or of one robot answering
+        # a Twist, answers in one pass)
+        self.many = ManyTick.of(self.member) or OneTick.of(self.member)
         self.rejects = RejectCounter(self.log)
         self.published: dict[str, int] = {}
         self.seq = 0

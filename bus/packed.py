@@ -6,8 +6,9 @@ Odometry, ~115 us for a robot's joint states, GPS and ground truth together, whi
 24-robot swarm pays every tick. Here each message has a template per layout (frame ids,
 joint names, array lengths): its bytes with the values' places known, so a message is one
 copy of the template and a few ``struct.pack_into``. These are the only encoders of Clock,
-PointStamped, JointState and Odometry: :func:`bus.codec.encode` of such a message comes
-here too. Their bytes are rosbags' (pinned by tests against rosbags, the oracle).
+PointStamped, JointState, Odometry and Float64MultiArray: :func:`bus.codec.encode` of such
+a message comes here too. Their bytes are rosbags' (pinned by tests against rosbags, the
+oracle).
 """
 from __future__ import annotations
 
@@ -208,6 +209,33 @@ def encode_odometry(m) -> bytes:
                      (p.x, p.y, p.z, q.x, q.y, q.z, q.w),
                      (t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y,
                       t.angular.z), m.pose.covariance, m.twist.covariance)
+
+
+_U_U = struct.Struct("<II")
+
+
+@lru_cache(maxsize=64)
+def _multi_array_layout(dims: tuple, data_offset: int) -> bytes:
+    """A Float64MultiArray's bytes before its data: its layout, ``dims`` as (label, size,
+    stride) each."""
+    buf = bytearray(_CDR_LE)
+    buf += _U32.pack(len(dims))
+    for label, size, stride in dims:
+        _string(buf, label)
+        _pad(buf, 4)
+        buf += _U_U.pack(size, stride)
+    _pad(buf, 4)
+    buf += _U32.pack(data_offset)
+    return bytes(buf)
+
+
+def encode_f64_array(m) -> bytes:
+    """std_msgs/Float64MultiArray (a node's small debug vectors: one a frame, say)."""
+    lay = m.layout
+    buf = bytearray(_multi_array_layout(tuple((d.label, d.size, d.stride) for d in lay.dim),
+                                        lay.data_offset))
+    _f64_seq(buf, m.data)
+    return bytes(buf)
 
 
 # ------------------------------------------------- many messages of one type at once (batches)

@@ -346,13 +346,19 @@ class BallFollower:
 
 
 def debug_message(values) -> object:
+    """The ``follower/debug`` message of ``values`` (``DEBUG_FIELDS``' order)."""
+    return codec.T["std_msgs/msg/Float64MultiArray"](layout=_debug_layout(),
+                                                     data=np.asarray(values, dtype=np.float64))
+
+
+@lru_cache(maxsize=1)
+def _debug_layout() -> object:
+    """The ``follower/debug`` layout, the same in every message: made once."""
     T = codec.T
-    layout = T["std_msgs/msg/MultiArrayLayout"](
+    return T["std_msgs/msg/MultiArrayLayout"](
         dim=[T["std_msgs/msg/MultiArrayDimension"](label=",".join(DEBUG_FIELDS),
                                                     size=len(DEBUG_FIELDS), stride=len(DEBUG_FIELDS))],
         data_offset=0)
-    return T["std_msgs/msg/Float64MultiArray"](layout=layout,
-                                               data=np.asarray(values, dtype=np.float64))
 
 
 def main(argv=None) -> int:

@@ -17,6 +17,10 @@ from bus.cliargs import positive_float
 from bus.controller import Twist
 from bus.node import node_arg_parser, run_controller
 
+#: points a search from the last nearest point walks before the whole route is searched
+#: (the leader moves under one point, 5.7 mm, a tick)
+_WALK = 24
+
 
 class Wander:
     name = "wander"
@@ -44,9 +48,69 @@ class Wander:
         self._route = [tuple(p) for p in self.points.tolist()]
         self._phases = self.params.tolist()
         self._dx, self._dy = np.empty_like(self._xs), np.empty_like(self._ys)
+        # the ellipse's evolute (its centres of curvature) is an astroid, (a |u|)^(2/3) +
+        # (b |v|)^(2/3) = |a^2 - b^2|^(2/3) round the centre: a point outside it lies on
+        # exactly two normals of the ellipse (through its nearest and farthest points).
+        # The astroid lies within the diamond a |u| + b |v| = |a^2 - b^2|: beyond it, by
+        # 1 %, is outside the astroid (the room's route clears it: a^2 < 2 b^2).
+        self._outside = 1.01 * abs(self.a * self.a - self.b * self.b) + 1e-9
+        self._last: int | None = None      # the last nearest point
+        self.full_searches = 0             # points searched over the whole route
 
     def point(self, x: float, y: float) -> int:
-        """The index of the route's point nearest to (x, y) (the first of equals)."""
+        """The index of the route's point nearest to (x, y) (the first of equals).
+
+        Searched from the last answer, one point at a time downhill, where that gives the
+        whole route's answer: outside the ellipse's evolute the squared distance to a point
+        of the ellipse has one minimum and one maximum over the parameter (exactly two
+        normals pass through the point), so its samples fall to one point or a pair of
+        equals from anywhere on the route (differences of sampled values there are far
+        above rounding: the test keeps a margin outside the astroid). Elsewhere, or after
+        ``_WALK`` steps, the whole route is searched."""
+        last = self._last
+        if last is not None:
+            if abs(self.a * (x - self.cx)) + abs(self.b * (y - self.cy)) > self._outside:
+                got = self._walk(x, y, last)
+                if got is not None:
+                    self._last = got
+                    return got
+        self._last = got = self._search(x, y)
+        self.full_searches += 1
+        return got
+
+    def _walk(self, x: float, y: float, i: int) -> int | None:
+        """The nearest point downhill of point ``i`` (the first of equals), or None if it
+        lies more than ``_WALK`` points away. Each squared distance is the full search's
+        arithmetic, in the same order (Python floats are the same doubles)."""
+        route, n = self._route, len(self._route)
+        px, py = route[i - 1]                  # (-1: the last point)
+        lo = (px - x) * (px - x) + (py - y) * (py - y)
+        px, py = route[i]
+        mid = (px - x) * (px - x) + (py - y) * (py - y)
+        px, py = route[(i + 1) % n]
+        hi = (px - x) * (px - x) + (py - y) * (py - y)
+        if hi < mid or lo < mid:               # downhill: on while the next point is nearer
+            step = 1 if hi < mid else -1
+            nxt = hi if step == 1 else lo
+            for _ in range(_WALK):
+                i = (i + step) % n
+                px, py = route[(i + step) % n]
+                far, mid, nxt = mid, nxt, (px - x) * (px - x) + (py - y) * (py - y)
+                if not nxt < mid:
+                    break
+            else:
+                return None
+            lo, hi = (far, nxt) if step == 1 else (nxt, far)
+        # a minimum: neither neighbour is nearer; of equals, the lowest index (argmin's)
+        first = i
+        if lo == mid and (i - 1) % n < first:
+            first = (i - 1) % n
+        if hi == mid and (i + 1) % n < first:
+            first = (i + 1) % n
+        return first
+
+    def _search(self, x: float, y: float) -> int:
+        """The nearest point over the whole route (the first of equals)."""
         # dx * dx + dy * dy, the same operations into buffers kept for them (a quarter
         # of the time went to making the arrays)
         dx, dy = self._dx, self._dy
