@@ -78,6 +78,19 @@ class Outgoing:
         self._kin: tuple | None = None         # (the kinematic arrays, their call)
         #: a dynamic world's orientations as quaternions (from ``tf``), in one call
         self.quaternions = kernels.quaternions_call(data.tf[w], data.quaternion[w])
+        #: a dynamic world's state rows, copied in each tick, and their call into the
+        #: arrays (:meth:`observe_rows`)
+        self._rows = np.zeros((R, 26))
+        self._observe_rows = kernels.observe_rows_call(
+            self._rows, (data.tf[w], data.quaternion[w], data.v[w], data.w[w],
+                         data.enc_pos[w], data.enc_vel[w]))
+
+    def observe_rows(self, rows: np.ndarray) -> None:
+        """A dynamic world's state ``rows`` (R, 26) (:meth:`plant.sim.Simulation.read_state`)
+        into the core's arrays in one call: the pose, forward speed, yaw rate, wheel angles
+        and speeds copied, the orientations as quaternions (the yaw is the caller's)."""
+        self._rows[:] = rows
+        self._observe_rows()
 
     def observe_kinematic(self, kin) -> None:
         """The true state of a kinematic world's robots (``kin``:

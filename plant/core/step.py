@@ -65,13 +65,8 @@ def observe(model: Model, data: Data, w: int, stepper) -> None:
         out.observe_kinematic(sim.kin)
         return
     rows = stepper.rows()
-    data.tf[w] = rows[:, :16].reshape(-1, 4, 4)
-    data.enc_pos[w] = rows[:, 22:24]
-    data.enc_vel[w] = rows[:, 24:26]
+    out.observe_rows(rows)                                  # (all but the yaw: one call)
     data.yaw[w] = np.arctan2(rows[:, 4], rows[:, 0])        # atan2(tf[1, 0], tf[0, 0])
-    data.v[w] = rows[:, 16]
-    data.w[w] = rows[:, 21]
-    out.quaternions()
 
 
 def wanted_masks(model: Model, tick: int, wanted) -> tuple[dict[str, np.ndarray], set]:

@@ -27,7 +27,7 @@ __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_w
            "kinematic_step", "clearances", "ticks",
            "tick_part", "ticks_scans", "ticks_truths",
            "ticks_observe", "sense_call", "observe_kinematic_call", "quaternions",
-           "quaternions_call", "lidar_noise", "drive_commands_call"]
+           "quaternions_call", "observe_rows_call", "lidar_noise", "drive_commands_call"]
 
 ABI = 4
 CAMERA_ABI = 3
@@ -35,7 +35,7 @@ NOISE_ABI = 3
 DRIVE_ABI = 2
 KINEMATIC_ABI = 2
 TICKS_ABI = 6
-SENSE_ABI = 1
+SENSE_ABI = 2
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -106,6 +106,8 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_observe_kinematic.argtypes = [_I] + [_P] * 12
     lib.plant_quaternions.restype = None
     lib.plant_quaternions.argtypes = [_I, _P, _P]
+    lib.plant_observe_rows.restype = None
+    lib.plant_observe_rows.argtypes = [_I] + [_P] * 7
     lib.plant_drive_commands.restype = None
     lib.plant_drive_commands.argtypes = [_I, _I] + [_P] * 10
     lib.plant_lidar_noise.restype = None
@@ -363,6 +365,20 @@ def quaternions_call(tf: np.ndarray, out: np.ndarray):
     assert tf.shape == (n, 4, 4) and out.shape == (n, 4)
     assert tf.dtype == out.dtype == np.float64 and tf.flags.c_contiguous and out.flags.c_contiguous
     fn, args = library().plant_quaternions, (n, ptr(tf), ptr(out))
+    return lambda: fn(*args)
+
+
+def observe_rows_call(rows: np.ndarray, data: tuple[np.ndarray, ...]):
+    """``f()``: plant/kernels/sense.c's plant_observe_rows: a dynamic world's state ``rows``
+    (n, 26) (:meth:`plant.sim.Simulation.read_state`'s) into the core's ``data`` (tf (n, 4,
+    4), quaternion (n, 4), v, w (n,), enc_pos, enc_vel (n, 2)) of one world, float64,
+    C-contiguous (addresses taken once: the caller writes each tick's rows into ``rows``)."""
+    n = rows.shape[0]
+    shapes = ((n, 26), (n, 4, 4), (n, 4), (n,), (n,), (n, 2), (n, 2))
+    for a, shape in zip((rows, *data), shapes):
+        assert a.shape == shape and a.dtype == np.float64, (a.shape, shape)
+    fn = library().plant_observe_rows
+    args = (n, *(ptr(a) for a in (rows, *data)))
     return lambda: fn(*args)
 
 

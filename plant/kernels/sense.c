@@ -32,7 +32,7 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_sense_abi(void) { return 1; }
+EXPORT int plant_sense_abi(void) { return 2; }
 
 /* a + b as numpy's float64 scalars sum them (measured): of two NaNs, b's (its sign) */
 static inline double np_sum(double a, double b)
@@ -79,6 +79,26 @@ EXPORT void plant_quaternions(int64_t n, const double *tf, double *quat)
 {
     for (int64_t r = 0; r < n; r++)
         quaternion(tf + 16 * r, quat + 4 * r);
+}
+
+/* A dynamic world's state rows (n, 26: plant/sim.py's Simulation.read_state: the 4x4
+ * row-major pose, body linear and angular velocity, wheel angles and speeds) into the core's
+ * arrays: tf (n, 4, 4), v (the forward speed), w (the yaw rate) (n,), enc_pos, enc_vel (n, 2),
+ * and the orientation as quat (n, 4) (copies, and rotation_to_quaternion: the same bits). */
+EXPORT void plant_observe_rows(int64_t n, const double *rows, double *tf, double *quat,
+                               double *v, double *w, double *enc_pos, double *enc_vel)
+{
+    for (int64_t r = 0; r < n; r++) {
+        const double *row = rows + 26 * r;
+        memcpy(tf + 16 * r, row, 16 * sizeof *row);
+        v[r] = row[16];
+        w[r] = row[21];
+        enc_pos[2 * r] = row[22];
+        enc_pos[2 * r + 1] = row[23];
+        enc_vel[2 * r] = row[24];
+        enc_vel[2 * r + 1] = row[25];
+        quaternion(row, quat + 4 * r);
+    }
 }
 
 /* plant/sim.py's kin_state of every robot of a kinematic world (pose (n, 3) x, y, yaw;
