@@ -9,6 +9,7 @@ through its drive limiter and motion noise in one kernel call (:mod:`plant.core.
 from .data import Data
 from .drive import WorldDrive, world_drive
 from .model import Model
-from .step import UNENCODED, Settled, observe, poses, sense, sense_read
+from .step import UNENCODED, Settled, observe, poses, reads_truth, sense, sense_read
 
-__all__ = ["UNENCODED", "Data", "Model", "Settled", "WorldDrive", "observe", "poses", "sense", "sense_read", "world_drive"]
+__all__ = ["UNENCODED", "Data", "Model", "Settled", "WorldDrive", "observe", "poses", "reads_truth",
+           "sense", "sense_read", "world_drive"]
