@@ -32,7 +32,7 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_sense_abi(void) { return 2; }
+EXPORT int plant_sense_abi(void) { return 3; }
 
 /* a + b as numpy's float64 scalars sum them (measured): of two NaNs, b's (its sign) */
 static inline double np_sum(double a, double b)
@@ -98,6 +98,23 @@ EXPORT void plant_observe_rows(int64_t n, const double *rows, double *tf, double
         enc_vel[2 * r] = row[24];
         enc_vel[2 * r + 1] = row[25];
         quaternion(row, quat + 4 * r);
+    }
+}
+
+/* sim/poses' TFMessage of n robots into out (its template written in): at[2r] robot r's
+ * header stamp (sec int32, nanosec uint32), at[2r + 1] its transform (translation x, y, z
+ * from tf (n, 4, 4), rotation x, y, z, w from quat (n, 4)). */
+EXPORT void plant_poses(int64_t n, const double *tf, const double *quat, const int64_t *at,
+                        int64_t sec, int64_t nanosec, uint8_t *out)
+{
+    const int32_t s = (int32_t)sec;
+    const uint32_t ns = (uint32_t)nanosec;
+    for (int64_t r = 0; r < n; r++) {
+        const double *m = tf + 16 * r, *q = quat + 4 * r;
+        const double pose[7] = {m[3], m[7], m[11], q[0], q[1], q[2], q[3]};
+        memcpy(out + at[2 * r], &s, 4);
+        memcpy(out + at[2 * r] + 4, &ns, 4);
+        memcpy(out + at[2 * r + 1], pose, sizeof pose);
     }
 }
 
