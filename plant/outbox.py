@@ -26,9 +26,9 @@ attachment is the same whoever listens.
 """
 from __future__ import annotations
 
-import zenoh
-
 import struct
+
+import zenoh
 
 from bus import codec
 from bus.protocol import REPUBLISH_TICKS
