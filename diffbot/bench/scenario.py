@@ -140,8 +140,9 @@ def scenario_suite(ctx: Context):
                            notes="real-time factor / DART alone's, DART timed right after "
                                  "each run"),
                     Metric("cpu_share_of_dart_alone", f"{what}: share of DART alone (CPU)",
-                           "", notes="DART alone's CPU a tick / the run's plant CPU a tick "
-                                     "(summary.json cpu_per_tick_ms.plant)"),
+                           "", notes="DART alone's CPU a tick / the run's plant process's "
+                                     "(summary.json cpu_per_tick_ms.plant; member processes "
+                                     "not counted)"),
                     Metric("dart_alone_rtf", f"{what}: DART alone beside it", "x",
                            notes=f"{world}, timed right after the run"),
                     Metric("wall_time_s", f"{what}: wall time",
