@@ -26,10 +26,17 @@ attachment is the same whoever listens.
 """
 from __future__ import annotations
 
+import struct
+
 import zenoh
 
 from bus import codec
 from bus.protocol import REPUBLISH_TICKS
+
+#: the plant's attachment (:func:`bus.codec.attachment` with an ``epoch``: seq, t_ns, then
+#: the epoch) packed in one call
+_PLANT_ATTACHMENT = struct.Struct(codec.ATTACHMENT.format + codec.EPOCH.format[1:]).pack
+_U64, _U32 = 0xFFFFFFFFFFFFFFFF, 0xFFFFFFFF
 
 
 class Reads(dict):
@@ -108,14 +115,17 @@ class Outbox:
     def put(self, key: str, data: bytes, t_ns: int, epoch: int) -> None:
         """``data`` (CDR bytes) on ``key`` stamped ``t_ns``, with the next sequence number
         and the plant's world ``epoch`` (docs/PROTOCOL.md section 3)."""
-        self.seq += 1
-        att = codec.attachment(self.seq, t_ns, epoch=epoch)
+        self.seq = seq = self.seq + 1
+        att = _PLANT_ATTACHMENT(seq & _U64, t_ns, epoch & _U32)
+        pub = self._pubs.get(key) or self.publisher(key)
         if self._held is None:
-            self.publisher(key).put(data, attachment=att)
+            pub.put(data, attachment=att)
         else:
-            self._held.append((self.publisher(key), data, att))
-        self.published[key] = self.published.get(key, 0) + 1
-        self._kept(t_ns, key, data, None)
+            self._held.append((pub, data, att))
+        published = self.published
+        published[key] = published.get(key, 0) + 1
+        if self.keep:
+            self._kept(t_ns, key, data, None)
 
     def relay(self, key: str, data: bytes, t_ns: int, att: bytes) -> None:
         """A composed member's message stamped ``t_ns`` on the bus, with its own attachment
@@ -138,7 +148,8 @@ class Outbox:
         batch, so messages put back to back share writes and wake the transmit task and a
         reading process less often than puts spread over the tick. The bytes, attachments
         and their order on every key stay the same; only when they leave changes."""
-        self.flush()
+        if self._held:
+            self.flush()
         self._held = []
 
     def flush(self) -> None:
@@ -149,9 +160,13 @@ class Outbox:
 
     def _kept(self, t_ns: int, key: str, data: bytes, att: bytes | None) -> None:
         if self.keep:
-            self.recent.setdefault(t_ns, []).append((key, data, att))
-            while len(self.recent) > REPUBLISH_TICKS:
-                del self.recent[min(self.recent)]
+            recent = self.recent
+            kept = recent.get(t_ns)
+            if kept is None:                    # (a new tick: only then can one be too many)
+                kept = recent[t_ns] = []
+                while len(recent) > REPUBLISH_TICKS:
+                    del recent[min(recent)]
+            kept.append((key, data, att))
 
     def republish(self, upto_ns: int, epoch: int) -> list[int]:
         """The kept messages of the ticks up to ``upto_ns`` (of the world ``epoch``: the

@@ -11,6 +11,7 @@ import dartpy as dart
 import numpy as np
 
 from .core.drive import WorldDrive
+from .dart_rows import STATE_COLS, chassis_rows, fill_velocities, finite as _finite, read_rows
 from .kinematic import Kinematics
 from .robot import Robot, movable_object, room_skeleton
 from .shapes import Shape, pose_matrix
@@ -19,13 +20,7 @@ from .raycast import Scene, ShapeList
 from .world import ObjectSpec, WorldSpec
 
 FLOOR_THICKNESS_M = 0.1
-#: the width of a robot's row in :meth:`Simulation.state_rows`: base_link pose (16, the 4x4
-#: row-major), body linear and angular velocity (3 + 3), wheel angles and speeds (2 + 2)
-STATE_COLS = 26
-#: from this many robots a dynamic world's rows are read all at once (:func:`chassis_rows`):
-#: 24 robots' rows in 211 us instead of 266, but one robot's in 14.6 us instead of 11.4
-BATCH_ROWS_FROM = 4
-_WORLD = dart.dynamics.Frame.World()
+__all__ = ["STATE_COLS", "chassis_rows", "RobotState", "Simulation", "rotation_to_quaternion"]
 
 #: Bullet is ~15 % faster per step than DART's default FCL here, with the same contact
 #: results for the sphere wheels (docs/sensors.md, "Friction and contacts"; docs/benchmarks.md).
@@ -43,14 +38,6 @@ def _dofs(index: list[int]) -> slice | list[int]:
     if index == list(range(index[0], index[0] + len(index))):
         return slice(index[0], index[0] + len(index))
     return index
-
-
-def _finite(q: np.ndarray, dq: np.ndarray) -> bool:
-    """Whether a skeleton's positions and velocities are all finite: their sum as Python
-    floats (a third of numpy's calls) is finite only if every value is; one that overflows
-    is checked value by value."""
-    return math.isfinite(sum(q.tolist()) + sum(dq.tolist())) or bool(
-        np.isfinite(q).all() and np.isfinite(dq).all())
 
 
 @dataclass
@@ -138,22 +125,6 @@ def room_objects(spec: WorldSpec) -> list[ObjectSpec]:
             out.append(ObjectSpec(name, "box", (sx, sy, h), (x, y, h / 2, 0), spec.wall_color,
                                   "default"))
     return out
-
-
-def chassis_rows(chassis: list) -> np.ndarray:
-    """State rows (R, 26) of the robots' ``chassis``, pose and body velocities filled (the
-    wheels' are the caller's): each kind of DART call in one list, the body velocities as
-    Robot.body_velocity rotates them (rot.T @ v) in one matmul, each rot.T C-ordered as
-    DART's tf[:3, :3].T is (numpy's same path: the same bits)."""
-    n = len(chassis)
-    rows = np.empty((n, STATE_COLS))
-    rows[:, :16] = np.array([c.getTransform().matrix() for c in chassis]).reshape(n, 16)
-    vels = np.array([c.getSpatialVelocity(_WORLD, _WORLD)            # (angular, linear)
-                     for c in chassis]).reshape(n, 6)
-    rot_t = np.ascontiguousarray(rows[:, :16].reshape(n, 4, 4)[:, :3, :3].transpose(0, 2, 1))
-    rows[:, 16:19] = np.matmul(rot_t, vels[:, 3:, None])[..., 0]
-    rows[:, 19:22] = np.matmul(rot_t, vels[:, :3, None])[..., 0]
-    return rows
 
 
 class Simulation:
@@ -331,17 +302,13 @@ class Simulation:
         angles and speeds (2 + 2), the same values to the bit (:meth:`read_state`)."""
         return self.read_state()[0]
 
-    def read_state(self) -> tuple[np.ndarray, bool]:
+    def read_state(self, velocities: bool = True) -> tuple[np.ndarray, bool]:
         """(:meth:`state_rows`, :meth:`is_finite`) of the world now, read in one pass (the
         plant checks a step's result and publishes the same state a moment later:
         :class:`plant.stepper.Stepper` keeps it while :attr:`moves` stays the same). A
-        dynamic world's rows are read straight from DART (no
-        :class:`RobotState` a robot, no yaw) with four calls a robot: the pose through
-        ``getTransform()`` (the world transform, ~2 us cheaper a call in dartpy than
-        ``getWorldTransform()``), both velocities in world coordinates through
-        ``getSpatialVelocity(World, World)`` (angular then linear: the values
-        ``getAngularVelocity()`` and ``getLinearVelocity()`` give, in one call), and the
-        skeleton's positions and velocities, whose sum is the finite check."""
+        dynamic world's rows are read straight from DART (:func:`plant.dart_rows.read_rows`:
+        no :class:`RobotState` a robot, no yaw); without ``velocities`` their body
+        velocities are NaN until :meth:`fill_velocities` reads them."""
         if self.kin is not None:               # (its arrays are read anew every time)
             rows = np.empty((len(self.robots), STATE_COLS))
             for i, name in enumerate(self.robots):
@@ -350,29 +317,11 @@ class Simulation:
                 rows[i, 16:19], rows[i, 19:22] = st.v_body, st.w_body
                 rows[i, 22:24], rows[i, 24:26] = st.enc_pos, st.enc_vel
             return rows, self.kin.finite()
-        if len(self.robots) < BATCH_ROWS_FROM:
-            return self._read_rows_one_by_one()
-        robots, finite = self.robots.values(), True
-        rows = chassis_rows([r.chassis for r in robots])
-        for row, r, wheels in zip(rows, robots, self._wheel_dofs):
-            q, dq = r.skeleton.getPositions(), r.skeleton.getVelocities()
-            row[22:24], row[24:26] = q[wheels], dq[wheels]
-            finite = finite and _finite(q, dq)
-        return rows, finite
+        return read_rows(list(self.robots.values()), self._wheel_dofs, velocities)
 
-    def _read_rows_one_by_one(self) -> tuple[np.ndarray, bool]:
-        """:meth:`read_state` of a dynamic world of a few robots: their rows built robot by
-        robot, a matmul a robot (cheaper than stacking them for one to three)."""
-        parts, finite, world = [], True, _WORLD
-        for r, wheels in zip(self.robots.values(), self._wheel_dofs):
-            chassis, sk = r.chassis, r.skeleton
-            tf = chassis.getTransform().matrix()
-            rot_t = tf[:3, :3].T                      # as Robot.body_velocity rotates them
-            vel = chassis.getSpatialVelocity(world, world)           # (angular, linear)
-            q, dq = sk.getPositions(), sk.getVelocities()
-            parts += (tf.ravel(), rot_t @ vel[3:], rot_t @ vel[:3], q[wheels], dq[wheels])
-            finite = finite and _finite(q, dq)
-        return np.concatenate(parts).reshape(len(self.robots), STATE_COLS), finite
+    def fill_velocities(self, rows: np.ndarray) -> None:
+        """The body velocities of a dynamic world's ``rows`` read without them, now."""
+        fill_velocities(list(self.robots.values()), rows)
 
     @staticmethod
     def kin_state(kin: Kinematics, i: int) -> RobotState:

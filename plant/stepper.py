@@ -30,8 +30,9 @@ class Stepper:
         #: topics), once for all robots: a tick asks a few numbers, not every robot
         self._scene_periods = sorted({s.periods[t] for s in sensors.values()
                                       for t in ("scan", "camera/image_raw") if t in s.periods})
-        #: (sim.moves, rows, finite) of the last read of the world in this process: a
-        #: tick checks its step (:meth:`finite`) and then publishes the same state (:meth:`rows`)
+        #: (sim.moves, rows, finite, whether the rows hold the velocities) of the last read
+        #: of the world in this process: a tick checks its step (:meth:`finite`) and then
+        #: publishes the same state (:meth:`rows`)
         self._read: tuple | None = None
 
     # ------------------------------------------------------------ the world's state
@@ -40,12 +41,14 @@ class Stepper:
             return self.sim.state(robot)
         return self.physics.state(robot)
 
-    def rows(self):
+    def rows(self, velocities: bool = True):
         """Every robot's state as one (R, 26) array (:meth:`Simulation.state_rows`' layout:
         the values :meth:`state` gives, robot by robot, to the bit): read from DART in one
-        pass, here or by the physics process (:meth:`PhysicsProcess.rows`)."""
+        pass, here or by the physics process (:meth:`PhysicsProcess.rows`). Without
+        ``velocities`` (nobody reads them this tick) a dynamic world's body velocities may be
+        NaN: DART then need not compute them."""
         if self.physics is None:
-            return self._read_now()[1]
+            return self._read_now(velocities)[1]
         return self.physics.rows()
 
     def shapes(self):
@@ -65,17 +68,21 @@ class Stepper:
             return self.physics.finite
         if self.sim.kin is not None:
             return self.sim.is_finite()
-        return self._read_now()[2]
+        return self._read_now(False)[2]
 
-    def _read_now(self) -> tuple:
+    def _read_now(self, velocities: bool = True) -> tuple:
         """The world's state in this process (:meth:`Simulation.read_state`): a dynamic
         world's read once while its clock stays (a step or a restored state moves it:
-        ``sim.moves``); a kinematic world's, arrays of its own, read every time."""
+        ``sim.moves``), its velocities the first time they are asked for; a kinematic
+        world's, arrays of its own, read every time."""
         read = self._read
         if self.sim.kin is not None:
-            return (self.sim.moves, *self.sim.read_state())
+            return (self.sim.moves, *self.sim.read_state(), True)
         if read is None or read[0] != self.sim.moves:
-            read = self._read = (self.sim.moves, *self.sim.read_state())
+            read = self._read = (self.sim.moves, *self.sim.read_state(velocities), velocities)
+        elif velocities and not read[3]:
+            self.sim.fill_velocities(read[1])
+            read = self._read = (*read[:3], True)
         return read
 
     # ------------------------------------------------------------ a tick

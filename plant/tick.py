@@ -112,14 +112,17 @@ class Tick:
     def messages_read(self, wanted: dict[str, Wanted]) -> tuple[int, list]:
         """The encoded messages due now that someone reads, each with its place among the
         due ones, and how many were due (:func:`plant.core.sense_read`): a host that
-        publishes skips no message one by one."""
-        self.observe()
+        publishes skips no message one by one. The robots' velocities are read from the
+        world only where a ground_truth is made."""
+        self.observe(core.reads_truth(self.model, self.data, 0,
+                                      self.sim.time_ns // self.tick_ns, wanted))
         return core.sense_read(self.model, self.data, 0, self.sim.time_ns,
                                self.stepper.shapes, wanted)
 
-    def observe(self) -> None:
-        """Every robot's true state now into the core's arrays (:func:`plant.core.observe`)."""
-        core.observe(self.model, self.data, 0, self.stepper)
+    def observe(self, velocities: bool = True) -> None:
+        """Every robot's true state now into the core's arrays (:func:`plant.core.observe`;
+        without ``velocities``, a dynamic world's speeds may be left out)."""
+        core.observe(self.model, self.data, 0, self.stepper, velocities)
 
     def _sense(self, wanted, encoded: bool, cast: tuple | None) -> list:
         """:meth:`messages` of the state :meth:`observe` read."""

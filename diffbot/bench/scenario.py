@@ -43,14 +43,28 @@ TARGETS = {("square", "composed"): (0.5, "share"), ("follow", "composed"): (18.0
 ALONE_TICKS, ALONE_CHUNKS = 200, 5
 
 
-def dart_alone(world: str, ticks: int = ALONE_TICKS, chunks: int = ALONE_CHUNKS) -> dict:
-    """The control-tick rate DART alone allows in ``world``: ``Simulation.step_tick`` of the
-    world with every robot driving (wheels -/+1 rad/s, as the physics suite), no sensors, no
-    bus; the median of ``chunks`` chunks of ``ticks`` ticks, as a real-time factor (wall and
-    CPU) and the wall time of one control tick."""
+def world_sets(plant_args: list[str]) -> list[str]:
+    """The ``--set KEY=VALUE`` world overrides among a scenario's ``plant_args``: the plant
+    of its runs loads its world with them."""
+    sets, args = [], iter(plant_args)
+    for a in args:
+        if a == "--set":
+            sets.append(next(args, ""))
+        elif a.startswith("--set="):
+            sets.append(a.split("=", 1)[1])
+    return [v for v in sets if v]
+
+
+def dart_alone(world: str, ticks: int = ALONE_TICKS, chunks: int = ALONE_CHUNKS,
+               sets: list[str] | tuple[str, ...] = ()) -> dict:
+    """The control-tick rate DART alone allows in ``world`` (with the overrides ``sets``, as
+    the scenario's plant loads it: the same robots, contacts, physics steps a tick):
+    ``Simulation.step_tick`` of the world with every robot driving (wheels -/+1 rad/s, as the
+    physics suite), no sensors, no bus; the median of ``chunks`` chunks of ``ticks`` ticks,
+    as a real-time factor (wall and CPU) and the wall and CPU time of one control tick."""
     from plant.sim import Simulation
     from plant.world import load_world
-    spec = load_world(world)
+    spec = load_world(world, list(sets))
     sim = Simulation(spec)
     for name in sim.robots:
         sim.command_wheels(name, 1.0, -1.0)
@@ -66,17 +80,25 @@ def dart_alone(world: str, ticks: int = ALONE_TICKS, chunks: int = ALONE_CHUNKS)
     wall, cpu = sorted(walls)[chunks // 2], sorted(cpus)[chunks // 2]
     return {"real_time_factor": spec.control_tick_s / wall,
             "cpu_real_time_factor": spec.control_tick_s / cpu if cpu > 0 else float("nan"),
-            "tick_s": wall}
+            "tick_s": wall, "cpu_tick_s": cpu}
 
 
-def beside_dart(ctx: Context, name: str, world: str, *extra: str) -> dict:
+def beside_dart(ctx: Context, name: str, world: str, *extra: str,
+                sets: list[str] | tuple[str, ...] = ()) -> dict:
     """One scenario run, then DART alone in its world at once (the same machine load):
-    the run's summary with ``dart_alone_rtf`` and ``share_of_dart_alone`` added."""
+    the run's summary with ``dart_alone_rtf`` and ``share_of_dart_alone`` added, and the
+    same share in CPU time (``cpu_share_of_dart_alone``: DART alone's CPU a tick over the
+    run's plant process's, summary.json ``cpu_per_tick_ms.plant``), which moves less with
+    the machine's load than the wall-clock rates."""
     summary = run_scenario(ctx, name, 900.0, *extra)
-    alone = dart_alone(world)["real_time_factor"]
+    alone = dart_alone(world, sets=sets)
     rtf = summary.get("real_time_factor")
-    return {**summary, "dart_alone_rtf": alone,
-            "share_of_dart_alone": rtf / alone if rtf and alone else None}
+    plant_cpu_ms = (summary.get("cpu_per_tick_ms") or {}).get("plant")
+    return {**summary, "dart_alone_rtf": alone["real_time_factor"],
+            "share_of_dart_alone": (rtf / alone["real_time_factor"]
+                                    if rtf and alone["real_time_factor"] else None),
+            "cpu_share_of_dart_alone": (alone["cpu_tick_s"] * 1e3 / plant_cpu_ms
+                                        if plant_cpu_ms else None)}
 
 
 def _target(name: str, hosting: str, coupling: str) -> tuple[str, str]:
@@ -94,9 +116,10 @@ def _target(name: str, hosting: str, coupling: str) -> tuple[str, str]:
 def scenario_suite(ctx: Context):
     from diffbot.launch.scenario import load_scenario
     for name in ("square", "follow"):
-        world = load_scenario(name).world
+        scenario = load_scenario(name)
+        world, sets = scenario.world, world_sets(scenario.plant_args)
         what = f"{name}: DART alone ({world})"
-        yield Probe(what, lambda world=world: dart_alone(world), [
+        yield Probe(what, lambda world=world, sets=sets: dart_alone(world, sets=sets), [
             Metric("real_time_factor", f"{what}: control-tick rate", "x",
                    notes="Simulation.step_tick, every robot driving, no sensors, no bus: "
                          "what the physics allows"),
@@ -107,8 +130,8 @@ def scenario_suite(ctx: Context):
             for hosting, flag in HOSTINGS.items():
                 what = f"{name}, {coupling}, {hosting}"
                 rtf_target, share_target = _target(name, hosting, coupling)
-                yield Probe(what, lambda name=name, w=world, c=coupling, f=flag: beside_dart(
-                    ctx, name, w, "--coupling", c, f), [
+                yield Probe(what, lambda name=name, w=world, c=coupling, f=flag, s=sets:
+                            beside_dart(ctx, name, w, "--coupling", c, f, sets=s), [
                     Metric("real_time_factor", f"{what}: real-time factor", "x",
                            target=rtf_target,
                            notes="summary.json real_time_factor (plant, lockstep)"),
@@ -116,6 +139,10 @@ def scenario_suite(ctx: Context):
                            target=share_target,
                            notes="real-time factor / DART alone's, DART timed right after "
                                  "each run"),
+                    Metric("cpu_share_of_dart_alone", f"{what}: share of DART alone (CPU)",
+                           "", notes="DART alone's CPU a tick / the run's plant process's "
+                                     "(summary.json cpu_per_tick_ms.plant; member processes "
+                                     "not counted)"),
                     Metric("dart_alone_rtf", f"{what}: DART alone beside it", "x",
                            notes=f"{world}, timed right after the run"),
                     Metric("wall_time_s", f"{what}: wall time",

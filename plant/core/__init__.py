@@ -11,6 +11,7 @@ A batched environment's worlds are a model and data too, ticked by plant/kernels
 from .data import Data
 from .drive import WorldDrive, world_drive
 from .model import Model
-from .step import UNENCODED, Settled, observe, poses, sense, sense_read
+from .step import UNENCODED, Settled, observe, poses, reads_truth, sense, sense_read
 
-__all__ = ["UNENCODED", "Data", "Model", "Settled", "WorldDrive", "observe", "poses", "sense", "sense_read", "world_drive"]
+__all__ = ["UNENCODED", "Data", "Model", "Settled", "WorldDrive", "observe", "poses", "reads_truth",
+           "sense", "sense_read", "world_drive"]

@@ -78,6 +78,19 @@ class Outgoing:
         self._kin: tuple | None = None         # (the kinematic arrays, their call)
         #: a dynamic world's orientations as quaternions (from ``tf``), in one call
         self.quaternions = kernels.quaternions_call(data.tf[w], data.quaternion[w])
+        #: a dynamic world's state rows, copied in each tick, and their call into the
+        #: arrays (:meth:`observe_rows`)
+        self._rows = np.zeros((R, 26))
+        self._observe_rows = kernels.observe_rows_call(
+            self._rows, (data.tf[w], data.quaternion[w], data.v[w], data.w[w],
+                         data.enc_pos[w], data.enc_vel[w]))
+
+    def observe_rows(self, rows: np.ndarray) -> None:
+        """A dynamic world's state ``rows`` (R, 26) (:meth:`plant.sim.Simulation.read_state`)
+        into the core's arrays in one call: the pose, forward speed, yaw rate, wheel angles
+        and speeds copied, the orientations as quaternions (the yaw is the caller's)."""
+        self._rows[:] = rows
+        self._observe_rows()
 
     def observe_kinematic(self, kin) -> None:
         """The true state of a kinematic world's robots (``kin``:
@@ -95,10 +108,9 @@ class Poses:
     """Every robot's true pose at a tick as one tf2_msgs/msg/TFMessage: a TransformStamped
     per robot in the model's robot order, ``world`` -> ``<robot>/base_link``, each stamped
     with the tick. The message's template (frame ids fixed, so every field's place is known
-    once) is written by one array assignment a tick: each robot's 64 bytes (the stamp, then
-    its translation and rotation x, y, z, qx, qy, qz, qw: :class:`Data`'s ``tf`` position
-    and ``quaternion``, the very doubles of its ``ground_truth`` pose) from a row of
-    eight doubles, the first holding the stamp's two integers."""
+    once) is filled by one kernel call a tick (plant/kernels/sense.c's plant_poses): each
+    robot's stamp, then its translation and rotation x, y, z, qx, qy, qz, qw (:class:`Data`'s
+    ``tf`` position and ``quaternion``, the very doubles of its ``ground_truth`` pose)."""
 
     def __init__(self, model: Model) -> None:
         buf = bytearray(_CDR_LE)
@@ -110,22 +122,21 @@ class Poses:
             _header(buf, _Stamp(WORLD_FRAME))
             _string(buf, child)
             _pad(buf, 8)                       # transform: translation, rotation (7 <f8)
-            places.append(np.r_[stamp:stamp + 8, len(buf):len(buf) + 56])
+            places.append((stamp, len(buf)))
             buf += bytes(7 * 8)
         self.template = np.frombuffer(bytes(buf), np.uint8)
-        self._places = np.concatenate(places).astype(np.int64) if places else \
-            np.zeros(0, np.int64)
-        #: a row a robot: the stamp (sec int32, nanosec uint32) in its first 8 bytes, the pose
-        self._rows = np.zeros((len(model.robots), 8))
-        self._stamp = self._rows.view(np.uint32)[:, :2]
+        self._at = np.array(places, np.int64).reshape(len(places), 2)
+        self._buffer = self.template.copy()
+        self._calls: dict = {}                 # world -> its kernel call (plant_poses)
 
     def encode(self, data: Data, w: int, t_ns: int) -> bytes:
         """World ``w``'s message at ``t_ns`` of the state in ``data`` (observed already:
         :func:`plant.core.step.observe`)."""
-        rows = self._rows
-        rows[:, 1:4] = data.tf[w, :, :3, 3]
-        rows[:, 4:] = data.quaternion[w]
-        self._stamp[:] = np.frombuffer(_STAMP.pack(*_split(t_ns)), np.uint32)
-        buf = self.template.copy()
-        buf[self._places] = rows.view(np.uint8).ravel()
-        return buf.tobytes()
+        call = self._calls.get(w)
+        if call is None:
+            call = self._calls[w] = kernels.poses_call(data.tf[w], data.quaternion[w],
+                                                       self._at, self._buffer)
+        sec, nanosec = _split(t_ns)
+        _STAMP.pack(sec, nanosec)              # (the stamp's range checked as the wire's)
+        call(sec, nanosec)
+        return self._buffer.tobytes()

@@ -52,26 +52,23 @@ def poses(model: Model, data: Data, w: int, t_ns: int) -> bytes:
     return enc.encode(data, w, t_ns)
 
 
-def observe(model: Model, data: Data, w: int, stepper) -> None:
+def observe(model: Model, data: Data, w: int, stepper, velocities: bool = True) -> None:
     """World ``w``'s robots' true state into ``data`` (``stepper``: its
     :class:`plant.stepper.Stepper`), and its tick: a kinematic world's in one kernel call
     from its arrays, a dynamic one's as every robot's row of DART's state in one pass
     (:meth:`plant.stepper.Stepper.rows`: the values :meth:`plant.sim.Simulation.state`
-    gives, to the bit), the orientations then as quaternions in one call."""
+    gives, to the bit), the orientations then as quaternions in one call. Without
+    ``velocities`` (no ground_truth is made this tick: :func:`reads_truth`) a dynamic
+    world's forward speeds and yaw rates may be left NaN."""
     sim = stepper.sim
     data.tick[w] = sim.time_ns // model.tick_ns
     out = outgoing(model, data, w)
     if sim.kin is not None and stepper.physics is None:
         out.observe_kinematic(sim.kin)
         return
-    rows = stepper.rows()
-    data.tf[w] = rows[:, :16].reshape(-1, 4, 4)
-    data.enc_pos[w] = rows[:, 22:24]
-    data.enc_vel[w] = rows[:, 24:26]
+    rows = stepper.rows(velocities)
+    out.observe_rows(rows)                                  # (all but the yaw: one call)
     data.yaw[w] = np.arctan2(rows[:, 4], rows[:, 0])        # atan2(tf[1, 0], tf[0, 0])
-    data.v[w] = rows[:, 16]
-    data.w[w] = rows[:, 21]
-    out.quaternions()
 
 
 def wanted_masks(model: Model, tick: int, wanted) -> tuple[dict[str, np.ndarray], set]:
@@ -95,6 +92,14 @@ def wanted_masks(model: Model, tick: int, wanted) -> tuple[dict[str, np.ndarray]
         if mask is None or mask.any():
             some.add(topic)
     return out, some
+
+
+def reads_truth(model: Model, data: Data, w: int, tick: int, wanted) -> bool:
+    """Whether world ``w`` makes a ground_truth at ``tick`` for the readers ``wanted`` (as
+    :func:`sense` takes them): the only message of a robot's body velocities."""
+    if wanted is None:
+        return "ground_truth" in model.due(tick)[1]
+    return "ground_truth" in _read_plan(model, outgoing(model, data, w), tick, wanted)[1]
 
 
 class Settled(dict):

@@ -27,7 +27,7 @@ __all__ = ["KernelsMissing", "library", "lidar_scan", "camera_render", "camera_w
            "kinematic_step", "clearances", "ticks",
            "tick_part", "ticks_scans", "ticks_truths",
            "ticks_observe", "sense_call", "observe_kinematic_call", "quaternions",
-           "quaternions_call", "lidar_noise", "drive_commands_call"]
+           "quaternions_call", "observe_rows_call", "poses_call", "lidar_noise", "drive_commands_call"]
 
 ABI = 4
 CAMERA_ABI = 3
@@ -35,7 +35,7 @@ NOISE_ABI = 3
 DRIVE_ABI = 2
 KINEMATIC_ABI = 2
 TICKS_ABI = 7
-SENSE_ABI = 1
+SENSE_ABI = 3
 #: where ``python -m plant.kernels.build`` puts the library
 BUILD_DIR = Path(__file__).resolve().parent / "build"
 LIBRARY = "libplant_kernels" + (".dylib" if sys.platform == "darwin" else ".so")
@@ -106,6 +106,10 @@ def load(path: Path) -> ctypes.CDLL:
     lib.plant_observe_kinematic.argtypes = [_I] + [_P] * 12
     lib.plant_quaternions.restype = None
     lib.plant_quaternions.argtypes = [_I, _P, _P]
+    lib.plant_observe_rows.restype = None
+    lib.plant_observe_rows.argtypes = [_I] + [_P] * 7
+    lib.plant_poses.restype = None
+    lib.plant_poses.argtypes = [_I, _P, _P, _P, _I, _I, _P]
     lib.plant_drive_commands.restype = None
     lib.plant_drive_commands.argtypes = [_I, _I] + [_P] * 10
     lib.plant_lidar_noise.restype = None
@@ -364,6 +368,37 @@ def quaternions_call(tf: np.ndarray, out: np.ndarray):
     assert tf.dtype == out.dtype == np.float64 and tf.flags.c_contiguous and out.flags.c_contiguous
     fn, args = library().plant_quaternions, (n, ptr(tf), ptr(out))
     return lambda: fn(*args)
+
+
+def observe_rows_call(rows: np.ndarray, data: tuple[np.ndarray, ...]):
+    """``f()``: plant/kernels/sense.c's plant_observe_rows: a dynamic world's state ``rows``
+    (n, 26) (:meth:`plant.sim.Simulation.read_state`'s) into the core's ``data`` (tf (n, 4,
+    4), quaternion (n, 4), v, w (n,), enc_pos, enc_vel (n, 2)) of one world, float64,
+    C-contiguous (addresses taken once: the caller writes each tick's rows into ``rows``)."""
+    n = rows.shape[0]
+    shapes = ((n, 26), (n, 4, 4), (n, 4), (n,), (n,), (n, 2), (n, 2))
+    for a, shape in zip((rows, *data), shapes):
+        assert a.shape == shape and a.dtype == np.float64, (a.shape, shape)
+    fn = library().plant_observe_rows
+    args = (n, *(ptr(a) for a in (rows, *data)))
+    return lambda: fn(*args)
+
+
+def poses_call(tf: np.ndarray, quat: np.ndarray, at: np.ndarray, out: np.ndarray):
+    """``f(sec, nanosec)``: plant/kernels/sense.c's plant_poses: each robot's stamp and pose
+    (``tf`` (n, 4, 4), ``quat`` (n, 4), float64) written into ``out`` (uint8, the message's
+    template) at ``at`` (int64 (n, 2): its stamp's and its transform's first bytes),
+    C-contiguous (addresses taken once: the caller keeps the arrays alive)."""
+    n = tf.shape[0]
+    assert tf.shape == (n, 4, 4) and quat.shape == (n, 4) and at.shape == (n, 2)
+    assert tf.dtype == quat.dtype == np.float64 and at.dtype == np.int64
+    assert out.dtype == np.uint8
+    if n and (int(at.min()) < 0 or int(at[:, 0].max()) + 8 > out.size
+              or int(at[:, 1].max()) + 56 > out.size):
+        raise ValueError("plant_poses: the places lie outside the buffer")
+    fn = library().plant_poses
+    head, tail = (n, ptr(tf), ptr(quat), ptr(at)), ptr(out)
+    return lambda sec, nanosec: fn(*head, sec, nanosec, tail)
 
 
 def drive_commands_call(worlds: int, n: int, tick: np.ndarray, limits: np.ndarray,

@@ -32,7 +32,7 @@
 
 #define EXPORT __attribute__((visibility("default")))
 
-EXPORT int plant_sense_abi(void) { return 1; }
+EXPORT int plant_sense_abi(void) { return 3; }
 
 /* a + b as numpy's float64 scalars sum them (measured): of two NaNs, b's (its sign) */
 static inline double np_sum(double a, double b)
@@ -79,6 +79,43 @@ EXPORT void plant_quaternions(int64_t n, const double *tf, double *quat)
 {
     for (int64_t r = 0; r < n; r++)
         quaternion(tf + 16 * r, quat + 4 * r);
+}
+
+/* A dynamic world's state rows (n, 26: plant/sim.py's Simulation.read_state: the 4x4
+ * row-major pose, body linear and angular velocity, wheel angles and speeds) into the core's
+ * arrays: tf (n, 4, 4), v (the forward speed), w (the yaw rate) (n,), enc_pos, enc_vel (n, 2),
+ * and the orientation as quat (n, 4) (copies, and rotation_to_quaternion: the same bits). */
+EXPORT void plant_observe_rows(int64_t n, const double *rows, double *tf, double *quat,
+                               double *v, double *w, double *enc_pos, double *enc_vel)
+{
+    for (int64_t r = 0; r < n; r++) {
+        const double *row = rows + 26 * r;
+        memcpy(tf + 16 * r, row, 16 * sizeof *row);
+        v[r] = row[16];
+        w[r] = row[21];
+        enc_pos[2 * r] = row[22];
+        enc_pos[2 * r + 1] = row[23];
+        enc_vel[2 * r] = row[24];
+        enc_vel[2 * r + 1] = row[25];
+        quaternion(row, quat + 4 * r);
+    }
+}
+
+/* sim/poses' TFMessage of n robots into out (its template written in): at[2r] robot r's
+ * header stamp (sec int32, nanosec uint32), at[2r + 1] its transform (translation x, y, z
+ * from tf (n, 4, 4), rotation x, y, z, w from quat (n, 4)). */
+EXPORT void plant_poses(int64_t n, const double *tf, const double *quat, const int64_t *at,
+                        int64_t sec, int64_t nanosec, uint8_t *out)
+{
+    const int32_t s = (int32_t)sec;
+    const uint32_t ns = (uint32_t)nanosec;
+    for (int64_t r = 0; r < n; r++) {
+        const double *m = tf + 16 * r, *q = quat + 4 * r;
+        const double pose[7] = {m[3], m[7], m[11], q[0], q[1], q[2], q[3]};
+        memcpy(out + at[2 * r], &s, 4);
+        memcpy(out + at[2 * r] + 4, &ns, 4);
+        memcpy(out + at[2 * r + 1], pose, sizeof pose);
+    }
 }
 
 /* plant/sim.py's kin_state of every robot of a kinematic world (pose (n, 3) x, y, yaw;

@@ -239,25 +239,30 @@ def test_tick_profile_puts_each_main_thread_sample_in_its_innermost_phase():
 
 
 def test_scenario_suite_sets_each_run_beside_dart_alone_in_its_world(monkeypatch):
-    """Every scenario run reports its share of DART alone, timed in the scenario's world
-    right after it; the targets stand in the pipelined rows (the scenarios' coupling)."""
+    """Every scenario run reports its share of DART alone, in wall and in CPU time, timed in
+    the scenario's world (with the scenario's world overrides) right after it; the targets
+    stand in the pipelined rows (the scenarios' coupling)."""
     from diffbot.bench import scenario as sc
+    from diffbot.launch.scenario import load_scenario
     worlds, runs = [], []
 
-    def alone(world, ticks=sc.ALONE_TICKS, chunks=sc.ALONE_CHUNKS):
-        worlds.append(world)
+    def alone(world, ticks=sc.ALONE_TICKS, chunks=sc.ALONE_CHUNKS, sets=()):
+        worlds.append((world, tuple(sets)))
         return {"real_time_factor": 80.0 if world == "living_room" else 40.0,
-                "cpu_real_time_factor": 90.0, "tick_s": 2.5e-4}
+                "cpu_real_time_factor": 90.0, "tick_s": 2.5e-4, "cpu_tick_s": 2e-4}
 
     def run(ctx, name, timeout_s, *extra):
         runs.append((name, extra))
-        return {"real_time_factor": 20.0, "wall_time_s": 3.0, "sim_time_s": 50.0}
+        return {"real_time_factor": 20.0, "wall_time_s": 3.0, "sim_time_s": 50.0,
+                "cpu_per_tick_ms": {"plant": 0.8}}
     monkeypatch.setattr(sc, "dart_alone", alone)
     monkeypatch.setattr(sc, "run_scenario", run)
     results, status = bench.run_suite(bench.Context(quick=True), "scenario")
     assert status["status"] == "ok", status
-    assert len(runs) == 8 and worlds.count("living_room") == 5     # 1 row + 4 runs each
-    assert worlds.count("living_room_follow") == 5
+    follow_sets = tuple(sc.world_sets(load_scenario("follow").plant_args))
+    assert follow_sets and all(s.startswith("robots.follower.") for s in follow_sets)
+    assert len(runs) == 8 and worlds.count(("living_room", ())) == 5   # 1 row + 4 runs each
+    assert worlds.count(("living_room_follow", follow_sets)) == 5
     by = {r.name: r for r in results}
     assert by["square: DART alone (living_room): control-tick rate"].samples == [80.0]
     assert by["square, pipelined, composed: share of DART alone"].samples == [0.25]
@@ -268,6 +273,8 @@ def test_scenario_suite_sets_each_run_beside_dart_alone_in_its_world(monkeypatch
     assert by["square, pipelined, processes: real-time factor"].target == ">= 16x"
     assert by["follow, pipelined, processes: real-time factor"].target == ">= 8.5x"
     assert by["square, sequential, composed: DART alone beside it"].samples == [80.0]
+    assert by["square, pipelined, composed: share of DART alone (CPU)"].samples == [
+        pytest.approx(0.25)]                                  # 0.2 ms of DART, 0.8 of plant
 
 
 def test_dart_alone_steps_the_worlds_control_tick():
@@ -275,8 +282,18 @@ def test_dart_alone_steps_the_worlds_control_tick():
     from plant.world import load_world
     got = dart_alone("living_room", ticks=3, chunks=1)
     tick_s = load_world("living_room").control_tick_s
-    assert got["tick_s"] > 0
+    assert got["tick_s"] > 0 and got["cpu_tick_s"] > 0
     assert got["real_time_factor"] == pytest.approx(tick_s / got["tick_s"])
+    assert got["cpu_real_time_factor"] == pytest.approx(tick_s / got["cpu_tick_s"])
+
+
+def test_a_scenario_s_world_overrides_are_its_dart_alone_s():
+    """DART alone loads the scenario's world as its plant does: with the ``--set``
+    overrides among its ``plant_args`` (either spelling, in order), nothing else."""
+    from diffbot.bench.scenario import world_sets
+    assert world_sets(["--disable", "camera", "--set", "a.b=1", "--set=c=2", "--seed", "3",
+                       "--set", "a.b=4"]) == ["a.b=1", "c=2", "a.b=4"]
+    assert world_sets(["--disable", "camera"]) == [] == world_sets(["--set"])
 
 
 def test_the_steered_swarm_bound_steps_robots_their_avoid_drives(tmp_path):

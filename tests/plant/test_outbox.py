@@ -367,6 +367,25 @@ def test_held_puts_go_out_at_the_flush_as_they_would_have_gone_at_once():
                                              "r/gps", "r/odom", "r/scan", "r/cmd_vel"]
 
 
+def test_what_is_kept_to_re_publish_is_every_message_of_the_last_ticks():
+    """With ``keep``, the messages of the last REPUBLISH_TICKS ticks stay, each tick's in
+    their order (the plant's and a member's relayed one), the oldest tick going as a new
+    one comes."""
+    from bus.protocol import REPUBLISH_TICKS
+    tick = 20_000_000
+    out = _KeptOutbox({"r/gps"})
+    out.keep = True
+    ticks = [k * tick for k in range(REPUBLISH_TICKS + 4)]
+    for t in ticks:
+        out.put("r/gps", b"g%d" % t, t, 0)
+        out.relay("r/odom", b"o%d" % t, t, b"att")
+        out.put("r/gps", b"h%d" % t, t, 0)
+    assert list(out.recent) == ticks[-REPUBLISH_TICKS:]
+    for t in ticks[-REPUBLISH_TICKS:]:
+        assert [(k, d) for k, d, _ in out.recent[t]] == [
+            ("r/gps", b"g%d" % t), ("r/odom", b"o%d" % t), ("r/gps", b"h%d" % t)], t
+
+
 def test_a_tick_s_puts_wait_for_its_members_only_where_they_are_its_only_lockstep_ones(
         tmp_path):
     """Where every lockstep member is composed into the plant, a tick's messages go on the

@@ -189,7 +189,8 @@ def test_a_tick_reads_dart_once_a_step_and_again_after_a_restored_state(monkeypa
 
     reads = []
     real = Simulation.read_state
-    monkeypatch.setattr(Simulation, "read_state", lambda self: reads.append(1) or real(self))
+    monkeypatch.setattr(Simulation, "read_state",
+                        lambda self, *a: reads.append(1) or real(self, *a))
     driven, standing = (Tick(load_world("living_room"), ("lidar", "camera")) for _ in "ab")
     driven.drive("robot1", Twist(0.4, 1.0))
     standing.drive("robot1", None)
