@@ -97,6 +97,17 @@ class Handover:
             return _SCAN(_HEADER(_TIME(sec, nanosec), laser[i]), *head, ranges, empty)
         return message
 
+    def scan_rows(self, t_ns: int) -> list[tuple]:
+        """The lidars' scans of tick ``t_ns`` as arrays, if sensed at ``t_ns`` (else []): per
+        lidar model, (its LaserScan's fields angle_min .. range_max as a decoder reads them,
+        the robots' indices, their float32 ranges (rows, rays), read-only)."""
+        tick, kept = self.data.ranges[self.w]
+        if not kept or tick != t_ns // self.model.tick_ns:
+            return []
+        for _, _, ranges in kept:
+            ranges.flags.writeable = False    # (a member's must not change the tick's)
+        return [(self._heads[cfg], robots, ranges) for cfg, robots, ranges in kept]
+
     def _per_tick(self, sec: int, nanosec: int) -> Callable[[int | None, str], object] | None:
         """(robot index, topic) -> the tick's ``joint_states``, ``gps`` or ``ground_truth`` of
         that robot from the core's message buffer, None where the buffer does not hold it
