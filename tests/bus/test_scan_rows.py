@@ -1,0 +1,168 @@
+"""A many-robot member handed its scans as one array a tick (bus/rows.py) answers as the same
+member handed one LaserScan per robot: the same bytes, flags and lockstep bookkeeping tick
+by tick, the stale rule included; and a step_many answering (linear, angular) arrays sends
+what its Twists would."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bus import codec
+from bus.controller import Twist
+from bus.keys import TOPICS, Keys
+from bus.many import ManyTick
+from bus.member import MemberTick, make_slots
+from bus.rows import ROW
+from controllers.avoid import Avoid
+
+K = Keys()
+ROBOTS = ["a", "b", "c", "d", "e"]
+T = 20_000_000
+PERIOD = 5                      # a 10 Hz lidar at 20 ms ticks
+N = 180
+
+
+def _member(ctrl) -> MemberTick:
+    topics = dict(TOPICS)
+    m = MemberTick("m", T, slots=make_slots(ctrl, ROBOTS, topics), topics=topics,
+                   key=K.topic, ack_key=K.ack("m"))
+    m.configure({"mode": "lockstep", "coupling": "pipelined", "control_tick_s": 0.02,
+                 "node_input_delay_ticks": 1,
+                 "robots": {r: {"topics": {"scan": PERIOD}} for r in ROBOTS}})
+    return m
+
+
+def _scans(rng, ticks: int):
+    """(robots, rays) float32 scans through the stop and slow distances, with dropouts."""
+    near = rng.uniform(0.4, 2.0, size=(len(ROBOTS), 1))
+    shape = rng.uniform(0.0, 1.5, size=(len(ROBOTS), N))
+    for _ in range(ticks):
+        near = np.clip(near + rng.normal(0.0, 0.15, size=near.shape), 0.3, 2.5)
+        r = near + shape + rng.normal(0.0, 0.01, size=shape.shape)
+        r[rng.random(shape.shape) < 0.02] = np.inf
+        r[rng.random(shape.shape) < 0.01] = 0.01
+        yield r.astype(np.float32)
+
+
+def _wire(t_ns: int, ranges) -> object:
+    """A LaserScan as a process member decodes it from the plant's bytes."""
+    msg = codec.laser_scan(t_ns, -math.pi / 2, math.pi / 2, math.pi / (N - 1), 0.1, 0.12,
+                           5.0, ranges)
+    return codec.decode(codec.encode(msg), "sensor_msgs/msg/LaserScan")
+
+
+def _state(m: MemberTick) -> tuple:
+    return (m.ticks, m.hold_until, dict(m.twists), dict(m.sent), sorted(m.pending),
+            m._last_acted)
+
+
+def test_scans_as_one_array_answer_as_one_message_per_robot_tick_by_tick():
+    """120 ticks; the scans stop coming at tick 60 (the member acting anyway, as a member
+    not waiting would): the commands follow the last scan until it is stale, then stop;
+    the plant's rows in another order than the member's robots."""
+    rng = np.random.default_rng(5)
+    each, rows = _member(Avoid()), _member(Avoid())
+    one, many = ManyTick.of(each), ManyTick.of(rows)
+    assert many.take_rows() and not hasattr(one.ctrl, "nothing")
+    plant_rows = np.array([4, 0, 3, 1, 2, 9])        # plant robot rows of the array
+    index = {r: i for i, r in enumerate(ROBOTS)}
+    gen = _scans(rng, 200)
+    moving = stopped = 0
+    for k in range(120):
+        t = k * T
+        if k % PERIOD == 0 and k < 60:
+            scans = next(gen)
+            head = None
+            for i, r in enumerate(ROBOTS):
+                msg = _wire(t, scans[i])
+                head = (msg.angle_min, msg.angle_max, msg.angle_increment,
+                        msg.time_increment, msg.scan_time, msg.range_min, msg.range_max)
+                topic, problem, _ = each.receive(K.topic(r, "scan"), b"", None, msg)
+                assert problem is None
+            plant = np.zeros((len(plant_rows), N), np.float32)
+            plant[[list(plant_rows).index(i) for i in range(len(ROBOTS))]] = scans
+            assert many.rows.file(t, plant_rows, plant, head, index)
+        if k < 60:                         # the bookkeeping sees the rows' scans
+            for m in (each, rows):
+                assert m.clock(t, 1.0) == (None, None)
+            assert each.next_due() == t and rows.next_due() == t, k
+        want = one.act(t)
+        got = many.act(t)
+        assert got == want, k
+        assert _state(rows) == _state(each), k
+        speeds = [tw[2] for tw in rows.twists.values()]
+        moving += k < 60 and any(speeds)
+        stopped += k >= 60 and not any(speeds) and not any(tw[3] for tw in rows.twists.values())
+    assert moving > 40 and stopped == 120 - 81     # stale 0.5 s after the last scan (55)
+
+
+def test_a_due_scan_not_filed_holds_the_tick():
+    m = _member(Avoid())
+    many = ManyTick.of(m)
+    assert many.take_rows()
+    m.clock(0, 1.0)
+    assert m.next_due() is None                    # tick 0's scans are due
+    scans = np.ones((len(ROBOTS), N), np.float32)
+    assert not many.rows.file(0, np.arange(3), scans[:3], (0.0,) * 7,
+                              {r: i for i, r in enumerate(ROBOTS)})     # not all its robots
+    assert m.next_due() is None
+    assert many.rows.file(0, np.arange(5), scans, (0.0,) * 7,
+                          {r: i for i, r in enumerate(ROBOTS)})
+    assert m.buf[K.topic("c", "scan")] == {0: ROW}
+    assert m.next_due() == 0
+
+
+def test_only_a_scan_only_controller_with_step_scans_takes_rows():
+    class _Many:
+        inputs = ["scan"]
+
+        def step_many(self, observations):
+            return {}
+    assert not ManyTick.of(_member(_Many())).take_rows()
+
+    class _Odom(Avoid):
+        inputs = ["scan", "odom"]
+    topics = dict(TOPICS)
+    m = MemberTick("m", T, slots=make_slots(_Odom(), ROBOTS, topics), topics=topics,
+                   key=K.topic, ack_key=K.ack("m"))
+    m.configure({"mode": "lockstep", "control_tick_s": 0.02,
+                 "robots": {r: {"topics": {"scan": PERIOD}} for r in ROBOTS}})
+    assert not ManyTick.of(m).take_rows()
+
+
+class _Arrays:
+    """Commands as arrays, or as Twists (``twists``): the same numbers."""
+    inputs: list[str] = []
+
+    def __init__(self, twists: bool, bad=None) -> None:
+        self.twists, self.bad, self.k = twists, bad, 0
+
+    def step_many(self, observations):
+        self.k += 1
+        v = np.linspace(-0.2, 0.3, len(observations)) * self.k / 3.0
+        w = np.float32(0.1) * np.arange(len(observations)) - self.k / 7.0
+        if self.bad is not None:
+            return self.bad
+        if self.twists:
+            return dict(zip(observations, map(Twist, v.tolist(), w.tolist())))
+        return v, w
+
+
+def test_step_many_answering_arrays_sends_what_its_twists_send():
+    twists, arrays = _member(_Arrays(True)), _member(_Arrays(False))
+    by_act = _member(_Arrays(False))
+    a, b = ManyTick.of(twists), ManyTick.of(arrays)
+    for k in range(4):
+        want = a.act(k * T)
+        assert b.act(k * T) == want and by_act.act(k * T) == want, k
+        assert b.twists_of(want[0]) is None and arrays.twists == twists.twists
+
+
+@pytest.mark.parametrize("bad", [(np.zeros(4), np.zeros(5)), [np.zeros(5), np.zeros(5)],
+                                 (np.zeros(5), "fast")])
+def test_a_step_many_answer_of_the_wrong_shape_says_so(bad):
+    for act in (lambda m: ManyTick.of(m).act(0), lambda m: m.act(0)):
+        with pytest.raises(TypeError, match="step_many"):
+            act(_member(_Arrays(False, bad)))
