@@ -166,3 +166,45 @@ def test_a_step_many_answer_of_the_wrong_shape_says_so(bad):
     for act in (lambda m: ManyTick.of(m).act(0), lambda m: m.act(0)):
         with pytest.raises(TypeError, match="step_many"):
             act(_member(_Arrays(False, bad)))
+
+
+class _Session:
+    """What Composed.start asks of a Zenoh session: liveliness tokens."""
+
+    def liveliness(self):
+        return self
+
+    def declare_token(self, key):
+        return self
+
+    def undeclare(self):
+        pass
+
+
+def test_a_composed_member_whose_robots_span_two_lidar_models_takes_them_one_by_one():
+    """The plant delivers each lidar model's scans as one array: a member whose robots are
+    not all rows of one of them goes back to one message per robot from that tick on (its
+    marks gone); another member composed beside it keeps the array."""
+    from bus.composed import Composed
+    from bus.node import MemberSpec
+    specs = [MemberSpec(Avoid(), ["a", "b"], "split"), MemberSpec(Avoid(), ["c", "d"], "whole")]
+    host = Composed(specs, K, _Session())
+    host.start({"mode": "lockstep", "control_tick_s": 0.02,
+                "robots": {r: {"topics": {"scan": PERIOD}} for r in "abcd"}})
+    keys = {r: K.topic(r, "scan") for r in "abcd"}
+    assert host.takes_scans and all(host.reads(k) and not host.delivers(k)
+                                    for k in keys.values())
+    index = {r: i for i, r in enumerate("abcd")}
+    scans = np.ones((4, N), np.float32)
+    host.deliver_scans(0, [((0.0,) * 7, np.arange(4), scans)], index)
+    split, whole = (h.member for h in host.hosted)
+    assert split.buf[keys["a"]] == {0: ROW} and whole.buf[keys["d"]] == {0: ROW}
+    host.deliver_scans(5 * T, [((0.0,) * 7, np.array([0, 2, 3]), scans[:3]),
+                               ((1.0,) * 7, np.array([1]), scans[3:])], index)
+    assert [h.name for h in host._rows] == ["whole"]
+    assert host.delivers(keys["a"]) and host.delivers(keys["b"])
+    assert not host.delivers(keys["c"]) and whole.buf[keys["c"]] == {0: ROW, 5 * T: ROW}
+    assert split.buf[keys["a"]] == {} and host.hosted[0].many.rows is None
+    msg = _wire(5 * T, scans[0])
+    host.deliver(keys["a"], b"", None, msg)
+    assert split.buf[keys["a"]] == {5 * T: msg}
