@@ -10,7 +10,10 @@ flags and member state as ``act`` (tests/bus/test_many_tick.py compares them tic
 any other answer (a robot left without a command, another kind of output, the controller
 done) goes the general way. The values its commands were packed from stay beside them
 (:meth:`ManyTick.twists_of`): a plant hosting the member takes them whole
-(:meth:`plant.intake.Intake.answer`).
+(:meth:`plant.intake.Intake.answer`). The commands may come as arrays (``step_many``'s
+``(linear, angular)``), and a member composed into the plant may take its scans as one
+array and step ``step_scans`` (:class:`bus.rows.ScanRows`): no Twist nor LaserScan object
+per robot on either side.
 """
 from __future__ import annotations
 
@@ -22,7 +25,7 @@ from . import controller as hooks
 from .controller import Twist
 from .member import MemberTick, Sent
 from .observe import observations
-from .rows import ScanRows, arrays_of, commands_of
+from .rows import ScanRows, arrays_of
 
 
 _PACKS: dict[int, struct.Struct] = {}     # a member's attachment by its name's length
