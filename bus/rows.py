@@ -116,12 +116,15 @@ class ScanRows:
         robots (True), or nothing where one of them has no row (False)."""
         at = self._at
         if at is None or at[0] is not plant_rows:
-            where = {i: j for j, i in enumerate(plant_rows.tolist())}
-            pos = [where.get(index.get(r, -1)) for r in self.robots]
-            if None in pos:
-                return False
-            same = pos == list(range(len(plant_rows)))
-            at = self._at = (plant_rows, None if same else np.array(pos, np.intp))
+            if at is not None and np.array_equal(at[0], plant_rows):
+                at = self._at = (plant_rows, at[1])      # (the same rows, a new array)
+            else:
+                where = {i: j for j, i in enumerate(plant_rows.tolist())}
+                pos = [where.get(index.get(r, -1)) for r in self.robots]
+                if None in pos:
+                    return False
+                same = pos == list(range(len(plant_rows)))
+                at = self._at = (plant_rows, None if same else np.array(pos, np.intp))
         mine = ranges if at[1] is None else ranges[at[1]]
         if mine.flags.writeable:
             mine = mine.view()

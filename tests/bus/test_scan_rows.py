@@ -96,7 +96,7 @@ def test_scans_as_one_array_answer_as_one_message_per_robot_tick_by_tick(make):
                 assert problem is None
             plant = np.zeros((len(plant_rows), N), np.float32)
             plant[[list(plant_rows).index(i) for i in range(len(ROBOTS))]] = scans
-            assert many.rows.file(t, plant_rows, plant, head, index)
+            assert many.rows.file(t, plant_rows.copy(), plant, head, index)   # (a new array)
         if k < 60:                         # the bookkeeping sees the rows' scans
             for m in (each, rows):
                 assert m.clock(t, 1.0) == (None, None)
