@@ -75,12 +75,11 @@ class Handover:
     def at(self, t_ns: int) -> Callable[[str, str], object]:
         """The messages of tick ``t_ns`` (sensed already: :func:`plant.core.step.sense`)."""
         tick, kept = self.data.ranges[self.w]
-        rows: dict[int, tuple] = {}
-        if kept and tick == t_ns // self.model.tick_ns:
-            for cfg, robots, ranges in kept:
-                ranges.flags.writeable = False    # (a member's must not change the tick's)
-                head = self._heads[cfg]
-                rows.update((i, (head, r)) for i, r in zip(robots.tolist(), ranges))
+        if not kept or tick != t_ns // self.model.tick_ns:
+            kept = ()
+        for _, _, ranges in kept:
+            ranges.flags.writeable = False        # (a member's must not change the tick's)
+        rows: dict[int, tuple] = {}               # (filled when a scan is first asked for)
         index, laser = self._index, self._laser
         sec, nanosec = divmod(t_ns, 1_000_000_000)
         empty = _EMPTY32
@@ -90,6 +89,10 @@ class Handover:
             if topic != "scan":
                 return per_tick(index.get(robot), topic) if per_tick is not None else None
             i = index.get(robot)
+            if not rows and kept:
+                for cfg, robots, ranges in kept:
+                    head = self._heads[cfg]
+                    rows.update((j, (head, r)) for j, r in zip(robots.tolist(), ranges))
             got = rows.get(i)
             if got is None:
                 return None
