@@ -133,18 +133,25 @@ class ScanRows:
         if m.buf is not self._buf:          # (the member was reset: the old world's go)
             self.batches.clear()
             self._buf = m.buf
-        self.batches[t_ns] = (mine, head)
-        if len(self.batches) > _KEPT:
-            del self.batches[min(self.batches)]
+        batches = self.batches
+        if batches and max(batches) > t_ns:        # (the world went back: the old one's go)
+            for s in [s for s in batches if s > t_ns]:
+                del batches[s]
+        batches[t_ns] = (mine, head)
+        if len(batches) > _KEPT:
+            del batches[min(batches)]
         bufs = m.buf
         for key in self.keys:
             buf = bufs.get(key)
             if buf is None:
                 bufs[key] = {t_ns: ROW}
-            else:
-                buf[t_ns] = ROW
-                if len(buf) > 2:
-                    del buf[min(buf)]
+                continue
+            if len(buf) > 1 or (buf and next(iter(buf)) > t_ns):
+                for s in [s for s in buf if s > t_ns]:
+                    del buf[s]
+            buf[t_ns] = ROW
+            if len(buf) > 2:
+                del buf[min(buf)]
         return True
 
     def scans(self, t_ns: int) -> Scans:

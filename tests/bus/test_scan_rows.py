@@ -223,3 +223,29 @@ def test_a_composed_member_whose_robots_span_two_lidar_models_takes_them_one_by_
     msg = _wire(5 * T, scans[0])
     host.deliver(keys["a"], b"", None, msg)
     assert split.buf[keys["a"]] == {5 * T: msg}
+
+
+def test_a_world_gone_back_takes_its_new_scans_as_the_messages_would():
+    """A reset (a new epoch, the clock back at 0) after 40 ticks: the new world's scans are
+    shown and complete its ticks, as one message per robot does."""
+    rng = np.random.default_rng(9)
+    each, rows = _member(Avoid()), _member(Avoid())
+    one, many = ManyTick.of(each), ManyTick.of(rows)
+    assert many.take_rows()
+    index = {r: i for i, r in enumerate(ROBOTS)}
+    gen = _scans(rng, 100)
+    for epoch, ticks in ((1, 40), (2, 30)):
+        for k in range(ticks):
+            t = k * T
+            if k % PERIOD == 0:
+                scans = next(gen)
+                for i, r in enumerate(ROBOTS):
+                    msg = _wire(t, scans[i])
+                    each.receive(K.topic(r, "scan"), b"", None, msg)
+                head = (msg.angle_min, msg.angle_max, msg.angle_increment,
+                        msg.time_increment, msg.scan_time, msg.range_min, msg.range_max)
+                assert many.rows.file(t, np.arange(len(ROBOTS)), scans, head, index)
+            for m in (each, rows):
+                assert m.clock(t, 1.0, epoch) == (None, None)
+            assert each.next_due() == t and rows.next_due() == t, (epoch, k)
+            assert many.act(t) == one.act(t), (epoch, k)
