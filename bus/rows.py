@@ -15,7 +15,7 @@ order instead of ``{robot: Twist}`` (:func:`commands_of`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,8 +29,7 @@ ROW = object()
 _KEPT = 4
 
 
-@dataclass(frozen=True)
-class Scans:
+class Scans(NamedTuple):
     """The latest scans of a controller's robots at tick ``t_ns``: ``ranges`` (robots, rays),
     float32, read-only, row ``i`` robot ``robots[i]``'s (None: no scan yet, or stale), and
     the fields every robot's LaserScan shares (``angle_min`` .. ``range_max``: rad, m)."""
@@ -58,6 +57,11 @@ def commands_of(ctrl, out, robots) -> dict:
 def arrays_of(ctrl, out, n: int, method: str) -> tuple[list, list]:
     """``(linear, angular)`` arrays of ``n`` numbers each as two lists of Python floats;
     TypeError (naming ``ctrl``'s ``method``) for anything else."""
+    if type(out) is tuple and len(out) == 2:       # (the usual: two float64 arrays of n)
+        v, w = out
+        if type(v) is type(w) is np.ndarray and v.dtype == w.dtype == np.float64 \
+                and v.shape == w.shape == (n,):
+            return v.tolist(), w.tolist()
     name = type(ctrl).__name__
     if not isinstance(out, tuple) or len(out) != 2:
         raise TypeError(f"{name}.{method}() returned {type(out).__name__}; expected a dict "
