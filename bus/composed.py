@@ -35,6 +35,7 @@ from .many import ManyTick, answer_attachments
 from .member import MemberTick, Sent, make_slots, with_own_stats
 from .node import MemberSpec
 from .one import OneTick
+from .rows import ROW
 
 #: emit([(key, payload, attachment, the attachment as parse_attachment reads it, a command's
 #: (stamp, linear, angular) the payload was packed from or None), ...], twists): a composed
@@ -104,9 +105,13 @@ class Composed:
         #: the values the payload was packed from (bus.made), not the payload decoded
         self._made: dict[str, tuple[bytes, object]] = {}
         self._any: dict[int, tuple[list, bool]] = {}     # reads_any's answers
+        self._rows: list[_Hosted] = []    # members that take their scans as one array
         for h in self.hosted:
             for key in h.member.slot_of:
                 self._readers.setdefault(key, []).append(h)
+        #: key -> the members that read it message by message (:meth:`deliver`): those
+        #: that take their scans as one array (:meth:`deliver_scans`) are not among them
+        self._each = {key: list(hs) for key, hs in self._readers.items()}
 
     @property
     def names(self) -> list[str]:
@@ -126,6 +131,15 @@ class Composed:
                 hooks.configure(slot.controller, info, slot.robot)
             for ctrl in hooks.distinct(s.controller for s in h.member.slots):
                 hooks.on_session(ctrl, self.session, self.keys)
+            if h.many is not None and h.many.take_rows():
+                # (its scans come as one array a tick: deliver_scans, not message by message)
+                for key in h.many.rows.keys:
+                    readers = self._each.get(key, [])
+                    if h in readers:
+                        readers.remove(h)
+                    if not readers:
+                        self._each.pop(key, None)
+                self._rows.append(h)
             h.tokens.append(liveliness.declare_token(self.keys.alive(h.name)))
             if h.member.sync:
                 h.tokens.append(liveliness.declare_token(self.keys.sync(h.name)))
@@ -145,6 +159,10 @@ class Composed:
         """Whether a composed member reads ``key``."""
         return key in self._readers
 
+    def delivers(self, key: str) -> bool:
+        """Whether a composed member reads ``key`` message by message (:meth:`deliver`)."""
+        return key in self._each
+
     def reads_any(self, keys: list[str]) -> bool:
         """Whether a composed member reads any of ``keys`` (a member's cmd_vel keys: asked
         once per list, which stays the member's own)."""
@@ -158,7 +176,7 @@ class Composed:
         once, filed by stamp (docs/PROTOCOL.md). ``msg``: the message the plant made of the
         values ``payload`` carries (:mod:`plant.handover`: the object decoding would give),
         taken as it is; None: ``payload`` is decoded."""
-        readers = self._readers.get(key)
+        readers = self._each.get(key)
         if not readers:
             return
         if msg is None and (got := self._made.get(key)) is not None and got[0] is payload:
@@ -169,6 +187,35 @@ class Composed:
                 topic, problem, msg = h.member.receive(key, payload, att, msg)
                 if problem is not None:
                     h.rejects.reject(topic, problem)
+
+    @property
+    def takes_scans(self) -> bool:
+        """Whether a member composed here takes its scans as one array (:meth:`deliver_scans`)."""
+        return bool(self._rows)
+
+    def deliver_scans(self, t_ns: int, groups, index: dict) -> None:
+        """Section 4, step 2, for the members that take their scans as one array
+        (:class:`bus.rows.ScanRows`): the plant's scans of tick ``t_ns``, ``groups`` as
+        [(the LaserScan's fields angle_min .. range_max, the plant's robot rows, float32
+        (rows, rays))], ``index``: robot -> plant row. (The others get them by
+        :meth:`deliver`, message by message.)"""
+        for h in list(self._rows):
+            if h.gone:
+                continue
+            if not any(h.many.rows.file(t_ns, plant_rows, ranges, head, index)
+                       for head, plant_rows, ranges in groups):
+                self._rows_off(h)       # (its robots' scans are not rows of one group)
+
+    def _rows_off(self, h: _Hosted) -> None:
+        """Member ``h`` takes its scans message by message again, from this tick on (the
+        plant delivers them after :meth:`deliver_scans`): its batches' marks go."""
+        rows, h.many.rows = h.many.rows, None
+        self._rows.remove(h)
+        for key in rows.keys:
+            buf = h.member.buf.get(key)
+            for s in [s for s, m in (buf or {}).items() if m is ROW]:
+                del buf[s]
+            self._each.setdefault(key, []).append(h)
 
     def clock(self, t_ns: int, emit: Emit, epoch: int | None = None) -> None:
         """The plant published tick ``t_ns``'s sensors and clock (of its world ``epoch``):

@@ -10,7 +10,10 @@ flags and member state as ``act`` (tests/bus/test_many_tick.py compares them tic
 any other answer (a robot left without a command, another kind of output, the controller
 done) goes the general way. The values its commands were packed from stay beside them
 (:meth:`ManyTick.twists_of`): a plant hosting the member takes them whole
-(:meth:`plant.intake.Intake.answer`).
+(:meth:`plant.intake.Intake.answer`). The commands may come as arrays (``step_many``'s
+``(linear, angular)``), and a member composed into the plant may take its scans as one
+array and step ``step_scans`` (:class:`bus.rows.ScanRows`): no Twist nor LaserScan object
+per robot on either side.
 """
 from __future__ import annotations
 
@@ -20,8 +23,9 @@ from itertools import repeat
 from . import codec
 from . import controller as hooks
 from .controller import Twist
-from .member import MemberTick, Sent, _commands_of
+from .member import MemberTick, Sent
 from .observe import observations
+from .rows import ScanRows, arrays_of
 
 
 _PACKS: dict[int, struct.Struct] = {}     # a member's attachment by its name's length
@@ -63,6 +67,15 @@ class ManyTick:
         #: the last answer made in one pass, and its commands as (cmd_vel keys, stamp,
         #: linear values, angular values): what :meth:`twists_of` hands the plant
         self.last: tuple | None = None
+        #: its scans as one array (:class:`bus.rows.ScanRows`), where it takes them so
+        #: (:meth:`take_rows`); else None: they come message by message
+        self.rows: ScanRows | None = None
+
+    def take_rows(self) -> bool:
+        """Take the scans as one array from now on where the member may (configured: its
+        controller has ``step_scans``, its only input is ``scan``): whether it does."""
+        self.rows = ScanRows.of(self.member)
+        return self.rows is not None
 
     def twists_of(self, sent: Sent) -> tuple | None:
         """(keys, stamp, linear, angular) of ``sent`` if it is the answer :meth:`act` made
@@ -85,21 +98,32 @@ class ManyTick:
         done (the caller then calls ``act``)."""
         m = self.member
         slots = m.slots
-        if not m.sync or m._out or any(s.done for s in slots):
+        if not m.sync or any(s.done for s in slots) or (m._out and self.rows is None):
             return None
         ctrl = self.ctrl
-        answer = _commands_of(ctrl, ctrl.step_many(observations(m, slots, t_ns)))
+        if self.rows is not None:        # (its scans as one array, its commands as arrays)
+            linear, angular = self.rows.step(t_ns)
+        else:
+            answer = ctrl.step_many(observations(m, slots, t_ns))
+            if isinstance(answer, dict):
+                cmds = list(map(answer.get, self.robots))
+                if all(type(c) is Twist for c in cmds):
+                    linear = [float(c.linear) for c in cmds]
+                    angular = [float(c.angular) for c in cmds]
+                else:
+                    linear = None
+            else:
+                linear, angular = arrays_of(ctrl, answer, len(slots), "step_many")
         done = hooks.is_done(ctrl)
-        cmds = list(map(answer.get, self.robots))
-        if done or any(type(c) is not Twist for c in cmds):
+        if linear is None or done or m._out:
+            if linear is not None:
+                cmds = list(map(Twist, linear, angular))
             return self._general(cmds, done, t_ns)
         # act's queue, owed and send_tick for one Twist per robot: cmd_vel keys distinct,
         # all read by the plant (owed's order is theirs), the last with ACK and n_plant
         sec, nanosec = divmod(t_ns, 1_000_000_000)
         pack, cdr, frame = self.layout.pack, codec._CDR_LE, self.frame
         keys = self.keys
-        linear = [float(c.linear) for c in cmds]
-        angular = [float(c.angular) for c in cmds]
         datas = [pack(cdr, sec, nanosec, frame, a, 0.0, 0.0, 0.0, 0.0, b)
                  for a, b in zip(linear, angular)]
         m.twists.update(zip(keys, zip(datas, repeat(t_ns), linear, angular)))

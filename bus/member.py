@@ -22,6 +22,7 @@ from .encoded import Encoded
 from .inputs import check_input, stamp_of
 from .observe import _HELD, BUF_PER_TOPIC, STALE_S, observations  # noqa: F401
 from .protocol import PLANT_READS, REPUBLISH_TICKS
+from .rows import commands_of
 
 #: lockstep: ticks of this member's outputs kept to re-send when the plant re-publishes
 #: them after a rejoin (more than the plant re-publishes: bus.protocol.REPUBLISH_TICKS, 25)
@@ -96,13 +97,6 @@ def with_own_stats(stats: dict, controllers) -> dict:
             stats.setdefault("rejected", {})[reason] = stats["rejected"].get(reason, 0) + n
         stats.update(own)
     return stats
-
-
-def _commands_of(ctrl, out) -> dict:
-    if not isinstance(out, dict):
-        raise TypeError(f"{type(ctrl).__name__}.step_many() returned {type(out).__name__}; "
-                        "expected a dict {robot: command}")
-    return out
 
 
 class MemberTick:
@@ -368,7 +362,8 @@ class MemberTick:
                 ctrl = slot.controller
                 obs = observations(self, [s for s in self.slots
                                           if s.controller is ctrl and not s.done], t_ns)
-                many[id(ctrl)] = (_commands_of(ctrl, ctrl.step_many(obs)), hooks.is_done(ctrl))
+                many[id(ctrl)] = (commands_of(ctrl, ctrl.step_many(obs), list(obs)),
+                                  hooks.is_done(ctrl))
         for slot in self.slots:
             if slot.done:
                 self.queue_output(hooks.stop_command(slot.controller), t_ns, slot.robot)

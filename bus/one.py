@@ -36,6 +36,13 @@ class OneTick:
         #: linear values, angular values): what :meth:`twists_of` hands the plant
         self.last: tuple | None = None
 
+    #: a one-robot member takes its scans message by message (:meth:`bus.many.ManyTick.take_rows`)
+    rows = None
+
+    def take_rows(self) -> bool:
+        """False: only a many-robot member's scans come as one array a tick."""
+        return False
+
     def twists_of(self, sent: Sent) -> tuple | None:
         """([cmd_vel key], stamp, [linear], [angular]) of ``sent`` if it is the answer
         :meth:`act` made last in one pass, else None (:meth:`bus.many.ManyTick.twists_of`)."""

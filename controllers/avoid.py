@@ -102,6 +102,18 @@ class Avoid:
         # (tolist: the same Python floats as float() of each element, in one call)
         return dict(zip(robots, map(Twist, v.tolist(), w.tolist())))
 
+    def step_scans(self, scans) -> tuple:
+        """:meth:`step_many` of scans handed as one array (:class:`bus.rows.Scans`, a composed
+        member's: one row per robot), the commands as arrays (linear, angular) in the
+        robots' order: the same values, in one kernel call, with no message per robot."""
+        robots = scans.robots
+        if robots != self._robots:
+            self._track(robots)
+        if scans.ranges is None or not robots:             # (no scan yet, or stale: stop)
+            return np.zeros(len(robots)), np.zeros(len(robots))
+        angles = self._angles(scans.ranges.shape[1], scans.angle_min, scans.angle_increment)
+        return self._every(angles, scans.ranges, scans.range_min, scans.range_max)
+
     def _every(self, angles: np.ndarray, ranges: list, range_min: float, range_max: float):
         """:meth:`commands` of every robot's scan (``ranges``: one row each, in the robots'
         order), the turning sides kept in place: the same kernel call on buffers kept per

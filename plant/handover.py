@@ -75,12 +75,11 @@ class Handover:
     def at(self, t_ns: int) -> Callable[[str, str], object]:
         """The messages of tick ``t_ns`` (sensed already: :func:`plant.core.step.sense`)."""
         tick, kept = self.data.ranges[self.w]
-        rows: dict[int, tuple] = {}
-        if kept and tick == t_ns // self.model.tick_ns:
-            for cfg, robots, ranges in kept:
-                ranges.flags.writeable = False    # (a member's must not change the tick's)
-                head = self._heads[cfg]
-                rows.update((i, (head, r)) for i, r in zip(robots.tolist(), ranges))
+        if not kept or tick != t_ns // self.model.tick_ns:
+            kept = ()
+        for _, _, ranges in kept:
+            ranges.flags.writeable = False        # (a member's must not change the tick's)
+        rows: dict[int, tuple] = {}               # (filled when a scan is first asked for)
         index, laser = self._index, self._laser
         sec, nanosec = divmod(t_ns, 1_000_000_000)
         empty = _EMPTY32
@@ -90,12 +89,27 @@ class Handover:
             if topic != "scan":
                 return per_tick(index.get(robot), topic) if per_tick is not None else None
             i = index.get(robot)
+            if not rows and kept:
+                for cfg, robots, ranges in kept:
+                    head = self._heads[cfg]
+                    rows.update((j, (head, r)) for j, r in zip(robots.tolist(), ranges))
             got = rows.get(i)
             if got is None:
                 return None
             head, ranges = got
             return _SCAN(_HEADER(_TIME(sec, nanosec), laser[i]), *head, ranges, empty)
         return message
+
+    def scan_rows(self, t_ns: int) -> list[tuple]:
+        """The lidars' scans of tick ``t_ns`` as arrays, if sensed at ``t_ns`` (else []): per
+        lidar model, (its LaserScan's fields angle_min .. range_max as a decoder reads them,
+        the robots' indices, their float32 ranges (rows, rays), read-only)."""
+        tick, kept = self.data.ranges[self.w]
+        if not kept or tick != t_ns // self.model.tick_ns:
+            return []
+        for _, _, ranges in kept:
+            ranges.flags.writeable = False    # (a member's must not change the tick's)
+        return [(self._heads[cfg], robots, ranges) for cfg, robots, ranges in kept]
 
     def _per_tick(self, sec: int, nanosec: int) -> Callable[[int | None, str], object] | None:
         """(robot index, topic) -> the tick's ``joint_states``, ``gps`` or ``ground_truth`` of

@@ -244,6 +244,8 @@ class Plant:
             self._handover = CameraHandover.of(self._handover, self.tick.model,
                                                self.tick.data)
             handed = self._handover.at(t)
+            if composed.takes_scans and (rows := self._handover.scan_rows(t)):
+                composed.deliver_scans(t, rows, self.tick.model.index)   # (as arrays)
         at = 0                                        # the due messages numbered so far
         for k, name, topic, data in msgs:
             if k > at:
@@ -256,7 +258,7 @@ class Plant:
                 out.put(key, data, t, self.epoch)
             else:
                 out.skip()
-            if composed is not None and composed.reads(key):
+            if composed is not None and composed.delivers(key):
                 composed.deliver(key, data, None, handed(name, topic))
         if due > at:
             out.skip(due - at)
