@@ -25,13 +25,17 @@ def run_follow(out, *extra):
 @pytest.fixture(scope="module")
 def band_runs(tmp_path_factory):
     """The scenario's 60-s runs (its default seed) by coupling, each made once: the band
-    test checks them and the identity test compares a shorter run with one."""
+    test checks them and the identity test compares a shorter run with one. Pipelined (the
+    scenario's coupling) over processes, as shipped; sequential with its members composed in
+    the plant's process (``--compose``, about half the CPU), which records the bytes of the
+    same run over processes under both couplings (tests/runs/test_composed.py)."""
     runs: dict[str, tuple] = {}
 
     def get(coupling: str):
         if coupling not in runs:
             out = tmp_path_factory.mktemp(f"follow_{coupling}")
-            runs[coupling] = (out, run_follow(out, "--coupling", coupling, "--plots"))
+            compose = ("--compose",) if coupling == "sequential" else ()
+            runs[coupling] = (out, run_follow(out, "--coupling", coupling, "--plots", *compose))
         return runs[coupling]
     return get
 
@@ -41,6 +45,7 @@ def test_follower_holds_the_band_for_60_s_with_camera_noise(band_runs, coupling)
     # 60 s, camera noise std 10 (the scenario's), under both couplings (docs/PROTOCOL.md)
     out, s = band_runs(coupling)
     assert s["coupling"] == coupling
+    assert bool(s["composed"]) == (coupling == "sequential"), s["composed"]
     m = s["metrics"]
     assert s["sim_time_s"] == pytest.approx(60.0)
     assert 0.60 <= m["distance_min_m"] and m["distance_max_m"] <= 0.70, m
