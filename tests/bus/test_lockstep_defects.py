@@ -122,8 +122,8 @@ def test_a_world_rebuilt_after_divergence_waits_for_the_new_world_s_acks(endpoin
     real_read_state = plant_sim.Simulation.read_state
     once = []
 
-    def read_state(self):                # (the plant's finite check reads it with the state)
-        rows, finite = real_read_state(self)
+    def read_state(self, *args, **kwargs):   # (the plant's finite check reads it with the state)
+        rows, finite = real_read_state(self, *args, **kwargs)
         if self.time_ns == diverge_at and not once:
             once.append(True)
             return rows, False

@@ -22,6 +22,12 @@ class _CameraMembers:
     def reads(self, key: str) -> bool:
         return key in CAMERA
 
+    #: every scan comes message by message (none of them takes its scans as one array)
+    takes_scans = False
+
+    def delivers(self, key: str) -> bool:
+        return self.reads(key)
+
     def hosts(self, nodes: set[str]) -> bool:
         return nodes <= {"follow"}
 

@@ -271,6 +271,12 @@ class _ScanMembers:
     def reads(self, key: str) -> bool:
         return key.endswith("/scan")
 
+    #: every scan comes message by message (none of them takes its scans as one array)
+    takes_scans = False
+
+    def delivers(self, key: str) -> bool:
+        return self.reads(key)
+
     def hosts(self, nodes: set[str]) -> bool:
         return nodes <= {"scans"}
 
