@@ -72,9 +72,10 @@ demo: setup
 # derandomised, fewer examples: tests/conftest.py) unless the environment says otherwise.
 # On TEST_WORKERS pytest-xdist workers: a file's tests on one worker, the tests marked
 # `serial` (wall-clock promises, machine-wide state) alone (tests/conftest.py).
-# Two workers (the default) take ~0.7 of one process's time (docs/install.md);
-# TEST_WORKERS=0: one process, as plain `pytest`.
-TEST_WORKERS ?= 2
+# Three workers (the default) on two cores: the suite's tests wait more than they compute
+# (leases, lockstep turns, process start-ups), and a third fills those waits: 358-368 s of
+# tests against 442 s with two (docs/install.md); TEST_WORKERS=0: one process, as plain `pytest`.
+TEST_WORKERS ?= 3
 test: setup netns-tools
 	CI=$${CI:-true} $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder
 
