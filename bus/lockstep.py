@@ -164,7 +164,7 @@ class AckLedger:
         """Section 4, "Watchers that keep up": the processes that said what they have taken
         in and have not reached ``PACE_TICKS`` ticks before ``t_ns``: tick ``t_ns`` is not
         published until they have. One held for ("Lost members") is the hold's, with its
-        timeout, until it is back. None is if ``t_ns`` is at most :attr:`pace_ns`."""
+        timeout, until it is back. Nobody is if ``t_ns`` is at most :attr:`pace_ns`."""
         if t_ns <= self.pace_ns:                # (asked every tick: the usual case first)
             return []
         least = t_ns - PACE_TICKS * self.tick_ns
@@ -453,4 +453,5 @@ class AckLedger:
         self.owed_by.clear()
         self.rejoined.clear()
         self.seen.clear()             # (stamps of the old world; the new one's come)
+        self._repace()
         self.resent_upto = -1
