@@ -53,36 +53,65 @@ def answer_attachments(seq: int, t_ns: int, n: int,
     return out
 
 
-class ManyTick:
-    """:meth:`MemberTick.act` for ``member``, whose robots share one ``step_many``
-    controller (:meth:`of`: None for any other member). The robots, their ``cmd_vel`` keys
-    and the Twist's CDR layout are taken once."""
+class OnePass:
+    """A member's answer of one Twist per robot made in one pass: what :class:`ManyTick`
+    and :class:`bus.one.OneTick` share (each packs its commands its own way: a list of
+    robots, or one). ``member``'s robots' ``cmd_vel`` keys and the Twist's CDR layout are
+    taken once."""
+
+    #: its scans as one array (:class:`bus.rows.ScanRows`), where it takes them so
+    #: (:meth:`take_rows`); else None: they come message by message
+    rows: ScanRows | None = None
 
     def __init__(self, member: MemberTick) -> None:
         self.member = member
-        self.ctrl = member.slots[0].controller
-        self.robots = [s.robot for s in member.slots]
         self.keys = [s.cmd_key for s in member.slots]
         self.layout, self.frame = codec._twist_layout("base_link")   # (twist_stamped_bytes')
         #: the last answer made in one pass, and its commands as (cmd_vel keys, stamp,
         #: linear values, angular values): what :meth:`twists_of` hands the plant
         self.last: tuple | None = None
-        #: its scans as one array (:class:`bus.rows.ScanRows`), where it takes them so
-        #: (:meth:`take_rows`); else None: they come message by message
-        self.rows: ScanRows | None = None
+
+    def take_rows(self) -> bool:
+        """Whether the member takes its scans as one array from now on (only a
+        :class:`ManyTick`'s may)."""
+        return False
+
+    def twists_of(self, sent: Sent) -> tuple | None:
+        """(keys, stamp, linear, angular) of ``sent`` if it is the answer :meth:`answered`
+        took last (its cmd_vel messages in the keys' order, the values they were packed
+        from), else None."""
+        last = self.last
+        return last[1] if last is not None and last[0] is sent else None
+
+    def answered(self, t_ns: int, sent: Sent, linear: list,
+                 angular: list) -> tuple[Sent, bool]:
+        """``member.act(t_ns)``'s answer ``sent``, the cmd_vel messages packed from one
+        Twist per robot (``linear``, ``angular``: their values in the robots' order; the
+        member's ``twists`` hold them): act's bookkeeping of a tick sent, the controller not
+        done."""
+        m = self.member
+        m.ticks += 1
+        m.hold_until = t_ns if m._keep_sent else None
+        m._keep(t_ns, sent)
+        # (the plant takes the values whole: plant.intake.Intake.answer's ``twists``)
+        self.last = (sent, (self.keys, t_ns, linear, angular))
+        return sent, False
+
+
+class ManyTick(OnePass):
+    """:meth:`MemberTick.act` for ``member``, whose robots share one ``step_many``
+    controller (:meth:`of`: None for any other member)."""
+
+    def __init__(self, member: MemberTick) -> None:
+        super().__init__(member)
+        self.ctrl = member.slots[0].controller
+        self.robots = [s.robot for s in member.slots]
 
     def take_rows(self) -> bool:
         """Take the scans as one array from now on where the member may (configured: its
         controller has ``step_scans``, its only input is ``scan``): whether it does."""
         self.rows = ScanRows.of(self.member)
         return self.rows is not None
-
-    def twists_of(self, sent: Sent) -> tuple | None:
-        """(keys, stamp, linear, angular) of ``sent`` if it is the answer :meth:`act` made
-        last in one pass (its cmd_vel messages in the keys' order, the values they were
-        packed from), else None."""
-        last = self.last
-        return last[1] if last is not None and last[0] is sent else None
 
     @classmethod
     def of(cls, member: MemberTick) -> "ManyTick | None":
@@ -129,12 +158,7 @@ class ManyTick:
         m.twists.update(zip(keys, zip(datas, repeat(t_ns), linear, angular)))
         sent: Sent = list(zip(keys, datas, repeat(0), repeat(0)))
         sent[-1] = (keys[-1], datas[-1], codec.ACK, len(sent))
-        m.ticks += 1
-        m.hold_until = t_ns if m._keep_sent else None
-        m._keep(t_ns, sent)
-        # (the plant takes the values whole: plant.intake.Intake.answer's ``twists``)
-        self.last = (sent, (keys, t_ns, linear, angular))
-        return sent, False
+        return self.answered(t_ns, sent, linear, angular)
 
     def _general(self, cmds: list, done: bool, t_ns: int) -> tuple[Sent, bool]:
         """The rest of :meth:`MemberTick.act` for the commands ``step_many`` gave."""

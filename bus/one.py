@@ -17,37 +17,17 @@ from __future__ import annotations
 from . import codec
 from . import controller as hooks
 from .controller import Twist
+from .many import OnePass
 from .member import MemberTick, Sent
 
 
-class OneTick:
+class OneTick(OnePass):
     """:meth:`MemberTick.act` for ``member``, which drives one robot with a controller's
-    ``step`` (:meth:`of`: None for any other member). Its ``cmd_vel`` key and the Twist's
-    CDR layout are taken once."""
+    ``step`` (:meth:`of`: None for any other member)."""
 
     def __init__(self, member: MemberTick) -> None:
-        self.member = member
+        super().__init__(member)
         self.slot = member.slots[0]
-        #: the cmd_vel key, as the one-element list the plant asks about (kept: it caches
-        #: its answer by the list, bus.composed.Composed.reads_any)
-        self.keys = [self.slot.cmd_key]
-        self.layout, self.frame = codec._twist_layout("base_link")   # (twist_stamped_bytes')
-        #: the last answer made in one pass, and its command as (cmd_vel keys, stamp,
-        #: linear values, angular values): what :meth:`twists_of` hands the plant
-        self.last: tuple | None = None
-
-    #: a one-robot member takes its scans message by message (:meth:`bus.many.ManyTick.take_rows`)
-    rows = None
-
-    def take_rows(self) -> bool:
-        """False: only a many-robot member's scans come as one array a tick."""
-        return False
-
-    def twists_of(self, sent: Sent) -> tuple | None:
-        """([cmd_vel key], stamp, [linear], [angular]) of ``sent`` if it is the answer
-        :meth:`act` made last in one pass, else None (:meth:`bus.many.ManyTick.twists_of`)."""
-        last = self.last
-        return last[1] if last is not None and last[0] is sent else None
 
     @classmethod
     def of(cls, member: MemberTick) -> "OneTick | None":
@@ -77,10 +57,4 @@ class OneTick:
                                 0.0, 0.0, angular)
         key = self.keys[0]
         m.twists[key] = (data, t_ns, linear, angular)
-        sent: Sent = [(key, data, codec.ACK, 1)]
-        m.ticks += 1
-        m.hold_until = t_ns if m._keep_sent else None
-        m._keep(t_ns, sent)
-        # (the plant takes the values whole: plant.intake.Intake.answer's ``twists``)
-        self.last = (sent, (self.keys, t_ns, [linear], [angular]))
-        return sent, False
+        return self.answered(t_ns, [(key, data, codec.ACK, 1)], [linear], [angular])
