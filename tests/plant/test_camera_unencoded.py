@@ -7,38 +7,19 @@ from bus import codec
 from plant.core import step
 
 from .test_core import _world
-from .test_outbox import _published
+from .test_outbox import _Members, _published
 
 CAMERA = ("follower/camera/image_raw", "follower/camera/camera_info")
 
 
-class _CameraMembers:
+class _CameraMembers(_Members):
     """One lockstep member composed into the plant, ``follow``, reading the follower's
     camera and nothing else."""
 
-    def __init__(self) -> None:
-        self.got: list[tuple[str, bytes, object]] = []
+    NODE = "follow"
 
     def reads(self, key: str) -> bool:
         return key in CAMERA
-
-    #: every scan comes message by message (none of them takes its scans as one array)
-    takes_scans = False
-
-    def delivers(self, key: str) -> bool:
-        return self.reads(key)
-
-    def hosts(self, nodes: set[str]) -> bool:
-        return nodes <= {"follow"}
-
-    def deliver(self, key: str, data: bytes, att, msg=None) -> None:
-        self.got.append((key, data, msg))
-
-    def clock(self, *args) -> None:
-        pass
-
-    def run(self, emit) -> None:
-        pass
 
 
 def _run(tmp_path, read: set[str], members: _CameraMembers, comes=None) -> list:

@@ -259,32 +259,50 @@ def test_a_message_s_sequence_number_is_the_same_whoever_listens(tmp_path):
     assert {k for k, _, _ in runs[2]} == every        # (the lidars came due)
 
 
-class _ScanMembers:
-    """Members composed into the plant that read every robot's scan and nothing else: one
-    lockstep member, ``scans``. ``at_run``: how many messages the outbox had put when
-    the members ran, each tick."""
+class _Members:
+    """Members composed into the plant as :class:`plant.process.Plant` asks them
+    (:class:`bus.composed.Composed`'s methods it calls): one lockstep member ``NODE``,
+    reading the keys :meth:`reads` says, each message by message (none takes its scans as
+    one array). ``got``: the messages delivered to it, with what the plant handed."""
+
+    NODE = ""
+    takes_scans = False
 
     def __init__(self) -> None:
         self.got: list[tuple[str, bytes, object]] = []
-        self.at_run: list[int] = []
 
     def reads(self, key: str) -> bool:
-        return key.endswith("/scan")
-
-    #: every scan comes message by message (none of them takes its scans as one array)
-    takes_scans = False
+        raise NotImplementedError
 
     def delivers(self, key: str) -> bool:
         return self.reads(key)
 
     def hosts(self, nodes: set[str]) -> bool:
-        return nodes <= {"scans"}
+        return nodes <= {self.NODE}
 
     def deliver(self, key: str, data: bytes, att, msg=None) -> None:
         self.got.append((key, data, msg))
 
     def clock(self, *args) -> None:
         pass
+
+    def run(self, emit) -> None:
+        pass
+
+
+class _ScanMembers(_Members):
+    """Members that read every robot's scan and nothing else: one lockstep member,
+    ``scans``. ``at_run``: how many messages the outbox had put when the members ran, each
+    tick."""
+
+    NODE = "scans"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.at_run: list[int] = []
+
+    def reads(self, key: str) -> bool:
+        return key.endswith("/scan")
 
     def run(self, emit) -> None:
         self.at_run.append(len(self.outbox.puts))
